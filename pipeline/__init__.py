@@ -1,0 +1,34 @@
+"""Offline half of asset-preview: ingest (glTF, USD, plain meshes) and bake into the cache.
+
+The functions here import their modules lazily so that `import pipeline` stays cheap.
+"""
+from __future__ import annotations
+
+from .errors import AssetError
+from .scene import Scene
+
+__all__ = ["AssetError", "Scene", "load_scene", "bake_asset", "bake_environment", "load_baked"]
+
+
+def load_scene(path, limits=None) -> Scene:
+    """Read any supported asset file into a `Scene` (raises an `AssetError` on bad input)."""
+    from .ingest import load_scene as _load
+    return _load(path, limits)
+
+
+def bake_asset(path, cache_dir=None, **options):
+    """Ingest and bake `path` into the cache (or load it from there): a `BakedAsset`."""
+    from .bake import bake_asset as _bake
+    return _bake(path, cache_dir, **options)
+
+
+def bake_environment(source, cache_dir=None, face_size=256, prefilter="ggx"):
+    """Bake a panorama (file or bundled name) into a `BakedEnvironment` (cached)."""
+    from .bake import bake_environment as _bake
+    return _bake(source, cache_dir, face_size=face_size, prefilter=prefilter)
+
+
+def load_baked(key, cache_dir=None):
+    """Load a baked asset by cache key alone, without its source file."""
+    from .bake import load_baked as _load
+    return _load(key, cache_dir)

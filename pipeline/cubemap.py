@@ -1,0 +1,103 @@
+"""Direction conventions shared by the bake, the renderer, the ray tracer and the reference.
+
+Cube faces are stored in OpenGL order +X, -X, +Y, -Y, +Z, -Z; each face is S x S with row 0 at
+t = 0 of the OpenGL cube-map face table (so arrays upload to GL unchanged).
+
+Equirectangular panoramas use Mitsuba's `envmap` convention so the reference renderer needs
+no rotation: a world direction (x, y, z), +Y up, maps to
+    u = 0.5 + atan2(-x, z) / 2pi,   v = acos(y) / pi
+with u across the image from the left edge and v down from the top row. So the panorama's
+centre column looks toward +Z, u = 0.25 toward +X, and the top row is straight up.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+# (major axis, sign, sc axis & sign, tc axis & sign) per face, from the OpenGL spec's table.
+_FACES = [
+    (0, +1, (2, -1), (1, -1)),  # +X: sc = -z, tc = -y
+    (0, -1, (2, +1), (1, -1)),  # -X: sc = +z, tc = -y
+    (1, +1, (0, +1), (2, +1)),  # +Y: sc = +x, tc = +z
+    (1, -1, (0, +1), (2, -1)),  # -Y: sc = +x, tc = -z
+    (2, +1, (0, +1), (1, -1)),  # +Z: sc = +x, tc = -y
+    (2, -1, (0, -1), (1, -1)),  # -Z: sc = -x, tc = -y
+]
+
+
+def equirect_uv(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit directions (..., 3) -> panorama (u, v) in [0, 1]."""
+    u = 0.5 + np.arctan2(-d[..., 0], d[..., 2]) / (2 * np.pi)
+    v = np.arccos(np.clip(d[..., 1], -1.0, 1.0)) / np.pi
+    return u % 1.0, v
+
+
+def equirect_direction(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Inverse of `equirect_uv`."""
+    phi = (u - 0.5) * 2 * np.pi
+    theta = v * np.pi
+    s = np.sin(theta)
+    return np.stack([-np.sin(phi) * s, np.cos(theta), np.cos(phi) * s], axis=-1)
+
+
+def sample_equirect(image: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Bilinear lookup of an H x W x C panorama in directions d (..., 3); wraps in u."""
+    h, w = image.shape[:2]
+    u, v = equirect_uv(d)
+    x = u * w - 0.5
+    y = np.clip(v * h - 0.5, 0, h - 1)
+    x0 = np.floor(x).astype(np.int64)
+    y0 = np.floor(y).astype(np.int64)
+    fx = (x - x0)[..., None]
+    fy = (y - y0)[..., None]
+    x0 %= w
+    x1 = (x0 + 1) % w
+    y1 = np.minimum(y0 + 1, h - 1)
+    top = image[y0, x0] * (1 - fx) + image[y0, x1] * fx
+    bottom = image[y1, x0] * (1 - fx) + image[y1, x1] * fx
+    return top * (1 - fy) + bottom * fy
+
+
+def face_directions(size: int) -> np.ndarray:
+    """Unit directions through the texel centres of every face: 6 x S x S x 3."""
+    c = (np.arange(size) + 0.5) / size * 2 - 1
+    tc, sc = np.meshgrid(c, c, indexing="ij")  # row index = t, column = s
+    out = np.empty((6, size, size, 3))
+    for f, (major, sign, (sa, ss), (ta, ts)) in enumerate(_FACES):
+        out[f, ..., major] = sign
+        out[f, ..., sa] = ss * sc
+        out[f, ..., ta] = ts * tc
+    return out / np.linalg.norm(out, axis=-1, keepdims=True)
+
+
+def direction_to_face(d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Directions (..., 3) -> (face index, s, t) with s, t in [0, 1]."""
+    a = np.abs(d)
+    major = np.argmax(a, axis=-1)
+    m = np.take_along_axis(d, major[..., None], axis=-1)[..., 0]
+    face = major * 2 + (m < 0)
+    s = np.empty(d.shape[:-1])
+    t = np.empty(d.shape[:-1])
+    ma = np.abs(m)
+    for f, (_, _, (sa, ss), (ta, ts)) in enumerate(_FACES):
+        sel = face == f
+        s[sel] = ss * d[..., sa][sel] / ma[sel]
+        t[sel] = ts * d[..., ta][sel] / ma[sel]
+    return face, (s + 1) / 2, (t + 1) / 2
+
+
+def sample_cube(faces: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Bilinear lookup (clamped at face edges) of 6 x S x S x C faces in directions (..., 3)."""
+    size = faces.shape[1]
+    face, s, t = direction_to_face(d)
+    x = np.clip(s * size - 0.5, 0, size - 1)
+    y = np.clip(t * size - 0.5, 0, size - 1)
+    x0 = np.floor(x).astype(np.int64)
+    y0 = np.floor(y).astype(np.int64)
+    x1 = np.minimum(x0 + 1, size - 1)
+    y1 = np.minimum(y0 + 1, size - 1)
+    fx = (x - x0)[..., None]
+    fy = (y - y0)[..., None]
+    f = faces.astype(np.float32, copy=False)
+    top = f[face, y0, x0] * (1 - fx) + f[face, y0, x1] * fx
+    bottom = f[face, y1, x0] * (1 - fx) + f[face, y1, x1] * fx
+    return top * (1 - fy) + bottom * fy

@@ -1,0 +1,177 @@
+"""The scene model every ingest produces: plain dataclasses holding numpy arrays.
+
+No GL objects and no file handles. Units are metres, world space is right-handed with +Y up
+(glTF). Colours in factors are linear; texture images are stored as decoded RGBA8 and carry
+whether they hold sRGB colour (converted to linear when sampled, never here).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Literal
+
+import numpy as np
+
+MaterialClass = Literal["opaque", "mask", "blend", "transmissive"]
+AlphaMode = Literal["OPAQUE", "MASK", "BLEND"]
+
+# OpenGL / glTF sampler enums.
+NEAREST, LINEAR = 9728, 9729
+LINEAR_MIPMAP_LINEAR = 9987
+REPEAT, CLAMP_TO_EDGE, MIRRORED_REPEAT = 10497, 33071, 33648
+
+
+@dataclass
+class Sampler:
+    mag_filter: int = LINEAR
+    min_filter: int = LINEAR_MIPMAP_LINEAR
+    wrap_s: int = REPEAT
+    wrap_t: int = REPEAT
+
+
+@dataclass
+class Texture:
+    """A decoded image: `image` is H x W x 4 uint8, row 0 at the top (as glTF UVs expect)."""
+    name: str
+    image: np.ndarray
+    sampler: Sampler = field(default_factory=Sampler)
+    source: str = ""  # file or URI it came from, for messages
+
+
+@dataclass
+class TextureRef:
+    """Use of a texture by a material slot, with its UV set and KHR_texture_transform."""
+    texture: int  # index into Scene.textures
+    uv_set: int = 0
+    offset: tuple[float, float] = (0.0, 0.0)
+    rotation: float = 0.0
+    scale: tuple[float, float] = (1.0, 1.0)
+
+    def uv_matrix(self) -> np.ndarray:
+        """3x3 matrix applied to (u, v, 1): translation * rotation * scale, as the extension says."""
+        c, s = math.cos(self.rotation), math.sin(self.rotation)
+        t = np.array([[1, 0, self.offset[0]], [0, 1, self.offset[1]], [0, 0, 1]], np.float32)
+        r = np.array([[c, s, 0], [-s, c, 0], [0, 0, 1]], np.float32)
+        k = np.diag([self.scale[0], self.scale[1], 1.0]).astype(np.float32)
+        return t @ r @ k
+
+
+@dataclass
+class Material:
+    """One material model for every format: glTF metallic-roughness plus transmission/volume."""
+    name: str = "default"
+    base_color: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)
+    base_color_texture: TextureRef | None = None
+    metallic: float = 1.0
+    roughness: float = 1.0
+    metallic_roughness_texture: TextureRef | None = None  # B = metallic, G = roughness
+    normal_texture: TextureRef | None = None
+    normal_scale: float = 1.0
+    occlusion_texture: TextureRef | None = None  # R channel
+    occlusion_strength: float = 1.0
+    emissive: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    emissive_texture: TextureRef | None = None
+    emissive_strength: float = 1.0
+    alpha_mode: AlphaMode = "OPAQUE"
+    alpha_cutoff: float = 0.5
+    double_sided: bool = False
+    unlit: bool = False
+    # KHR_materials_transmission / _ior / _volume
+    transmission: float = 0.0
+    transmission_texture: TextureRef | None = None  # R channel
+    ior: float = 1.5
+    thickness: float = 0.0
+    thickness_texture: TextureRef | None = None  # G channel
+    attenuation_color: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    attenuation_distance: float = math.inf
+
+    @property
+    def material_class(self) -> MaterialClass:
+        """Decides which passes run and what is baked: transmissive wins over alpha modes."""
+        if self.transmission > 0.0 or self.transmission_texture is not None:
+            return "transmissive"
+        return {"MASK": "mask", "BLEND": "blend"}.get(self.alpha_mode, "opaque")
+
+    def texture_refs(self) -> dict[str, TextureRef]:
+        """The texture slots in use, by slot name."""
+        return {k: v for k, v in vars(self).items() if k.endswith("_texture") and v is not None}
+
+
+@dataclass
+class Mesh:
+    """Triangle geometry of one primitive (one material). Arrays are float32 / uint32."""
+    name: str
+    positions: np.ndarray            # N x 3
+    normals: np.ndarray              # N x 3, unit length
+    indices: np.ndarray              # M x 3 uint32
+    tangents: np.ndarray | None = None  # N x 4 (xyz, handedness w)
+    uv0: np.ndarray | None = None    # N x 2, glTF convention (v down from the image top)
+    uv1: np.ndarray | None = None
+    colors: np.ndarray | None = None  # N x 4 linear
+
+    @property
+    def triangle_count(self) -> int:
+        return int(len(self.indices))
+
+
+@dataclass
+class Instance:
+    """A placement of a mesh with a material: world = matrix @ object (column vectors)."""
+    mesh: int      # index into Scene.meshes
+    material: int  # index into Scene.materials
+    matrix: np.ndarray = field(default_factory=lambda: np.eye(4, dtype=np.float64))
+
+
+@dataclass
+class Light:
+    """KHR_lights_punctual light, placed in world space."""
+    type: Literal["directional", "point", "spot"]
+    color: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    intensity: float = 1.0
+    range: float = math.inf
+    inner_cone: float = 0.0
+    outer_cone: float = math.pi / 4
+    matrix: np.ndarray = field(default_factory=lambda: np.eye(4, dtype=np.float64))
+
+
+@dataclass
+class Scene:
+    source: str
+    format: str
+    meshes: list[Mesh] = field(default_factory=list)
+    materials: list[Material] = field(default_factory=list)
+    textures: list[Texture] = field(default_factory=list)
+    instances: list[Instance] = field(default_factory=list)
+    lights: list[Light] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def triangle_count(self) -> int:
+        """Triangles as rendered: every instance counts."""
+        return sum(self.meshes[i.mesh].triangle_count for i in self.instances)
+
+    @cached_property
+    def bounds(self) -> np.ndarray:
+        """World-space axis-aligned bounds, 2 x 3 (min row, max row)."""
+        lo = np.full(3, np.inf)
+        hi = np.full(3, -np.inf)
+        for inst in self.instances:
+            lo_i, hi_i = transformed_bounds(self.meshes[inst.mesh].positions, inst.matrix)
+            lo, hi = np.minimum(lo, lo_i), np.maximum(hi, hi_i)
+        if not np.all(np.isfinite(lo)):
+            return np.zeros((2, 3))
+        return np.stack([lo, hi])
+
+
+def transformed_bounds(positions: np.ndarray, matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Bounds of `positions` after `matrix`, exact (transforms the points, not the box)."""
+    if len(positions) == 0:
+        return np.full(3, np.inf), np.full(3, -np.inf)
+    p = positions.astype(np.float64) @ matrix[:3, :3].T + matrix[:3, 3]
+    return p.min(axis=0), p.max(axis=0)
+
+
+def default_material(name: str = "default") -> Material:
+    """The material given to meshes that come without one (plain meshes, unbound USD prims)."""
+    return Material(name=name, base_color=(0.8, 0.8, 0.8, 1.0), metallic=0.0, roughness=0.5)

@@ -1,0 +1,57 @@
+"""`asset-preview` command line: one entry point, a module per subcommand.
+
+Each subcommand module exposes `configure(parser)` and `run(args) -> int` and keeps heavy
+imports (pxr, moderngl, embree) inside `run`, so `--help` stays fast.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+COMMANDS = {
+    "inspect": ("pipeline.inspect_cmd", "print what an asset holds (meshes, materials, bounds)"),
+    "bake": ("pipeline.bake_cmd", "bake assets and environments into the cache (= asset-bake)"),
+    "render": ("renderer.render_cmd", "render a thumbnail of an asset"),
+    "serve": ("service.serve_cmd", "run the thumbnail HTTP service"),
+    "bench": ("bench.cli", "benchmarks: our figures beside peers measured in the same run"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="asset-preview", description=__doc__.splitlines()[0])
+    parser.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, (module, help_text) in COMMANDS.items():
+        try:
+            mod = importlib.import_module(module)
+        except ModuleNotFoundError as exc:
+            if exc.name != module:
+                raise
+            continue  # not built in this version
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        mod.configure(p)
+        p.set_defaults(_run=mod.run)
+    return parser
+
+
+def run_guarded(run, args) -> int:
+    """Run a command; an AssetError becomes `error: FILE: REASON` and exit status 3."""
+    from pipeline.errors import AssetError
+    try:
+        return int(run(args) or 0)
+    except AssetError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 3
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    return run_guarded(args._run, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
