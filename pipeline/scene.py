@@ -145,6 +145,7 @@ class Scene:
     instances: list[Instance] = field(default_factory=list)
     lights: list[Light] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    files: list[str] = field(default_factory=list)  # every file read (the asset and what it references)
 
     @property
     def triangle_count(self) -> int:
