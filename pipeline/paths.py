@@ -1,0 +1,71 @@
+"""Resolving file references found inside an asset, refusing anything unsafe.
+
+An asset may only read files inside its own folder (or package root): no network, no
+absolute paths, no `..` escapes, no symlinks that lead out. `data:` URIs are not paths; the
+glTF reader decodes them before it would call this.
+"""
+from __future__ import annotations
+
+import re
+from pathlib import Path, PurePosixPath
+from urllib.parse import unquote
+
+from .errors import MissingFile, UnsafeReference
+
+# "scheme:" per RFC 3986; a single letter is a Windows drive ("C:"), refused as absolute.
+_SCHEME = re.compile(r"^([A-Za-z][A-Za-z0-9+.\-]*):")
+
+
+def resolve_reference(asset: Path, uri: str, base_dir: Path | None = None,
+                      root: Path | None = None) -> Path:
+    """The file `uri` (found inside `asset`) names, relative to `base_dir` (default the
+    asset's folder), guaranteed to lie inside `root` (default the asset's folder).
+
+    Raises UnsafeReference for URLs of any scheme, absolute paths, and paths or symlinks that
+    resolve outside `root`; MissingFile when the target does not exist.
+    """
+    asset = Path(asset)
+    base = Path(base_dir) if base_dir is not None else asset.parent
+    top = Path(root) if root is not None else asset.parent
+    if not uri or not uri.strip():
+        raise UnsafeReference(asset, "empty file reference")
+    m = _SCHEME.match(uri)
+    if m and len(m.group(1)) > 1:
+        raise UnsafeReference(asset, f"refusing reference {uri!r}: {m.group(1)}: URIs are not "
+                                     "followed (only relative file paths)")
+    path_text = unquote(uri).replace("\\", "/")
+    if "\x00" in path_text:
+        raise UnsafeReference(asset, f"refusing reference {uri!r}: NUL byte in path")
+    if (m and len(m.group(1)) == 1) or path_text.startswith("/") or PurePosixPath(path_text).is_absolute():
+        raise UnsafeReference(asset, f"refusing absolute path {uri!r}: references must be "
+                                     "relative to the asset")
+    top_real = top.resolve()
+    candidate = base / path_text
+    # Lexical check first (catches `..` even when the target is missing), then the real one
+    # (catches symlinks whose target lies outside).
+    lexical = Path(_normalise(base.resolve() / path_text))
+    if not _inside(lexical, top_real):
+        raise UnsafeReference(asset, f"refusing reference {uri!r}: it leaves the asset's "
+                                     f"folder {top_real}")
+    real = candidate.resolve()
+    if not _inside(real, top_real):
+        raise UnsafeReference(asset, f"refusing reference {uri!r}: it resolves (through a "
+                                     f"link) to {real}, outside the asset's folder")
+    if not real.is_file():
+        raise MissingFile(asset, f"referenced file {uri!r} not found (looked at {candidate})")
+    return real
+
+
+def _normalise(p: Path) -> str:
+    parts: list[str] = []
+    for part in p.parts:
+        if part == "..":
+            if len(parts) > 1:
+                parts.pop()
+        elif part != ".":
+            parts.append(part)
+    return str(Path(*parts)) if parts else str(p)
+
+
+def _inside(p: Path, root: Path) -> bool:
+    return p == root or root in p.parents
