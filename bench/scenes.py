@@ -1,0 +1,232 @@
+"""The glass test scenes, generated in code: one `SceneSpec` list shared by the Mitsuba
+reference, the tests and the benchmarks.
+
+Meshes come from primitives (icosphere, box) and ../shared/assets/mesh (bunny, torus), are
+centred and scaled to a bounding radius of 1, and are written as .glb files with
+KHR_materials_transmission / _ior / _volume so that the whole pipeline (ingest -> bake ->
+render) runs on them. A non-uniform scale lives in the node matrix (not in the vertices), so
+the renderer has to transform interior vectors itself.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field, replace
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.scene import Material
+
+log = logging.getLogger(__name__)
+
+ASSETS = Path(__file__).resolve().parents[2] / "shared" / "assets"
+MESH_FILES = {"bunny": "bunny.ply", "torus": "torus.STL"}
+ICOSPHERE_SUBDIVISIONS = 5  # 20480 triangles: the smooth-normal error is far below the errors measured
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    """One test scene: a mesh with a material under a panorama, seen from a camera.
+
+    The camera follows renderer.camera.frame_bounds (auto-framed on the world bounds)."""
+    name: str
+    mesh: str                       # "sphere" | "cube" | "bunny" | "torus"
+    material: Material = field(default_factory=Material)
+    env: str = "footprint_court"    # bundled panorama name
+    scale: tuple[float, float, float] = (1.0, 1.0, 1.0)  # node scale (non-uniform allowed)
+    yaw: float = 0.0
+    pitch: float = 0.0
+    fov: float = 40.0
+
+    @property
+    def matrix(self) -> np.ndarray:
+        return np.diag([*self.scale, 1.0])
+
+
+def glass(ior: float, roughness: float = 0.0, **kw) -> Material:
+    """Clear glass: fully transmissive dielectric, white (transmission is tinted by base colour)."""
+    return Material(name=f"glass_{ior}", base_color=(1.0, 1.0, 1.0, 1.0), metallic=0.0,
+                    roughness=roughness, transmission=1.0, ior=ior, **kw)
+
+
+def metal(color, roughness: float, name: str) -> Material:
+    return Material(name=name, base_color=(*color, 1.0), metallic=1.0, roughness=roughness)
+
+
+SCENES: dict[str, SceneSpec] = {s.name: s for s in [
+    SceneSpec("mirror_sphere", "sphere", metal((1.0, 1.0, 1.0), 0.0, "mirror")),
+    SceneSpec("glass_sphere_ior1.0", "sphere", glass(1.0)),
+    SceneSpec("glass_sphere_ior1.15", "sphere", glass(1.15)),
+    SceneSpec("glass_sphere_ior1.3", "sphere", glass(1.3)),
+    SceneSpec("glass_sphere_ior1.5", "sphere", glass(1.5)),
+    SceneSpec("glass_sphere_ior2.4", "sphere", glass(2.4)),
+    SceneSpec("frosted_sphere_ior1.5_r0.3", "sphere", glass(1.5, roughness=0.3)),
+    SceneSpec("glass_ellipsoid_311_ior1.5", "sphere", glass(1.5), scale=(3.0, 1.0, 1.0)),
+    SceneSpec("glass_cube_ior1.15", "cube", glass(1.15), yaw=30.0, pitch=20.0),
+    SceneSpec("glass_cube_ior1.5", "cube", glass(1.5), yaw=30.0, pitch=20.0),
+    SceneSpec("glass_bunny_ior1.5", "bunny", glass(1.5)),
+    SceneSpec("glass_torus_ior1.2", "torus", glass(1.2), yaw=20.0, pitch=30.0),
+    SceneSpec("glass_torus_ior1.5", "torus", glass(1.5), yaw=20.0, pitch=30.0),
+    SceneSpec("glass_torus_ior2.4", "torus", glass(2.4), yaw=20.0, pitch=30.0),
+    SceneSpec("steel_sphere", "sphere", metal((0.56, 0.57, 0.58), 0.2, "steel")),
+    SceneSpec("rough_metal_sphere", "sphere", metal((1.0, 0.71, 0.29), 0.6, "rough_gold")),
+    SceneSpec("dielectric_sphere", "sphere",
+              Material(name="red_plastic", base_color=(0.7, 0.05, 0.05, 1.0), metallic=0.0,
+                       roughness=0.3)),
+]}
+
+
+def scene(name: str, **changes) -> SceneSpec:
+    """A scene by name, optionally with fields replaced (e.g. env="pisa")."""
+    try:
+        spec = SCENES[name]
+    except KeyError:
+        raise KeyError(f"unknown scene {name!r}; known: {', '.join(SCENES)}") from None
+    return replace(spec, **changes) if changes else spec
+
+
+@lru_cache(maxsize=None)
+def mesh_arrays(kind: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(positions N x 3 float32, normals N x 3 float32, indices M x 3 uint32), centred at the
+    origin with bounding radius 1 (before the spec's scale)."""
+    import trimesh
+
+    if kind == "sphere":
+        m = trimesh.creation.icosphere(subdivisions=ICOSPHERE_SUBDIVISIONS, radius=1.0)
+        pos = m.vertices / np.linalg.norm(m.vertices, axis=1, keepdims=True)
+        return pos.astype(np.float32), pos.astype(np.float32), m.faces.astype(np.uint32)
+    if kind == "cube":  # faceted: each face keeps its own 4 vertices and flat normal
+        m = trimesh.creation.box(extents=(2.0, 2.0, 2.0))
+        pos = m.vertices[m.faces].reshape(-1, 3)
+        nrm = np.repeat(m.face_normals, 3, axis=0)
+        idx = np.arange(len(pos)).reshape(-1, 3)
+        return pos.astype(np.float32), nrm.astype(np.float32), idx.astype(np.uint32)
+    if kind in MESH_FILES:
+        m = trimesh.load(ASSETS / "mesh" / MESH_FILES[kind], force="mesh")
+        lo, hi = m.bounds
+        m.apply_translation(-(lo + hi) / 2)
+        m.apply_scale(1.0 / (np.linalg.norm(hi - lo) / 2))
+        return (m.vertices.astype(np.float32), m.vertex_normals.astype(np.float32),
+                m.faces.astype(np.uint32))
+    raise KeyError(f"unknown mesh {kind!r}")
+
+
+def write_glb(spec: SceneSpec, path: str | Path) -> Path:
+    """Write the scene's mesh and material as a binary glTF with the transmission extensions."""
+    import pygltflib as g
+
+    pos, nrm, idx = mesh_arrays(spec.mesh)
+    blob = pos.tobytes() + nrm.tobytes() + idx.tobytes()
+    mat = spec.material
+    extensions = {}
+    if mat.transmission > 0:
+        extensions["KHR_materials_transmission"] = {"transmissionFactor": mat.transmission}
+    if mat.ior != 1.5:
+        extensions["KHR_materials_ior"] = {"ior": mat.ior}
+    if mat.transmission > 0:
+        volume = {"thicknessFactor": 2.0 * float(np.max(spec.scale))}
+        if math.isfinite(mat.attenuation_distance):
+            volume.update(attenuationDistance=mat.attenuation_distance,
+                          attenuationColor=list(mat.attenuation_color))
+        extensions["KHR_materials_volume"] = volume
+    gltf = g.GLTF2(
+        asset=g.Asset(version="2.0", generator="asset-preview bench.scenes"),
+        scene=0,
+        scenes=[g.Scene(nodes=[0])],
+        nodes=[g.Node(mesh=0, name=spec.name, scale=list(map(float, spec.scale)))],
+        meshes=[g.Mesh(name=spec.mesh, primitives=[g.Primitive(
+            attributes=g.Attributes(POSITION=0, NORMAL=1), indices=2, material=0)])],
+        materials=[g.Material(
+            name=mat.name, doubleSided=False, extensions=extensions,
+            pbrMetallicRoughness=g.PbrMetallicRoughness(
+                baseColorFactor=list(mat.base_color), metallicFactor=mat.metallic,
+                roughnessFactor=mat.roughness))],
+        accessors=[
+            g.Accessor(bufferView=0, componentType=g.FLOAT, count=len(pos), type=g.VEC3,
+                       min=pos.min(0).tolist(), max=pos.max(0).tolist()),
+            g.Accessor(bufferView=1, componentType=g.FLOAT, count=len(nrm), type=g.VEC3),
+            g.Accessor(bufferView=2, componentType=g.UNSIGNED_INT, count=idx.size, type=g.SCALAR),
+        ],
+        bufferViews=[
+            g.BufferView(buffer=0, byteOffset=0, byteLength=pos.nbytes, target=g.ARRAY_BUFFER),
+            g.BufferView(buffer=0, byteOffset=pos.nbytes, byteLength=nrm.nbytes,
+                         target=g.ARRAY_BUFFER),
+            g.BufferView(buffer=0, byteOffset=pos.nbytes + nrm.nbytes, byteLength=idx.nbytes,
+                         target=g.ELEMENT_ARRAY_BUFFER),
+        ],
+        buffers=[g.Buffer(byteLength=len(blob))],
+        extensionsUsed=sorted(extensions),
+    )
+    gltf.set_binary_blob(blob)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    gltf.save_binary(str(path))
+    return path
+
+
+def baked_asset(spec: SceneSpec, cache_dir: str | Path | None = None):
+    """The scene as the renderer sees it: a BakedAsset.
+
+    Goes through the real pipeline (write .glb -> pipeline.bake_asset) when it is present;
+    until the bake lands, builds the BakedAsset directly from the same arrays (no interior
+    vectors, which only the raster `wyman` method needs)."""
+    from pipeline.baked import BakedAsset, BakedMesh
+    from pipeline.scene import transformed_bounds
+
+    if cache_dir is not None:
+        try:
+            import pipeline.bake  # noqa: F401
+        except ModuleNotFoundError as exc:
+            if exc.name != "pipeline.bake":
+                raise
+        else:
+            import pipeline
+            glb = write_glb(spec, Path(cache_dir) / "scenes" / f"{spec.name}.glb")
+            return pipeline.bake_asset(glb, cache_dir)
+    pos, nrm, idx = mesh_arrays(spec.mesh)
+    mesh = BakedMesh(name=spec.mesh, positions=pos, normals=nrm, indices=idx,
+                     material=spec.material, transforms=spec.matrix[None].astype(np.float64))
+    lo, hi = transformed_bounds(pos, spec.matrix)
+    return BakedAsset(key=f"scene:{spec.name}", source=f"bench.scenes:{spec.name}",
+                      format="generated", meshes=[mesh], textures=[], bounds=np.stack([lo, hi]))
+
+
+def load_panorama(name: str) -> np.ndarray:
+    """Linear float32 H x W x 3 panorama for a bundled environment name (what the bake reads)."""
+    try:
+        from pipeline.environment import load_panorama as _load
+    except ModuleNotFoundError:
+        _load = None
+    if _load is not None:
+        return np.asarray(_load(name), dtype=np.float32)[..., :3]
+    from PIL import Image  # until pipeline.environment lands: same decode, sRGB -> linear
+
+    img = np.asarray(Image.open(ASSETS / "env" / f"{name}.jpg").convert("RGB"), np.float32) / 255
+    return np.where(img <= 0.04045, img / 12.92, ((img + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+def baked_environment(name: str, cache_dir: str | Path | None = None, face_size: int = 256):
+    """The environment the renderer uses: pipeline.bake_environment when present; until then
+    mip 0 resampled from the panorama and a box-filtered mip chain (not GGX-prefiltered)."""
+    if cache_dir is not None:
+        try:
+            import pipeline.bake  # noqa: F401
+        except ModuleNotFoundError as exc:
+            if exc.name != "pipeline.bake":
+                raise
+        else:
+            import pipeline
+            return pipeline.bake_environment(name, cache_dir, face_size=face_size)
+    from pipeline.baked import BakedEnvironment
+    from pipeline.cubemap import face_directions, sample_equirect
+
+    pano = load_panorama(name)
+    mips = [sample_equirect(pano, face_directions(face_size)).astype(np.float32)]
+    while mips[-1].shape[1] > 4:
+        m = mips[-1]
+        mips.append(m.reshape(6, m.shape[1] // 2, 2, m.shape[2] // 2, 2, 3).mean(axis=(2, 4)))
+    return BakedEnvironment(key=f"env:{name}", name=name, specular=mips,
+                            irradiance_sh=np.zeros((9, 3), np.float32),
+                            brdf_lut=np.zeros((32, 32, 2), np.float32), prefilter="box")
