@@ -10,6 +10,7 @@ from PIL import Image
 
 from .errors import LimitExceeded, MalformedAsset
 from .limits import Limits
+from .scene import Sampler, Texture
 
 log = logging.getLogger(__name__)
 
@@ -50,3 +51,64 @@ def decode_image(data: bytes, source: str, limits: Limits) -> np.ndarray:
     if arr.ndim != 3 or arr.shape[2] != 4:
         raise MalformedAsset(source, f"image decoded to unexpected shape {arr.shape}")
     return np.ascontiguousarray(arr)
+
+
+def probe_image(data: bytes, source: str, limits: Limits) -> tuple[int, int]:
+    """Check an encoded image without decoding its pixels: format, size against the limits,
+    and that the stream is complete (PNG chunk CRCs, JPEG end marker, WebP RIFF length).
+    Returns (width, height); raises MalformedAsset or LimitExceeded naming `source`."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
+            Image.MAX_IMAGE_PIXELS = max(Image.MAX_IMAGE_PIXELS or 0, limits.max_texture_pixels)
+            im = Image.open(io.BytesIO(data), formats=FORMATS)
+            w, h = im.size
+            fmt = im.format
+            if w <= 0 or h <= 0:
+                raise MalformedAsset(source, f"image has size {w}x{h}")
+            if w * h > limits.max_texture_pixels:
+                raise LimitExceeded(source, f"image is {w}x{h} = {w * h} pixels, over the limit "
+                                            f"of {limits.max_texture_pixels}")
+            if fmt == "PNG":
+                im.verify()  # walks every chunk and checks its CRC; inflates nothing
+    except (LimitExceeded, MalformedAsset):
+        raise
+    except (Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:
+        raise LimitExceeded(source, f"image too large: {exc}") from None
+    except Image.UnidentifiedImageError:
+        raise MalformedAsset(source, "not a PNG, JPEG or WebP image") from None
+    except (OSError, SyntaxError, ValueError, EOFError) as exc:
+        raise MalformedAsset(source, f"image does not decode: {exc}") from None
+    if fmt == "JPEG" and b"\xff\xd9" not in data[-64:]:
+        raise MalformedAsset(source, "JPEG image is truncated (no end-of-image marker)")
+    if fmt == "WEBP" and len(data) < 8 + int.from_bytes(data[4:8], "little"):
+        raise MalformedAsset(source, "WebP image is truncated")
+    return w, h
+
+
+class DeferredTexture(Texture):
+    """A Texture whose pixels are decoded on first access to `.image`, then kept.
+
+    Ingest probes the image (format, size, completeness) so a broken one is caught there and
+    becomes a warning; decoding waits until something needs the pixels (a bake), so inspecting
+    an asset or hashing it never pays for it. Behaves as a Texture otherwise (pickles too)."""
+
+    def __init__(self, name: str, data: bytes, size: tuple[int, int], limits: Limits,
+                 sampler: Sampler | None = None, source: str = ""):
+        self._data, self._limits, self.size = data, limits, size
+        super().__init__(name=name, image=None, sampler=sampler or Sampler(), source=source)
+
+    @property
+    def image(self) -> np.ndarray:
+        if self._image is None:
+            self._image = decode_image(self._data, self.source, self._limits)
+            self._data = None
+        return self._image
+
+    @image.setter
+    def image(self, value: np.ndarray | None) -> None:
+        self._image = value
+
+    def __repr__(self) -> str:
+        state = "decoded" if self._image is not None else "not decoded yet"
+        return f"DeferredTexture({self.name!r}, {self.size[0]}x{self.size[1]}, {state})"

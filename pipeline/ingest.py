@@ -1,0 +1,246 @@
+"""`load_scene`: one entry for every format, and one finishing step they all share.
+
+Format readers (ingest_gltf, ingest_usd, ingest_mesh) turn a file into a Scene; `finish`
+then holds every format to the same rules: finite positions, indices inside the vertex
+count, degenerate triangles dropped (counted in a warning), normals and tangents computed
+where missing, empty meshes removed, and an empty scene refused.
+
+Time bound: the whole load runs under `deadline.within(Limits.ingest_seconds)`; readers
+check it per node / primitive / prim / texture and `finish` per mesh. A single native call
+(json.loads, Usd.Stage.Open, a PLY parse) cannot be interrupted; its input size is bounded
+by Limits.max_file_bytes instead, so its running time is bounded too.
+"""
+from __future__ import annotations
+
+import importlib
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+
+from . import deadline
+from .errors import (AssetError, EmptyScene, LimitExceeded, MalformedAsset, MissingFile,
+                     UnsupportedFormat)
+from .limits import Limits
+from .scene import Instance, Mesh, Scene
+
+log = logging.getLogger(__name__)
+
+READERS = {".gltf": "gltf", ".glb": "gltf",
+           ".usd": "usd", ".usda": "usd", ".usdc": "usd", ".usdz": "usd",
+           ".obj": "mesh", ".ply": "mesh", ".stl": "mesh"}
+
+
+def load_scene(path, limits: Limits | None = None) -> Scene:
+    """Read any supported asset into a finished Scene; bad input raises an AssetError."""
+    path = Path(path)
+    limits = limits or Limits.from_env()
+    if not path.exists():
+        raise MissingFile(path, "no such file")
+    if not path.is_file():
+        raise UnsupportedFormat(path, "not a regular file")
+    kind = READERS.get(path.suffix.lower())
+    if kind is None:
+        raise UnsupportedFormat(path, f"unsupported file type {path.suffix or '(none)'!r}; "
+                                      f"reads {', '.join(sorted(READERS))}")
+    size = path.stat().st_size
+    if size == 0:
+        raise MalformedAsset(path, "file is empty")
+    if size > limits.max_file_bytes:
+        raise LimitExceeded(path, f"file is {size} bytes, over the limit of "
+                                  f"{limits.max_file_bytes} (ASSET_PREVIEW_MAX_FILE_BYTES)")
+    try:
+        reader = importlib.import_module(f"{__package__}.ingest_{kind}")
+    except ModuleNotFoundError as exc:
+        if exc.name != f"{__package__}.ingest_{kind}":
+            raise
+        raise UnsupportedFormat(path, f"no {kind} reader in this build") from None
+    start = time.perf_counter()
+    with deadline.within(limits.ingest_seconds, str(path)):
+        try:
+            scene = reader.load(path, limits)
+            finish(scene, limits)
+            deadline.check()
+        except AssetError:
+            raise
+        except MemoryError:
+            raise LimitExceeded(path, "ran out of memory while reading") from None
+        except RecursionError:
+            raise MalformedAsset(path, "structure nested too deeply") from None
+        except Exception as exc:  # a parser choking on hostile bytes must not crash the caller
+            log.exception("%s: reader failed", path)
+            raise MalformedAsset(path, f"could not be read ({type(exc).__name__}: {exc})") from None
+    own = str(path.resolve())
+    if own not in scene.files:
+        scene.files.insert(0, own)
+    log.info("%s: %d meshes, %d triangles, %d materials, %d textures in %.1f ms", path,
+             len(scene.meshes), scene.triangle_count, len(scene.materials), len(scene.textures),
+             1000 * (time.perf_counter() - start))
+    return scene
+
+
+def finish(scene: Scene, limits: Limits) -> Scene:
+    """Validate and complete a Scene in place (shared by every format); see the module doc."""
+    path = scene.source
+    needs_tangents = {inst.mesh: scene.materials[inst.material].normal_texture
+                      for inst in scene.instances
+                      if 0 <= inst.material < len(scene.materials)
+                      and scene.materials[inst.material].normal_texture is not None}
+    dropped = 0
+    total_vertices = 0
+    for i, mesh in enumerate(scene.meshes):
+        deadline.check()
+        dropped += _check(mesh, path)
+        if mesh.normals is None or len(mesh.normals) != len(mesh.positions):
+            _flat_normals(mesh)
+        else:
+            mesh.normals = _unit_normals(mesh)
+        ref = needs_tangents.get(i)
+        uv = None if ref is None else (mesh.uv0 if ref.uv_set == 0 else mesh.uv1)
+        if uv is not None and (mesh.tangents is None or len(mesh.tangents) != len(mesh.positions)):
+            mesh.tangents = compute_tangents(mesh.positions, mesh.normals, uv, mesh.indices)
+        total_vertices += len(mesh.positions)
+    if total_vertices > limits.max_vertices:
+        raise LimitExceeded(path, f"{total_vertices} vertices, over the limit of "
+                                  f"{limits.max_vertices}")
+    if dropped:
+        scene.warnings.append(f"dropped {dropped} degenerate triangles")
+        log.warning("%s: dropped %d degenerate triangles", path, dropped)
+    for inst in scene.instances:
+        if not 0 <= inst.mesh < len(scene.meshes) or not 0 <= inst.material < len(scene.materials):
+            raise MalformedAsset(path, f"instance refers to mesh {inst.mesh} / material "
+                                       f"{inst.material}, which do not exist")
+        if inst.matrix.shape != (4, 4) or not np.all(np.isfinite(inst.matrix)):
+            raise MalformedAsset(path, f"mesh {scene.meshes[inst.mesh].name!r} is placed by a "
+                                       "transform that is not a finite 4x4 matrix")
+    _drop_empty(scene)
+    if not scene.instances:
+        raise EmptyScene(path, "no triangles to render" + (
+            f" ({'; '.join(scene.warnings[:3])})" if scene.warnings else ""))
+    scene.__dict__.pop("bounds", None)  # cached_property: recompute after the changes above
+    return scene
+
+
+def _check(mesh: Mesh, path: str) -> int:
+    """Type and range checks for one mesh; drops degenerate triangles, returns how many."""
+    mesh.positions = np.ascontiguousarray(mesh.positions, np.float32).reshape(-1, 3)
+    n = len(mesh.positions)
+    bad = ~np.isfinite(mesh.positions).all(axis=1)
+    if bad.any():
+        raise MalformedAsset(path, f"mesh {mesh.name!r}: {int(bad.sum())} vertex positions are "
+                                   "NaN or infinite")
+    tri = np.asarray(mesh.indices).reshape(-1, 3)
+    if len(tri) and int(tri.max()) >= n:
+        raise MalformedAsset(path, f"mesh {mesh.name!r}: index {int(tri.max())} is past the "
+                                   f"vertex count {n}")
+    if len(tri) and tri.dtype.kind == "i" and int(tri.min()) < 0:
+        raise MalformedAsset(path, f"mesh {mesh.name!r}: negative vertex index")
+    tri = tri.astype(np.uint32, copy=False)
+    for name in ("uv0", "uv1", "colors", "tangents"):
+        value = getattr(mesh, name)
+        if value is None:
+            continue
+        if len(value) != n:
+            raise MalformedAsset(path, f"mesh {mesh.name!r}: {name} has {len(value)} values "
+                                       f"for {n} vertices")
+        if not np.isfinite(value).all():
+            if name == "tangents":  # recomputed below where a normal map needs them
+                mesh.tangents = None
+                continue
+            raise MalformedAsset(path, f"mesh {mesh.name!r}: {name} hold NaN or infinite values")
+        setattr(mesh, name, np.ascontiguousarray(value, np.float32))
+    p = mesh.positions
+    cross = np.cross(p[tri[:, 1]] - p[tri[:, 0]], p[tri[:, 2]] - p[tri[:, 0]])
+    keep = (np.einsum("ij,ij->i", cross, cross) > 0.0) & (tri[:, 0] != tri[:, 1]) \
+        & (tri[:, 1] != tri[:, 2]) & (tri[:, 0] != tri[:, 2])
+    mesh.indices = np.ascontiguousarray(tri[keep])
+    return int(len(tri) - keep.sum())
+
+
+def _flat_normals(mesh: Mesh) -> None:
+    """Flat normals, as glTF asks for meshes without them: every triangle gets its own vertices."""
+    corners = mesh.indices.reshape(-1)
+    for name in ("positions", "uv0", "uv1", "colors", "tangents"):
+        value = getattr(mesh, name)
+        if value is not None:
+            setattr(mesh, name, np.ascontiguousarray(value[corners]))
+    tri = mesh.positions.reshape(-1, 3, 3)
+    face = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    face /= np.linalg.norm(face, axis=1, keepdims=True)
+    mesh.normals = np.repeat(face, 3, axis=0).astype(np.float32)
+    mesh.indices = np.arange(len(corners), dtype=np.uint32).reshape(-1, 3)
+
+
+def _unit_normals(mesh: Mesh) -> np.ndarray:
+    """Given normals made unit length; zero or non-finite ones replaced by area-weighted ones."""
+    nrm = np.asarray(mesh.normals, np.float32).reshape(-1, 3)
+    length = np.linalg.norm(nrm, axis=1)
+    bad = ~(np.isfinite(length) & (length > 1e-12))
+    out = nrm / np.where(bad, 1.0, length)[:, None]
+    if bad.any():
+        out[bad] = smooth_normals(mesh.positions, mesh.indices)[bad]
+    return np.ascontiguousarray(out, np.float32)
+
+
+def smooth_normals(positions: np.ndarray, indices: np.ndarray) -> np.ndarray:
+    """Area-weighted vertex normals (unused vertices get +Y)."""
+    p = positions.astype(np.float64)
+    face = np.cross(p[indices[:, 1]] - p[indices[:, 0]], p[indices[:, 2]] - p[indices[:, 0]])
+    acc = _scatter(indices, face, len(p))
+    return _normalise(acc, fallback=np.array([0.0, 1.0, 0.0])).astype(np.float32)
+
+
+def compute_tangents(positions: np.ndarray, normals: np.ndarray, uv: np.ndarray,
+                     indices: np.ndarray) -> np.ndarray:
+    """Per-vertex tangents (N x 4) from UV gradients, accumulated per vertex (Lengyel).
+
+    UVs are glTF's (v down from the image top) while a normal map's green channel points up
+    the image, so the bitangent is taken along -v: w = +1 when cross(N, T) points up the
+    image. Shaders use B = cross(N, T.xyz) * T.w, as glTF specifies.
+    """
+    p, t = positions.astype(np.float64), uv.astype(np.float64)
+    i0, i1, i2 = indices[:, 0], indices[:, 1], indices[:, 2]
+    e1, e2 = p[i1] - p[i0], p[i2] - p[i0]
+    d1, d2 = t[i1] - t[i0], t[i2] - t[i0]
+    d1[:, 1] *= -1.0  # v up the image
+    d2[:, 1] *= -1.0
+    det = d1[:, 0] * d2[:, 1] - d2[:, 0] * d1[:, 1]
+    inv = np.where(np.abs(det) > 1e-20, 1.0 / np.where(det == 0, 1.0, det), 0.0)[:, None]
+    sdir = (e1 * d2[:, 1:2] - e2 * d1[:, 1:2]) * inv
+    tdir = (e2 * d1[:, 0:1] - e1 * d2[:, 0:1]) * inv
+    n = normals.astype(np.float64)
+    s = _scatter(indices, sdir, len(p))
+    b = _scatter(indices, tdir, len(p))
+    s -= n * np.einsum("ij,ij->i", n, s)[:, None]  # Gram-Schmidt against the normal
+    # Where UVs give no direction, any unit vector perpendicular to the normal will do.
+    helper = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    fallback = np.cross(n, helper)
+    s = np.where((np.linalg.norm(s, axis=1) > 1e-12)[:, None], s, fallback)
+    s = _normalise(s, fallback=np.array([1.0, 0.0, 0.0]))
+    w = np.where(np.einsum("ij,ij->i", np.cross(n, s), b) < 0.0, -1.0, 1.0)
+    return np.concatenate([s, w[:, None]], axis=1).astype(np.float32)
+
+
+def _scatter(indices: np.ndarray, per_face: np.ndarray, n: int) -> np.ndarray:
+    """Sum a per-face vector onto each of the face's three vertices."""
+    corners = indices.reshape(-1)
+    values = np.repeat(per_face, 3, axis=0)
+    return np.stack([np.bincount(corners, values[:, k], minlength=n) for k in range(3)], axis=1)
+
+
+def _normalise(v: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    length = np.linalg.norm(v, axis=1, keepdims=True)
+    ok = length[:, 0] > 1e-20
+    return np.where(ok[:, None], v / np.where(ok[:, None], length, 1.0), fallback)
+
+
+def _drop_empty(scene: Scene) -> None:
+    """Remove meshes left without triangles and the instances of them."""
+    keep = [i for i, m in enumerate(scene.meshes) if len(m.indices)]
+    if len(keep) == len(scene.meshes):
+        return
+    remap = {old: new for new, old in enumerate(keep)}
+    scene.meshes = [scene.meshes[i] for i in keep]
+    scene.instances = [Instance(remap[inst.mesh], inst.material, inst.matrix)
+                       for inst in scene.instances if inst.mesh in remap]
