@@ -1,0 +1,144 @@
+"""The FastAPI application: `uvicorn service.app:app` or `asset-preview serve`.
+
+Routers by resource live in service/routes/; the state they share is one ThumbnailService
+(service/core.py), created here and started with the app's lifespan (worker processes, seed).
+"""
+from __future__ import annotations
+
+import logging
+from contextlib import asynccontextmanager
+
+from fastapi import FastAPI, Request
+from fastapi.responses import JSONResponse
+
+from pipeline.errors import AssetError, UnsupportedFormat
+
+from .core import BadParameter, Conflict, NotFound, StillBaking, ThumbnailService, UploadTooLarge
+from .metrics import MetricsMiddleware
+from .routes import assets, environments, health, pages
+from .settings import Settings
+from .workers import JobAssetError, QueueFull, WorkerFailure
+
+log = logging.getLogger(__name__)
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    settings = settings or Settings.from_env()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI):
+        service = ThumbnailService(settings)
+        app.state.service = service
+        await service.start()
+        log.info("serving with %d render workers, cache %s", service.pool.size, settings.cache)
+        try:
+            yield
+        finally:
+            await service.stop()
+
+    app = FastAPI(title="asset-preview", version="0.1.0", lifespan=lifespan,
+                  description="Upload glTF/USD assets; get physically based thumbnails.")
+    for router in (assets.router, environments.router, health.router, pages.router):
+        app.include_router(router)
+    _install_error_handlers(app)
+    app.add_middleware(BodyLimit, limit=settings.max_upload_bytes)
+    # Added last = outermost, so it also times requests refused by BodyLimit.
+    app.add_middleware(MetricsMiddleware)
+    return app
+
+
+def _install_error_handlers(app: FastAPI) -> None:
+    def detail(status: int, message: str, headers: dict | None = None) -> JSONResponse:
+        return JSONResponse({"detail": message}, status_code=status, headers=headers)
+
+    @app.exception_handler(AssetError)
+    async def asset_error(request: Request, exc: AssetError):
+        if isinstance(exc, UploadTooLarge):
+            return detail(413, str(exc))
+        return detail(415 if isinstance(exc, UnsupportedFormat) else 422, str(exc))
+
+    @app.exception_handler(JobAssetError)
+    async def job_asset_error(request: Request, exc: JobAssetError):
+        return detail(415 if exc.kind == "UnsupportedFormat" else 422, str(exc))
+
+    @app.exception_handler(NotFound)
+    async def not_found(request: Request, exc: NotFound):
+        what = str(exc)
+        return detail(404, what if " " in what else f"no asset with id {what!r}")
+
+    @app.exception_handler(StillBaking)
+    async def still_baking(request: Request, exc: StillBaking):
+        retry = request.app.state.service.settings.retry_after_seconds
+        return detail(202, f"asset {exc} is still baking; retry in {retry} s", {"Retry-After": str(retry)})
+
+    @app.exception_handler(WorkerFailure)
+    async def worker_failure(request: Request, exc: WorkerFailure):
+        service = request.app.state.service
+        headers = None
+        if isinstance(exc, QueueFull):
+            service.metrics.rejected["queue_full"] += 1
+            headers = {"Retry-After": str(service.settings.retry_after_seconds)}
+        return detail(exc.status, str(exc), headers)
+
+    @app.exception_handler(BadParameter)
+    async def bad_parameter(request: Request, exc: BadParameter):
+        return detail(422, str(exc))
+
+    @app.exception_handler(Conflict)
+    async def conflict(request: Request, exc: Conflict):
+        return detail(409, str(exc))
+
+
+class BodyLimit:
+    """413 for request bodies beyond the upload limit, decided from Content-Length before
+    reading, and by counting for chunked bodies (the multipart parser would spool them whole).
+    Past the limit, reading raises and whatever answer the app makes of that becomes the 413."""
+
+    def __init__(self, app, limit: int):
+        self.app = app
+        self.limit = limit
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http" or scope["method"] not in ("POST", "PUT"):
+            return await self.app(scope, receive, send)
+        length = dict(scope["headers"]).get(b"content-length")
+        if length is not None and length.isdigit() and int(length) > self.limit:
+            return await self._refuse(scope, send)
+        seen, refused = 0, False
+
+        async def counting_receive():
+            nonlocal seen
+            message = await receive()
+            seen += len(message.get("body", b""))
+            if seen > self.limit:
+                raise _TooLarge()
+            return message
+
+        async def guarded_send(message):
+            nonlocal refused
+            if seen <= self.limit:
+                return await send(message)
+            if not refused:
+                refused = True
+                await self._refuse(scope, send)
+
+        try:
+            await self.app(scope, counting_receive, guarded_send)
+        except _TooLarge:
+            if not refused:
+                await self._refuse(scope, send)
+
+    async def _refuse(self, scope, send):
+        scope["app"].state.service.metrics.rejected["too_large"] += 1
+        body = b'{"detail":"request body is larger than the upload limit of %d bytes"}' % self.limit
+        await send({"type": "http.response.start", "status": 413,
+                    "headers": [(b"content-type", b"application/json"), (b"connection", b"close"),
+                                (b"content-length", str(len(body)).encode())]})
+        await send({"type": "http.response.body", "body": body})
+
+
+class _TooLarge(Exception):
+    pass
+
+
+app = create_app()

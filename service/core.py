@@ -1,0 +1,375 @@
+"""The service's state and its operations: upload -> bake -> thumbnail.
+
+Routers stay thin and call into one `ThumbnailService` (a FastAPI dependency). Pipeline and
+renderer work never runs in this process: it goes to the worker pool, so this process only
+moves bytes, keeps records and serves cached thumbnails.
+"""
+from __future__ import annotations
+
+import asyncio
+import hashlib
+import json
+import logging
+import shutil
+import time
+from pathlib import Path
+
+from pipeline.errors import AssetError, LimitExceeded, UnsupportedFormat
+from pipeline.limits import Limits
+
+from . import archive
+from .metrics import Metrics
+from .models import ThumbnailParams, srgb_hex_to_linear
+from .settings import Settings
+from .store import Store, ThumbnailCache, content_id, safe_name
+from .workers import JobAssetError, WorkerFailure, WorkerPool
+
+log = logging.getLogger(__name__)
+
+ASSET_SUFFIXES = (".glb", ".gltf", ".usd", ".usda", ".usdc", ".usdz", ".obj", ".ply", ".stl", ".zip")
+ENV_SUFFIXES = (".jpg", ".jpeg", ".png", ".hdr", ".exr")
+
+
+class StillBaking(Exception):
+    """The asset's bake did not finish within the wait bound (-> 202 Retry-After)."""
+
+
+class NotFound(Exception):
+    pass
+
+
+class BadParameter(Exception):
+    """A request parameter names something that does not exist (-> 422)."""
+
+
+class Conflict(Exception):
+    """The request clashes with what is stored (-> 409)."""
+
+
+class ThumbnailService:
+    def __init__(self, settings: Settings):
+        self.settings = settings
+        self.limits = Limits.from_env()
+        self.store = Store(settings.root)
+        self.thumbs = ThumbnailCache(self.store.thumbs_dir, settings.memory_cache_bytes)
+        self.metrics = Metrics()
+        self.pool = WorkerPool(settings.worker_count, str(settings.cache), settings.face_size,
+                               max_queue=settings.max_queue, on_restart=self._restarted)
+        self.renderer_version = _renderer_version()
+        self._bakes: dict[str, asyncio.Task] = {}
+        self._baked: dict[str, asyncio.Event] = {}
+        self._bake_slots: asyncio.Semaphore | None = None
+        self._renders: dict[str, asyncio.Future] = {}
+        self._background: set[asyncio.Task] = set()
+        self._bundled_envs: list[str] | None = None
+        m = self.metrics
+        m.gauges["asset_preview_render_queue"] = ("Renders waiting or running", lambda: {"": self.pool.pending})
+        m.gauges["asset_preview_workers_busy"] = (
+            "Render workers running a job", lambda: {"": sum(w.busy_since is not None for w in self.pool.workers)})
+        m.gauges["asset_preview_assets"] = ("Stored assets by status", self._asset_counts)
+
+    # -- life cycle -------------------------------------------------------------------------
+
+    async def start(self) -> None:
+        # Bakes never take every worker, so renders of ready assets keep flowing meanwhile.
+        self._bake_slots = asyncio.Semaphore(max(1, self.pool.size - 1))
+        await self.pool.start()
+        self._spawn(self._warm_up_then_resume())
+
+    async def stop(self) -> None:
+        for t in list(self._background) + list(self._bakes.values()):
+            t.cancel()
+        await self.pool.stop()
+
+    async def _warm_up_then_resume(self) -> None:
+        await self.pool.warm_up(self.settings.ingest_seconds)
+        if self.pool.info.get("renderer_version"):
+            self.renderer_version = self.pool.info["renderer_version"]
+        # A bake the last server did not finish is redone (the pipeline's cache makes a
+        # finished-but-unrecorded bake a cheap hit).
+        for rec in list(self.store.assets.values()):
+            if rec["status"] == "baking":
+                self.schedule_bake(rec["id"])
+        if self.settings.seed and not (self.store.root / "seeded").exists():
+            from .seed import seed
+            await seed(self)
+
+    def _spawn(self, coro) -> asyncio.Task:
+        task = asyncio.get_running_loop().create_task(coro)
+        self._background.add(task)
+        task.add_done_callback(self._background.discard)
+        return task
+
+    def _restarted(self, reason: str) -> None:
+        self.metrics.restarts["deadline" if "deadline" in reason else "crash"] += 1
+
+    def _asset_counts(self) -> dict:
+        counts = {"baking": 0, "ready": 0, "failed": 0}
+        for rec in self.store.assets.values():
+            counts[rec["status"]] += 1
+        return {f'status="{k}"': v for k, v in counts.items()}
+
+    # -- assets -----------------------------------------------------------------------------
+
+    async def add_asset(self, filename: str, chunks, main: str | None = None) -> tuple[dict, bool]:
+        """Store an upload (an async iterator of byte chunks); returns (record, created)."""
+        name = safe_name(filename or "upload")
+        suffix = Path(name).suffix.lower()
+        if suffix not in ASSET_SUFFIXES:
+            raise UnsupportedFormat(name, f"unsupported file type {suffix or '(none)'!r}; accepted: "
+                                          + ", ".join(ASSET_SUFFIXES))
+        staged = self.store.staging()
+        try:
+            raw, digest, size = await self._receive(staged / "upload", chunks, name)
+            asset_id = content_id(digest)
+            existing = self.store.assets.get(asset_id)
+            if existing is not None:
+                return existing, False
+            src = staged / "src"
+            if suffix == ".zip":
+                files = await asyncio.to_thread(
+                    archive.extract, raw, src, max_bytes=self.limits.max_unpacked_bytes,
+                    max_files=self.limits.max_archive_files, label=name)
+                root = archive.find_root(files, name, main)
+                raw.unlink()
+            else:
+                src.mkdir()
+                raw.rename(src / name)
+                root = name
+            try:
+                summary = await self.pool.run("inspect", str(src / root),
+                                              deadline=self.settings.ingest_seconds)
+            except JobAssetError as exc:
+                raise _public_error(exc, src, name) from None
+            rec = {"id": asset_id, "name": name, "root": root, "size": size, "status": "baking",
+                   "reason": None, "created": time.time(), **summary}
+            rec = self.store.commit_asset(staged, rec)
+            log.info("asset %s stored (%s, %d triangles)", asset_id, name, rec["triangles"])
+            self.schedule_bake(asset_id)
+            return rec, True
+        finally:
+            shutil.rmtree(staged, ignore_errors=True)
+
+    async def _receive(self, path: Path, chunks, name: str):
+        digest, size = hashlib.sha256(), 0
+        with open(path, "wb") as f:
+            async for chunk in chunks:
+                size += len(chunk)
+                if size > self.settings.max_upload_bytes:
+                    raise UploadTooLarge(name, self.settings.max_upload_bytes)
+                digest.update(chunk)
+                f.write(chunk)
+        if size == 0:
+            from pipeline.errors import MalformedAsset
+            raise MalformedAsset(name, "the upload is empty")
+        return path, digest, size
+
+    def delete_asset(self, asset_id: str) -> None:
+        if asset_id not in self.store.assets:
+            raise NotFound(asset_id)
+        self.store.delete_asset(asset_id)
+        self.thumbs.forget(asset_id)
+        event = self._baked.pop(asset_id, None)
+        if event:
+            event.set()
+
+    def schedule_bake(self, asset_id: str) -> None:
+        if asset_id in self._bakes:
+            return
+        self._baked.setdefault(asset_id, asyncio.Event())
+        task = asyncio.get_running_loop().create_task(self._bake(asset_id))
+        self._bakes[asset_id] = task
+        task.add_done_callback(lambda _: self._bakes.pop(asset_id, None))
+
+    async def _bake(self, asset_id: str) -> None:
+        try:
+            async with self._bake_slots:
+                rec = self.store.assets.get(asset_id)
+                if rec is None:
+                    return
+                path = self.store.asset_path(rec)
+                t0 = time.perf_counter()
+                try:
+                    out = await self.pool.run("bake", str(path), deadline=self.settings.bake_seconds,
+                                              queue=False)
+                except JobAssetError as exc:
+                    fields = {"status": "failed", "reason": str(_public_error(exc, path.parent, rec["name"]))}
+                except WorkerFailure as exc:
+                    fields = {"status": "failed", "reason": str(exc)}
+                else:
+                    fields = {"status": "ready", "reason": None, "bake_key": out["key"]}
+                    self.metrics.bake.observe(time.perf_counter() - t0)
+                self.metrics.bake_results[fields["status"]] += 1
+                if asset_id in self.store.assets:  # not deleted meanwhile
+                    self.store.update_asset(asset_id, **fields)
+                    log.info("asset %s %s %s", asset_id, fields["status"], fields.get("reason") or "")
+        finally:
+            event = self._baked.get(asset_id)
+            if event:
+                event.set()
+
+    async def wait_baked(self, asset_id: str, timeout: float) -> dict:
+        rec = self.store.assets.get(asset_id)
+        if rec is None:
+            raise NotFound(asset_id)
+        if rec["status"] == "baking":
+            event = self._baked.setdefault(asset_id, asyncio.Event())
+            try:
+                await asyncio.wait_for(event.wait(), timeout)
+            except asyncio.TimeoutError:
+                raise StillBaking(asset_id) from None
+            rec = self.store.assets.get(asset_id)
+            if rec is None:
+                raise NotFound(asset_id)
+        return rec
+
+    # -- environments -----------------------------------------------------------------------
+
+    def bundled_environments(self) -> list[str]:
+        if self._bundled_envs is None:
+            names = self.pool.info.get("environments")
+            if names is None:
+                try:
+                    from pipeline.environment import list_bundled
+                    names = list(list_bundled())
+                except (ImportError, AttributeError):
+                    return []
+            self._bundled_envs = sorted(names)
+        return self._bundled_envs
+
+    def default_environment(self) -> str:
+        names = self.bundled_environments()
+        if self.settings.default_env in names or not names:
+            return self.settings.default_env
+        return names[0]
+
+    def resolve_environment(self, name: str | None) -> tuple[str, str]:
+        """(identity for cache keys, source for the worker) of a bundled or uploaded panorama."""
+        name = name or self.default_environment()
+        rec = self.store.find_environment(name)
+        if rec is not None:
+            return "uploaded:" + rec["id"], str(self.store.env_path(rec))
+        bundled = self.bundled_environments()
+        if name in bundled or (not bundled and name == self.settings.default_env):
+            return "bundled:" + name, name
+        raise BadParameter(f"unknown environment {name!r}; GET /environments lists them")
+
+    async def add_environment(self, filename: str, chunks, name: str | None) -> tuple[dict, bool]:
+        fname = safe_name(filename or "panorama")
+        suffix = Path(fname).suffix.lower()
+        if suffix not in ENV_SUFFIXES:
+            raise UnsupportedFormat(fname, f"unsupported panorama type {suffix or '(none)'!r}; "
+                                           "accepted: " + ", ".join(ENV_SUFFIXES))
+        label = safe_name(name or Path(fname).stem)
+        if label in self.bundled_environments():
+            raise Conflict(f"environment name {label!r} is taken by a bundled panorama")
+        staged = self.store.staging()
+        try:
+            raw, digest, size = await self._receive(staged / fname, chunks, fname)
+            env_id = content_id(digest)
+            if env_id in self.store.environments:
+                return self.store.environments[env_id], False
+            clash = self.store.find_environment(label)
+            if clash is not None:
+                raise Conflict(f"environment name {label!r} is taken by another panorama")
+            try:  # prefilter it now: a bad panorama is refused at upload, not at first render
+                await self.pool.run("bake_env", str(raw), deadline=self.settings.bake_seconds)
+            except JobAssetError as exc:
+                raise _public_error(exc, staged, fname) from None
+            rec = {"id": env_id, "name": label, "file": fname, "size": size, "created": time.time()}
+            return self.store.commit_environment(staged, rec), True
+        finally:
+            shutil.rmtree(staged, ignore_errors=True)
+
+    # -- thumbnails -------------------------------------------------------------------------
+
+    def thumbnail_key(self, asset_id: str, params: ThumbnailParams, env_identity: str) -> str:
+        width, height = params.dimensions()
+        norm = params.model_dump(exclude={"size", "width", "height", "env", "format"}, exclude_none=True)
+        norm = {k: round(v, 4) if isinstance(v, float) else v for k, v in norm.items()}
+        norm.update(width=width, height=height, env=env_identity, renderer=self.renderer_version)
+        return hashlib.sha256(json.dumps(norm, sort_keys=True).encode()).hexdigest()[:32]
+
+    def check_size(self, params: ThumbnailParams) -> None:
+        width, height = params.dimensions()
+        limit = self.settings.max_thumbnail_size
+        if max(width, height) > limit:
+            raise LimitExceeded("thumbnail", f"{width}x{height} pixels asked; the limit is {limit} "
+                                             "on either side")
+
+    def cached(self, asset_id: str, key: str, fmt: str):
+        return self.thumbs.get(asset_id, key, fmt)
+
+    async def render(self, asset_id: str, params: ThumbnailParams, key: str, env_source: str):
+        """Render (once, however many requests ask at the same time) and cache."""
+        fut = self._renders.get(key + params.format)
+        if fut is not None:
+            return await asyncio.shield(fut)
+        fut = asyncio.get_running_loop().create_future()
+        self._renders[key + params.format] = fut
+        try:
+            result = await self._render(asset_id, params, key, env_source)
+            fut.set_result(result)
+            return result
+        except BaseException as exc:
+            fut.set_exception(exc)
+            fut.exception()  # retrieved: no "never retrieved" warning when nobody else waits
+            raise
+        finally:
+            self._renders.pop(key + params.format, None)
+
+    async def _render(self, asset_id: str, params: ThumbnailParams, key: str, env_source: str):
+        rec = await self.wait_baked(asset_id, self.settings.bake_wait_seconds)
+        if rec["status"] == "failed":
+            raise BakeFailed(rec["name"], f"the asset failed to bake: {rec['reason']}")
+        width, height = params.dimensions()
+        override = {k: getattr(params, k) for k in ("metallic", "roughness", "ior", "transmission")
+                    if getattr(params, k) is not None}
+        if params.base_color:
+            override["base_color"] = srgb_hex_to_linear(params.base_color)
+        options = {"width": width, "height": height, "yaw": params.yaw, "pitch": params.pitch,
+                   "fov": params.fov, "method": params.method, "tonemap": params.tonemap,
+                   "exposure": params.exposure, "background": params.background,
+                   "override": override or None}
+        try:
+            out = await self.pool.run("render", rec["bake_key"], env_source, options, params.format,
+                                      deadline=self.settings.render_seconds)
+        except JobAssetError as exc:
+            raise _public_error(exc, self.store.asset_dir(asset_id) / "src", rec["name"]) from None
+        self.metrics.render.observe(out["seconds"])
+        plan = json.dumps(out["plan"], separators=(",", ":"), default=str)
+        if asset_id not in self.store.assets:  # deleted while rendering: do not resurrect
+            raise NotFound(asset_id)
+        return await asyncio.to_thread(self.thumbs.put, asset_id, key, params.format, out["image"], plan)
+
+
+class UploadTooLarge(AssetError):
+    def __init__(self, name: str, limit: int):
+        super().__init__(name, f"upload is larger than the limit of {limit} bytes")
+
+
+class BakeFailed(AssetError):
+    pass
+
+
+def _public_error(exc: JobAssetError, folder: Path, name: str) -> AssetError:
+    """The worker's error with server paths replaced by the names the client knows."""
+    from pipeline import errors
+    cls = getattr(errors, exc.kind, None)
+    if not (isinstance(cls, type) and issubclass(cls, AssetError)):
+        cls = AssetError
+    path = exc.path
+    for prefix in (str(folder) + "/", str(folder.resolve()) + "/"):
+        path = path.replace(prefix, "")
+    reason = exc.reason.replace(str(folder.resolve()) + "/", "").replace(str(folder) + "/", "")
+    err = cls.__new__(cls)
+    AssetError.__init__(err, path or name, reason)
+    return err
+
+
+def _renderer_version() -> str:
+    try:
+        import renderer
+        return str(getattr(renderer, "RENDERER_VERSION", "0"))
+    except ImportError:
+        return "0"

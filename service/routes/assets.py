@@ -1,0 +1,90 @@
+"""/assets: upload, list, inspect, delete, and thumbnails."""
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, File, Form, Header, Query, UploadFile
+from fastapi.responses import JSONResponse, Response
+
+from ..core import NotFound, ThumbnailService
+from ..deps import get_service, require_key
+from ..models import MEDIA_TYPES, AssetInfo, AssetList, Deleted, ErrorDetail, ThumbnailParams
+
+router = APIRouter(prefix="/assets", tags=["assets"])
+Service = Annotated[ThumbnailService, Depends(get_service)]
+ERRORS = {code: {"model": ErrorDetail} for code in (401, 404, 413, 415, 422, 500, 503, 504)}
+
+
+def asset_info(rec: dict) -> AssetInfo:
+    fields = {k: rec[k] for k in AssetInfo.model_fields if rec.get(k) is not None}
+    return AssetInfo(**fields, thumbnail=f"/assets/{rec['id']}/thumbnail")
+
+
+async def _chunks(file: UploadFile):
+    while chunk := await file.read(1 << 20):
+        yield chunk
+
+
+@router.post("", status_code=201, response_model=AssetInfo, dependencies=[Depends(require_key)],
+             responses={200: {"model": AssetInfo, "description": "the same bytes were uploaded before"},
+                        **ERRORS})
+async def upload_asset(service: Service, file: UploadFile = File(..., description="the asset, or a .zip of it"),
+                       main: str | None = Form(None, description="file to ingest inside a .zip")):
+    """Store an asset and bake it in the background. The id is the content hash: uploading the
+    same bytes again answers 200 with the existing asset and bakes nothing."""
+    rec, created = await service.add_asset(file.filename or "", _chunks(file), main)
+    return JSONResponse(asset_info(rec).model_dump(), status_code=201 if created else 200)
+
+
+@router.get("", response_model=AssetList)
+async def list_assets(service: Service):
+    recs = sorted(service.store.assets.values(), key=lambda r: r["created"])
+    return AssetList(assets=[asset_info(r) for r in recs])
+
+
+@router.get("/{asset_id}", response_model=AssetInfo, responses=ERRORS)
+async def get_asset(asset_id: str, service: Service):
+    rec = service.store.assets.get(asset_id)
+    if rec is None:
+        raise NotFound(asset_id)
+    return asset_info(rec)
+
+
+@router.delete("/{asset_id}", response_model=Deleted, dependencies=[Depends(require_key)], responses=ERRORS)
+async def delete_asset(asset_id: str, service: Service):
+    service.delete_asset(asset_id)
+    return Deleted(id=asset_id)
+
+
+@router.get("/{asset_id}/thumbnail", response_class=Response, responses={
+    200: {"content": {t: {} for t in MEDIA_TYPES.values()}, "description": "the image"},
+    202: {"model": ErrorDetail, "description": "still baking: retry after Retry-After seconds"},
+    304: {"description": "If-None-Match matched"}, **ERRORS})
+async def thumbnail(asset_id: str, params: Annotated[ThumbnailParams, Query()], service: Service,
+                    if_none_match: Annotated[str | None, Header()] = None):
+    """The asset rendered with these parameters; cached on disk by (asset, normalised
+    parameters, renderer version) and served from there without a worker once made."""
+    if asset_id not in service.store.assets:
+        raise NotFound(asset_id)
+    service.check_size(params)
+    env_identity, env_source = service.resolve_environment(params.env)
+    key = service.thumbnail_key(asset_id, params, env_identity)
+    hit = service.cached(asset_id, key, params.format)
+    if hit is None:
+        service.metrics.thumbnails["miss"] += 1
+        hit = await service.render(asset_id, params, key, env_source)
+    data, etag, plan = hit
+    headers = {"ETag": etag, "Cache-Control": f"public, max-age={service.settings.cache_max_age}",
+               "X-Render-Plan": plan}
+    if if_none_match and _matches(if_none_match, etag):
+        service.metrics.thumbnails["not_modified"] += 1
+        return Response(status_code=304, headers=headers)
+    service.metrics.thumbnails["hit"] += 1
+    return Response(data, media_type=MEDIA_TYPES[params.format], headers=headers)
+
+
+def _matches(header: str, etag: str) -> bool:
+    """If-None-Match uses the weak comparison (RFC 9110 13.1.2)."""
+    if header.strip() == "*":
+        return True
+    return any(t.strip().removeprefix("W/") == etag for t in header.split(","))

@@ -1,0 +1,220 @@
+"""Uploaded assets and environments on disk, and finished thumbnails.
+
+Layout under `<cache>/service/`:
+    assets/<id>/record.json      what GET /assets/{id} answers (status, summary, bake key)
+    assets/<id>/src/...          the uploaded file, or the archive's extracted files
+    environments/<id>/record.json, environments/<id>/<file>
+    thumbs/<id>/<key>.<fmt>      finished thumbnails
+    tmp/                         staging; everything appears elsewhere only by rename
+
+An asset folder is built in tmp/ and renamed into place, and every file is written to a
+temporary name and then `os.replace`d, so a killed server never leaves a half-written file
+where it would be read. The id is the SHA-256 of the uploaded bytes, so the same upload twice
+is the same asset.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import re
+import shutil
+import time
+import uuid
+from collections import OrderedDict
+from pathlib import Path
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+ID_CHARS = 32  # hex digits of the SHA-256 kept as the id (128 bits)
+_ID = re.compile(r"^[0-9a-f]{%d}$" % ID_CHARS)
+_UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
+
+
+def content_id(digest: "hashlib._Hash") -> str:
+    return digest.hexdigest()[:ID_CHARS]
+
+
+def is_id(text: str) -> bool:
+    return bool(_ID.match(text))
+
+
+def safe_name(filename: str, default: str = "upload") -> str:
+    """A file name that is only a name: no folders, no odd characters, not hidden."""
+    base = filename.replace("\\", "/").rsplit("/", 1)[-1]
+    base = _UNSAFE.sub("_", base).lstrip("._")
+    return base[:120] or default
+
+
+def write_atomic(path: Path, data: bytes) -> None:
+    """Write `data` to `path` so that readers see the old file or the whole new one."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")
+    with open(tmp, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def write_json(path: Path, obj: Any) -> None:
+    write_atomic(path, json.dumps(obj, indent=1, sort_keys=True).encode())
+
+
+class Store:
+    """Records of assets and environments, mirrored in memory, authoritative on disk."""
+
+    def __init__(self, root: Path):
+        self.root = Path(root)
+        self.assets_dir = self.root / "assets"
+        self.envs_dir = self.root / "environments"
+        self.thumbs_dir = self.root / "thumbs"
+        self.tmp_dir = self.root / "tmp"
+        for d in (self.assets_dir, self.envs_dir, self.thumbs_dir, self.tmp_dir):
+            d.mkdir(parents=True, exist_ok=True)
+        self.assets: dict[str, dict] = {}
+        self.environments: dict[str, dict] = {}
+        self._clean_tmp()
+        self._load()
+
+    # -- start-up ---------------------------------------------------------------------------
+
+    def _clean_tmp(self) -> None:
+        """Staging left by a killed server is garbage: nothing outside tmp/ points into it."""
+        for p in self.tmp_dir.iterdir():
+            shutil.rmtree(p, ignore_errors=True) if p.is_dir() else p.unlink(missing_ok=True)
+
+    def _load(self) -> None:
+        for kind, folder, table in (("asset", self.assets_dir, self.assets),
+                                    ("environment", self.envs_dir, self.environments)):
+            for d in sorted(folder.iterdir()):
+                try:
+                    rec = json.loads((d / "record.json").read_text())
+                except (OSError, ValueError) as exc:
+                    log.warning("ignoring %s folder %s: unreadable record (%s)", kind, d, exc)
+                    continue
+                table[rec["id"]] = rec
+        log.info("store %s: %d assets, %d environments", self.root, len(self.assets),
+                 len(self.environments))
+
+    # -- staging ----------------------------------------------------------------------------
+
+    def staging(self) -> Path:
+        path = self.tmp_dir / uuid.uuid4().hex
+        path.mkdir()
+        return path
+
+    # -- assets -----------------------------------------------------------------------------
+
+    def asset_dir(self, asset_id: str) -> Path:
+        return self.assets_dir / asset_id
+
+    def asset_path(self, rec: dict) -> Path:
+        return self.asset_dir(rec["id"]) / "src" / rec["root"]
+
+    def commit_asset(self, staged: Path, rec: dict) -> dict:
+        """Move a staged folder (holding `src/`) into place with its record. If the same id
+        landed meanwhile (two identical uploads at once), the first one wins."""
+        write_json(staged / "record.json", rec)
+        target = self.asset_dir(rec["id"])
+        try:
+            os.rename(staged, target)
+        except OSError:
+            shutil.rmtree(staged, ignore_errors=True)
+            if rec["id"] in self.assets:
+                return self.assets[rec["id"]]
+            raise
+        self.assets[rec["id"]] = rec
+        return rec
+
+    def update_asset(self, asset_id: str, **fields) -> dict:
+        rec = dict(self.assets[asset_id], **fields, updated=time.time())
+        write_json(self.asset_dir(asset_id) / "record.json", rec)
+        self.assets[asset_id] = rec
+        return rec
+
+    def delete_asset(self, asset_id: str) -> None:
+        """Rename away first so the asset disappears at once, then remove at leisure."""
+        self.assets.pop(asset_id, None)
+        for folder in (self.asset_dir(asset_id), self.thumbs_dir / asset_id):
+            if folder.exists():
+                grave = self.tmp_dir / f"deleted-{uuid.uuid4().hex}"
+                os.rename(folder, grave)
+                shutil.rmtree(grave, ignore_errors=True)
+
+    # -- environments -----------------------------------------------------------------------
+
+    def env_path(self, rec: dict) -> Path:
+        return self.envs_dir / rec["id"] / rec["file"]
+
+    def commit_environment(self, staged: Path, rec: dict) -> dict:
+        write_json(staged / "record.json", rec)
+        try:
+            os.rename(staged, self.envs_dir / rec["id"])
+        except OSError:
+            shutil.rmtree(staged, ignore_errors=True)
+            if rec["id"] in self.environments:
+                return self.environments[rec["id"]]
+            raise
+        self.environments[rec["id"]] = rec
+        return rec
+
+    def find_environment(self, name_or_id: str) -> dict | None:
+        rec = self.environments.get(name_or_id)
+        if rec is None:
+            rec = next((r for r in self.environments.values() if r["name"] == name_or_id), None)
+        return rec
+
+
+class ThumbnailCache:
+    """Finished thumbnails: files on disk, the hottest also held in memory (bounded bytes).
+    Each entry is (image bytes, strong ETag, render plan JSON). The ETag is derived from the
+    image bytes, so it changes whenever they do. The plan is written before the image, so an
+    image on disk always has its plan."""
+
+    def __init__(self, root: Path, memory_bytes: int):
+        self.root = Path(root)
+        self.memory_bytes = memory_bytes
+        self._hot: OrderedDict[str, tuple[bytes, str, str]] = OrderedDict()
+        self._hot_size = 0
+
+    def path(self, asset_id: str, key: str, fmt: str) -> Path:
+        return self.root / asset_id / f"{key}.{fmt}"
+
+    def get(self, asset_id: str, key: str, fmt: str) -> tuple[bytes, str, str] | None:
+        mem_key = f"{asset_id}/{key}.{fmt}"
+        hit = self._hot.get(mem_key)
+        if hit is not None:
+            self._hot.move_to_end(mem_key)
+            return hit
+        path = self.path(asset_id, key, fmt)
+        try:
+            data = path.read_bytes()
+            plan = path.with_suffix(".plan.json").read_text()
+        except FileNotFoundError:
+            return None
+        return self._remember(mem_key, data, plan)
+
+    def put(self, asset_id: str, key: str, fmt: str, data: bytes, plan: str) -> tuple[bytes, str, str]:
+        path = self.path(asset_id, key, fmt)
+        write_atomic(path.with_suffix(".plan.json"), plan.encode())
+        write_atomic(path, data)
+        return self._remember(f"{asset_id}/{key}.{fmt}", data, plan)
+
+    def forget(self, asset_id: str) -> None:
+        for k in [k for k in self._hot if k.startswith(asset_id + "/")]:
+            self._hot_size -= len(self._hot.pop(k)[0])
+
+    def _remember(self, mem_key: str, data: bytes, plan: str) -> tuple[bytes, str, str]:
+        entry = (data, '"' + hashlib.sha256(data).hexdigest()[:32] + '"', plan)
+        if len(data) <= self.memory_bytes // 4:
+            old = self._hot.pop(mem_key, None)
+            if old is not None:
+                self._hot_size -= len(old[0])
+            self._hot[mem_key] = entry
+            self._hot_size += len(data)
+            while self._hot_size > self.memory_bytes:
+                self._hot_size -= len(self._hot.popitem(last=False)[1][0])
+        return entry
