@@ -1,0 +1,340 @@
+"""Bake assets and environments into the cache, and load them back without their sources.
+
+An asset bake is: ingest -> one BakedMesh per (geometry, material) pair carrying every instance's
+world matrix -> interior vectors for transmissive geometry only -> a cache entry holding the
+arrays (meshes.npz, decoded textures in textures.npz) and a manifest with the full material
+values, so rendering never needs the source files again.
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import platform
+import time
+from datetime import datetime, timezone
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from .baked import BakedAsset, BakedEnvironment, BakedMesh
+from .cache import BAKE_FORMAT_VERSION, Cache, Entry, NotInCache, SourceFiles
+from .errors import MissingFile
+from .interior import interior_vectors
+from .limits import Limits
+from .scene import Light, Material, Sampler, Scene, Texture, TextureRef
+
+log = logging.getLogger(__name__)
+
+ASSET_OPTIONS = {"interior_epsilon": None}  # None: scale-aware (see interior.py)
+PREFILTERS = ("ggx", "paper")
+_MESH_ARRAYS = ("positions", "normals", "indices", "tangents", "uv0", "uv1", "colors", "interior")
+
+
+def _cache(cache_dir) -> Cache:
+    return cache_dir if isinstance(cache_dir, Cache) else Cache(cache_dir)
+
+
+def _is_texture(name: str) -> bool:
+    return name.startswith("texture.")
+
+
+class CachedTexture(Texture):
+    """A baked texture whose pixels are read from the cache (and checksummed) on first use:
+    a cache hit costs the geometry only, and bake runs that find everything cached read no
+    pixels at all. A corrupt file raises CorruptEntry then (the entry is dropped for rebaking)."""
+
+    def __init__(self, name: str, sampler: Sampler, source: str, entry: Entry, file: str):
+        self._entry, self._file = entry, file
+        super().__init__(name=name, image=None, sampler=sampler, source=source)
+
+    @property
+    def image(self) -> np.ndarray:
+        if self._image is None:
+            self._image = self._entry.read(self._file)
+        return self._image
+
+    @image.setter
+    def image(self, value) -> None:
+        self._image = value
+
+    def __repr__(self) -> str:
+        state = "loaded" if self._image is not None else "not read yet"
+        return f"CachedTexture({self.name!r}, {self._entry.key[:12]}/{self._file}, {state})"
+
+
+# -- assets ------------------------------------------------------------------------------------
+
+def bake_asset(path, cache_dir=None, *, force: bool = False, limits: Limits | None = None,
+               **options) -> BakedAsset:
+    """Ingest and bake `path` into the cache, or load it from there when nothing changed."""
+    return bake_or_load_asset(path, cache_dir, force=force, limits=limits, **options)[0]
+
+
+def bake_or_load_asset(path, cache_dir=None, *, force: bool = False, limits: Limits | None = None,
+                       **options) -> tuple[BakedAsset, bool]:
+    """As `bake_asset`, also saying whether it came from the cache (True) or was baked."""
+    from .ingest import load_scene
+
+    unknown = set(options) - set(ASSET_OPTIONS)
+    if unknown:
+        raise TypeError(f"unknown bake option(s): {', '.join(sorted(unknown))}")
+    opts = {**ASSET_OPTIONS, **options}
+    cache = _cache(cache_dir)
+    path = Path(path)
+    if not path.is_file():
+        raise MissingFile(path, "no such file")
+    if not force:
+        key = cache.lookup_source("assets", path, opts)
+        entry = key and cache.load("assets", key, lazy=_is_texture)
+        if entry:
+            return unpack_asset(entry), True
+
+    start = time.perf_counter()
+    scene = load_scene(path, limits)
+    ingest_s = time.perf_counter() - start
+    source = SourceFiles.hash(path, scene.files)
+    key = source.key("assets", opts)
+    entry = None if force else cache.load("assets", key, lazy=_is_texture)  # same bytes baked from elsewhere
+    if entry:
+        cache.record_source("assets", source, opts, key)
+        return unpack_asset(entry), True
+
+    baked = build_baked(scene, key, opts)
+    baked.manifest["timings"]["ingest_s"] = round(ingest_s, 6)
+    baked.manifest["inputs"] = source.inputs()
+    manifest, arrays = pack_asset(baked, opts)
+    entry = cache.store("assets", key, manifest, arrays)
+    cache.record_source("assets", source, opts, key)
+    baked.manifest = entry.manifest
+    log.info("%s: baked as %s (ingest %.1f ms, interior %.1f ms)", path, key, 1000 * ingest_s,
+             1000 * baked.manifest["timings"]["interior_s"])
+    return baked, False
+
+
+def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> BakedAsset:
+    """Group a Scene's instances into BakedMeshes and compute interior vectors where needed."""
+    opts = {**ASSET_OPTIONS, **(options or {})}
+    groups: dict[tuple[int, int], list[np.ndarray]] = {}
+    for inst in scene.instances:
+        groups.setdefault((inst.mesh, inst.material), []).append(np.asarray(inst.matrix, np.float64))
+    interiors: dict[int, np.ndarray] = {}
+    stats = {"rays": 0, "misses": 0, "degenerate": 0, "build_s": 0.0, "trace_s": 0.0}
+    meshes = []
+    for (mi, mat), transforms in groups.items():
+        mesh, material = scene.meshes[mi], scene.materials[mat]
+        interior = None
+        if material.material_class == "transmissive":
+            if mi not in interiors:
+                result = interior_vectors(mesh.positions, mesh.normals, mesh.indices,
+                                          epsilon=opts["interior_epsilon"])
+                interiors[mi] = result.vectors
+                for k, v in (("rays", result.rays), ("misses", result.misses),
+                             ("degenerate", result.degenerate), ("build_s", result.build_seconds),
+                             ("trace_s", result.trace_seconds)):
+                    stats[k] += v
+                if result.misses:
+                    log.info("%s: mesh %r: %d of %d interior rays missed (open mesh?); "
+                             "bounding-box fallback used", scene.source, mesh.name, result.misses,
+                             len(mesh.positions))
+            interior = interiors[mi]
+        meshes.append(BakedMesh(
+            name=mesh.name, positions=mesh.positions, normals=mesh.normals, indices=mesh.indices,
+            material=material, transforms=np.stack(transforms), tangents=mesh.tangents,
+            uv0=mesh.uv0, uv1=mesh.uv1, colors=mesh.colors, interior=interior))
+    interior_s = stats["build_s"] + stats["trace_s"]
+    stats["rays_per_s"] = round(stats["rays"] / interior_s) if interior_s > 0 else 0
+    manifest = {
+        "timings": {"interior_s": round(interior_s, 6)},
+        "stats": {"meshes": len(meshes), "instances": len(scene.instances),
+                  "vertices": int(sum(len(m.positions) for m in meshes)),
+                  "triangles": int(sum(len(m.indices) * len(m.transforms) for m in meshes)),
+                  "textures": len(scene.textures), "interior": stats},
+    }
+    return BakedAsset(key=key, source=str(scene.source), format=scene.format, meshes=meshes,
+                      textures=list(scene.textures), bounds=np.asarray(scene.bounds, np.float64),
+                      lights=list(scene.lights), warnings=list(scene.warnings), manifest=manifest)
+
+
+def load_baked(key: str, cache_dir=None) -> BakedAsset:
+    """A baked asset by key alone (no source file needed). Raises NotInCache."""
+    cache = _cache(cache_dir)
+    entry = cache.load("assets", key, lazy=_is_texture)
+    if entry is None:
+        raise NotInCache(cache.entry_dir("assets", key),
+                         "no baked asset with this key (never baked, evicted, or was corrupt)")
+    return unpack_asset(entry)
+
+
+def pack_asset(baked: BakedAsset, options: dict) -> tuple[dict, dict[str, dict[str, np.ndarray]]]:
+    """A BakedAsset as (manifest, {file name: arrays}) for the cache."""
+    materials: list[Material] = []
+    mesh_arrays, mesh_meta = {}, []
+    for i, m in enumerate(baked.meshes):
+        if not any(m.material is x for x in materials):
+            materials.append(m.material)
+        present = []
+        for name in _MESH_ARRAYS + ("transforms",):
+            value = getattr(m, name)
+            if value is not None:
+                mesh_arrays[f"{i}.{name}"] = np.ascontiguousarray(value)
+                present.append(name)
+        mesh_meta.append({"name": m.name, "material": next(j for j, x in enumerate(materials) if x is m.material),
+                          "arrays": present})
+    arrays = {"meshes.npz": mesh_arrays}
+    if baked.textures:
+        arrays.update({f"texture.{i}.npy": t.image for i, t in enumerate(baked.textures)})
+    manifest = {
+        **baked.manifest,
+        "kind": "asset",
+        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "source": baked.source,
+        "source_format": baked.format,
+        "options": options,
+        "versions": _versions(),
+        "meshes": mesh_meta,
+        "materials": [_material_to_json(m) for m in materials],
+        "textures": [{"name": t.name, "source": t.source, "sampler": dataclasses.asdict(t.sampler),
+                      "shape": list(t.image.shape)} for t in baked.textures],
+        "lights": [_light_to_json(light) for light in baked.lights],
+        "bounds": np.asarray(baked.bounds).tolist(),
+        "warnings": baked.warnings,
+    }
+    return manifest, arrays
+
+
+def unpack_asset(entry: Entry) -> BakedAsset:
+    m = entry.manifest
+    arrays = entry.arrays.get("meshes.npz", {})
+    materials = [_material_from_json(d) for d in m["materials"]]
+    meshes = []
+    for i, meta in enumerate(m["meshes"]):
+        fields = {name: arrays[f"{i}.{name}"] for name in meta["arrays"]}
+        meshes.append(BakedMesh(name=meta["name"], material=materials[meta["material"]], **fields))
+    textures = [CachedTexture(t["name"], Sampler(**t["sampler"]), t["source"], entry, f"texture.{i}.npy")
+                for i, t in enumerate(m["textures"])]
+    return BakedAsset(key=entry.key, source=m["source"], format=m["source_format"], meshes=meshes,
+                      textures=textures, bounds=np.asarray(m["bounds"], np.float64),
+                      lights=[_light_from_json(d) for d in m["lights"]], warnings=list(m["warnings"]),
+                      manifest=m)
+
+
+def _finite(x):
+    """JSON has no infinity: inf is stored as null."""
+    return None if isinstance(x, float) and math.isinf(x) else x
+
+
+def _material_to_json(material: Material) -> dict:
+    return {k: _finite(v) for k, v in dataclasses.asdict(material).items()}
+
+
+def _material_from_json(d: dict) -> Material:
+    values = {}
+    for f in dataclasses.fields(Material):
+        if f.name not in d:
+            continue
+        v = d[f.name]
+        if f.name.endswith("_texture") and v is not None:
+            v = TextureRef(**{k: tuple(x) if isinstance(x, list) else x for k, x in v.items()})
+        elif isinstance(v, list):
+            v = tuple(v)
+        elif v is None and f.name == "attenuation_distance":
+            v = math.inf
+        values[f.name] = v
+    return Material(**values)
+
+
+def _light_to_json(light: Light) -> dict:
+    d = {k: _finite(v) for k, v in dataclasses.asdict(light).items()}
+    d["matrix"] = np.asarray(light.matrix).tolist()
+    return d
+
+
+def _light_from_json(d: dict) -> Light:
+    d = dict(d, matrix=np.asarray(d["matrix"], np.float64), color=tuple(d["color"]))
+    if d.get("range") is None:
+        d["range"] = math.inf
+    return Light(**d)
+
+
+@lru_cache(maxsize=1)
+def _versions() -> dict:
+    from importlib import metadata
+    out = {"bake_format": BAKE_FORMAT_VERSION, "python": platform.python_version()}
+    for dist in ("asset-preview", "numpy", "embreex", "usd-core", "pygltflib", "trimesh", "moderngl"):
+        try:
+            out[dist] = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            pass
+    return out
+
+
+# -- environments ------------------------------------------------------------------------------
+
+def bake_environment(source, cache_dir=None, face_size: int = 256, prefilter: str = "ggx",
+                     force: bool = False, limits: Limits | None = None) -> BakedEnvironment:
+    """Prefilter a panorama (file or bundled name) into the cache, or load it from there."""
+    return bake_or_load_environment(source, cache_dir, face_size=face_size, prefilter=prefilter,
+                                    force=force, limits=limits)[0]
+
+
+def bake_or_load_environment(source, cache_dir=None, face_size: int = 256, prefilter: str = "ggx",
+                             force: bool = False, limits: Limits | None = None
+                             ) -> tuple[BakedEnvironment, bool]:
+    from .panorama import _resolve as resolve_panorama  # file path or bundled name -> file
+    from .panorama import load_panorama
+
+    if prefilter not in PREFILTERS:
+        raise ValueError(f"prefilter must be one of {PREFILTERS}, not {prefilter!r}")
+    if not (isinstance(face_size, int) and 8 <= face_size <= 4096):
+        raise ValueError(f"face_size must be an integer in 8..4096, not {face_size!r}")
+    cache = _cache(cache_dir)
+    opts = {"face_size": face_size, "prefilter": prefilter}
+    source_files = SourceFiles.hash(resolve_panorama(source))
+    key = source_files.key("environments", opts)
+    if not force:
+        entry = cache.load("environments", key)
+        if entry:
+            return unpack_environment(entry), True
+
+    from .environment import prefilter as run_prefilter
+
+    start = time.perf_counter()
+    panorama = load_panorama(source, limits)
+    load_s = time.perf_counter() - start
+    start = time.perf_counter()
+    env = run_prefilter(panorama.pixels, face_size=face_size, method=prefilter)
+    prefilter_s = time.perf_counter() - start
+    arrays = {f"specular.{i}.npy": mip for i, mip in enumerate(env.specular)}
+    arrays["small.npz"] = {"irradiance_sh": np.asarray(env.irradiance_sh),
+                           "brdf_lut": np.asarray(env.brdf_lut)}
+    manifest = {
+        "kind": "environment", "name": panorama.name,
+        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "inputs": source_files.inputs(), "options": opts, "versions": _versions(),
+        "panorama_shape": list(panorama.pixels.shape), "mips": len(env.specular),
+        "timings": {"load_s": round(load_s, 6), "prefilter_s": round(prefilter_s, 6),
+                    **{k: round(float(v), 6) for k, v in dict(env.timings).items()}},
+    }
+    entry = cache.store("environments", key, manifest, arrays)
+    log.info("%s: environment baked as %s in %.1f ms", source, key, 1000 * (load_s + prefilter_s))
+    return unpack_environment(entry), False
+
+
+def load_environment(key: str, cache_dir=None) -> BakedEnvironment:
+    """A baked environment by key alone. Raises NotInCache."""
+    cache = _cache(cache_dir)
+    entry = cache.load("environments", key)
+    if entry is None:
+        raise NotInCache(cache.entry_dir("environments", key),
+                         "no baked environment with this key (never baked, evicted, or was corrupt)")
+    return unpack_environment(entry)
+
+
+def unpack_environment(entry: Entry) -> BakedEnvironment:
+    a, m = entry.arrays, entry.manifest
+    specular = [a[f"specular.{i}.npy"] for i in range(m["mips"])]
+    return BakedEnvironment(key=entry.key, name=m["name"], specular=specular,
+                            irradiance_sh=a["small.npz"]["irradiance_sh"], brdf_lut=a["small.npz"]["brdf_lut"],
+                            prefilter=m["options"]["prefilter"], manifest=m)

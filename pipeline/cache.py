@@ -1,0 +1,425 @@
+"""Content-addressed, atomic on-disk cache of baked assets and environments.
+
+Layout under the cache root (default `$ASSET_PREVIEW_CACHE`, else `./.cache`):
+
+    assets/<key>/        manifest.json + *.npz     one baked asset
+    environments/<key>/  manifest.json + *.npz     one baked environment
+    sources/<id>.json    source index (below)
+    tmp/                 entries being built, and entries being deleted
+
+Key. SHA-256 over a canonical JSON of: BAKE_FORMAT_VERSION, the kind, the main file's suffix
+and SHA-256, the (relative path, SHA-256) of every other file the asset read (Scene.files:
+buffers, textures, USD layers), and the bake options. Same bytes and options -> same key,
+wherever the files live; any changed byte -> a new key. The main file's name is not part of it.
+
+Source index. Which files an asset reads is only known after ingest, yet a hit must be decided
+without ingesting. So each bake records, under sources/<id> with id = hash(kind, main file
+SHA-256, suffix, options, version), the dependency list it found with each file's SHA-256, and
+the key. A lookup hashes the main file, reads that record and re-hashes the listed files: if all
+match, the key follows (the same main bytes and the same dependency bytes make a deterministic
+ingest read the same files). Several records per id are kept, newest first, for copies of one
+main file beside different dependencies. Known gap: a reference that was missing at bake time
+(ingest warned and went on) and appears later is not noticed until the main file changes or
+`--force`.
+
+Atomicity. An entry is built in tmp/ on the same filesystem, fsynced, then renamed into place;
+the loser of a race (its rename finds the entry there) discards its copy. Entries are removed
+by renaming them into tmp/ first, so readers see a whole entry or none. Every file in an entry
+carries a SHA-256 in the manifest, checked on every load: a missing or mismatched file is
+logged, the entry removed, and the caller rebakes. Loads touch the manifest's mtime, which is
+the recency that the optional size cap's least-recently-used eviction goes by.
+"""
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import logging
+import os
+import re
+import shutil
+import time
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import AssetError
+
+log = logging.getLogger(__name__)
+
+BAKE_FORMAT_VERSION = 1
+KINDS = ("assets", "environments")
+MANIFEST = "manifest.json"
+_KEY = re.compile(r"[0-9a-f]{64}")
+_RECORDS_PER_SOURCE = 8
+_STALE_TMP_SECONDS = 3600
+
+
+class NotInCache(AssetError):
+    """No valid entry for a key (never baked, evicted, or found corrupt)."""
+
+
+class CorruptEntry(NotInCache):
+    """A lazily read file of an entry failed its checksum (the entry is removed; rebake it)."""
+
+
+def default_cache_dir() -> Path:
+    return Path(os.environ.get("ASSET_PREVIEW_CACHE") or ".cache")
+
+
+def parse_size(text: str | int | None) -> int | None:
+    """'500M', '2G', '1048576' -> bytes; None or '' or 0 -> no cap."""
+    if text in (None, "", 0, "0"):
+        return None
+    if isinstance(text, int):
+        return text
+    m = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*([kmgt]?)i?b?\s*", str(text).lower())
+    if not m:
+        raise ValueError(f"not a size: {text!r} (use e.g. 500M or 2G)")
+    return int(float(m.group(1)) * 1024 ** " kmgt".index(m.group(2) or " "))
+
+
+def file_sha256(path: str | os.PathLike) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while chunk := f.read(1 << 20):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _digest(obj) -> str:
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+
+
+@dataclass
+class SourceFiles:
+    """An asset's main file and the files it depends on, hashed."""
+    main: Path
+    main_sha256: str
+    deps: list[tuple[str, str]] = field(default_factory=list)  # (path relative to main's folder, sha256)
+
+    @classmethod
+    def hash(cls, main: str | os.PathLike, files=()) -> "SourceFiles":
+        main = Path(main).resolve()
+        deps = {}
+        for f in files:
+            f = Path(f).resolve()
+            if f == main:
+                continue
+            rel = os.path.relpath(f, main.parent) if f.is_relative_to(main.parent) else str(f)
+            deps[Path(rel).as_posix()] = file_sha256(f)
+        return cls(main, file_sha256(main), sorted(deps.items()))
+
+    def key(self, kind: str, options: dict) -> str:
+        return _digest({"format": BAKE_FORMAT_VERSION, "kind": kind, "suffix": self.main.suffix.lower(),
+                        "main": self.main_sha256, "deps": self.deps, "options": options})
+
+    def inputs(self) -> list[dict]:
+        """For manifests: every input file with its checksum."""
+        return [{"path": str(self.main), "sha256": self.main_sha256}] + [
+            {"path": rel, "sha256": sha} for rel, sha in self.deps]
+
+
+@dataclass
+class Entry:
+    kind: str
+    key: str
+    path: Path
+    manifest: dict
+    arrays: dict[str, dict[str, np.ndarray] | np.ndarray]  # file name -> its array(s), eager ones
+    cache: "Cache | None" = None
+
+    def read(self, name: str):
+        """A file's array(s): eager ones from memory, lazy ones read and checksummed now."""
+        if name in self.arrays:
+            return self.arrays[name]
+        meta = self.manifest["files"][name]
+        try:
+            data = _read(self.path / name)
+            ok = len(data) == meta["bytes"] and hashlib.sha256(data).hexdigest() == meta["sha256"]
+            value = _decode(name, data) if ok else None
+        except Exception as exc:  # unreadable or undecodable: corrupt like a bad checksum
+            ok, why = False, f"{name}: {exc}"
+        else:
+            why = f"{name}: checksum mismatch"
+        if not ok:
+            if self.cache is not None:
+                self.cache._corrupt(self.kind, self.key, why)
+            raise CorruptEntry(self.path, f"{why}; entry removed, bake the asset again")
+        return value
+
+
+class Cache:
+    """One cache root. Safe to share between processes and machines on one filesystem."""
+
+    def __init__(self, root: str | os.PathLike | None = None, max_bytes: int | str | None = None):
+        self.root = Path(root) if root is not None else default_cache_dir()
+        env_cap = os.environ.get("ASSET_PREVIEW_CACHE_MAX_BYTES")
+        self.max_bytes = parse_size(max_bytes if max_bytes is not None else env_cap)
+
+    def entry_dir(self, kind: str, key: str) -> Path:
+        if kind not in KINDS:
+            raise ValueError(f"unknown cache kind {kind!r}")
+        if not _KEY.fullmatch(key or ""):
+            raise NotInCache(key, "not a cache key (64 lowercase hex digits)")
+        return self.root / kind / key
+
+    # -- entries -------------------------------------------------------------------------------
+
+    def load(self, kind: str, key: str, lazy=None) -> Entry | None:
+        """The verified entry, or None (absent, or corrupt: then logged and removed).
+
+        Files for which `lazy(name)` is true (large textures a caller may never need) are only
+        checked for presence and size here, and fully checksummed by `Entry.read` on first use."""
+        path = self.entry_dir(kind, key)
+        try:
+            manifest = json.loads((path / MANIFEST).read_bytes())
+        except FileNotFoundError:
+            return None
+        except (OSError, ValueError) as exc:
+            return self._corrupt(kind, key, f"unreadable manifest ({exc})")
+        if manifest.get("format") != BAKE_FORMAT_VERSION or manifest.get("key") != key:
+            return self._corrupt(kind, key, "manifest of another format or key")
+        arrays = {}
+        for name, meta in manifest.get("files", {}).items():
+            if lazy is not None and lazy(name):
+                try:
+                    size = (path / name).stat().st_size
+                except OSError as exc:
+                    return self._corrupt(kind, key, f"{name}: {exc.strerror or exc}")
+                if size != meta.get("bytes"):
+                    return self._corrupt(kind, key, f"{name}: {size} bytes, manifest says {meta.get('bytes')}")
+                continue
+            try:
+                data = _read(path / name)
+            except OSError as exc:
+                return self._corrupt(kind, key, f"{name}: {exc.strerror or exc}")
+            if len(data) != meta.get("bytes") or hashlib.sha256(data).hexdigest() != meta.get("sha256"):
+                return self._corrupt(kind, key, f"{name}: checksum mismatch")
+            try:
+                arrays[name] = _decode(name, data)
+            except Exception as exc:  # a checksummed file that numpy rejects: still corrupt
+                return self._corrupt(kind, key, f"{name}: {exc}")
+        try:
+            os.utime(path / MANIFEST)  # recency for LRU eviction
+        except OSError:
+            pass  # read-only cache: eviction order degrades, loading does not
+        return Entry(kind, key, path, manifest, arrays, self)
+
+    def store(self, kind: str, key: str, manifest: dict, arrays: dict) -> Entry:
+        """Write an entry atomically; if another process got there first, keep theirs.
+
+        `arrays` maps file names to what they hold: `x.npz` a dict of arrays, `x.npy` one array
+        (large ones, e.g. decoded textures: loaded without a copy)."""
+        final = self.entry_dir(kind, key)
+        tmp = self._tmp_dir(f"{kind[:3]}-{key[:16]}")
+        try:
+            manifest = dict(manifest, format=BAKE_FORMAT_VERSION, key=key, files={})
+            for name, value in arrays.items():
+                data = _encode(name, value)
+                _write(tmp / name, data)
+                manifest["files"][name] = {"bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()}
+            _write(tmp / MANIFEST, json.dumps(manifest, indent=1, default=_json_default).encode())
+            _fsync_dir(tmp)
+            final.parent.mkdir(parents=True, exist_ok=True)
+            for attempt in range(2):
+                try:
+                    os.rename(tmp, final)
+                    _fsync_dir(final.parent)
+                    log.info("cache: stored %s/%s", kind, key)
+                    break
+                except OSError:
+                    if attempt == 0 and self.load(kind, key) is None:
+                        continue  # what was there was corrupt and is gone now: try again
+                    log.info("cache: %s/%s was stored concurrently; discarding our copy", kind, key)
+                    break
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+        self.evict(keep={(kind, key)})
+        return Entry(kind, key, final, manifest, arrays, self)
+
+    def remove(self, kind: str, key: str) -> None:
+        """Delete an entry: renamed away first so no reader ever sees half of it."""
+        path = self.entry_dir(kind, key)
+        trash = self._tmp_dir("trash", create=False)
+        try:
+            os.rename(path, trash)
+        except OSError:
+            return  # already gone (another process removed it)
+        shutil.rmtree(trash, ignore_errors=True)
+
+    def _corrupt(self, kind: str, key: str, why: str) -> None:
+        log.warning("cache: %s/%s is corrupt (%s); removing it to rebake", kind, key, why)
+        self.remove(kind, key)
+        return None
+
+    def _tmp_dir(self, prefix: str, create: bool = True) -> Path:
+        path = self.root / "tmp" / f"{prefix}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if create:
+            path.mkdir()
+        return path
+
+    # -- source index --------------------------------------------------------------------------
+
+    def _source_file(self, kind: str, main_sha256: str, suffix: str, options: dict) -> Path:
+        ident = _digest({"format": BAKE_FORMAT_VERSION, "kind": kind, "main": main_sha256,
+                         "suffix": suffix.lower(), "options": options})
+        return self.root / "sources" / f"{ident}.json"
+
+    def lookup_source(self, kind: str, main: str | os.PathLike, options: dict) -> str | None:
+        """Key of a previous bake of `main` with these options if no input changed since; else None."""
+        main = Path(main).resolve()
+        try:
+            records = json.loads(self._source_file(kind, file_sha256(main), main.suffix, options).read_bytes())
+        except (OSError, ValueError):
+            return None
+        hashes: dict[str, str | None] = {}
+        for record in records if isinstance(records, list) else []:
+            try:
+                deps, key = record["deps"], record["key"]
+                for rel, sha in deps:
+                    if rel not in hashes:
+                        try:
+                            hashes[rel] = file_sha256(main.parent / rel)
+                        except OSError:
+                            hashes[rel] = None
+                    if hashes[rel] != sha:
+                        break
+                else:
+                    return key
+            except (KeyError, TypeError, ValueError):
+                continue
+        return None
+
+    def record_source(self, kind: str, source: SourceFiles, options: dict, key: str) -> None:
+        path = self._source_file(kind, source.main_sha256, source.main.suffix, options)
+        record = {"key": key, "deps": [list(d) for d in source.deps]}
+        try:
+            old = json.loads(path.read_bytes())
+            old = [r for r in old if isinstance(r, dict) and r.get("deps") != record["deps"]]
+        except (OSError, ValueError, TypeError):
+            old = []
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}")
+        tmp.write_bytes(json.dumps([record] + old[:_RECORDS_PER_SOURCE - 1]).encode())
+        os.replace(tmp, path)  # last writer wins; a lost record only costs one rebake
+
+    # -- size cap ------------------------------------------------------------------------------
+
+    def entries(self) -> list[tuple[float, int, str, str]]:
+        """(last use, bytes, kind, key) of every entry."""
+        out = []
+        for kind in KINDS:
+            folder = self.root / kind
+            if not folder.is_dir():
+                continue
+            for path in folder.iterdir():
+                try:
+                    used = (path / MANIFEST).stat().st_mtime
+                    size = sum(f.stat().st_size for f in path.iterdir())
+                except OSError:
+                    continue  # being written or removed right now
+                out.append((used, size, kind, path.name))
+        return out
+
+    def evict(self, keep=()) -> int:
+        """Drop least recently used entries until under the cap; returns bytes freed."""
+        self._sweep_tmp()
+        if not self.max_bytes:
+            return 0
+        entries = sorted(self.entries())
+        total = sum(e[1] for e in entries)
+        freed = 0
+        for used, size, kind, key in entries:
+            if total - freed <= self.max_bytes:
+                break
+            if (kind, key) in keep:
+                continue
+            self.remove(kind, key)
+            freed += size
+            log.info("cache: evicted %s/%s (%d bytes, last used %s)", kind, key, size, time.ctime(used))
+        return freed
+
+    def _sweep_tmp(self) -> None:
+        """Remove what crashed processes left in tmp/ (old enough that nobody is writing it)."""
+        folder = self.root / "tmp"
+        if not folder.is_dir():
+            return
+        cutoff = time.time() - _STALE_TMP_SECONDS
+        for path in folder.iterdir():
+            try:
+                if path.stat().st_mtime < cutoff:
+                    shutil.rmtree(path, ignore_errors=True)
+            except OSError:
+                pass
+
+
+def _encode(name: str, value) -> bytes:
+    buf = io.BytesIO()
+    if name.endswith(".npy"):
+        np.save(buf, np.ascontiguousarray(value), allow_pickle=False)
+    elif name.endswith(".npz"):
+        np.savez(buf, **value)
+    else:
+        raise ValueError(f"cache files are .npy or .npz, not {name!r}")
+    return buf.getvalue()
+
+
+def _decode(name: str, data: bytearray):
+    if name.endswith(".npz"):
+        with np.load(io.BytesIO(data), allow_pickle=False) as npz:
+            return {k: npz[k] for k in npz.files}
+    # .npy: parse the header, then view the bytes already read (no second copy).
+    buf = io.BytesIO(memoryview(data)[:4096])
+    fmt = np.lib.format
+    read_header = fmt.read_array_header_1_0 if fmt.read_magic(buf) == (1, 0) else fmt.read_array_header_2_0
+    shape, fortran, dtype = read_header(buf)
+    if dtype.hasobject or fortran:
+        raise ValueError("unexpected array layout")
+    count = int(np.prod(shape, dtype=np.int64))
+    return np.frombuffer(data, dtype, count, offset=buf.tell()).reshape(shape)
+
+
+def _read(path: Path) -> bytearray:
+    """Whole file into a writable buffer (arrays viewing it stay writable)."""
+    with open(path, "rb", buffering=0) as f:
+        size = os.fstat(f.fileno()).st_size
+        data = bytearray(size)
+        view = memoryview(data)
+        got = 0
+        while got < size and (n := f.readinto(view[got:])):
+            got += n
+    return data if got == size else data[:got]
+
+
+def _write(path: Path, data: bytes) -> None:
+    with open(path, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def _fsync_dir(path: Path) -> None:
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def _json_default(obj):
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
