@@ -1,0 +1,11 @@
+"""Headless OpenGL renderer: baked asset + baked environment + options -> Frame."""
+from __future__ import annotations
+
+# Bump on any change that alters pixels: the service keys cached thumbnails with it.
+RENDERER_VERSION = "1"
+
+# Imported eagerly: the submodule `renderer.render` would otherwise shadow the function.
+from .frame import Frame  # noqa: E402
+from .render import render  # noqa: E402
+
+__all__ = ["render", "Frame", "RENDERER_VERSION"]

@@ -1,0 +1,145 @@
+"""A rendered image: linear radiance for measurement, tone-mapped sRGB for people, and encoders.
+
+Tone mapping and sRGB encoding normally run on the GPU in the final pass (renderer.render);
+`tonemap_srgb8` is the same arithmetic in numpy, used for frames made elsewhere (the ray
+tracer, the reference) so every path shows an image the same way.
+"""
+from __future__ import annotations
+
+import io
+import logging
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+_PIL_FORMATS = {"png": "PNG", "jpeg": "JPEG", "jpg": "JPEG", "webp": "WEBP"}
+
+
+@dataclass
+class Frame:
+    linear: np.ndarray   # H x W x 4 float32: linear radiance (premultiplied by alpha), alpha
+    rgba8: np.ndarray    # H x W x 4 uint8: tone-mapped sRGB, straight alpha
+    plan: dict = field(default_factory=dict)     # what ran and why
+    timings: dict = field(default_factory=dict)  # milliseconds per stage
+
+    @property
+    def width(self) -> int:
+        return int(self.rgba8.shape[1])
+
+    @property
+    def height(self) -> int:
+        return int(self.rgba8.shape[0])
+
+    def encode(self, fmt: str = "png", quality: int | None = None) -> bytes:
+        """PNG (lossless, alpha), JPEG (no alpha: composited over black) or WebP bytes."""
+        key = fmt.lower().lstrip(".")
+        if key not in _PIL_FORMATS:
+            raise ValueError(f"unknown image format {fmt!r}: use png, jpeg or webp")
+        from PIL import Image
+        opaque = bool(np.all(self.rgba8[..., 3] == 255))
+        if _PIL_FORMATS[key] == "JPEG" or opaque:
+            rgb = self.rgba8[..., :3]
+            if not opaque:  # JPEG has no alpha: premultiply onto black
+                rgb = (rgb.astype(np.uint16) * self.rgba8[..., 3:4] // 255).astype(np.uint8)
+            img = Image.fromarray(np.ascontiguousarray(rgb), "RGB")
+        else:
+            img = Image.fromarray(self.rgba8, "RGBA")
+        buf = io.BytesIO()
+        kwargs: dict = {}
+        if _PIL_FORMATS[key] == "PNG":
+            kwargs["compress_level"] = 1  # thumbnails: speed over the last few percent of size
+        else:
+            kwargs["quality"] = int(quality if quality is not None else 90)
+        img.save(buf, _PIL_FORMATS[key], **kwargs)
+        return buf.getvalue()
+
+    def save(self, path: str | os.PathLike, quality: int | None = None) -> None:
+        """Write by extension: .png .jpg/.jpeg .webp (tone-mapped), .npy or .exr (linear)."""
+        path = os.fspath(path)
+        ext = os.path.splitext(path)[1].lower().lstrip(".")
+        if ext == "npy":
+            np.save(path, self.linear.astype(np.float32, copy=False))
+        elif ext == "exr":
+            write_exr(path, self.linear)
+        elif ext in _PIL_FORMATS:
+            data = self.encode(ext, quality)
+            with open(path, "wb") as f:
+                f.write(data)
+        else:
+            raise ValueError(f"{path}: unknown output extension (png, jpg, webp, npy, exr)")
+
+
+def write_exr(path: str, linear: np.ndarray) -> None:
+    """Linear float32 RGBA OpenEXR (PyPI `OpenEXR`, ZIP compression)."""
+    import OpenEXR
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    channels = {"RGBA": np.ascontiguousarray(linear, dtype=np.float32)}
+    with OpenEXR.File(header, channels) as f:
+        f.write(path)
+
+
+# --- the numpy twin of shaders/tonemap.frag ------------------------------------------------
+
+def tonemap(rgb: np.ndarray, method: str = "neutral", exposure: float = 0.0) -> np.ndarray:
+    """Linear radiance -> display-referred linear [0, 1] (before the sRGB transfer)."""
+    c = np.maximum(rgb * np.float32(2.0 ** exposure), 0).astype(np.float32)
+    if method == "none":
+        return np.clip(c, 0, 1)
+    if method == "aces":
+        return _aces_hill(c)
+    if method == "neutral":
+        return _pbr_neutral(c)
+    raise ValueError(f"unknown tone mapping {method!r}: use neutral, aces or none")
+
+
+def _pbr_neutral(c: np.ndarray) -> np.ndarray:
+    # Khronos PBR Neutral (github.com/KhronosGroup/ToneMapping, PBR_Neutral).
+    start, desat = 0.8 - 0.04, 0.15
+    x = c.min(axis=-1, keepdims=True)
+    offset = np.where(x < 0.08, x - 6.25 * x * x, 0.04)
+    c = c - offset
+    peak = c.max(axis=-1, keepdims=True)
+    d = 1.0 - start
+    new_peak = 1.0 - d * d / (peak + d - start)
+    scaled = c * (new_peak / np.maximum(peak, 1e-12))
+    g = 1.0 - 1.0 / (desat * (peak - new_peak) + 1.0)
+    mapped = scaled * (1 - g) + new_peak * g
+    return np.clip(np.where(peak < start, c, mapped), 0, 1)
+
+
+_ACES_IN = np.array([[0.59719, 0.35458, 0.04823], [0.07600, 0.90834, 0.01566],
+                     [0.02840, 0.13383, 0.83777]], np.float32)
+_ACES_OUT = np.array([[1.60475, -0.53108, -0.07367], [-0.10208, 1.10813, -0.00605],
+                      [-0.00327, -0.07276, 1.07602]], np.float32)
+
+
+def _aces_hill(c: np.ndarray) -> np.ndarray:
+    # Stephen Hill's RRT+ODT fit, with the 1/0.6 exposure bias the glTF Sample Viewer uses.
+    c = (c / 0.6) @ _ACES_IN.T
+    c = (c * (c + 0.0245786) - 0.000090537) / (c * (0.983729 * c + 0.4329510) + 0.238081)
+    return np.clip(c @ _ACES_OUT.T, 0, 1)
+
+
+def srgb_encode(x: np.ndarray) -> np.ndarray:
+    x = np.clip(x, 0, 1)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+
+
+def srgb_decode(x: np.ndarray) -> np.ndarray:
+    return np.where(x <= 0.04045, x / 12.92, np.power((x + 0.055) / 1.055, 2.4))
+
+
+def tonemap_srgb8(linear: np.ndarray, method: str = "neutral", exposure: float = 0.0,
+                  background: tuple[float, float, float] | None = None) -> np.ndarray:
+    """Premultiplied linear RGBA -> straight-alpha sRGB uint8, optionally composited over an
+    sRGB `background` colour (0..1) in display space, as the GPU pass does."""
+    a = linear[..., 3:4]
+    rgb = linear[..., :3] / np.maximum(a, 1e-6)
+    out = srgb_encode(tonemap(rgb, method, exposure))
+    if background is not None:
+        out = out * a + np.asarray(background, np.float32) * (1 - a)
+        a = np.ones_like(a)
+    return np.round(np.concatenate([out, a], axis=-1) * 255).clip(0, 255).astype(np.uint8)

@@ -1,0 +1,248 @@
+"""Baked data on the GPU: meshes, material textures and environments, kept in bounded LRUs.
+
+Uploading is the expensive part of a warm thumbnail on a CPU rasteriser, so everything is
+keyed by the bake's content key and kept until evicted: a second thumbnail of the same
+asset (any camera, size or options) uploads nothing. `stats` counts uploads for the tests.
+"""
+from __future__ import annotations
+
+import logging
+import os
+from collections import OrderedDict
+from dataclasses import dataclass, field
+
+import moderngl
+import numpy as np
+
+from pipeline.baked import BakedAsset, BakedEnvironment, BakedMesh
+from pipeline.scene import CLAMP_TO_EDGE, Light, Texture
+
+from . import context
+
+log = logging.getLogger(__name__)
+
+GL_SRGB8_ALPHA8 = 0x8C43
+GL_TEXTURE_CUBE_MAP_SEAMLESS = 0x884F
+
+MAX_ASSETS = int(os.environ.get("ASSET_PREVIEW_GPU_ASSETS", 16))
+MAX_ASSET_BYTES = int(float(os.environ.get("ASSET_PREVIEW_GPU_MB", 768)) * 2**20)
+MAX_ENVIRONMENTS = int(os.environ.get("ASSET_PREVIEW_GPU_ENVIRONMENTS", 4))
+
+stats = {"asset_uploads": 0, "environment_uploads": 0, "evictions": 0}
+
+# Vertex attributes by BakedMesh field: (shader name, moderngl format).
+_ATTRIBUTES = {
+    "positions": ("in_position", "3f"), "normals": ("in_normal", "3f"),
+    "tangents": ("in_tangent", "4f"), "uv0": ("in_uv0", "2f"), "uv1": ("in_uv1", "2f"),
+    "colors": ("in_color", "4f"),
+}
+_INSTANCE = ("16f 9f/i", "in_model", "in_normal_matrix")
+
+
+@dataclass
+class GpuMesh:
+    baked: BakedMesh
+    buffers: dict[str, moderngl.Buffer]
+    index_buffer: moderngl.Buffer
+    # Instances split by the sign of the transform's determinant: a mirroring transform flips
+    # the winding, so those draw with the opposite front face.
+    instances: list[tuple[bool, moderngl.Buffer, int]]
+    centers: np.ndarray          # K x 3 world-space instance centres (blend sorting)
+    nbytes: int
+    vaos: dict[tuple, moderngl.VertexArray] = field(default_factory=dict)
+    states: dict = field(default_factory=dict)  # renderer's per-material state, by override
+
+    def vao(self, prog: moderngl.Program, mirrored: bool) -> moderngl.VertexArray:
+        key = (prog.glo, mirrored)
+        vao = self.vaos.get(key)
+        if vao is None:
+            content = [(buf, _ATTRIBUTES[name][1], _ATTRIBUTES[name][0])
+                       for name, buf in self.buffers.items()]
+            inst = next(b for m, b, _ in self.instances if m == mirrored)
+            content.append((inst, _INSTANCE[0], _INSTANCE[1], _INSTANCE[2]))
+            vao = context.get_context().vertex_array(prog, content, self.index_buffer, 4,
+                                                     skip_errors=True)
+            self.vaos[key] = vao
+        return vao
+
+    def release(self) -> None:
+        for vao in self.vaos.values():
+            vao.release()
+        for buf in [*self.buffers.values(), self.index_buffer, *(b for _, b, _ in self.instances)]:
+            buf.release()
+
+
+@dataclass
+class GpuAsset:
+    key: str
+    meshes: list[GpuMesh]
+    textures: dict[tuple[int, bool], moderngl.Texture]  # (texture index, sRGB) -> texture
+    lights: list[Light]
+    bounds: np.ndarray
+    nbytes: int
+
+    def release(self) -> None:
+        for m in self.meshes:
+            m.release()
+        for t in self.textures.values():
+            t.release()
+
+
+@dataclass
+class GpuEnvironment:
+    key: str
+    cube: moderngl.TextureCube
+    lut: moderngl.Texture
+    sh: np.ndarray           # 9 x 3 float32, radiance SH as baked
+    max_lod: float
+    prefilter: str
+
+    def release(self) -> None:
+        self.cube.release()
+        self.lut.release()
+
+
+_assets: OrderedDict[str, GpuAsset] = OrderedDict()
+_environments: OrderedDict[str, GpuEnvironment] = OrderedDict()
+_ctx_id: int | None = None
+
+
+def _check_context() -> moderngl.Context:
+    """Caches belong to one context; a new context (forked child) starts them empty."""
+    global _ctx_id
+    ctx = context.get_context()
+    if _ctx_id != id(ctx):
+        _assets.clear()
+        _environments.clear()
+        _ctx_id = id(ctx)
+        ctx.enable_direct(GL_TEXTURE_CUBE_MAP_SEAMLESS)
+    return ctx
+
+
+def asset(baked: BakedAsset) -> GpuAsset:
+    """The GPU copy of `baked`, uploaded on first use and then reused (LRU by bake key)."""
+    _check_context()
+    gpu = _assets.get(baked.key)
+    if gpu is not None:
+        _assets.move_to_end(baked.key)
+        return gpu
+    gpu = _upload_asset(baked)
+    _assets[baked.key] = gpu
+    stats["asset_uploads"] += 1
+    while len(_assets) > 1 and (len(_assets) > MAX_ASSETS
+                                or sum(a.nbytes for a in _assets.values()) > MAX_ASSET_BYTES):
+        _, old = _assets.popitem(last=False)
+        old.release()
+        stats["evictions"] += 1
+    return gpu
+
+
+def environment(baked: BakedEnvironment) -> GpuEnvironment:
+    """The GPU copy of `baked` (cube with its prefiltered mips, BRDF LUT, SH), LRU by key."""
+    _check_context()
+    gpu = _environments.get(baked.key)
+    if gpu is not None:
+        _environments.move_to_end(baked.key)
+        return gpu
+    gpu = _upload_environment(baked)
+    _environments[baked.key] = gpu
+    stats["environment_uploads"] += 1
+    while len(_environments) > MAX_ENVIRONMENTS:
+        _, old = _environments.popitem(last=False)
+        old.release()
+        stats["evictions"] += 1
+    return gpu
+
+
+def clear() -> None:
+    """Release everything (tests; a service shrinking its memory)."""
+    for cache in (_assets, _environments):
+        while cache:
+            cache.popitem()[1].release()
+
+
+def _upload_asset(baked: BakedAsset) -> GpuAsset:
+    ctx = context.get_context()
+    meshes = []
+    for m in baked.meshes:
+        buffers = {}
+        for name in _ATTRIBUTES:
+            arr = getattr(m, name)
+            if arr is not None and len(arr) == len(m.positions):
+                buffers[name] = ctx.buffer(np.ascontiguousarray(arr, np.float32))
+        ibo = ctx.buffer(np.ascontiguousarray(m.indices, np.uint32))
+        transforms = np.asarray(m.transforms, np.float64).reshape(-1, 4, 4)
+        det = np.linalg.det(transforms[:, :3, :3])
+        instances = []
+        for mirrored in (False, True):
+            sel = transforms[(det < 0) == mirrored]
+            if len(sel):
+                instances.append((mirrored, ctx.buffer(_instance_data(sel)), len(sel)))
+        centre = (m.positions.min(axis=0) + m.positions.max(axis=0)) / 2 if len(m.positions) else np.zeros(3)
+        centers = transforms[:, :3, :3] @ centre + transforms[:, :3, 3]
+        nbytes = sum(b.size for b in buffers.values()) + ibo.size
+        meshes.append(GpuMesh(m, buffers, ibo, instances, centers, nbytes))
+    textures: dict[tuple[int, bool], moderngl.Texture] = {}
+    for m in baked.meshes:
+        for slot, ref in m.material.texture_refs().items():
+            key = (ref.texture, slot in ("base_color_texture", "emissive_texture"))
+            if key not in textures and 0 <= ref.texture < len(baked.textures):
+                textures[key] = _upload_texture(ctx, baked.textures[ref.texture], key[1])
+    nbytes = sum(m.nbytes for m in meshes) + sum(t.width * t.height * 4 * 4 // 3 for t in textures.values())
+    log.info("uploaded %s: %d meshes, %d textures, %.1f MB", baked.key[:12], len(meshes),
+             len(textures), nbytes / 2**20)
+    return GpuAsset(baked.key, meshes, textures, list(baked.lights), np.asarray(baked.bounds), nbytes)
+
+
+def _instance_data(transforms: np.ndarray) -> np.ndarray:
+    """Per instance: the model matrix and the normal matrix (inverse transpose), column-major."""
+    model = transforms.astype(np.float32)
+    linear = transforms[:, :3, :3]
+    with np.errstate(all="ignore"):
+        normal = np.linalg.pinv(linear).transpose(0, 2, 1)
+    normal = np.nan_to_num(normal).astype(np.float32)
+    # GLSL matrices are column-major: transpose each before flattening.
+    return np.ascontiguousarray(np.concatenate(
+        [model.transpose(0, 2, 1).reshape(-1, 16), normal.transpose(0, 2, 1).reshape(-1, 9)], axis=1))
+
+
+def _upload_texture(ctx: moderngl.Context, tex: Texture, srgb: bool) -> moderngl.Texture:
+    # Row 0 of the image is its top and glTF's v = 0, and GL's t = 0 is the first row
+    # uploaded: uploading rows in order makes glTF UVs sample the right way up.
+    img = np.ascontiguousarray(tex.image, np.uint8)
+    h, w = img.shape[:2]
+    gl_tex = ctx.texture((w, h), 4, img, internal_format=GL_SRGB8_ALPHA8 if srgb else None)
+    gl_tex.build_mipmaps()
+    gl_tex.filter = (tex.sampler.min_filter, tex.sampler.mag_filter)
+    gl_tex.repeat_x = tex.sampler.wrap_s != CLAMP_TO_EDGE
+    gl_tex.repeat_y = tex.sampler.wrap_t != CLAMP_TO_EDGE
+    return gl_tex
+
+
+def _upload_environment(baked: BakedEnvironment) -> GpuEnvironment:
+    ctx = context.get_context()
+    size = baked.face_size
+    levels = len(baked.specular)
+    cube = ctx.texture_cube((size, size), 4, None, dtype="f2")
+    cube.build_mipmaps(0, levels - 1)  # allocates every level; the compute pass fills them
+    prog = context.compute("cube_upload.comp")
+    for level, mip in enumerate(baked.specular):
+        s = max(size >> level, 1)
+        if mip.shape[:3] != (6, s, s):
+            raise ValueError(f"environment {baked.name}: mip {level} is {mip.shape}, expected 6x{s}x{s}")
+        rgba = np.ones((6, s, s, 4), np.float32)
+        rgba[..., :3] = mip[..., :3]
+        src = ctx.buffer(rgba)
+        src.bind_to_storage_buffer(1)
+        cube.bind_to_image(0, read=False, write=True, level=level, format=0x881A)  # RGBA16F
+        prog["u_size"] = s
+        prog.run((s + 7) // 8, (s + 7) // 8, 6)
+        src.release()
+    ctx.memory_barrier()
+    cube.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+    lut_arr = np.ascontiguousarray(baked.brdf_lut[..., :2], np.float32)
+    lut = ctx.texture((lut_arr.shape[1], lut_arr.shape[0]), 2, lut_arr, dtype="f4")
+    lut.repeat_x = lut.repeat_y = False
+    sh = np.ascontiguousarray(baked.irradiance_sh, np.float32).reshape(9, 3)
+    log.info("uploaded environment %s: %d px faces, %d mips", baked.name, size, levels)
+    return GpuEnvironment(baked.key, cube, lut, sh, float(levels - 1), baked.prefilter)

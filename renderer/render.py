@@ -1,0 +1,516 @@
+"""`render(asset, env, options) -> Frame`: one offscreen frame of a baked asset.
+
+Passes, all in one MSAA float framebuffer: environment background, opaque and mask meshes,
+transmissive meshes by their method, blend meshes back to front; then one resolve, one
+tone-mapping pass into RGBA8, and one readback of each target.
+
+Methods plug in per object: `register_method(name, fn)` adds a raster method (the refraction
+module adds `single` and `wyman`), `register_frame_method(name, fn)` a whole-frame one
+(`raytrace`). A method receives the `Pass` and the `DrawItem`s it owns.
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import moderngl
+import numpy as np
+
+from pipeline.baked import BakedAsset, BakedEnvironment
+from pipeline.scene import Material
+
+from . import context, gpu
+from .camera import Camera, frame_bounds
+from .frame import Frame
+from .options import MaterialOverride, RenderOptions
+
+log = logging.getLogger(__name__)
+
+MAX_LIGHTS = 8
+MAX_PIXELS = 8192 * 8192
+_TONEMAPS = {"none": 0, "neutral": 1, "aces": 2}
+_SLOTS = ("base_color", "metallic_roughness", "normal", "occlusion", "emissive")
+_SRGB_SLOTS = ("base_color", "emissive")
+
+
+class UnsupportedMethod(ValueError):
+    """A render method that this build does not provide (message says which exist)."""
+
+
+@dataclass
+class DrawItem:
+    """One baked mesh as drawn this frame: its GPU data and its material after overrides."""
+    mesh: gpu.GpuMesh
+    material: Material
+    method: str
+    why: str
+
+
+@dataclass
+class _MaterialState:
+    defines: dict
+    uniforms: list[tuple[str, object]]
+    textures: list[tuple[str, moderngl.Texture]]
+
+
+@dataclass
+class Pass:
+    """What a method needs to draw into the frame being rendered."""
+    ctx: moderngl.Context
+    fbo: moderngl.Framebuffer
+    camera: Camera
+    env: gpu.GpuEnvironment
+    asset: gpu.GpuAsset
+    options: RenderOptions
+    frame_defines: dict
+    frame_uniforms: dict[str, bytes]
+    _bound: set = field(default_factory=set)
+
+    def program(self, item: DrawItem, fragment: str = "pbr.frag", vertex: str = "pbr.vert",
+                extra_defines: dict | None = None) -> tuple[moderngl.Program, _MaterialState]:
+        """The program for `item`'s material with this frame's uniforms set."""
+        state = _material_state(item, self)
+        defines = {**self.frame_defines, **state.defines, **(extra_defines or {})}
+        prog = context.program(vertex, fragment, defines)
+        if prog.glo not in self._bound:
+            for name, data in self.frame_uniforms.items():
+                if name in prog:
+                    prog[name].write(data)
+            for unit, name in ((0, "u_env"), (1, "u_brdf_lut")):
+                if name in prog:
+                    prog[name].value = unit
+            self._bound.add(prog.glo)
+        return prog, state
+
+    def draw(self, item: DrawItem, prog: moderngl.Program, state: _MaterialState,
+             cull: bool | None = None) -> None:
+        """Draw every instance of `item` with `prog` (material uniforms and textures bound)."""
+        for name, value in state.uniforms:
+            if name in prog:
+                prog[name].write(value)
+        for unit, (name, tex) in enumerate(state.textures, start=2):
+            if name in prog:
+                prog[name].value = unit
+                tex.use(unit)
+        self.env.cube.use(0)
+        self.env.lut.use(1)
+        cull = (not item.material.double_sided) if cull is None else cull
+        for mirrored, _, count in item.mesh.instances:
+            if cull:
+                self.ctx.enable(moderngl.CULL_FACE)
+                self.ctx.front_face = "cw" if mirrored else "ccw"
+            else:
+                self.ctx.disable(moderngl.CULL_FACE)
+            item.mesh.vao(prog, mirrored).render(moderngl.TRIANGLES, instances=count)
+        self.ctx.front_face = "ccw"
+
+
+Method = Callable[[Pass, list[DrawItem]], None]
+FrameMethod = Callable[[BakedAsset, BakedEnvironment, RenderOptions], Frame]
+
+_METHODS: dict[str, Method] = {}
+_FRAME_METHODS: dict[str, FrameMethod] = {}
+# `auto` gives a transmissive mesh the first of these that is registered.
+TRANSMISSIVE_PREFERENCE = ["wyman", "single"]
+_KNOWN = ("auto", "opaque", "single", "wyman", "raytrace")
+
+
+def register_method(name: str, fn: Method) -> None:
+    _METHODS[name] = fn
+
+
+def register_frame_method(name: str, fn: FrameMethod) -> None:
+    _FRAME_METHODS[name] = fn
+
+
+def available_methods() -> list[str]:
+    _load_plugins()
+    return ["auto", *_METHODS, *_FRAME_METHODS]
+
+
+def _load_plugins() -> None:
+    """Import the optional method modules once (they register themselves)."""
+    if _load_plugins.done:
+        return
+    _load_plugins.done = True
+    import importlib
+    for name in ("renderer.refraction", "renderer.raytrace"):
+        try:
+            importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name != name:
+                raise
+
+
+_load_plugins.done = False
+
+
+def render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions) -> Frame:
+    """Render `asset` lit by `env` as `options` say. Raises UnsupportedMethod or ValueError
+    for options this build cannot honour."""
+    _load_plugins()
+    _validate(options)
+    if options.method in _FRAME_METHODS:
+        return _FRAME_METHODS[options.method](asset, env, options)
+    t0 = time.perf_counter()
+    ctx = context.get_context()
+    uploads_before = dict(gpu.stats)
+    gasset = gpu.asset(asset)
+    genv = gpu.environment(env)
+    t_upload = time.perf_counter()
+
+    w, h = options.width, options.height
+    camera = frame_bounds(asset.bounds, w, h, options.yaw, options.pitch, options.fov,
+                          options.distance)
+    items = _plan_items(gasset, options)
+    lights = gasset.lights[:MAX_LIGHTS] if options.lights else []
+    target = _target(ctx, w, h, options.msaa)
+    pass_ = Pass(ctx, target.draw_fbo, camera, genv, gasset, options,
+                 _frame_defines(options, lights), _frame_uniforms(camera, genv, lights))
+
+    target.draw_fbo.use()
+    ctx.viewport = (0, 0, w, h)
+    target.draw_fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+    ctx.disable(moderngl.BLEND)
+    if options.background == "env":
+        _draw_background(ctx, camera, genv, options)
+    ctx.enable(moderngl.DEPTH_TEST)
+    target.draw_fbo.depth_mask = True
+
+    by_method: dict[str, list[DrawItem]] = {}
+    blend = []
+    for it in items:
+        if it.method == "opaque" and it.material.alpha_mode == "BLEND":
+            blend.append(it)
+        else:
+            by_method.setdefault(it.method, []).append(it)
+    if "opaque" in by_method:
+        _draw_opaque(pass_, by_method.pop("opaque"))
+    for method, its in by_method.items():
+        _METHODS[method](pass_, its)
+        target.draw_fbo.use()
+    if blend:
+        _draw_blend(pass_, blend)
+    ctx.disable(moderngl.CULL_FACE)
+    ctx.disable(moderngl.DEPTH_TEST)
+    ctx.disable(moderngl.BLEND)
+    t_draw = time.perf_counter()
+
+    linear, rgba8 = _finish(ctx, target, options)
+    t_end = time.perf_counter()
+    plan = {
+        "method": options.method,
+        "objects": [{"mesh": it.mesh.baked.name, "class": it.material.material_class,
+                     "method": it.method, "why": it.why} for it in items],
+        "lights": len(lights),
+        "environment": env.name,
+        "background": options.background,
+        "tonemap": options.tonemap,
+        "msaa": target.samples,
+        "uploaded": {k: gpu.stats[k] - uploads_before[k] for k in ("asset_uploads", "environment_uploads")},
+    }
+    timings = {"upload_ms": (t_upload - t0) * 1e3, "draw_ms": (t_draw - t_upload) * 1e3,
+               "finish_ms": (t_end - t_draw) * 1e3, "total_ms": (t_end - t0) * 1e3}
+    return Frame(linear, rgba8, plan, timings)
+
+
+def _validate(o: RenderOptions) -> None:
+    if not (1 <= o.width and 1 <= o.height and o.width * o.height <= MAX_PIXELS):
+        raise ValueError(f"image size {o.width}x{o.height} is outside 1..{MAX_PIXELS} pixels")
+    if o.tonemap not in _TONEMAPS:
+        raise ValueError(f"unknown tone mapping {o.tonemap!r}: use neutral, aces or none")
+    if not (0.1 <= o.fov < 180):
+        raise ValueError(f"fov {o.fov} must be between 0.1 and 180 degrees")
+    if not all(math.isfinite(x) for x in (o.yaw, o.pitch, o.exposure, o.background_blur)):
+        raise ValueError("yaw, pitch, exposure and background_blur must be finite")
+    if o.distance is not None and not (math.isfinite(o.distance) and o.distance > 0):
+        raise ValueError(f"distance {o.distance} must be a positive number")
+    parse_background(o.background)
+    if o.method not in _KNOWN:
+        raise UnsupportedMethod(f"unknown method {o.method!r}: use one of {', '.join(_KNOWN)}")
+    if o.method not in ("auto", "opaque") and o.method not in _METHODS and o.method not in _FRAME_METHODS:
+        raise UnsupportedMethod(
+            f"method {o.method!r} is not available in this build (refraction and ray tracing "
+            f"methods are not installed); available: {', '.join(available_methods())}")
+
+
+def parse_background(spec: str) -> tuple[float, float, float] | None:
+    """`env` / `transparent` -> None; `#rrggbb` -> sRGB colour in 0..1."""
+    if spec in ("env", "transparent"):
+        return None
+    s = spec.lstrip("#")
+    if spec.startswith("#") and len(s) == 6:
+        try:
+            return tuple(int(s[i:i + 2], 16) / 255 for i in (0, 2, 4))
+        except ValueError:
+            pass
+    raise ValueError(f"background {spec!r}: use env, transparent or #rrggbb")
+
+
+# --- planning -------------------------------------------------------------------------------
+
+def _plan_items(gasset: gpu.GpuAsset, options: RenderOptions) -> list[DrawItem]:
+    items = []
+    for gm in gasset.meshes:
+        mat = _apply_override(gm.baked.material, options.override)
+        method, why = _choose_method(mat, options)
+        items.append(DrawItem(gm, mat, method, why))
+    return items
+
+
+def _choose_method(mat: Material, options: RenderOptions) -> tuple[str, str]:
+    cls = mat.material_class
+    if cls != "transmissive":
+        return "opaque", f"{cls} material: PBR + IBL raster"
+    if options.method == "opaque":
+        return "opaque", "method opaque requested: transmission ignored"
+    if options.method != "auto":
+        return options.method, f"method {options.method} requested"
+    for m in TRANSMISSIVE_PREFERENCE:
+        if m in _METHODS:
+            return m, f"transmissive: {m} is the best raster refraction available"
+    return "opaque", "transmissive, but no refraction method is installed: transmission ignored"
+
+
+def _apply_override(mat: Material, ov: MaterialOverride | None) -> Material:
+    if ov is None or ov.is_empty():
+        return mat
+    changes: dict = {}
+    if ov.base_color is not None:
+        changes["base_color"] = (*map(float, ov.base_color[:3]), mat.base_color[3])
+        changes["base_color_texture"] = None
+    for name in ("metallic", "roughness", "ior", "transmission"):
+        if getattr(ov, name) is not None:
+            changes[name] = float(getattr(ov, name))
+    if ov.metallic is not None and ov.roughness is not None:
+        changes["metallic_roughness_texture"] = None
+    if ov.transmission is not None:
+        changes["transmission_texture"] = None
+    return dataclasses.replace(mat, **changes)
+
+
+# --- per-material and per-frame state --------------------------------------------------------
+
+def _material_state(item: DrawItem, p: Pass) -> _MaterialState:
+    """Defines, uniform bytes and textures for a mesh's material; cached on the GPU mesh."""
+    ov = p.options.override
+    key = ov
+    cached = item.mesh.states.get(key)
+    if cached is not None:
+        return cached
+    m, mesh = item.material, item.mesh.baked
+    defines: dict = {}
+    uv_sets = {0: mesh.uv0 is not None, 1: mesh.uv1 is not None}
+    if uv_sets[0]:
+        defines["HAS_UV0"] = 1
+    textures = []
+    uniforms: list[tuple[str, object]] = []
+    for slot in _SLOTS:
+        ref = getattr(m, f"{slot}_texture")
+        if ref is None:
+            continue
+        tex = p.asset.textures.get((ref.texture, slot in _SRGB_SLOTS))
+        if tex is None or not uv_sets.get(ref.uv_set, False):
+            log.warning("%s: %s texture skipped (no image or no UV set %d)", mesh.name, slot, ref.uv_set)
+            continue
+        defines[f"HAS_{slot.upper()}_MAP"] = 1
+        defines[f"{slot.upper()}_UV"] = f"v_uv{ref.uv_set}"
+        if ref.uv_set == 1:
+            defines["HAS_UV1"] = 1
+        textures.append((f"u_{slot}_map", tex))
+        uniforms.append((f"u_{slot}_uvm", _mat3_bytes(ref.uv_matrix())))
+    if "HAS_NORMAL_MAP" in defines and mesh.tangents is not None:
+        defines["HAS_TANGENTS"] = 1
+    if mesh.colors is not None:
+        defines["HAS_COLORS"] = 1
+    if m.double_sided:
+        defines["DOUBLE_SIDED"] = 1
+    if m.alpha_mode == "MASK":
+        defines["ALPHA_MASK"] = 1
+    elif m.alpha_mode == "BLEND":
+        defines["ALPHA_BLEND"] = 1
+    if m.unlit:
+        defines["UNLIT"] = 1
+    if ov is not None and ov.metallic is not None:
+        defines["METALLIC_OVERRIDDEN"] = 1
+    if ov is not None and ov.roughness is not None:
+        defines["ROUGHNESS_OVERRIDDEN"] = 1
+    f4 = np.float32
+    emissive = np.asarray(m.emissive, f4) * f4(m.emissive_strength)
+    uniforms += [
+        ("u_base_color", np.asarray(m.base_color, f4).tobytes()),
+        ("u_metallic", f4(m.metallic).tobytes()),
+        ("u_roughness", f4(m.roughness).tobytes()),
+        ("u_normal_scale", f4(m.normal_scale).tobytes()),
+        ("u_occlusion_strength", f4(m.occlusion_strength).tobytes()),
+        ("u_emissive", emissive.tobytes()),
+        ("u_alpha_cutoff", f4(m.alpha_cutoff).tobytes()),
+    ]
+    state = _MaterialState(defines, uniforms, textures)
+    item.mesh.states[key] = state
+    return state
+
+
+def _mat3_bytes(m: np.ndarray) -> bytes:
+    return np.ascontiguousarray(np.asarray(m, np.float32).T).tobytes()  # GLSL: column-major
+
+
+def _frame_defines(options: RenderOptions, lights) -> dict:
+    d = {"LIGHT_COUNT": len(lights)}
+    if options.multiscatter:
+        d["MULTISCATTER"] = 1
+    return d
+
+
+def _frame_uniforms(camera: Camera, env: gpu.GpuEnvironment, lights) -> dict[str, bytes]:
+    f4 = np.float32
+    view_proj = camera.projection_matrix() @ camera.view_matrix()
+    u = {
+        "u_view_proj": np.ascontiguousarray(view_proj.T, f4).tobytes(),
+        "u_camera_position": np.asarray(camera.position, f4).tobytes(),
+        "u_env_max_lod": f4(env.max_lod).tobytes(),
+        "u_sh": env.sh.tobytes(),
+    }
+    if lights:
+        pos, direction, color, cone = [], [], [], []
+        for light in lights:
+            mtx = np.asarray(light.matrix, np.float64)
+            axis = -mtx[:3, 2]
+            axis = axis / max(np.linalg.norm(axis), 1e-12)
+            kind = {"directional": 0.0, "point": 1.0, "spot": 2.0}[light.type]
+            pos.append([*mtx[:3, 3], kind])
+            direction.append([*axis, light.range if math.isfinite(light.range) else 0.0])
+            color.append(np.asarray(light.color) * light.intensity)
+            scale = 1.0 / max(1e-3, math.cos(light.inner_cone) - math.cos(light.outer_cone))
+            cone.append([scale, -math.cos(light.outer_cone) * scale])
+        u["u_light_position"] = np.asarray(pos, f4).tobytes()
+        u["u_light_direction"] = np.asarray(direction, f4).tobytes()
+        u["u_light_color"] = np.asarray(color, f4).tobytes()
+        u["u_light_cone"] = np.asarray(cone, f4).tobytes()
+    return u
+
+
+# --- passes ---------------------------------------------------------------------------------
+
+def _draw_background(ctx, camera: Camera, env: gpu.GpuEnvironment, options: RenderOptions) -> None:
+    ctx.disable(moderngl.DEPTH_TEST)
+    prog = context.program("screen_triangle.vert", "background.frag")
+    r, u, f = camera.basis()
+    th = math.tan(math.radians(camera.fov) / 2)
+    prog["u_camera_basis"].write(np.ascontiguousarray(np.stack([r, u, f]), np.float32).tobytes())
+    prog["u_tan_half_fov"].value = (th * camera.aspect, th)
+    prog["u_blur"].value = float(min(max(options.background_blur, 0.0), 1.0))
+    prog["u_env_max_lod"].value = env.max_lod
+    prog["u_env"].value = 0
+    env.cube.use(0)
+    context.fullscreen_vao(prog).render(moderngl.TRIANGLES, vertices=3)
+
+
+def _draw_opaque(p: Pass, items: list[DrawItem]) -> None:
+    for it in items:
+        prog, state = p.program(it)
+        p.draw(it, prog, state)
+
+
+def _draw_blend(p: Pass, items: list[DrawItem]) -> None:
+    """Back to front by instance centre; each instance drawn as its own draw (rarely many)."""
+    eye = p.camera.position
+    order = sorted(((float(np.linalg.norm(c - eye)), i, it) for i, it in enumerate(items)
+                    for c in it.mesh.centers[:1]), key=lambda t: -t[0])
+    p.ctx.enable(moderngl.BLEND)
+    p.ctx.blend_func = (moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA,
+                        moderngl.ONE, moderngl.ONE_MINUS_SRC_ALPHA)
+    p.fbo.depth_mask = False
+    for _, _, it in order:
+        prog, state = p.program(it)
+        p.draw(it, prog, state)
+    p.fbo.depth_mask = True
+    p.ctx.disable(moderngl.BLEND)
+
+
+# --- render targets and the final pass --------------------------------------------------------
+
+@dataclass
+class _Target:
+    samples: int
+    draw_fbo: moderngl.Framebuffer      # MSAA (or the resolve fbo itself without MSAA)
+    resolve_fbo: moderngl.Framebuffer
+    resolve_tex: moderngl.Texture
+    out_fbo: moderngl.Framebuffer
+    resources: list
+
+
+_targets: dict[tuple, _Target] = {}
+_targets_ctx: int | None = None
+MAX_TARGETS = 4
+
+
+def _target(ctx: moderngl.Context, w: int, h: int, msaa: int) -> _Target:
+    global _targets_ctx
+    if _targets_ctx != id(ctx):
+        _targets.clear()
+        _targets_ctx = id(ctx)
+    samples = 0 if msaa <= 1 else min(int(msaa), ctx.max_samples)
+    key = (w, h, samples)
+    t = _targets.pop(key, None)
+    if t is None:
+        t = _make_target(ctx, w, h, samples)
+    _targets[key] = t
+    while len(_targets) > MAX_TARGETS:
+        for r in _targets.pop(next(iter(_targets))).resources:
+            r.release()
+    return t
+
+
+def _make_target(ctx, w, h, samples) -> _Target:
+    # RGBA16F: half the bandwidth of 32F on a CPU rasteriser, 11-bit mantissa (~0.05%).
+    resolve_tex = ctx.texture((w, h), 4, dtype="f2")
+    resolve_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+    out_tex = ctx.texture((w, h), 4, dtype="f1")
+    out_fbo = ctx.framebuffer([out_tex])
+    res = [resolve_tex, out_tex, out_fbo]
+    if samples:
+        color = ctx.renderbuffer((w, h), 4, samples=samples, dtype="f2")
+        depth = ctx.depth_renderbuffer((w, h), samples=samples)
+        draw_fbo = ctx.framebuffer([color], depth)
+        resolve_fbo = ctx.framebuffer([resolve_tex])
+        res += [color, depth, draw_fbo, resolve_fbo]
+    else:
+        depth = ctx.depth_renderbuffer((w, h))
+        draw_fbo = resolve_fbo = ctx.framebuffer([resolve_tex], depth)
+        res += [depth, draw_fbo]
+    return _Target(samples, draw_fbo, resolve_fbo, resolve_tex, out_fbo, res)
+
+
+def _finish(ctx, target: _Target, options: RenderOptions) -> tuple[np.ndarray, np.ndarray]:
+    """Resolve, tone map into RGBA8, read both back (row 0 = image top)."""
+    w, h = options.width, options.height
+    if target.draw_fbo is not target.resolve_fbo:
+        ctx.copy_framebuffer(target.resolve_fbo, target.draw_fbo)
+    bg = parse_background(options.background)
+    prog = context.program("screen_triangle.vert", "tonemap.frag",
+                           {"TONEMAP": _TONEMAPS[options.tonemap]})
+    prog["u_linear"].value = 0
+    prog["u_exposure_scale"].value = float(2.0 ** max(min(options.exposure, 64), -64))
+    prog["u_background"].value = (*bg, 1.0) if bg is not None else (0.0, 0.0, 0.0, 0.0)
+    target.out_fbo.use()
+    ctx.viewport = (0, 0, w, h)
+    target.resolve_tex.use(0)
+    context.fullscreen_vao(prog).render(moderngl.TRIANGLES, vertices=3)
+    half = np.frombuffer(target.resolve_fbo.read(components=4, dtype="f2"), np.float16)
+    linear = half.reshape(h, w, 4)[::-1].astype(np.float32)
+    rgba8 = np.frombuffer(target.out_fbo.read(components=4), np.uint8).reshape(h, w, 4)[::-1].copy()
+    if not np.isfinite(linear).all():
+        log.warning("non-finite radiance in the frame: replaced by 0")
+        linear = np.nan_to_num(linear, nan=0.0, posinf=0.0, neginf=0.0)
+    if bg is not None:
+        # The linear frame carries the same solid background, in linear radiance.
+        from .frame import srgb_decode
+        a = linear[..., 3:4]
+        linear[..., :3] += (1 - a) * srgb_decode(np.asarray(bg, np.float32))
+        linear[..., 3] = 1.0
+    return linear, rgba8

@@ -1,0 +1,52 @@
+// Image-based lighting: split-sum specular (prefiltered cube mip chosen from roughness, times
+// the BRDF LUT's scale and bias for F0, Karis 2013) and Lambert diffuse from the
+// environment's 9 spherical-harmonic coefficients. MULTISCATTER adds Fdez-Aguera's (2019)
+// energy compensation, which restores what single-scattering loses on rough surfaces.
+#ifndef IBL_GLSL
+#define IBL_GLSL
+#include "brdf.glsl"
+#include "sh.glsl"
+
+uniform samplerCube u_env;
+uniform sampler2D u_brdf_lut;   // x = N.V, y = roughness -> (scale, bias)
+uniform float u_env_max_lod;
+uniform vec3 u_sh[9];
+
+// pipeline.environment.roughness_to_lod: the GGX bake stores roughness m/(levels-1) at mip m,
+// and the paper's baseline maps LOD = roughness x max LOD; both are this linear map.
+float roughness_to_lod(float roughness) {
+    return roughness * u_env_max_lod;
+}
+
+vec3 env_radiance(vec3 dir, float roughness) {
+    return textureLod(u_env, dir, roughness_to_lod(roughness)).rgb;
+}
+
+// Cosine-weighted mean radiance about n (irradiance / pi, as sh.glsl returns it): what a
+// white Lambertian surface reflects.
+vec3 env_diffuse(vec3 n) {
+    return max(sh_irradiance(u_sh, n), vec3(0.0));
+}
+
+#ifdef MATERIAL_INFO_GLSL  // the lookups above also serve the background pass
+vec3 ibl(MaterialInfo m, vec3 v) {
+    vec3 n = m.n;
+    float NdotV = clamp(dot(n, v), 1e-4, 1.0);
+    vec2 ab = texture(u_brdf_lut, vec2(NdotV, m.roughness)).rg;
+    vec3 FssEss = m.f0 * ab.x + ab.y;
+    vec3 radiance = env_radiance(reflect(-v, n), m.roughness);
+    vec3 irradiance = env_diffuse(n);
+#ifdef MULTISCATTER
+    float Ess = ab.x + ab.y;
+    float Ems = 1.0 - Ess;
+    vec3 Favg = m.f0 + (1.0 - m.f0) / 21.0;
+    vec3 FmsEms = Ems * FssEss * Favg / (1.0 - Ems * Favg);
+    vec3 kD = m.diffuse_color * (1.0 - FssEss - FmsEms);
+    vec3 color = FssEss * radiance + (FmsEms + kD) * irradiance;
+#else
+    vec3 color = FssEss * radiance + m.diffuse_color * (1.0 - FssEss) * irradiance;
+#endif
+    return color * m.occlusion;
+}
+#endif
+#endif

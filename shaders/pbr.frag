@@ -1,0 +1,30 @@
+#version 430
+// Opaque / mask / blend PBR: emissive + image-based lighting + punctual lights, linear
+// radiance out (premultiplied by alpha through the blend state for BLEND materials).
+#include "material_info.glsl"
+#include "ibl.glsl"
+#include "punctual.glsl"
+
+uniform vec3 u_camera_position;
+out vec4 f_color;
+
+void main() {
+    vec3 v = normalize(u_camera_position - v_world);
+    MaterialInfo m = material_info(v);
+#ifdef ALPHA_MASK
+    if (m.base_color.a < u_alpha_cutoff) discard;
+#endif
+#ifdef UNLIT
+    vec3 color = m.base_color.rgb;
+#else
+    vec3 color = m.emissive + ibl(m, v);
+#if LIGHT_COUNT > 0
+    color += punctual(m, v, v_world);
+#endif
+#endif
+#ifdef ALPHA_BLEND
+    f_color = vec4(color, m.base_color.a);
+#else
+    f_color = vec4(color, 1.0);
+#endif
+}

@@ -1,0 +1,47 @@
+#version 430
+// World-space position, normal and tangent per vertex; one instance per world placement.
+in vec3 in_position;
+in vec3 in_normal;
+in mat4 in_model;
+in mat3 in_normal_matrix;
+#ifdef HAS_TANGENTS
+in vec4 in_tangent;
+out vec4 v_tangent;
+#endif
+#ifdef HAS_UV0
+in vec2 in_uv0;
+#endif
+out vec2 v_uv0;
+#ifdef HAS_UV1
+in vec2 in_uv1;
+out vec2 v_uv1;
+#endif
+#ifdef HAS_COLORS
+in vec4 in_color;
+out vec4 v_color;
+#endif
+out vec3 v_world;
+out vec3 v_normal;
+
+uniform mat4 u_view_proj;
+
+void main() {
+    vec4 world = in_model * vec4(in_position, 1.0);
+    v_world = world.xyz;
+    v_normal = in_normal_matrix * in_normal;
+#ifdef HAS_TANGENTS
+    v_tangent = vec4(mat3(in_model) * in_tangent.xyz, in_tangent.w);
+#endif
+#ifdef HAS_UV0
+    v_uv0 = in_uv0;
+#else
+    v_uv0 = vec2(0.0);
+#endif
+#ifdef HAS_UV1
+    v_uv1 = in_uv1;
+#endif
+#ifdef HAS_COLORS
+    v_color = in_color;
+#endif
+    gl_Position = u_view_proj * world;
+}

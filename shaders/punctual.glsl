@@ -1,0 +1,50 @@
+// KHR_lights_punctual: directional (lux), point and spot (candela) lights, with the
+// extension's range and cone falloff. Compiled in only when a scene has lights.
+#ifndef PUNCTUAL_GLSL
+#define PUNCTUAL_GLSL
+#include "brdf.glsl"
+#if LIGHT_COUNT > 0
+uniform vec4 u_light_position[LIGHT_COUNT];   // xyz world position, w: 0 directional, 1 point, 2 spot
+uniform vec4 u_light_direction[LIGHT_COUNT];  // xyz direction the light travels, w range (0 = infinite)
+uniform vec3 u_light_color[LIGHT_COUNT];      // colour x intensity
+uniform vec2 u_light_cone[LIGHT_COUNT];       // angle scale, angle offset
+
+vec3 punctual(MaterialInfo m, vec3 v, vec3 pos) {
+    vec3 n = m.n;
+    float alpha = m.roughness * m.roughness;
+    float NdotV = clamp(dot(n, v), 1e-4, 1.0);
+    vec3 color = vec3(0.0);
+    for (int i = 0; i < LIGHT_COUNT; ++i) {
+        vec3 l;
+        float atten = 1.0;
+        if (u_light_position[i].w == 0.0) {
+            l = -u_light_direction[i].xyz;
+        } else {
+            vec3 d = u_light_position[i].xyz - pos;
+            float dist2 = max(dot(d, d), 1e-8);
+            l = d * inversesqrt(dist2);
+            float range = u_light_direction[i].w;
+            atten = 1.0 / dist2;
+            if (range > 0.0) {
+                float r = dist2 / (range * range);
+                atten *= clamp(1.0 - r * r, 0.0, 1.0);
+            }
+            if (u_light_position[i].w == 2.0) {
+                float cd = dot(u_light_direction[i].xyz, -l);
+                float s = clamp(cd * u_light_cone[i].x + u_light_cone[i].y, 0.0, 1.0);
+                atten *= s * s;
+            }
+        }
+        float NdotL = dot(n, l);
+        if (NdotL <= 0.0 || atten <= 0.0) continue;
+        vec3 h = normalize(l + v);
+        float NdotH = clamp(dot(n, h), 0.0, 1.0);
+        float VdotH = clamp(dot(v, h), 0.0, 1.0);
+        vec3 F = F_schlick(m.f0, VdotH);
+        vec3 spec = brdf_specular(m.f0, max(alpha, 1e-3), NdotV, NdotL, NdotH, VdotH);
+        color += (brdf_lambert(m.diffuse_color) * (1.0 - F) + spec) * u_light_color[i] * (NdotL * atten);
+    }
+    return color;
+}
+#endif
+#endif

@@ -1,0 +1,28 @@
+// Material texture samplers, each with its UV set and KHR_texture_transform matrix; only the
+// maps a material uses are declared (HAS_*_MAP defines), so others cost nothing.
+#ifndef TEXTURES_GLSL
+#define TEXTURES_GLSL
+in vec2 v_uv0;
+#ifdef HAS_UV1
+in vec2 v_uv1;
+#endif
+
+#define DECLARE_MAP(name) uniform sampler2D u_##name##_map; uniform mat3 u_##name##_uvm;
+#define SAMPLE_MAP(name, uv) texture(u_##name##_map, (u_##name##_uvm * vec3(uv, 1.0)).xy)
+
+#ifdef HAS_BASE_COLOR_MAP
+DECLARE_MAP(base_color)
+#endif
+#ifdef HAS_METALLIC_ROUGHNESS_MAP
+DECLARE_MAP(metallic_roughness)
+#endif
+#ifdef HAS_NORMAL_MAP
+DECLARE_MAP(normal)
+#endif
+#ifdef HAS_OCCLUSION_MAP
+DECLARE_MAP(occlusion)
+#endif
+#ifdef HAS_EMISSIVE_MAP
+DECLARE_MAP(emissive)
+#endif
+#endif
