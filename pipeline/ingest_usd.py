@@ -1,0 +1,402 @@
+"""USD ingest (.usd .usda .usdc .usdz) with usd-core: a composed stage -> Scene.
+
+Order of work, so that hostile input is refused before USD touches it:
+1. `usd_layers.LayerGraph` opens the root layer and walks every sublayer, reference and
+   payload with Sdf alone (all variants), refusing URIs, absolute paths, `..` and symlink
+   escapes out of the asset's folder (or out of the `.usdz` package), and bounds the package.
+2. The stage is composed from those already-open layers (payloads loaded, variants as
+   authored) and checked to have used no other layer.
+3. Prims are traversed with instance proxies (scene-graph instancing: a prototype's meshes
+   are built once and placed per instance), skipping inactive, invisible, guide and proxy
+   prims. Each UsdGeom.Mesh is triangulated (a vectorised fan per face, `leftHanded` flips
+   winding, holes dropped); primvars (normals, every `st` a material reads, displayColor /
+   displayOpacity) with constant / uniform / vertex / varying / faceVarying interpolation,
+   indexed or not, are gathered per face-vertex and vertices are split only where a
+   uniform or faceVarying value differs (numpy unique over the combined key). GeomSubsets
+   bound to materials become one Mesh each.
+4. `usd_materials` maps UsdPreviewSurface (see its docstring for opacity/ior -> transmission).
+
+Conventions: USD `st` has v up (0 at the image bottom); the scene holds glTF UVs, v down,
+so v' = 1 - v (texture transforms are converted to match). World matrices come from an
+XformCache and are converted to the scene's +Y-up metres: upAxis Z is turned to Y by a -90
+degree rotation about X, and metersPerUnit scales (USD's fallback is 0.01, centimetres,
+when the stage does not author it). Time-varying values are read at the stage's start time
+code (or the earliest sample). Subdivision surfaces are drawn as their control cage with
+smooth normals; `model:drawMode` cards are viewport stand-ins and are not drawn; only
+UsdGeom.Mesh carries geometry here (implicit shapes, curves, points and PointInstancers are
+skipped with a warning).
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from pxr import Sdf, Tf, Usd, UsdGeom, UsdShade
+
+from . import deadline
+from .errors import LimitExceeded, MalformedAsset, UnsafeReference
+from .limits import Limits
+from .scene import Instance, Mesh, Scene
+from .usd_layers import LayerGraph
+from .usd_materials import Binding, MaterialReader
+
+log = logging.getLogger(__name__)
+
+Y_UP_FROM_Z_UP = np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]], np.float64)
+PRUNED_TYPES = (UsdShade.Material, UsdShade.NodeGraph, UsdShade.Shader)
+
+
+def load(path: Path, limits: Limits) -> Scene:
+    """Read a USD file (any of its four forms) into a Scene; AssetError on bad input."""
+    path = Path(path)
+    graph = LayerGraph(path, limits)
+    try:
+        root_layer = graph.open()
+        stage = _compose(root_layer, graph)
+        scene = Scene(source=str(path), format=path.suffix.lower().lstrip("."))
+        scene.warnings.extend(graph.warnings)
+        _StageReader(stage, graph, scene, limits).read()
+        scene.files = list(graph.files)
+        return scene
+    finally:
+        graph.close()
+
+
+def _compose(root_layer: Sdf.Layer, graph: LayerGraph) -> Usd.Stage:
+    try:
+        stage = Usd.Stage.Open(root_layer, Usd.Stage.LoadAll)
+    except Tf.ErrorException as exc:
+        raise MalformedAsset(graph.path, f"USD stage does not compose: "
+                                         f"{str(exc).strip().splitlines()[-1]}") from None
+    if stage is None:
+        raise MalformedAsset(graph.path, "USD stage does not compose")
+    for layer in stage.GetUsedLayers():
+        if not layer.anonymous and layer.identifier not in graph.layers:
+            raise UnsafeReference(graph.path, f"composition read layer {layer.identifier!r}, "
+                                              "which the reference check did not see")
+    for err in stage.GetCompositionErrors():
+        text = f"composition: {str(err).strip().splitlines()[0]}"
+        if text not in graph.warnings:
+            graph.warnings.append(text)
+    return stage
+
+
+def stage_matrix(stage: Usd.Stage) -> np.ndarray:
+    """Stage space -> scene space (+Y up, metres), for column vectors."""
+    scale = np.diag([UsdGeom.GetStageMetersPerUnit(stage)] * 3 + [1.0])
+    up = Y_UP_FROM_Z_UP if UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.z else np.eye(4)
+    return up @ scale
+
+
+@dataclass
+class _Primvar:
+    values: np.ndarray          # E x k
+    interpolation: str
+    indices: np.ndarray | None  # per element, into values
+
+
+@dataclass
+class _Topology:
+    """A mesh triangulated and its vertices split once; subsets select triangles from it."""
+    positions: np.ndarray
+    tri: np.ndarray              # T x 3 vertex indices
+    tri_face: np.ndarray         # T, face of each triangle
+    normals: np.ndarray | None
+    attrs: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+class _StageReader:
+    def __init__(self, stage: Usd.Stage, graph: LayerGraph, scene: Scene, limits: Limits):
+        self.stage, self.graph, self.scene, self.limits = stage, graph, scene, limits
+        self.time = (Usd.TimeCode(stage.GetStartTimeCode()) if stage.HasAuthoredTimeCodeRange()
+                     else Usd.TimeCode.EarliestTime())
+        self.xforms = UsdGeom.XformCache(self.time)
+        self.to_scene = stage_matrix(stage)
+        self.materials = MaterialReader(graph, scene, limits, self.time)
+        self._meshes: dict[tuple, int] = {}
+        self._topology: dict[tuple, _Topology | None] = {}
+        self.triangles = 0
+        self.vertices = 0
+        if not stage.HasAuthoredMetadata(UsdGeom.Tokens.metersPerUnit):
+            self._warn("metersPerUnit not authored: USD's fallback 0.01 (centimetres) used")
+
+    def read(self) -> None:
+        nodes = 0
+        skipped: set[str] = set()
+        predicate = Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)
+        it = iter(Usd.PrimRange(self.stage.GetPseudoRoot(), predicate))
+        for prim in it:
+            nodes += 1
+            if nodes > self.limits.max_nodes:
+                raise LimitExceeded(self.graph.path, f"more than {self.limits.max_nodes} prims")
+            if nodes % 256 == 0:
+                deadline.check()
+            if any(prim.IsA(t) for t in PRUNED_TYPES):
+                it.PruneChildren()
+                continue
+            if not prim.IsA(UsdGeom.Imageable):
+                continue
+            img = UsdGeom.Imageable(prim)
+            if img.GetVisibilityAttr().Get(self.time) == UsdGeom.Tokens.invisible or \
+                    img.GetPurposeAttr().Get() in (UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy):
+                it.PruneChildren()
+                continue
+            if prim.IsA(UsdGeom.Mesh):
+                self._mesh(prim)
+            elif prim.IsA(UsdGeom.PointInstancer) or prim.IsA(UsdGeom.Gprim):
+                skipped.add(str(prim.GetTypeName()))
+                if prim.IsA(UsdGeom.PointInstancer):
+                    it.PruneChildren()
+        for kind in sorted(skipped):
+            self._warn(f"{kind} prims are not read (only Mesh); skipped")
+
+    # -- one mesh prim ------------------------------------------------------------------------
+    def _mesh(self, prim: Usd.Prim) -> None:
+        mesh = UsdGeom.Mesh(prim)
+        source = prim.GetPrimInPrototype() if prim.IsInstanceProxy() else prim
+        groups = self._groups(prim, mesh)
+        double_sided = bool(mesh.GetDoubleSidedAttr().Get())
+        has_color = bool(UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance("displayColor"))
+        bindings = [self.materials.bind(mat, double_sided, has_color) for _, mat, _ in groups]
+        needed = sorted({n for b in bindings for n in b.uv_primvars}
+                        | {b.color_primvar for b in bindings if b.color_primvar})
+        if not any(b.uv_primvars for b in bindings):
+            needed.append("st")  # no texture reads it, but keep the conventional UVs
+        topo_key = (str(source.GetPath()), tuple(needed))
+        if topo_key not in self._topology:
+            deadline.check()
+            self._topology[topo_key] = self._triangulate(prim, mesh, needed)
+        topo = self._topology[topo_key]
+        if topo is None:
+            return
+        matrix = self.to_scene @ np.array(self.xforms.GetLocalToWorldTransform(prim)).T
+        for (label, _, faces), binding in zip(groups, bindings):
+            key = (topo_key, label, binding.uv_primvars, binding.color_primvar)
+            if key not in self._meshes:
+                built = self._emit(topo, faces, binding, f"{source.GetPath()}{label}")
+                if built is None:
+                    self._meshes[key] = -1
+                    continue
+                self.scene.meshes.append(built)
+                self._meshes[key] = len(self.scene.meshes) - 1
+            if self._meshes[key] >= 0:
+                self.scene.instances.append(Instance(self._meshes[key], binding.material,
+                                                     matrix.copy()))
+
+    def _groups(self, prim: Usd.Prim, mesh: UsdGeom.Mesh):
+        """[(label, material, faces or None)]: one per material-bound GeomSubset, then the
+        faces no subset claims (faces None = all faces)."""
+        purpose = UsdShade.Tokens.preview
+        api = UsdShade.MaterialBindingAPI(prim)
+        own = api.ComputeBoundMaterial(purpose)[0]
+        subsets = [s for s in UsdGeom.Subset.GetAllGeomSubsets(mesh)
+                   if s.GetElementTypeAttr().Get() == UsdGeom.Tokens.face
+                   and (s.GetFamilyNameAttr().Get() == UsdShade.Tokens.materialBind
+                        or UsdShade.MaterialBindingAPI(s.GetPrim()).GetDirectBindingRel().GetTargets())]
+        if not subsets:
+            return [("", own if own else None, None)]
+        groups, claimed = [], []
+        for subset in subsets:
+            faces = np.asarray(subset.GetIndicesAttr().Get(self.time) or [], np.int64)
+            mat = UsdShade.MaterialBindingAPI(subset.GetPrim()).ComputeBoundMaterial(purpose)[0]
+            groups.append((f":{subset.GetPrim().GetName()}", mat if mat else None, faces))
+            claimed.append(faces)
+        groups.append(("", own if own else None, ("rest", np.concatenate(claimed))))
+        return groups
+
+    # -- geometry --------------------------------------------------------------------------------
+    def _triangulate(self, prim: Usd.Prim, mesh: UsdGeom.Mesh, names: list[str]) -> _Topology | None:
+        where = f"mesh {prim.GetPath()}"
+        counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(self.time) or [], np.int64)
+        fvi = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(self.time) or [], np.int64)
+        points = np.asarray(mesh.GetPointsAttr().Get(self.time) or [], np.float32).reshape(-1, 3)
+        if not len(counts) or not len(points):
+            return None
+        if counts.min() < 0:
+            raise MalformedAsset(self.graph.path, f"{where}: negative faceVertexCounts")
+        per_face = np.maximum(counts - 2, 0)
+        n_tri = int(per_face.sum())
+        if self.triangles + n_tri > self.limits.max_triangles:
+            raise LimitExceeded(self.graph.path, f"{where}: faceVertexCounts make {n_tri} "
+                                                 f"triangles, over the limit of "
+                                                 f"{self.limits.max_triangles}")
+        if self.vertices + len(points) > self.limits.max_vertices:
+            raise LimitExceeded(self.graph.path, f"{where}: {len(points)} points, over the "
+                                                 f"limit of {self.limits.max_vertices}")
+        if int(counts.sum()) != len(fvi):
+            raise MalformedAsset(self.graph.path, f"{where}: faceVertexCounts sum to "
+                                                  f"{int(counts.sum())} but there are {len(fvi)} "
+                                                  "faceVertexIndices")
+        if len(fvi) and (fvi.min() < 0 or fvi.max() >= len(points)):
+            raise MalformedAsset(self.graph.path, f"{where}: faceVertexIndices outside the "
+                                                  f"{len(points)} points")
+        # Fan per face, vectorised: triangle j of face f uses corners s_f, s_f+k, s_f+k+1.
+        start = np.cumsum(counts) - counts
+        tri_face = np.repeat(np.arange(len(counts)), per_face)
+        k = np.arange(n_tri) - np.repeat(np.cumsum(per_face) - per_face, per_face) + 1
+        a = start[tri_face]
+        corners = np.stack([a, a + k, a + k + 1], axis=1)
+        if mesh.GetOrientationAttr().Get() == UsdGeom.Tokens.leftHanded:
+            corners = corners[:, [0, 2, 1]]
+        holes = np.asarray(mesh.GetHoleIndicesAttr().Get(self.time) or [], np.int64)
+        if len(holes):
+            keep = ~np.isin(tri_face, holes)
+            corners, tri_face = corners[keep], tri_face[keep]
+
+        primvars = {n: pv for n in names if (pv := self._primvar(prim, n, counts, fvi,
+                                                                 len(points))) is not None}
+        normals = self._normals(prim, mesh, counts, fvi, len(points))
+        if normals is None and mesh.GetSubdivisionSchemeAttr().Get() != UsdGeom.Tokens.none:
+            from .ingest import smooth_normals  # the dispatcher's one implementation
+            normals = _Primvar(smooth_normals(points, fvi[corners]), "vertex", None)
+        if "displayColor" in primvars:
+            opacity = self._primvar(prim, "displayOpacity", counts, fvi, len(points))
+            if opacity is not None:
+                primvars["displayOpacity"] = opacity
+
+        # Per face-vertex element index of every primvar; split vertices on the varying ones.
+        face_of_corner = np.repeat(np.arange(len(counts)), counts)
+        everything = dict(primvars, **({"normals": normals} if normals else {}))
+        columns = [fvi]
+        for pv in everything.values():
+            if pv.interpolation in ("uniform", "faceVarying"):
+                columns.append(_elements(pv, fvi, face_of_corner, np.arange(len(fvi))))
+        if len(columns) > 1:
+            inverse, rep = _unique_rows(columns)
+            tri = inverse[corners]
+            point_of_vertex = fvi[rep]
+            elem = lambda pv: _elements(pv, fvi, face_of_corner, rep)  # noqa: E731
+        else:
+            tri = fvi[corners]
+            point_of_vertex = np.arange(len(points))
+            elem = lambda pv: _point_elements(pv, len(points))  # noqa: E731
+        topo = _Topology(points[point_of_vertex], tri.astype(np.uint32), tri_face, None)
+        if normals is not None:
+            topo.normals = normals.values[elem(normals)][:, :3].astype(np.float32)
+        for name, pv in primvars.items():
+            topo.attrs[name] = pv.values[elem(pv)].astype(np.float32)
+        self.triangles += n_tri
+        self.vertices += len(topo.positions)
+        return topo
+
+    def _primvar(self, prim, name, counts, fvi, n_points) -> _Primvar | None:
+        pv = UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance(name)
+        if not pv or not pv.HasValue():
+            return None
+        values = pv.Get(self.time)
+        indices = pv.GetIndices(self.time) if pv.IsIndexed() else None
+        return self._checked(prim, name, values, pv.GetInterpolation(), indices, counts, fvi,
+                             n_points)
+
+    def _normals(self, prim, mesh, counts, fvi, n_points) -> _Primvar | None:
+        pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar("normals")  # primvars:normals wins
+        if pv and pv.HasValue():
+            return self._checked(prim, "normals", pv.Get(self.time), pv.GetInterpolation(),
+                                 pv.GetIndices(self.time) if pv.IsIndexed() else None,
+                                 counts, fvi, n_points)
+        values = mesh.GetNormalsAttr().Get(self.time)
+        if values is None or not len(values):
+            return None
+        return self._checked(prim, "normals", values, mesh.GetNormalsInterpolation(), None,
+                             counts, fvi, n_points)
+
+    def _checked(self, prim, name, values, interpolation, indices, counts, fvi,
+                 n_points) -> _Primvar | None:
+        """A primvar whose element count fits its interpolation; None (with a warning) if not."""
+        if values is None:
+            return None
+        arr = np.asarray(values, np.float32)
+        arr = arr.reshape(len(arr), -1) if arr.ndim else arr.reshape(1, 1)
+        expected = {"constant": 1, "uniform": len(counts), "vertex": n_points,
+                    "varying": n_points, "faceVarying": len(fvi)}.get(str(interpolation))
+        idx = None if indices is None or not len(indices) else np.asarray(indices, np.int64)
+        count = len(idx) if idx is not None else len(arr)
+        problem = None
+        if expected is None:
+            problem = f"interpolation {interpolation!r} is not one USD defines"
+        elif count < expected:
+            problem = f"{count} values for {expected} {interpolation} elements"
+        elif idx is not None and len(idx) and (idx.min() < 0 or idx.max() >= len(arr)):
+            problem = "indices outside its values"
+        elif not np.isfinite(arr).all():
+            problem = "NaN or infinite values"
+        if problem:
+            self._warn(f"{prim.GetPath()}: primvar {name}: {problem}; ignored")
+            return None
+        return _Primvar(arr, str(interpolation), idx)
+
+    def _emit(self, topo: _Topology, faces, binding: Binding, name: str) -> Mesh | None:
+        """The Mesh of the triangles whose faces are in `faces`, with only the vertices they
+        use; UV sets and colours as `binding` asks."""
+        tri = topo.tri
+        if faces is not None:
+            if isinstance(faces, tuple):  # ("rest", claimed faces)
+                select = ~np.isin(topo.tri_face, faces[1])
+            else:
+                select = np.isin(topo.tri_face, faces)
+            tri = tri[select]
+        if not len(tri):
+            return None
+        used, local = np.unique(tri, return_inverse=True)
+        whole = len(used) == len(topo.positions)
+        pick = (lambda a: a) if whole else (lambda a: a[used])  # noqa: E731
+        uvs = [topo.attrs.get(n) for n in binding.uv_primvars] or [topo.attrs.get("st")]
+        uvs = [None if u is None else pick(_gltf_uv(u)) for u in uvs] + [None]
+        colors = None
+        if binding.color_primvar and binding.color_primvar in topo.attrs:
+            rgb = topo.attrs[binding.color_primvar][:, :3]
+            alpha = topo.attrs.get("displayOpacity") if binding.color_primvar == "displayColor" \
+                else None
+            alpha = np.ones((len(rgb), 1), np.float32) if alpha is None else alpha[:, :1]
+            colors = pick(np.concatenate([np.broadcast_to(rgb, (len(rgb), 3)), alpha], axis=1))
+        return Mesh(name=name, positions=pick(topo.positions),
+                    normals=None if topo.normals is None else pick(topo.normals),
+                    indices=local.reshape(-1, 3).astype(np.uint32),
+                    uv0=uvs[0], uv1=uvs[1], colors=colors)
+
+    def _warn(self, text: str) -> None:
+        if text not in self.scene.warnings:
+            self.scene.warnings.append(text)
+            log.warning("%s: %s", self.graph.path, text)
+
+
+def _elements(pv: _Primvar, fvi, face_of_corner, corners) -> np.ndarray:
+    """Index into pv.values for each face-vertex in `corners`."""
+    if pv.interpolation == "constant":
+        e = np.zeros(len(corners), np.int64)
+    elif pv.interpolation == "uniform":
+        e = face_of_corner[corners]
+    elif pv.interpolation == "faceVarying":
+        e = corners
+    else:  # vertex, varying
+        e = fvi[corners]
+    return e if pv.indices is None else pv.indices[e]
+
+
+def _point_elements(pv: _Primvar, n_points: int) -> np.ndarray:
+    """Index into pv.values for each point (no uniform / faceVarying primvar in play)."""
+    e = np.zeros(n_points, np.int64) if pv.interpolation == "constant" else np.arange(n_points)
+    return e if pv.indices is None else pv.indices[e]
+
+
+def _unique_rows(columns: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """(inverse, representative) of the distinct rows of the stacked int columns."""
+    sizes = [int(c.max()) + 1 if len(c) else 1 for c in columns]
+    if float(np.prod([float(s) for s in sizes])) < 2.0 ** 62:  # one int64 key: fast path
+        key = np.zeros(len(columns[0]), np.int64)
+        for col, size in zip(columns, sizes):
+            key = key * size + col
+        _, rep, inverse = np.unique(key, return_index=True, return_inverse=True)
+    else:
+        _, rep, inverse = np.unique(np.stack(columns, axis=1), axis=0, return_index=True,
+                                    return_inverse=True)
+    return inverse.reshape(-1), rep
+
+
+def _gltf_uv(st: np.ndarray) -> np.ndarray:
+    """USD st (v up from the image bottom) -> glTF uv (v down from the image top)."""
+    uv = np.array(st[:, :2], np.float32)
+    uv[:, 1] = 1.0 - uv[:, 1]
+    return uv
