@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import importlib
 import logging
+import os
+import stat
 import time
 from pathlib import Path
 
@@ -36,15 +38,19 @@ def load_scene(path, limits: Limits | None = None) -> Scene:
     """Read any supported asset into a finished Scene; bad input raises an AssetError."""
     path = Path(path)
     limits = limits or Limits.from_env()
-    if not path.exists():
-        raise MissingFile(path, "no such file")
-    if not path.is_file():
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise MissingFile(path, "no such file") from None
+    except OSError as exc:
+        raise MissingFile(path, f"cannot be read: {exc.strerror}") from None
+    if not stat.S_ISREG(st.st_mode):
         raise UnsupportedFormat(path, "not a regular file")
     kind = READERS.get(path.suffix.lower())
     if kind is None:
         raise UnsupportedFormat(path, f"unsupported file type {path.suffix or '(none)'!r}; "
                                       f"reads {', '.join(sorted(READERS))}")
-    size = path.stat().st_size
+    size = st.st_size
     if size == 0:
         raise MalformedAsset(path, "file is empty")
     if size > limits.max_file_bytes:
@@ -126,7 +132,8 @@ def _check(mesh: Mesh, path: str) -> int:
     """Type and range checks for one mesh; drops degenerate triangles, returns how many."""
     mesh.positions = np.ascontiguousarray(mesh.positions, np.float32).reshape(-1, 3)
     n = len(mesh.positions)
-    bad = ~np.isfinite(mesh.positions).all(axis=1)
+    bad = ~np.isfinite(mesh.positions).all(axis=1) if not np.isfinite(mesh.positions.sum()) \
+        else np.zeros(0, bool)  # the sum is finite in the common case: one cheap test
     if bad.any():
         raise MalformedAsset(path, f"mesh {mesh.name!r}: {int(bad.sum())} vertex positions are "
                                    "NaN or infinite")
@@ -150,12 +157,19 @@ def _check(mesh: Mesh, path: str) -> int:
                 continue
             raise MalformedAsset(path, f"mesh {mesh.name!r}: {name} hold NaN or infinite values")
         setattr(mesh, name, np.ascontiguousarray(value, np.float32))
-    p = mesh.positions
-    cross = np.cross(p[tri[:, 1]] - p[tri[:, 0]], p[tri[:, 2]] - p[tri[:, 0]])
-    keep = (np.einsum("ij,ij->i", cross, cross) > 0.0) & (tri[:, 0] != tri[:, 1]) \
-        & (tri[:, 1] != tri[:, 2]) & (tri[:, 0] != tri[:, 2])
-    mesh.indices = np.ascontiguousarray(tri[keep])
+    keep = (tri[:, 0] != tri[:, 1]) & (tri[:, 1] != tri[:, 2]) & (tri[:, 0] != tri[:, 2])
+    keep &= _nonzero_area(mesh.positions, tri)
+    mesh.indices = tri if keep.all() else np.ascontiguousarray(tri[keep])
     return int(len(tri) - keep.sum())
+
+
+def _nonzero_area(positions: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """Per triangle: is the cross product of two edges non-zero? (exact test, no epsilon;
+    per coordinate gathers with `take` are several times faster than row fancy-indexing)"""
+    x, y, z = (np.ascontiguousarray(c).take(tri) for c in positions.T)
+    bx, by, bz = x[:, 1] - x[:, 0], y[:, 1] - y[:, 0], z[:, 1] - z[:, 0]
+    cx, cy, cz = x[:, 2] - x[:, 0], y[:, 2] - y[:, 0], z[:, 2] - z[:, 0]
+    return (by * cz != bz * cy) | (bz * cx != bx * cz) | (bx * cy != by * cx)
 
 
 def _flat_normals(mesh: Mesh) -> None:
@@ -164,7 +178,7 @@ def _flat_normals(mesh: Mesh) -> None:
     for name in ("positions", "uv0", "uv1", "colors", "tangents"):
         value = getattr(mesh, name)
         if value is not None:
-            setattr(mesh, name, np.ascontiguousarray(value[corners]))
+            setattr(mesh, name, value.take(corners, axis=0))
     tri = mesh.positions.reshape(-1, 3, 3)
     face = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     face /= np.linalg.norm(face, axis=1, keepdims=True)
@@ -175,7 +189,7 @@ def _flat_normals(mesh: Mesh) -> None:
 def _unit_normals(mesh: Mesh) -> np.ndarray:
     """Given normals made unit length; zero or non-finite ones replaced by area-weighted ones."""
     nrm = np.asarray(mesh.normals, np.float32).reshape(-1, 3)
-    length = np.linalg.norm(nrm, axis=1)
+    length = np.sqrt(np.einsum("ij,ij->i", nrm, nrm))
     bad = ~(np.isfinite(length) & (length > 1e-12))
     out = nrm / np.where(bad, 1.0, length)[:, None]
     if bad.any():

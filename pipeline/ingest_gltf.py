@@ -46,7 +46,7 @@ def load(path: Path, limits: Limits) -> Scene:
     return _Reader(Path(path), limits).scene()
 
 
-def _split_glb(path: Path, data: bytes) -> tuple[bytes, bytes | None]:
+def _split_glb(path: Path, data: bytes) -> tuple[memoryview, memoryview | None]:
     """The JSON text and BIN chunk of a GLB container, every length checked."""
     if len(data) < 20:
         raise MalformedAsset(path, f"GLB file is truncated ({len(data)} bytes)")
@@ -63,7 +63,7 @@ def _split_glb(path: Path, data: bytes) -> tuple[bytes, bytes | None]:
         size, kind = struct.unpack_from("<II", data, pos)
         if pos + 8 + size > length:
             raise MalformedAsset(path, f"GLB chunk at byte {pos} runs past the end of the file")
-        chunks.append((kind, data[pos + 8: pos + 8 + size]))
+        chunks.append((kind, memoryview(data)[pos + 8: pos + 8 + size]))
         pos += 8 + size + (-size % 4 if pos + 8 + size + (-size % 4) <= length else 0)
     if not chunks or chunks[0][0] != CHUNK_JSON:
         raise MalformedAsset(path, "GLB file does not start with a JSON chunk")
@@ -74,11 +74,13 @@ def _split_glb(path: Path, data: bytes) -> tuple[bytes, bytes | None]:
 class _Reader:
     def __init__(self, path: Path, limits: Limits):
         self.path, self.limits = path, limits
-        self.files = [str(path.resolve())]
+        self.files: list[str] = []  # referenced files; load_scene adds the asset itself
         self.warnings: list[str] = []
         self._buffers: dict[int, bytes] = {}
         self._accessor_cache: dict[int, np.ndarray] = {}
         self._texture_map: dict[int, int | None] = {}
+        self._image_map: dict[tuple, int | None] = {}  # (image, sampler) -> scene texture
+        self._images: dict[int, tuple | None] = {}
         self.textures: list[DeferredTexture] = []
         self._unpacked = 0
         data = path.read_bytes()
@@ -87,7 +89,7 @@ class _Reader:
         else:
             text, self.glb_bin = data, None
         try:
-            self.doc = json.loads(text)
+            self.doc = json.loads(bytes(text))
         except (ValueError, UnicodeDecodeError, RecursionError) as exc:
             raise MalformedAsset(path, f"invalid glTF JSON: {exc}") from None
         if not isinstance(self.doc, dict):
@@ -139,11 +141,14 @@ class _Reader:
             raise self._bad(f"{key} = {value!r} must be {len(default)} finite numbers")
         return out
 
-    def _float(self, obj: dict, key: str, default: float) -> float:
+    def _float(self, obj: dict, key: str, default: float, lo: float = -math.inf,
+               hi: float = math.inf) -> float:
+        """A number from the JSON, finite unless its default is infinite, clamped to lo..hi."""
         value = obj.get(key, default)
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or math.isnan(value):
-            raise self._bad(f"{key} = {value!r} is not a number")
-        return float(value)
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or math.isnan(value) \
+                or (math.isinf(value) and not math.isinf(default)):
+            raise self._bad(f"{key} = {value!r} is not a finite number")
+        return min(max(float(value), lo), hi)
 
     # -- buffers and accessors ------------------------------------------------------------------
     def _payload(self, uri, what: str) -> bytes:
@@ -170,7 +175,7 @@ class _Reader:
             self.files.append(str(target))
         return target.read_bytes()
 
-    def _buffer(self, index: int) -> bytes:
+    def _buffer(self, index: int) -> bytes | memoryview:
         if index not in self._buffers:
             buf = self._get("buffers", index)
             declared = self._int(buf, "byteLength", lo=1)
@@ -351,37 +356,54 @@ class _Reader:
         ext = self._dict(tex.get("extensions"), f"texture {index} extensions")
         if "EXT_texture_webp" in ext:
             source = self._dict(ext["EXT_texture_webp"], "EXT_texture_webp").get("source", source)
+        if not isinstance(source, (int, type(None))) or not isinstance(tex.get("sampler"), (int, type(None))):
+            raise self._bad(f"texture {index}: source/sampler are not indices")
         result = None
-        if source is None:
+        if (source, tex.get("sampler")) in self._image_map:
+            result = self._image_map[source, tex.get("sampler")]
+        elif source is None:
             self.warnings.append(f"texture {index}: no image source we can read "
                                  f"(extensions: {', '.join(ext) or 'none'}); factor only")
         elif len(self.textures) >= self.limits.max_textures:
             raise LimitExceeded(self.path, f"more than {self.limits.max_textures} textures")
         else:
             img = self._get("images", source, f"texture {index} source")
-            if "bufferView" in img:
-                data = bytes(self._view(self._int(img, "bufferView"))[0])
-                label = f"{self.path} image {source}"
-            elif "uri" in img:
-                data = self._payload(img["uri"], f"image {source}")
-                label = f"{self.path} image {source}" if img["uri"].startswith("data:") \
-                    else str(resolve_reference(self.path, img["uri"]))
-            else:
-                raise self._bad(f"image {source} has neither uri nor bufferView")
-            try:
-                size = probe_image(data, label, self.limits)
-            except (MalformedAsset, LimitExceeded) as exc:
-                self.warnings.append(f"texture {index}: {exc.reason}; dropped (factor only)")
-                log.warning("%s: texture %d dropped: %s", self.path, index, exc.reason)
-            else:
-                self._account(size[0] * size[1] * 4, f"image {source}")
+            probed = self._image(source, img)
+            if probed is not None:
+                data, size, label = probed
                 self.textures.append(DeferredTexture(
                     name=str(img.get("name") or tex.get("name") or f"image{source}"), data=data,
                     size=size, limits=self.limits, sampler=self._sampler(tex.get("sampler")),
                     source=label))
                 result = len(self.textures) - 1
+            self._image_map[source, tex.get("sampler")] = result
         self._texture_map[index] = result
         return result
+
+    def _image(self, source: int, img: dict) -> tuple[bytes, tuple[int, int], str] | None:
+        """An image's encoded bytes, size and label, probed once; None (warned) if unusable."""
+        if source in self._images:
+            return self._images[source]
+        if "bufferView" in img:
+            data = bytes(self._view(self._int(img, "bufferView"))[0])
+            label = f"{self.path} image {source}"
+        elif "uri" in img:
+            data = self._payload(img["uri"], f"image {source}")
+            label = f"{self.path} image {source}" if img["uri"].startswith("data:") \
+                else str(resolve_reference(self.path, img["uri"]))
+        else:
+            raise self._bad(f"image {source} has neither uri nor bufferView")
+        try:
+            size = probe_image(data, label, self.limits)
+        except (MalformedAsset, LimitExceeded) as exc:
+            self.warnings.append(f"image {source}: {exc.reason}; its textures are dropped "
+                                 "(factor only)")
+            log.warning("%s: image %d dropped: %s", self.path, source, exc.reason)
+            self._images[source] = None
+        else:
+            self._account(size[0] * size[1] * 4, f"image {source}")
+            self._images[source] = (data, size, label)
+        return self._images[source]
 
     def _sampler(self, index) -> Sampler:
         if index is None:
@@ -402,8 +424,8 @@ class _Reader:
         out = Material(name=str(m.get("name") or f"material{index}"))
         out.base_color = self._floats(pbr, "baseColorFactor", (1.0, 1.0, 1.0, 1.0))
         out.base_color_texture = self.texture_ref(pbr.get("baseColorTexture"), f"{slot} baseColor")
-        out.metallic = self._float(pbr, "metallicFactor", 1.0)
-        out.roughness = self._float(pbr, "roughnessFactor", 1.0)
+        out.metallic = self._float(pbr, "metallicFactor", 1.0, 0.0, 1.0)
+        out.roughness = self._float(pbr, "roughnessFactor", 1.0, 0.0, 1.0)
         out.metallic_roughness_texture = self.texture_ref(pbr.get("metallicRoughnessTexture"),
                                                           f"{slot} metallicRoughness")
         normal = self._dict(m.get("normalTexture"), f"{slot} normalTexture")
@@ -411,32 +433,32 @@ class _Reader:
         out.normal_scale = self._float(normal, "scale", 1.0)
         occlusion = self._dict(m.get("occlusionTexture"), f"{slot} occlusionTexture")
         out.occlusion_texture = self.texture_ref(m.get("occlusionTexture"), f"{slot} occlusion")
-        out.occlusion_strength = self._float(occlusion, "strength", 1.0)
+        out.occlusion_strength = self._float(occlusion, "strength", 1.0, 0.0, 1.0)
         out.emissive = self._floats(m, "emissiveFactor", (0.0, 0.0, 0.0))
         out.emissive_texture = self.texture_ref(m.get("emissiveTexture"), f"{slot} emissive")
         alpha_mode = m.get("alphaMode", "OPAQUE")
         if alpha_mode not in ("OPAQUE", "MASK", "BLEND"):
             raise self._bad(f"{slot}: alphaMode {alpha_mode!r} is not OPAQUE, MASK or BLEND")
         out.alpha_mode = alpha_mode
-        out.alpha_cutoff = self._float(m, "alphaCutoff", 0.5)
+        out.alpha_cutoff = self._float(m, "alphaCutoff", 0.5, 0.0)
         out.double_sided = bool(m.get("doubleSided", False))
         out.unlit = "KHR_materials_unlit" in ext
         if "KHR_materials_emissive_strength" in ext:
             e = self._dict(ext["KHR_materials_emissive_strength"], "emissive_strength")
-            out.emissive_strength = self._float(e, "emissiveStrength", 1.0)
+            out.emissive_strength = self._float(e, "emissiveStrength", 1.0, 0.0)
         if "KHR_materials_transmission" in ext:
             t = self._dict(ext["KHR_materials_transmission"], "transmission")
-            out.transmission = self._float(t, "transmissionFactor", 0.0)
+            out.transmission = self._float(t, "transmissionFactor", 0.0, 0.0, 1.0)
             out.transmission_texture = self.texture_ref(t.get("transmissionTexture"),
                                                         f"{slot} transmission")
         if "KHR_materials_ior" in ext:
-            out.ior = self._float(self._dict(ext["KHR_materials_ior"], "ior"), "ior", 1.5)
+            out.ior = self._float(self._dict(ext["KHR_materials_ior"], "ior"), "ior", 1.5, 1.0)
         if "KHR_materials_volume" in ext:
             v = self._dict(ext["KHR_materials_volume"], "volume")
-            out.thickness = self._float(v, "thicknessFactor", 0.0)
+            out.thickness = self._float(v, "thicknessFactor", 0.0, 0.0)
             out.thickness_texture = self.texture_ref(v.get("thicknessTexture"), f"{slot} thickness")
             out.attenuation_color = self._floats(v, "attenuationColor", (1.0, 1.0, 1.0))
-            out.attenuation_distance = self._float(v, "attenuationDistance", math.inf)
+            out.attenuation_distance = self._float(v, "attenuationDistance", math.inf, 1e-9)
         return out
 
     def light(self, index: int, matrix: np.ndarray) -> Light:
@@ -450,7 +472,7 @@ class _Reader:
             raise self._bad(f"light {index}: unknown type {kind!r}")
         spot = self._dict(spec.get("spot"), f"light {index} spot")
         return Light(type=kind, color=self._floats(spec, "color", (1.0, 1.0, 1.0)),
-                     intensity=self._float(spec, "intensity", 1.0),
+                     intensity=self._float(spec, "intensity", 1.0, 0.0),
                      range=self._float(spec, "range", math.inf),
                      inner_cone=self._float(spot, "innerConeAngle", 0.0),
                      outer_cone=self._float(spot, "outerConeAngle", math.pi / 4), matrix=matrix)

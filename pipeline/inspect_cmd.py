@@ -1,0 +1,64 @@
+"""`asset-preview inspect PATH [--json]`: what an asset holds, after ingest's validation.
+
+Exit 0 on success; an AssetError becomes `error: FILE: REASON` and exit 3 (service.cli's
+run_guarded); argparse's usage errors exit 2.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("path", type=Path, metavar="PATH", help="asset file (glTF, USD, OBJ/PLY/STL)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+
+
+def summary(scene) -> dict:
+    """The JSON-ready summary of a Scene; counts are as rendered (every instance)."""
+    materials = []
+    for m in scene.materials:
+        materials.append({
+            "name": m.name, "class": m.material_class, "alpha_mode": m.alpha_mode,
+            "base_color": list(m.base_color), "metallic": m.metallic, "roughness": m.roughness,
+            "emissive": list(m.emissive), "emissive_strength": m.emissive_strength,
+            "transmission": m.transmission, "ior": m.ior, "thickness": m.thickness,
+            "double_sided": m.double_sided, "unlit": m.unlit,
+            "textures": sorted(m.texture_refs()),
+        })
+    return {
+        "file": scene.source,
+        "format": scene.format,
+        "meshes": len(scene.meshes),
+        "instances": len(scene.instances),
+        "triangles": scene.triangle_count,
+        "vertices": sum(len(scene.meshes[i.mesh].positions) for i in scene.instances),
+        "materials": materials,
+        "textures": len(scene.textures),
+        "lights": len(scene.lights),
+        "bounds": scene.bounds.tolist(),
+        "warnings": list(scene.warnings),
+        "files": list(scene.files),
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    from .ingest import load_scene
+
+    info = summary(load_scene(args.path))
+    if args.json:
+        print(json.dumps(info))
+        return 0
+    lo, hi = info["bounds"]
+    print(f"{info['file']} ({info['format']})")
+    print(f"  meshes {info['meshes']}, instances {info['instances']}, triangles "
+          f"{info['triangles']}, vertices {info['vertices']}, textures {info['textures']}, "
+          f"lights {info['lights']}")
+    print("  bounds " + " .. ".join("(" + ", ".join(f"{v:.4g}" for v in b) + ")" for b in (lo, hi)))
+    for m in info["materials"]:
+        tex = f" textures: {', '.join(m['textures'])}" if m["textures"] else ""
+        print(f"  material {m['name']!r}: {m['class']}{tex}")
+    for w in info["warnings"]:
+        print(f"  warning: {w}")
+    return 0
