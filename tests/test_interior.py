@@ -1,0 +1,150 @@
+"""Interior vectors (paper §4.2.3.2): vertex -> exit point along -normal, object space."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from pipeline.bake import build_baked
+from pipeline.interior import interior_vectors
+from pipeline.scene import Instance, Material, Mesh, Scene
+
+
+def _run(m: trimesh.Trimesh, normals=None):
+    return interior_vectors(m.vertices, m.vertex_normals if normals is None else normals, m.faces)
+
+
+def _scene(m: trimesh.Trimesh, matrix=np.eye(4), transmission=1.0) -> Scene:
+    mesh = Mesh("m", m.vertices.astype(np.float32), m.vertex_normals.astype(np.float32),
+                m.faces.astype(np.uint32))
+    glass = Material("glass", transmission=transmission, roughness=0.0, metallic=0.0)
+    return Scene("test", "test", meshes=[mesh], materials=[glass],
+                 instances=[Instance(0, 0, np.asarray(matrix, np.float64))])
+
+
+def test_unit_sphere_vectors_span_the_diameter_along_the_normal():
+    m = trimesh.creation.icosphere(subdivisions=4)
+    r = _run(m)
+    length = np.linalg.norm(r.vectors, axis=1)
+    assert r.vectors.dtype == np.float32 and r.vectors.shape == (len(m.vertices), 3)
+    assert r.misses == 0 and r.degenerate == 0 and r.rays >= len(m.vertices)
+    np.testing.assert_allclose(length, 2.0, atol=0.01)
+    # along the negated normal: unit vectors agree with -n
+    np.testing.assert_allclose(r.vectors / length[:, None], -m.vertex_normals, atol=1e-5)
+    assert r.rays_per_second > 0
+
+
+def test_cube_split_and_smooth_normals():
+    box = trimesh.creation.box(extents=(2.0, 2.0, 2.0))
+    smooth = _run(box)  # corner normals point along the diagonal: to the opposite corner
+    np.testing.assert_allclose(np.linalg.norm(smooth.vectors, axis=1), 2 * np.sqrt(3), rtol=1e-3)
+    split = box.copy()
+    split.unmerge_vertices()  # seam-split: one vertex per face corner, face normals
+    r = _run(split, np.repeat(split.face_normals, 3, axis=0))
+    # the ray from a corner runs along two face planes (grazing) and must still reach the far face
+    assert r.misses == 0
+    np.testing.assert_allclose(np.linalg.norm(r.vectors, axis=1), 2.0, rtol=1e-3)
+
+
+def test_ellipsoid_by_non_uniform_scale_transforms_correctly():
+    sphere = trimesh.creation.icosphere(subdivisions=4)
+    matrix = np.diag([2.0, 0.5, 1.0, 1.0])
+    matrix[:3, 3] = (5.0, -1.0, 3.0)
+    baked = build_baked(_scene(sphere, matrix))
+    mesh = baked.meshes[0]
+    assert mesh.interior is not None
+    world_vertex = mesh.positions @ matrix[:3, :3].T + matrix[:3, 3]
+    world_vector = mesh.interior @ matrix[:3, :3].T
+    exit_point = world_vertex + world_vector - matrix[:3, 3]
+    # exit points lie on the world-space ellipsoid x^2/4 + y^2/0.25 + z^2 = 1
+    on_surface = (exit_point[:, 0] / 2) ** 2 + (exit_point[:, 1] / 0.5) ** 2 + exit_point[:, 2] ** 2
+    np.testing.assert_allclose(on_surface, 1.0, atol=0.02)
+    # and the chord is as long as the scaled object-space one (not the unscaled 2)
+    along_x = np.abs(sphere.vertex_normals[:, 0]) > 0.999
+    np.testing.assert_allclose(np.linalg.norm(world_vector[along_x], axis=1), 4.0, rtol=0.01)
+
+
+def test_ellipsoid_mesh_rays_follow_its_own_normals():
+    e = trimesh.creation.icosphere(subdivisions=4)
+    e.apply_scale((3.0, 1.0, 1.0))
+    r = _run(e)
+    hit = e.vertices + r.vectors
+    np.testing.assert_allclose((hit[:, 0] / 3) ** 2 + hit[:, 1] ** 2 + hit[:, 2] ** 2, 1.0, atol=0.03)
+    assert r.misses == 0
+
+
+def test_open_cylinder_misses_are_counted_and_finite():
+    c = trimesh.creation.cylinder(radius=1.0, height=2.0, sections=32)
+    keep = np.abs(c.face_normals[:, 2]) < 0.5  # drop both caps
+    tube = trimesh.Trimesh(c.vertices, c.faces[keep], process=False)
+    tube.remove_unreferenced_vertices()
+    r = _run(tube)
+    length = np.linalg.norm(r.vectors, axis=1)
+    assert np.all(np.isfinite(r.vectors))
+    assert 0 < r.misses < len(tube.vertices)
+    diagonal = np.linalg.norm(np.ptp(tube.vertices, axis=0))
+    assert np.all(length <= diagonal + 1e-5)
+    # whatever hit crossed the tube: about the diameter
+    assert np.median(length) == pytest.approx(2.0, rel=0.02)
+
+
+def test_flat_sheet_gets_zero_length_fallback():
+    quad = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], [[0, 1, 2], [0, 2, 3]])
+    r = _run(quad)
+    assert r.misses == 4
+    np.testing.assert_allclose(r.vectors, 0.0, atol=1e-6)
+
+
+def test_several_shells_and_seams_and_bad_normals():
+    small = trimesh.creation.icosphere(subdivisions=3, radius=0.5)
+    big = trimesh.creation.icosphere(subdivisions=3, radius=2.0)
+    big.apply_translation((10.0, 0.0, 0.0))
+    both = trimesh.util.concatenate([small, big])
+    normals = both.vertex_normals.copy()
+    normals[0] = 0.0  # a vertex without a usable normal
+    r = _run(both, normals)
+    length = np.linalg.norm(r.vectors, axis=1)
+    n_small = len(small.vertices)
+    assert r.degenerate == 1 and np.all(r.vectors[0] == 0)
+    np.testing.assert_allclose(length[1:n_small], 1.0, rtol=0.02)
+    np.testing.assert_allclose(length[n_small:], 4.0, rtol=0.02)
+    # a UV seam: the same vertex twice gets the same vector
+    dup = trimesh.Trimesh(np.vstack([small.vertices, small.vertices[:5]]), small.faces, process=False)
+    dn = np.vstack([small.vertex_normals, small.vertex_normals[:5]])
+    rd = _run(dup, dn)
+    np.testing.assert_array_equal(rd.vectors[:5], rd.vectors[-5:])
+
+
+def test_far_from_origin_uses_scale_aware_epsilon():
+    m = trimesh.creation.icosphere(subdivisions=3, radius=0.01)
+    m.apply_translation((1000.0, -2000.0, 500.0))
+    r = _run(m)
+    assert r.misses == 0
+    np.testing.assert_allclose(np.linalg.norm(r.vectors, axis=1), 0.02, rtol=0.03)
+
+
+def test_torus_from_sample_assets(assets):
+    from pipeline import load_scene
+    scene = load_scene(assets / "mesh" / "torus.STL")
+    mesh = scene.meshes[0]
+    r = interior_vectors(mesh.positions, mesh.normals, mesh.indices)
+    tube = np.min(np.ptp(mesh.positions, axis=0))  # the torus' thickness = tube diameter
+    length = np.linalg.norm(r.vectors, axis=1)
+    assert r.misses == 0 and np.all(np.isfinite(length))
+    # every normal of a torus passes through the tube's centre circle: chord = tube diameter
+    np.testing.assert_allclose(np.median(length), tube, rtol=0.01)
+    assert np.mean(np.abs(length - tube) < 0.05 * tube) > 0.95
+
+
+def test_only_transmissive_meshes_get_interior():
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    scene = _scene(sphere)
+    scene.materials.append(Material("paint", transmission=0.0))
+    scene.instances.append(Instance(0, 1, np.eye(4)))
+    scene.instances.append(Instance(0, 0, np.diag([2.0, 2.0, 2.0, 1.0])))
+    baked = build_baked(scene)
+    by_material = {m.material.name: m for m in baked.meshes}
+    assert by_material["paint"].interior is None
+    assert by_material["glass"].interior.shape == (len(sphere.vertices), 3)
+    assert len(by_material["glass"].transforms) == 2  # instances of one pair grouped
+    assert baked.manifest["stats"]["interior"]["rays"] >= len(sphere.vertices)
