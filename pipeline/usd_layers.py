@@ -207,5 +207,6 @@ def _inner(identifier: str) -> str | None:
 
 
 def _first_line(exc: Exception) -> str:
-    text = str(exc).strip().splitlines()
-    return text[-1] if text else type(exc).__name__
+    """The parser's own message (the last meaningful line of a Tf error)."""
+    lines = [ln.strip(" '\t") for ln in str(exc).splitlines() if ln.strip(" '\t")]
+    return lines[-1][:300] if lines else type(exc).__name__
