@@ -129,7 +129,7 @@ def register_frame_method(name: str, fn: FrameMethod) -> None:
 
 def available_methods() -> list[str]:
     _load_plugins()
-    return ["auto", *_METHODS, *_FRAME_METHODS]
+    return ["auto", "opaque", *_METHODS, *_FRAME_METHODS]
 
 
 def _load_plugins() -> None:
