@@ -287,8 +287,6 @@ def bake_or_load_environment(source, cache_dir=None, face_size: int = 256, prefi
 
     if prefilter not in PREFILTERS:
         raise ValueError(f"prefilter must be one of {PREFILTERS}, not {prefilter!r}")
-    if not (isinstance(face_size, int) and 8 <= face_size <= 4096):
-        raise ValueError(f"face_size must be an integer in 8..4096, not {face_size!r}")
     cache = _cache(cache_dir)
     opts = {"face_size": face_size, "prefilter": prefilter}
     source_files = SourceFiles.hash(resolve_panorama(source))

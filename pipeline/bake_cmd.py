@@ -1,0 +1,225 @@
+"""`asset-bake PATH... [--env NAME|FILE ...]` (= `asset-preview bake`): bake into the cache.
+
+One result line per input on stdout (`baked`, `cached`, or `failed: REASON`), or one JSON
+object per line with --json; a progress bar on stderr when it is a terminal; a summary on
+stderr. Exit status 0 when everything baked, 3 when anything failed (the rest is still baked).
+--workers N bakes in N spawned processes (not forked: EGL and Embree state do not survive fork).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import sys
+import time
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+EXIT_FAILED = 3
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("paths", nargs="*", metavar="PATH",
+                        help="asset files, or folders searched recursively for supported files")
+    parser.add_argument("--cache", metavar="DIR", default=None,
+                        help="cache folder (default: $ASSET_PREVIEW_CACHE, else ./.cache)")
+    parser.add_argument("--env", action="append", default=[], metavar="NAME|FILE",
+                        help="also bake this environment: a bundled name or a panorama file "
+                             "(repeatable)")
+    parser.add_argument("--prefilter", choices=("ggx", "paper"), default="ggx",
+                        help="environment prefiltering: GGX importance sampling (default) or the "
+                             "paper's plain Gaussian mip chain")
+    parser.add_argument("--face-size", type=int, default=int(os.environ.get("ASSET_PREVIEW_FACE_SIZE", 256)),
+                        metavar="PX", help="environment cube face size, a power of two (default 256)")
+    parser.add_argument("--workers", type=int, default=int(os.environ.get("ASSET_PREVIEW_WORKERS", 1)),
+                        metavar="N", help="bake in N processes (default 1: in this process)")
+    parser.add_argument("--max-size", default=None, metavar="SIZE",
+                        help="cap the cache at SIZE (e.g. 2G), evicting least recently used "
+                             "entries (default: $ASSET_PREVIEW_CACHE_MAX_BYTES, else no cap)")
+    parser.add_argument("--force", action="store_true", help="bake again even when cached")
+    parser.add_argument("--json", action="store_true", help="one JSON object per input")
+
+
+def run(args: argparse.Namespace) -> int:
+    from .cache import parse_size
+
+    if not args.paths and not args.env:
+        print("error: nothing to bake: give asset paths and/or --env", file=sys.stderr)
+        return 2
+    if args.workers < 1:
+        print("error: --workers must be at least 1", file=sys.stderr)
+        return 2
+    try:
+        max_bytes = parse_size(args.max_size)
+    except ValueError as exc:
+        print(f"error: --max-size: {exc}", file=sys.stderr)
+        return 2
+    cache = str(args.cache) if args.cache else None
+    jobs, failures = _collect(args.paths, cache)
+    jobs += [("environment", src) for src in args.env]
+    common = {"cache": cache, "max_bytes": max_bytes, "force": args.force,
+              "face_size": args.face_size, "prefilter": args.prefilter}
+    report = _Report(len(jobs) + len(failures), args.json)
+    for result in failures:
+        report.add(result)
+    start = time.perf_counter()
+    try:
+        if args.workers == 1 or len(jobs) <= 1:
+            for kind, source in jobs:
+                report.add(bake_one(kind, source, **common))
+        else:
+            _run_pool(jobs, common, args.workers, report)
+    except KeyboardInterrupt:
+        report.close()
+        print("interrupted", file=sys.stderr)
+        return 130
+    report.close()
+    counts = report.counts
+    print(f"{counts['baked']} baked, {counts['cached']} cached, {counts['failed']} failed "
+          f"in {time.perf_counter() - start:.2f} s", file=sys.stderr)
+    return EXIT_FAILED if counts["failed"] else 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """The `asset-bake` console script."""
+    parser = argparse.ArgumentParser(prog="asset-bake", description=__doc__.splitlines()[0])
+    parser.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
+    configure(parser)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return run(args)
+    except BrokenPipeError:  # `asset-bake ... | head`: stop quietly, as Unix tools do
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
+
+
+def bake_one(kind: str, source: str, *, cache=None, max_bytes=None, force=False,
+             face_size=256, prefilter="ggx") -> dict:
+    """Bake one asset or environment; never raises (the result says what went wrong)."""
+    from . import bake
+    from .cache import Cache
+    from .errors import AssetError
+
+    start = time.perf_counter()
+    result = {"kind": kind, "path": source}
+    try:
+        store = Cache(cache, max_bytes=max_bytes)
+        if kind == "asset":
+            baked, hit = bake.bake_or_load_asset(source, store, force=force)
+            result.update(triangles=int(baked.triangle_count), meshes=len(baked.meshes))
+            interior = baked.manifest.get("stats", {}).get("interior", {})
+            if interior.get("rays"):
+                result.update(interior_rays=interior["rays"], interior_misses=interior["misses"])
+        else:
+            baked, hit = bake.bake_or_load_environment(source, store, face_size=face_size,
+                                                       prefilter=prefilter, force=force)
+            result.update(face_size=baked.face_size, mips=len(baked.specular))
+        result.update(status="cached" if hit else "baked", key=baked.key)
+    except AssetError as exc:
+        result.update(status="failed", error=str(exc))
+    except (ValueError, OSError) as exc:  # bad option values, unwritable cache
+        result.update(status="failed", error=f"{source}: {exc}")
+    except Exception as exc:  # a bug: report it for this input and carry on with the others
+        log.exception("%s: unexpected error while baking", source)
+        result.update(status="failed", error=f"{source}: internal error ({type(exc).__name__}: {exc})")
+    result["seconds"] = round(time.perf_counter() - start, 4)
+    return result
+
+
+def _collect(paths: list[str], cache: str | None) -> tuple[list[tuple[str, str]], list[dict]]:
+    """Asset jobs for the given files and folders, and failures for paths that are neither."""
+    from .cache import default_cache_dir
+    from .ingest import READERS
+
+    cache_root = Path(cache or default_cache_dir()).resolve()
+    jobs, failures, seen = [], [], set()
+
+    def add(path: Path) -> None:
+        key = path.resolve()
+        if key not in seen:
+            seen.add(key)
+            jobs.append(("asset", str(path)))
+
+    for raw in paths:
+        path = Path(raw)
+        if path.is_dir():
+            found = 0
+            for folder, dirs, files in os.walk(path):
+                # hidden folders (.git, .cache) and the cache itself are never assets
+                dirs[:] = sorted(d for d in dirs if not d.startswith(".")
+                                 and Path(folder, d).resolve() != cache_root)
+                for name in sorted(files):
+                    if Path(name).suffix.lower() in READERS and not name.startswith("."):
+                        add(Path(folder, name))
+                        found += 1
+            if not found:
+                failures.append({"kind": "asset", "path": raw, "status": "failed",
+                                 "error": f"{raw}: no supported asset files in this folder "
+                                          f"({', '.join(sorted(READERS))})", "seconds": 0.0})
+        else:
+            add(path)  # a missing or unsupported file fails in bake_one, with the reason
+    return jobs, failures
+
+
+def _run_pool(jobs, common: dict, workers: int, report: "_Report") -> None:
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures.process import BrokenProcessPool
+
+    ctx = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx) as pool:
+        futures = {pool.submit(bake_one, kind, source, **common): (kind, source) for kind, source in jobs}
+        try:
+            for future in as_completed(futures):
+                kind, source = futures[future]
+                try:
+                    report.add(future.result())
+                except BrokenProcessPool:
+                    report.add({"kind": kind, "path": source, "status": "failed", "seconds": 0.0,
+                                "error": f"{source}: a bake worker process died (crash or out of memory)"})
+        except KeyboardInterrupt:
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
+
+
+class _Report:
+    """Result lines on stdout, and a progress bar on stderr when it is a terminal."""
+
+    def __init__(self, total: int, as_json: bool):
+        self.total, self.as_json, self.done = total, as_json, 0
+        self.counts = {"baked": 0, "cached": 0, "failed": 0}
+        self.bar = sys.stderr.isatty() and total > 1
+
+    def add(self, result: dict) -> None:
+        self.done += 1
+        self.counts[result["status"]] += 1
+        self._clear()
+        if self.as_json:
+            print(json.dumps(result), flush=True)
+        elif result["status"] == "failed":
+            print(f"failed: {result['error']}", flush=True)
+        else:
+            print(f"{result['status']:<7}{result['path']}  (key {result['key'][:12]}, "
+                  f"{result['seconds']:.2f} s)", flush=True)
+        if self.bar:
+            width = 30
+            filled = width * self.done // max(self.total, 1)
+            sys.stderr.write(f"[{'#' * filled}{'.' * (width - filled)}] {self.done}/{self.total}")
+            sys.stderr.flush()
+
+    def _clear(self) -> None:
+        if self.bar:
+            sys.stderr.write("\r\033[K")
+
+    def close(self) -> None:
+        self._clear()
+        if self.bar:
+            sys.stderr.flush()
+
+
+if __name__ == "__main__":
+    sys.exit(main())
