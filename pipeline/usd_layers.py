@@ -207,6 +207,7 @@ def _inner(identifier: str) -> str | None:
 
 
 def _first_line(exc: Exception) -> str:
-    """The parser's own message (the last meaningful line of a Tf error)."""
-    lines = [ln.strip(" '\t") for ln in str(exc).splitlines() if ln.strip(" '\t")]
-    return lines[-1][:300] if lines else type(exc).__name__
+    """The parser's own message out of a Tf error ("Error in 'fn' at line N in file F : 'MSG'")."""
+    text = str(exc).split(" : '")[-1]
+    lines = [ln.strip(" '\t") for ln in text.splitlines() if ln.strip(" '\t")]
+    return lines[0][:300] if lines else type(exc).__name__

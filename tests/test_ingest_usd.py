@@ -1,0 +1,503 @@
+"""USD ingest: sample assets against an independent pxr traversal, generated stages for each
+feature, and hostile files that must be refused with the documented error."""
+from __future__ import annotations
+
+import math
+import os
+import time
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+from pxr import Usd, UsdGeom
+
+import pipeline
+from pipeline.errors import AssetError, LimitExceeded, MalformedAsset, MissingFile, UnsafeReference
+from pipeline.limits import Limits
+
+USD_SUFFIXES = {".usd", ".usda", ".usdc", ".usdz"}
+
+
+def usd_samples(root: Path) -> list[Path]:
+    return sorted(p for p in (root / "usd").rglob("*") if p.suffix in USD_SUFFIXES)
+
+
+def rendered_triangles(path: Path) -> int:
+    """Triangles as rendered, counted straight from pxr: every visible, render/default-purpose
+    Mesh (instance proxies included), sum of faceVertexCounts - 2 over faces not holes."""
+    stage = Usd.Stage.Open(str(path))
+    total = 0
+    for prim in Usd.PrimRange(stage.GetPseudoRoot(),
+                              Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)):
+        if not prim.IsA(UsdGeom.Mesh):
+            continue
+        img = UsdGeom.Imageable(prim)
+        if img.ComputeVisibility() == UsdGeom.Tokens.invisible or \
+                img.ComputePurpose() not in (UsdGeom.Tokens.default_, UsdGeom.Tokens.render):
+            continue
+        mesh = UsdGeom.Mesh(prim)
+        counts = list(mesh.GetFaceVertexCountsAttr().Get() or [])
+        holes = set(mesh.GetHoleIndicesAttr().Get() or [])
+        total += sum(max(c - 2, 0) for f, c in enumerate(counts) if f not in holes)
+    return total
+
+
+def write(path: Path, text: str) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("#usda 1.0\n" + text)
+    return path
+
+
+def png(path: Path, rgba: tuple[int, int, int, int] = (255, 0, 0, 255), size=(4, 2)) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.new("RGBA", size, rgba).save(path)
+    return path
+
+
+QUAD = """
+        int[] faceVertexCounts = [4]
+        int[] faceVertexIndices = [0, 1, 2, 3]
+        point3f[] points = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)]
+"""
+
+
+def material(name: str, inputs: str, extra: str = "") -> str:
+    return f"""
+def Material "{name}"
+{{
+    token outputs:surface.connect = </{name}/S.outputs:surface>
+    def Shader "S"
+    {{
+        uniform token info:id = "UsdPreviewSurface"
+        {inputs}
+        token outputs:surface
+    }}
+    {extra}
+}}
+"""
+
+
+def mesh(name: str, body: str = QUAD, binding: str | None = None, meta: str = "") -> str:
+    bind = f'rel material:binding = </{binding}>' if binding else ""
+    api = 'prepend apiSchemas = ["MaterialBindingAPI"]' if binding else ""
+    return f"""
+def Mesh "{name}" (
+    {api}
+    {meta}
+)
+{{
+    uniform token subdivisionScheme = "none"
+    {body}
+    {bind}
+}}
+"""
+
+
+# -- the sample assets --------------------------------------------------------------------------
+def test_every_usd_sample_loads_with_pxr_triangle_count(assets):
+    samples = usd_samples(assets)
+    assert len(samples) >= 8
+    for path in samples:
+        scene = pipeline.load_scene(path)
+        assert scene.triangle_count == rendered_triangles(path) > 0, path
+        assert np.all(np.isfinite(scene.bounds)), path
+        assert all(Path(f.split("[")[0]).resolve().is_relative_to(path.parent.resolve())
+                   for f in scene.files), (path, scene.files)
+
+
+def test_teapot_payload_and_variants_resolve(assets):
+    path = assets / "usd/Teapot/Teapot.usd"
+    scene = pipeline.load_scene(path)
+    # modelVariant Utah (through the payload), shadingVariant CeramicLimeGreen
+    assert scene.triangle_count == 2472
+    assert [m.name for m in scene.meshes] == ["/Teapot/Geometry"]
+    assert len(scene.materials) == 1 and len(scene.textures) == 0
+    mat = scene.materials[0]
+    assert mat.name == "/Teapot/Materials/Ceramic"
+    assert mat.roughness == pytest.approx(0.125) and mat.ior == pytest.approx(1.327)
+    assert mat.metallic == 0.0 and mat.material_class == "opaque"
+    colors = scene.meshes[0].colors  # diffuseColor is read from displayColor
+    np.testing.assert_allclose(colors[0], (0.325, 0.825, 0.0, 1.0), atol=1e-6)
+    files = {Path(f).name for f in scene.files}
+    assert {"Teapot.usd", "Teapot_Payload.usd", "Teapot_Materials.usd", "Teapot_Geometry.usd",
+            "UtahTeapot.usd"} <= files
+    # smooth normals for the subdivision cage, unit length
+    n = scene.meshes[0].normals
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-4)
+
+
+def test_fancy_variant_materials_and_textures(assets):
+    scene = pipeline.load_scene(assets / "usd/Teapot/DrawModes.usd")
+    assert len(scene.textures) == 2  # diffuse + ARM, shared by every fancy copy
+    assert len(scene.materials) == 2  # PorcelainFlowers and Ceramic (equal copies shared)
+    fancy = next(m for m in scene.materials if m.name.endswith("PorcelainFlowers"))
+    assert fancy.base_color_texture is not None
+    # ARM = occlusion R, roughness G, metallic B: glTF's layout, used as it is
+    assert fancy.metallic_roughness_texture.texture == fancy.occlusion_texture.texture
+    assert fancy.metallic_roughness_texture.texture != fancy.base_color_texture.texture
+    assert {Path(t.source).name for t in scene.textures} == {"tea_set_01_diff_2k.jpg",
+                                                              "tea_set_01_arm_2k.jpg"}
+
+
+def test_texture_coordinate_test(assets):
+    scene = pipeline.load_scene(assets / "usd/TextureCoordinateTest/TextureCoordinateTest.usda")
+    assert len(scene.meshes) == 5 and len(scene.materials) == 5 and len(scene.textures) == 1
+    by_name = {m.name.rsplit("/", 1)[-1]: m for m in scene.materials}
+    # UsdUVTexture scale (0, .16, .8, 1) becomes the base colour factor
+    np.testing.assert_allclose(by_name["BottomLeftMat"].base_color, (0, 0.16, 0.8, 1), atol=1e-6)
+    assert all(m.double_sided for m in scene.materials)
+    # primvar "st0" is the one the material's reader names; v is flipped to glTF's convention
+    stage = Usd.Stage.Open(str(assets / "usd/TextureCoordinateTest/TextureCoordinateTest.usda"))
+    prim = stage.GetPrimAtPath("/Asset/Scenes/Scene/TopLeftObj/TopLeftMesh/submesh")
+    st = np.array(UsdGeom.PrimvarsAPI(prim).GetPrimvar("st0").ComputeFlattened())
+    mesh = next(m for m in scene.meshes if m.name == str(prim.GetPath()))
+    assert mesh.uv0 is not None
+    expected = {(round(s, 5), round(1 - t, 5)) for s, t in st}
+    assert {(round(u, 5), round(v, 5)) for u, v in mesh.uv0} == expected
+
+
+def test_materialx_only_material_falls_back_with_warning(assets):
+    scene = pipeline.load_scene(assets / "usd/TextureCoordinateTest/TextureCoordinateTestMaterialX.usda")
+    assert scene.triangle_count == 10
+    assert any(".mtlx" in w for w in scene.warnings)
+    assert all(m.colors is not None for m in scene.meshes)  # displayColor stands in
+
+
+def test_primvar_interpolations(assets):
+    scene = pipeline.load_scene(assets / "usd/primvar_interpolation.usda")
+    meshes = {m.name.rsplit("/", 1)[-1]: m for m in scene.meshes}
+    assert len(meshes) == 7
+    assert len(meshes["vertex"].positions) == 6  # no split needed
+    assert len(meshes["faceVarying"].positions) == 8  # shared edge split
+    assert len(meshes["uniform"].positions) == 8
+    uniform = meshes["uniform"]
+    tri_colors = uniform.colors[uniform.indices[:, 0], :3]
+    assert {tuple(np.round(c.astype(float), 3)) for c in tri_colors} == {(1, 0.3, 0.3), (0.3, 0.3, 1)}
+    np.testing.assert_allclose(meshes["constant"].colors[:, :3], [[1, 0.3, 0.3]] * 6, atol=1e-6)
+    # metersPerUnit 0.01: the 2-unit wide quads are 2 cm wide
+    extent = scene.bounds[1] - scene.bounds[0]
+    assert extent[0] == pytest.approx(0.04, abs=1e-6)
+
+
+# -- generated stages, one feature each ---------------------------------------------------------
+def test_up_axis_z_and_meters_per_unit(tmp_path):
+    path = write(tmp_path / "z.usda", '(\n upAxis = "Z"\n metersPerUnit = 0.5\n)\n' + mesh("M", """
+        int[] faceVertexCounts = [3]
+        int[] faceVertexIndices = [0, 1, 2]
+        point3f[] points = [(0, 0, 0), (2, 0, 0), (0, 0, 4)]
+"""))
+    scene = pipeline.load_scene(path)
+    inst = scene.instances[0]
+    p = scene.meshes[inst.mesh].positions @ inst.matrix[:3, :3].T + inst.matrix[:3, 3]
+    # Z up becomes Y up (right-handed: +Y in Z-up is -Z here), in metres
+    np.testing.assert_allclose(p, [[0, 0, 0], [1, 0, 0], [0, 2, 0]], atol=1e-6)
+    np.testing.assert_allclose(scene.bounds, [[0, 0, 0], [1, 2, 0]], atol=1e-6)
+
+
+def test_ngons_left_handed_and_holes(tmp_path):
+    poly = """
+        int[] faceVertexCounts = [5, 6, 3]
+        int[] faceVertexIndices = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 0, 1, 2]
+        point3f[] points = [(0,0,0),(2,0,0),(3,1,0),(1,2,0),(-1,1,0),
+                            (10,0,0),(11,0,0),(12,1,0),(11,2,0),(10,2,0),(9,1,0)]
+        int[] holeIndices = [2]
+"""
+    right = write(tmp_path / "r.usda", '(\n metersPerUnit = 1\n)\n' + mesh("M", poly))
+    left = write(tmp_path / "l.usda", '(\n metersPerUnit = 1\n)\n' + mesh(
+        "M", poly + 'uniform token orientation = "leftHanded"'))
+    a, b = pipeline.load_scene(right), pipeline.load_scene(left)
+    assert a.triangle_count == b.triangle_count == 3 + 4  # pentagon + hexagon, hole dropped
+
+    def z_of_normals(scene):
+        m = scene.meshes[0]
+        p = m.positions[m.indices]
+        return np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])[:, 2]
+    assert np.all(z_of_normals(a) > 0) and np.all(z_of_normals(b) < 0)
+    # the fan covers each polygon exactly (convex here): areas add up
+    m = a.meshes[0]
+    p = m.positions[m.indices]
+    area = 0.5 * np.abs(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])[:, 2]).sum()
+    assert area == pytest.approx(5.0 + 4.0)  # shoelace areas
+
+
+def test_indexed_facevarying_st_and_uniform_normals(tmp_path):
+    path = write(tmp_path / "st.usda", '(\n metersPerUnit = 1\n)\n' + mesh("M", QUAD + """
+        texCoord2f[] primvars:st = [(0, 0), (1, 0), (1, 1), (0, 1)] (
+            interpolation = "faceVarying"
+        )
+        int[] primvars:st:indices = [0, 1, 2, 3]
+        normal3f[] normals = [(0, 0, 1)] (
+            interpolation = "uniform"
+        )
+"""))
+    m = pipeline.load_scene(path).meshes[0]
+    np.testing.assert_allclose(m.normals, [[0, 0, 1]] * len(m.positions), atol=1e-6)
+    by_pos = {tuple(p[:2]): tuple(uv) for p, uv in zip(m.positions, m.uv0)}
+    # USD st (0,0) is the image's bottom-left: glTF (0, 1)
+    assert by_pos[(0.0, 0.0)] == (0.0, 1.0) and by_pos[(1.0, 1.0)] == (1.0, 0.0)
+
+
+def test_geom_subsets_bind_their_own_materials(tmp_path):
+    body = """
+        int[] faceVertexCounts = [3, 3, 4]
+        int[] faceVertexIndices = [0, 1, 2, 0, 2, 3, 4, 5, 6, 7]
+        point3f[] points = [(0,0,0),(1,0,0),(1,1,0),(0,1,0),(2,0,0),(3,0,0),(3,1,0),(2,1,0)]
+        uniform token subsetFamily:materialBind:familyType = "partition"
+        def GeomSubset "red" (
+            prepend apiSchemas = ["MaterialBindingAPI"]
+        )
+        {
+            uniform token elementType = "face"
+            uniform token familyName = "materialBind"
+            int[] indices = [0, 1]
+            rel material:binding = </Red>
+        }
+"""
+    text = '(\n metersPerUnit = 1\n)\n' + material("Red", "color3f inputs:diffuseColor = (1, 0, 0)") \
+        + material("Blue", "color3f inputs:diffuseColor = (0, 0, 1)") + mesh("M", body, "Blue")
+    scene = pipeline.load_scene(write(tmp_path / "subsets.usda", text))
+    assert len(scene.meshes) == 2 and scene.triangle_count == 4
+    colours = {scene.materials[i.material].base_color[:3]: scene.meshes[i.mesh].triangle_count
+               for i in scene.instances}
+    assert colours == {(1.0, 0.0, 0.0): 2, (0.0, 0.0, 1.0): 2}
+
+
+def test_instancing_visibility_purpose_active(tmp_path):
+    write(tmp_path / "part.usda", '(\n defaultPrim = "P"\n)\ndef Xform "P"\n{\n'
+          + mesh("M") + "}\n")
+    text = '(\n metersPerUnit = 1\n)\n'
+    for i in range(3):
+        text += f"""
+def Xform "I{i}" (
+    instanceable = true
+    prepend references = @./part.usda@
+)
+{{
+    double3 xformOp:translate = ({i * 2}, 0, 0)
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+}}
+"""
+    text += mesh("Hidden", meta="").replace("{", '{\n    token visibility = "invisible"', 1)
+    text += mesh("Guide").replace("{", '{\n    uniform token purpose = "guide"', 1)
+    text += mesh("Off", meta="active = false")
+    scene = pipeline.load_scene(write(tmp_path / "inst.usda", text))
+    assert len(scene.meshes) == 1 and len(scene.instances) == 3  # one prototype, three places
+    xs = sorted(i.matrix[0, 3] for i in scene.instances)
+    assert xs == [0.0, 2.0, 4.0]
+    assert scene.triangle_count == 6
+
+
+@pytest.mark.parametrize("inputs, cls, transmission, alpha", [
+    ("float inputs:opacity = 0\n float inputs:ior = 1.5", "transmissive", 1.0, 1.0),
+    ("float inputs:opacity = 0.25\n float inputs:ior = 1.33", "transmissive", 0.75, 1.0),
+    ("float inputs:opacity = 0.5", "blend", 0.0, 0.5),
+    ("float inputs:opacity = 0.5\n float inputs:ior = 1.0", "blend", 0.0, 0.5),
+    ("float inputs:opacity = 0.3\n float inputs:opacityThreshold = 0.5", "mask", 0.0, 0.3),
+    ("float inputs:ior = 1.5", "opaque", 0.0, 1.0),
+])
+def test_opacity_and_ior_mapping(tmp_path, inputs, cls, transmission, alpha):
+    text = '(\n metersPerUnit = 1\n)\n' + material("G", inputs) + mesh("M", binding="G")
+    mat = pipeline.load_scene(write(tmp_path / "glass.usda", text)).materials[0]
+    assert mat.material_class == cls
+    assert mat.transmission == pytest.approx(transmission)
+    assert mat.base_color[3] == pytest.approx(alpha)
+
+
+def _textured(tmp_path: Path, tex_uri: str, st_reader: str = "st", extra_nodes: str = "",
+              st_source: str = "</G/R.outputs:result>") -> str:
+    nodes = f"""
+    def Shader "T"
+    {{
+        uniform token info:id = "UsdUVTexture"
+        asset inputs:file = @{tex_uri}@
+        float2 inputs:st.connect = {st_source}
+        token inputs:wrapS = "clamp"
+        token inputs:wrapT = "mirror"
+        float4 inputs:scale = (0.5, 0.5, 0.5, 1)
+        float3 outputs:rgb
+        float outputs:g
+    }}
+    def Shader "R"
+    {{
+        uniform token info:id = "UsdPrimvarReader_float2"
+        string inputs:varname = "{st_reader}"
+        float2 outputs:result
+    }}
+    {extra_nodes}
+"""
+    return '(\n metersPerUnit = 1\n)\n' + material(
+        "G", "color3f inputs:diffuseColor.connect = </G/T.outputs:rgb>\n"
+             "        float inputs:roughness.connect = </G/T.outputs:g>", nodes) \
+        + mesh("M", QUAD + f"""
+        texCoord2f[] primvars:{st_reader} = [(0, 0), (1, 0), (1, 1), (0, 1)] (
+            interpolation = "vertex"
+        )
+""", binding="G")
+
+
+def test_uv_texture_in_usdz_with_wrap_scale_and_channels(tmp_path):
+    png(tmp_path / "src/tex/a.png", (200, 100, 50, 255))
+    layer = write(tmp_path / "src/root.usda", _textured(tmp_path, "tex/a.png", st_reader="uvmap"))
+    pkg = tmp_path / "asset.usdz"
+    with zipfile.ZipFile(pkg, "w", zipfile.ZIP_STORED) as z:
+        z.write(layer, "root.usda")
+        z.write(tmp_path / "src/tex/a.png", "tex/a.png")
+    scene = pipeline.load_scene(pkg)
+    mat = scene.materials[0]
+    assert mat.base_color[:3] == (0.5, 0.5, 0.5)
+    base = scene.textures[mat.base_color_texture.texture]
+    assert base.image.shape == (2, 4, 4) and tuple(base.image[0, 0]) == (200, 100, 50, 255)
+    assert (base.sampler.wrap_s, base.sampler.wrap_t) == (33071, 33648)  # clamp, mirror
+    # roughness read from G lands in G of the metallic-roughness texture, factor = scale.g
+    assert mat.roughness == pytest.approx(0.5)
+    mr = scene.textures[mat.metallic_roughness_texture.texture]
+    assert mr.image[0, 0, 1] == 100
+    assert scene.meshes[0].uv0 is not None  # read from "uvmap", the reader's primvar
+    assert str(pkg.resolve()) in scene.files
+    assert any(f.endswith("[tex/a.png]") for f in scene.files)
+
+
+def test_channel_repack_for_separate_maps(tmp_path):
+    png(tmp_path / "rough.png", (10, 0, 0, 255))
+    png(tmp_path / "metal.png", (240, 0, 0, 255))
+    nodes = """
+    def Shader "Ro"
+    {
+        uniform token info:id = "UsdUVTexture"
+        asset inputs:file = @./rough.png@
+        float outputs:r
+    }
+    def Shader "Me"
+    {
+        uniform token info:id = "UsdUVTexture"
+        asset inputs:file = @./metal.png@
+        float outputs:r
+    }
+"""
+    text = '(\n metersPerUnit = 1\n)\n' + material(
+        "G", "float inputs:roughness.connect = </G/Ro.outputs:r>\n"
+             "        float inputs:metallic.connect = </G/Me.outputs:r>", nodes) \
+        + mesh("M", binding="G")
+    scene = pipeline.load_scene(write(tmp_path / "mr.usda", text))
+    mat = scene.materials[0]
+    packed = scene.textures[mat.metallic_roughness_texture.texture].image
+    assert tuple(packed[0, 0, 1:3]) == (10, 240)  # G roughness, B metallic
+    assert mat.roughness == mat.metallic == 1.0
+
+
+def test_transform2d_matches_usd_formula(tmp_path):
+    png(tmp_path / "a.png")
+    extra = """
+    def Shader "X"
+    {
+        uniform token info:id = "UsdTransform2d"
+        float2 inputs:in.connect = </G/R.outputs:result>
+        float inputs:rotation = 30
+        float2 inputs:scale = (2, 3)
+        float2 inputs:translation = (0.25, -0.5)
+        float2 outputs:result
+    }
+"""
+    text = _textured(tmp_path, "./a.png", extra_nodes=extra, st_source="</G/X.outputs:result>")
+    ref = pipeline.load_scene(write(tmp_path / "x.usda", text)).materials[0].base_color_texture
+    rng = np.random.default_rng(1)
+    for s, t in rng.random((5, 2)):
+        th = math.radians(30)
+        ss, tt = 2 * s, 3 * t  # USD: scale, rotate, translate, in st (v up)
+        us = (math.cos(th) * ss - math.sin(th) * tt + 0.25,
+              math.sin(th) * ss + math.cos(th) * tt - 0.5)
+        u, v, _ = ref.uv_matrix() @ np.array([s, 1 - t, 1.0])  # glTF uv of the same point
+        assert (u, 1 - v) == pytest.approx(us, abs=1e-5)
+
+
+def test_missing_referenced_layer_is_missing_file(tmp_path):
+    path = write(tmp_path / "a.usda", '(\n subLayers = [@./gone.usda@]\n)\n')
+    with pytest.raises(MissingFile, match="gone.usda"):
+        pipeline.load_scene(path)
+
+
+# -- hostile files --------------------------------------------------------------------------------
+def _hostile_cases(tmp_path: Path) -> dict[str, tuple[Path, type]]:
+    out = tmp_path.parent / f"{tmp_path.name}_outside"
+    write(out / "outside.usda", mesh("M"))
+    png(out / "t.png")
+    asset = tmp_path / "asset"
+    cases = {}
+    cases["reference ../"] = (write(asset / "ref.usda", 'def "X" (\n prepend references = '
+                                    f'@../../{out.name}/outside.usda@\n) {{}}\n'), UnsafeReference)
+    cases["absolute"] = (write(asset / "abs.usda", f'(\n subLayers = [@{out}/outside.usda@]\n)\n'),
+                         UnsafeReference)
+    cases["http sublayer"] = (write(asset / "http.usda", '(\n subLayers = '
+                                    '[@http://example.com/x.usda@]\n)\n'), UnsafeReference)
+    cases["payload escape"] = (write(asset / "pay.usda", 'def "X" (\n prepend payload = '
+                                     f'@../../{out.name}/outside.usda@\n) {{}}\n'), UnsafeReference)
+    cases["texture escape"] = (write(asset / "tex.usda", _textured(
+        asset, f"../../{out.name}/t.png")), UnsafeReference)
+    link = asset / "linked.usda"
+    link.parent.mkdir(parents=True, exist_ok=True)
+    os.symlink(out / "outside.usda", link)
+    cases["symlink out"] = (write(asset / "sym.usda", '(\n subLayers = [@./linked.usda@]\n)\n'),
+                            UnsafeReference)
+    cases["huge faceVertexCounts"] = (write(asset / "huge.usda", mesh("M", """
+        int[] faceVertexCounts = [2000000000, 3]
+        int[] faceVertexIndices = [0, 1, 2]
+        point3f[] points = [(0, 0, 0), (1, 0, 0), (1, 1, 0)]
+""")), LimitExceeded)
+    cases["counts vs indices"] = (write(asset / "count.usda", mesh("M", """
+        int[] faceVertexCounts = [4, 3]
+        int[] faceVertexIndices = [0, 1, 2]
+        point3f[] points = [(0, 0, 0), (1, 0, 0), (1, 1, 0)]
+""")), MalformedAsset)
+    cases["index past points"] = (write(asset / "index.usda", mesh("M", """
+        int[] faceVertexCounts = [3]
+        int[] faceVertexIndices = [0, 1, 7]
+        point3f[] points = [(0, 0, 0), (1, 0, 0), (1, 1, 0)]
+""")), MalformedAsset)
+    garbage = asset / "garbage.usda"
+    garbage.write_text("#usda 1.0\ndef Mesh \"M\" { int[] faceVertexCounts = [3,\n")
+    cases["truncated layer"] = (garbage, MalformedAsset)
+    binary = asset / "bytes.usdc"
+    binary.write_bytes(b"PXR-USDC" + bytes(range(256)) * 4)
+    cases["corrupt crate"] = (binary, MalformedAsset)
+    pkg = asset / "escape.usdz"
+    inner = write(tmp_path / "inner.usda", '(\n subLayers = [@../outside.usda@]\n)\n')
+    with zipfile.ZipFile(pkg, "w", zipfile.ZIP_STORED) as z:
+        z.write(inner, "root.usda")
+    cases["usdz escape"] = (pkg, UnsafeReference)
+    deflated = asset / "deflated.usdz"
+    with zipfile.ZipFile(deflated, "w", zipfile.ZIP_DEFLATED) as z:
+        z.writestr("root.usda", "#usda 1.0\n" + mesh("M") * 50)
+    cases["compressed usdz"] = (deflated, MalformedAsset)
+    return cases
+
+
+def test_hostile_files_are_refused_fast(tmp_path):
+    for name, (path, error) in _hostile_cases(tmp_path).items():
+        start = time.monotonic()
+        with pytest.raises(error) as info:
+            pipeline.load_scene(path)
+        assert time.monotonic() - start < 10, name  # refused, not hung
+        assert isinstance(info.value, AssetError)
+        assert info.value.path and info.value.reason, name
+
+
+def test_usdz_entry_and_size_limits(tmp_path):
+    pkg = tmp_path / "many.usdz"
+    with zipfile.ZipFile(pkg, "w", zipfile.ZIP_STORED) as z:
+        z.writestr("root.usda", "#usda 1.0\n" + mesh("M"))
+        for i in range(20):
+            z.writestr(f"pad{i}.txt", b"x" * 1000)
+    with pytest.raises(LimitExceeded, match="files"):
+        pipeline.load_scene(pkg, Limits(max_archive_files=10))
+    with pytest.raises(LimitExceeded, match="unpacks"):
+        pipeline.load_scene(pkg, Limits(max_unpacked_bytes=5000))
+    assert pipeline.load_scene(pkg).triangle_count == 2
+
+
+def test_undecodable_texture_is_a_warning(tmp_path):
+    (tmp_path / "bad.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"\0" * 40)
+    scene = pipeline.load_scene(write(tmp_path / "t.usda", _textured(tmp_path, "./bad.png")))
+    assert scene.materials[0].base_color_texture is None
+    assert any("bad.png" in w for w in scene.warnings)
