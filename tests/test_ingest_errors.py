@@ -1,0 +1,314 @@
+"""A generated corpus of broken and hostile files: each yields its documented AssetError
+subclass (naming the file), within a time bound, and never anything else."""
+from __future__ import annotations
+
+import json
+import os
+import random
+import struct
+import time
+import zlib
+
+import numpy as np
+import pytest
+
+from gltf_builder import CUBE_INDICES, CUBE_POSITIONS, Builder, cube, glb, png_bytes
+from pipeline import load_scene
+from pipeline.errors import (AssetError, EmptyScene, IngestTimeout, LimitExceeded, MalformedAsset,
+                             MissingFile, UnsafeReference, UnsupportedFormat)
+from pipeline.limits import Limits
+
+SECONDS = 10.0  # generous for 2 shared cores; every case here takes milliseconds
+
+
+def rejected(path, error=AssetError, limits=None):
+    """Load `path`, expecting `error`; checks the message names the file and the time taken."""
+    start = time.monotonic()
+    with pytest.raises(error) as info:
+        load_scene(path, limits)
+    assert time.monotonic() - start < SECONDS
+    assert str(path) in str(info.value) or info.value.path.endswith(path.name)
+    return info.value
+
+
+def loaded(path, limits=None):
+    start = time.monotonic()
+    scene = load_scene(path, limits)
+    assert time.monotonic() - start < SECONDS
+    return scene
+
+
+def edited(tmp_path, edit, name="x.gltf", how="gltf"):
+    """A valid cube, its JSON passed through `edit(doc)` before writing."""
+    b = Builder()
+    b.node(b.mesh(CUBE_POSITIONS, CUBE_INDICES))
+    edit(b.doc)
+    return b.write(tmp_path / name, how)
+
+
+# -- containers and JSON -------------------------------------------------------------------------
+
+@pytest.mark.parametrize("cut", [0.0, 0.01, 0.3, 0.6, 0.95])
+def test_truncated_glb(tmp_path, cut):
+    data = cube(tmp_path / "full.glb").read_bytes()
+    path = tmp_path / "cut.glb"
+    path.write_bytes(data[: int(len(data) * cut)])
+    rejected(path, MalformedAsset)
+
+
+def test_flipped_bytes_never_crash(tmp_path):
+    """Random byte flips anywhere in a GLB: either it still loads or an AssetError, nothing
+    else (no IndexError, no numpy error, no hang)."""
+    data = bytearray(cube(tmp_path / "full.glb").read_bytes())
+    rng = random.Random(7)
+    outcomes = set()
+    for i in range(60):
+        broken = bytearray(data)
+        for _ in range(rng.randint(1, 6)):
+            broken[rng.randrange(len(broken))] ^= 1 << rng.randrange(8)
+        path = tmp_path / f"flip{i}.glb"
+        path.write_bytes(bytes(broken))
+        try:
+            loaded(path)
+            outcomes.add("loaded")
+        except AssetError as exc:
+            assert exc.path == str(path)
+            outcomes.add(type(exc).__name__)
+    assert outcomes - {"loaded"}, "no flip was detected at all"
+
+
+def test_bad_magic_and_version(tmp_path):
+    data = bytearray(cube(tmp_path / "ok.glb").read_bytes())
+    v1 = tmp_path / "v1.glb"
+    v1.write_bytes(data[:4] + struct.pack("<I", 1) + data[8:])
+    rejected(v1, UnsupportedFormat)
+    junk = tmp_path / "junk.glb"
+    junk.write_bytes(b"not a glb file at all, just text")
+    rejected(junk, MalformedAsset)
+
+
+@pytest.mark.parametrize("text", ['{"asset": {"version": "2.0"', "[1, 2, 3]", "\xff\xfe",
+                                  '{"asset": {"version": "1.0"}}', "[" * 100000 + "]" * 100000])
+def test_invalid_json(tmp_path, text):
+    path = tmp_path / "bad.gltf"
+    path.write_text(text, encoding="utf-8", errors="surrogateescape")
+    rejected(path, (MalformedAsset, UnsupportedFormat))
+
+
+def test_unknown_required_extension(tmp_path):
+    path = edited(tmp_path, lambda d: d.update(extensionsRequired=["KHR_draco_mesh_compression"]))
+    err = rejected(path, UnsupportedFormat)
+    assert "KHR_draco_mesh_compression" in err.reason
+    # merely used (with a fallback), an unknown extension is fine
+    ok = edited(tmp_path, lambda d: d.update(extensionsUsed=["EXT_unknown"]), "ok.gltf")
+    assert loaded(ok).triangle_count == 12
+
+
+# -- accessors and buffers -----------------------------------------------------------------------
+
+@pytest.mark.parametrize("edit,error", [
+    (lambda d: d["accessors"][0].update(count=9), MalformedAsset),            # past its view
+    (lambda d: d["accessors"][0].update(byteOffset=64), MalformedAsset),
+    (lambda d: d["bufferViews"][0].update(byteLength=10**6), MalformedAsset),  # past the buffer
+    (lambda d: d["bufferViews"][0].update(buffer=5), MalformedAsset),
+    (lambda d: d["meshes"][0]["primitives"][0].update(indices=99), MalformedAsset),
+    (lambda d: d["accessors"][0].update(componentType=1234), MalformedAsset),
+    (lambda d: d["accessors"][1].update(count=-1), MalformedAsset),
+    (lambda d: d["accessors"][0].update(count=10**12), LimitExceeded),        # huge counts
+    (lambda d: d["accessors"][1].update(count=2**31), LimitExceeded),
+    (lambda d: d["nodes"][0].update(mesh=7), MalformedAsset),
+    (lambda d: d.update(scene=3), MalformedAsset),
+    (lambda d: d["nodes"][0].update(children=[0]), MalformedAsset),           # a cycle
+    (lambda d: d["nodes"][0].update(matrix=[1] * 15), MalformedAsset),
+    (lambda d: d["nodes"][0].update(rotation=[0, 0, 0, 0]), MalformedAsset),
+    (lambda d: d["bufferViews"][0].update(byteStride=3), MalformedAsset),
+    (lambda d: d["buffers"][0].update(byteLength=10**9), MalformedAsset),     # declared > data
+], ids=["accessor-past-view", "accessor-offset", "view-past-buffer", "no-such-buffer",
+        "no-such-accessor", "component-type", "negative-count", "huge-count", "huge-index-count",
+        "no-such-mesh", "no-such-scene", "node-cycle", "bad-matrix", "zero-quaternion",
+        "bad-stride", "buffer-short"])
+def test_accessor_and_graph_errors(tmp_path, edit, error):
+    path = edited(tmp_path, lambda d: None, "x.glb", "glb")
+    doc, data = _split(path.read_bytes())
+    edit(doc)
+    path.write_bytes(glb(doc, data))
+    rejected(path, error)
+
+
+def _split(data: bytes) -> tuple[dict, bytes]:
+    n = struct.unpack_from("<I", data, 12)[0]
+    return json.loads(data[20: 20 + n]), data[28 + n:]
+
+
+def test_index_past_vertex_count(tmp_path):
+    b = Builder()
+    b.node(b.mesh(CUBE_POSITIONS, np.array([0, 1, 8], np.uint16)))
+    err = rejected(b.write(tmp_path / "i.glb"), MalformedAsset)
+    assert "past the vertex count" in err.reason
+
+
+def test_sparse_index_out_of_range(tmp_path):
+    b = Builder()
+    idx = b.view(np.array([40], np.uint16).tobytes())
+    val = b.view(np.zeros(3, np.float32).tobytes())
+    b.doc["accessors"].append({"componentType": 5126, "count": 3, "type": "VEC3", "sparse": {
+        "count": 1, "indices": {"bufferView": idx, "componentType": 5123},
+        "values": {"bufferView": val}}})
+    b.doc["meshes"].append({"primitives": [{"attributes": {"POSITION": 0}}]})
+    b.node(0)
+    rejected(b.write(tmp_path / "s.glb"), MalformedAsset)
+
+
+def test_total_size_limit_checked_before_allocating(tmp_path):
+    path = cube(tmp_path / "c.glb")
+    rejected(path, LimitExceeded, Limits(max_vertices=4))
+    rejected(path, LimitExceeded, Limits(max_file_bytes=100))
+
+
+# -- references --------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("uri,error", [
+    ("http://example.com/c.bin", UnsafeReference),
+    ("https://example.com/c.bin", UnsafeReference),
+    ("ftp://example.com/c.bin", UnsafeReference),
+    ("file:///etc/passwd", UnsafeReference),
+    ("/etc/passwd", UnsafeReference),
+    ("../outside.bin", UnsafeReference),
+    ("sub/../../outside.bin", UnsafeReference),
+    ("%2e%2e/outside.bin", UnsafeReference),
+    ("missing.bin", MissingFile),
+    ("data:application/octet-stream;base64,@@@", MalformedAsset),
+])
+def test_hostile_buffer_uris(tmp_path, uri, error):
+    (tmp_path / "outside.bin").write_bytes(b"\0" * 4096)
+    folder = tmp_path / "asset"
+    folder.mkdir()
+    path = edited(folder, lambda d: d.update(buffers=[{"uri": uri, "byteLength": 168}]))
+    err = rejected(path, error)
+    assert uri.split("/")[0] in str(err) or error is MalformedAsset
+
+
+def test_symlink_out_is_refused(tmp_path):
+    folder = tmp_path / "asset"
+    folder.mkdir()
+    path = cube(folder / "c.gltf", "gltf")
+    outside = tmp_path / "secret.bin"
+    os.replace(folder / "c.bin", outside)
+    (folder / "c.bin").symlink_to(outside)
+    rejected(path, UnsafeReference)
+    # a link that stays inside the folder is fine
+    os.replace(outside, folder / "real.bin")
+    (folder / "c.bin").unlink()
+    (folder / "c.bin").symlink_to("real.bin")
+    assert loaded(path).triangle_count == 12
+
+
+def test_http_image_is_refused(tmp_path):
+    def edit(doc):
+        doc["images"] = [{"uri": "https://example.com/t.png"}]
+        doc["textures"] = [{"source": 0}]
+        doc["materials"] = [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}]
+        doc["meshes"][0]["primitives"][0]["material"] = 0
+    rejected(edited(tmp_path, edit), UnsafeReference)
+
+
+# -- geometry ----------------------------------------------------------------------------------
+
+def test_nan_positions(tmp_path):
+    p = CUBE_POSITIONS.copy()
+    p[3, 1] = np.nan
+    b = Builder()
+    b.node(b.mesh(p, CUBE_INDICES))
+    rejected(b.write(tmp_path / "n.glb"), MalformedAsset)
+    p[3, 1] = np.inf
+    b = Builder()
+    b.node(b.mesh(p, CUBE_INDICES))
+    rejected(b.write(tmp_path / "i.glb"), MalformedAsset)
+
+
+def test_degenerate_triangles_dropped_with_a_count(tmp_path):
+    extra = np.array([[0, 0, 1], [2, 2, 2], [0, 1, 2]], np.uint16)  # repeated, repeated, collinear
+    line = np.vstack([CUBE_POSITIONS, [[0, 0, 0], [1, 0, 0], [2, 0, 0]]]).astype(np.float32)
+    extra[2] += 8
+    b = Builder()
+    b.node(b.mesh(line, np.vstack([CUBE_INDICES, extra])))
+    scene = loaded(b.write(tmp_path / "d.glb"))
+    assert scene.triangle_count == 12
+    assert "dropped 3 degenerate triangles" in scene.warnings
+
+
+@pytest.mark.parametrize("edit", [
+    lambda d: d.update(scenes=[{"nodes": []}]),
+    lambda d: d["nodes"][0].pop("mesh"),
+    lambda d: d["meshes"][0]["primitives"][0].update(mode=1),  # lines only
+], ids=["no-nodes", "no-mesh", "lines-only"])
+def test_empty_scene(tmp_path, edit):
+    rejected(edited(tmp_path, edit), EmptyScene)
+
+
+def test_all_degenerate_is_empty(tmp_path):
+    b = Builder()
+    b.node(b.mesh(CUBE_POSITIONS, np.zeros(6, np.uint16)))
+    rejected(b.write(tmp_path / "z.glb"), EmptyScene)
+
+
+# -- images: a broken one is a warning, the material keeps its factor -------------------------
+
+def _bomb_png(width: int, height: int) -> bytes:
+    def chunk(kind, body):
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+    ihdr = struct.pack(">IIBBBBB", width, height, 8, 6, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0" * 64)) \
+        + chunk(b"IEND", b"")
+
+
+@pytest.mark.parametrize("image", [b"this is not an image", png_bytes(np.zeros((8, 8, 4)))[:60],
+                                   _bomb_png(100_000, 100_000)],
+                         ids=["garbage", "truncated-png", "decompression-bomb"])
+def test_undecodable_image_is_a_warning(tmp_path, image):
+    b = Builder()
+    tex = b.image(image)
+    mat = b.material(pbrMetallicRoughness={"baseColorTexture": {"index": tex},
+                                           "baseColorFactor": [0.2, 0.4, 0.6, 1.0]})
+    b.node(b.mesh(CUBE_POSITIONS, CUBE_INDICES, material=mat))
+    scene = loaded(b.write(tmp_path / "img.glb"))
+    assert scene.textures == [] and scene.materials[0].base_color_texture is None
+    assert scene.materials[0].base_color == (0.2, 0.4, 0.6, 1.0)
+    assert any("image 0" in w for w in scene.warnings)
+
+
+def test_missing_image_file_is_an_error(tmp_path):
+    def edit(doc):
+        doc["images"] = [{"uri": "textures/none.png"}]
+        doc["textures"] = [{"source": 0}]
+        doc["materials"] = [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}]
+        doc["meshes"][0]["primitives"][0]["material"] = 0
+    rejected(edited(tmp_path, edit), MissingFile)
+
+
+# -- files in general, plain meshes, the time bound ----------------------------------------------
+
+def test_file_level_errors(tmp_path):
+    rejected(tmp_path / "absent.glb", MissingFile)
+    (tmp_path / "model.fbx").write_bytes(b"Kaydara FBX Binary")
+    rejected(tmp_path / "model.fbx", UnsupportedFormat)
+    (tmp_path / "empty.glb").write_bytes(b"")
+    rejected(tmp_path / "empty.glb", MalformedAsset)
+
+
+@pytest.mark.parametrize("name,data", [
+    ("garbage.ply", b"ply\nformat binary_little_endian 1.0\nelement vertex 99999999\n"
+                    b"property float x\nend_header\n\x00\x01"),
+    ("garbage.stl", b"\x00" * 80 + struct.pack("<I", 10**8) + b"\x00" * 50),
+    ("garbage.obj", b"v 1 2\nf 1 2 3 4\nvt\n"),
+])
+def test_broken_plain_meshes(tmp_path, name, data):
+    path = tmp_path / name
+    path.write_bytes(data)
+    rejected(path, (MalformedAsset, EmptyScene, LimitExceeded))
+
+
+def test_ingest_time_bound(assets):
+    path = assets / "gltf" / "CesiumMilkTruck.glb"
+    err = rejected(path, IngestTimeout, Limits(ingest_seconds=0.0))
+    assert "time bound" in err.reason

@@ -1,0 +1,57 @@
+"""`asset-preview inspect` as a user runs it: a subprocess, its stdout, stderr and exit code."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from gltf_builder import cube
+
+
+def inspect(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "service.cli", "inspect", *map(str, args)],
+                          capture_output=True, text=True, timeout=120)
+
+
+def test_json_shape(assets):
+    path = assets / "gltf" / "CesiumMilkTruck.glb"
+    proc = inspect(path, "--json")
+    assert proc.returncode == 0, proc.stderr
+    info = json.loads(proc.stdout)
+    assert {"file", "format", "meshes", "triangles", "vertices", "materials", "textures",
+            "bounds", "warnings"} <= set(info)
+    assert info["file"] == str(path) and info["format"] == "glb"
+    assert info["triangles"] == 3624 and info["textures"] == 1 and info["meshes"] == 4
+    assert len(info["bounds"]) == 2 and all(len(b) == 3 for b in info["bounds"])
+    assert info["bounds"][0][0] < info["bounds"][1][0]
+    names = {m["name"]: m["class"] for m in info["materials"]}
+    assert names == {"truck": "opaque", "glass": "opaque", "window_trim": "opaque",
+                     "wheels": "opaque"}
+    assert info["warnings"] == []
+
+
+def test_text_output(assets):
+    proc = inspect(assets / "mesh" / "bunny.ply")
+    assert proc.returncode == 0, proc.stderr
+    assert "triangles 16301" in proc.stdout and "material 'default': opaque" in proc.stdout
+
+
+def test_rejected_asset_exits_3(tmp_path):
+    path = cube(tmp_path / "c.glb")
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    proc = inspect(path, "--json")
+    assert proc.returncode == 3
+    assert proc.stdout == ""
+    assert proc.stderr.startswith(f"error: {path}: ") and "truncated" in proc.stderr
+    assert "Traceback" not in proc.stderr
+    missing = inspect(tmp_path / "none.gltf")
+    assert missing.returncode == 3 and missing.stderr.strip() == f"error: {tmp_path / 'none.gltf'}: no such file"
+
+
+@pytest.mark.parametrize("args", [[], ["a.glb", "--no-such-flag"]])
+def test_usage_errors_exit_2(args):
+    proc = inspect(*args)
+    assert proc.returncode == 2 and "usage:" in proc.stderr
