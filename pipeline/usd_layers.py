@@ -26,7 +26,8 @@ log = logging.getLogger(__name__)
 
 
 class LayerGraph:
-    """The asset's layers, opened and checked; `files` lists every file read, in order."""
+    """The asset's layers, opened and checked. `files` lists every file on disk read, in order
+    (layers and textures; for what a .usdz holds, the package file itself), for content hashing."""
 
     def __init__(self, path: Path, limits: Limits):
         self.path = Path(path)
@@ -141,8 +142,8 @@ class LayerGraph:
         else:
             self._check_size(Path(identifier))
             data = Path(identifier).read_bytes()
-        if identifier not in self.files:
-            self.files.append(identifier)
+        if _outer(identifier) not in self.files:
+            self.files.append(_outer(identifier))
         return data
 
     def _check_size(self, path: Path) -> None:
