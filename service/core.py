@@ -287,7 +287,8 @@ class ThumbnailService:
         width, height = params.dimensions()
         norm = params.model_dump(exclude={"size", "width", "height", "env", "format"}, exclude_none=True)
         norm = {k: round(v, 4) if isinstance(v, float) else v for k, v in norm.items()}
-        norm.update(width=width, height=height, env=env_identity, renderer=self.renderer_version)
+        norm.update(asset=asset_id, width=width, height=height, env=env_identity,
+                    renderer=self.renderer_version)
         return hashlib.sha256(json.dumps(norm, sort_keys=True).encode()).hexdigest()[:32]
 
     def check_size(self, params: ThumbnailParams) -> None:

@@ -17,10 +17,16 @@ PACKAGED = Path(__file__).resolve().parent / "samples"
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "assets"
 
 
-def sample_uploads(shared: Path = SHARED) -> list[tuple[str, bytes, str | None]]:
-    """(file name, bytes, main file inside an archive) for every sample, smallest first."""
+def default_folder() -> Path:
+    return SHARED if SHARED.is_dir() else PACKAGED
+
+
+def sample_uploads(folder: Path) -> list[tuple[str, bytes, str | None]]:
+    """(file name, bytes, main file inside an archive) for every sample, smallest first.
+    `folder` is laid out like ../shared/assets (gltf/, mesh/, usd/) or holds plain files."""
     out: list[tuple[str, bytes, str | None]] = []
-    if shared.is_dir():
+    shared = Path(folder)
+    if (shared / "gltf").is_dir():
         for sub, patterns in (("gltf", ("*.glb",)), ("mesh", ("*.ply", "*.stl", "*.STL")),
                               ("usd", ("*.usda",))):
             for pattern in patterns:
@@ -39,7 +45,8 @@ def sample_uploads(shared: Path = SHARED) -> list[tuple[str, bytes, str | None]]
                          and "thumbnails" not in p.parts and "cards" not in p.parts]
                 out.append((f"{folder}.zip", _zip(d, files), main))
     else:
-        out += [(p.name, p.read_bytes(), None) for p in sorted(PACKAGED.glob("*.glb"))]
+        out += [(p.name, p.read_bytes(), None) for p in sorted(shared.iterdir())
+                if p.suffix.lower() in (".glb", ".gltf", ".usda", ".usdc", ".usdz", ".ply", ".stl", ".obj")]
     return sorted(out, key=lambda item: len(item[1]))
 
 
@@ -63,7 +70,8 @@ async def seed(service) -> None:
     async def chunks(data: bytes):
         yield data
 
-    for name, data, main in sample_uploads():
+    folder = service.settings.samples or default_folder()
+    for name, data, main in sample_uploads(folder):
         try:
             rec, created = await service.add_asset(name, chunks(data), main)
             log.info("seeded %s as %s", name, rec["id"])

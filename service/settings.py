@@ -30,6 +30,7 @@ class Settings:
     face_size: int = 256                  # environment cubemap face size baked for renders
     default_env: str = "footprint_court"
     seed: bool = True                     # seed the sample assets into an empty store
+    samples: Path | None = None           # folder to seed from; default ../shared/assets or service/samples
 
     @classmethod
     def from_env(cls, **overrides) -> "Settings":
@@ -41,8 +42,9 @@ class Settings:
             if raw is not None:
                 values[field.name] = _parse(field, raw)
         values.update({k: v for k, v in overrides.items() if v is not None})
-        if "cache" in values:
-            values["cache"] = Path(values["cache"])
+        for key in ("cache", "samples"):
+            if values.get(key) not in (None, ""):
+                values[key] = Path(values[key])
         return cls(**values)
 
     @property
@@ -63,6 +65,6 @@ def _parse(field: dataclasses.Field, raw: str):
         return int(float(raw))
     if kind == "float":
         return float(raw)
-    if kind == "Path":
+    if kind in ("Path", "Path | None"):
         return Path(raw)
     return raw
