@@ -22,9 +22,9 @@ XformCache and are converted to the scene's +Y-up metres: upAxis Z is turned to 
 degree rotation about X, and metersPerUnit scales (USD's fallback is 0.01, centimetres,
 when the stage does not author it). Time-varying values are read at the stage's start time
 code (or the earliest sample). Subdivision surfaces are drawn as their control cage with
-smooth normals; `model:drawMode` cards are viewport stand-ins and are not drawn; only
-UsdGeom.Mesh carries geometry here (implicit shapes, curves, points and PointInstancers are
-skipped with a warning).
+smooth normals; `model:drawMode` cards are viewport stand-ins and are not drawn. Implicit
+shapes (Sphere, Cube, Cylinder, Cone, Capsule, Plane) are tessellated (`usd_shapes`); curves,
+points, NURBS and PointInstancers are skipped with a warning.
 """
 from __future__ import annotations
 
@@ -41,6 +41,7 @@ from .limits import Limits
 from .scene import Instance, Mesh, Scene
 from .usd_layers import LayerGraph
 from .usd_materials import Binding, MaterialReader
+from .usd_shapes import SHAPES, tessellate
 
 log = logging.getLogger(__name__)
 
@@ -143,8 +144,8 @@ class _StageReader:
                     img.GetPurposeAttr().Get() in (UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy):
                 it.PruneChildren()
                 continue
-            if prim.IsA(UsdGeom.Mesh):
-                self._mesh(prim)
+            if prim.IsA(UsdGeom.Mesh) or str(prim.GetTypeName()) in SHAPES:
+                self._gprim(prim)
             elif prim.IsA(UsdGeom.PointInstancer) or prim.IsA(UsdGeom.Gprim):
                 skipped.add(str(prim.GetTypeName()))
                 if prim.IsA(UsdGeom.PointInstancer):
@@ -152,12 +153,12 @@ class _StageReader:
         for kind in sorted(skipped):
             self._warn(f"{kind} prims are not read (only Mesh); skipped")
 
-    # -- one mesh prim ------------------------------------------------------------------------
-    def _mesh(self, prim: Usd.Prim) -> None:
-        mesh = UsdGeom.Mesh(prim)
+    # -- one mesh or implicit shape ----------------------------------------------------------
+    def _gprim(self, prim: Usd.Prim) -> None:
+        mesh = UsdGeom.Mesh(prim) if prim.IsA(UsdGeom.Mesh) else None
         source = prim.GetPrimInPrototype() if prim.IsInstanceProxy() else prim
         groups = self._groups(prim, mesh)
-        double_sided = bool(mesh.GetDoubleSidedAttr().Get())
+        double_sided = bool(UsdGeom.Gprim(prim).GetDoubleSidedAttr().Get())
         has_color = bool(UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance("displayColor"))
         bindings = [self.materials.bind(mat, double_sided, has_color) for _, mat, _ in groups]
         needed = sorted({n for b in bindings for n in b.uv_primvars}
@@ -167,7 +168,8 @@ class _StageReader:
         topo_key = (str(source.GetPath()), tuple(needed))
         if topo_key not in self._topology:
             deadline.check()
-            self._topology[topo_key] = self._triangulate(prim, mesh, needed)
+            self._topology[topo_key] = self._triangulate(prim, mesh, needed) if mesh \
+                else self._shape(prim, needed)
         topo = self._topology[topo_key]
         if topo is None:
             return
@@ -185,13 +187,13 @@ class _StageReader:
                 self.scene.instances.append(Instance(self._meshes[key], binding.material,
                                                      matrix.copy()))
 
-    def _groups(self, prim: Usd.Prim, mesh: UsdGeom.Mesh):
+    def _groups(self, prim: Usd.Prim, mesh: UsdGeom.Mesh | None):
         """[(label, material, faces or None)]: one per material-bound GeomSubset, then the
         faces no subset claims (faces None = all faces)."""
         purpose = UsdShade.Tokens.preview
         api = UsdShade.MaterialBindingAPI(prim)
         own = api.ComputeBoundMaterial(purpose)[0]
-        subsets = [s for s in UsdGeom.Subset.GetAllGeomSubsets(mesh)
+        subsets = [] if mesh is None else [s for s in UsdGeom.Subset.GetAllGeomSubsets(mesh)
                    if s.GetElementTypeAttr().Get() == UsdGeom.Tokens.face
                    and (s.GetFamilyNameAttr().Get() == UsdShade.Tokens.materialBind
                         or UsdShade.MaterialBindingAPI(s.GetPrim()).GetDirectBindingRel().GetTargets())]
@@ -279,6 +281,23 @@ class _StageReader:
             topo.attrs[name] = pv.values[elem(pv)].astype(np.float32)
         self.triangles += n_tri
         self.vertices += len(topo.positions)
+        return topo
+
+    def _shape(self, prim: Usd.Prim, names: list[str]) -> _Topology | None:
+        """An implicit shape, tessellated; only constant primvars (colours) apply to it."""
+        points, tri, normals = tessellate(prim, self.time)
+        self.triangles += len(tri)
+        self.vertices += len(points)
+        topo = _Topology(points, tri.astype(np.uint32), np.arange(len(tri)), normals)
+        for name in names + (["displayOpacity"] if "displayColor" in names else []):
+            pv = self._primvar(prim, name, np.array([len(points)]), np.arange(len(points)),
+                               len(points))
+            if pv is not None:
+                if pv.interpolation != "constant":
+                    self._warn(f"{prim.GetPath()}: {pv.interpolation} primvar {name} on an "
+                               "implicit shape: its first value is used")
+                value = pv.values[0 if pv.indices is None else pv.indices[0]]
+                topo.attrs[name] = np.repeat(value[None], len(points), axis=0)
         return topo
 
     def _primvar(self, prim, name, counts, fvi, n_points) -> _Primvar | None:

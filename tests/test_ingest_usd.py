@@ -306,6 +306,49 @@ def Xform "I{i}" (
     assert scene.triangle_count == 6
 
 
+def test_implicit_shapes_are_tessellated(tmp_path):
+    text = '(\n metersPerUnit = 1\n)\n' + """
+def Sphere "S" {
+    double radius = 2
+    color3f[] primvars:displayColor = [(1, 0, 0)]
+}
+def Cube "C" {
+    double size = 1
+}
+def Cylinder "Y" {
+    double height = 4
+    uniform token axis = "X"
+}
+def Cone "K" {
+    double radius = 0.5
+    double height = 1
+}
+def Capsule "P" {
+    uniform token axis = "Y"
+}
+def Plane "L" {
+}
+def BasisCurves "Curve" {
+}
+"""
+    scene = pipeline.load_scene(write(tmp_path / "shapes.usda", text))
+    by = {m.name: m for m in scene.meshes}
+    assert set(by) == {"/S", "/C", "/Y", "/K", "/P", "/L"}
+    ext = {n: (m.positions.min(axis=0), m.positions.max(axis=0)) for n, m in by.items()}
+    np.testing.assert_allclose(ext["/S"][1], [2, 2, 2], atol=1e-3)
+    np.testing.assert_allclose(np.linalg.norm(by["/S"].positions, axis=1), 2, atol=1e-4)
+    np.testing.assert_allclose(by["/S"].colors[:, :3], [[1, 0, 0]] * len(by["/S"].positions))
+    np.testing.assert_allclose(ext["/C"][1], [0.5, 0.5, 0.5], atol=1e-6)
+    np.testing.assert_allclose(ext["/Y"][1], [2, 1, 1], atol=1e-6)  # height along X
+    np.testing.assert_allclose([ext["/K"][0][2], ext["/K"][1][2]], [-0.5, 0.5], atol=1e-6)
+    np.testing.assert_allclose(ext["/P"][1][1], 1.0, atol=1e-6)  # 0.5 + 2 * 0.5 / 2 along Y
+    for m in by.values():  # outward winding: positive signed volume for closed shapes
+        p = m.positions.astype(float)[m.indices]
+        vol = np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() / 6
+        assert vol > 0 or m.name == "/L", m.name
+    assert any("BasisCurves" in w for w in scene.warnings)
+
+
 @pytest.mark.parametrize("inputs, cls, transmission, alpha", [
     ("float inputs:opacity = 0\n float inputs:ior = 1.5", "transmissive", 1.0, 1.0),
     ("float inputs:opacity = 0.25\n float inputs:ior = 1.33", "transmissive", 0.75, 1.0),
