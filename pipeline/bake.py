@@ -105,7 +105,7 @@ def bake_or_load_asset(path, cache_dir=None, *, force: bool = False, limits: Lim
     baked.manifest["timings"]["ingest_s"] = round(ingest_s, 6)
     baked.manifest["inputs"] = source.inputs()
     manifest, arrays = pack_asset(baked, opts)
-    entry = cache.store("assets", key, manifest, arrays)
+    entry = cache.store("assets", key, manifest, arrays, replace=force)
     cache.record_source("assets", source, opts, key)
     baked.manifest = entry.manifest
     log.info("%s: baked as %s (ingest %.1f ms, interior %.1f ms)", path, key, 1000 * ingest_s,
@@ -315,7 +315,7 @@ def bake_or_load_environment(source, cache_dir=None, face_size: int = 256, prefi
         "timings": {"load_s": round(load_s, 6), "prefilter_s": round(prefilter_s, 6),
                     **{k: round(float(v), 6) for k, v in dict(env.timings).items()}},
     }
-    entry = cache.store("environments", key, manifest, arrays)
+    entry = cache.store("environments", key, manifest, arrays, replace=force)
     log.info("%s: environment baked as %s in %.1f ms", source, key, 1000 * (load_s + prefilter_s))
     return unpack_environment(entry), False
 

@@ -208,8 +208,9 @@ class Cache:
             pass  # read-only cache: eviction order degrades, loading does not
         return Entry(kind, key, path, manifest, arrays, self)
 
-    def store(self, kind: str, key: str, manifest: dict, arrays: dict) -> Entry:
-        """Write an entry atomically; if another process got there first, keep theirs.
+    def store(self, kind: str, key: str, manifest: dict, arrays: dict, replace: bool = False) -> Entry:
+        """Write an entry atomically; if another process got there first, keep theirs (or, with
+        `replace`, as after a forced rebake, swap ours in).
 
         `arrays` maps file names to what they hold: `x.npz` a dict of arrays, `x.npy` one array
         (large ones, e.g. decoded textures: loaded without a copy)."""
@@ -231,6 +232,9 @@ class Cache:
                     log.info("cache: stored %s/%s", kind, key)
                     break
                 except OSError:
+                    if attempt == 0 and replace:
+                        self.remove(kind, key)
+                        continue
                     if attempt == 0 and self.load(kind, key) is None:
                         continue  # what was there was corrupt and is gone now: try again
                     log.info("cache: %s/%s was stored concurrently; discarding our copy", kind, key)

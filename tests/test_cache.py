@@ -36,6 +36,11 @@ def test_second_bake_is_a_hit_with_equal_data(assets, tmp_path):
     manifest = json.loads((tmp_path / "cache" / "assets" / first.key / "manifest.json").read_text())
     assert manifest["inputs"][0]["sha256"] and manifest["versions"]["bake_format"] >= 1
     assert all(len(f["sha256"]) == 64 for f in manifest["files"].values())
+    # --force bakes again and swaps the new entry in
+    manifest_file = tmp_path / "cache" / "assets" / first.key / "manifest.json"
+    inode = manifest_file.stat().st_ino
+    forced, hit3 = bake_or_load_asset(src, tmp_path / "cache", force=True)
+    assert not hit3 and forced.key == first.key and manifest_file.stat().st_ino != inode
     # same bytes elsewhere: same key, and found without baking
     other = _copy(src, tmp_path / "elsewhere")
     assert bake_or_load_asset(other, tmp_path / "cache")[0].key == first.key

@@ -1,0 +1,179 @@
+"""Bake speed: interior rays, cold bake vs cache hit, environment prefiltering; peers beside us.
+
+Three tables, medians of --repeat runs (after one warm-up) measured in this run:
+- interior: our whole pass (Embree BVH build + rays + graze/miss handling) on every mesh of each
+  sample asset and of the glass test meshes, treated as transmissive; rays/s over the whole pass
+  and over tracing alone; peer: trimesh's Embree ray intersector (`intersects_location`, first
+  hit) on the same rays, its BVH build included. Target >= 2 M rays/s.
+- asset: ingest (load_scene), a cold bake (`force=True`: ingest + interior + cache write), and a
+  cache hit (`bake_asset` on the unchanged file: hash sources, read and verify the entry);
+  peer: re-ingesting, what a hit saves. Target: hit <= 20 ms.
+- environment: per bundled 1024 x 512 panorama, a cold bake to 256-px faces (decode + cube +
+  GGX mip chain + SH + BRDF LUT + cache write), the prefilter alone, and a hit; peer: the paper's
+  Gaussian mip chain (`--prefilter paper`). Target: cold bake <= 0.5 s. The first bake in a
+  process also pays the GL context, shader compiles and the LUT, so it is shown apart.
+"""
+from __future__ import annotations
+
+import argparse
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from bench.ingest import DEFAULT_ASSETS, sample_files
+
+TARGET_RAYS = 2e6
+TARGET_HIT_MS = 20.0
+TARGET_ENV_MS = 500.0
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--assets", type=Path, default=DEFAULT_ASSETS,
+                        help="sample asset folder (default: %(default)s)")
+    parser.add_argument("--env", action="append", default=None, metavar="NAME|FILE",
+                        help="environments to bake (default: every bundled one)")
+    parser.add_argument("--repeat", type=int, default=5, help="timed runs per figure")
+    parser.add_argument("--face-size", type=int, default=256)
+
+
+def _median_s(fn, repeat: int) -> float:
+    fn()
+    times = []
+    for _ in range(repeat):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+def _interior_meshes(assets: Path):
+    """(label, [(positions, normals, indices)]) for each sample asset and glass test mesh."""
+    from bench.scenes import mesh_arrays
+    from pipeline.errors import AssetError
+    from pipeline.ingest import load_scene
+
+    import trimesh
+
+    out = []
+    for path in sample_files(assets):
+        try:
+            scene = load_scene(path)
+        except AssetError:
+            continue
+        out.append((path.name, [(m.positions, m.normals, m.indices) for m in scene.meshes]))
+    for kind in ("sphere", "bunny", "torus"):
+        out.append((f"glass {kind}", [mesh_arrays(kind)]))
+    big = trimesh.creation.icosphere(subdivisions=7)
+    out.append(("icosphere 7 (big)", [(big.vertices.astype(np.float32),
+                                       big.vertex_normals.astype(np.float32),
+                                       big.faces.astype(np.uint32))]))
+    return out
+
+
+def _trimesh_pass(meshes) -> None:
+    import trimesh
+    from trimesh.ray.ray_pyembree import RayMeshIntersector
+
+    for p, n, idx in meshes:
+        mesh = trimesh.Trimesh(p, idx, process=False)
+        eps = 1e-4 * float(np.linalg.norm(np.ptp(p, axis=0)))
+        RayMeshIntersector(mesh).intersects_location(p - n * eps, -n, multiple_hits=False)
+
+
+def interior_table(assets: Path, repeat: int) -> list[float]:
+    from pipeline.interior import interior_vectors
+
+    print(f"\ninterior (target >= {TARGET_RAYS / 1e6:.0f} M rays/s; medians of {repeat})")
+    print(f"{'mesh':26} {'rays':>8} {'ours ms':>8} {'M rays/s':>9} {'trace-only':>10} "
+          f"{'trimesh ms':>10} {'ours/trimesh':>12}")
+    rates = []
+    for label, meshes in _interior_meshes(assets):
+        rays = sum(len(p) for p, _, _ in meshes)
+        if rays == 0:
+            continue
+        results = []
+
+        def ours():
+            results.clear()
+            results.extend(interior_vectors(p, n, i) for p, n, i in meshes)
+
+        ours_s = _median_s(ours, repeat)
+        cast = sum(r.rays for r in results)
+        trace = sum(r.trace_seconds for r in results)
+        peer_s = _median_s(lambda: _trimesh_pass(meshes), repeat)
+        rates.append(cast / ours_s)
+        print(f"{label[:26]:26} {cast:8d} {1000 * ours_s:8.1f} {cast / ours_s / 1e6:9.2f} "
+              f"{cast / trace / 1e6:10.2f} {1000 * peer_s:10.1f} {ours_s / peer_s:12.2f}")
+    return rates
+
+
+def asset_table(assets: Path, repeat: int, cache: Path) -> list[float]:
+    from pipeline.bake import bake_or_load_asset
+    from pipeline.errors import AssetError
+    from pipeline.ingest import load_scene
+
+    print(f"\nasset bake (target: hit <= {TARGET_HIT_MS:.0f} ms; medians of {repeat})")
+    print(f"{'asset':34} {'ingest ms':>9} {'cold ms':>8} {'hit ms':>7} {'hit/ingest':>10}")
+    hits = []
+    for path in sample_files(assets):
+        try:
+            ingest = _median_s(lambda: load_scene(path), repeat)
+            cold = _median_s(lambda: bake_or_load_asset(path, cache, force=True), repeat)
+            assert bake_or_load_asset(path, cache)[1], "a second bake must be a cache hit"
+            hit = _median_s(lambda: bake_or_load_asset(path, cache), repeat)
+        except AssetError as exc:
+            print(f"{path.name[:34]:34} failed: {exc.reason}")
+            continue
+        hits.append(hit)
+        print(f"{path.name[:34]:34} {1000 * ingest:9.1f} {1000 * cold:8.1f} {1000 * hit:7.2f} "
+              f"{hit / ingest:10.3f}")
+    return hits
+
+
+def environment_table(envs: list[str], repeat: int, face_size: int, cache: Path) -> list[float]:
+    from pipeline.bake import bake_or_load_environment
+    from pipeline.environment import prefilter
+    from pipeline.panorama import load_panorama
+
+    print(f"\nenvironment bake, {face_size}-px faces (target: cold bake <= {TARGET_ENV_MS:.0f} ms; "
+          f"medians of {repeat})")
+    start = time.perf_counter()
+    bake_or_load_environment(envs[0], cache, face_size=face_size, force=True)
+    print(f"first bake in this process (GL context, shader compiles, BRDF LUT): "
+          f"{1000 * (time.perf_counter() - start):.0f} ms")
+    print(f"{'environment':18} {'size':>9} {'cold ms':>8} {'ggx ms':>7} {'paper ms':>8} "
+          f"{'ggx/paper':>9} {'hit ms':>7}")
+    colds = []
+    for env in envs:
+        pixels = load_panorama(env).pixels
+        cold = _median_s(lambda: bake_or_load_environment(env, cache, face_size=face_size, force=True), repeat)
+        ggx = _median_s(lambda: prefilter(pixels, face_size, "ggx"), repeat)
+        paper = _median_s(lambda: prefilter(pixels, face_size, "paper"), repeat)
+        hit = _median_s(lambda: bake_or_load_environment(env, cache, face_size=face_size), repeat)
+        colds.append(cold)
+        size = f"{pixels.shape[1]}x{pixels.shape[0]}"
+        print(f"{Path(env).stem[:18]:18} {size:>9} {1000 * cold:8.0f} {1000 * ggx:7.0f} "
+              f"{1000 * paper:8.0f} {ggx / paper:9.2f} {1000 * hit:7.1f}")
+    return colds
+
+
+def run(args: argparse.Namespace) -> int:
+    from pipeline.panorama import list_bundled
+
+    envs = args.env or list_bundled()
+    with tempfile.TemporaryDirectory(prefix="bench-bake-") as tmp:
+        rates = interior_table(args.assets, args.repeat)
+        hits = asset_table(args.assets, args.repeat, Path(tmp))
+        colds = environment_table(envs, args.repeat, args.face_size, Path(tmp))
+    print("\nsummary (medians over the rows above)")
+    print(f"  interior whole pass: {statistics.median(rates) / 1e6:.2f} M rays/s "
+          f"(target {TARGET_RAYS / 1e6:.0f}); best {max(rates) / 1e6:.2f}")
+    print(f"  cache hit: {1000 * statistics.median(hits):.2f} ms (target {TARGET_HIT_MS:.0f}); "
+          f"worst {1000 * max(hits):.2f}")
+    print(f"  environment cold bake: {1000 * statistics.median(colds):.0f} ms "
+          f"(target {TARGET_ENV_MS:.0f}; f3d's first HDRI bake: 6600 ms, quoted from issue 3, "
+          f"not measured here)")
+    return 0
