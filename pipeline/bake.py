@@ -287,8 +287,13 @@ def bake_or_load_environment(source, cache_dir=None, face_size: int = 256, prefi
 
     if prefilter not in PREFILTERS:
         raise ValueError(f"prefilter must be one of {PREFILTERS}, not {prefilter!r}")
+    from . import environment
+
     cache = _cache(cache_dir)
-    opts = {"face_size": face_size, "prefilter": prefilter}
+    # The filter's own constants are part of the key: changing them must not serve old bakes.
+    opts = {"face_size": face_size, "prefilter": prefilter,
+            "levels": environment.default_levels(face_size), "ggx_samples": environment.GGX_SAMPLES,
+            "lut": [environment.LUT_SIZE, environment.LUT_SAMPLES]}
     source_files = SourceFiles.hash(resolve_panorama(source))
     key = source_files.key("environments", opts)
     if not force:
@@ -296,13 +301,11 @@ def bake_or_load_environment(source, cache_dir=None, face_size: int = 256, prefi
         if entry:
             return unpack_environment(entry), True
 
-    from .environment import prefilter as run_prefilter
-
     start = time.perf_counter()
     panorama = load_panorama(source, limits)
     load_s = time.perf_counter() - start
     start = time.perf_counter()
-    env = run_prefilter(panorama.pixels, face_size=face_size, method=prefilter)
+    env = environment.prefilter(panorama.pixels, face_size=face_size, method=prefilter)
     prefilter_s = time.perf_counter() - start
     arrays = {f"specular.{i}.npy": mip for i, mip in enumerate(env.specular)}
     arrays["small.npz"] = {"irradiance_sh": np.asarray(env.irradiance_sh),
@@ -336,3 +339,4 @@ def unpack_environment(entry: Entry) -> BakedEnvironment:
     return BakedEnvironment(key=entry.key, name=m["name"], specular=specular,
                             irradiance_sh=a["small.npz"]["irradiance_sh"], brdf_lut=a["small.npz"]["brdf_lut"],
                             prefilter=m["options"]["prefilter"], manifest=m)
+

@@ -163,3 +163,21 @@ def test_size_cap_evicts_least_recently_used(assets, tmp_path):
     assert bake_asset(srcs[1], tiny).key == keys[1]
     assert {e[3] for e in Cache(cache_dir).entries()} == {keys[1]}
     assert parse_size("2G") == 2 * 2**30 and parse_size("0") is None
+
+
+def test_environment_bake_hit_and_load_by_key(tmp_path):
+    from pipeline import bake_environment
+    from pipeline.bake import bake_or_load_environment, load_environment
+    env, hit = bake_or_load_environment("neutral", tmp_path, face_size=32)
+    assert not hit and env.face_size == 32 and env.prefilter == "ggx"
+    assert [m.shape for m in env.specular][:2] == [(6, 32, 32, 3), (6, 16, 16, 3)]
+    assert env.irradiance_sh.shape == (9, 3) and env.brdf_lut.shape[2] == 2
+    assert all(np.all(np.isfinite(m)) for m in env.specular)
+    again = bake_environment("neutral", tmp_path, face_size=32)
+    assert again.key == env.key
+    by_key = load_environment(env.key, tmp_path)
+    for a, b in zip(env.specular, by_key.specular):
+        np.testing.assert_array_equal(a, b)
+    assert bake_environment("neutral", tmp_path, face_size=32, prefilter="paper").key != env.key
+    with pytest.raises(AssetError):
+        bake_environment(str(tmp_path / "nope.hdr"), tmp_path)
