@@ -33,7 +33,7 @@ def extract(archive: Path, dest: Path, *, max_bytes: int, max_files: int, label:
         declared = sum(m.file_size for m in members)
         if declared > max_bytes:
             raise LimitExceeded(name, f"archive unpacks to {declared} bytes, more than the limit "
-                                      f"of {max_bytes}")
+                                      f"of {max_bytes} bytes")
         targets = [(_safe_member(m, name), m) for m in members]
         dest.mkdir(parents=True, exist_ok=True)
         written, total = [], 0

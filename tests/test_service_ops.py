@@ -1,0 +1,135 @@
+"""Operating the service: seeding, the API key, baking waits, deadlines, restarts."""
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+import httpx
+import pytest
+
+from service_server import Server
+from test_service import decode, nontrivial, upload
+
+KEY = "s3cret-key"
+SAMPLES = Path(__file__).resolve().parents[1] / "service" / "samples"
+OPS_ENV = {"ASSET_PREVIEW_API_KEY": KEY, "ASSET_PREVIEW_BAKE_WAIT_SECONDS": "0",
+           "ASSET_PREVIEW_RENDER_SECONDS": "6", "ASSET_PREVIEW_MAX_THUMBNAIL_SIZE": "4096",
+           "ASSET_PREVIEW_SAMPLES": str(SAMPLES)}
+AUTH = {"Authorization": f"Bearer {KEY}"}
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    return tmp_path_factory.mktemp("ops") / "cache"
+
+
+@pytest.fixture(scope="module")
+def ops(cache):
+    """One worker, an API key, no waiting for bakes, a short render deadline, seeded."""
+    srv = Server(cache, "--workers", "1", env=OPS_ENV)
+    try:
+        srv.wait_ready()
+        yield srv
+    finally:
+        srv.stop()
+
+
+def seeded(srv: Server, count: int = 2) -> list[dict]:
+    end = time.monotonic() + 120
+    while time.monotonic() < end:
+        recs = srv.client.get("/assets").json()["assets"]
+        if len(recs) >= count and all(r["status"] != "baking" for r in recs):
+            return recs
+        time.sleep(0.2)
+    raise TimeoutError("samples not seeded")
+
+
+def test_empty_store_is_seeded_with_the_samples(ops):
+    recs = seeded(ops)
+    assert {r["name"] for r in recs} == {"Duck.glb", "BoxTextured.glb"}
+    assert all(r["status"] == "ready" for r in recs)
+    page = ops.client.get("/").text
+    for r in recs:
+        assert f'/assets/{r["id"]}/thumbnail?size=256' in page
+        img = ops.client.get(f'/assets/{r["id"]}/thumbnail', params={"size": 128})
+        assert img.status_code == 200 and nontrivial(decode(img.content))
+
+
+def test_api_key_guards_writes_only(ops, assets):
+    data = (assets / "mesh/suzanne.ply").read_bytes()
+    r = upload(ops, "suzanne.ply", data)
+    assert r.status_code == 401 and r.headers["www-authenticate"] == "Bearer"
+    for bad in ("Bearer wrong", f"Basic {KEY}", "Bearer", f"Bearer {KEY}x"):
+        assert upload(ops, "suzanne.ply", data, headers={"Authorization": bad}).status_code == 401
+    r = upload(ops, "suzanne.ply", data, headers=AUTH)
+    assert r.status_code == 201, r.text
+    asset_id = r.json()["id"]
+    assert ops.client.get(f"/assets/{asset_id}").status_code == 200  # reads need no key
+    assert ops.client.get("/assets").status_code == 200
+    assert ops.client.delete(f"/assets/{asset_id}").status_code == 401
+    assert ops.client.post("/environments", files={"file": ("a.png", b"x")}).status_code == 401
+    assert ops.client.delete(f"/assets/{asset_id}", headers=AUTH).status_code == 200
+
+
+def test_thumbnail_of_a_baking_asset_answers_202(ops, assets):
+    """The only worker is kept busy with big renders so the new asset's bake must queue."""
+    duck = next(r for r in seeded(ops) if r["name"] == "Duck.glb")["id"]
+    big = lambda yaw: httpx.get(f"{ops.url}/assets/{duck}/thumbnail",  # noqa: E731
+                                params={"size": 2048, "yaw": yaw}, timeout=120)
+    first = threading.Thread(target=big, args=(1,))
+    first.start()
+    time.sleep(0.3)
+    r_up = {}
+    up = threading.Thread(target=lambda: r_up.setdefault("r", upload(
+        ops, "torus.STL", (assets / "mesh/torus.STL").read_bytes(), headers=AUTH)))
+    up.start()
+    time.sleep(0.3)
+    second = threading.Thread(target=big, args=(2,))  # queued before the torus bake
+    second.start()
+    up.join(60)
+    asset_id = r_up["r"].json()["id"]
+    r = ops.client.get(f"/assets/{asset_id}/thumbnail", params={"size": 64})
+    assert r.status_code == 202, r.text
+    assert int(r.headers["retry-after"]) > 0 and "baking" in r.json()["detail"]
+    first.join(60)
+    second.join(60)
+    assert ops.wait_status(asset_id)["status"] == "ready"
+    assert ops.client.get(f"/assets/{asset_id}/thumbnail", params={"size": 64}).status_code == 200
+
+
+@pytest.mark.slow
+def test_render_past_its_deadline_is_stopped(ops):
+    duck = next(r for r in seeded(ops) if r["name"] == "Duck.glb")["id"]
+    r = ops.client.get(f"/assets/{duck}/thumbnail", params={"size": 4096, "yaw": 7})
+    assert r.status_code == 504, r.text
+    assert "deadline" in r.json()["detail"]
+    r = ops.client.get(f"/assets/{duck}/thumbnail", params={"size": 64, "yaw": 7})
+    assert r.status_code == 200
+    text = ops.client.get("/metrics").text
+    assert 'asset_preview_worker_restarts_total{reason="deadline"} 1' in text
+
+
+def test_restart_keeps_assets_thumbnails_and_etags(ops, cache):
+    recs = seeded(ops)
+    asset_id = recs[0]["id"]
+    first = ops.client.get(f"/assets/{asset_id}/thumbnail", params={"size": 100})
+    assert first.status_code == 200
+    ops.stop()
+    leftover = cache / "service" / "tmp" / "half-written.upload"
+    leftover.write_bytes(b"partial")  # what a killed server could leave behind
+    again = Server(cache, "--workers", "1", env=OPS_ENV)
+    try:
+        again.wait_ready()
+        assert not leftover.exists()
+        after = again.client.get("/assets").json()["assets"]
+        assert {r["id"]: r["status"] for r in after} == {r["id"]: r["status"] for r in recs}
+        jobs = again.worker_jobs()
+        r = again.client.get(f"/assets/{asset_id}/thumbnail", params={"size": 100})
+        assert r.status_code == 200 and r.headers["etag"] == first.headers["etag"]
+        assert r.content == first.content and again.worker_jobs() == jobs
+        r = again.client.get(f"/assets/{asset_id}/thumbnail", params={"size": 100},
+                             headers={"If-None-Match": first.headers["etag"]})
+        assert r.status_code == 304
+    finally:
+        again.stop()
