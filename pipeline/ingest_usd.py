@@ -23,8 +23,9 @@ degree rotation about X, and metersPerUnit scales (USD's fallback is 0.01, centi
 when the stage does not author it). Time-varying values are read at the stage's start time
 code (or the earliest sample). Subdivision surfaces are drawn as their control cage with
 smooth normals; `model:drawMode` cards are viewport stand-ins and are not drawn. Implicit
-shapes (Sphere, Cube, Cylinder, Cone, Capsule, Plane) are tessellated (`usd_shapes`); curves,
-points, NURBS and PointInstancers are skipped with a warning.
+shapes (Sphere, Cube, Cylinder, Cone, Capsule, Plane) are tessellated (`usd_shapes`).
+PointInstancers place their prototypes (one Mesh each, an Instance per unmasked point);
+nested ones, curves, points and NURBS are skipped with a warning.
 """
 from __future__ import annotations
 
@@ -120,19 +121,26 @@ class _StageReader:
         self._topology: dict[tuple, _Topology | None] = {}
         self.triangles = 0
         self.vertices = 0
+        self._nodes = 0
+        self._skipped: set[str] = set()
         if not stage.HasAuthoredMetadata(UsdGeom.Tokens.metersPerUnit):
             self._warn("metersPerUnit not authored: USD's fallback 0.01 (centimetres) used")
 
     def read(self) -> None:
-        nodes = 0
-        skipped: set[str] = set()
+        self._walk(self.stage.GetPseudoRoot(), None)
+        for kind in sorted(self._skipped):
+            self._warn(f"{kind} prims are not read; skipped")
+
+    def _walk(self, root: Usd.Prim, placements: np.ndarray | None) -> None:
+        """Read the gprims under `root`. `placements` (K x 4 x 4, row vectors, relative to
+        `root`'s parent) places a PointInstancer prototype K times; None = the stage itself."""
         predicate = Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)
-        it = iter(Usd.PrimRange(self.stage.GetPseudoRoot(), predicate))
+        it = iter(Usd.PrimRange(root, predicate))
         for prim in it:
-            nodes += 1
-            if nodes > self.limits.max_nodes:
+            self._nodes += 1
+            if self._nodes > self.limits.max_nodes:
                 raise LimitExceeded(self.graph.path, f"more than {self.limits.max_nodes} prims")
-            if nodes % 256 == 0:
+            if self._nodes % 256 == 0:
                 deadline.check()
             if any(prim.IsA(t) for t in PRUNED_TYPES):
                 it.PruneChildren()
@@ -145,16 +153,53 @@ class _StageReader:
                 it.PruneChildren()
                 continue
             if prim.IsA(UsdGeom.Mesh) or str(prim.GetTypeName()) in SHAPES:
-                self._gprim(prim)
-            elif prim.IsA(UsdGeom.PointInstancer) or prim.IsA(UsdGeom.Gprim):
-                skipped.add(str(prim.GetTypeName()))
-                if prim.IsA(UsdGeom.PointInstancer):
-                    it.PruneChildren()
-        for kind in sorted(skipped):
-            self._warn(f"{kind} prims are not read (only Mesh); skipped")
+                self._gprim(prim, self._matrices(prim, root, placements))
+            elif prim.IsA(UsdGeom.PointInstancer):
+                it.PruneChildren()  # its prototypes are drawn only where it places them
+                if placements is None:
+                    self._point_instancer(UsdGeom.PointInstancer(prim))
+                else:
+                    self._skipped.add("nested PointInstancer")
+            elif prim.IsA(UsdGeom.Gprim):
+                self._skipped.add(str(prim.GetTypeName()))
+
+    def _matrices(self, prim: Usd.Prim, root: Usd.Prim, placements) -> np.ndarray:
+        """World matrices (column vectors, scene space) of `prim`, once per placement."""
+        if placements is None:
+            rows = np.array(self.xforms.GetLocalToWorldTransform(prim))[None]
+        else:
+            rel = np.array(self.xforms.ComputeRelativeTransform(prim, root)[0]) \
+                if prim != root else np.eye(4)
+            rows = rel[None] @ placements
+        return self.to_scene[None] @ np.transpose(rows, (0, 2, 1))
+
+    def _point_instancer(self, pi: UsdGeom.PointInstancer) -> None:
+        """Each prototype's gprims placed by the instancer's (unmasked) instance transforms."""
+        protos = pi.GetPrototypesRel().GetForwardedTargets()
+        indices = np.asarray(pi.GetProtoIndicesAttr().Get(self.time) or [], np.int64)
+        if len(indices) > self.limits.max_nodes:
+            raise LimitExceeded(self.graph.path, f"{pi.GetPath()}: {len(indices)} instances, "
+                                                 f"over the limit of {self.limits.max_nodes}")
+        if not len(indices) or not protos:
+            return
+        xforms = pi.ComputeInstanceTransformsAtTime(self.time, self.time,
+                                                    UsdGeom.PointInstancer.IncludeProtoXform,
+                                                    UsdGeom.PointInstancer.IgnoreMask)
+        rows = np.array([np.array(m) for m in xforms]).reshape(-1, 4, 4)
+        if len(rows) != len(indices):
+            self._warn(f"{pi.GetPath()}: instance transforms do not match protoIndices; skipped")
+            return
+        mask = np.asarray(pi.ComputeMaskAtTime(self.time) or [True] * len(indices), bool)
+        world = np.array(self.xforms.GetLocalToWorldTransform(pi.GetPrim()))
+        for j, target in enumerate(protos):
+            chosen = mask & (indices == j)
+            proto = self.stage.GetPrimAtPath(target)
+            if chosen.any() and proto:
+                # prototype root's own transform is inside the instance transform already
+                self._walk(proto, rows[chosen] @ world)
 
     # -- one mesh or implicit shape ----------------------------------------------------------
-    def _gprim(self, prim: Usd.Prim) -> None:
+    def _gprim(self, prim: Usd.Prim, matrices: np.ndarray) -> None:
         mesh = UsdGeom.Mesh(prim) if prim.IsA(UsdGeom.Mesh) else None
         source = prim.GetPrimInPrototype() if prim.IsInstanceProxy() else prim
         groups = self._groups(prim, mesh)
@@ -173,7 +218,6 @@ class _StageReader:
         topo = self._topology[topo_key]
         if topo is None:
             return
-        matrix = self.to_scene @ np.array(self.xforms.GetLocalToWorldTransform(prim)).T
         for (label, _, faces), binding in zip(groups, bindings):
             key = (topo_key, label, binding.uv_primvars, binding.color_primvar)
             if key not in self._meshes:
@@ -184,8 +228,8 @@ class _StageReader:
                 self.scene.meshes.append(built)
                 self._meshes[key] = len(self.scene.meshes) - 1
             if self._meshes[key] >= 0:
-                self.scene.instances.append(Instance(self._meshes[key], binding.material,
-                                                     matrix.copy()))
+                self.scene.instances.extend(Instance(self._meshes[key], binding.material, m)
+                                            for m in matrices)
 
     def _groups(self, prim: Usd.Prim, mesh: UsdGeom.Mesh | None):
         """[(label, material, faces or None)]: one per material-bound GeomSubset, then the

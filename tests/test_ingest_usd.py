@@ -349,6 +349,42 @@ def BasisCurves "Curve" {
     assert any("BasisCurves" in w for w in scene.warnings)
 
 
+def test_point_instancer_places_prototypes(tmp_path):
+    text = '(\n metersPerUnit = 1\n)\n' + """
+def Xform "World" {
+    double3 xformOp:translate = (0, 0, 10)
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+    def PointInstancer "PI" {
+        point3f[] positions = [(0, 0, 0), (5, 0, 0), (10, 0, 0), (15, 0, 0)]
+        float3[] scales = [(1, 1, 1), (2, 2, 2), (1, 1, 1), (1, 1, 1)]
+        int[] protoIndices = [0, 1, 0, 1]
+        int64[] invisibleIds = [3]
+        rel prototypes = [</World/PI/Protos/A>, </World/PI/Protos/B>]
+        def Scope "Protos" {
+            def Cube "A" {
+                double size = 1
+                double3 xformOp:translate = (0, 1, 0)
+                uniform token[] xformOpOrder = ["xformOp:translate"]
+            }
+            def Xform "B" {
+                def Sphere "Ball" {
+                    double radius = 0.5
+                }
+            }
+        }
+    }
+}
+"""
+    scene = pipeline.load_scene(write(tmp_path / "pi.usda", text))
+    assert len(scene.meshes) == 2  # each prototype built once
+    placed = sorted((scene.meshes[i.mesh].name, tuple(np.round(i.matrix[:3, 3], 6)),
+                     round(float(i.matrix[0, 0]), 6)) for i in scene.instances)
+    assert placed == [("/World/PI/Protos/A", (0, 1, 10), 1.0),
+                      ("/World/PI/Protos/A", (10, 1, 10), 1.0),
+                      ("/World/PI/Protos/B/Ball", (5, 0, 10), 2.0)]  # id 3 is invisible
+    assert scene.triangle_count == 2 * 12 + 1280
+
+
 @pytest.mark.parametrize("inputs, cls, transmission, alpha", [
     ("float inputs:opacity = 0\n float inputs:ior = 1.5", "transmissive", 1.0, 1.0),
     ("float inputs:opacity = 0.25\n float inputs:ior = 1.33", "transmissive", 0.75, 1.0),
