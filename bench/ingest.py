@@ -40,14 +40,17 @@ def sample_files(root: Path) -> list[Path]:
     return sorted(set(files), key=lambda p: (p.parent.name != "gltf", str(p)))
 
 
-def _median_ms(fn, repeat: int) -> float:
-    fn()  # warm-up: imports, file cache
-    times = []
-    for _ in range(repeat):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return 1000 * statistics.median(times)
+def _median_ms(fns, repeat: int) -> list[float]:
+    """Median ms of each function, called in turn within every round so that both sides see
+    the same machine load (the CPU is shared), after one warm-up round."""
+    times: list[list[float]] = [[] for _ in fns]
+    for round_ in range(repeat + 1):
+        for fn, out in zip(fns, times):
+            start = time.perf_counter()
+            fn()
+            if round_:
+                out.append(time.perf_counter() - start)
+    return [1000 * statistics.median(t) for t in times]
 
 
 def run(args: argparse.Namespace) -> int:
@@ -65,17 +68,19 @@ def run(args: argparse.Namespace) -> int:
         except AssetError as exc:
             print(f"{path.name:34} error: {exc.reason}")
             continue
-        ours = _median_ms(lambda: load_scene(path), args.repeat)
 
         def load_and_decode():
             for tex in load_scene(path).textures:
                 tex.image  # noqa: B018 - decoding is the point
-        decoded = _median_ms(load_and_decode, max(1, args.repeat // 2)) if scene.textures else ours
-        if path.suffix.lower() in USD_SUFFIXES:
+        if path.suffix.lower() in USD_SUFFIXES:  # trimesh reads no USD: ours only
+            ours = _median_ms([lambda: load_scene(path)], args.repeat)[0]
+            decoded = _median_ms([load_and_decode], args.repeat)[0] if scene.textures else ours
             print(f"{path.name:34} {scene.triangle_count:7d} {ours:9.2f} {decoded:9.2f} "
                   f"{'(no peer)':>10} {'':>6}")
             continue
-        peer = _median_ms(lambda: trimesh.load(path), args.repeat)
+        ours, peer = _median_ms([lambda: load_scene(path), lambda: trimesh.load(path)],
+                                args.repeat)
+        decoded = _median_ms([load_and_decode], args.repeat)[0] if scene.textures else ours
         ratio = ours / peer
         if path.suffix.lower() in (".gltf", ".glb"):
             worst = max(worst, ratio)

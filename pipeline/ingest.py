@@ -77,7 +77,7 @@ def load_scene(path, limits: Limits | None = None) -> Scene:
         except Exception as exc:  # a parser choking on hostile bytes must not crash the caller
             log.exception("%s: reader failed", path)
             raise MalformedAsset(path, f"could not be read ({type(exc).__name__}: {exc})") from None
-    own = str(path.resolve())
+    own = os.path.realpath(path)
     if own not in scene.files:
         scene.files.insert(0, own)
     log.info("%s: %d meshes, %d triangles, %d materials, %d textures in %.1f ms", path,
@@ -151,7 +151,7 @@ def _check(mesh: Mesh, path: str) -> int:
         if len(value) != n:
             raise MalformedAsset(path, f"mesh {mesh.name!r}: {name} has {len(value)} values "
                                        f"for {n} vertices")
-        if not np.isfinite(value).all():
+        if not np.isfinite(value.sum()) and not np.isfinite(value).all():
             if name == "tangents":  # recomputed below where a normal map needs them
                 mesh.tangents = None
                 continue

@@ -81,6 +81,7 @@ class _Reader:
         self._texture_map: dict[int, int | None] = {}
         self._image_map: dict[tuple, int | None] = {}  # (image, sampler) -> scene texture
         self._images: dict[int, tuple | None] = {}
+        self._arrays: dict[str, list] = {}  # top-level JSON arrays, type-checked once
         self.textures: list[DeferredTexture] = []
         self._unpacked = 0
         data = path.read_bytes()
@@ -120,14 +121,17 @@ class _Reader:
         return value
 
     def _get(self, key: str, index, what: str | None = None) -> dict:
-        items = self._list(self.doc, key)
-        if not isinstance(index, int) or isinstance(index, bool) or not 0 <= index < len(items):
+        items = self._arrays.get(key)
+        if items is None:
+            items = self._arrays[key] = self._list(self.doc, key)
+        if type(index) is not int or not 0 <= index < len(items):
             raise self._bad(f"{what or key} index {index!r} out of range ({len(items)} {key})")
-        return self._dict(items[index], f"{key}[{index}]")
+        item = items[index]
+        return item if type(item) is dict else self._dict(item, f"{key}[{index}]")
 
     def _int(self, obj: dict, key: str, default=None, lo: int = 0) -> int:
         value = obj.get(key, default)
-        if not isinstance(value, int) or isinstance(value, bool) or value < lo:
+        if type(value) is not int or value < lo:
             raise self._bad(f"{key} = {value!r} is not an integer >= {lo}")
         return value
 
