@@ -108,8 +108,8 @@ class SourceFiles:
             f = Path(f).resolve()
             if f == main:
                 continue
-            rel = os.path.relpath(f, main.parent) if f.is_relative_to(main.parent) else str(f)
-            deps[Path(rel).as_posix()] = file_sha256(f)
+            # relative even above the main file's folder (../textures): a moved tree keeps its key
+            deps[Path(os.path.relpath(f, main.parent)).as_posix()] = file_sha256(f)
         return cls(main, file_sha256(main), sorted(deps.items()))
 
     def key(self, kind: str, options: dict) -> str:
@@ -232,11 +232,15 @@ class Cache:
                     log.info("cache: stored %s/%s", kind, key)
                     break
                 except OSError:
-                    if attempt == 0 and replace:
-                        self.remove(kind, key)
-                        continue
-                    if attempt == 0 and self.load(kind, key) is None:
-                        continue  # what was there was corrupt and is gone now: try again
+                    if not (final / MANIFEST).exists():
+                        if attempt == 0 and final.exists():
+                            self.remove(kind, key)  # a manifest-less leftover: not an entry
+                            continue
+                        raise  # not a race: the cache cannot be written
+                    if attempt == 0 and (replace or self.load(kind, key) is None):
+                        if replace:
+                            self.remove(kind, key)
+                        continue  # what was there is gone now (replaced, or was corrupt)
                     log.info("cache: %s/%s was stored concurrently; discarding our copy", kind, key)
                     break
         finally:
