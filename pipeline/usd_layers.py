@@ -108,7 +108,10 @@ class LayerGraph:
         if _outer(ident).lower().endswith(".usdz"):  # the package's root layer
             return self._resolve_in_package(layer, uri)
         here = Path(layer.realPath)
-        return str(resolve_reference(here, uri, base_dir=here.parent, root=self.root))
+        resolve_reference(here, uri, base_dir=here.parent, root=self.root)  # safe and present
+        # The identifier Ar itself will use (anchored, not symlink-resolved), so that composing
+        # finds these very layers already open.
+        return layer.ComputeAbsolutePath(uri)
 
     def _resolve_in_package(self, layer: Sdf.Layer, uri: str) -> str:
         name = self._name(layer)

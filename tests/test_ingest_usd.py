@@ -507,6 +507,16 @@ def test_transform2d_matches_usd_formula(tmp_path):
         assert (u, 1 - v) == pytest.approx(us, abs=1e-5)
 
 
+def test_symlink_inside_the_folder_is_followed(tmp_path):
+    write(tmp_path / "real/part.usda", '(\n defaultPrim = "P"\n)\ndef Xform "P" {\n' + mesh("M") + "}\n")
+    os.symlink(tmp_path / "real/part.usda", tmp_path / "link.usda")
+    os.symlink(tmp_path / "real", tmp_path / "dir")
+    path = write(tmp_path / "a.usda", '(\n metersPerUnit = 1\n)\n'
+                 'def "A" (\n prepend references = @./link.usda@\n) {}\n'
+                 'def "B" (\n prepend references = @dir/../dir/part.usda@\n) {}\n')
+    assert pipeline.load_scene(path).triangle_count == 4
+
+
 def test_missing_referenced_layer_is_missing_file(tmp_path):
     path = write(tmp_path / "a.usda", '(\n subLayers = [@./gone.usda@]\n)\n')
     with pytest.raises(MissingFile, match="gone.usda"):
