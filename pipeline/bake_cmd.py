@@ -193,6 +193,7 @@ class _Report:
         self.total, self.as_json, self.done = total, as_json, 0
         self.counts = {"baked": 0, "cached": 0, "failed": 0}
         self.bar = sys.stderr.isatty() and total > 1
+        self._draw()
 
     def add(self, result: dict) -> None:
         self.done += 1
@@ -205,6 +206,9 @@ class _Report:
         else:
             print(f"{result['status']:<7}{result['path']}  (key {result['key'][:12]}, "
                   f"{result['seconds']:.2f} s)", flush=True)
+        self._draw()
+
+    def _draw(self) -> None:
         if self.bar:
             width = 30
             filled = width * self.done // max(self.total, 1)
