@@ -148,3 +148,21 @@ def test_only_transmissive_meshes_get_interior():
     assert by_material["glass"].interior.shape == (len(sphere.vertices), 3)
     assert len(by_material["glass"].transforms) == 2  # instances of one pair grouped
     assert baked.manifest["stats"]["interior"]["rays"] >= len(sphere.vertices)
+
+
+def test_hit_at_almost_zero_distance_is_skipped():
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    p0, n0 = sphere.vertices[0], sphere.vertex_normals[0]
+    eps = 1e-4 * np.linalg.norm(np.ptp(sphere.vertices, axis=0))
+    # a small patch just under the vertex (a decal, an inner skin): the ray starts in front of it
+    u = np.cross(n0, [0.0, 0.0, 1.0] if abs(n0[2]) < 0.9 else [1.0, 0.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(n0, u)
+    centre = p0 - n0 * 1.5 * eps
+    patch = np.array([centre + 0.01 * u, centre - 0.01 * u + 0.01 * v, centre - 0.01 * u - 0.01 * v])
+    vertices = np.vstack([sphere.vertices, patch])
+    faces = np.vstack([sphere.faces, [[len(sphere.vertices) + i for i in range(3)]]])
+    normals = np.vstack([sphere.vertex_normals, np.repeat([n0], 3, axis=0)])
+    r = interior_vectors(vertices, normals, faces)
+    assert np.linalg.norm(r.vectors[0]) == pytest.approx(2.0, abs=0.01)
+    assert r.rays > len(vertices)  # the grazed ray was continued
