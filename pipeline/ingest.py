@@ -110,6 +110,10 @@ def finish(scene: Scene, limits: Limits) -> Scene:
     if total_vertices > limits.max_vertices:
         raise LimitExceeded(path, f"{total_vertices} vertices, over the limit of "
                                   f"{limits.max_vertices}")
+    total_triangles = sum(len(m.indices) for m in scene.meshes)
+    if total_triangles > limits.max_triangles:
+        raise LimitExceeded(path, f"{total_triangles} triangles, over the limit of "
+                                  f"{limits.max_triangles}")
     if dropped:
         scene.warnings.append(f"dropped {dropped} degenerate triangles")
         log.warning("%s: dropped %d degenerate triangles", path, dropped)

@@ -312,3 +312,18 @@ def test_ingest_time_bound(assets):
     path = assets / "gltf" / "CesiumMilkTruck.glb"
     err = rejected(path, IngestTimeout, Limits(ingest_seconds=0.0))
     assert "time bound" in err.reason
+
+
+def test_obj_references_are_not_followed(tmp_path):
+    """trimesh gets the OBJ's bytes, not its path: an `mtllib ../` escape is never read."""
+    (tmp_path / "secret.mtl").write_text("newmtl x\nKd 1 0 0\nmap_Kd secret.png\n")
+    folder = tmp_path / "asset"
+    folder.mkdir()
+    path = folder / "m.obj"
+    path.write_text("mtllib ../secret.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\n"
+                    "usemtl x\nf 1/1 2/2 3/3\n")
+    scene = loaded(path)
+    assert scene.files == [str(path.resolve())]
+    assert [m.name for m in scene.materials] == ["default"] and scene.textures == []
+    # OBJ's v=0 is the image bottom; the scene holds glTF's convention (v=0 at the top)
+    np.testing.assert_allclose(scene.meshes[0].uv0[:, 1], [1, 1, 0])
