@@ -13,6 +13,7 @@ import binascii
 import json
 import logging
 import math
+import os
 import struct
 from pathlib import Path
 
@@ -82,8 +83,9 @@ class _Reader:
         self._image_map: dict[tuple, int | None] = {}  # (image, sampler) -> scene texture
         self._images: dict[int, tuple | None] = {}
         self._arrays: dict[str, list] = {}  # top-level JSON arrays, type-checked once
+        self._files_read: dict[str, bytes] = {}  # by resolved path
         self.textures: list[DeferredTexture] = []
-        self._unpacked = 0
+        self._unpacked = 0  # bytes of referenced files and decoded arrays, against the limit
         data = path.read_bytes()
         if data[:4] == GLB_MAGIC:
             text, self.glb_bin = _split_glb(path, data)
@@ -170,14 +172,17 @@ class _Reader:
                 return base64.b64decode(body, validate=True)
             except (binascii.Error, ValueError) as exc:
                 raise self._bad(f"{what} data: URI is not valid base64: {exc}") from None
-        target = resolve_reference(self.path, uri)
-        size = target.stat().st_size
-        if size > self.limits.max_file_bytes:
-            raise LimitExceeded(self.path, f"{what} {uri!r} is {size} bytes, over the limit of "
-                                           f"{self.limits.max_file_bytes}")
-        if str(target) not in self.files:
-            self.files.append(str(target))
-        return target.read_bytes()
+        target = str(resolve_reference(self.path, uri))
+        if target not in self._files_read:  # many buffers may name one file: read it once
+            size = os.stat(target).st_size
+            if size > self.limits.max_file_bytes:
+                raise LimitExceeded(self.path, f"{what} {uri!r} is {size} bytes, over the limit "
+                                               f"of {self.limits.max_file_bytes}")
+            self._account(size, f"{what} {uri!r}")
+            self.files.append(target)
+            with open(target, "rb") as f:
+                self._files_read[target] = f.read()
+        return self._files_read[target]
 
     def _buffer(self, index: int) -> bytes | memoryview:
         if index not in self._buffers:
