@@ -13,7 +13,9 @@ Order of work, so that hostile input is refused before USD touches it:
    displayOpacity) with constant / uniform / vertex / varying / faceVarying interpolation,
    indexed or not, are gathered per face-vertex and vertices are split only where a
    uniform or faceVarying value differs (numpy unique over the combined key). GeomSubsets
-   bound to materials become one Mesh each.
+   bound to materials become one Mesh each. displayColor / displayOpacity become vertex
+   colours where USD draws them: on prims with no UsdPreviewSurface, and where a material
+   reads them through a primvar reader; never on top of a material's own diffuseColor.
 4. `usd_materials` maps UsdPreviewSurface (see its docstring for opacity/ior -> transmission).
 
 Conventions: USD `st` has v up (0 at the image bottom); the scene holds glTF UVs, v down,
@@ -80,7 +82,7 @@ def _compose(root_layer: Sdf.Layer, graph: LayerGraph) -> Usd.Stage:
                                               "which the reference check did not see")
     for err in stage.GetCompositionErrors():
         text = f"composition: {str(err).strip().splitlines()[0]}"
-        if text not in graph.warnings:
+        if text not in graph.warnings and not any(u in text for u in graph.unreadable):
             graph.warnings.append(text)
     return stage
 
@@ -218,6 +220,9 @@ class _StageReader:
         topo = self._topology[topo_key]
         if topo is None:
             return
+        for name in {n for b in bindings for n in b.uv_primvars} - set(topo.attrs):
+            self._warn(f"{prim.GetPath()}: its material reads primvar {name!r}, which the "
+                       "prim does not have (or is invalid); textures there have no UVs")
         for (label, _, faces), binding in zip(groups, bindings):
             key = (topo_key, label, binding.uv_primvars, binding.color_primvar)
             if key not in self._meshes:

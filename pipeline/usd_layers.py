@@ -37,6 +37,7 @@ class LayerGraph:
         self.files: list[str] = []
         self.warnings: list[str] = []
         self.packages: dict[str, zipfile.ZipFile] = {}
+        self.unreadable: set[str] = set()  # dependencies with no USD file format (e.g. .mtlx)
 
     # -- opening ------------------------------------------------------------------------
     def open(self) -> Sdf.Layer:
@@ -51,6 +52,7 @@ class LayerGraph:
                 target = self.resolve(layer, dep)
                 ext = Path(_inner(target) or target).suffix.lstrip(".")
                 if Sdf.FileFormat.FindByExtension(ext) is None:
+                    self.unreadable.add(target)
                     self.warnings.append(f"{self._name(layer)}: cannot read {dep!r} (no USD file "
                                          "format for it); its contents are skipped")
                     continue
