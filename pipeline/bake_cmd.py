@@ -1,4 +1,4 @@
-"""`asset-bake PATH... [--env NAME|FILE ...]` (= `asset-preview bake`): bake into the cache.
+"""Bake assets and environments into the content-addressed cache (`asset-bake` = `asset-preview bake`).
 
 One result line per input on stdout (`baked`, `cached`, or `failed: REASON`), or one JSON
 object per line with --json; a progress bar on stderr when it is a terminal; a summary on
@@ -31,9 +31,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--prefilter", choices=("ggx", "paper"), default="ggx",
                         help="environment prefiltering: GGX importance sampling (default) or the "
                              "paper's plain Gaussian mip chain")
-    parser.add_argument("--face-size", type=int, default=int(os.environ.get("ASSET_PREVIEW_FACE_SIZE", 256)),
+    parser.add_argument("--face-size", type=int, default=os.environ.get("ASSET_PREVIEW_FACE_SIZE", "256"),
                         metavar="PX", help="environment cube face size, a power of two (default 256)")
-    parser.add_argument("--workers", type=int, default=int(os.environ.get("ASSET_PREVIEW_WORKERS", 1)),
+    parser.add_argument("--workers", type=int, default=os.environ.get("ASSET_PREVIEW_WORKERS", "1"),
                         metavar="N", help="bake in N processes (default 1: in this process)")
     parser.add_argument("--max-size", default=None, metavar="SIZE",
                         help="cap the cache at SIZE (e.g. 2G), evicting least recently used "
@@ -84,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """The `asset-bake` console script."""
-    parser = argparse.ArgumentParser(prog="asset-bake", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="asset-bake", description=__doc__.split("\n\n")[0])
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
     configure(parser)
     args = parser.parse_args(argv)
