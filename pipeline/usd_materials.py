@@ -177,7 +177,7 @@ class MaterialReader:
 
         opacity = self._input(shader, "opacity")
         if isinstance(opacity, _Tex):
-            self._check_tex(name, "opacity", opacity, "raw")
+            self._check_tex(name, "opacity", opacity, None)
             alpha = opacity.scale[opacity.channel]
             base = mat.base_color_texture
             if base is not None and base.texture == opacity.texture and opacity.channel == 3:
@@ -279,17 +279,23 @@ class MaterialReader:
         value = self._input(reader, "varname")
         return str(value) if value else None
 
-    def _uv_texture(self, node: UsdShade.Shader, output: str) -> _Tex | None:
+    def _uv_texture(self, node: UsdShade.Shader, output: str):
+        """A _Tex, or when the image cannot be used the node's `fallback` for `output`
+        (UsdUVTexture's own rule; its default is black)."""
+        fallback = _vec(self._input(node, "fallback"), 4, (0.0, 0.0, 0.0, 1.0))
+        fallback = fallback[:3] if output in ("rgb", "rgba") else fallback[CHANNELS.get(output, 0)]
         file_input = node.GetInput("file")
-        asset = file_input.Get(self.time) if file_input else None
-        if not asset or not asset.path:
-            self._warn(f"{node.GetPath()}: UsdUVTexture without a file; fallback used")
-            return None
+        producers = file_input.GetValueProducingAttributes() if file_input else []
+        attr = producers[0] if producers else None  # may be a material's interface input
+        asset = attr.Get(self.time) if attr is not None else None
+        if not isinstance(asset, Sdf.AssetPath) or not asset.path:
+            self._warn(f"{node.GetPath()}: UsdUVTexture without a file; its fallback is used")
+            return fallback
         if "<UDIM>" in asset.path:
-            self._warn(f"{node.GetPath()}: UDIM texture {asset.path!r} is not supported")
-            return None
-        layer = _authoring_layer(file_input.GetValueProducingAttributes()[0] or file_input.GetAttr(),
-                                 self.time)
+            self._warn(f"{node.GetPath()}: UDIM texture {asset.path!r} is not supported; "
+                       "its fallback is used")
+            return fallback
+        layer = _authoring_layer(attr, self.time)
         identifier = self.graph.resolve(layer, asset.path)  # refuses unsafe, MissingFile if absent
         wrap = (str(self._input(node, "wrapS") or "useMetadata"),
                 str(self._input(node, "wrapT") or "useMetadata"))
@@ -298,7 +304,7 @@ class MaterialReader:
                 self._warn(f"{node.GetPath()}: wrap 'black' drawn as clamp")
         texture = self._texture(identifier, wrap)
         if texture is None:
-            return None
+            return fallback
         st = node.GetInput("st")
         primvar, transform = "st", ((0.0, 0.0), 0.0, (1.0, 1.0))
         source = st.GetValueProducingAttributes() if st else []
@@ -360,10 +366,10 @@ class MaterialReader:
             self._packed[key] = len(self.scene.textures) - 1
         return self._packed[key]
 
-    def _check_tex(self, name: str, slot: str, tex: _Tex, expected: str) -> None:
+    def _check_tex(self, name: str, slot: str, tex: _Tex, expected: str | None) -> None:
         if tex.bias != (0.0, 0.0, 0.0, 0.0):
             self._warn(f"{name}: {slot} texture bias {tex.bias} is ignored")
-        if tex.color_space not in ("auto", expected):
+        if expected and tex.color_space not in ("auto", expected):
             self._warn(f"{name}: {slot} texture declares sourceColorSpace {tex.color_space!r}; "
                        f"read as {expected} like every {slot} texture")
 

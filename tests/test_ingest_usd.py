@@ -454,6 +454,35 @@ def test_uv_texture_in_usdz_with_wrap_scale_and_channels(tmp_path):
     assert scene.files == [str(pkg.resolve())]  # the package stands for what it holds
 
 
+def test_texture_file_and_primvar_name_through_material_interface(tmp_path):
+    png(tmp_path / "maps/a.png", (0, 255, 0, 255))
+    text = '(\n metersPerUnit = 1\n)\n' + material("G", """
+        color3f inputs:diffuseColor.connect = </G/T.outputs:rgb>""", """
+    asset inputs:tex = @./maps/a.png@
+    string inputs:frame:stPrimvarName = "uv"
+    def Shader "T"
+    {
+        uniform token info:id = "UsdUVTexture"
+        asset inputs:file.connect = </G.inputs:tex>
+        float2 inputs:st.connect = </G/R.outputs:result>
+        float3 outputs:rgb
+    }
+    def Shader "R"
+    {
+        uniform token info:id = "UsdPrimvarReader_float2"
+        string inputs:varname.connect = </G.inputs:frame:stPrimvarName>
+        float2 outputs:result
+    }
+""") + mesh("M", QUAD + """
+        texCoord2f[] primvars:uv = [(0, 0), (1, 0), (1, 1), (0, 1)] (
+            interpolation = "vertex"
+        )
+""", binding="G")
+    scene = pipeline.load_scene(write(tmp_path / "iface.usda", text))
+    assert len(scene.textures) == 1 and scene.meshes[0].uv0 is not None
+    assert tuple(scene.textures[0].image[0, 0]) == (0, 255, 0, 255)
+
+
 def test_channel_repack_for_separate_maps(tmp_path):
     png(tmp_path / "rough.png", (10, 0, 0, 255))
     png(tmp_path / "metal.png", (240, 0, 0, 255))
@@ -604,5 +633,7 @@ def test_usdz_entry_and_size_limits(tmp_path):
 def test_undecodable_texture_is_a_warning(tmp_path):
     (tmp_path / "bad.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"\0" * 40)
     scene = pipeline.load_scene(write(tmp_path / "t.usda", _textured(tmp_path, "./bad.png")))
-    assert scene.materials[0].base_color_texture is None
+    mat = scene.materials[0]
+    assert mat.base_color_texture is None
+    assert mat.base_color == (0.0, 0.0, 0.0, 1.0)  # UsdUVTexture's default fallback
     assert any("bad.png" in w for w in scene.warnings)
