@@ -8,11 +8,12 @@ from fastapi import Depends, HTTPException, Request
 from .core import ThumbnailService
 
 
-def get_service(request: Request) -> ThumbnailService:
+# async: FastAPI runs plain-def dependencies in a thread pool, which costs more than the work.
+async def get_service(request: Request) -> ThumbnailService:
     return request.app.state.service
 
 
-def require_key(request: Request, service: ThumbnailService = Depends(get_service)) -> None:
+async def require_key(request: Request, service: ThumbnailService = Depends(get_service)) -> None:
     """When an API key is configured, writes need `Authorization: Bearer KEY`."""
     key = service.settings.api_key
     if not key:
