@@ -14,6 +14,7 @@ import numpy as np
 
 from . import deadline
 from .errors import LimitExceeded, MalformedAsset
+from .ingest import smooth_normals
 from .limits import Limits
 from .scene import Instance, Mesh, Scene, default_material
 
@@ -53,15 +54,26 @@ def load(path: Path, limits: Limits) -> Scene:
         faces = np.asarray(geom.faces)
         if m and (faces.min() < 0 or faces.max() >= n):
             raise MalformedAsset(path, f"{name}: face index outside 0..{n - 1}")
-        normals = None
-        if m and n:
-            # trimesh's own: normals stored in the file, else area-weighted from the faces.
-            normals = np.asarray(geom.vertex_normals, np.float32)
-        scene.meshes.append(Mesh(name=name, positions=np.asarray(geom.vertices, np.float32),
-                                 normals=normals, indices=faces.astype(np.uint32).reshape(-1, 3),
+        positions = np.asarray(geom.vertices, np.float32)
+        indices = faces.astype(np.uint32).reshape(-1, 3)
+        normals = _file_normals(geom)
+        if normals is None and m:
+            # Smooth, area-weighted (STL's unshared vertices come out flat). Ours: trimesh's
+            # vertex_normals costs twenty times as much on the bunny.
+            normals = smooth_normals(positions, indices)
+        scene.meshes.append(Mesh(name=name, positions=positions,
+                                 normals=normals, indices=indices,
                                  uv0=_uv(geom), colors=_colors(geom)))
         scene.instances.append(Instance(len(scene.meshes) - 1, 0, matrix))
     return scene
+
+
+def _file_normals(geom) -> np.ndarray | None:
+    """Vertex normals the file itself stored (trimesh keeps them in its cache), else None."""
+    stored = getattr(getattr(geom, "_cache", None), "cache", {}).get("vertex_normals")
+    if stored is None or np.shape(stored) != (len(geom.vertices), 3):
+        return None
+    return np.asarray(stored, np.float32)
 
 
 def _uv(geom) -> np.ndarray | None:

@@ -283,3 +283,16 @@ def test_round_trip_pygltflib_materials(tmp_path):
     assert (ref.offset, ref.rotation, ref.scale, ref.uv_set) == ((0.25, 0.5), 0.3, (2, 3), 1)
     assert mask.alpha_cutoff == pytest.approx(0.3) and mask.transmission == 0.0
     assert scene.triangle_count == 24 and scene.meshes[0].uv1 is not None
+
+
+def test_plain_mesh_keeps_stored_normals_else_smooth(tmp_path, assets):
+    ply = tmp_path / "n.ply"
+    ply.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                   "property float z\nproperty float nx\nproperty float ny\nproperty float nz\n"
+                   "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+                   "0 0 0 1 0 0\n1 0 0 1 0 0\n0 1 0 1 0 0\n3 0 1 2\n")
+    np.testing.assert_allclose(load_scene(ply).meshes[0].normals, np.tile([1, 0, 0], (3, 1)))
+    bunny = load_scene(assets / "mesh" / "bunny.ply").meshes[0]
+    peer = trimesh.load(assets / "mesh" / "bunny.ply", process=False)
+    cos = np.einsum("ij,ij->i", bunny.normals, peer.vertex_normals)
+    assert np.median(cos) > 0.999  # the same area-weighted smooth normals as trimesh's
