@@ -242,10 +242,11 @@ class _StageReader:
         purpose = UsdShade.Tokens.preview
         api = UsdShade.MaterialBindingAPI(prim)
         own = api.ComputeBoundMaterial(purpose)[0]
-        subsets = [] if mesh is None else [s for s in UsdGeom.Subset.GetAllGeomSubsets(mesh)
-                   if s.GetElementTypeAttr().Get() == UsdGeom.Tokens.face
-                   and (s.GetFamilyNameAttr().Get() == UsdShade.Tokens.materialBind
-                        or UsdShade.MaterialBindingAPI(s.GetPrim()).GetDirectBindingRel().GetTargets())]
+        subsets = [] if mesh is None else [
+            s for s in UsdGeom.Subset.GetAllGeomSubsets(mesh)
+            if s.GetElementTypeAttr().Get() == UsdGeom.Tokens.face
+            and (s.GetFamilyNameAttr().Get() == UsdShade.Tokens.materialBind
+                 or UsdShade.MaterialBindingAPI(s.GetPrim()).GetDirectBindingRel().GetTargets())]
         if not subsets:
             return [("", own if own else None, None)]
         groups, claimed = [], []
@@ -258,7 +259,8 @@ class _StageReader:
         return groups
 
     # -- geometry --------------------------------------------------------------------------------
-    def _triangulate(self, prim: Usd.Prim, mesh: UsdGeom.Mesh, names: list[str]) -> _Topology | None:
+    def _triangulate(self, prim: Usd.Prim, mesh: UsdGeom.Mesh,
+                     names: list[str]) -> _Topology | None:
         where = f"mesh {prim.GetPath()}"
         counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(self.time) or [], np.int64)
         fvi = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(self.time) or [], np.int64)

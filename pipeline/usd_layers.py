@@ -84,7 +84,8 @@ class LayerGraph:
         try:
             layer = Sdf.Layer.FindOrOpen(identifier)
         except Tf.ErrorException as exc:
-            raise MalformedAsset(identifier, f"not a readable USD layer: {_first_line(exc)}") from None
+            raise MalformedAsset(identifier,
+                                 f"not a readable USD layer: {_first_line(exc)}") from None
         if layer is None:
             raise MalformedAsset(identifier, f"not a readable USD layer (referenced by {referrer})")
         self.layers[layer.identifier] = layer
@@ -124,7 +125,8 @@ class LayerGraph:
         except MissingFile:
             pass
         except UnsafeReference as exc:
-            raise UnsafeReference(name, exc.reason.replace("the asset's folder /pkg", "the package")) from None
+            reason = exc.reason.replace("the asset's folder /pkg", "the package")
+            raise UnsafeReference(name, reason) from None
         target = layer.ComputeAbsolutePath(uri)
         outer, inner = _outer(target), _inner(target)
         if inner is None or Path(outer).resolve() != Path(_outer(layer.identifier)).resolve():

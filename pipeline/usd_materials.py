@@ -362,7 +362,8 @@ class MaterialReader:
             self.scene.textures.append(_Packed(
                 name="+".join(f"{self.scene.textures[t].name}.{'rgba'[s]}"
                               for _, (t, s) in sorted(parts.items())),
-                sampler=first.sampler, source=first.source, parts={d: (self.scene.textures[t], s) for d, (t, s) in parts.items()}))
+                sampler=first.sampler, source=first.source,
+                parts={d: (self.scene.textures[t], s) for d, (t, s) in parts.items()}))
             self._packed[key] = len(self.scene.textures) - 1
         return self._packed[key]
 

@@ -7,7 +7,7 @@ without normals, so the shared finishing step gives them flat ones (hard edges).
 from __future__ import annotations
 
 import numpy as np
-from pxr import Usd, UsdGeom
+from pxr import Usd
 
 # Rotations taking trimesh's Z-aligned primitives to the prim's axis (det +1).
 _AXIS = {"Z": np.eye(3), "X": np.array([[0, 0, 1], [1, 0, 0], [0, 1, 0]], float),

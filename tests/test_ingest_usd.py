@@ -176,7 +176,8 @@ def test_texture_coordinate_test(assets):
 
 
 def test_materialx_only_material_falls_back_with_warning(assets):
-    scene = pipeline.load_scene(assets / "usd/TextureCoordinateTest/TextureCoordinateTestMaterialX.usda")
+    path = assets / "usd/TextureCoordinateTest/TextureCoordinateTestMaterialX.usda"
+    scene = pipeline.load_scene(path)
     assert scene.triangle_count == 10
     assert any(".mtlx" in w for w in scene.warnings)
     assert all(m.colors is not None for m in scene.meshes)  # displayColor stands in
@@ -191,7 +192,8 @@ def test_primvar_interpolations(assets):
     assert len(meshes["uniform"].positions) == 8
     uniform = meshes["uniform"]
     tri_colors = uniform.colors[uniform.indices[:, 0], :3]
-    assert {tuple(np.round(c.astype(float), 3)) for c in tri_colors} == {(1, 0.3, 0.3), (0.3, 0.3, 1)}
+    assert {tuple(np.round(c.astype(float), 3)) for c in tri_colors} == {(1, 0.3, 0.3),
+                                                                         (0.3, 0.3, 1)}
     np.testing.assert_allclose(meshes["constant"].colors[:, :3], [[1, 0.3, 0.3]] * 6, atol=1e-6)
     # metersPerUnit 0.01: the 2-unit wide quads are 2 cm wide
     extent = scene.bounds[1] - scene.bounds[0]
@@ -272,7 +274,8 @@ def test_geom_subsets_bind_their_own_materials(tmp_path):
             rel material:binding = </Red>
         }
 """
-    text = '(\n metersPerUnit = 1\n)\n' + material("Red", "color3f inputs:diffuseColor = (1, 0, 0)") \
+    text = '(\n metersPerUnit = 1\n)\n' \
+        + material("Red", "color3f inputs:diffuseColor = (1, 0, 0)") \
         + material("Blue", "color3f inputs:diffuseColor = (0, 0, 1)") + mesh("M", body, "Blue")
     scene = pipeline.load_scene(write(tmp_path / "subsets.usda", text))
     assert len(scene.meshes) == 2 and scene.triangle_count == 4
@@ -537,7 +540,8 @@ def test_transform2d_matches_usd_formula(tmp_path):
 
 
 def test_symlink_inside_the_folder_is_followed(tmp_path):
-    write(tmp_path / "real/part.usda", '(\n defaultPrim = "P"\n)\ndef Xform "P" {\n' + mesh("M") + "}\n")
+    write(tmp_path / "real/part.usda",
+          '(\n defaultPrim = "P"\n)\ndef Xform "P" {\n' + mesh("M") + "}\n")
     os.symlink(tmp_path / "real/part.usda", tmp_path / "link.usda")
     os.symlink(tmp_path / "real", tmp_path / "dir")
     path = write(tmp_path / "a.usda", '(\n metersPerUnit = 1\n)\n'
