@@ -17,6 +17,7 @@ from pathlib import Path
 
 from pxr import Ar, Sdf, Tf, UsdUtils
 
+from . import deadline
 from .errors import LimitExceeded, MalformedAsset, MissingFile, UnsafeReference
 from .limits import Limits
 from .paths import resolve_reference
@@ -47,6 +48,7 @@ class LayerGraph:
         root_layer = self._open_layer(str(real), self.path)
         pending = [root_layer]
         while pending:
+            deadline.check()
             layer = pending.pop()
             for dep in self._dependencies(layer):
                 target = self.resolve(layer, dep)
