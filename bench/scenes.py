@@ -108,8 +108,16 @@ def mesh_arrays(kind: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         lo, hi = m.bounds
         m.apply_translation(-(lo + hi) / 2)
         m.apply_scale(1.0 / (np.linalg.norm(hi - lo) / 2))
-        return (m.vertices.astype(np.float32), m.vertex_normals.astype(np.float32),
-                m.faces.astype(np.uint32))
+        nrm = np.array(m.vertex_normals)
+        # Where face normals cancel (bunny: 22 vertices) take one adjacent face's normal, so
+        # no vertex has a zero normal (Mitsuba turns those into NaN samples).
+        bad = np.linalg.norm(nrm, axis=1) < 0.5
+        if bad.any():
+            one_face = np.zeros_like(nrm)
+            for k in range(3):
+                one_face[m.faces[:, k]] = m.face_normals
+            nrm[bad] = one_face[bad]
+        return (m.vertices.astype(np.float32), nrm.astype(np.float32), m.faces.astype(np.uint32))
     raise KeyError(f"unknown mesh {kind!r}")
 
 
@@ -167,24 +175,18 @@ def write_glb(spec: SceneSpec, path: str | Path) -> Path:
 
 
 def baked_asset(spec: SceneSpec, cache_dir: str | Path | None = None):
-    """The scene as the renderer sees it: a BakedAsset.
+    """The scene as the renderer sees it, a BakedAsset: through the whole pipeline (write the
+    .glb, pipeline.bake_asset) with a cache folder; without one, in memory straight from the
+    same arrays and without interior vectors (for tests that edit geometry; the ray tracer
+    needs no interior)."""
+    if cache_dir is not None:
+        import pipeline
 
-    Goes through the real pipeline (write .glb -> pipeline.bake_asset) when it is present;
-    until the bake lands, builds the BakedAsset directly from the same arrays (no interior
-    vectors, which only the raster `wyman` method needs)."""
+        glb = write_glb(spec, Path(cache_dir) / "scenes" / f"{spec.name}.glb")
+        return pipeline.bake_asset(glb, cache_dir)
     from pipeline.baked import BakedAsset, BakedMesh
     from pipeline.scene import transformed_bounds
 
-    if cache_dir is not None:
-        try:
-            import pipeline.bake  # noqa: F401
-        except ModuleNotFoundError as exc:
-            if exc.name != "pipeline.bake":
-                raise
-        else:
-            import pipeline
-            glb = write_glb(spec, Path(cache_dir) / "scenes" / f"{spec.name}.glb")
-            return pipeline.bake_asset(glb, cache_dir)
     pos, nrm, idx = mesh_arrays(spec.mesh)
     mesh = BakedMesh(name=spec.mesh, positions=pos, normals=nrm, indices=idx,
                      material=spec.material, transforms=spec.matrix[None].astype(np.float64))
@@ -194,39 +196,7 @@ def baked_asset(spec: SceneSpec, cache_dir: str | Path | None = None):
 
 
 def load_panorama(name: str) -> np.ndarray:
-    """Linear float32 H x W x 3 panorama for a bundled environment name (what the bake reads)."""
-    try:
-        from pipeline.environment import load_panorama as _load
-    except ModuleNotFoundError:
-        _load = None
-    if _load is not None:
-        return np.asarray(_load(name), dtype=np.float32)[..., :3]
-    from PIL import Image  # until pipeline.environment lands: same decode, sRGB -> linear
+    """Linear float32 H x W x 3 panorama of a scene's environment, exactly what the bake reads."""
+    from pipeline.panorama import load_panorama as _load
 
-    img = np.asarray(Image.open(ASSETS / "env" / f"{name}.jpg").convert("RGB"), np.float32) / 255
-    return np.where(img <= 0.04045, img / 12.92, ((img + 0.055) / 1.055) ** 2.4).astype(np.float32)
-
-
-def baked_environment(name: str, cache_dir: str | Path | None = None, face_size: int = 256):
-    """The environment the renderer uses: pipeline.bake_environment when present; until then
-    mip 0 resampled from the panorama and a box-filtered mip chain (not GGX-prefiltered)."""
-    if cache_dir is not None:
-        try:
-            import pipeline.bake  # noqa: F401
-        except ModuleNotFoundError as exc:
-            if exc.name != "pipeline.bake":
-                raise
-        else:
-            import pipeline
-            return pipeline.bake_environment(name, cache_dir, face_size=face_size)
-    from pipeline.baked import BakedEnvironment
-    from pipeline.cubemap import face_directions, sample_equirect
-
-    pano = load_panorama(name)
-    mips = [sample_equirect(pano, face_directions(face_size)).astype(np.float32)]
-    while mips[-1].shape[1] > 4:
-        m = mips[-1]
-        mips.append(m.reshape(6, m.shape[1] // 2, 2, m.shape[2] // 2, 2, 3).mean(axis=(2, 4)))
-    return BakedEnvironment(key=f"env:{name}", name=name, specular=mips,
-                            irradiance_sh=np.zeros((9, 3), np.float32),
-                            brdf_lut=np.zeros((32, 32, 2), np.float32), prefilter="box")
+    return np.asarray(_load(name).pixels, dtype=np.float32)[..., :3]

@@ -18,9 +18,13 @@ a rough reflection or refraction keeps its mirror direction and reads the prefil
 its roughness at escape (as the raster path's split-sum does). Inside a volume, Beer-Lambert
 attenuation exp(-sigma t) with sigma = -ln(attenuation_color) / attenuation_distance.
 
-Anti-aliasing: `supersample` x `supersample` stratified rays per pixel (box filter), so
-silhouettes and the refracted environment average over the pixel as the reference's box
-filter does; 2 x 2 is the default (a deterministic grid: no noise, 4x the rays).
+Anti-aliasing: `supersample` x `supersample` stratified rays per pixel (box filter) on and
+around the object, so silhouettes and the strongly minified refracted environment average
+over the pixel as the reference's box filter does; 2 x 2 is the default (a deterministic
+grid: no noise). Measured on the IOR 1.5 sphere at 500 px against Mitsuba: relative error
+0.038 with one ray per pixel, 0.024 with 2 x 2, 0.022 with 3 x 3 at twice the time. Pixels
+whose centre ray and its 8 neighbours miss everything keep one ray: a sub-pixel object
+between centre rays is missed (documented limit).
 """
 from __future__ import annotations
 
@@ -172,14 +176,31 @@ def _env_brdf(f0: np.ndarray, cos_v: np.ndarray, roughness: np.ndarray) -> np.nd
     return f0 * scale[:, None] + bias[:, None]
 
 
-def _pool_rays(camera: Camera, ss: int) -> tuple[np.ndarray, np.ndarray]:
-    """Primary ray directions on an ss x ss stratified grid per pixel, and their pixel index."""
-    sub = replace(camera, width=camera.width * ss, height=camera.height * ss)
-    d = sub.ray_directions().reshape(-1, 3)
-    rows = np.arange(camera.height * ss) // ss
-    cols = np.arange(camera.width * ss) // ss
-    pix = (rows[:, None] * camera.width + cols[None, :]).reshape(-1)
-    return d, pix
+def _subpixel_rays(camera: Camera, pixels: np.ndarray, ss: int) -> tuple[np.ndarray, np.ndarray]:
+    """Directions on an ss x ss stratified grid inside each of `pixels` (flat indices), and the
+    pixel of each ray: the rays renderer.camera would give a camera of ss times the size."""
+    r, u, f = camera.basis()
+    th = math.tan(math.radians(camera.fov) / 2)
+    rows, cols = np.divmod(pixels, camera.width)
+    off = (np.arange(ss) + 0.5) / ss
+    y = rows[:, None, None] + off[None, :, None]        # pixel, sub-row, sub-col
+    x = cols[:, None, None] + off[None, None, :]
+    y, x = np.broadcast_arrays(y, x)
+    sx = (x.reshape(-1) / camera.width * 2 - 1) * th * camera.aspect
+    sy = (1 - y.reshape(-1) / camera.height * 2) * th
+    d = f + sx[:, None] * r + sy[:, None] * u
+    return d / np.linalg.norm(d, axis=-1, keepdims=True), np.repeat(pixels, ss * ss)
+
+
+def _near(mask: np.ndarray) -> np.ndarray:
+    """`mask` grown by one pixel in all eight directions."""
+    out = mask.copy()
+    out[1:] |= mask[:-1]
+    out[:-1] |= mask[1:]
+    grown = out.copy()
+    out[:, 1:] |= grown[:, :-1]
+    out[:, :-1] |= grown[:, 1:]
+    return out
 
 
 def _background(options: RenderOptions) -> tuple[float, float, float] | None:
@@ -198,41 +219,53 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     ts = build_scene(asset, options)
     t_build = time.perf_counter()
     npix = camera.width * camera.height
-    dirs, pix = _pool_rays(camera, supersample)
-    origins = np.broadcast_to(camera.position, dirs.shape)
-    nsub = supersample * supersample
-    weight = np.full((len(dirs), 3), 1.0 / nsub)
-    rough = np.zeros(len(dirs))
+    eps = EPSILON * ts.radius
+    stats = {"rays": npix, "bounces": [], "tir": 0}
+    show_env = options.background == "env"
     accum = np.zeros((npix, 3))
     coverage = np.zeros(npix)
-    eps = EPSILON * ts.radius
-    stats = {"rays": 0, "bounces": [], "tir": 0}
-    show_env = options.background == "env"
 
     def add(rgb, where):
         for c in range(3):
             accum[:, c] += np.bincount(where, rgb[:, c], minlength=npix)
 
+    # Adaptive anti-aliasing: one centre ray finds the object; pixels on or next to it get
+    # ss x ss rays (the refracted environment is minified there), the open background keeps
+    # its centre ray (the cube map is already filtered at about a pixel's footprint).
+    centre = camera.ray_directions().reshape(-1, 3)
+    first = _intersect(ts, np.broadcast_to(camera.position, centre.shape), centre)[0] >= 0
+    near = _near(first.reshape(camera.height, camera.width)).reshape(-1)
+    far = np.flatnonzero(~near)
+    if show_env and len(far):
+        add(_env(env, centre[far], np.full(len(far), options.background_blur)), far)
+    nsub = supersample * supersample
+    dirs, pix = _subpixel_rays(camera, np.flatnonzero(near), supersample)
+    origins = np.broadcast_to(camera.position, dirs.shape)
+    weight = np.ones((len(dirs), 3))  # throughput of a sample (decides what is traced on)
+    share = np.full(len(dirs), 1.0 / nsub)  # its part of the pixel
+    rough = np.zeros(len(dirs))
+
     for depth in range(max(int(options.bounces), 0) + 1):
         if len(dirs) == 0:
             break
         if depth == options.bounces:  # out of bounces: read the environment where they point
-            add(weight * _env(env, dirs, rough), pix)
+            add((weight * share[:, None]) * _env(env, dirs, rough), pix)
             break
         prim, u, v, t = _intersect(ts, origins, dirs)
         stats["rays"] += len(dirs)
         stats["bounces"].append(len(dirs))
         miss = prim < 0
         if depth == 0:
-            coverage = np.bincount(pix[~miss], minlength=npix) / nsub
+            coverage = np.bincount(pix[~miss], share[~miss], minlength=npix)
             if show_env:
-                add(weight[miss] * _env(env, dirs[miss], np.full(miss.sum(), options.background_blur)), pix[miss])
+                blur = np.full(miss.sum(), options.background_blur)
+                add(_env(env, dirs[miss], blur) * share[miss, None], pix[miss])
         else:
-            add(weight[miss] * _env(env, dirs[miss], rough[miss]), pix[miss])
+            add((weight[miss] * share[miss, None]) * _env(env, dirs[miss], rough[miss]), pix[miss])
         hit = ~miss
         prim, u, v, t = prim[hit], u[hit, None], v[hit, None], t[hit]
         d = dirs[hit].astype(np.float64)
-        w, px, r_in = weight[hit], pix[hit], rough[hit]
+        w, px, r_in, sh = weight[hit], pix[hit], rough[hit], share[hit]
         p = origins[hit] + d * t[:, None]
         corner = ts.normals[prim].astype(np.float64)
         ns = (1 - u - v) * corner[:, 0] + u * corner[:, 1] + v * corner[:, 2]
@@ -262,7 +295,7 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
         r_out = np.sqrt(r_in * r_in + rough_k * rough_k)
         if np.any(diffuse_w > 0):
             dsel = diffuse_w.max(axis=1) > 0
-            add(diffuse_w[dsel] * _env(env, ns[dsel], np.ones(dsel.sum())), px[dsel])
+            add(diffuse_w[dsel] * sh[dsel, None] * _env(env, ns[dsel], np.ones(dsel.sum())), px[dsel])
         rdir = reflect(d, ns)
         tdir, tir = refract(d, ns, eta)
         stats["tir"] += int(np.sum(tir & (trans > 0)))
@@ -274,6 +307,7 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
         weight = np.concatenate([refl_w[keep_r], trans_w[keep_t]])
         pix = np.concatenate([px[keep_r], px[keep_t]])
         rough = np.concatenate([r_out[keep_r], r_out[keep_t]])
+        share = np.concatenate([sh[keep_r], sh[keep_t]])
 
     rgb = accum.reshape(camera.height, camera.width, 3)
     alpha = np.ones((camera.height, camera.width)) if show_env else coverage.reshape(rgb.shape[:2])
@@ -303,3 +337,13 @@ def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOpt
                "tonemap": (t1 - t0) * 1e3 - stats["build_ms"] - stats["trace_ms"],
                "total": (t1 - t0) * 1e3}
     return Frame(linear=linear, rgba8=rgba8, plan=plan, timings=timings)
+
+
+def _register() -> None:
+    """Make `--method raytrace` reach this module through renderer.render."""
+    from .render import register_frame_method
+
+    register_frame_method("raytrace", render_raytrace)
+
+
+_register()

@@ -1,0 +1,171 @@
+"""Physically based reference images of the test scenes, rendered with Mitsuba 3.
+
+    python -m bench.reference --out bench/references [--spp N] [--size N] [--scenes a,b]
+
+Mitsuba's `scalar_rgb` variant (its LLVM variants crash on this machine) path-traces the
+same triangles (written as PLY with their vertex normals), under the same camera
+(renderer.camera.frame_bounds -> a `perspective` sensor, fov_axis y, box pixel filter) and
+the same linear panorama (bench.scenes.load_panorama) as an `envmap`. Mitsuba's envmap maps
+a world direction (x, y, z) to u = 0.5 + atan2(-x, z) / 2pi, v = acos(y) / pi, which is
+pipeline.cubemap's convention, so no rotation is applied (checked by the mirror-sphere test).
+Materials: `dielectric` / `roughdielectric` (GGX, alpha = roughness^2) for glass,
+`conductor` (perfect mirror) for the mirror, `principled` for the other opaque spheres.
+
+Each scene writes <name>.exr (linear RGBA) and <name>.npy (float16 H x W x 4: linear RGB and
+object coverage, from a second pass with the emitter hidden) so the tests need no Mitsuba.
+The renderer reads a cubemap resampled from this panorama (face size 256 by default, 1024
+texels around the horizon, the panorama's own width), so background texels agree closely.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from . import scenes
+
+log = logging.getLogger(__name__)
+
+REFERENCES = Path(__file__).resolve().parent / "references"
+# Scene -> image size. The spheres the tests compare most closely get 256 px.
+DEFAULT_SET = {
+    "mirror_sphere": 256,
+    "glass_sphere_ior1.3": 256,
+    "glass_sphere_ior1.5": 256,
+    "glass_sphere_ior1.0": 128,
+    "glass_sphere_ior1.15": 128,
+    "glass_sphere_ior2.4": 128,
+    "glass_ellipsoid_311_ior1.5": 128,
+    "glass_bunny_ior1.5": 128,
+    "glass_torus_ior1.5": 128,
+    "glass_torus_ior2.4": 128,
+    "glass_cube_ior1.15": 128,
+    "frosted_sphere_ior1.5_r0.3": 128,
+}
+
+
+def spec_camera(spec: scenes.SceneSpec, width: int, height: int):
+    """The camera every method and the reference use for a scene (renderer.camera convention)."""
+    from pipeline.scene import transformed_bounds
+    from renderer.camera import frame_bounds
+
+    pos, _, _ = scenes.mesh_arrays(spec.mesh)
+    lo, hi = transformed_bounds(pos, spec.matrix)
+    return frame_bounds(np.stack([lo, hi]), width, height, spec.yaw, spec.pitch, spec.fov)
+
+
+def _write_ply(path: str, pos: np.ndarray, nrm: np.ndarray, idx: np.ndarray) -> None:
+    vert = np.empty(len(pos), dtype=[("p", "<f4", 3), ("n", "<f4", 3)])
+    vert["p"], vert["n"] = pos, nrm
+    faces = np.empty(len(idx), dtype=[("c", "u1"), ("i", "<i4", 3)])
+    faces["c"], faces["i"] = 3, idx
+    header = ("ply\nformat binary_little_endian 1.0\n"
+              f"element vertex {len(pos)}\nproperty float x\nproperty float y\nproperty float z\n"
+              "property float nx\nproperty float ny\nproperty float nz\n"
+              f"element face {len(idx)}\nproperty list uchar int vertex_indices\nend_header\n")
+    with open(path, "wb") as f:
+        f.write(header.encode("ascii"))
+        f.write(vert.tobytes())
+        f.write(faces.tobytes())
+
+
+def _bsdf(mat) -> dict:
+    rgb = {"type": "rgb", "value": [float(c) for c in mat.base_color[:3]]}
+    if mat.transmission > 0:
+        if mat.roughness > 0:
+            return {"type": "roughdielectric", "distribution": "ggx",
+                    "alpha": float(mat.roughness) ** 2, "int_ior": float(mat.ior), "ext_ior": 1.0}
+        return {"type": "dielectric", "int_ior": float(mat.ior), "ext_ior": 1.0}
+    if mat.metallic >= 1 and mat.roughness == 0 and min(mat.base_color[:3]) >= 1:
+        return {"type": "conductor", "material": "none"}
+    return {"type": "principled", "base_color": rgb, "metallic": float(mat.metallic),
+            "roughness": float(mat.roughness), "specular": 0.5}
+
+
+def render_reference(spec: scenes.SceneSpec, size: int, spp: int = 256) -> np.ndarray:
+    """Mitsuba path-traced linear H x W x 4 float32: RGB and object coverage."""
+    import mitsuba as mi
+
+    mi.set_variant("scalar_rgb")
+    cam = spec_camera(spec, size, size)
+    pano = scenes.load_panorama(spec.env)
+    with tempfile.TemporaryDirectory() as tmp:
+        ply = os.path.join(tmp, "mesh.ply")
+        _write_ply(ply, *scenes.mesh_arrays(spec.mesh))
+        sensor = {
+            "type": "perspective", "fov": float(cam.fov), "fov_axis": "y",
+            "near_clip": float(cam.near) * 0.5, "far_clip": float(cam.far) * 4,
+            "to_world": mi.ScalarTransform4f().look_at(
+                origin=cam.position.tolist(), target=cam.target.tolist(), up=cam.up.tolist()),
+            "film": {"type": "hdrfilm", "width": size, "height": size,
+                     "rfilter": {"type": "box"}, "pixel_format": "rgba"},
+            "sampler": {"type": "stratified", "sample_count": spp},
+        }
+        shape = {"type": "ply", "filename": ply, "face_normals": False,
+                 "to_world": mi.ScalarTransform4f(spec.matrix.tolist()), "bsdf": _bsdf(spec.material)}
+        env = {"type": "envmap", "bitmap": mi.Bitmap(np.ascontiguousarray(pano, np.float32))}
+        beauty = mi.load_dict({"type": "scene", "sensor": sensor, "shape": shape, "env": env,
+                               "integrator": {"type": "path", "max_depth": 64, "rr_depth": 64}})
+        rgb = np.array(mi.render(beauty), np.float32)[..., :3]
+        sensor["sampler"] = {"type": "stratified", "sample_count": 16}
+        # With the emitter hidden, alpha is the fraction of a pixel's rays that hit the object.
+        mask_scene = mi.load_dict({"type": "scene", "sensor": sensor, "shape": shape, "env": env,
+                                   "integrator": {"type": "path", "max_depth": 2,
+                                                  "hide_emitters": True}})
+        alpha = np.array(mi.render(mask_scene), np.float32)[..., 3:4]
+    return np.concatenate([rgb, alpha], axis=-1)
+
+
+def load_reference(name: str, folder: str | Path = REFERENCES) -> np.ndarray:
+    """A committed reference as float32 H x W x 4 (linear RGB, coverage)."""
+    path = Path(folder) / f"{name}.npy"
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no reference for scene {name!r}; "
+                                f"make it with python -m bench.reference --scenes {name}")
+    return np.load(path).astype(np.float32)
+
+
+def relative_mae(image: np.ndarray, reference: np.ndarray, mask: np.ndarray | None = None) -> float:
+    """Relative mean absolute error of linear RGB: sum |image - ref| / sum |ref| over `mask`
+    (default: pixels the object covers in the reference, alpha > 0)."""
+    if mask is None:
+        mask = reference[..., 3] > 0
+    a = image[..., :3][mask].astype(np.float64)
+    b = reference[..., :3][mask].astype(np.float64)
+    return float(np.abs(a - b).sum() / max(np.abs(b).sum(), 1e-12))
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench.reference", description=__doc__.splitlines()[0])
+    parser.add_argument("--out", default=str(REFERENCES), help="folder for .exr and .npy files")
+    parser.add_argument("--spp", type=int, default=256, help="samples per pixel (a square)")
+    parser.add_argument("--size", type=int, default=None, help="image size for every scene "
+                        "(default: 256 for the main spheres, 128 for the rest)")
+    parser.add_argument("--scenes", default=",".join(DEFAULT_SET),
+                        help="comma-separated scene names (bench.scenes.SCENES)")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    import mitsuba as mi
+
+    mi.set_variant("scalar_rgb")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    for name in args.scenes.split(","):
+        spec = scenes.scene(name)
+        size = args.size or DEFAULT_SET.get(name, 128)
+        t0 = time.perf_counter()
+        img = render_reference(spec, size, args.spp)
+        bitmap = mi.Bitmap(img, pixel_format=mi.Bitmap.PixelFormat.RGBA)
+        bitmap.convert(component_format=mi.Struct.Type.Float16).write(str(out / f"{name}.exr"))
+        np.save(out / f"{name}.npy", img.astype(np.float16))
+        log.info("%s: %d px, %d spp, %.1f s", name, size, args.spp, time.perf_counter() - t0)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
