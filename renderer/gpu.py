@@ -35,6 +35,7 @@ _ATTRIBUTES = {
     "positions": ("in_position", "3f"), "normals": ("in_normal", "3f"),
     "tangents": ("in_tangent", "4f"), "uv0": ("in_uv0", "2f"), "uv1": ("in_uv1", "2f"),
     "colors": ("in_color", "4f"),
+    "interior": ("in_interior", "3f"),  # refractive meshes only (renderer.refraction)
 }
 _INSTANCE = ("16f 9f/i", "in_model", "in_normal_matrix")
 
@@ -209,36 +210,70 @@ def _instance_data(transforms: np.ndarray) -> np.ndarray:
 def _upload_texture(ctx: moderngl.Context, tex: Texture, srgb: bool) -> moderngl.Texture:
     # Row 0 of the image is its top and glTF's v = 0, and GL's t = 0 is the first row
     # uploaded: uploading rows in order makes glTF UVs sample the right way up.
-    img = np.ascontiguousarray(tex.image, np.uint8)
-    h, w = img.shape[:2]
-    gl_tex = ctx.texture((w, h), 4, img, internal_format=GL_SRGB8_ALPHA8 if srgb else None)
-    gl_tex.build_mipmaps()
+    # Mips are built here in numpy (sRGB ones in linear light) and uploaded level by level:
+    # glGenerateMipmap on llvmpipe JIT-compiles a blit shader first (~60 ms of a cold start).
+    chain = mip_chain(np.ascontiguousarray(tex.image, np.uint8), srgb)
+    h, w = chain[0].shape[:2]
+    gl_tex = ctx.texture((w, h), 4, chain[0], internal_format=GL_SRGB8_ALPHA8 if srgb else None)
+    gl = _gl()
+    gl_tex.use(0)
+    for level, img in enumerate(chain[1:], start=1):
+        gl.glTexImage2D(GL_TEXTURE_2D, level, GL_SRGB8_ALPHA8 if srgb else GL_RGBA8,
+                        img.shape[1], img.shape[0], 0, GL_RGBA, GL_UNSIGNED_BYTE, img.ctypes.data)
+    gl.glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAX_LEVEL, len(chain) - 1)
     gl_tex.filter = (tex.sampler.min_filter, tex.sampler.mag_filter)
     gl_tex.repeat_x = tex.sampler.wrap_s != CLAMP_TO_EDGE
     gl_tex.repeat_y = tex.sampler.wrap_t != CLAMP_TO_EDGE
     return gl_tex
 
 
+_SRGB_TO_LINEAR = np.where(np.arange(256) / 255 <= 0.04045, np.arange(256) / 255 / 12.92,
+                           ((np.arange(256) / 255 + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+def mip_chain(img: np.ndarray, srgb: bool) -> list[np.ndarray]:
+    """2x2 box-filtered mip levels down to 1 x 1 (odd edges dropped), RGBA8; colour of sRGB
+    images is averaged in linear light, alpha always linearly."""
+    chain = [img]
+    if srgb:
+        cur = np.empty(img.shape, np.float32)
+        cur[..., :3] = _SRGB_TO_LINEAR[img[..., :3]]
+        cur[..., 3] = img[..., 3] / np.float32(255)
+    else:
+        cur = img.astype(np.float32) / 255
+    while cur.shape[0] > 1 or cur.shape[1] > 1:
+        h, w = cur.shape[:2]
+        if h > 1:
+            cur = 0.5 * (cur[0:h - 1:2] + cur[1:h:2])
+        if w > 1:
+            cur = 0.5 * (cur[:, 0:w - 1:2] + cur[:, 1:w:2])
+        out = cur.copy()
+        if srgb:
+            c = np.clip(out[..., :3], 0, 1)
+            out[..., :3] = np.where(c <= 0.0031308, 12.92 * c, 1.055 * np.power(c, 1 / 2.4) - 0.055)
+        chain.append(np.ascontiguousarray(np.clip(out * 255 + 0.5, 0, 255).astype(np.uint8)))
+    return chain
+
+
 def _upload_environment(baked: BakedEnvironment) -> GpuEnvironment:
     ctx = context.get_context()
     size = baked.face_size
     levels = len(baked.specular)
-    cube = ctx.texture_cube((size, size), 4, None, dtype="f2")
-    cube.build_mipmaps(0, levels - 1)  # allocates every level; the compute pass fills them
-    prog = context.compute("cube_upload.comp")
+    # moderngl uploads only level 0 of a cube map, and allocating the other levels with
+    # glGenerateMipmap costs a full CPU mip build on llvmpipe that is then thrown away, so
+    # each (face, level) goes up with one glTexImage2D, as half floats (half the bytes).
+    cube = ctx.texture_cube((size, size), 3, None, dtype="f2")
+    gl = _gl()
+    cube.use(0)
     for level, mip in enumerate(baked.specular):
         s = max(size >> level, 1)
         if mip.shape[:3] != (6, s, s):
             raise ValueError(f"environment {baked.name}: mip {level} is {mip.shape}, expected 6x{s}x{s}")
-        rgba = np.ones((6, s, s, 4), np.float32)
-        rgba[..., :3] = mip[..., :3]
-        src = ctx.buffer(rgba)
-        src.bind_to_storage_buffer(1)
-        cube.bind_to_image(0, read=False, write=True, level=level, format=0x881A)  # RGBA16F
-        prog["u_size"] = s
-        prog.run((s + 7) // 8, (s + 7) // 8, 6)
-        src.release()
-    ctx.memory_barrier()
+        half = np.ascontiguousarray(mip[..., :3], np.float16)
+        for face in range(6):
+            gl.glTexImage2D(GL_TEXTURE_CUBE_MAP_POSITIVE_X + face, level, GL_RGB16F, s, s, 0,
+                            GL_RGB, GL_HALF_FLOAT, half[face].ctypes.data)
+    gl.glTexParameteri(GL_TEXTURE_CUBE_MAP, GL_TEXTURE_MAX_LEVEL, levels - 1)
     cube.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
     lut_arr = np.ascontiguousarray(baked.brdf_lut[..., :2], np.float32)
     lut = ctx.texture((lut_arr.shape[1], lut_arr.shape[0]), 2, lut_arr, dtype="f4")
@@ -246,3 +281,38 @@ def _upload_environment(baked: BakedEnvironment) -> GpuEnvironment:
     sh = np.ascontiguousarray(baked.irradiance_sh, np.float32).reshape(9, 3)
     log.info("uploaded environment %s: %d px faces, %d mips", baked.name, size, levels)
     return GpuEnvironment(baked.key, cube, lut, sh, float(levels - 1), baked.prefilter)
+
+
+GL_TEXTURE_2D = 0x0DE1
+GL_RGBA, GL_RGBA8, GL_UNSIGNED_BYTE = 0x1908, 0x8058, 0x1401
+GL_TEXTURE_CUBE_MAP = 0x8513
+GL_TEXTURE_CUBE_MAP_POSITIVE_X = 0x8515
+GL_TEXTURE_MAX_LEVEL = 0x813D
+GL_RGB16F, GL_RGB, GL_HALF_FLOAT = 0x881B, 0x1907, 0x140B
+
+
+def _gl():
+    """The two GL entry points moderngl lacks, from the process's EGL (core functions are
+    exported by EGL_KHR_get_all_proc_addresses, which Mesa and NVIDIA implement)."""
+    global _GL
+    if _GL is None:
+        import ctypes
+        import ctypes.util
+        egl = ctypes.CDLL(ctypes.util.find_library("EGL") or "libEGL.so.1")
+        egl.eglGetProcAddress.restype = ctypes.c_void_p
+        egl.eglGetProcAddress.argtypes = [ctypes.c_char_p]
+
+        def fn(name, *args):
+            ptr = egl.eglGetProcAddress(name.encode())
+            if not ptr:
+                raise RuntimeError(f"OpenGL function {name} not found through EGL")
+            return ctypes.CFUNCTYPE(None, *args)(ptr)
+        c = ctypes
+        _GL = type("GL", (), {})()
+        _GL.glTexImage2D = fn("glTexImage2D", c.c_uint, c.c_int, c.c_int, c.c_int, c.c_int,
+                              c.c_int, c.c_uint, c.c_uint, c.c_void_p)
+        _GL.glTexParameteri = fn("glTexParameteri", c.c_uint, c.c_uint, c.c_int)
+    return _GL
+
+
+_GL = None

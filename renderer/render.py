@@ -1,8 +1,8 @@
 """`render(asset, env, options) -> Frame`: one offscreen frame of a baked asset.
 
-Passes, all in one MSAA float framebuffer: environment background, opaque and mask meshes,
-transmissive meshes by their method, blend meshes back to front; then one resolve, one
-tone-mapping pass into RGBA8, and one readback of each target.
+Passes: opaque and mask meshes, transmissive meshes by their method, blend meshes back to
+front, all into one MSAA float framebuffer; then one final pass (resolve + background +
+tone mapping, shaders/final.frag) into RGBA8 and float targets, and one readback of each.
 
 Methods plug in per object: `register_method(name, fn)` adds a raster method (the refraction
 module adds `single` and `wyman`), `register_frame_method(name, fn)` a whole-frame one
@@ -176,8 +176,6 @@ def render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions) -> 
     ctx.viewport = (0, 0, w, h)
     target.draw_fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
     ctx.disable(moderngl.BLEND)
-    if options.background == "env":
-        _draw_background(ctx, camera, genv, options)
     ctx.enable(moderngl.DEPTH_TEST)
     target.draw_fbo.depth_mask = True
 
@@ -200,7 +198,7 @@ def render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions) -> 
     ctx.disable(moderngl.BLEND)
     t_draw = time.perf_counter()
 
-    linear, rgba8 = _finish(ctx, target, options)
+    linear, rgba8 = _finish(ctx, target, camera, genv, options)
     t_end = time.perf_counter()
     plan = {
         "method": options.method,
@@ -396,20 +394,6 @@ def _frame_uniforms(camera: Camera, env: gpu.GpuEnvironment, lights) -> dict[str
 
 # --- passes ---------------------------------------------------------------------------------
 
-def _draw_background(ctx, camera: Camera, env: gpu.GpuEnvironment, options: RenderOptions) -> None:
-    ctx.disable(moderngl.DEPTH_TEST)
-    prog = context.program("screen_triangle.vert", "background.frag")
-    r, u, f = camera.basis()
-    th = math.tan(math.radians(camera.fov) / 2)
-    prog["u_camera_basis"].write(np.ascontiguousarray(np.stack([r, u, f]), np.float32).tobytes())
-    prog["u_tan_half_fov"].value = (th * camera.aspect, th)
-    prog["u_blur"].value = float(min(max(options.background_blur, 0.0), 1.0))
-    prog["u_env_max_lod"].value = env.max_lod
-    prog["u_env"].value = 0
-    env.cube.use(0)
-    context.fullscreen_vao(prog).render(moderngl.TRIANGLES, vertices=3)
-
-
 def _draw_opaque(p: Pass, items: list[DrawItem]) -> None:
     for it in items:
         prog, state = p.program(it)
@@ -437,10 +421,9 @@ def _draw_blend(p: Pass, items: list[DrawItem]) -> None:
 @dataclass
 class _Target:
     samples: int
-    draw_fbo: moderngl.Framebuffer      # MSAA (or the resolve fbo itself without MSAA)
-    resolve_fbo: moderngl.Framebuffer
-    resolve_tex: moderngl.Texture
-    out_fbo: moderngl.Framebuffer
+    draw_fbo: moderngl.Framebuffer       # geometry: MSAA colour (premultiplied linear) + depth
+    frame_tex: moderngl.Texture          # its colour, read by the final pass
+    out_fbo: moderngl.Framebuffer        # final pass: display RGBA8 + linear RGBA32F
     resources: list
 
 
@@ -467,50 +450,47 @@ def _target(ctx: moderngl.Context, w: int, h: int, msaa: int) -> _Target:
 
 
 def _make_target(ctx, w, h, samples) -> _Target:
-    # RGBA16F: half the bandwidth of 32F on a CPU rasteriser, 11-bit mantissa (~0.05%).
-    resolve_tex = ctx.texture((w, h), 4, dtype="f2")
-    resolve_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
-    out_tex = ctx.texture((w, h), 4, dtype="f1")
-    out_fbo = ctx.framebuffer([out_tex])
-    res = [resolve_tex, out_tex, out_fbo]
-    if samples:
-        color = ctx.renderbuffer((w, h), 4, samples=samples, dtype="f2")
-        depth = ctx.depth_renderbuffer((w, h), samples=samples)
-        draw_fbo = ctx.framebuffer([color], depth)
-        resolve_fbo = ctx.framebuffer([resolve_tex])
-        res += [color, depth, draw_fbo, resolve_fbo]
-    else:
-        depth = ctx.depth_renderbuffer((w, h))
-        draw_fbo = resolve_fbo = ctx.framebuffer([resolve_tex], depth)
-        res += [depth, draw_fbo]
-    return _Target(samples, draw_fbo, resolve_fbo, resolve_tex, out_fbo, res)
+    # RGBA16F samples: half the memory traffic of 32F on a CPU rasteriser; 11-bit mantissa.
+    frame_tex = ctx.texture((w, h), 4, samples=samples, dtype="f2")
+    depth = ctx.depth_renderbuffer((w, h), samples=samples)
+    draw_fbo = ctx.framebuffer([frame_tex], depth)
+    display = ctx.texture((w, h), 4, dtype="f1")
+    linear = ctx.texture((w, h), 4, dtype="f4")
+    out_fbo = ctx.framebuffer([display, linear])
+    return _Target(samples, draw_fbo, frame_tex, out_fbo,
+                   [out_fbo, draw_fbo, display, linear, depth, frame_tex])
 
 
-def _finish(ctx, target: _Target, options: RenderOptions) -> tuple[np.ndarray, np.ndarray]:
-    """Resolve, tone map into RGBA8, read both back (row 0 = image top)."""
+def _finish(ctx, target: _Target, camera: Camera, env: gpu.GpuEnvironment,
+            options: RenderOptions) -> tuple[np.ndarray, np.ndarray]:
+    """One pass: resolve, background, tone map; then one readback of each output."""
     w, h = options.width, options.height
-    if target.draw_fbo is not target.resolve_fbo:
-        ctx.copy_framebuffer(target.resolve_fbo, target.draw_fbo)
     bg = parse_background(options.background)
-    prog = context.program("screen_triangle.vert", "tonemap.frag",
-                           {"TONEMAP": _TONEMAPS[options.tonemap]})
-    prog["u_linear"].value = 0
+    mode = 2 if options.background == "env" else 1 if bg is not None else 0
+    prog = context.program("screen_triangle.vert", "final.frag",
+                           {"TONEMAP": _TONEMAPS[options.tonemap], "BACKGROUND": mode,
+                            "SAMPLES": max(target.samples, 1)})
+    prog["u_frame"].value = 0
+    prog["u_height"].value = h
     prog["u_exposure_scale"].value = float(2.0 ** max(min(options.exposure, 64), -64))
-    prog["u_background"].value = (*bg, 1.0) if bg is not None else (0.0, 0.0, 0.0, 0.0)
+    if mode == 1:
+        prog["u_background"].value = bg
+    elif mode == 2:
+        r, u, f = camera.basis()
+        th = math.tan(math.radians(camera.fov) / 2)
+        prog["u_camera_basis"].write(np.ascontiguousarray(np.stack([r, u, f]), np.float32).tobytes())
+        prog["u_tan_half_fov"].value = (th * camera.aspect, th)
+        prog["u_blur"].value = float(min(max(options.background_blur, 0.0), 1.0))
+        prog["u_env_max_lod"].value = env.max_lod
+        prog["u_env"].value = 1
+        env.cube.use(1)
     target.out_fbo.use()
     ctx.viewport = (0, 0, w, h)
-    target.resolve_tex.use(0)
+    target.frame_tex.use(0)
     context.fullscreen_vao(prog).render(moderngl.TRIANGLES, vertices=3)
-    half = np.frombuffer(target.resolve_fbo.read(components=4, dtype="f2"), np.float16)
-    linear = half.reshape(h, w, 4)[::-1].astype(np.float32)
-    rgba8 = np.frombuffer(target.out_fbo.read(components=4), np.uint8).reshape(h, w, 4)[::-1].copy()
-    if not np.isfinite(linear).all():
-        log.warning("non-finite radiance in the frame: replaced by 0")
-        linear = np.nan_to_num(linear, nan=0.0, posinf=0.0, neginf=0.0)
-    if bg is not None:
-        # The linear frame carries the same solid background, in linear radiance.
-        from .frame import srgb_decode
-        a = linear[..., 3:4]
-        linear[..., :3] += (1 - a) * srgb_decode(np.asarray(bg, np.float32))
-        linear[..., 3] = 1.0
+    # final.frag writes rows top-first, so reading straight into numpy needs no flip or copy.
+    linear = np.empty((h, w, 4), np.float32)
+    rgba8 = np.empty((h, w, 4), np.uint8)
+    target.out_fbo.read_into(linear, components=4, attachment=1, dtype="f4")
+    target.out_fbo.read_into(rgba8, components=4, attachment=0)
     return linear, rgba8

@@ -1,0 +1,229 @@
+"""`asset-preview bench thumbnail`: our thumbnail beside pyrender and f3d, same run, same camera.
+
+Per asset and size, each tool runs in processes of its own (GL contexts do not mix):
+- cold: wall time of a new process from start to a PNG on disk (interpreter, imports, GL
+  context, shader compile, loading the asset: ours from the bake cache, peers from the file,
+  render, PNG). One unmeasured run first per tool fills every disk cache (ours, f3d's HDRI
+  bake, Mesa's shader cache), then the median of `--cold-repeat` runs.
+- warm: in one process, after a first thumbnail, the median time of the next `--repeat`
+  thumbnails rendered into a uint8 RGB(A) array in memory ("+png": plus PNG encoding with the
+  same Pillow settings for every tool).
+Peers: pyrender (EGL, one directional light from the camera plus ambient: punctual lights,
+no image-based lighting, 4x MSAA) and f3d's Python module (EGL, HDRI = the same panorama with
+`render.hdri.ambient` on and the skybox shown, FXAA, tone mapping). f3d reads no USD in its
+PyPI wheel, so peers get the Teapot as a .glb exported from our bake (same triangles).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ASSETS = {
+    "Duck": "gltf/Duck.glb",
+    "CesiumMilkTruck": "gltf/CesiumMilkTruck.glb",
+    "Teapot": "usd/Teapot/Teapot.usd",
+}
+TOOLS = ("ours", "pyrender", "f3d")
+VIEW = {"yaw": 30.0, "pitch": 20.0, "fov": 40.0}
+
+
+def configure(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--assets", default=",".join(ASSETS), help="comma-separated: " + ", ".join(ASSETS))
+    p.add_argument("--sizes", default="256,512")
+    p.add_argument("--tools", default=",".join(TOOLS))
+    p.add_argument("--repeat", type=int, default=15, help="warm thumbnails timed per case")
+    p.add_argument("--cold-repeat", type=int, default=3, help="cold processes timed per case")
+    p.add_argument("--env", default=None, help="environment (default: the bundled default)")
+    p.add_argument("--cache", default=None, help="bake cache (default: a temporary folder)")
+    p.add_argument("--json", help="also write the results here")
+
+
+def run(args: argparse.Namespace) -> int:
+    import pipeline
+    from pipeline.environment import default_face_size
+    from pipeline.panorama import DEFAULT_ENVIRONMENT, load_panorama
+
+    assets_root = Path(__file__).resolve().parents[2] / "shared" / "assets"
+    work = Path(tempfile.mkdtemp(prefix="bench-thumbnail-"))
+    cache = Path(args.cache) if args.cache else work / "cache"
+    env_name = args.env or DEFAULT_ENVIRONMENT
+    panorama = str(load_panorama(env_name).files[0])
+    sizes = [int(s) for s in args.sizes.split(",")]
+    tools = [t for t in args.tools.split(",") if t]
+    results = []
+    for name in args.assets.split(","):
+        src = assets_root / ASSETS[name]
+        baked = pipeline.bake_asset(src, cache)  # ours renders from the cache, as the service does
+        peer_file = str(src) if src.suffix in (".glb", ".gltf") else _export_glb(baked, work / f"{name}.glb")
+        for size in sizes:
+            pipeline.bake_environment(env_name, cache, face_size=default_face_size(size))
+            job = {"asset": str(src), "peer_file": peer_file, "size": size, "cache": str(cache),
+                   "env": env_name, "panorama": panorama, "bounds": baked.bounds.tolist(),
+                   "out": str(work / f"{name}-{size}.png")}
+            row = {"asset": name, "size": size, "triangles": baked.triangle_count}
+            for tool in tools:
+                row[tool] = _measure(tool, job, args.repeat, args.cold_repeat)
+            results.append(row)
+            _print_row(row, tools)
+    _print_summary(results, tools)
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=1))
+    return 0
+
+
+def _export_glb(baked, path: Path) -> str:
+    """Our baked geometry (with vertex colours) as a .glb for peers that cannot read the source."""
+    import numpy as np
+    import trimesh
+    scene = trimesh.Scene()
+    for m in baked.meshes:
+        for k, mtx in enumerate(m.transforms):
+            colors = m.colors if m.colors is not None else np.tile(m.material.base_color, (len(m.positions), 1))
+            mesh = trimesh.Trimesh(m.positions, m.indices, vertex_normals=m.normals, process=False,
+                                   vertex_colors=(np.clip(colors, 0, 1) * 255).astype(np.uint8))
+            scene.add_geometry(mesh, node_name=f"{m.name}-{k}", transform=mtx)
+    scene.export(path)
+    return str(path)
+
+
+def _measure(tool: str, job: dict, repeat: int, cold_repeat: int) -> dict:
+    cmd = [sys.executable, "-m", "bench.thumbnail", tool, json.dumps(job)]
+    env = {**os.environ, "PYOPENGL_PLATFORM": "egl"}
+    cwd = Path(__file__).resolve().parents[1]
+    subprocess.run(cmd + ["cold"], check=True, env=env, cwd=cwd, capture_output=True)  # fill caches
+    cold = []
+    for _ in range(cold_repeat):
+        t = time.perf_counter()
+        subprocess.run(cmd + ["cold"], check=True, env=env, cwd=cwd, capture_output=True)
+        cold.append(time.perf_counter() - t)
+    out = subprocess.run(cmd + ["warm", str(repeat)], check=True, env=env, cwd=cwd,
+                         capture_output=True, text=True).stdout
+    warm = json.loads(out.strip().splitlines()[-1])
+    return {"cold_s": statistics.median(cold), "warm_ms": statistics.median(warm["render"]),
+            "warm_png_ms": statistics.median(warm["render_png"]), "warm_cpu_ms": warm["cpu_ms"]}
+
+
+def _print_row(row: dict, tools: list[str]) -> None:
+    parts = [f"{row['asset']:>15} {row['size']:>4}px"]
+    for t in tools:
+        r = row[t]
+        parts.append(f"{t}: cold {r['cold_s']:.2f} s, warm {r['warm_ms']:.1f} ms "
+                     f"(+png {r['warm_png_ms']:.1f}, cpu {r['warm_cpu_ms']:.1f})")
+    print(" | ".join(parts), flush=True)
+
+
+def _print_summary(results: list[dict], tools: list[str]) -> None:
+    peers = [t for t in tools if t != "ours"]
+    if "ours" not in tools or not peers:
+        return
+    print("\nratios, ours / peer (below 1: we are faster)")
+    head = f"{'asset':>15} {'px':>4} " + " ".join(f"{'warm/' + p:>14} {'cpu/' + p:>14} {'cold/' + p:>14}" for p in peers)
+    print(head)
+    for r in results:
+        cells = []
+        for p in peers:
+            cells.append(f"{r['ours']['warm_ms'] / r[p]['warm_ms']:>14.2f}")
+            cells.append(f"{r['ours']['warm_cpu_ms'] / r[p]['warm_cpu_ms']:>14.2f}")
+            cells.append(f"{r['ours']['cold_s'] / r[p]['cold_s']:>14.2f}")
+        print(f"{r['asset']:>15} {r['size']:>4} " + " ".join(cells))
+
+
+# --- workers: one tool, one process -----------------------------------------------------------
+
+def _camera(job: dict):
+    import numpy as np
+    from renderer.camera import frame_bounds
+    return frame_bounds(np.array(job["bounds"]), job["size"], job["size"], **VIEW)
+
+
+def _png(rgb) -> bytes:
+    import io
+    from PIL import Image
+    buf = io.BytesIO()
+    Image.fromarray(rgb).save(buf, "PNG", compress_level=1)
+    return buf.getvalue()
+
+
+def _ours(job: dict):
+    import pipeline
+    from pipeline.environment import default_face_size
+    from renderer import render
+    from renderer.options import RenderOptions
+    asset = pipeline.bake_asset(job["asset"], job["cache"])
+    env = pipeline.bake_environment(job["env"], job["cache"], face_size=default_face_size(job["size"]))
+    options = RenderOptions(width=job["size"], height=job["size"], **VIEW)
+    return lambda: render(asset, env, options).rgba8
+
+
+def _pyrender(job: dict):
+    import numpy as np
+    import pyrender
+    import trimesh
+    scene = pyrender.Scene.from_trimesh_scene(trimesh.load(job["peer_file"]), ambient_light=[0.3] * 3)
+    cam = _camera(job)
+    pose = np.linalg.inv(cam.view_matrix())
+    scene.add(pyrender.PerspectiveCamera(yfov=np.radians(cam.fov), aspectRatio=cam.aspect,
+                                         znear=cam.near, zfar=cam.far), pose=pose)
+    scene.add(pyrender.DirectionalLight(intensity=3.0), pose=pose)
+    r = pyrender.OffscreenRenderer(job["size"], job["size"])
+    return lambda: r.render(scene)[0]
+
+
+def _f3d(job: dict):
+    import f3d
+    import numpy as np
+    f3d.Engine.autoload_plugins()
+    eng = f3d.Engine.create_egl()
+    eng.options.update({"render.hdri.file": job["panorama"], "render.hdri.ambient": True,
+                        "render.background.skybox": "enabled",
+                        "render.effect.antialiasing.mode": "fxaa", "render.effect.tone_mapping": True})
+    eng.window.size = (job["size"], job["size"])
+    eng.scene.add(job["peer_file"])
+    cam = _camera(job)
+    c = eng.window.camera
+    c.position, c.focal_point, c.view_up = (tuple(map(float, v)) for v in (cam.position, cam.target, cam.up))
+    c.view_angle = cam.fov
+
+    def shot():
+        img = eng.window.render_to_image()
+        return np.frombuffer(img.content, np.uint8).reshape(img.height, img.width, img.channel_count)[::-1]
+    return shot
+
+
+def _worker(tool: str, job: dict, mode: str, repeat: int) -> None:
+    shot = {"ours": _ours, "pyrender": _pyrender, "f3d": _f3d}[tool](job)
+    if mode == "cold":
+        Path(job["out"]).write_bytes(_png(shot()))
+        return
+    shot()
+    render_ms, png_ms = [], []
+    cpu0 = _cpu()
+    for _ in range(repeat):
+        t = time.perf_counter()
+        img = shot()
+        t1 = time.perf_counter()
+        _png(img)
+        t2 = time.perf_counter()
+        render_ms.append((t1 - t) * 1e3)
+        png_ms.append((t2 - t) * 1e3)
+    cpu_ms = (_cpu() - cpu0) / repeat * 1e3
+    print(json.dumps({"render": render_ms, "render_png": png_ms, "cpu_ms": cpu_ms}))
+
+
+def _cpu() -> float:
+    """CPU seconds of this process, all threads (llvmpipe's included): the work a thumbnail
+    costs, less disturbed than wall time by other jobs on a shared machine."""
+    import resource
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+if __name__ == "__main__":
+    _worker(sys.argv[1], json.loads(sys.argv[2]), sys.argv[3], int(sys.argv[4]) if len(sys.argv) > 4 else 0)

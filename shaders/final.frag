@@ -1,0 +1,89 @@
+#version 430
+// The one pass after the geometry: resolves the MSAA samples, puts the background behind
+// the asset, and turns linear radiance into display pixels (exposure, tone mapping, sRGB).
+// Doing the background here, once per pixel instead of per sample, and resolving here
+// instead of with a blit, is what makes MSAA affordable on a CPU rasteriser.
+// Outputs: 0 = display RGBA8 (straight alpha), 1 = linear RGBA float (premultiplied).
+// renderer/frame.py holds the same tone-mapping arithmetic in numpy.
+#include "ibl.glsl"
+
+#if SAMPLES > 1
+uniform sampler2DMS u_frame;
+#else
+uniform sampler2D u_frame;
+#endif
+uniform int u_height;
+uniform float u_exposure_scale; // 2^EV
+uniform vec3 u_background;      // BACKGROUND 1: sRGB colour
+uniform mat3 u_camera_basis;    // BACKGROUND 2: columns right, up, forward (world)
+uniform vec2 u_tan_half_fov;    //   x horizontal, y vertical
+uniform float u_blur;           //   roughness of the environment mip shown
+in vec2 v_ndc;
+layout(location = 0) out vec4 f_display;
+layout(location = 1) out vec4 f_linear;
+
+vec3 pbr_neutral(vec3 c) {  // Khronos PBR Neutral
+    const float start = 0.8 - 0.04;
+    const float desat = 0.15;
+    float x = min(c.r, min(c.g, c.b));
+    float offset = x < 0.08 ? x - 6.25 * x * x : 0.04;
+    c -= offset;
+    float peak = max(c.r, max(c.g, c.b));
+    if (peak < start) return c;
+    const float d = 1.0 - start;
+    float new_peak = 1.0 - d * d / (peak + d - start);
+    c *= new_peak / peak;
+    float g = 1.0 - 1.0 / (desat * (peak - new_peak) + 1.0);
+    return mix(c, vec3(new_peak), g);
+}
+
+vec3 aces_hill(vec3 c) {  // Stephen Hill's RRT+ODT fit, 1/0.6 bias as the glTF Sample Viewer
+    const mat3 ACES_IN = mat3(0.59719, 0.07600, 0.02840, 0.35458, 0.90834, 0.13383,
+                              0.04823, 0.01566, 0.83777);
+    const mat3 ACES_OUT = mat3(1.60475, -0.10208, -0.00327, -0.53108, 1.10813, -0.07276,
+                               -0.07367, -0.00605, 1.07602);
+    c = ACES_IN * (c / 0.6);
+    c = (c * (c + 0.0245786) - 0.000090537) / (c * (0.983729 * c + 0.4329510) + 0.238081);
+    return ACES_OUT * c;
+}
+
+vec3 display(vec3 c) {
+    c = max(c, vec3(0.0)) * u_exposure_scale;
+#if TONEMAP == 1
+    c = pbr_neutral(c);
+#elif TONEMAP == 2
+    c = aces_hill(c);
+#endif
+    c = clamp(c, 0.0, 1.0);
+    return mix(12.92 * c, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(vec3(0.0031308), c));
+}
+
+void main() {
+    // Output row 0 is the image top (what numpy and image files expect), so the source row
+    // and the view direction are flipped vertically.
+    ivec2 xy = ivec2(gl_FragCoord.x, u_height - 1 - int(gl_FragCoord.y));
+#if SAMPLES > 1
+    vec4 p = vec4(0.0);
+    for (int i = 0; i < SAMPLES; ++i) p += texelFetch(u_frame, xy, i);
+    p /= float(SAMPLES);
+#else
+    vec4 p = texelFetch(u_frame, xy, 0);
+#endif
+    // A NaN from any shader stops here rather than reaching an image.
+    if (any(isnan(p)) || any(isinf(p))) p = vec4(0.0);
+    float a = clamp(p.a, 0.0, 1.0);
+#if BACKGROUND == 2
+    vec3 d = u_camera_basis * vec3(vec2(v_ndc.x, -v_ndc.y) * u_tan_half_fov, 1.0);
+    vec3 c = p.rgb + (1.0 - a) * env_radiance(normalize(d), u_blur);
+    f_linear = vec4(c, 1.0);
+    f_display = vec4(display(c), 1.0);
+#elif BACKGROUND == 1
+    vec3 bg = u_background;
+    vec3 bg_linear = mix(bg / 12.92, pow((bg + 0.055) / 1.055, vec3(2.4)), step(vec3(0.04045), bg));
+    f_linear = vec4(p.rgb + (1.0 - a) * bg_linear, 1.0);
+    f_display = vec4(display(p.rgb / max(a, 1e-6)) * a + bg * (1.0 - a), 1.0);
+#else
+    f_linear = vec4(p.rgb, a);
+    f_display = vec4(display(p.rgb / max(a, 1e-6)), a);
+#endif
+}
