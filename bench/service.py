@@ -1,0 +1,287 @@
+"""Thumbnail service under load: cached thumbnails, warm renders, cold uploads, over HTTP.
+
+Starts `asset-preview serve` on a free loopback port with a fresh cache, then drives it for a
+bounded time per phase with `wrk` when it is installed (C, one thread, a Lua script for
+per-request URLs and exact percentiles) or else an asyncio httpx client (which saturates
+sooner: the client shares the CPU and is itself Python). Peers, measured in the same run:
+
+- cached: a bare Starlette app on the same uvicorn returning the same image bytes from
+  memory: the floor of this HTTP stack, so the ratio is what our routing, validation, cache
+  lookup and metrics cost;
+- warm render: the same render called in-process (`renderer.render` + encode, warm), so the
+  difference is HTTP, the worker pipe and the cache write;
+- cold upload: the same work in-process (`load_scene` + `bake_asset` + first render).
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import shutil
+import statistics
+import struct
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED_DUCK = ROOT.parent / "shared" / "assets" / "gltf" / "Duck.glb"
+PACKAGED_DUCK = ROOT / "service" / "samples" / "Duck.glb"
+
+_WRK_SCRIPT = """
+counter = 0
+request = function()
+  if vary then
+    counter = counter + 1
+    return wrk.format("GET", wrk.path .. "&yaw=" .. string.format("%.2f", 0.01 * counter))
+  end
+  return wrk.format("GET", wrk.path)
+end
+done = function(summary, latency, requests)
+  local bad = summary.errors.status + summary.errors.connect + summary.errors.read
+            + summary.errors.write + summary.errors.timeout
+  io.write(string.format("RESULT %d %d %d %d %d\\n", latency:percentile(50), latency:percentile(99),
+                         summary.requests, summary.duration, bad))
+end
+"""
+
+_PEER_APP = """
+import sys, uvicorn
+from starlette.applications import Starlette
+from starlette.responses import Response
+from starlette.routing import Route
+data = open(sys.argv[1], "rb").read()
+async def image(request):
+    return Response(data, media_type="image/png", headers={"ETag": '"x"', "Cache-Control": "max-age=60"})
+app = Starlette(routes=[Route("/image", image)])
+uvicorn.run(app, host="127.0.0.1", port=int(sys.argv[2]), log_level="warning", access_log=False)
+"""
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--duration", type=float, default=8.0, help="seconds per load phase")
+    parser.add_argument("--connections", type=int, default=16, help="concurrent clients (throughput)")
+    parser.add_argument("--workers", type=int, default=2, help="render worker processes")
+    parser.add_argument("--size", type=int, default=256, help="thumbnail size in pixels")
+    parser.add_argument("--uploads", type=int, default=8, help="cold uploads to time")
+    parser.add_argument("--tool", choices=["auto", "wrk", "httpx"], default="auto",
+                        help="load generator (auto: wrk when installed)")
+    parser.add_argument("--json", action="store_true", help="print the results as JSON too")
+
+
+def _free_port() -> int:
+    import socket
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _wait_http(url: str, timeout: float = 120) -> None:
+    import httpx
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        try:
+            if httpx.get(url, timeout=5).status_code == 200:
+                return
+        except httpx.TransportError:
+            pass
+        time.sleep(0.2)
+    raise TimeoutError(f"{url} did not answer within {timeout} s")
+
+
+class Load:
+    """Drive one URL (optionally a fresh yaw per request) and return (p50 ms, p99 ms, req/s, bad)."""
+
+    def __init__(self, tool: str):
+        self.tool = "wrk" if tool == "wrk" or (tool == "auto" and shutil.which("wrk")) else "httpx"
+        if tool == "wrk" and not shutil.which("wrk"):
+            raise SystemExit("wrk is not installed (apt-get install -y wrk)")
+        self._script = None
+
+    def __call__(self, url: str, connections: int, duration: float, vary: bool = False):
+        if self.tool == "wrk":
+            return self._wrk(url, connections, duration, vary)
+        return asyncio.run(self._httpx(url, connections, duration, vary))
+
+    def _wrk(self, url, connections, duration, vary):
+        if self._script is None:
+            fd, self._script = tempfile.mkstemp(suffix=".lua")
+            os.write(fd, _WRK_SCRIPT.encode())
+            os.close(fd)
+        script = self._script
+        if vary:
+            fd, script = tempfile.mkstemp(suffix=".lua")
+            os.write(fd, b"vary = true\n" + _WRK_SCRIPT.encode())
+            os.close(fd)
+        out = subprocess.run(["wrk", "-t1", f"-c{connections}", f"-d{max(1, round(duration))}s",
+                              "--timeout", "60s", "-s", script, url],
+                             capture_output=True, text=True, check=True).stdout
+        line = next(l for l in out.splitlines() if l.startswith("RESULT"))
+        p50, p99, n, dur_us, bad = (int(x) for x in line.split()[1:])
+        return p50 / 1000, p99 / 1000, n / (dur_us / 1e6), bad
+
+    async def _httpx(self, url, connections, duration, vary):
+        import httpx
+        latencies: list[float] = []
+        bad = 0
+        counter = 0
+        end = time.perf_counter() + duration
+        limits = httpx.Limits(max_connections=connections, max_keepalive_connections=connections)
+        async with httpx.AsyncClient(limits=limits, timeout=60) as client:
+            async def one_client():
+                nonlocal bad, counter
+                while time.perf_counter() < end:
+                    counter += 1
+                    target = f"{url}&yaw={0.01 * counter:.2f}" if vary else url
+                    t0 = time.perf_counter()
+                    r = await client.get(target)
+                    latencies.append(time.perf_counter() - t0)
+                    bad += r.status_code != 200
+            start = time.perf_counter()
+            await asyncio.gather(*(one_client() for _ in range(connections)))
+            elapsed = time.perf_counter() - start
+        q = statistics.quantiles(latencies, n=100) if len(latencies) > 1 else latencies * 99
+        return 1000 * statistics.median(latencies), 1000 * q[98], len(latencies) / elapsed, bad
+
+
+def _distinct_glb(data: bytes, n: int) -> bytes:
+    """The same GLB with 4*n spaces padding its JSON chunk: valid, and different bytes (so a
+    new asset id and a real upload, ingest and bake each time)."""
+    json_len = struct.unpack_from("<I", data, 12)[0]
+    pad = b" " * (4 * n)
+    body = data[20:20 + json_len] + pad
+    rest = data[20 + json_len:]
+    header = struct.pack("<4sII", b"glTF", 2, 12 + 8 + len(body) + len(rest))
+    return header + struct.pack("<I4s", len(body), b"JSON") + body + rest
+
+
+def _stats(values: list[float]) -> tuple[float, float]:
+    values = sorted(values)
+    return statistics.median(values), values[min(len(values) - 1, round(0.99 * (len(values) - 1)))]
+
+
+def run(args: argparse.Namespace) -> int:
+    import httpx
+
+    duck = SHARED_DUCK if SHARED_DUCK.is_file() else PACKAGED_DUCK
+    duck_bytes = duck.read_bytes()
+    load = Load(args.tool)
+    tmp = Path(tempfile.mkdtemp(prefix="bench-service-"))
+    port, peer_port = _free_port(), _free_port()
+    base = f"http://127.0.0.1:{port}"
+    env = {k: v for k, v in os.environ.items() if not k.startswith("ASSET_PREVIEW_")}
+    server = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--port", str(port),
+                               "--cache", str(tmp / "cache"), "--workers", str(args.workers),
+                               "--no-seed", "--log-level", "warning"],
+                              cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    peer = None
+    rows: list[tuple] = []
+    try:
+        _wait_http(f"{base}/readyz")
+        client = httpx.Client(base_url=base, timeout=120)
+        asset_id = client.post("/assets", files={"file": ("Duck.glb", duck_bytes)}).json()["id"]
+        thumb = f"{base}/assets/{asset_id}/thumbnail?size={args.size}"
+        first = client.get(thumb)  # waits for the bake, renders, caches
+        assert first.status_code == 200, first.text
+        png = tmp / "thumb.png"
+        png.write_bytes(first.content)
+
+        # 1. Cached thumbnails, and the bare-Starlette floor serving the same bytes.
+        peer = subprocess.Popen([sys.executable, "-c", _PEER_APP, str(png), str(peer_port)],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        _wait_http(f"http://127.0.0.1:{peer_port}/image")
+        for label, url in (("cached thumbnail", thumb), ("peer: bare Starlette, same bytes",
+                                                        f"http://127.0.0.1:{peer_port}/image?size=256")):
+            p50, p99, _, bad1 = load(url, 1, args.duration / 2)
+            _, _, rps, bad2 = load(url, args.connections, args.duration / 2)
+            rows.append((label, 1, p50, p99, rps, args.connections, bad1 + bad2))
+        peer.terminate()
+        peer.wait()
+        peer = None
+
+        # 2. Warm renders: every request a new yaw (a cache miss) of the baked, uploaded Duck.
+        for i in range(2 * args.workers):  # every worker has the asset and environment on its GPU
+            client.get(thumb + f"&yaw={-1 - i}")
+        p50, p99, _, bad1 = load(thumb, 1, args.duration, vary=True)
+        _, _, rps, bad2 = load(thumb + "&pitch=14", args.workers, args.duration, vary=True)
+        rows.append((f"warm render {args.size} px", 1, p50, p99, rps, args.workers, bad1 + bad2))
+
+        # 3. Cold uploads: new bytes each time -> POST (ingest) and first thumbnail (bake+render).
+        post_ms, first_ms = [], []
+        for n in range(1, args.uploads + 1):
+            data = _distinct_glb(duck_bytes, n)
+            t0 = time.perf_counter()
+            r = client.post("/assets", files={"file": (f"duck{n}.glb", data)})
+            t1 = time.perf_counter()
+            assert r.status_code == 201, r.text
+            img = client.get(f"/assets/{r.json()['id']}/thumbnail", params={"size": args.size})
+            t2 = time.perf_counter()
+            assert img.status_code == 200, img.text
+            post_ms.append(1000 * (t1 - t0))
+            first_ms.append(1000 * (t2 - t0))
+        rows.append(("cold upload: POST -> 201", 1, *_stats(post_ms), 1000 / statistics.median(post_ms), 1, 0))
+        rows.append(("cold upload -> first thumbnail", 1, *_stats(first_ms),
+                     1000 / statistics.median(first_ms), 1, 0))
+        client.close()
+    finally:
+        if peer is not None:
+            peer.terminate()
+        server.terminate()
+        server.wait(timeout=30)
+
+    # Peers of the render phases: the same work in this process, after the server is gone.
+    warm_ms, cold_ms = _in_process(duck_bytes, tmp / "inproc", args.size, args.uploads)
+    rows.append(("peer: in-process render+encode", 1, *_stats(warm_ms), 1000 / statistics.median(warm_ms), 1, 0))
+    rows.append(("peer: in-process ingest+bake+render", 1, *_stats(cold_ms),
+                 1000 / statistics.median(cold_ms), 1, 0))
+    shutil.rmtree(tmp, ignore_errors=True)
+    _print(rows, load.tool, args)
+    return 0
+
+
+def _in_process(duck_bytes: bytes, folder: Path, size: int, uploads: int):
+    import pipeline
+    import renderer
+    from renderer.options import RenderOptions
+
+    folder.mkdir(parents=True)
+    cache = folder / "cache"
+    env = pipeline.bake_environment("footprint_court", cache)
+    warm, cold = [], []
+    for n in range(1, uploads + 1):
+        path = folder / f"duck{n}.glb"
+        path.write_bytes(_distinct_glb(duck_bytes, 1000 + n))
+        t0 = time.perf_counter()
+        pipeline.load_scene(path)
+        asset = pipeline.bake_asset(path, cache)
+        renderer.render(asset, env, RenderOptions(width=size, height=size, yaw=30, pitch=15)).encode("png")
+        cold.append(1000 * (time.perf_counter() - t0))
+    for i in range(20):
+        t0 = time.perf_counter()
+        renderer.render(asset, env, RenderOptions(width=size, height=size, yaw=i, pitch=15)).encode("png")
+        if i >= 2:
+            warm.append(1000 * (time.perf_counter() - t0))
+    return warm, cold
+
+
+def _print(rows, tool: str, args) -> None:
+    print(f"asset-preview bench service  (load: {tool}, {os.cpu_count()} CPUs, "
+          f"{args.workers} render workers, Duck.glb at {args.size} px)")
+    print(f"{'phase':38} {'p50 ms':>8} {'p99 ms':>8} {'req/s':>9}  (latency at 1 client, req/s at N)  bad")
+    for label, _, p50, p99, rps, conns, bad in rows:
+        print(f"{label:38} {p50:8.2f} {p99:8.2f} {rps:9.1f}  N={conns:<3} {bad:>31}")
+    by = {r[0]: r for r in rows}
+    cached, floor = by["cached thumbnail"], by["peer: bare Starlette, same bytes"]
+    warm = by[f"warm render {args.size} px"]
+    inproc = by["peer: in-process render+encode"]
+    print(f"cached vs bare Starlette: p50 x{cached[2] / floor[2]:.2f}, req/s x{cached[4] / floor[4]:.2f}")
+    print(f"warm render over HTTP vs in-process: p50 x{warm[2] / inproc[2]:.2f} "
+          f"(+{warm[2] - inproc[2]:.1f} ms for HTTP, worker pipe and cache write)")
+    print(f"targets: cached p50 <= 2 ms: {cached[2]:.2f} ms; cached >= 1000 req/s: {cached[4]:.0f}; "
+          f"warm {args.size} px p50 <= 30 ms: {warm[2]:.1f} ms")
+    if args.json:
+        print(json.dumps([dict(zip(("phase", "clients_latency", "p50_ms", "p99_ms", "req_s",
+                                    "clients_throughput", "bad"), r)) for r in rows]))
