@@ -97,15 +97,20 @@ def _measure(tool: str, job: dict, repeat: int, cold_repeat: int) -> dict:
     cmd = [sys.executable, "-m", "bench.thumbnail", tool, json.dumps(job)]
     env = {**os.environ, "PYOPENGL_PLATFORM": "egl"}
     cwd = Path(__file__).resolve().parents[1]
-    subprocess.run(cmd + ["cold"], check=True, env=env, cwd=cwd, capture_output=True)  # fill caches
+
+    def worker(*extra) -> str:
+        p = subprocess.run(cmd + list(extra), env=env, cwd=cwd, capture_output=True, text=True)
+        if p.returncode:
+            raise RuntimeError(f"{tool} worker failed:\n{p.stderr[-2000:]}")
+        return p.stdout
+
+    worker("cold")  # fill the disk caches
     cold = []
     for _ in range(cold_repeat):
         t = time.perf_counter()
-        subprocess.run(cmd + ["cold"], check=True, env=env, cwd=cwd, capture_output=True)
+        worker("cold")
         cold.append(time.perf_counter() - t)
-    out = subprocess.run(cmd + ["warm", str(repeat)], check=True, env=env, cwd=cwd,
-                         capture_output=True, text=True).stdout
-    warm = json.loads(out.strip().splitlines()[-1])
+    warm = json.loads(worker("warm", str(repeat)).strip().splitlines()[-1])
     return {"cold_s": statistics.median(cold), "warm_ms": statistics.median(warm["render"]),
             "warm_png_ms": statistics.median(warm["render_png"]), "warm_cpu_ms": warm["cpu_ms"]}
 
