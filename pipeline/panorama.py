@@ -92,11 +92,12 @@ def srgb_to_linear(rgb8: np.ndarray) -> np.ndarray:
 
 
 def _sanitize(pixels: np.ndarray, path: Path) -> np.ndarray:
-    """HDR files may hold NaN, inf or negative values: make them 0 / the float16 max, warn."""
+    """HDR files may hold NaN, inf, negative or huge values: NaN and negatives become 0, the rest
+    is clamped to the float16 maximum (65504) so that half-float caches and GL sums stay finite."""
     pixels = np.ascontiguousarray(pixels, dtype=np.float32)
-    bad = ~np.isfinite(pixels) | (pixels < 0)
+    bad = ~(np.abs(pixels - 32752.0) <= 32752.0)  # outside [0, 65504], NaN included
     if bad.any():
-        log.warning("%s: %d non-finite or negative values replaced", path, int(bad.sum()))
+        log.warning("%s: %d NaN, negative or out-of-range values clamped", path, int(bad.sum()))
         pixels = np.clip(np.nan_to_num(pixels, nan=0.0, posinf=65504.0), 0.0, 65504.0)
     return pixels
 
@@ -246,7 +247,8 @@ def synthetic_panorama(kind: str = "sky_sun", width: int = 512) -> np.ndarray:
     """A width x width/2 x 3 float32 linear panorama made in code (HDR values allowed):
     white (a furnace of radiance 1), gradient (smooth sky-to-ground colours), sky_sun
     (gradient plus a sun disc of radiance SUN_RADIANCE and SUN_RADIUS_DEG in SUN_DIRECTION),
-    checker (a 16 x 8 checkerboard of 0.05 / 1, sharp edges for seam and aliasing checks)."""
+    checker (a 16 x 8 checkerboard of 0.05 / 1 whose vertical edges include the cube's
+    vertical edges: the worst case for per-face filtering)."""
     if kind not in SYNTHETIC:
         raise ValueError(f"unknown synthetic panorama {kind!r}; one of {SYNTHETIC}")
     h = width // 2
