@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import Callable
@@ -153,9 +154,17 @@ def render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions) -> 
     """Render `asset` lit by `env` as `options` say. Raises UnsupportedMethod or ValueError
     for options this build cannot honour."""
     _load_plugins()
-    _validate(options)
+    validate_options(options)
     if options.method in _FRAME_METHODS:
         return _FRAME_METHODS[options.method](asset, env, options)
+    with _lock:  # one GL context per process: one frame at a time
+        return _render(asset, env, options)
+
+
+_lock = threading.RLock()
+
+
+def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions) -> Frame:
     t0 = time.perf_counter()
     ctx = context.get_context()
     uploads_before = dict(gpu.stats)
@@ -216,7 +225,8 @@ def render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions) -> 
     return Frame(linear, rgba8, plan, timings)
 
 
-def _validate(o: RenderOptions) -> None:
+def validate_options(o: RenderOptions) -> None:
+    """Raise ValueError (UnsupportedMethod for methods) for options this build cannot honour."""
     if not (1 <= o.width and 1 <= o.height and o.width * o.height <= MAX_PIXELS):
         raise ValueError(f"image size {o.width}x{o.height} is outside 1..{MAX_PIXELS} pixels")
     if o.tonemap not in _TONEMAPS:
@@ -401,7 +411,8 @@ def _draw_opaque(p: Pass, items: list[DrawItem]) -> None:
 
 
 def _draw_blend(p: Pass, items: list[DrawItem]) -> None:
-    """Back to front by instance centre; each instance drawn as its own draw (rarely many)."""
+    """Meshes back to front by the distance of their first instance's centre (a mesh's own
+    instances are not sorted among themselves)."""
     eye = p.camera.position
     order = sorted(((float(np.linalg.norm(c - eye)), i, it) for i, it in enumerate(items)
                     for c in it.mesh.centers[:1]), key=lambda t: -t[0])

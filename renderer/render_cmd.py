@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     from pipeline.panorama import DEFAULT_ENVIRONMENT
 
     from .options import RenderOptions
-    from .render import UnsupportedMethod, render
+    from .render import UnsupportedMethod, render, validate_options
 
     width = args.width or args.size
     height = args.height or args.size
@@ -72,8 +72,7 @@ def run(args: argparse.Namespace) -> int:
             exposure=args.exposure, background=args.background, background_blur=args.blur,
             override=override, msaa=args.msaa, lights=not args.no_lights,
             multiscatter=args.multiscatter)
-        from .render import _validate
-        _validate(options)  # reject bad options before spending time on a bake
+        validate_options(options)  # reject bad options before spending time on a bake
     except ValueError as exc:
         return _fail(str(exc))
     asset = pipeline.bake_asset(args.path, args.cache)
