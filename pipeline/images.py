@@ -22,7 +22,7 @@ FORMATS = ("PNG", "JPEG", "WEBP")
 Image.init()
 
 
-def decode_image(data: bytes, source: str, limits: Limits) -> np.ndarray:
+def decode_image(data: bytes | memoryview, source: str, limits: Limits) -> np.ndarray:
     """Decode PNG/JPEG/WebP bytes into an H x W x 4 uint8 array, row 0 at the top.
 
     The size is read from the header (Pillow opens lazily) and checked against
@@ -38,12 +38,13 @@ def decode_image(data: bytes, source: str, limits: Limits) -> np.ndarray:
     return np.ascontiguousarray(arr)
 
 
-def probe_image(data: bytes, source: str, limits: Limits) -> tuple[int, int]:
+def probe_image(data: bytes | memoryview, source: str, limits: Limits) -> tuple[int, int]:
     """Check an encoded image without decoding its pixels: format, size against the limits,
     and that the stream is complete (PNG end chunk, JPEG end marker, WebP RIFF length), which
     catches truncation; damage inside the pixel data shows when the texture is decoded.
     Returns (width, height); raises MalformedAsset or LimitExceeded naming `source`."""
-    if data[:8] == PNG_SIGNATURE and data[12:16] == b"IHDR" and len(data) >= 33:
+    head = bytes(data[:16])
+    if head[:8] == PNG_SIGNATURE and head[12:] == b"IHDR" and len(data) >= 33:
         # PNG's size sits at a fixed place in IHDR: read it without Pillow (a third of ingest
         # time for a small asset); anything odd falls through to Pillow's full header parse.
         w, h, depth, colour = struct.unpack_from(">IIBB", data, 16)
@@ -61,7 +62,7 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 PNG_DEPTHS = {0: (1, 2, 4, 8, 16), 2: (8, 16), 3: (1, 2, 4, 8), 4: (8, 16), 6: (8, 16)}
 
 
-def _open(data: bytes, source: str, limits: Limits) -> Image.Image:
+def _open(data: bytes | memoryview, source: str, limits: Limits) -> Image.Image:
     """Pillow's lazy open (header only), the size checked against our limit."""
     # Pillow's own bomb guard warns past MAX_IMAGE_PIXELS and fails past twice that; keep it
     # at least as high as ours so that ours, with its clearer message, decides.
@@ -80,11 +81,12 @@ def _check_size(w: int, h: int, source: str, limits: Limits) -> None:
 
 
 def _check_complete(fmt: str | None, data: bytes, source: str) -> None:
-    if fmt == "PNG" and b"IEND" not in data[-16:]:
+    tail = bytes(data[-64:])  # `in` on a memoryview would look for one byte, not a sequence
+    if fmt == "PNG" and b"IEND" not in tail[-16:]:
         raise MalformedAsset(source, "PNG image is truncated (no IEND chunk)")
-    if fmt == "JPEG" and b"\xff\xd9" not in data[-64:]:
+    if fmt == "JPEG" and b"\xff\xd9" not in tail:
         raise MalformedAsset(source, "JPEG image is truncated (no end-of-image marker)")
-    if fmt == "WEBP" and len(data) < 8 + int.from_bytes(data[4:8], "little"):
+    if fmt == "WEBP" and len(data) < 8 + int.from_bytes(bytes(data[4:8]), "little"):
         raise MalformedAsset(source, "WebP image is truncated")
 
 
@@ -112,7 +114,7 @@ class DeferredTexture(Texture):
     becomes a warning; decoding waits until something needs the pixels (a bake), so inspecting
     an asset or hashing it never pays for it. Behaves as a Texture otherwise (pickles too)."""
 
-    def __init__(self, name: str, data: bytes, size: tuple[int, int], limits: Limits,
+    def __init__(self, name: str, data: bytes | memoryview, size: tuple[int, int], limits: Limits,
                  sampler: Sampler | None = None, source: str = ""):
         self._data, self._limits, self.size = data, limits, size
         super().__init__(name=name, image=None, sampler=sampler or Sampler(), source=source)
@@ -127,6 +129,12 @@ class DeferredTexture(Texture):
     @image.setter
     def image(self, value: np.ndarray | None) -> None:
         self._image = value
+
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        if isinstance(state.get("_data"), memoryview):  # a view into the asset file's bytes
+            state["_data"] = bytes(state["_data"])
+        return state
 
     def __repr__(self) -> str:
         state = "decoded" if self._image is not None else "not decoded yet"

@@ -389,12 +389,12 @@ class _Reader:
         self._texture_map[index] = result
         return result
 
-    def _image(self, source: int, img: dict) -> tuple[bytes, tuple[int, int], str] | None:
+    def _image(self, source: int, img: dict) -> tuple[bytes | memoryview, tuple[int, int], str] | None:
         """An image's encoded bytes, size and label, probed once; None (warned) if unusable."""
         if source in self._images:
             return self._images[source]
         if "bufferView" in img:
-            data = bytes(self._view(self._int(img, "bufferView"))[0])
+            data = self._view(self._int(img, "bufferView"))[0]  # no copy: decoded later
             label = f"{self.path} image {source}"
         elif "uri" in img:
             data = self._payload(img["uri"], f"image {source}")
