@@ -135,6 +135,19 @@ def test_concurrent_bakes_from_two_processes(assets, tmp_path):
     assert again.textures[0].image.shape[2] == 4  # whole, checksums included
 
 
+def test_race_loser_discards_its_copy(tmp_path, caplog):
+    cache = Cache(tmp_path)
+    key = "ab" * 32
+    first = cache.store("assets", key, {"who": "first"}, {"a.npz": {"x": np.arange(3)}})
+    with caplog.at_level(logging.INFO, logger="pipeline.cache"):
+        cache.store("assets", key, {"who": "second"}, {"a.npz": {"x": np.arange(3)}})
+    assert "stored concurrently" in caplog.text
+    entry = cache.load("assets", key)
+    assert entry.manifest["who"] == "first" and first.path == entry.path
+    np.testing.assert_array_equal(entry.arrays["a.npz"]["x"], np.arange(3))
+    assert list((tmp_path / "tmp").iterdir()) == []
+
+
 def test_transmissive_asset_round_trip_keeps_interior(tmp_path):
     from bench.scenes import scene, write_glb
     path = write_glb(scene("glass_ellipsoid_311_ior1.5"), tmp_path / "glass.glb")
