@@ -82,7 +82,7 @@ class ThumbnailService:
         await self.pool.stop()
 
     async def _warm_up_then_resume(self) -> None:
-        await self.pool.warm_up(self.settings.ingest_seconds)
+        await self.pool.warm_up()
         if self.pool.info.get("renderer_version"):
             self.renderer_version = self.pool.info["renderer_version"]
         # A bake the last server did not finish is redone (the pipeline's cache makes a

@@ -18,6 +18,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--bake-seconds", type=float, help="deadline of one bake")
     parser.add_argument("--no-seed", dest="seed", action="store_false", default=None,
                         help="do not seed the sample assets into an empty store")
+    parser.add_argument("--access-log", action="store_true", help="log every request (off: /metrics counts them)")
     parser.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
 
 
@@ -36,6 +37,6 @@ def run(args: argparse.Namespace) -> int:
         max_queue=args.max_queue, render_seconds=args.render_seconds, bake_seconds=args.bake_seconds,
         seed=args.seed)
     config = uvicorn.Config(create_app(settings), host=args.host, port=args.port,
-                            log_level=args.log_level, access_log=False, timeout_graceful_shutdown=10)
+                            log_level=args.log_level, access_log=args.access_log, timeout_graceful_shutdown=10)
     uvicorn.Server(config).run()
     return 0

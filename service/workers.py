@@ -194,6 +194,8 @@ class WorkerPool:
         self._ctx = mp.get_context("spawn")
         self.workers = [Worker(i) for i in range(size)]
         self._idle: asyncio.Queue[Worker] | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._tasks: set[asyncio.Task] = set()
         self.pending = 0  # jobs counted against the queue bound (waiting or running)
         self.info: dict = {}
         self._closing = False
@@ -204,19 +206,14 @@ class WorkerPool:
 
     async def start(self) -> None:
         self._idle = asyncio.Queue()
-        loop = asyncio.get_running_loop()
+        self._loop = loop = asyncio.get_running_loop()
         await asyncio.gather(*(loop.run_in_executor(self._executor, self._spawn, w) for w in self.workers))
         for w in self.workers:
             self._idle.put_nowait(w)
 
-    async def warm_up(self, deadline: float = 120.0) -> None:
+    async def warm_up(self) -> None:
         """Ping every worker once (creates its GL context); readiness follows the first answer."""
-        async def one():
-            try:
-                self.info = await self.run("ping", deadline=deadline, queue=False)
-            except Exception as exc:
-                log.error("worker warm-up failed: %s", exc)
-        await asyncio.gather(*(one() for _ in self.workers))
+        await asyncio.gather(*(self._ping() for _ in self.workers))
 
     async def stop(self) -> None:
         self._closing = True
@@ -258,6 +255,19 @@ class WorkerPool:
         self.on_restart(reason)
         log.warning("render worker %d (pid %s) %s; restarting it", w.index, w.pid, reason)
         self._spawn(w)
+        # Warm the new worker (GL context) without holding up the failed request's answer.
+        self._loop.call_soon_threadsafe(self._ping_soon)
+
+    def _ping_soon(self) -> None:
+        task = self._loop.create_task(self._ping())
+        self._tasks.add(task)  # the loop keeps only weak references to tasks
+        task.add_done_callback(self._tasks.discard)
+
+    async def _ping(self) -> None:
+        try:
+            self.info = await self.run("ping", deadline=120, queue=False)
+        except Exception as exc:  # logged; readiness stays false until a worker answers
+            log.error("render worker warm-up failed: %s", exc)
 
     # -- jobs -------------------------------------------------------------------------------
 
