@@ -20,7 +20,7 @@ import numpy as np
 
 from .baked import BakedAsset, BakedEnvironment, BakedMesh
 from .cache import BAKE_FORMAT_VERSION, Cache, Entry, NotInCache, SourceFiles
-from .errors import MissingFile
+from .errors import MissingFile, UnsupportedFormat
 from .interior import interior_vectors
 from .limits import Limits
 from .scene import Light, Material, Sampler, Scene, Texture, TextureRef
@@ -83,18 +83,22 @@ def bake_or_load_asset(path, cache_dir=None, *, force: bool = False, limits: Lim
     opts = {**ASSET_OPTIONS, **options}
     cache = _cache(cache_dir)
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise MissingFile(path, "no such file")
-    if not force:
-        key = cache.lookup_source("assets", path, opts)
-        entry = key and cache.load("assets", key, lazy=_is_texture)
-        if entry:
-            return unpack_asset(entry), True
-
-    start = time.perf_counter()
-    scene = load_scene(path, limits)
-    ingest_s = time.perf_counter() - start
-    source = SourceFiles.hash(path, scene.files)
+    if not path.is_file():
+        raise UnsupportedFormat(path, "not a regular file")
+    try:
+        if not force:
+            key = cache.lookup_source("assets", path, opts)
+            entry = key and cache.load("assets", key, lazy=_is_texture)
+            if entry:
+                return unpack_asset(entry), True
+        start = time.perf_counter()
+        scene = load_scene(path, limits)
+        ingest_s = time.perf_counter() - start
+        source = SourceFiles.hash(path, scene.files)
+    except (FileNotFoundError, PermissionError, IsADirectoryError) as exc:  # changed under us
+        raise MissingFile(exc.filename or path, f"cannot read: {exc.strerror}") from None
     key = source.key("assets", opts)
     entry = None if force else cache.load("assets", key, lazy=_is_texture)  # same bytes baked from elsewhere
     if entry:
