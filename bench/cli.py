@@ -7,6 +7,7 @@ import importlib
 
 BENCHMARKS = {
     "ingest": ("bench.ingest", "load every sample asset: our load_scene vs trimesh.load"),
+    "bake": ("bench.bake", "interior rays, cold bake vs cache hit, environment prefilter"),
     "thumbnail": ("bench.thumbnail", "PBR+IBL thumbnails cold and warm beside pyrender and f3d"),
     "service": ("bench.service", "HTTP service: cached thumbnails, warm renders, cold uploads"),
     "refraction": ("bench.refraction", "refraction methods: time and error vs Mitsuba per scene"),
