@@ -77,7 +77,7 @@ def load_scene(path, limits: Limits | None = None) -> Scene:
         except Exception as exc:  # a parser choking on hostile bytes must not crash the caller
             log.exception("%s: reader failed", path)
             raise MalformedAsset(path, f"could not be read ({type(exc).__name__}: {exc})") from None
-    own = os.path.realpath(path)
+    own = os.path.abspath(path)
     if own not in scene.files:
         scene.files.insert(0, own)
     if log.isEnabledFor(logging.INFO):
@@ -137,11 +137,12 @@ def _check(mesh: Mesh, path: str) -> int:
     """Type and range checks for one mesh; drops degenerate triangles, returns how many."""
     mesh.positions = np.ascontiguousarray(mesh.positions, np.float32).reshape(-1, 3)
     n = len(mesh.positions)
-    bad = ~np.isfinite(mesh.positions).all(axis=1) if not np.isfinite(mesh.positions.sum()) \
-        else np.zeros(0, bool)  # the sum is finite in the common case: one cheap test
-    if bad.any():
-        raise MalformedAsset(path, f"mesh {mesh.name!r}: {int(bad.sum())} vertex positions are "
-                                   "NaN or infinite")
+    # A finite sum (the common case, one cheap test) means every value is finite.
+    if not np.isfinite(mesh.positions.sum()):
+        bad = int((~np.isfinite(mesh.positions).all(axis=1)).sum())
+        if bad:
+            raise MalformedAsset(path, f"mesh {mesh.name!r}: {bad} vertex positions are NaN or "
+                                       "infinite")
     tri = np.asarray(mesh.indices).reshape(-1, 3)
     if len(tri) and int(tri.max()) >= n:
         raise MalformedAsset(path, f"mesh {mesh.name!r}: index {int(tri.max())} is past the "
@@ -193,8 +194,11 @@ def _flat_normals(mesh: Mesh) -> None:
 
 def _unit_normals(mesh: Mesh) -> np.ndarray:
     """Given normals made unit length; zero or non-finite ones replaced by area-weighted ones."""
-    nrm = np.asarray(mesh.normals, np.float32).reshape(-1, 3)
-    length = np.sqrt(np.einsum("ij,ij->i", nrm, nrm))
+    nrm = np.ascontiguousarray(mesh.normals, np.float32).reshape(-1, 3)
+    length2 = np.einsum("ij,ij->i", nrm, nrm)
+    if len(nrm) and abs(length2 - 1.0).max() < 1e-4:  # already unit, as glTF requires
+        return nrm
+    length = np.sqrt(length2)
     bad = ~(np.isfinite(length) & (length > 1e-12))
     out = nrm / np.where(bad, 1.0, length)[:, None]
     if bad.any():
