@@ -3,7 +3,8 @@
 One result line per input on stdout (`baked`, `cached`, or `failed: REASON`), or one JSON
 object per line with --json; a progress bar on stderr when it is a terminal; a summary on
 stderr. Exit status 0 when everything baked, 3 when anything failed (the rest is still baked).
---workers N bakes in N spawned processes (not forked: EGL and Embree state do not survive fork).
+--workers N bakes in N spawned processes (not forked: EGL and Embree state do not survive fork);
+--executor ray runs the same jobs as Ray tasks on a cluster (pipeline/executors.py).
 """
 from __future__ import annotations
 
@@ -35,6 +36,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         metavar="PX", help="environment cube face size, a power of two (default 256)")
     parser.add_argument("--workers", type=int, default=os.environ.get("ASSET_PREVIEW_WORKERS", "1"),
                         metavar="N", help="bake in N processes (default 1: in this process)")
+    parser.add_argument("--executor", choices=("local", "ray"),
+                        default=os.environ.get("ASSET_PREVIEW_EXECUTOR", "local"),
+                        help="local processes (default), or Ray tasks on a cluster (see --ray-address)")
+    parser.add_argument("--ray-address", default=None, metavar="auto|HOST:PORT|ray://HOST:PORT",
+                        help="Ray cluster to join (default $RAY_ADDRESS, else a new local one)")
     parser.add_argument("--max-size", default=None, metavar="SIZE",
                         help="cap the cache at SIZE (e.g. 2G), evicting least recently used "
                              "entries (default: $ASSET_PREVIEW_CACHE_MAX_BYTES, else no cap)")
@@ -56,6 +62,13 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"error: --max-size: {exc}", file=sys.stderr)
         return 2
+    if args.executor == "ray":
+        from .executors import ExecutorUnavailable, connect
+        try:
+            connect(args.ray_address, num_cpus=args.workers if args.workers > 1 else None)
+        except ExecutorUnavailable as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
     cache = str(args.cache) if args.cache else None
     jobs, failures = _collect(args.paths, cache)
     jobs += [("environment", src) for src in args.env]
@@ -66,7 +79,10 @@ def run(args: argparse.Namespace) -> int:
         report.add(result)
     start = time.perf_counter()
     try:
-        if args.workers == 1 or len(jobs) <= 1:
+        if args.executor == "ray":
+            from .executors import run_ray
+            run_ray(jobs, common, report)
+        elif args.workers == 1 or len(jobs) <= 1:
             for kind, source in jobs:
                 report.add(bake_one(kind, source, **common))
         else:

@@ -311,8 +311,10 @@ class Cache:
         except (OSError, ValueError, TypeError):
             old = []
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}")
-        tmp.write_bytes(json.dumps([record] + old[:_RECORDS_PER_SOURCE - 1]).encode())
+        # Written whole in tmp/ (same filesystem; swept there if we die) and renamed over:
+        # readers on any machine see the old list or the new one, never half of one.
+        tmp = self._tmp_dir("src", create=False)
+        _write(tmp, json.dumps([record] + old[:_RECORDS_PER_SOURCE - 1]).encode())
         os.replace(tmp, path)  # last writer wins; a lost record only costs one rebake
 
     # -- size cap ------------------------------------------------------------------------------

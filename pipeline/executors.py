@@ -1,0 +1,154 @@
+"""Where `asset-bake` runs its jobs beyond this machine: Ray tasks, one per asset or environment.
+
+The unit of work is the local executor's own `bake_cmd.bake_one`, so results, cache keys and
+cache bytes are the same whichever executor ran it; only the fan-out differs. Each environment
+is one task like each asset (so it is baked once per cluster, never once per worker), and the
+content-addressed cache on a shared filesystem makes a job that two nodes run anyway
+(a retry, a second `asset-bake` at once) cost time, never correctness.
+
+Requirements on a cluster: every node sees the asset paths and the cache folder at the same
+absolute paths (one shared filesystem, mounted alike), and runs the same asset-preview version.
+Tasks run in the driver's working directory, so relative paths and result lines read as they
+do locally. ASSET_PREVIEW_* variables of the driver travel with the tasks (limits, cache cap).
+
+Ray is optional (`pip install 'asset-preview[ray]'`): nothing here imports it at module level.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import time
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+RAY_MISSING = ("--executor ray needs Ray, which is not installed: "
+               "pip install 'asset-preview[ray]' (or pip install 'ray>=2.9')")
+MAX_RETRIES = 3  # a task whose worker process dies (crash, OOM kill, lost node) runs again
+IN_FLIGHT_PER_CPU = 4  # tasks submitted ahead of results: bounded driver memory at 100k assets
+
+
+class ExecutorUnavailable(RuntimeError):
+    """The requested executor cannot run here (Ray missing, cluster unreachable)."""
+
+
+def require_ray():
+    """The `ray` module, or ExecutorUnavailable saying how to install it."""
+    try:
+        import ray
+    except ImportError as exc:
+        raise ExecutorUnavailable(RAY_MISSING) from exc
+    return ray
+
+
+def task_env() -> dict:
+    """The runtime_env that carries this process's ASSET_PREVIEW_* settings to Ray workers."""
+    env = {k: v for k, v in os.environ.items() if k.startswith("ASSET_PREVIEW_")}
+    return {"env_vars": env} if env else {}
+
+
+_connected_here = False  # this module called ray.init (so it disconnects when done)
+
+
+def connect(address: str | None = None, num_cpus: int | None = None) -> None:
+    """Join the Ray cluster at `address` ("auto", "HOST:PORT", "ray://HOST:PORT"; default
+    $RAY_ADDRESS, else a new local one on this machine), unless this process already is
+    connected (then that connection is used as it is)."""
+    global _connected_here
+    ray = require_ray()
+    if ray.is_initialized():
+        return
+    address = address or os.environ.get("RAY_ADDRESS") or None
+    kwargs = {"logging_level": logging.WARNING, "log_to_driver": True}
+    try:
+        if address:
+            ray.init(address=address, **kwargs)
+        else:  # a throwaway single-machine cluster: no dashboard, loopback only
+            ray.init(num_cpus=num_cpus, include_dashboard=False, **kwargs)
+    except (ConnectionError, RuntimeError, ValueError) as exc:
+        raise ExecutorUnavailable(f"cannot connect to the Ray cluster at {address or 'a new local one'}: "
+                                  f"{exc}") from exc
+    _connected_here = True
+    log.info("ray: connected to %s (%s CPUs)", address or "a new local cluster",
+             ray.cluster_resources().get("CPU", 0))
+
+
+def disconnect() -> None:
+    """Leave the cluster if `connect` joined it (a caller's own ray.init is left alone)."""
+    global _connected_here
+    if _connected_here:
+        import ray
+        ray.shutdown()
+        _connected_here = False
+
+
+def _bake_task(kind: str, source: str, cwd: str, common: dict) -> dict:
+    """One bake job in a Ray worker, in the driver's working directory when this node has it."""
+    from .bake_cmd import bake_one
+
+    if os.path.isdir(cwd):
+        os.chdir(cwd)
+    elif not os.path.isabs(source) and kind == "asset":
+        return {"kind": kind, "path": source, "status": "failed", "seconds": 0.0,
+                "error": f"{source}: relative path, and the driver's working directory {cwd} "
+                         f"is not mounted on Ray node {_node()}"}
+    return bake_one(kind, source, **common)
+
+
+def _node() -> str:
+    try:
+        import ray
+        return ray.util.get_node_ip_address()
+    except Exception:  # only for a message
+        return "?"
+
+
+def run_ray(jobs: list[tuple[str, str]], common: dict, report, *, address: str | None = None,
+            max_retries: int = MAX_RETRIES) -> None:
+    """Bake `jobs` ((kind, source) pairs) as Ray tasks, passing each result to `report.add`
+    as it arrives; `common` holds `bake_one`'s keyword arguments. Connects (see `connect`)
+    unless connected already, and disconnects when done if it connected."""
+    ray = require_ray()
+    connect(address)
+    common = dict(common)
+    from .cache import default_cache_dir
+    # Absolute, so that a worker that cannot chdir (another mount layout) fails loudly on
+    # the path instead of writing a private cache of its own.
+    common["cache"] = str(Path(common.get("cache") or default_cache_dir()).absolute())
+    options = {"num_cpus": 1, "max_retries": max_retries, "retry_exceptions": False}
+    if env := task_env():
+        options["runtime_env"] = env
+    remote = ray.remote(_bake_task).options(**options)
+    cwd = os.getcwd()
+    window = max(8, int(IN_FLIGHT_PER_CPU * ray.cluster_resources().get("CPU", 1)))
+    todo = list(reversed(jobs))
+    running: dict = {}
+    start = time.perf_counter()
+    try:
+        while todo or running:
+            while todo and len(running) < window:
+                kind, source = todo.pop()
+                running[remote.remote(kind, source, cwd, common)] = (kind, source, time.perf_counter())
+            done, _ = ray.wait(list(running), num_returns=1)
+            for ref in done:
+                kind, source, t0 = running.pop(ref)
+                report.add(_result(ray, ref, kind, source, t0, max_retries))
+    except KeyboardInterrupt:
+        for ref in running:
+            ray.cancel(ref, force=True)
+        raise
+    finally:
+        log.info("ray: %d jobs in %.2f s", len(jobs), time.perf_counter() - start)
+        disconnect()
+
+
+def _result(ray, ref, kind: str, source: str, t0: float, max_retries: int) -> dict:
+    try:
+        return ray.get(ref)
+    except ray.exceptions.WorkerCrashedError:
+        why = (f"the Ray worker baking it died {max_retries + 1} times "
+               "(crash or out of memory); not retried further")
+    except ray.exceptions.RayError as exc:  # node lost, task cancelled, object lost
+        why = f"Ray could not run the bake ({type(exc).__name__}: {str(exc).splitlines()[0][:200]})"
+    return {"kind": kind, "path": source, "status": "failed", "error": f"{source}: {why}",
+            "seconds": round(time.perf_counter() - t0, 4)}
