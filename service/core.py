@@ -124,6 +124,9 @@ class ThumbnailService:
             asset_id = content_id(digest)
             existing = self.store.assets.get(asset_id)
             if existing is not None:
+                if existing["status"] == "failed":  # uploading it again retries the bake
+                    existing = self.store.update_asset(asset_id, status="baking", reason=None)
+                    self.schedule_bake(asset_id)
                 return existing, False
             src = staged / "src"
             if suffix == ".zip":
@@ -141,6 +144,7 @@ class ThumbnailService:
                                               deadline=self.settings.ingest_seconds)
             except JobAssetError as exc:
                 raise _public_error(exc, src, name) from None
+            summary["warnings"] = [_strip(w, src) for w in summary.get("warnings", [])]
             rec = {"id": asset_id, "name": name, "root": root, "size": size, "status": "baking",
                    "reason": None, "created": time.time(), **summary}
             rec = self.store.commit_asset(staged, rec)
@@ -176,7 +180,9 @@ class ThumbnailService:
     def schedule_bake(self, asset_id: str) -> None:
         if asset_id in self._bakes:
             return
-        self._baked.setdefault(asset_id, asyncio.Event())
+        event = self._baked.get(asset_id)
+        if event is None or event.is_set():  # a new bake of an asset baked before: a new event
+            self._baked[asset_id] = asyncio.Event()
         task = asyncio.get_running_loop().create_task(self._bake(asset_id))
         self._bakes[asset_id] = task
         task.add_done_callback(lambda _: self._bakes.pop(asset_id, None))
@@ -221,6 +227,8 @@ class ThumbnailService:
             rec = self.store.assets.get(asset_id)
             if rec is None:
                 raise NotFound(asset_id)
+            if rec["status"] == "baking":
+                raise StillBaking(asset_id)
         return rec
 
     # -- environments -----------------------------------------------------------------------
@@ -341,7 +349,8 @@ class ThumbnailService:
         plan = json.dumps(out["plan"], separators=(",", ":"), default=str)
         if asset_id not in self.store.assets:  # deleted while rendering: do not resurrect
             raise NotFound(asset_id)
-        return await asyncio.to_thread(self.thumbs.put, asset_id, key, params.format, out["image"], plan)
+        await asyncio.to_thread(self.thumbs.write, asset_id, key, params.format, out["image"], plan)
+        return self.thumbs.remember(asset_id, key, params.format, out["image"], plan)
 
 
 class UploadTooLarge(AssetError):
@@ -359,13 +368,16 @@ def _public_error(exc: JobAssetError, folder: Path, name: str) -> AssetError:
     cls = getattr(errors, exc.kind, None)
     if not (isinstance(cls, type) and issubclass(cls, AssetError)):
         cls = AssetError
-    path = exc.path
-    for prefix in (str(folder) + "/", str(folder.resolve()) + "/"):
-        path = path.replace(prefix, "")
-    reason = exc.reason.replace(str(folder.resolve()) + "/", "").replace(str(folder) + "/", "")
     err = cls.__new__(cls)
-    AssetError.__init__(err, path or name, reason)
+    AssetError.__init__(err, _strip(exc.path, folder) or name, _strip(exc.reason, folder))
     return err
+
+
+def _strip(text: str, folder: Path) -> str:
+    """Server paths out of a message: the client knows files by their names in its upload."""
+    for prefix in (str(folder.resolve()) + "/", str(folder) + "/"):
+        text = text.replace(prefix, "")
+    return text
 
 
 def _renderer_version() -> str:

@@ -197,10 +197,18 @@ class ThumbnailCache:
             return None
         return self._remember(mem_key, data, plan)
 
-    def put(self, asset_id: str, key: str, fmt: str, data: bytes, plan: str) -> tuple[bytes, str, str]:
+    def write(self, asset_id: str, key: str, fmt: str, data: bytes, plan: str) -> None:
+        """The disk half of `put` (blocking: the server runs it in a thread)."""
         path = self.path(asset_id, key, fmt)
         write_atomic(path.with_suffix(".plan.json"), plan.encode())
         write_atomic(path, data)
+
+    def put(self, asset_id: str, key: str, fmt: str, data: bytes, plan: str) -> tuple[bytes, str, str]:
+        self.write(asset_id, key, fmt, data, plan)
+        return self.remember(asset_id, key, fmt, data, plan)
+
+    def remember(self, asset_id: str, key: str, fmt: str, data: bytes, plan: str) -> tuple[bytes, str, str]:
+        """The memory half: call it from one thread only (the event loop's)."""
         return self._remember(f"{asset_id}/{key}.{fmt}", data, plan)
 
     def forget(self, asset_id: str) -> None:

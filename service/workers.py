@@ -133,25 +133,40 @@ def _load_baked(key: str, cache_dir: str):
     return pipeline.load_baked(key, cache_dir)
 
 
+def answer(state: _WorkerState, op: str, args: tuple) -> tuple[str, object]:
+    """Run one job in a worker (process or Ray actor): ("ok", value), ("asset_error",
+    (class name, path, reason)) or ("error", text); `unpack_reply` turns it back server-side."""
+    from pipeline.errors import AssetError
+    try:
+        return ("ok", getattr(state, op)(*args))
+    except AssetError as exc:
+        return ("asset_error", (type(exc).__name__, exc.path, exc.reason))
+    except MemoryError:
+        return ("error", "out of memory")
+    except Exception as exc:  # reported to the caller as a 500 with this text
+        log.exception("job %s failed", op)
+        return ("error", f"{type(exc).__name__}: {exc}")
+
+
+def unpack_reply(op: str, status: str, value):
+    """A worker's reply as the job's value, or the exception it stands for."""
+    if status == "ok":
+        return value
+    if status == "asset_error":
+        raise JobAssetError(*value)
+    raise WorkerFailure(f"{op} failed in the render worker: {value}")
+
+
 def _worker_main(conn, cache_dir: str, face_size: int, limits: dict, log_level: int) -> None:
     logging.basicConfig(level=log_level, format="%(levelname)s worker %(process)d %(name)s: %(message)s")
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the server stops us; Ctrl-C goes to it
-    from pipeline.errors import AssetError
     state = _WorkerState(cache_dir, face_size, limits)
     while True:
         try:
             op, args = conn.recv()
         except (EOFError, OSError):
             return
-        try:
-            reply = ("ok", getattr(state, op)(*args))
-        except AssetError as exc:
-            reply = ("asset_error", (type(exc).__name__, exc.path, exc.reason))
-        except MemoryError:
-            reply = ("error", "out of memory")
-        except Exception as exc:  # reported to the caller as a 500 with this text
-            log.exception("job %s failed", op)
-            reply = ("error", f"{type(exc).__name__}: {exc}")
+        reply = answer(state, op, args)
         try:
             conn.send(reply)
         except (BrokenPipeError, OSError):
@@ -317,11 +332,7 @@ class WorkerPool:
             w.busy_since, w.op = None, None
         w.jobs += 1
         w.answered = True
-        if status == "ok":
-            return value
-        if status == "asset_error":
-            raise JobAssetError(*value)
-        raise WorkerFailure(f"{op} failed in the render worker: {value}")
+        return unpack_reply(op, status, value)
 
     def status(self) -> list[dict]:
         now = time.time()

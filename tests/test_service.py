@@ -21,7 +21,9 @@ UPLOAD_LIMIT = 16 * 2**20
 MAX_QUEUE = 6
 UNPACKED_LIMIT = 64 * 2**20
 SERVER_ENV = {"ASSET_PREVIEW_MAX_ARCHIVE_FILES": "64", "ASSET_PREVIEW_MAX_QUEUE": str(MAX_QUEUE),
-              "ASSET_PREVIEW_MAX_UNPACKED_BYTES": str(UNPACKED_LIMIT)}
+              "ASSET_PREVIEW_MAX_UNPACKED_BYTES": str(UNPACKED_LIMIT),
+              "ASSET_PREVIEW_MAX_TRIANGLES": "10000",  # the bunny (16k) is over, the samples under
+              "ASSET_PREVIEW_MAX_TEXTURE_PIXELS": str(2048 * 2048)}
 
 
 @pytest.fixture(scope="module")
@@ -197,6 +199,49 @@ def test_upload_limit_413(server):
     r = server.client.post("/assets", content=chunked(),
                            headers={"content-type": "multipart/form-data; boundary=xyz"})
     assert r.status_code == 413
+
+
+def textured_quad_gltf(width: int, height: int) -> bytes:
+    """A one-quad glTF with its buffer and a width x height PNG texture embedded as data URIs."""
+    import base64
+    import struct
+    pos = struct.pack("<12f", 0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0)
+    uv = struct.pack("<8f", 0, 1, 1, 1, 1, 0, 0, 0)
+    idx = struct.pack("<6H", 0, 1, 2, 0, 2, 3)
+    buf = pos + uv + idx
+    png = io.BytesIO()
+    Image.new("RGB", (width, height), (200, 40, 40)).save(png, "PNG")
+    uri = lambda mime, b: f"data:{mime};base64," + base64.b64encode(b).decode()  # noqa: E731
+    doc = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+           "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "indices": 2,
+                                       "material": 0}]}],
+           "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}],
+           "textures": [{"source": 0}], "images": [{"uri": uri("image/png", png.getvalue())}],
+           "accessors": [{"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3",
+                          "min": [0, 0, 0], "max": [1, 1, 0]},
+                         {"bufferView": 1, "componentType": 5126, "count": 4, "type": "VEC2"},
+                         {"bufferView": 2, "componentType": 5123, "count": 6, "type": "SCALAR"}],
+           "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 48},
+                           {"buffer": 0, "byteOffset": 48, "byteLength": 32},
+                           {"buffer": 0, "byteOffset": 80, "byteLength": 12}],
+           "buffers": [{"byteLength": len(buf), "uri": uri("application/octet-stream", buf)}]}
+    return json.dumps(doc).encode()
+
+
+def test_content_limits_triangles_and_texture_pixels(server, assets):
+    r = upload(server, "bunny.ply", (assets / "mesh/bunny.ply").read_bytes())
+    assert r.status_code == 422 and r.json()["detail"].startswith("bunny.ply: ")
+    assert "triangles" in r.json()["detail"] and "10000" in r.json()["detail"].replace(",", "")
+    small = upload(server, "small.gltf", textured_quad_gltf(64, 64))
+    assert small.status_code == 201, small.text
+    assert server.wait_status(small.json()["id"])["status"] == "ready"
+    # A texture over the pixel limit is checked from its header, never decoded: the pipeline
+    # drops it (the material keeps its factors) and says so in the asset's warnings.
+    r = upload(server, "huge.gltf", textured_quad_gltf(4096, 1100))
+    assert r.status_code == 201, r.text
+    warnings = " ".join(r.json()["warnings"])
+    assert "4096x1100" in warnings and "limit" in warnings and "/service/" not in warnings
+    assert server.wait_status(r.json()["id"])["status"] == "ready"
 
 
 def test_archives_refuse_escapes_links_and_bombs(server, assets):
