@@ -22,12 +22,15 @@ main file beside different dependencies. Known gap: a reference that was missing
 (ingest warned and went on) and appears later is not noticed until the main file changes or
 `--force`.
 
-Atomicity. An entry is built in tmp/ on the same filesystem, fsynced, then renamed into place;
-the loser of a race (its rename finds the entry there) discards its copy. Entries are removed
-by renaming them into tmp/ first, so readers see a whole entry or none. Every file in an entry
-carries a SHA-256 in the manifest, checked on every load: a missing or mismatched file is
-logged, the entry removed, and the caller rebakes. Loads touch the manifest's mtime, which is
-the recency that the optional size cap's least-recently-used eviction goes by.
+Atomicity. An entry is built in tmp/ on the same filesystem, then renamed into place; the
+loser of a race (its rename finds the entry there) discards its copy. Entries are removed by
+renaming them into tmp/ first, so readers see a whole entry or none. Every file in an entry
+carries a size and SHA-256 in the manifest: eager files are checked on every load, large lazy
+ones (textures) for size on load and fully on first read. A missing or mismatched file is
+logged, the entry removed, and the caller rebakes. That check is also why nothing is fsynced:
+an entry torn by a power cut fails it and is rebaked, so durability costs no bake time.
+Loads touch the manifest's mtime, the recency that the optional size cap's least-recently-used
+eviction goes by; tmp/ leftovers of crashed processes are swept after an hour.
 """
 from __future__ import annotations
 
@@ -223,12 +226,10 @@ class Cache:
                 _write(tmp / name, data)
                 manifest["files"][name] = {"bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()}
             _write(tmp / MANIFEST, json.dumps(manifest, indent=1, default=_json_default).encode())
-            _fsync_dir(tmp)
             final.parent.mkdir(parents=True, exist_ok=True)
             for attempt in range(2):
                 try:
                     os.rename(tmp, final)
-                    _fsync_dir(final.parent)
                     log.info("cache: stored %s/%s", kind, key)
                     break
                 except OSError:
@@ -408,21 +409,6 @@ def _read(path: Path) -> bytearray:
 def _write(path: Path, data: bytes) -> None:
     with open(path, "wb") as f:
         f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-
-
-def _fsync_dir(path: Path) -> None:
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
 
 
 def _json_default(obj):
