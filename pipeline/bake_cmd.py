@@ -207,6 +207,7 @@ class _Report:
 
     def __init__(self, total: int, as_json: bool):
         self.total, self.as_json, self.done = total, as_json, 0
+        self.out = sys.stdout  # held: the Ray executor moves other writers' stdout to stderr
         self.counts = {"baked": 0, "cached": 0, "failed": 0}
         self.bar = sys.stderr.isatty() and total > 1
         self._draw()
@@ -216,12 +217,12 @@ class _Report:
         self.counts[result["status"]] += 1
         self._clear()
         if self.as_json:
-            print(json.dumps(result), flush=True)
+            print(json.dumps(result), file=self.out, flush=True)
         elif result["status"] == "failed":
-            print(f"failed: {result['error']}", flush=True)
+            print(f"failed: {result['error']}", file=self.out, flush=True)
         else:
             print(f"{result['status']:<7}{result['path']}  (key {result['key'][:12]}, "
-                  f"{result['seconds']:.2f} s)", flush=True)
+                  f"{result['seconds']:.2f} s)", file=self.out, flush=True)
         self._draw()
 
     def _draw(self) -> None:

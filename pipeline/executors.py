@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -59,7 +60,8 @@ def connect(address: str | None = None, num_cpus: int | None = None) -> None:
     if ray.is_initialized():
         return
     address = address or os.environ.get("RAY_ADDRESS") or None
-    kwargs = {"logging_level": logging.WARNING, "log_to_driver": True}
+    # Worker output stays in Ray's session logs: stdout is for result lines only.
+    kwargs = {"logging_level": logging.WARNING, "log_to_driver": False}
     try:
         if address:
             ray.init(address=address, **kwargs)
@@ -124,6 +126,9 @@ def run_ray(jobs: list[tuple[str, str]], common: dict, report, *, address: str |
     todo = list(reversed(jobs))
     running: dict = {}
     start = time.perf_counter()
+    # Ray prints its own notices ("a worker died...") to sys.stdout; the report holds the
+    # real stdout, so they go to stderr and stdout stays result lines only.
+    stdout, sys.stdout = sys.stdout, sys.stderr
     try:
         while todo or running:
             while todo and len(running) < window:
@@ -138,6 +143,7 @@ def run_ray(jobs: list[tuple[str, str]], common: dict, report, *, address: str |
             ray.cancel(ref, force=True)
         raise
     finally:
+        sys.stdout = stdout
         log.info("ray: %d jobs in %.2f s", len(jobs), time.perf_counter() - start)
         disconnect()
 
