@@ -8,6 +8,7 @@ texture to RGBA, what a bake pays later. trimesh cannot read USD: ours only ther
 from __future__ import annotations
 
 import argparse
+import gc
 import statistics
 import time
 from pathlib import Path
@@ -42,14 +43,23 @@ def sample_files(root: Path) -> list[Path]:
 
 def _median_ms(fns, repeat: int) -> list[float]:
     """Median ms of each function, called in turn within every round so that both sides see
-    the same machine load (the CPU is shared), after one warm-up round."""
+    the same machine load (the CPU is shared), after one warm-up round; the order rotates
+    each round so neither side always runs first. As in timeit, the garbage collector is
+    paused during a round and run between rounds."""
     times: list[list[float]] = [[] for _ in fns]
     for round_ in range(repeat + 1):
-        for fn, out in zip(fns, times):
-            start = time.perf_counter()
-            fn()
-            if round_:
-                out.append(time.perf_counter() - start)
+        gc.collect()
+        gc.disable()
+        try:
+            order = list(zip(fns, times))
+            shift = round_ % len(order)
+            for fn, out in order[shift:] + order[:shift]:
+                start = time.perf_counter()
+                fn()
+                if round_:
+                    out.append(time.perf_counter() - start)
+        finally:
+            gc.enable()
     return [1000 * statistics.median(t) for t in times]
 
 
