@@ -14,8 +14,9 @@ Materials (kd + kr + ks = 1, the paper's split): metallic m reflects m * EnvBRDF
 colour); the dielectric rest (1 - m) reflects F (exact Fresnel at the IOR), transmits
 (1 - F) * transmission * base colour and scatters the remainder diffusely. Diffuse and rough
 specular lobes are not traced: the diffuse share reads the roughest mip along the normal and
-a rough reflection or refraction keeps its mirror direction and reads the prefiltered mip for
-its roughness at escape (as the raster path's split-sum does). Inside a volume, Beer-Lambert
+a rough reflection or refraction keeps its mirror direction and, at escape, reads the
+prefiltered mip for the lobe width gathered along the path (as the raster path's split-sum
+does; refraction lobes are narrower by |1 - eta| / 2). Inside a volume, Beer-Lambert
 attenuation exp(-sigma t) with sigma = -ln(attenuation_color) / attenuation_distance.
 
 Anti-aliasing: `supersample` x `supersample` stratified rays per pixel (box filter) on and
@@ -243,13 +244,13 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     origins = np.broadcast_to(camera.position, dirs.shape)
     weight = np.ones((len(dirs), 3))  # throughput of a sample (decides what is traced on)
     share = np.full(len(dirs), 1.0 / nsub)  # its part of the pixel
-    rough = np.zeros(len(dirs))
+    blur = np.zeros(len(dirs))  # sum of squared GGX alphas of the lobes along the path
 
     for depth in range(max(int(options.bounces), 0) + 1):
         if len(dirs) == 0:
             break
         if depth == options.bounces:  # out of bounces: read the environment where they point
-            add((weight * share[:, None]) * _env(env, dirs, rough), pix)
+            add((weight * share[:, None]) * _env(env, dirs, blur ** 0.25), pix)
             break
         prim, u, v, t = _intersect(ts, origins, dirs)
         stats["rays"] += len(dirs)
@@ -258,14 +259,15 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
         if depth == 0:
             coverage = np.bincount(pix[~miss], share[~miss], minlength=npix)
             if show_env:
-                blur = np.full(miss.sum(), options.background_blur)
-                add(_env(env, dirs[miss], blur) * share[miss, None], pix[miss])
+                bg = np.full(miss.sum(), options.background_blur)
+                add(_env(env, dirs[miss], bg) * share[miss, None], pix[miss])
         else:
-            add((weight[miss] * share[miss, None]) * _env(env, dirs[miss], rough[miss]), pix[miss])
+            add((weight[miss] * share[miss, None]) * _env(env, dirs[miss], blur[miss] ** 0.25),
+                pix[miss])
         hit = ~miss
         prim, u, v, t = prim[hit], u[hit, None], v[hit, None], t[hit]
         d = dirs[hit].astype(np.float64)
-        w, px, r_in, sh = weight[hit], pix[hit], rough[hit], share[hit]
+        w, px, v_in, sh = weight[hit], pix[hit], blur[hit], share[hit]
         p = origins[hit] + d * t[:, None]
         corner = ts.normals[prim].astype(np.float64)
         ns = (1 - u - v) * corner[:, 0] + u * corner[:, 1] + v * corner[:, 2]
@@ -292,7 +294,12 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
         tint = np.where(entering[:, None], base, 1.0)  # glTF tints transmission by base colour once
         trans_w = ((1 - metal) * (1 - fres) * trans)[:, None] * tint * w
         diffuse_w = ((1 - metal) * (1 - fres) * (1 - trans))[:, None] * base * w
-        r_out = np.sqrt(r_in * r_in + rough_k * rough_k)
+        # Lobe widths add as variances. A rough refraction bends directions by
+        # |1 - eta| per unit of microfacet tilt where a reflection bends them by 2, so its
+        # lobe is that much narrower than the reflection lobe the mips were filtered for.
+        alpha = rough_k * rough_k
+        v_refl = v_in + alpha ** 2
+        v_refr = v_in + (alpha * np.abs(1.0 - eta) / 2) ** 2
         if np.any(diffuse_w > 0):
             dsel = diffuse_w.max(axis=1) > 0
             add(diffuse_w[dsel] * sh[dsel, None] * _env(env, ns[dsel], np.ones(dsel.sum())), px[dsel])
@@ -306,7 +313,7 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
         dirs = np.concatenate([rdir[keep_r], tdir[keep_t]])
         weight = np.concatenate([refl_w[keep_r], trans_w[keep_t]])
         pix = np.concatenate([px[keep_r], px[keep_t]])
-        rough = np.concatenate([r_out[keep_r], r_out[keep_t]])
+        blur = np.concatenate([v_refl[keep_r], v_refr[keep_t]])
         share = np.concatenate([sh[keep_r], sh[keep_t]])
 
     rgb = accum.reshape(camera.height, camera.width, 3)
