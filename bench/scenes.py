@@ -200,3 +200,19 @@ def load_panorama(name: str) -> np.ndarray:
     from pipeline.panorama import load_panorama as _load
 
     return np.asarray(_load(name).pixels, dtype=np.float32)[..., :3]
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Write every scene as a .glb (python -m bench.scenes OUT_DIR), to bake or render."""
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="python -m bench.scenes", description=main.__doc__)
+    parser.add_argument("out", help="folder for the .glb files")
+    args = parser.parse_args(argv)
+    for spec in SCENES.values():
+        print(write_glb(spec, Path(args.out) / f"{spec.name}.glb"))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

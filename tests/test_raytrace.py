@@ -184,3 +184,20 @@ def test_degenerate_geometry_stays_finite(env):
         frame = render_raytrace(asset, env, opts)
         assert np.isfinite(frame.linear).all() and np.isfinite(frame.rgba8).all()
         assert math.isfinite(frame.timings["total"])
+
+
+@pytest.mark.parametrize("name", ["glass_ellipsoid_311_ior1.5", "glass_torus_ior2.4",
+                                  "mirror_sphere", "frosted_sphere_ior1.5_r0.3"])
+def test_scene_glb_round_trips_through_ingest(name, tmp_path):
+    """The generated .glb carries the material and node scale through pipeline ingest."""
+    spec = scenes.scene(name)
+    scene = pipeline.load_scene(scenes.write_glb(spec, tmp_path / f"{name}.glb"))
+    (mat,) = scene.materials
+    want = spec.material
+    assert mat.transmission == want.transmission and mat.ior == pytest.approx(want.ior)
+    assert mat.roughness == pytest.approx(want.roughness)
+    assert mat.metallic == pytest.approx(want.metallic)
+    assert mat.material_class == ("transmissive" if want.transmission else "opaque")
+    np.testing.assert_allclose(scene.instances[0].matrix, spec.matrix, atol=1e-6)
+    pos, _, idx = scenes.mesh_arrays(spec.mesh)
+    assert scene.triangle_count == len(idx)
