@@ -53,8 +53,14 @@ class ThumbnailService:
         self.store = Store(settings.root)
         self.thumbs = ThumbnailCache(self.store.thumbs_dir, settings.memory_cache_bytes)
         self.metrics = Metrics()
-        self.pool = WorkerPool(settings.worker_count, str(settings.cache), settings.face_size,
-                               max_queue=settings.max_queue, on_restart=self._restarted)
+        if settings.executor == "ray":  # actors on a Ray cluster, same interface
+            from .ray_workers import RayWorkerPool
+            self.pool = RayWorkerPool(settings.worker_count, str(settings.cache), settings.face_size,
+                                      max_queue=settings.max_queue, on_restart=self._restarted,
+                                      address=settings.ray_address or None, num_gpus=settings.ray_gpus)
+        else:
+            self.pool = WorkerPool(settings.worker_count, str(settings.cache), settings.face_size,
+                                   max_queue=settings.max_queue, on_restart=self._restarted)
         self.renderer_version = _renderer_version()
         self._bakes: dict[str, asyncio.Task] = {}
         self._baked: dict[str, asyncio.Event] = {}

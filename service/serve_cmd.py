@@ -9,6 +9,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", type=int, default=8000, help="port (default 8000)")
     parser.add_argument("--cache", help="cache folder (default $ASSET_PREVIEW_CACHE or ./.cache)")
     parser.add_argument("--workers", type=int, help="render worker processes (default one per core)")
+    parser.add_argument("--executor", choices=["local", "ray"],
+                        help="render in local worker processes (default) or Ray actors")
+    parser.add_argument("--ray-address", help="Ray cluster to join: auto, HOST:PORT or ray://HOST:PORT "
+                                              "(default $RAY_ADDRESS, else a new local one)")
+    parser.add_argument("--ray-gpus", type=float, help="GPU share per render actor (default 0)")
     parser.add_argument("--api-key", help="require `Authorization: Bearer KEY` for POST and DELETE "
                                           "(default $ASSET_PREVIEW_API_KEY; none)")
     parser.add_argument("--max-upload-bytes", type=int, help="largest request body (413 beyond)")
@@ -32,7 +37,8 @@ def run(args: argparse.Namespace) -> int:
 
     logging.getLogger().setLevel(args.log_level.upper())
     settings = Settings.from_env(
-        cache=args.cache, workers=args.workers, api_key=args.api_key,
+        cache=args.cache, workers=args.workers, api_key=args.api_key, executor=args.executor,
+        ray_address=args.ray_address, ray_gpus=args.ray_gpus,
         max_upload_bytes=args.max_upload_bytes, max_thumbnail_size=args.max_thumbnail_size,
         max_queue=args.max_queue, render_seconds=args.render_seconds, bake_seconds=args.bake_seconds,
         seed=args.seed)

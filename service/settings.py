@@ -16,6 +16,9 @@ ENV_PREFIX = "ASSET_PREVIEW_"
 class Settings:
     cache: Path = Path(".cache")
     workers: int = 0                      # render worker processes; 0 = one per core
+    executor: str = "local"               # "local" worker processes, or "ray" actors on a cluster
+    ray_address: str = ""                 # cluster to join ("" = $RAY_ADDRESS, else a local one)
+    ray_gpus: float = 0.0                 # GPU share per render actor (0 on CPU-only clusters)
     api_key: str = ""                     # when set, POST and DELETE need `Authorization: Bearer KEY`
     max_upload_bytes: int = 256 * 2**20   # request body (413 beyond)
     max_thumbnail_size: int = 2048        # width/height in pixels (422 beyond)
