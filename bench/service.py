@@ -79,7 +79,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _wait_http(url: str, timeout: float = 120) -> None:
+def _wait_http(url: str, timeout: float = 300) -> None:
     import httpx
     end = time.monotonic() + timeout
     while time.monotonic() < end:
@@ -173,14 +173,20 @@ def run(args: argparse.Namespace) -> int:
     port, peer_port = _free_port(), _free_port()
     base = f"http://127.0.0.1:{port}"
     env = {k: v for k, v in os.environ.items() if not k.startswith("ASSET_PREVIEW_")}
+    log_path = tmp / "server.log"
+    log_file = open(log_path, "wb")
     server = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--port", str(port),
                                "--cache", str(tmp / "cache"), "--workers", str(args.workers),
                                "--no-seed", "--log-level", "warning"],
-                              cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                              cwd=ROOT, env=env, stdout=log_file, stderr=subprocess.STDOUT)
     peer = None
     rows: list[tuple] = []
     try:
-        _wait_http(f"{base}/readyz")
+        try:
+            _wait_http(f"{base}/readyz")
+        except TimeoutError:
+            print(log_path.read_text()[-3000:], file=sys.stderr)
+            raise
         client = httpx.Client(base_url=base, timeout=120)
         asset_id = client.post("/assets", files={"file": ("Duck.glb", duck_bytes)}).json()["id"]
         thumb = f"{base}/assets/{asset_id}/thumbnail?size={args.size}"
@@ -231,6 +237,7 @@ def run(args: argparse.Namespace) -> int:
             peer.terminate()
         server.terminate()
         server.wait(timeout=30)
+        log_file.close()
 
     # Peers of the render phases: the same work in this process, after the server is gone.
     warm_ms, cold_ms = _in_process(duck_bytes, tmp / "inproc", args.size, args.uploads)
