@@ -22,6 +22,10 @@ out vec4 v_color;
 #endif
 out vec3 v_world;
 out vec3 v_normal;
+#ifdef HAS_INTERIOR
+in vec3 in_interior;   // baked object-space vertex->exit vector (refractive meshes)
+out vec3 v_interior;   // in world space: scale and shear apply (paper 4.2.3.2)
+#endif
 
 uniform mat4 u_view_proj;
 
@@ -42,6 +46,9 @@ void main() {
 #endif
 #ifdef HAS_COLORS
     v_color = in_color;
+#endif
+#ifdef HAS_INTERIOR
+    v_interior = mat3(in_model) * in_interior;
 #endif
     gl_Position = u_view_proj * world;
 }
