@@ -39,6 +39,7 @@ class SceneSpec:
     yaw: float = 0.0
     pitch: float = 0.0
     fov: float = 40.0
+    distance: float | None = None   # camera distance from the bounds centre; None: auto-frame
 
     @property
     def matrix(self) -> np.ndarray:
@@ -77,6 +78,32 @@ SCENES: dict[str, SceneSpec] = {s.name: s for s in [
                        roughness=0.3)),
 ]}
 
+# The speed-vs-accuracy chart's glass set (bench.accuracy): every mesh at every IOR, smooth and
+# rough, then real assets and a second panorama.
+_VIEW = {"cube": (30.0, 20.0), "torus": (20.0, 30.0)}
+for _mesh in ("sphere", "cube", "bunny", "torus"):
+    for _ior in (1.15, 1.3, 1.5, 2.4):
+        for _name, _r in ((f"glass_{_mesh}_ior{_ior}", 0.0), (f"frosted_{_mesh}_ior{_ior}_r0.3", 0.3)):
+            SCENES.setdefault(_name, SceneSpec(_name, _mesh, glass(_ior, roughness=_r),
+                                               yaw=_VIEW.get(_mesh, (0, 0))[0],
+                                               pitch=_VIEW.get(_mesh, (0, 0))[1]))
+# The stability suite's cases (bench.stability); geometry from bench.shapes.
+SCENES.update({s.name: s for s in [
+    SceneSpec("glass_duck_ior1.5", "duck", glass(1.5), yaw=-30.0, pitch=15.0),
+    SceneSpec("glass_teapot_ior1.5", "teapot", glass(1.5), yaw=30.0, pitch=20.0),
+    SceneSpec("glass_sphere_ior1.5_pisa", "sphere", glass(1.5), env="pisa"),
+    SceneSpec("mirror_sphere_pisa", "sphere", metal((1.0, 1.0, 1.0), 0.0, "mirror"), env="pisa"),
+    SceneSpec("case_thin_slab", "slab", glass(1.5), yaw=20.0, pitch=15.0),
+    SceneSpec("case_grazing", "slab", glass(1.5), yaw=80.0, pitch=5.0),
+    SceneSpec("case_open_mesh", "open_sphere", glass(1.5), pitch=40.0),
+    SceneSpec("case_concave_bowl", "bowl", glass(1.5), pitch=35.0),
+    SceneSpec("case_tiny", "sphere", glass(1.5), distance=60.0),
+    SceneSpec("case_huge", "sphere", glass(1.5), scale=(1e4, 1e4, 1e4)),
+    SceneSpec("case_camera_inside", "sphere", glass(1.5), distance=0.5),
+    SceneSpec("case_degenerate_triangles", "degenerate_sphere", glass(1.5)),
+    SceneSpec("case_flipped_normals", "flipped_sphere", glass(1.5)),
+]})
+
 
 def scene(name: str, **changes) -> SceneSpec:
     """A scene by name, optionally with fields replaced (e.g. env="pisa")."""
@@ -103,6 +130,9 @@ def mesh_arrays(kind: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         nrm = np.repeat(m.face_normals, 3, axis=0)
         idx = np.arange(len(pos)).reshape(-1, 3)
         return pos.astype(np.float32), nrm.astype(np.float32), idx.astype(np.uint32)
+    from .shapes import BUILDERS  # chart and stability-suite shapes
+    if kind in BUILDERS:
+        return BUILDERS[kind]()
     if kind in MESH_FILES:
         m = trimesh.load(ASSETS / "mesh" / MESH_FILES[kind], force="mesh")
         lo, hi = m.bounds

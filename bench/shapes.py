@@ -1,0 +1,128 @@
+"""Extra geometry for the speed-vs-accuracy chart and the stability suite (bench.scenes kinds).
+
+Each builder returns (positions N x 3 float32, normals N x 3 float32, indices M x 3 uint32)
+centred at the origin with bounding radius 1, as bench.scenes.mesh_arrays does. The broken
+ones (open, degenerate, flipped) start from the same icosphere as the "sphere" kind so that
+the clean sphere's reference says what they should have looked like.
+"""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+ASSETS = Path(__file__).resolve().parents[2] / "shared" / "assets"
+REAL_ASSETS = {"duck": "gltf/Duck.glb", "teapot": "usd/Teapot/Teapot.usd"}
+SLAB_THICKNESS = 0.1     # of a 2 x 2 plate: thickness / width = 1/20
+BOWL_WALL = 0.15         # wall thickness of the hemispherical bowl (outer radius 1)
+DEGENERATE_EXTRA = 200   # zero-area triangles added to the sphere
+
+
+def _normalise(pos: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+    lo, hi = pos.min(0), pos.max(0)
+    centre = (lo + hi) / 2
+    scale = 1.0 / (np.linalg.norm(hi - lo) / 2)
+    return (pos - centre) * scale, scale, centre
+
+
+def _out(pos, nrm, idx):
+    return (np.ascontiguousarray(pos, np.float32), np.ascontiguousarray(nrm, np.float32),
+            np.ascontiguousarray(idx, np.uint32))
+
+
+def _faceted(m):
+    """Every triangle with its own corners and flat normal (sharp edges stay sharp)."""
+    pos = m.vertices[m.faces].reshape(-1, 3)
+    nrm = np.repeat(m.face_normals, 3, axis=0)
+    return pos, nrm, np.arange(len(pos)).reshape(-1, 3)
+
+
+def slab():
+    """A thin plate 2 x 2 x SLAB_THICKNESS (faceted), normalised to radius 1."""
+    import trimesh
+
+    pos, nrm, idx = _faceted(trimesh.creation.box(extents=(2.0, 2.0, SLAB_THICKNESS)))
+    pos, _, _ = _normalise(pos)
+    return _out(pos, nrm, idx)
+
+
+def bowl(sections: int = 96, steps: int = 24):
+    """A closed hemispherical bowl (outer radius 1, wall BOWL_WALL, opening up): concave inside."""
+    import trimesh
+
+    a = np.linspace(0.0, np.pi / 2, steps)
+    r_in = 1.0 - BOWL_WALL
+    outer = np.stack([np.cos(a), -np.sin(a)], 1)[::-1]          # bottom centre -> rim, outside
+    inner = np.stack([r_in * np.cos(a), -r_in * np.sin(a)], 1)  # rim -> bottom centre, inside
+    profile = np.concatenate([outer, inner])  # (radius, height), counter-clockwise: normals out
+    m = trimesh.creation.revolve(profile, sections=sections)
+    m.merge_vertices()
+    m.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, [1, 0, 0]))  # Z up -> Y up
+    if m.volume < 0:
+        m.invert()
+    # Smooth normals: the walls are curved; only the narrow rim ring is shaded too softly.
+    pos, _, _ = _normalise(np.asarray(m.vertices))
+    return _out(pos, m.vertex_normals, m.faces)
+
+
+def _sphere():
+    from .scenes import mesh_arrays
+    return mesh_arrays("sphere")
+
+
+def open_sphere():
+    """The sphere with its top cap (y > 0.8) removed: interior rays from there find no surface."""
+    pos, nrm, idx = _sphere()
+    keep = pos[idx][:, :, 1].max(axis=1) <= 0.8
+    return _out(pos, nrm, idx[keep])
+
+
+def degenerate_sphere():
+    """The sphere plus DEGENERATE_EXTRA zero-area triangles (repeated and collinear corners)."""
+    pos, nrm, idx = _sphere()
+    rng = np.random.default_rng(7)
+    a = rng.integers(0, len(pos), DEGENERATE_EXTRA)
+    b = rng.integers(0, len(pos), DEGENERATE_EXTRA)
+    # Half repeat a corner; half use a new vertex at the midpoint of two existing ones.
+    half = DEGENERATE_EXTRA // 2
+    mid = (pos[a[half:]] + pos[b[half:]]) / 2
+    mid_n = nrm[a[half:]]
+    new = np.arange(len(pos), len(pos) + len(mid))
+    extra = np.concatenate([np.stack([a[:half], a[:half], b[:half]], 1),
+                            np.stack([a[half:], new, b[half:]], 1)])
+    return _out(np.concatenate([pos, mid]), np.concatenate([nrm, mid_n]),
+                np.concatenate([idx, extra]))
+
+
+def flipped_sphere():
+    """The sphere with every stored vertex normal pointing inward (winding kept)."""
+    pos, nrm, idx = _sphere()
+    return _out(pos, -nrm, idx)
+
+
+def real_asset(kind: str):
+    """A sample asset's triangles in world space (every instance), through pipeline.load_scene."""
+    import pipeline
+
+    s = pipeline.load_scene(ASSETS / REAL_ASSETS[kind])
+    ps, ns, ids, base = [], [], [], 0
+    for inst in s.instances:
+        m = s.meshes[inst.mesh]
+        mtx = np.asarray(inst.matrix, np.float64)
+        ps.append(m.positions @ mtx[:3, :3].T + mtx[:3, 3])
+        n = m.normals @ np.linalg.inv(mtx[:3, :3])
+        ns.append(n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-20))
+        ids.append(m.indices.reshape(-1, 3).astype(np.int64) + base)
+        base += len(m.positions)
+    pos, _, _ = _normalise(np.concatenate(ps))
+    return _out(pos, np.concatenate(ns), np.concatenate(ids))
+
+
+BUILDERS = {
+    "slab": slab, "bowl": bowl, "open_sphere": open_sphere,
+    "degenerate_sphere": degenerate_sphere, "flipped_sphere": flipped_sphere,
+    "duck": lambda: real_asset("duck"), "teapot": lambda: real_asset("teapot"),
+}
