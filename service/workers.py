@@ -299,14 +299,20 @@ class WorkerPool:
             self.pending += 1
         try:
             w = await self._idle.get()
-            try:
-                return await asyncio.get_running_loop().run_in_executor(
-                    self._executor, self._call, w, op, args, deadline)
-            finally:
-                self._idle.put_nowait(w)
+            job = self._executor.submit(self._call, w, op, args, deadline)
+            # Back to the idle queue when the thread is done with the worker's pipe, not when
+            # this coroutine is (a cancelled request must not hand a busy worker to another).
+            job.add_done_callback(lambda _: self._release(w))
+            return await asyncio.wrap_future(job)
         finally:
             if queue:
                 self.pending -= 1
+
+    def _release(self, w: Worker) -> None:
+        try:
+            self._loop.call_soon_threadsafe(self._idle.put_nowait, w)
+        except RuntimeError:  # the loop is closed: the server is stopping
+            pass
 
     def _call(self, w: Worker, op: str, args: tuple, deadline: float):
         if not w.alive():
