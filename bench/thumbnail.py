@@ -66,13 +66,14 @@ def run(args: argparse.Namespace) -> int:
             pipeline.bake_environment(env_name, cache, face_size=default_face_size(size))
             job = {"asset": str(src), "peer_file": peer_file, "size": size, "cache": str(cache),
                    "env": env_name, "panorama": panorama, "bounds": baked.bounds.tolist(),
-                   "out": str(work / f"{name}-{size}.png")}
+                   "out": str(work / f"{name}-{size}-{{tool}}.png")}
             row = {"asset": name, "size": size, "triangles": baked.triangle_count}
             for tool in tools:
                 row[tool] = _measure(tool, job, args.repeat, args.cold_repeat)
             results.append(row)
             _print_row(row, tools)
     _print_summary(results, tools)
+    print(f"\nimages: {work}")
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=1))
     return 0
@@ -205,7 +206,7 @@ def _f3d(job: dict):
 def _worker(tool: str, job: dict, mode: str, repeat: int) -> None:
     shot = {"ours": _ours, "pyrender": _pyrender, "f3d": _f3d}[tool](job)
     if mode == "cold":
-        Path(job["out"]).write_bytes(_png(shot()))
+        Path(job["out"].format(tool=tool)).write_bytes(_png(shot()))
         return
     shot()
     render_ms, png_ms = [], []

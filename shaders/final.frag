@@ -73,8 +73,11 @@ void main() {
     if (any(isnan(p)) || any(isinf(p))) p = vec4(0.0);
     float a = clamp(p.a, 0.0, 1.0);
 #if BACKGROUND == 2
-    vec3 d = u_camera_basis * vec3(vec2(v_ndc.x, -v_ndc.y) * u_tan_half_fov, 1.0);
-    vec3 c = p.rgb + (1.0 - a) * env_radiance(normalize(d), u_blur);
+    vec3 c = p.rgb;
+    if (a < 1.0) {  // covered pixels skip the environment lookup
+        vec3 d = u_camera_basis * vec3(vec2(v_ndc.x, -v_ndc.y) * u_tan_half_fov, 1.0);
+        c += (1.0 - a) * env_radiance(normalize(d), u_blur);
+    }
     f_linear = vec4(c, 1.0);
     f_display = vec4(display(c), 1.0);
 #elif BACKGROUND == 1
