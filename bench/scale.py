@@ -1,0 +1,208 @@
+"""Scale-out: cold bakes of a few hundred assets with 1 and 2 local workers and with Ray on the
+same cores; Ray's per-task overhead; a projection to a large catalogue on N machines.
+
+Corpus: the sample assets plus --copies copies of each with perturbed bytes (a comment in the
+header or a glTF `extras`), so every copy has its own cache key and is baked in full. Each
+configuration runs the real `asset-bake` command in a fresh process against a fresh cache;
+assets/s counts the bake phase as asset-bake reports it (after Ray has connected), and the
+Ray row also shows the cluster start. Ray's overhead per task is measured three ways: one
+no-op task's round trip, the driver's cost per no-op task in a burst, and the bake's extra
+wall time per asset against the local 2-worker pool.
+
+Projection (a stated model, not a run): T(N) = A * (c1 + o) / (N * W * e), bounded below by
+A * d (one driver dispatching every task) and by A * b / B (bytes per asset through the
+shared filesystem's write bandwidth B), where c1 = measured seconds per asset with one worker,
+e = measured 2-worker parallel efficiency, o = measured Ray overhead per task, d = measured
+driver cost per task, b = measured cache bytes per asset, W = cores per machine (--cores).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from bench.ingest import DEFAULT_ASSETS, sample_files
+
+CATALOGUE = 100_000
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--assets", type=Path, default=DEFAULT_ASSETS,
+                        help="sample asset folder (default: %(default)s)")
+    parser.add_argument("--copies", type=int, default=18,
+                        help="perturbed copies of each sample (default 18: ~200 assets)")
+    parser.add_argument("--cores", type=int, default=16, help="cores per machine in the projection")
+    parser.add_argument("--fs-mb-s", type=float, default=500.0,
+                        help="shared filesystem write bandwidth in the projection, MB/s")
+    parser.add_argument("--keep", type=Path, default=None, help="build corpus and caches here and keep them")
+
+
+# -- corpus -------------------------------------------------------------------------------------
+
+def _perturb(data: bytes, suffix: str, i: int) -> bytes | None:
+    """The same asset with different bytes, or None for a format we do not alter."""
+    tag = f"asset-preview bench copy {i}"
+    if suffix in (".usda", ".usd") and data.startswith(b"#usda"):
+        return data + f"\n# {tag}\n".encode()
+    if suffix == ".gltf":
+        doc = json.loads(data)
+        doc.setdefault("asset", {}).setdefault("extras", {})["bench"] = tag
+        return json.dumps(doc).encode()
+    if suffix == ".glb":  # rewrite the JSON chunk (padded with spaces to 4 bytes) and lengths
+        length = int.from_bytes(data[12:16], "little")
+        doc = json.loads(data[20:20 + length])
+        doc.setdefault("asset", {}).setdefault("extras", {})["bench"] = tag
+        chunk = json.dumps(doc).encode()
+        chunk += b" " * (-len(chunk) % 4)
+        rest = data[20 + length:]
+        body = len(chunk).to_bytes(4, "little") + data[16:20] + chunk + rest
+        return data[:8] + (12 + len(body)).to_bytes(4, "little") + body
+    if suffix == ".ply":
+        first, _, rest = data.partition(b"\n")
+        return first + f"\ncomment {tag}\n".encode() + rest
+    if suffix == ".stl" and data.startswith(b"solid"):
+        first, _, rest = data.partition(b"\n")
+        return first.rstrip() + f"_c{i}\n".encode() + rest
+    if suffix == ".obj":
+        return f"# {tag}\n".encode() + data
+    return None
+
+
+def build_corpus(assets: Path, root: Path, copies: int) -> list[Path]:
+    """The samples (copied with their folders, so relative references resolve) and perturbed
+    copies beside each: the file list to bake."""
+    files = []
+    for group in ("gltf", "mesh", "usd"):
+        shutil.copytree(assets / group, root / group)
+    for sample in sample_files(assets):
+        base = root / sample.relative_to(assets)
+        files.append(base)
+        data = base.read_bytes()
+        for i in range(copies):
+            changed = _perturb(data, base.suffix.lower(), i)
+            if changed is None:
+                break
+            copy = base.with_name(f"{base.stem}.c{i:03d}{base.suffix}")
+            copy.write_bytes(changed)
+            files.append(copy)
+    return files
+
+
+# -- runs ---------------------------------------------------------------------------------------
+
+def bake_run(files: list[Path], cache: Path, *extra: str) -> dict:
+    """One cold `asset-bake` in a fresh process: wall time, bake-phase time, per-asset seconds."""
+    cmd = [sys.executable, "-m", "pipeline.bake_cmd", "--cache", str(cache), "--json", *extra,
+           *map(str, files)]
+    start = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=3600)
+    wall = time.perf_counter() - start
+    rows = [json.loads(line) for line in proc.stdout.splitlines() if line.strip()]
+    m = re.search(r"(\d+) baked, (\d+) cached, (\d+) failed in ([\d.]+) s", proc.stderr)
+    if not m or len(rows) != len(files):
+        raise RuntimeError(f"asset-bake {' '.join(extra)} failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
+    size = sum(f.stat().st_size for f in (cache / "assets").rglob("*") if f.is_file())
+    return {"wall": wall, "bake": float(m.group(4)), "failed": int(m.group(3)),
+            "baked": int(m.group(1)), "seconds": [r["seconds"] for r in rows], "bytes": size,
+            "keys": sorted(r.get("key", "") for r in rows)}
+
+
+def ray_overheads(num_cpus: int) -> dict:
+    """Cluster start, one no-op task's round trip (median of 50) and the driver's time per
+    no-op task in a burst of 1000, on a local cluster like the bake's."""
+    import ray
+
+    start = time.perf_counter()
+    ray.init(num_cpus=num_cpus, include_dashboard=False, logging_level="ERROR", log_to_driver=False)
+    started = time.perf_counter() - start
+    try:
+        noop = ray.remote(num_cpus=1)(_noop)
+        ray.get([noop.remote() for _ in range(2 * num_cpus)])  # worker processes up
+        trips = []
+        for _ in range(50):
+            t = time.perf_counter()
+            ray.get(noop.remote())
+            trips.append(time.perf_counter() - t)
+        t = time.perf_counter()
+        ray.get([noop.remote() for _ in range(1000)])
+        burst = (time.perf_counter() - t) / 1000
+    finally:
+        ray.shutdown()
+    return {"start": started, "round_trip": statistics.median(trips), "per_task_burst": burst}
+
+
+def _noop() -> None:
+    return None
+
+
+# -- report -------------------------------------------------------------------------------------
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        import ray  # noqa: F401
+    except ImportError:
+        print("error: bench scale needs Ray: pip install 'asset-preview[ray]'", file=sys.stderr)
+        return 2
+    work = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="bench-scale-"))
+    try:
+        return _run(args, work)
+    finally:
+        if not args.keep:
+            shutil.rmtree(work, ignore_errors=True)
+
+
+def _run(args: argparse.Namespace, work: Path) -> int:
+    work.mkdir(parents=True, exist_ok=True)
+    files = build_corpus(args.assets, work / "corpus", args.copies)
+    cores = os.cpu_count() or 1
+    print(f"corpus: {len(files)} assets ({len(sample_files(args.assets))} samples + perturbed copies), "
+          f"{cores} cores; cold bakes, fresh cache each")
+    configs = [("local, 1 worker", ("--workers", "1")), ("local, 2 workers", ("--workers", "2")),
+               ("ray, 2 CPUs", ("--executor", "ray", "--workers", "2"))]
+    results = {}
+    for label, extra in configs:
+        results[label] = bake_run(files, work / f"cache-{len(results)}", *extra)
+    keys = {label: r["keys"] for label, r in results.items()}
+    same = len({tuple(k) for k in keys.values()}) == 1
+    one, two, ray_ = (results[c[0]] for c in configs)
+
+    print(f"\n{'executor':18} {'wall s':>7} {'bake s':>7} {'assets/s':>9} {'x 1 worker':>10} "
+          f"{'median asset ms':>15} {'failed':>6}")
+    for label, r in results.items():
+        print(f"{label:18} {r['wall']:7.1f} {r['bake']:7.1f} {len(files) / r['bake']:9.1f} "
+              f"{one['bake'] / r['bake']:10.2f} {1000 * statistics.median(r['seconds']):15.1f} "
+              f"{r['failed']:6d}")
+    print(f"same cache keys in all three: {same}")
+
+    ov = ray_overheads(2)
+    per_asset_extra = (ray_["bake"] - two["bake"]) / len(files)
+    print(f"\nray overhead: cluster start {ov['start']:.1f} s; one no-op task round trip "
+          f"{1000 * ov['round_trip']:.2f} ms (median of 50); driver time per task in a burst of "
+          f"1000: {1000 * ov['per_task_burst']:.2f} ms; bake wall per asset vs local 2 workers: "
+          f"{1000 * per_asset_extra:+.1f} ms ({ray_['bake'] / two['bake']:.2f}x)")
+
+    c1 = one["bake"] / len(files)
+    eff = one["bake"] / two["bake"] / 2
+    o = max(per_asset_extra * 2, ov["round_trip"])  # per task, in worker-seconds on 2 slots
+    b = one["bytes"] / len(files)
+    d = ov["per_task_burst"]
+    print(f"\nprojection: {CATALOGUE} assets like this corpus on N machines of {args.cores} cores "
+          f"(model in bench/scale.py)")
+    print(f"  c1 = {1000 * c1:.0f} ms/asset (1 worker), e = {eff:.2f} (2 workers), o = {1000 * o:.0f} ms/task, "
+          f"d = {1000 * d:.2f} ms/task (driver), b = {b / 2**20:.2f} MiB/asset at {args.fs_mb_s:.0f} MB/s")
+    print(f"{'machines':>8} {'hours':>7} {'assets/s':>9}  bound")
+    for n in (1, 4, 16, 64, 256):
+        compute = CATALOGUE * (c1 + o) / (n * args.cores * eff)
+        bounds = {"compute": compute, "driver": CATALOGUE * d, "filesystem": CATALOGUE * b / (args.fs_mb_s * 1e6)}
+        which = max(bounds, key=bounds.get)
+        t = bounds[which]
+        print(f"{n:8d} {t / 3600:7.2f} {CATALOGUE / t:9.0f}  {which}")
+    return 0 if same and not any(r["failed"] for r in results.values()) else 1
