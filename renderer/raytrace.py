@@ -49,6 +49,7 @@ log = logging.getLogger(__name__)
 
 MIN_WEIGHT = 1e-3      # children below this throughput (max over RGB) are not traced
 EPSILON = 1e-4         # ray offset off a surface, relative to the scene's bounding radius
+CHUNK_PIXELS = 1 << 18  # supersampled pixels traced together: bounds memory at any size
 _THREADS = 2           # Embree releases the GIL: two halves of a batch run in parallel
 _pool: ThreadPoolExecutor | None = None
 
@@ -210,6 +211,19 @@ def _background(options: RenderOptions) -> tuple[float, float, float] | None:
     return None
 
 
+class _Image:
+    """Radiance and coverage summed per pixel."""
+
+    def __init__(self, npix: int):
+        self.npix = npix
+        self.rgb = np.zeros((npix, 3))
+        self.coverage = np.zeros(npix)
+
+    def add(self, rgb: np.ndarray, pix: np.ndarray) -> None:
+        for c in range(3):
+            self.rgb[:, c] += np.bincount(pix, rgb[:, c], minlength=self.npix)
+
+
 def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
           camera: Camera | None = None, supersample: int = 2) -> tuple[np.ndarray, dict]:
     """Linear H x W x 4 float32 (premultiplied RGB, alpha = coverage) and statistics."""
@@ -220,30 +234,57 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     ts = build_scene(asset, options)
     t_build = time.perf_counter()
     npix = camera.width * camera.height
-    eps = EPSILON * ts.radius
+    image = _Image(npix)
     stats = {"rays": npix, "bounces": [], "tir": 0}
     show_env = options.background == "env"
-    accum = np.zeros((npix, 3))
-    coverage = np.zeros(npix)
-
-    def add(rgb, where):
-        for c in range(3):
-            accum[:, c] += np.bincount(where, rgb[:, c], minlength=npix)
 
     # Adaptive anti-aliasing: one centre ray finds the object; pixels on or next to it get
     # ss x ss rays (the refracted environment is minified there), the open background keeps
     # its centre ray (the cube map is already filtered at about a pixel's footprint).
-    centre = camera.ray_directions().reshape(-1, 3)
-    first = _intersect(ts, np.broadcast_to(camera.position, centre.shape), centre)[0] >= 0
+    # Pixels go through in chunks so that memory stays bounded at any image size.
+    first = np.zeros(npix, bool)
+    for chunk in _chunks(np.arange(npix), 4 * CHUNK_PIXELS):
+        d, _ = _subpixel_rays(camera, chunk, 1)
+        first[chunk] = _intersect(ts, np.broadcast_to(camera.position, d.shape), d)[0] >= 0
     near = _near(first.reshape(camera.height, camera.width)).reshape(-1)
-    far = np.flatnonzero(~near)
-    if show_env and len(far):
-        add(_env(env, centre[far], np.full(len(far), options.background_blur)), far)
-    nsub = supersample * supersample
-    dirs, pix = _subpixel_rays(camera, np.flatnonzero(near), supersample)
-    origins = np.broadcast_to(camera.position, dirs.shape)
+    if show_env:
+        for chunk in _chunks(np.flatnonzero(~near), 4 * CHUNK_PIXELS):
+            d, _ = _subpixel_rays(camera, chunk, 1)
+            image.add(_env(env, d, np.full(len(d), options.background_blur)), chunk)
+    for chunk in _chunks(np.flatnonzero(near), CHUNK_PIXELS):
+        dirs, pix = _subpixel_rays(camera, chunk, supersample)
+        _trace_paths(ts, env, options, camera.position, dirs, pix, 1.0 / supersample ** 2,
+                     image, stats)
+
+    rgb = image.rgb.reshape(camera.height, camera.width, 3)
+    alpha = (np.ones((camera.height, camera.width)) if show_env
+             else image.coverage.reshape(rgb.shape[:2]))
+    linear = np.concatenate([rgb, alpha[..., None]], axis=-1).astype(np.float32)
+    linear = np.nan_to_num(linear, nan=0.0, posinf=0.0, neginf=0.0)  # never write NaN pixels
+    t1 = time.perf_counter()
+    stats.update(triangles=int(len(ts.material)), supersample=supersample,
+                 build_ms=(t_build - t0) * 1e3, trace_ms=(t1 - t_build) * 1e3)
+    log.info("raytrace %dx%d: %d rays in %.0f ms (%d bounces used)", camera.width,
+             camera.height, stats["rays"], (t1 - t0) * 1e3, len(stats["bounces"]))
+    return linear, stats
+
+
+def _chunks(indices: np.ndarray, size: int):
+    for start in range(0, len(indices), size):
+        yield indices[start:start + size]
+
+
+def _trace_paths(ts: TraceScene, env: BakedEnvironment, options: RenderOptions,
+                 eye: np.ndarray, dirs: np.ndarray, pix: np.ndarray, sample_share: float,
+                 image: _Image, stats: dict) -> None:
+    """Trace camera rays `dirs` (pixel `pix`, each `sample_share` of its pixel) through every
+    bounce, adding what reaches the environment into `image`."""
+    eps = EPSILON * ts.radius
+    show_env = options.background == "env"
+    add = image.add
+    origins = np.broadcast_to(eye, dirs.shape)
     weight = np.ones((len(dirs), 3))  # throughput of a sample (decides what is traced on)
-    share = np.full(len(dirs), 1.0 / nsub)  # its part of the pixel
+    share = np.full(len(dirs), sample_share)  # its part of the pixel
     blur = np.zeros(len(dirs))  # sum of squared GGX alphas of the lobes along the path
 
     for depth in range(max(int(options.bounces), 0) + 1):
@@ -254,10 +295,13 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
             break
         prim, u, v, t = _intersect(ts, origins, dirs)
         stats["rays"] += len(dirs)
-        stats["bounces"].append(len(dirs))
+        if depth < len(stats["bounces"]):
+            stats["bounces"][depth] += len(dirs)
+        else:
+            stats["bounces"].append(len(dirs))
         miss = prim < 0
         if depth == 0:
-            coverage = np.bincount(pix[~miss], share[~miss], minlength=npix)
+            image.coverage += np.bincount(pix[~miss], share[~miss], minlength=image.npix)
             if show_env:
                 bg = np.full(miss.sum(), options.background_blur)
                 add(_env(env, dirs[miss], bg) * share[miss, None], pix[miss])
@@ -315,17 +359,6 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
         pix = np.concatenate([px[keep_r], px[keep_t]])
         blur = np.concatenate([v_refl[keep_r], v_refr[keep_t]])
         share = np.concatenate([sh[keep_r], sh[keep_t]])
-
-    rgb = accum.reshape(camera.height, camera.width, 3)
-    alpha = np.ones((camera.height, camera.width)) if show_env else coverage.reshape(rgb.shape[:2])
-    linear = np.concatenate([rgb, alpha[..., None]], axis=-1).astype(np.float32)
-    linear = np.nan_to_num(linear, nan=0.0, posinf=0.0, neginf=0.0)  # never write NaN pixels
-    t1 = time.perf_counter()
-    stats.update(triangles=int(len(ts.material)), supersample=supersample,
-                 build_ms=(t_build - t0) * 1e3, trace_ms=(t1 - t_build) * 1e3)
-    log.info("raytrace %dx%d: %d rays in %.0f ms (%d bounces used)", camera.width,
-             camera.height, stats["rays"], (t1 - t0) * 1e3, len(stats["bounces"]))
-    return linear, stats
 
 
 def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
