@@ -80,6 +80,9 @@ def samples(server, assets):
         "suzanne.ply": ((assets / "mesh/suzanne.ply").read_bytes(), {}),
         "primvar_interpolation.usda": ((assets / "usd/primvar_interpolation.usda").read_bytes(), {}),
         "Teapot.zip": (folder_zip(assets / "usd/Teapot"), {"main": "Teapot.usd"}),
+        "TextureCoordinateTest.zip": (folder_zip(assets / "usd/TextureCoordinateTest", "T/"),
+                                      {"main": "T/TextureCoordinateTest.usda"}),
+        "rgb_cube_with_primitives.gltf": ((assets / "gltf/rgb_cube_with_primitives.gltf").read_bytes(), {}),
     }
     records = {}
     for name, (data, form) in uploads.items():
