@@ -52,7 +52,12 @@ class Settings:
 
     @property
     def worker_count(self) -> int:
-        return self.workers if self.workers > 0 else max(1, os.cpu_count() or 1)
+        if self.workers > 0:
+            return self.workers
+        try:  # the CPUs this process may use (a container's cpuset), not the host's count
+            return max(1, len(os.sched_getaffinity(0)))
+        except AttributeError:
+            return max(1, os.cpu_count() or 1)
 
     @property
     def root(self) -> Path:
