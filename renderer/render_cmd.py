@@ -34,6 +34,12 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--base-color", help="override: linear r,g,b for every mesh")
     p.add_argument("--metallic", type=float, help="override for every mesh")
     p.add_argument("--roughness", type=float, help="override for every mesh")
+    p.add_argument("--ior", type=float, help="override for every mesh (with --transmission: glass)")
+    p.add_argument("--transmission", type=float, help="override for every mesh, 0..1")
+    p.add_argument("--tir", choices=["paper", "reflect"], default=None,
+                   help="wyman: total internal reflection treatment (default: reflect)")
+    p.add_argument("--debug", choices=["backface_normals", "tir", "exit_distance"], default=None,
+                   help="wyman debug view")
     p.add_argument("--quality", type=int, default=None, help="JPEG / WebP quality")
     p.add_argument("--linear", help="also write the linear frame (.exr or .npy)")
     p.add_argument("--cache", default=None, help="cache directory (default $ASSET_PREVIEW_CACHE or ./.cache)")
@@ -71,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
             distance=args.distance, method=args.method, tonemap=args.tonemap,
             exposure=args.exposure, background=args.background, background_blur=args.blur,
             override=override, msaa=args.msaa, lights=not args.no_lights,
-            multiscatter=args.multiscatter)
+            multiscatter=args.multiscatter, tir=args.tir, debug=args.debug)
         validate_options(options)  # reject bad options before spending time on a bake
     except ValueError as exc:
         return _fail(str(exc))
@@ -101,5 +107,6 @@ def _override(args):
             color = ()
         if len(color) != 3:
             raise ValueError(f"--base-color {args.base_color!r}: expected r,g,b (linear, 0..1)")
-    ov = MaterialOverride(base_color=color, metallic=args.metallic, roughness=args.roughness)
+    ov = MaterialOverride(base_color=color, metallic=args.metallic, roughness=args.roughness,
+                          ior=args.ior, transmission=args.transmission)
     return None if ov.is_empty() else ov
