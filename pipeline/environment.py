@@ -181,7 +181,7 @@ def _ggx_mips(ctx, gl, base: np.ndarray, levels: int) -> list[np.ndarray]:
     weighted = np.concatenate([base * w[None, :, :, None], np.broadcast_to(w[None, :, :, None], (6, size, size, 1))], axis=-1)
     src = ctx.texture_cube((size, size), 4, weighted.astype(np.float32).tobytes(), dtype="f4")
     src.build_mipmaps()
-    src.filter = (ctx.LINEAR_MIPMAP_LINEAR, ctx.LINEAR)
+    src.filter = (ctx.LINEAR_MIPMAP_NEAREST, ctx.LINEAR)  # whole LODs: bilinear, no blend of two mips (2-3x faster on llvmpipe)
     max_lod = int(math.log2(size))
     prog = gl.program("screen_triangle.vert", "prefilter_ggx.frag", {"MAX_SAMPLES": GGX_MAX_SAMPLES})
     prog["u_source"].value = 0
@@ -257,7 +257,7 @@ def ggx_samples(roughness: float, count: int, source_size: int, max_lod: float) 
     pdf = d / 4  # D * N.H / (4 V.H) with N = V
     texel_solid_angle = 4 * np.pi / (6 * source_size * source_size)
     # +1: Karis's bias toward a blurrier mip, which hides the sample pattern
-    lod = np.clip(0.5 * np.log2(1 / (count * pdf * texel_solid_angle)) + 1, 0, max_lod)
+    lod = np.round(np.clip(0.5 * np.log2(1 / (count * pdf * texel_solid_angle)) + 1, 0, max_lod))
     keep = light[:, 2] > 1e-4
     return np.concatenate([light, lod[:, None]], axis=1)[keep]
 
