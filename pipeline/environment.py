@@ -32,6 +32,7 @@ from .panorama import (DEFAULT_ENVIRONMENT, Panorama, list_bundled, load_panoram
 log = logging.getLogger(__name__)
 
 METHODS = ("ggx", "paper")
+PREFILTER_VERSION = 2      # bump when the filter's output changes (cache keys include it)
 MIN_FACE = 4               # smallest mip face; rougher lobes need no finer than this, see default_levels
 GGX_SAMPLES = 64           # per texel at mip 1, doubling per mip (coarse mips have few texels)
 GGX_MAX_SAMPLES = 512

@@ -41,7 +41,7 @@ def load_panorama(source: str | Path, limits: Limits | None = None) -> Panorama:
     """Read a panorama file, or a bundled one by bare name (`footprint_court`, see
     `list_bundled`). Raises an `AssetError` subclass naming the file on bad input."""
     limits = limits or Limits.from_env()
-    path = _resolve(source)
+    path = resolve_panorama(source)
     suffix = path.suffix.lower()
     if suffix not in LDR_SUFFIXES + HDR_SUFFIXES:
         raise UnsupportedFormat(path, f"not a panorama format ({', '.join(LDR_SUFFIXES + HDR_SUFFIXES)})")
@@ -71,7 +71,8 @@ def load_panorama(source: str | Path, limits: Limits | None = None) -> Panorama:
     return Panorama(name=path.stem, pixels=_sanitize(pixels, path), files=[path])
 
 
-def _resolve(source: str | Path) -> Path:
+def resolve_panorama(source: str | Path) -> Path:
+    """The file a panorama source names: an existing path, else a bundled name's JPEG."""
     path = Path(source)
     if path.is_file():
         return path
@@ -100,6 +101,9 @@ def _sanitize(pixels: np.ndarray, path: Path) -> np.ndarray:
         log.warning("%s: %d NaN, negative or out-of-range values clamped", path, int(bad.sum()))
         pixels = np.clip(np.nan_to_num(pixels, nan=0.0, posinf=65504.0), 0.0, 65504.0)
     return pixels
+
+
+_resolve = resolve_panorama  # the name pipeline/bake.py imported first
 
 
 # Radiance RGBE (.hdr) -------------------------------------------------------------------------
