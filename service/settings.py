@@ -34,6 +34,8 @@ class Settings:
     default_env: str = "footprint_court"
     seed: bool = True                     # seed the sample assets into an empty store
     samples: Path | None = None           # folder to seed from; default ../shared/assets or service/samples
+    state: Path | None = None             # service records/uploads/thumbnails; default <cache>/service.
+                                          # Own per replica when replicas share one bake cache.
 
     @classmethod
     def from_env(cls, **overrides) -> "Settings":
@@ -45,7 +47,7 @@ class Settings:
             if raw is not None:
                 values[field.name] = _parse(field, raw)
         values.update({k: v for k, v in overrides.items() if v is not None})
-        for key in ("cache", "samples"):
+        for key in ("cache", "samples", "state"):
             if values.get(key) not in (None, ""):
                 values[key] = Path(values[key])
         return cls(**values)
@@ -62,7 +64,7 @@ class Settings:
     @property
     def root(self) -> Path:
         """Where the service keeps its own state, beside the pipeline's bake cache."""
-        return Path(self.cache) / "service"
+        return Path(self.state) if self.state else Path(self.cache) / "service"
 
 
 def _parse(field: dataclasses.Field, raw: str):
