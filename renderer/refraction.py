@@ -32,6 +32,8 @@ from .render import DrawItem, Pass, _apply_override, register_method
 
 log = logging.getLogger(__name__)
 
+# Measured at 128-256 px against the references (paper / reflect): sphere 1.5 0.088 / 0.088,
+# cube 1.15 0.53 / 0.19, bunny 0.32 / 0.34, torus 0.156 / 0.162; mean 0.27 / 0.19.
 DEFAULT_TIR = "reflect"
 # Newton steps that move Wyman's exit estimate onto the back surface (shaders/refraction.frag
 # refine_exit); 0 is the paper's interpolation alone. IOR 1.5 sphere vs Mitsuba: 0.34 with 0
