@@ -143,7 +143,7 @@ def _atlas(ctx, size: int):
 
 def _draw(ctx, gl, fbo, prog) -> None:
     fbo.use()
-    ctx.disable(ctx.BLEND | ctx.DEPTH_TEST)  # state the renderer may have left on
+    ctx.disable(ctx.BLEND | ctx.DEPTH_TEST | ctx.CULL_FACE)  # state the renderer may have left on
     fbo.viewport = (0, 0) + fbo.size
     gl.fullscreen_vao(prog).render(vertices=3)
 
