@@ -51,15 +51,15 @@ def uniform_env(radiance=1.0, size=16) -> BakedEnvironment:
                             brdf_lut=np.zeros((8, 8, 2), np.float32))
 
 
-# Thresholds: measured value at 2x2 supersampling in brackets; the margin covers the
-# environment bake (GGX vs box mips do not change mip 0) and float differences.
+# Thresholds: the value measured with the default supersampling in brackets (2 x 2 at 500 px
+# gives 0.024 on the IOR 1.5 sphere); the margin covers float and bake differences.
 @pytest.mark.parametrize("name,limit", [
-    ("mirror_sphere", 0.035),           # [0.026]
-    ("glass_sphere_ior1.3", 0.035),     # [0.025]
-    ("glass_sphere_ior1.5", 0.035),     # [0.026]
-    ("glass_sphere_ior1.0", 0.03),      # [0.015]
-    ("glass_sphere_ior1.15", 0.035),    # [0.026]
-    ("glass_cube_ior1.15", 0.03),       # [0.012]
+    ("mirror_sphere", 0.025),           # [0.014]
+    ("glass_sphere_ior1.3", 0.03),      # [0.021]
+    ("glass_sphere_ior1.5", 0.03),      # [0.022]
+    ("glass_sphere_ior1.0", 0.03),      # [0.018] cube-map resampling of the panorama
+    ("glass_sphere_ior1.15", 0.03),     # [0.020]
+    ("glass_cube_ior1.15", 0.02),       # [0.009]
 ])
 def test_matches_mitsuba_reference(name, limit, env, cache):
     err = relative_mae(render(name, env, cache).linear, load_reference(name))
@@ -67,12 +67,12 @@ def test_matches_mitsuba_reference(name, limit, env, cache):
 
 
 @pytest.mark.parametrize("name,limit", [
-    ("glass_sphere_ior2.4", 0.07),      # [0.046]
-    ("glass_ellipsoid_311_ior1.5", 0.12),  # [0.084] 3:1:1 non-uniform node scale
-    ("glass_torus_ior1.5", 0.09),       # [0.057] genus 1
-    ("glass_torus_ior2.4", 0.09),       # [0.062]
-    ("glass_bunny_ior1.5", 0.25),       # [0.174] open mesh, sub-pixel detail at 128 px
-    ("frosted_sphere_ior1.5_r0.3", 0.18),  # [0.120] rough lobes as prefiltered mips, not traced
+    ("glass_sphere_ior2.4", 0.04),      # [0.025]
+    ("glass_ellipsoid_311_ior1.5", 0.05),  # [0.031] 3:1:1 non-uniform node scale
+    ("glass_torus_ior1.5", 0.05),       # [0.032] genus 1
+    ("glass_torus_ior2.4", 0.05),       # [0.035]
+    ("glass_bunny_ior1.5", 0.13),       # [0.088] open mesh, sub-pixel detail at 128 px
+    ("frosted_sphere_ior1.5_r0.3", 0.16),  # [0.113] rough lobes as prefiltered mips, not traced
 ])
 def test_hard_cases_finite_and_error_recorded(name, limit, env, cache):
     frame = render(name, env, cache)
@@ -94,7 +94,7 @@ def test_more_bounces_converge_to_the_reference(env, cache):
     ref = load_reference("glass_sphere_ior1.5")
     errs = [relative_mae(render("glass_sphere_ior1.5", env, cache, bounces=b).linear, ref)
             for b in (1, 2, 8)]
-    assert errs[0] > 2 * errs[1] > 2 * errs[2] / 1.5, errs
+    assert errs[0] > 5 * errs[1] and errs[1] > 2 * errs[2], errs  # [0.92, 0.052, 0.022]
 
 
 def test_orientation_matters(env, cache):
@@ -153,6 +153,7 @@ def test_frame_and_transparent_background(env, cache):
     assert 0 < alpha.mean() < 1
     assert frame.plan["method"] == "raytrace" and frame.plan["bounces"] == 8
     assert set(frame.timings) >= {"build", "trace", "total"}
+    assert frame.plan["supersample"] == 4  # small frames get more rays per pixel
 
 
 def test_every_instance_is_traced(env):
