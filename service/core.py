@@ -67,6 +67,7 @@ class ThumbnailService:
         self._bake_slots: asyncio.Semaphore | None = None
         self._renders: dict[str, asyncio.Future] = {}
         self._background: set[asyncio.Task] = set()
+        self._writes: set[asyncio.Task] = set()  # thumbnails on their way to disk
         self._bundled_envs: list[str] | None = None
         m = self.metrics
         m.gauges["asset_preview_render_queue"] = ("Renders waiting or running", lambda: {"": self.pool.pending})
@@ -83,6 +84,8 @@ class ThumbnailService:
         self._spawn(self._warm_up_then_resume())
 
     async def stop(self) -> None:
+        if self._writes:  # finish writing what was already answered
+            await asyncio.wait(list(self._writes), timeout=10)
         for t in list(self._background) + list(self._bakes.values()):
             t.cancel()
         await self.pool.stop()
@@ -355,8 +358,20 @@ class ThumbnailService:
         plan = json.dumps(out["plan"], separators=(",", ":"), default=str)
         if asset_id not in self.store.assets:  # deleted while rendering: do not resurrect
             raise NotFound(asset_id)
-        await asyncio.to_thread(self.thumbs.write, asset_id, key, params.format, out["image"], plan)
+        # Answer from memory now; the disk copy (two fsyncs) is written off the request path.
+        task = asyncio.get_running_loop().create_task(
+            self._persist(asset_id, key, params.format, out["image"], plan))
+        self._writes.add(task)
+        task.add_done_callback(self._writes.discard)
         return self.thumbs.remember(asset_id, key, params.format, out["image"], plan)
+
+    async def _persist(self, asset_id: str, key: str, fmt: str, image: bytes, plan: str) -> None:
+        try:
+            await asyncio.to_thread(self.thumbs.write, asset_id, key, fmt, image, plan)
+        except OSError as exc:  # a full disk costs the disk copy, not the answer
+            log.error("thumbnail %s/%s not written: %s", asset_id, key, exc)
+        if asset_id not in self.store.assets:  # deleted meanwhile: leave nothing behind
+            await asyncio.to_thread(shutil.rmtree, self.store.thumbs_dir / asset_id, True)
 
 
 class UploadTooLarge(AssetError):
