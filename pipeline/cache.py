@@ -31,6 +31,16 @@ logged, the entry removed, and the caller rebakes. That check is also why nothin
 an entry torn by a power cut fails it and is rebaked, so durability costs no bake time.
 Loads touch the manifest's mtime, the recency that the optional size cap's least-recently-used
 eviction goes by; tmp/ leftovers of crashed processes are swept after an hour.
+
+Shared filesystems (one cache for many machines). What the root's filesystem must give:
+rename(2) of a directory within it atomic, failing when the target is a non-empty directory
+(local filesystems, NFSv3/v4, CephFS, Lustre, GPFS; the whole root on one filesystem, no
+sub-folder mounted apart); close-to-open consistency, so a file closed on one host reads whole
+on a host that opens it later (NFS's default: never mount with `nocto`); attribute caching
+only delays seeing a new entry (a miss, a rebake, a lost rename race); host clocks within
+minutes of each other (the tmp/ sweep compares file times with the local clock). FUSE mounts
+of object stores (s3fs, gcsfuse, mountpoint-s3) lack atomic directory rename: not a cache root.
+Object storage goes through fsspec beside this cache, not under it: see the README.
 """
 from __future__ import annotations
 
