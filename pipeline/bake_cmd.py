@@ -38,7 +38,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         metavar="N", help="bake in N processes (default 1: in this process)")
     parser.add_argument("--executor", choices=("local", "ray"),
                         default=os.environ.get("ASSET_PREVIEW_EXECUTOR", "local"),
-                        help="local processes (default), or Ray tasks on a cluster (see --ray-address)")
+                        help="local processes (default), or Ray tasks on a cluster (--ray-address; "
+                             "without one, a new local Ray with --workers CPUs, default all)")
     parser.add_argument("--ray-address", default=None, metavar="auto|HOST:PORT|ray://HOST:PORT",
                         help="Ray cluster to join (default $RAY_ADDRESS, else a new local one)")
     parser.add_argument("--max-size", default=None, metavar="SIZE",
