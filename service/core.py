@@ -74,6 +74,8 @@ class ThumbnailService:
         m.gauges["asset_preview_workers_busy"] = (
             "Render workers running a job", lambda: {"": sum(w.busy_since is not None for w in self.pool.workers)})
         m.gauges["asset_preview_assets"] = ("Stored assets by status", self._asset_counts)
+        m.gauges["asset_preview_info"] = ("Versions in use", lambda: {
+            f'renderer_version="{self.renderer_version}",workers="{self.pool.size}"': 1})
 
     # -- life cycle -------------------------------------------------------------------------
 
