@@ -18,6 +18,9 @@ a rough reflection or refraction keeps its mirror direction and, at escape, read
 prefiltered mip for the lobe width gathered along the path (as the raster path's split-sum
 does; refraction lobes are narrower by |1 - eta| / 2). Inside a volume, Beer-Lambert
 attenuation exp(-sigma t) with sigma = -ln(attenuation_color) / attenuation_distance.
+Material factors only: textures and normal maps are not sampled, and punctual lights are not
+used (the environment is the only light), so the method is exact for untextured glass and
+mirrors, which is what it is for.
 
 Anti-aliasing: `supersample` x `supersample` stratified rays per pixel (box filter) on and
 around the object, so silhouettes and the strongly minified refracted environment average
