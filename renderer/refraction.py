@@ -7,16 +7,18 @@ once, estimates the exit distance between the view-ray depth D_d and the baked i
 vector's length D_I (transformed by the instance matrix) by theta_r / theta_i, moves that
 estimate onto the back surface with EXIT_REFINE_STEPS Newton steps against the back-face
 positions, projects the exit point to fetch the back-face normal (bilinear) and refracts out,
-the exit's Fresnel-reflected share reading the environment (shaders/refraction.frag). Total internal reflection at the exit:
-`tir="paper"` keeps the first refraction, `tir="reflect"` reflects internally and takes one
-more exit estimate; DEFAULT_TIR is the one with the lower error against the references.
+the exit's Fresnel-reflected share reading the environment (shaders/refraction.frag).
+Total internal reflection at the exit: `tir="paper"` keeps the first refraction;
+`tir="reflect"` reflects internally and marches the reflected ray between the nearest back
+faces and the nearest front faces (one more pass, drawn only in this mode) to a second exit,
+refracting out by the normal of the layer it crossed. DEFAULT_TIR has the lower error.
 
 Both methods see the asset's own opaque parts: when the frame already holds opaque geometry,
 its colour and depth are copied to textures and refracted rays march across them in screen
 space before falling back to the environment.
 
-The back-face textures exist only while some frame has a `wyman` object: an opaque scene
-never runs the pass or allocates them (`stats` counts both, for the tests).
+The face textures exist only once some frame has had a `wyman` object: an opaque scene never
+runs the passes or allocates them (`stats` counts both, for the tests).
 """
 from __future__ import annotations
 
@@ -33,18 +35,21 @@ from .render import DrawItem, Pass, _apply_override, register_method
 log = logging.getLogger(__name__)
 
 # Measured at 128-256 px against the references (paper / reflect): sphere 1.5 0.088 / 0.088,
-# cube 1.15 0.53 / 0.19, bunny 0.32 / 0.34, torus 0.156 / 0.162; mean 0.27 / 0.19.
+# cube 1.15 0.53 / 0.19, cube 1.5 0.52 / 0.33, bunny 0.316 / 0.317, torus 0.156 / 0.156,
+# duck 0.315 / 0.308, teapot 0.327 / 0.325, sphere 2.4 0.154 / 0.156, torus 2.4 0.229 / 0.224.
 DEFAULT_TIR = "reflect"
 # Newton steps that move Wyman's exit estimate onto the back surface (shaders/refraction.frag
 # refine_exit); 0 is the paper's interpolation alone. IOR 1.5 sphere vs Mitsuba: 0.34 with 0
 # steps, 0.13 with 1, 0.088 with 2, 0.085 with 3 (the exact exit distance gives 0.085).
 EXIT_REFINE_STEPS = 2
 DEBUG_VIEWS = {"backface_normals": 1, "tir": 2, "exit_distance": 3}
-MAX_TARGETS = 4
+MAX_TARGETS = 6  # (kind, size) entries: back, front and opaque layers for two sizes
 # Texture units above the material's (render.Pass.draw binds 0, 1 and 2..6).
 _UNIT_BACK_POSITION, _UNIT_BACK_NORMAL, _UNIT_OPAQUE_COLOR, _UNIT_OPAQUE_DEPTH = 8, 9, 10, 11
+_UNIT_FRONT_POSITION, _UNIT_FRONT_NORMAL = 12, 13
 
-stats = {"backface_passes": 0, "back_allocations": 0, "opaque_allocations": 0, "opaque_copies": 0}
+stats = {"backface_passes": 0, "frontface_passes": 0, "back_allocations": 0,
+         "front_allocations": 0, "opaque_allocations": 0, "opaque_copies": 0}
 
 
 @dataclass
@@ -69,7 +74,7 @@ def allocated() -> list[tuple]:
 
 
 def _get_targets(ctx: moderngl.Context, kind: str, w: int, h: int) -> _Targets:
-    """Back faces: RGBA32F world position + roughness, RGBA16F outward normal + coverage.
+    """Back / front faces: RGBA32F world position + roughness, RGBA16F outward normal + coverage.
     Opaque copy: RGBA16F colour. Both with a depth texture; kept per size (small LRU)."""
     global _targets_ctx
     if _targets_ctx != id(ctx):
@@ -78,7 +83,7 @@ def _get_targets(ctx: moderngl.Context, kind: str, w: int, h: int) -> _Targets:
     key = (kind, w, h)
     t = _targets.pop(key, None)
     if t is None:
-        dtypes = ("f4", "f2") if kind == "back" else ("f2",)
+        dtypes = ("f2",) if kind == "opaque" else ("f4", "f2")
         color = [ctx.texture((w, h), 4, dtype=dt) for dt in dtypes]
         for tex in color:
             tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
@@ -109,22 +114,24 @@ def _has_opaque(p: Pass) -> bool:
                for gm in p.asset.meshes)
 
 
-def _backface_pass(p: Pass, items: list[DrawItem]) -> _Targets:
+def _surface_pass(p: Pass, items: list[DrawItem], side: str) -> _Targets:
+    """The nearest `side` ("back" or "front") faces of the refractive objects: world position,
+    roughness and outward normal (shaders/backface.frag)."""
     ctx = p.ctx
     w, h = p.fbo.size
-    t = _get_targets(ctx, "back", w, h)
+    t = _get_targets(ctx, side, w, h)
     t.fbo.use()
     ctx.viewport = (0, 0, w, h)
     t.fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
     ctx.enable(moderngl.DEPTH_TEST)
-    ctx.cull_face = "front"
+    ctx.cull_face = "front" if side == "back" else "back"
     try:
         for it in items:
             prog, state = p.program(it, fragment="backface.frag")
             p.draw(it, prog, state, cull=True)
     finally:
         ctx.cull_face = "back"
-    stats["backface_passes"] += 1
+    stats[f"{side}face_passes"] += 1
     return t
 
 
@@ -144,7 +151,7 @@ def tir_mode(options) -> str:
 
 
 def _draw_front(p: Pass, items: list[DrawItem], back: _Targets | None,
-                opaque: _Targets | None) -> None:
+                front: _Targets | None, opaque: _Targets | None) -> None:
     wyman = back is not None
     cam = p.camera
     w, h = cam.width, cam.height
@@ -177,6 +184,7 @@ def _draw_front(p: Pass, items: list[DrawItem], back: _Targets | None,
             "u_camera_forward": tuple(float(x) for x in cam.basis()[2]),
             "u_trace_length": 2.0 * radius, "u_debug_scale": 0.5 / radius,
             "u_back_position": _UNIT_BACK_POSITION, "u_back_normal": _UNIT_BACK_NORMAL,
+            "u_front_position": _UNIT_FRONT_POSITION, "u_front_normal": _UNIT_FRONT_NORMAL,
             "u_opaque_color": _UNIT_OPAQUE_COLOR, "u_opaque_depth": _UNIT_OPAQUE_DEPTH,
         }
         for name, value in values.items():
@@ -185,6 +193,9 @@ def _draw_front(p: Pass, items: list[DrawItem], back: _Targets | None,
         if wyman:
             back.color[0].use(_UNIT_BACK_POSITION)
             back.color[1].use(_UNIT_BACK_NORMAL)
+        if front is not None:
+            front.color[0].use(_UNIT_FRONT_POSITION)
+            front.color[1].use(_UNIT_FRONT_NORMAL)
         if opaque:
             opaque.color[0].use(_UNIT_OPAQUE_COLOR)
             opaque.depth.use(_UNIT_OPAQUE_DEPTH)
@@ -194,8 +205,9 @@ def _draw_front(p: Pass, items: list[DrawItem], back: _Targets | None,
 
 def _draw(p: Pass, items: list[DrawItem], wyman: bool) -> None:
     opaque = _opaque_copy(p) if _has_opaque(p) else None
-    back = _backface_pass(p, items) if wyman else None
-    _draw_front(p, items, back, opaque)
+    back = _surface_pass(p, items, "back") if wyman else None
+    front = _surface_pass(p, items, "front") if wyman and tir_mode(p.options) == "reflect" else None
+    _draw_front(p, items, back, front, opaque)
 
 
 def draw_single(p: Pass, items: list[DrawItem]) -> None:

@@ -5,7 +5,9 @@
 // entry reflects, (1 - F) transmission refracts and (1 - F)(1 - transmission) is Lambert.
 // The refracted ray: `single` samples the environment with the first refraction; WYMAN
 // estimates the exit point (Wyman 2005, paper 4.2.2) from the back-face textures and the
-// baked interior vector, refracts out through the back-face normal there. SCREEN_OPAQUE:
+// baked interior vector, refines it onto the back surface, refracts out through the
+// back-face normal there; TIR_REFLECT reflects a totally internally reflected ray and
+// marches it between the front- and back-face layers to a second exit. SCREEN_OPAQUE:
 // rays that reach opaque geometry drawn before take its colour (screen-space march).
 #include "material_info.glsl"
 #include "ibl.glsl"
@@ -19,6 +21,7 @@ uniform float u_ior;
 uniform float u_transmission;
 uniform vec3 u_sigma;            // Beer-Lambert absorption per scene unit (KHR_materials_volume)
 uniform float u_thickness;       // path length without baked interior vectors
+uniform float u_trace_length;    // the scene's bounding diameter: how far rays are marched
 #ifdef HAS_INTERIOR
 in vec3 v_interior;              // world-space vertex->exit vector (pbr.vert)
 #endif
@@ -28,13 +31,16 @@ in vec3 v_interior;              // world-space vertex->exit vector (pbr.vert)
 #ifdef WYMAN
 uniform sampler2D u_back_position;  // xyz world position, w roughness
 uniform sampler2D u_back_normal;    // xyz outward normal, w coverage
+#ifdef TIR_REFLECT
+uniform sampler2D u_front_position; // the same for the nearest front faces
+uniform sampler2D u_front_normal;
+#endif
 #endif
 #ifdef SCREEN_OPAQUE
 uniform sampler2D u_opaque_color;   // opaque geometry drawn before, premultiplied linear
 uniform sampler2D u_opaque_depth;
 uniform vec2 u_near_far;
 uniform vec3 u_camera_forward;
-uniform float u_trace_length;
 #endif
 #ifdef DEBUG_VIEW
 uniform float u_debug_scale;        // exit distance shown as D x scale
@@ -53,60 +59,116 @@ bool project(vec3 p, out vec2 uv) {
 }
 
 #ifdef WYMAN
-bool covered(vec2 uv) {
+// A surface layer: world position + roughness and outward normal + coverage textures of the
+// nearest back faces (side +1) or, for TIR_REFLECT, the nearest front faces (side -1).
+bool covered(sampler2D normals, vec2 uv) {
     return all(greaterThanEqual(uv, vec2(0.0))) && all(lessThanEqual(uv, vec2(1.0)))
-        && texelFetch(u_back_normal, texel_of(uv), 0).w > 0.5;
+        && texelFetch(normals, texel_of(uv), 0).w > 0.5;
 }
 
-// The back face seen at uv; where uv misses the object (an exit estimate just outside the
+// The surface seen at uv; where uv misses the object (an exit estimate just outside the
 // silhouette), the last covered texel on the segment from this fragment's uv0 (bisection),
 // so the exit takes the silhouette's normal rather than none.
-bool back_face(vec2 uv0, vec2 uv, out vec4 pos, out vec3 n) {
-    if (!covered(uv)) {
-        if (!covered(uv0)) return false;
+bool surface_at(sampler2D positions, sampler2D normals, vec2 uv0, vec2 uv, out vec4 pos,
+                out vec3 n) {
+    if (!covered(normals, uv)) {
+        if (!covered(normals, uv0)) return false;
         vec2 lo = uv0, hi = uv;
         for (int i = 0; i < 8; ++i) {
             vec2 mid = 0.5 * (lo + hi);
-            if (covered(mid)) lo = mid; else hi = mid;
+            if (covered(normals, mid)) lo = mid; else hi = mid;
         }
         uv = lo;
     }
-    pos = texelFetch(u_back_position, texel_of(uv), 0);
+    pos = texelFetch(positions, texel_of(uv), 0);
     // Bilinear over covered texels only (w is coverage): the nearest texel's normal alone
     // cost 0.05 of relative error on the IOR 1.5 sphere.
-    vec4 nl = texture(u_back_normal, uv);
+    vec4 nl = texture(normals, uv);
     n = normalize(nl.xyz / max(nl.w, 1e-6));
     return true;
 }
 
-// Refine the exit distance t along p + r t against the back faces: the point belongs on the
-// back surface seen through its own pixel. Each step moves t by the gap between the back
-// surface's and the point's distance from the camera (a Newton step along the view ray),
-// kept inside a bracket: behind a back face or off the object is too far, in front of it
-// too near. Starts from Wyman's estimate; EXIT_REFINE 0 is the paper's method unchanged.
-float refine_exit(vec3 p, vec3 r, float t) {
-    float lo = 0.0, hi = 1e30;
+// How far beyond q (side +1) or before it (side -1) the surface seen through q's pixel lies,
+// along that pixel's view ray: > 0 while q is still inside. False off the object or screen.
+bool surface_gap(sampler2D positions, sampler2D normals, float side, vec3 q, out float gap,
+                 out vec3 ray) {
+    vec2 uv;
+    if (!project(q, uv) || any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0))))
+        return false;
+    vec4 nl = texture(normals, uv);
+    if (nl.w <= 0.5) return false;
+    vec3 b = texture(positions, uv).xyz / nl.w;
+    ray = normalize(q - u_camera_position);
+    gap = side * dot(b - q, ray);
+    return true;
+}
+
+// Refine the exit distance t along p + r t: the exit point belongs on the surface seen
+// through its own pixel. Each step moves t by the gap (a Newton step along the view ray),
+// kept inside a bracket: past the surface or off the object is too far, short of it too
+// near. Starts from Wyman's estimate; EXIT_REFINE 0 keeps the paper's estimate. Returns
+// whether t ends on the surface the camera sees (within 2%): where the true exit is hidden
+// behind another face of the layer (concave shapes, a teapot's base) it does not.
+bool refine_exit(sampler2D positions, sampler2D normals, float side, vec3 p, vec3 r,
+                 inout float t) {
+    float lo = 0.0, hi = 1e30, gap;
+    vec3 ray;
     for (int i = 0; i < EXIT_REFINE; ++i) {
-        vec3 q = p + r * t;
-        vec2 uv;
-        float next;
-        vec4 nl;
-        if (project(q, uv) && all(greaterThanEqual(uv, vec2(0.0))) && all(lessThanEqual(uv, vec2(1.0)))
-                && (nl = texture(u_back_normal, uv)).w > 0.5) {
-            vec3 b = texture(u_back_position, uv).xyz / nl.w;
-            vec3 ray = normalize(q - u_camera_position);
-            float gap = dot(b - u_camera_position, ray) - dot(q - u_camera_position, ray);
+        float next = -1.0;
+        if (surface_gap(positions, normals, side, p + r * t, gap, ray)) {
             if (gap > 0.0) lo = t; else hi = t;
-            float rate = dot(r, ray);  // how fast t moves the point along the view ray
-            next = rate > 0.05 ? t + gap / rate : -1.0;
+            float rate = side * dot(r, ray);  // how fast t moves the point toward the surface
+            if (rate > 0.05) next = t + gap / rate;
         } else {
             hi = t;
-            next = -1.0;
         }
         t = (next >= lo && next <= hi) ? next : (hi < 1e30 ? 0.5 * (lo + hi) : 2.0 * t);
     }
-    return t;
+    return surface_gap(positions, normals, side, p + r * t, gap, ray)
+        && abs(gap) < 0.02 * t + 1e-6;
 }
+
+#ifdef TIR_REFLECT
+// How deep q lies inside the volume between the nearest front and back faces at its pixel
+// (> 0 inside); `back` says which layer is the nearer one to leave by.
+float inside_depth(vec3 q, out bool back) {
+    float gb, gf;
+    vec3 ray;
+    bool cb = surface_gap(u_back_position, u_back_normal, 1.0, q, gb, ray);
+    bool cf = surface_gap(u_front_position, u_front_normal, -1.0, q, gf, ray);
+    if (!cb || !cf) {
+        back = cb;
+        return -1.0;
+    }
+    back = gb < gf;
+    return min(gb, gf);
+}
+
+// March a ray reflected inside from p until it leaves the volume (16 steps over the bounding
+// diameter, then bisection); t and the outward normal of the layer it left by.
+bool second_exit(vec3 p, vec3 r, vec2 uv0, out float t, out vec3 n) {
+    const int STEPS = 16;
+    float step_len = u_trace_length / float(STEPS);
+    float lo = 0.0, hi = -1.0;
+    bool back = true;
+    for (int i = 1; i <= STEPS && hi < 0.0; ++i) {
+        float ti = step_len * float(i);
+        if (inside_depth(p + r * ti, back) > 0.0) lo = ti; else hi = ti;
+    }
+    if (hi < 0.0) return false;
+    for (int i = 0; i < 6; ++i) {
+        float mid = 0.5 * (lo + hi);
+        if (inside_depth(p + r * mid, back) > 0.0) lo = mid; else hi = mid;
+    }
+    t = 0.5 * (lo + hi);
+    inside_depth(p + r * lo, back);
+    vec2 uv;
+    vec4 pos;
+    return project(p + r * t, uv) && (back
+        ? surface_at(u_back_position, u_back_normal, uv0, uv, pos, n)
+        : surface_at(u_front_position, u_front_normal, uv0, uv, pos, n));
+}
+#endif
 #endif
 
 #ifdef SCREEN_OPAQUE
@@ -177,9 +239,7 @@ void main() {
     d_interior = d_view;  // no baked vectors (a mesh previewed as glass): D_d alone
 #endif
     float D = exit_distance(cos_i, dot(r1, -n), eta, d_view, d_interior);
-#if EXIT_REFINE > 0
-    D = refine_exit(v_world, r1, D);
-#endif
+    bool on_surface = refine_exit(u_back_position, u_back_normal, 1.0, v_world, r1, D);
     path = D;
     vec3 p_exit = v_world + r1 * D;
     vec3 origin = p_exit, dir = r1;
@@ -192,7 +252,8 @@ void main() {
 #ifdef SCREEN_OPAQUE
     inside_hit = trace_opaque(v_world, r1, D, through);  // opaque parts inside the volume
 #endif
-    if (!inside_hit && project(p_exit, uv) && back_face(uv0, uv, bpos, n2)) {
+    if (!inside_hit && project(p_exit, uv)
+            && surface_at(u_back_position, u_back_normal, uv0, uv, bpos, n2)) {
         roughness = sqrt(roughness * roughness + bpos.w * bpos.w);
         vec3 r2;
         if (refract_ray(r1, -n2, u_ior, r2)) {
@@ -202,21 +263,19 @@ void main() {
         } else {
             tir = true;
 #ifdef TIR_REFLECT
-            // Reflect internally and estimate a second exit one more chord D away (exact for a
-            // sphere). Heading back toward the camera it leaves through a front face, whose
-            // normal is taken as the back face's mirrored across the view ray (a sphere's is).
+            // Reflect internally and march the reflected ray until it leaves the volume
+            // between the front and back layers (it may leave through either); the layer it
+            // crossed gives the normal to refract out by. Where the first exit estimate was
+            // off the surface (its TIR untrustworthy) or no exit is found: the paper's fallback.
             vec3 r_in = reflect(r1, n2);
-            vec3 p2 = p_exit + r_in * D;
-            dir = r_in;
-            origin = p2;
-            path += D;
-            vec4 bpos2;
-            vec3 n3;
-            if (project(p2, uv) && back_face(uv0, uv, bpos2, n3)) {
-                vec3 ray = normalize(p2 - u_camera_position);
-                if (dot(r_in, ray) < 0.0) n3 = n3 - 2.0 * dot(n3, ray) * ray;
-                vec3 r3;
-                if (refract_ray(r_in, -n3, u_ior, r3)) dir = r3;
+            float D2;
+            vec3 n3, r3;
+            dir = r1;
+            if (on_surface && second_exit(p_exit, r_in, uv0, D2, n3)
+                    && refract_ray(r_in, -n3, u_ior, r3)) {
+                dir = r3;
+                origin = p_exit + r_in * D2;
+                path += D2;
             }
 #else
             dir = r1;  // the paper's fallback: the first refraction alone
