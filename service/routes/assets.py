@@ -88,8 +88,9 @@ async def thumbnail(asset_id: str, request: Request, service: Service):
     env_identity, env_source = service.resolve_environment(params.env)
     key = service.thumbnail_key(asset_id, params, env_identity)
     hit = service.cached(asset_id, key, params.format)
+    outcome = "hit"
     if hit is None:
-        service.metrics.thumbnails["miss"] += 1
+        outcome = "miss"
         hit = await service.render(asset_id, params, key, env_source)
     data, etag, plan = hit
     headers = {"ETag": etag, "Cache-Control": f"public, max-age={service.settings.cache_max_age}",
@@ -98,7 +99,7 @@ async def thumbnail(asset_id: str, request: Request, service: Service):
     if if_none_match and _matches(if_none_match, etag):
         service.metrics.thumbnails["not_modified"] += 1
         return Response(status_code=304, headers=headers)
-    service.metrics.thumbnails["hit"] += 1
+    service.metrics.thumbnails[outcome] += 1
     return Response(data, media_type=MEDIA_TYPES[params.format], headers=headers)
 
 
