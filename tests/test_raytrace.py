@@ -37,7 +37,7 @@ def render(name, env, cache, size=None, **opts):
     if size is None:
         size = load_reference(name).shape[0]
     options = RenderOptions(width=size, height=size, yaw=spec.yaw, pitch=spec.pitch,
-                            fov=spec.fov, **opts)
+                            fov=spec.fov, distance=spec.distance, **opts)
     frame = render_raytrace(scenes.baked_asset(spec, cache), env, options)
     assert np.isfinite(frame.linear).all(), name
     assert frame.linear.min() >= 0, name
