@@ -12,6 +12,8 @@ BENCHMARKS = {
     "service": ("bench.service", "HTTP service: cached thumbnails, warm renders, cold uploads"),
     "scale": ("bench.scale", "bake a few hundred assets: 1 and 2 local workers vs Ray; 100k projection"),
     "refraction": ("bench.refraction", "refraction methods: time and error vs Mitsuba per scene"),
+    "accuracy": ("bench.accuracy", "speed-vs-accuracy chart: every scene x method vs Mitsuba, Pareto front, auto"),
+    "stability": ("bench.stability", "stability suite: every hard case x method, finite, TIR, error, verdict"),
 }
 
 

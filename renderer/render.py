@@ -157,14 +157,21 @@ def render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions) -> 
     validate_options(options)
     if options.method in _FRAME_METHODS:
         return _FRAME_METHODS[options.method](asset, env, options)
+    auto = None
+    if options.method == "auto":  # renderer.auto decides per object, or ray traces the frame
+        from .auto import run_frame_method, plan_request
+        auto = plan_request(asset, options, available_methods())
+        if auto.frame_method:
+            return run_frame_method(auto, _FRAME_METHODS[auto.frame_method], asset, env, options)
     with _lock:  # one GL context per process: one frame at a time
-        return _render(asset, env, options)
+        return _render(asset, env, options, auto)
 
 
 _lock = threading.RLock()
 
 
-def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions) -> Frame:
+def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
+            auto=None) -> Frame:
     t0 = time.perf_counter()
     ctx = context.get_context()
     uploads_before = dict(gpu.stats)
@@ -175,7 +182,7 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions) ->
     w, h = options.width, options.height
     camera = frame_bounds(asset.bounds, w, h, options.yaw, options.pitch, options.fov,
                           options.distance)
-    items = _plan_items(gasset, options)
+    items = _plan_items(gasset, options, auto)
     lights = gasset.lights[:MAX_LIGHTS] if options.lights else []
     target = _target(ctx, w, h, options.msaa)
     pass_ = Pass(ctx, target.draw_fbo, camera, genv, gasset, options,
@@ -220,6 +227,8 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions) ->
         "msaa": target.samples,
         "uploaded": {k: gpu.stats[k] - uploads_before[k] for k in ("asset_uploads", "environment_uploads")},
     }
+    if auto is not None:
+        plan["auto"] = auto.explain()
     timings = {"upload_ms": (t_upload - t0) * 1e3, "draw_ms": (t_draw - t_upload) * 1e3,
                "finish_ms": (t_end - t_draw) * 1e3, "total_ms": (t_end - t0) * 1e3}
     return Frame(linear, rgba8, plan, timings)
@@ -261,11 +270,11 @@ def parse_background(spec: str) -> tuple[float, float, float] | None:
 
 # --- planning -------------------------------------------------------------------------------
 
-def _plan_items(gasset: gpu.GpuAsset, options: RenderOptions) -> list[DrawItem]:
+def _plan_items(gasset: gpu.GpuAsset, options: RenderOptions, auto=None) -> list[DrawItem]:
     items = []
-    for gm in gasset.meshes:
+    for i, gm in enumerate(gasset.meshes):
         mat = _apply_override(gm.baked.material, options.override)
-        method, why = _choose_method(mat, options)
+        method, why = auto.method_for(i) if auto is not None else _choose_method(mat, options)
         items.append(DrawItem(gm, mat, method, why))
     return items
 

@@ -1,0 +1,324 @@
+"""The `auto` method: model no more than a scene needs, per object and per request, and say why.
+
+For each mesh, `auto` looks at cheap facts (material class and IOR, topology, thickness, size
+on screen, whether the camera is inside it) and picks the cheapest method whose error the
+speed-vs-accuracy chart and the stability suite (bench/accuracy.py, bench/stability.py) show
+to be within tolerance of the best raster method:
+
+- opaque, mask and blend materials: the PBR + IBL raster pass only (the bake computed no
+  interior vectors for them, and no refraction pass or texture is allocated);
+- transmissive, `single` where it is within tolerance of `wyman`: IOR near 1, tiny on screen,
+  camera inside (no front face to refract at), or nothing gained by the back-face pass;
+- transmissive otherwise: `wyman`;
+- `raytrace` for the whole frame only when the request gives a time budget
+  (RenderOptions.time_budget_ms), the estimated ray-trace time fits it, and some object is in
+  a case where the raster methods fail (genus > 0 at IOR >= RAYTRACE_MIN_IOR, an open mesh,
+  diamond-like IOR, the camera inside).
+
+`environment_face_size` sizes the environment bake for a request the same way: from the
+output size and the smoothest material present. The decisions go into Frame.plan["auto"]
+(the service's X-Render-Plan header; `asset-preview render --explain` prints them).
+"""
+from __future__ import annotations
+
+import logging
+import math
+from collections import OrderedDict
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from pipeline.baked import BakedAsset, BakedMesh
+from pipeline.scene import Material
+
+from .camera import Camera, frame_bounds
+from .options import RenderOptions
+
+log = logging.getLogger(__name__)
+
+# Thresholds, each from the chart / stability figures quoted in the README section of issue 7.
+SINGLE_IOR_TOLERANCE = 0.02  # |IOR - 1| below this: the exit refraction bends rays by < 1 degree
+TINY_PX = 12.0               # projected diameter: below it the back-face pass buys nothing visible
+RAYTRACE_MIN_IOR = 1.15      # genus > 0 fails raster refraction above this (paper Fig. 11: 1.2)
+DIAMOND_IOR = 2.0            # above it most exit rays are totally internally reflected
+CONCAVE_CONVEXITY = 0.6      # bowl (0.4) degrades raster refraction; bunny, duck (> 0.8) do not
+RAYTRACE_BOUNCES = 8         # enough for the torus and diamond cases (stability suite)
+# Ray-trace time model (2 shared cores, llvmpipe machine; bench accuracy fits it):
+# fixed + per triangle (BVH build) + per covered pixel per bounce (2 x 2 rays, env lookups).
+RT_FIXED_MS = 30.0
+RT_MS_PER_TRIANGLE = 0.004
+RT_MS_PER_PIXEL_BOUNCE = 0.02
+SMOOTH_ROUGHNESS = 0.05      # environment: a material smoother than this needs full-size faces
+
+
+@dataclass(frozen=True)
+class ObjectFacts:
+    """What `auto` looks at for one mesh (all cheap; topology cached per mesh)."""
+    mesh: str
+    material_class: str
+    ior: float
+    roughness: float
+    genus: int | None            # None: not a closed 2-manifold (open, or non-manifold edges)
+    open_edges: int              # edges used by one triangle only
+    convexity: float | None      # volume / convex hull volume (closed meshes; 1 = convex)
+    normals_inward: float        # share of triangles whose stored normals oppose the winding
+    thickness: float             # median interior distance / object diameter (1 = solid ball)
+    screen_px: float             # projected diameter of the mesh's bounding sphere, pixels
+    camera_inside: bool          # camera inside the mesh's world bounding box
+
+
+@dataclass
+class Decision:
+    mesh: str
+    method: str
+    why: str
+    facts: ObjectFacts | None = None
+
+
+@dataclass
+class Plan:
+    """Per-object decisions and the per-request ones."""
+    objects: list[Decision]
+    frame_method: str | None = None      # "raytrace" when the whole frame is ray traced
+    bounces: int | None = None
+    why: str = ""
+    estimate_ms: dict = field(default_factory=dict)
+
+    def method_for(self, index: int) -> tuple[str, str]:
+        d = self.objects[index]
+        return d.method, d.why
+
+    def explain(self) -> dict:
+        """JSON-ready summary (Frame.plan["auto"], the X-Render-Plan header)."""
+        out = {"request": self.why,
+               "objects": [{"mesh": d.mesh, "method": d.method, "why": d.why} for d in self.objects]}
+        if self.frame_method:
+            out["frame_method"] = self.frame_method
+            out["bounces"] = self.bounces
+        if self.estimate_ms:
+            out["estimate_ms"] = {k: round(v, 1) for k, v in self.estimate_ms.items()}
+        return out
+
+
+# --- facts ----------------------------------------------------------------------------------
+
+_topology: OrderedDict[int, tuple[np.ndarray, tuple[int | None, int]]] = OrderedDict()
+
+
+def topology(positions: np.ndarray, indices: np.ndarray) -> tuple[int | None, int]:
+    """(genus or None, open edge count) of a triangle mesh, vertices welded by position.
+
+    A closed 2-manifold with C components and Euler characteristic V - E + F has genus
+    (2C - chi) / 2 summed over components; with open or non-manifold edges genus is None."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    _, weld = np.unique(np.round(np.asarray(positions, np.float64), 6), axis=0, return_inverse=True)
+    tri = weld.reshape(-1)[np.asarray(indices, np.int64).reshape(-1)].reshape(-1, 3)
+    tri = tri[(tri[:, 0] != tri[:, 1]) & (tri[:, 1] != tri[:, 2]) & (tri[:, 0] != tri[:, 2])]
+    if len(tri) == 0:
+        result: tuple[int | None, int] = (None, 0)
+    else:
+        e = np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1)
+        edges, count = np.unique(e, axis=0, return_counts=True)
+        open_edges = int(np.sum(count == 1))
+        used = np.unique(tri)
+        if open_edges or np.any(count > 2):
+            result = (None, open_edges)
+        else:
+            n = int(weld.max()) + 1
+            graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
+            labels = connected_components(graph, directed=False)[1][used]
+            components = len(np.unique(labels))
+            chi = len(used) - len(edges) + len(tri)
+            result = (max(0, (2 * components - chi) // 2), 0)
+    return result
+
+
+def shape(mesh: BakedMesh) -> tuple[int | None, int, float | None, float]:
+    """(genus, open edges, convexity, normals_inward) of a mesh, cached per positions array."""
+    key = id(mesh.positions)
+    hit = _topology.get(key)
+    if hit is not None and hit[0] is mesh.positions:
+        _topology.move_to_end(key)
+        return hit[1]
+    pos = np.asarray(mesh.positions, np.float64)
+    tri = np.asarray(mesh.indices, np.int64).reshape(-1, 3)
+    p0, p1, p2 = pos[tri[:, 0]], pos[tri[:, 1]], pos[tri[:, 2]]
+    winding = np.cross(p1 - p0, p2 - p0)
+    area = np.linalg.norm(winding, axis=1)
+    solid = area > 1e-3 * float(np.median(area)) if len(area) else area > 0  # slivers close nothing
+    genus, open_edges = topology(pos, tri[solid])
+    stored = np.asarray(mesh.normals, np.float64)[tri].sum(axis=1)
+    inward = float(area[np.einsum("ij,ij->i", winding, stored) < 0].sum() / max(area.sum(), 1e-30))
+    convexity = None
+    if genus is not None:
+        from scipy.spatial import ConvexHull
+        volume = abs(float(np.einsum("ij,ij->i", p0, np.cross(p1, p2)).sum()) / 6)
+        try:
+            convexity = round(min(1.0, volume / ConvexHull(pos).volume), 3)
+        except Exception:  # flat or degenerate point sets have no hull volume
+            convexity = None
+    result = (genus, open_edges, convexity, round(inward, 3))
+    _topology[key] = (mesh.positions, result)
+    while len(_topology) > 64:
+        _topology.popitem(last=False)
+    return result
+
+
+def _world_sphere(mesh: BakedMesh) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
+    """Centre and radius of the bounding sphere of all instances, and the world AABB."""
+    lo, hi = mesh.positions.min(0).astype(np.float64), mesh.positions.max(0).astype(np.float64)
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                        for z in (lo[2], hi[2])])
+    pts = np.concatenate([corners @ np.asarray(m)[:3, :3].T + np.asarray(m)[:3, 3]
+                          for m in mesh.transforms])
+    wlo, whi = pts.min(0), pts.max(0)
+    return (wlo + whi) / 2, float(np.linalg.norm(whi - wlo)) / 2, wlo, whi
+
+
+def object_facts(mesh: BakedMesh, material: Material, camera: Camera) -> ObjectFacts:
+    centre, radius, wlo, whi = _world_sphere(mesh)
+    dist = float(np.linalg.norm(np.asarray(camera.position) - centre))
+    half = math.tan(math.radians(camera.fov) / 2)
+    screen = camera.height * radius / max(dist * half, 1e-12) if dist > radius else math.inf
+    inside = bool(np.all(camera.position >= wlo) and np.all(camera.position <= whi))
+    genus, open_edges, convexity, inward = shape(mesh)
+    extent = mesh.positions.max(0) - mesh.positions.min(0)
+    diameter = float(np.linalg.norm(extent)) or 1.0
+    if mesh.interior is not None and len(mesh.interior):
+        thickness = float(np.median(mesh.interior_length)) / diameter
+    else:
+        thickness = float(extent.min()) / diameter
+    return ObjectFacts(mesh.name, material.material_class, float(material.ior),
+                       float(material.roughness), genus, open_edges, convexity, inward,
+                       round(thickness, 4),
+                       round(float(screen), 1), inside)
+
+
+# --- decisions ------------------------------------------------------------------------------
+
+def raster_fails(f: ObjectFacts) -> str | None:
+    """Why the raster methods fail on this object (stability suite), or None."""
+    if f.camera_inside:
+        return "camera inside the object: no front face to refract at"
+    if f.genus is None and f.open_edges:
+        return f"open mesh ({f.open_edges} open edges): interior rays miss"
+    if f.normals_inward > 0.5:
+        return f"stored normals point inward on {f.normals_inward:.0%} of the surface"
+    if f.convexity is not None and f.convexity < CONCAVE_CONVEXITY:
+        return f"concave (volume {f.convexity:.2f} of its hull): refracted rays re-enter"
+    if f.genus and f.ior >= RAYTRACE_MIN_IOR:
+        return f"genus {f.genus} at IOR {f.ior:g}: rays cross the hole, >2 refractions"
+    if f.ior >= DIAMOND_IOR:
+        return f"IOR {f.ior:g}: strong total internal reflection, many internal bounces"
+    return None
+
+
+def choose_raster(f: ObjectFacts, available: list[str]) -> tuple[str, str]:
+    """The raster method for a transmissive object and why."""
+    if "single" in available:
+        if abs(f.ior - 1.0) < SINGLE_IOR_TOLERANCE:
+            return "single", f"IOR {f.ior:g}: rays barely bend, single is within tolerance of wyman"
+        if f.screen_px < TINY_PX:
+            return "single", f"{f.screen_px:.0f} px on screen: single is within tolerance of wyman"
+        if f.camera_inside:
+            return "single", "camera inside: neither raster method sees a front face; single is cheaper"
+    if "wyman" in available:
+        return "wyman", f"IOR {f.ior:g}, {f.screen_px:.0f} px: wyman's exit refraction is needed"
+    if "single" in available:
+        return "single", "wyman not installed: single is the best raster refraction available"
+    return "opaque", "no refraction method installed: transmission ignored"
+
+
+def estimate_raytrace_ms(asset: BakedAsset, options: RenderOptions, coverage_px: float,
+                         bounces: int) -> float:
+    return (RT_FIXED_MS + RT_MS_PER_TRIANGLE * asset.triangle_count
+            + RT_MS_PER_PIXEL_BOUNCE * coverage_px * max(bounces, 1)
+            + 1e-4 * options.width * options.height)
+
+
+def plan_request(asset: BakedAsset, options: RenderOptions, available: list[str]) -> Plan:
+    """Decide every mesh's method for `options` (method "auto") and whether to ray trace."""
+    from .render import _apply_override
+
+    camera = frame_bounds(asset.bounds, options.width, options.height, options.yaw,
+                          options.pitch, options.fov, options.distance)
+    decisions, failing, coverage = [], [], 0.0
+    for mesh in asset.meshes:
+        mat = _apply_override(mesh.material, options.override)
+        cls = mat.material_class
+        if cls != "transmissive":
+            decisions.append(Decision(mesh.name, "opaque", f"{cls}: PBR + IBL raster only, "
+                                      "no interior bake or refraction pass"))
+            continue
+        f = object_facts(mesh, mat, camera)
+        method, why = choose_raster(f, available)
+        decisions.append(Decision(mesh.name, method, why, f))
+        reason = raster_fails(f)
+        if reason:
+            failing.append((mesh.name, reason))
+            r_px = min(f.screen_px, max(options.width, options.height)) / 2
+            coverage += math.pi * r_px * r_px
+    plan = Plan(decisions)
+    budget = options.time_budget_ms
+    if not failing:
+        plan.why = "raster: every object within the raster methods' tolerance"
+        return plan
+    names = "; ".join(f"{n}: {r}" for n, r in failing)
+    if "raytrace" not in available:
+        plan.why = f"raster (ray tracer not installed) although {names}"
+        return plan
+    est = estimate_raytrace_ms(asset, options, min(coverage, options.width * options.height),
+                               RAYTRACE_BOUNCES)
+    plan.estimate_ms = {"raytrace": est}
+    if budget is None:
+        plan.why = f"raster: no time budget given for raytrace although {names}"
+    elif est > budget:
+        plan.why = f"raster: raytrace estimated {est:.0f} ms > budget {budget:g} ms ({names})"
+    else:
+        plan.frame_method, plan.bounces = "raytrace", RAYTRACE_BOUNCES
+        plan.why = f"raytrace, {RAYTRACE_BOUNCES} bounces, est. {est:.0f} ms <= budget {budget:g} ms: {names}"
+        for d in plan.objects:
+            d.method, d.why = "raytrace", f"whole frame ray traced ({d.why})"
+    log.debug("auto: %s", plan.why)
+    return plan
+
+
+def run_frame_method(plan: Plan, fn, asset: BakedAsset, env, options: RenderOptions):
+    """Render the whole frame with the frame method `plan` chose; its decisions in the plan."""
+    from dataclasses import replace
+
+    frame = fn(asset, env, replace(options, method=plan.frame_method, bounces=plan.bounces))
+    frame.plan["auto"] = plan.explain()
+    return frame
+
+
+def environment_face_size(asset: BakedAsset, width: int, height: int,
+                          background: str = "env", override=None) -> tuple[int, str]:
+    """Cube face size for the environment bake of this request, and why.
+
+    The output size bounds it (pipeline.environment.default_face_size). When the background
+    does not show the environment, the smoothest material bounds it too: a GGX lobe of
+    alpha = roughness^2 radians half-width needs about pi / alpha texels per face (two texels
+    across it); the mip count then follows the face size (pipeline.environment.default_levels:
+    mip m holds roughness m / (levels - 1), so the chain always reaches roughness 1)."""
+    from pipeline.environment import default_face_size, default_levels
+
+    from .render import _apply_override
+
+    face = default_face_size(max(width, height))
+    why = f"{face} px faces for a {max(width, height)} px frame"
+    if background != "env" and asset.meshes:
+        rough = min(_apply_override(m.material, override).roughness for m in asset.meshes)
+        if rough >= SMOOTH_ROUGHNESS:
+            need = 1 << max(0, math.ceil(math.log2(math.pi / (rough * rough))))
+            if need < face:
+                face = max(32, need)
+                why = (f"{face} px faces: smoothest material has roughness {rough:g} and the "
+                       f"background hides the environment")
+    return face, f"{why}; {default_levels(face)} mips"
+
+
+def facts_dict(f: ObjectFacts | None) -> dict | None:
+    return None if f is None else asdict(f)
