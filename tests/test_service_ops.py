@@ -14,7 +14,7 @@ from test_service import decode, nontrivial, upload
 KEY = "s3cret-key"
 SAMPLES = Path(__file__).resolve().parents[1] / "service" / "samples"
 OPS_ENV = {"ASSET_PREVIEW_API_KEY": KEY, "ASSET_PREVIEW_BAKE_WAIT_SECONDS": "0",
-           "ASSET_PREVIEW_RENDER_SECONDS": "6", "ASSET_PREVIEW_MAX_THUMBNAIL_SIZE": "4096",
+           "ASSET_PREVIEW_RENDER_SECONDS": "5", "ASSET_PREVIEW_MAX_THUMBNAIL_SIZE": "4096",
            "ASSET_PREVIEW_SAMPLES": str(SAMPLES)}
 AUTH = {"Authorization": f"Bearer {KEY}"}
 
@@ -101,13 +101,16 @@ def test_thumbnail_of_a_baking_asset_answers_202(ops, assets):
 @pytest.mark.slow
 def test_render_past_its_deadline_is_stopped(ops):
     duck = next(r for r in seeded(ops) if r["name"] == "Duck.glb")["id"]
-    r = ops.client.get(f"/assets/{duck}/thumbnail", params={"size": 4096, "yaw": 7})
+    # Glass by two-pass refraction at 4096 px takes several times the 5 s deadline on a CPU.
+    r = ops.client.get(f"/assets/{duck}/thumbnail", params={"size": 4096, "yaw": 7, "method": "wyman",
+                                                            "transmission": 1})
     assert r.status_code == 504, r.text
     assert "deadline" in r.json()["detail"]
     r = ops.client.get(f"/assets/{duck}/thumbnail", params={"size": 64, "yaw": 7})
     assert r.status_code == 200
-    text = ops.client.get("/metrics").text
-    assert 'asset_preview_worker_restarts_total{reason="deadline"} 1' in text
+    restarts = [line for line in ops.client.get("/metrics").text.splitlines()
+                if line.startswith('asset_preview_worker_restarts_total{reason="deadline"}')]
+    assert restarts and float(restarts[0].split()[-1]) >= 1
 
 
 def test_restart_keeps_assets_thumbnails_and_etags(ops, cache):
