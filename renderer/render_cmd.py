@@ -44,6 +44,10 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--linear", help="also write the linear frame (.exr or .npy)")
     p.add_argument("--cache", default=None, help="cache directory (default $ASSET_PREVIEW_CACHE or ./.cache)")
     p.add_argument("--json", action="store_true", help="print the plan and timings as JSON")
+    p.add_argument("--explain", action="store_true", help="print the method chosen for each "
+                   "object and why (auto's decisions, renderer/auto.py)")
+    p.add_argument("--time-budget", type=float, default=None, metavar="MS",
+                   help="lets auto ray trace objects raster methods fail on, within MS milliseconds")
 
 
 def _fail(msg: str) -> int:
@@ -77,13 +81,18 @@ def run(args: argparse.Namespace) -> int:
             distance=args.distance, method=args.method, tonemap=args.tonemap,
             exposure=args.exposure, background=args.background, background_blur=args.blur,
             override=override, msaa=args.msaa, lights=not args.no_lights,
-            multiscatter=args.multiscatter, tir=args.tir, debug=args.debug)
+            multiscatter=args.multiscatter, tir=args.tir, debug=args.debug,
+            time_budget_ms=args.time_budget)
         validate_options(options)  # reject bad options before spending time on a bake
     except ValueError as exc:
         return _fail(str(exc))
     asset = pipeline.bake_asset(args.path, args.cache)
+    face, env_why = default_face_size(max(width, height)), "default for the output size"
+    if options.method == "auto":  # auto sizes the environment for the output and materials
+        from .auto import environment_face_size
+        face, env_why = environment_face_size(asset, width, height, options.background, override)
     env = pipeline.bake_environment(args.env or DEFAULT_ENVIRONMENT, args.cache,
-                                    face_size=default_face_size(max(width, height)))
+                                    face_size=face)
     try:
         frame = render(asset, env, options)
     except (UnsupportedMethod, ValueError) as exc:
@@ -91,9 +100,17 @@ def run(args: argparse.Namespace) -> int:
     frame.save(args.out, quality=args.quality)
     if args.linear:
         frame.save(args.linear)
+    if args.explain:
+        auto = frame.plan.get("auto", {})
+        print(f"environment: {face} px faces: {env_why}")
+        if auto:
+            print(f"request: {auto['request']}")
+        for o in auto.get("objects") or frame.plan.get("objects", []):
+            print(f"{o['mesh']}: {o['method']}: {o['why']}")
     if args.json:
         print(json.dumps({"out": args.out, "plan": frame.plan, "timings": frame.timings}, indent=1))
-    log.info("wrote %s (%dx%d) in %.1f ms", args.out, width, height, frame.timings["total_ms"])
+    log.info("wrote %s (%dx%d) in %.1f ms", args.out, width, height,
+             frame.timings.get("total_ms", frame.timings.get("total", float("nan"))))  # raytrace: "total"
     return 0
 
 
