@@ -261,7 +261,8 @@ def _upload_environment(baked: BakedEnvironment) -> GpuEnvironment:
     levels = len(baked.specular)
     # moderngl uploads only level 0 of a cube map, and allocating the other levels with
     # glGenerateMipmap costs a full CPU mip build on llvmpipe that is then thrown away, so
-    # each (face, level) goes up with one glTexImage2D, as half floats (half the bytes).
+    # each (face, level) goes up with one glTexImage2D (float32 in, stored as half floats:
+    # GL's conversion is faster than numpy's on llvmpipe).
     cube = ctx.texture_cube((size, size), 3, None, dtype="f2")
     gl = _gl()
     cube.use(0)
@@ -269,10 +270,10 @@ def _upload_environment(baked: BakedEnvironment) -> GpuEnvironment:
         s = max(size >> level, 1)
         if mip.shape[:3] != (6, s, s):
             raise ValueError(f"environment {baked.name}: mip {level} is {mip.shape}, expected 6x{s}x{s}")
-        half = np.ascontiguousarray(mip[..., :3], np.float16)
+        rgb = np.ascontiguousarray(mip[..., :3], np.float32)
         for face in range(6):
             gl.glTexImage2D(GL_TEXTURE_CUBE_MAP_POSITIVE_X + face, level, GL_RGB16F, s, s, 0,
-                            GL_RGB, GL_HALF_FLOAT, half[face].ctypes.data)
+                            GL_RGB, GL_FLOAT, rgb[face].ctypes.data)
     gl.glTexParameteri(GL_TEXTURE_CUBE_MAP, GL_TEXTURE_MAX_LEVEL, levels - 1)
     cube.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
     lut_arr = np.ascontiguousarray(baked.brdf_lut[..., :2], np.float32)
@@ -288,7 +289,7 @@ GL_RGBA, GL_RGBA8, GL_UNSIGNED_BYTE = 0x1908, 0x8058, 0x1401
 GL_TEXTURE_CUBE_MAP = 0x8513
 GL_TEXTURE_CUBE_MAP_POSITIVE_X = 0x8515
 GL_TEXTURE_MAX_LEVEL = 0x813D
-GL_RGB16F, GL_RGB, GL_HALF_FLOAT = 0x881B, 0x1907, 0x140B
+GL_RGB16F, GL_RGB, GL_FLOAT = 0x881B, 0x1907, 0x1406
 
 
 def _gl():
