@@ -37,6 +37,11 @@ document.querySelectorAll("img[data-src]").forEach(img => {{
   img.onerror = () => {{ if (tries++ < 60) setTimeout(() => img.src = img.dataset.src + "&t=" + tries, 3000); }};
   img.src = img.dataset.src;
 }});
+// While assets are arriving (seeding at start-up, other uploaders), show them as they land.
+setInterval(async () => {{
+  const r = await fetch("/assets");
+  if (r.ok && (await r.json()).assets.length !== {count}) location.reload();
+}}, 4000);
 document.getElementById("upload").onsubmit = async e => {{
   e.preventDefault();
   const msg = document.getElementById("msg"), key = document.getElementById("key").value;
