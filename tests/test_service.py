@@ -309,7 +309,7 @@ def test_full_queue_answers_503_with_retry_after(server, samples):
 
     def fetch(i):
         with httpx.Client(base_url=server.url, timeout=120) as c:
-            r = c.get(f"/assets/{duck}/thumbnail", params={"size": 160, "yaw": 200 + i})
+            r = c.get(f"/assets/{duck}/thumbnail", params={"size": 320, "yaw": 200 + i})
             return r.status_code, r.headers.get("retry-after"), r.text
 
     with ThreadPoolExecutor(MAX_QUEUE * 3) as pool:
