@@ -368,6 +368,8 @@ def _material_state(item: DrawItem, p: Pass) -> _MaterialState:
         ("u_alpha_cutoff", f4(m.alpha_cutoff).tobytes()),
     ]
     state = _MaterialState(defines, uniforms, textures)
+    if len(item.mesh.states) >= 32:  # many distinct overrides (a service): keep it bounded
+        item.mesh.states.clear()
     item.mesh.states[key] = state
     return state
 
