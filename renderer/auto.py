@@ -174,7 +174,10 @@ def _world_sphere(mesh: BakedMesh) -> tuple[np.ndarray, float, np.ndarray, np.nd
     pts = np.concatenate([corners @ np.asarray(m)[:3, :3].T + np.asarray(m)[:3, 3]
                           for m in mesh.transforms])
     wlo, whi = pts.min(0), pts.max(0)
-    return (wlo + whi) / 2, float(np.linalg.norm(whi - wlo)) / 2, wlo, whi
+    # Radius: the farthest vertex from the box centre, scaled by the largest instance scale.
+    reach = float(np.sqrt(np.max(np.sum((mesh.positions - (lo + hi) / 2) ** 2, axis=1))))
+    scale = max(float(np.linalg.norm(np.asarray(m)[:3, :3], 2)) for m in mesh.transforms)
+    return (wlo + whi) / 2, reach * scale, wlo, whi
 
 
 def object_facts(mesh: BakedMesh, material: Material, camera: Camera) -> ObjectFacts:

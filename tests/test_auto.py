@@ -1,0 +1,166 @@
+"""`auto`: its decisions on the stability cases, its explanations, and the environment size."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from bench import scenes
+from renderer import auto
+from renderer.options import MaterialOverride, RenderOptions
+
+RASTER = ["auto", "opaque", "single", "wyman", "raytrace"]
+
+
+def plan(name: str, size: int = 64, available=RASTER, **opts):
+    spec = scenes.scene(name)
+    asset = scenes.baked_asset(spec)  # in memory: no GL, no bake
+    o = RenderOptions(width=size, height=size, yaw=spec.yaw, pitch=spec.pitch, fov=spec.fov,
+                      distance=spec.distance, **opts)
+    return auto.plan_request(asset, o, available)
+
+
+def methods(p) -> list[str]:
+    return [d.method for d in p.objects]
+
+
+@pytest.mark.parametrize("name, method, reason", [
+    ("dielectric_sphere", "opaque", "no interior bake or refraction pass"),
+    ("mirror_sphere", "opaque", "PBR + IBL raster only"),
+    ("glass_sphere_ior1.5", "wyman", "exit refraction is needed"),
+    ("glass_sphere_ior2.4", "wyman", "exit refraction is needed"),
+    ("glass_sphere_ior1.0", "single", "rays barely bend"),
+    ("case_tiny", "single", "px on screen"),
+    ("case_camera_inside", "single", "camera inside"),
+    ("case_thin_slab", "wyman", "exit refraction"),
+])
+def test_per_object_choice_and_reason(name, method, reason):
+    p = plan(name)
+    assert methods(p) == [method]
+    assert reason in p.objects[0].why
+    assert p.frame_method is None  # no time budget: never ray traced
+
+
+@pytest.mark.parametrize("name, failure", [
+    ("glass_torus_ior1.2", "genus 1"),
+    ("glass_torus_ior2.4", "genus 1"),
+    ("glass_sphere_ior2.4", "total internal reflection"),
+    ("case_open_mesh", "open mesh"),
+    ("case_concave_bowl", "concave"),
+    ("case_flipped_normals", "normals point inward"),
+    ("case_camera_inside", "camera inside"),
+])
+def test_raytrace_only_with_a_budget_where_raster_fails(name, failure):
+    without = plan(name)
+    assert without.frame_method is None and failure in without.why
+    assert "no time budget" in without.why
+    tight = plan(name, time_budget_ms=1.0)
+    assert tight.frame_method is None and "> budget" in tight.why
+    roomy = plan(name, time_budget_ms=1e6)
+    assert roomy.frame_method == "raytrace" and roomy.bounces == auto.RAYTRACE_BOUNCES
+    assert methods(roomy) == ["raytrace"] and failure in roomy.why
+
+
+@pytest.mark.parametrize("name", ["glass_sphere_ior1.5", "glass_ellipsoid_311_ior1.5",
+                                  "case_huge", "case_degenerate_triangles", "case_thin_slab",
+                                  "glass_duck_ior1.5"])
+def test_a_budget_alone_does_not_buy_raytrace(name):
+    """Where wyman holds up (stability suite: fine), a generous budget changes nothing."""
+    p = plan(name, time_budget_ms=1e6)
+    assert p.frame_method is None and methods(p) == ["wyman"]
+
+
+def test_ray_tracer_not_installed_keeps_raster():
+    p = plan("glass_torus_ior1.5", available=["auto", "opaque", "single", "wyman"],
+             time_budget_ms=1e6)
+    assert p.frame_method is None and "not installed" in p.why
+
+
+def test_no_refraction_methods_installed():
+    p = plan("glass_sphere_ior1.5", available=["auto", "opaque"])
+    assert methods(p) == ["opaque"] and "transmission ignored" in p.objects[0].why
+
+
+def test_override_makes_an_opaque_mesh_glass_and_back():
+    glass = MaterialOverride(metallic=0.0, roughness=0.0, ior=1.5, transmission=1.0)
+    assert methods(plan("dielectric_sphere", override=glass)) == ["wyman"]
+    opaque = MaterialOverride(transmission=0.0)
+    assert methods(plan("glass_sphere_ior1.5", override=opaque)) == ["opaque"]
+
+
+def test_topology():
+    for kind, genus in (("sphere", 0), ("cube", 0), ("torus", 1), ("bowl", 0)):
+        pos, _, idx = scenes.mesh_arrays(kind)
+        assert auto.topology(pos, idx) == (genus, 0), kind
+    pos, _, idx = scenes.mesh_arrays("open_sphere")
+    g, open_edges = auto.topology(pos, idx)
+    assert g is None and open_edges > 0
+    # Two disjoint spheres: genus 0 still (components counted).
+    pos, _, idx = scenes.mesh_arrays("sphere")
+    two = (np.concatenate([pos, pos + 3]), np.concatenate([idx, idx + len(pos)]))
+    assert auto.topology(*two) == (0, 0)
+
+
+def test_facts_follow_the_camera():
+    spec = scenes.scene("glass_sphere_ior1.5")
+    asset = scenes.baked_asset(spec)
+    from renderer.camera import frame_bounds
+    near = auto.object_facts(asset.meshes[0], spec.material, frame_bounds(asset.bounds, 128, 128))
+    far = auto.object_facts(asset.meshes[0], spec.material,
+                            frame_bounds(asset.bounds, 128, 128, distance=100.0))
+    inside = auto.object_facts(asset.meshes[0], spec.material,
+                               frame_bounds(asset.bounds, 128, 128, distance=0.2))
+    assert 55 < near.screen_px < 75 and far.screen_px < 5 and inside.camera_inside
+    assert not near.camera_inside and near.genus == 0 and near.convexity > 0.99
+
+
+def test_environment_face_size():
+    asset = scenes.baked_asset(scenes.scene("rough_metal_sphere"))  # roughness 0.6
+    face, why = auto.environment_face_size(asset, 512, 512, "env")
+    assert face == 512 and "512 px frame" in why  # the background shows mip 0
+    face, why = auto.environment_face_size(asset, 512, 512, "transparent")
+    assert face == 32 and "roughness 0.6" in why and "mips" in why
+    mirror = scenes.baked_asset(scenes.scene("mirror_sphere"))
+    assert auto.environment_face_size(mirror, 512, 512, "transparent")[0] == 512
+    assert auto.environment_face_size(mirror, 64, 64, "env")[0] == 64
+    rough = MaterialOverride(roughness=0.3)
+    assert auto.environment_face_size(mirror, 512, 512, "#ffffff", rough)[0] == 64
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    return tmp_path_factory.mktemp("auto-cache")
+
+
+def test_render_carries_the_plan(cache):
+    """Through renderer.render: the decisions land in Frame.plan["auto"] (the service's
+    X-Render-Plan header), per object, and a budget makes the frame ray traced."""
+    import pipeline
+    from renderer.render import render
+
+    spec = scenes.scene("glass_torus_ior1.5")
+    asset = scenes.baked_asset(spec, cache)
+    env = pipeline.bake_environment(spec.env, cache, face_size=32)
+    o = RenderOptions(width=32, height=32, yaw=spec.yaw, pitch=spec.pitch)
+    frame = render(asset, env, o)
+    assert frame.plan["objects"][0]["method"] == "wyman"
+    assert frame.plan["auto"]["objects"][0]["method"] == "wyman"
+    assert "genus 1" in frame.plan["auto"]["request"]
+    traced = render(asset, env, replace(o, time_budget_ms=1e6))
+    assert traced.plan["method"] == "raytrace" and traced.plan["auto"]["frame_method"] == "raytrace"
+    assert np.isfinite(traced.linear).all()
+    forced = render(asset, env, replace(o, method="single"))
+    assert "auto" not in forced.plan
+
+
+def test_render_cli_explain(cache, capsys):
+    from service.cli import main
+
+    glb = scenes.write_glb(scenes.scene("glass_sphere_ior1.0"), cache / "ior1.glb")
+    out = cache / "ior1.png"
+    assert main(["render", str(glb), "--out", str(out), "--size", "32", "--explain",
+                 "--cache", str(cache), "--background", "transparent"]) == 0
+    text = capsys.readouterr().out
+    assert "environment: " in text and "request: raster" in text
+    assert "sphere/0: single: IOR 1" in text
