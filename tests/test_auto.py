@@ -34,6 +34,8 @@ def methods(p) -> list[str]:
     ("case_tiny", "single", "px on screen"),
     ("case_camera_inside", "single", "camera inside"),
     ("case_thin_slab", "wyman", "exit refraction"),
+    ("frosted_bunny_ior1.15_r0.3", "single", "within the rough lobe"),
+    ("frosted_bunny_ior1.3_r0.3", "wyman", "exit refraction is needed"),
 ])
 def test_per_object_choice_and_reason(name, method, reason):
     p = plan(name)
