@@ -84,6 +84,7 @@ class ThumbnailService:
         self._bake_slots = asyncio.Semaphore(max(1, self.pool.size - 1))
         await self.pool.start()
         self._spawn(self._warm_up_then_resume())
+        self._spawn(self._prune_thumbnails())
 
     async def stop(self) -> None:
         if self._writes:  # finish writing what was already answered
@@ -104,6 +105,18 @@ class ThumbnailService:
         if self.settings.seed and not (self.store.root / "seeded").exists():
             from .seed import seed
             await seed(self)
+
+    async def _prune_thumbnails(self, every: float = 60.0) -> None:
+        """Keep the thumbnail folder under its cap (a memory-cached answer survives its file)."""
+        while True:
+            try:
+                removed = await asyncio.to_thread(self.thumbs.prune, self.settings.max_thumbnail_bytes)
+                if removed:
+                    log.info("thumbnail cache over %d bytes: %d files removed",
+                             self.settings.max_thumbnail_bytes, removed)
+            except OSError as exc:
+                log.error("thumbnail pruning failed: %s", exc)
+            await asyncio.sleep(every)
 
     def _spawn(self, coro) -> asyncio.Task:
         task = asyncio.get_running_loop().create_task(coro)

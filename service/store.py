@@ -211,6 +211,28 @@ class ThumbnailCache:
         """The memory half: call it from one thread only (the event loop's)."""
         return self._remember(f"{asset_id}/{key}.{fmt}", data, plan)
 
+    def prune(self, max_bytes: int) -> int:
+        """Delete the least recently written thumbnails until the folder holds at most 90% of
+        `max_bytes` (blocking: run it in a thread). Returns how many files went."""
+        files = []
+        for path in self.root.glob("*/*"):
+            try:
+                st = path.stat()
+            except FileNotFoundError:
+                continue
+            files.append((st.st_mtime, st.st_size, path))
+        total = sum(size for _, size, _ in files)
+        if total <= max_bytes:
+            return 0
+        removed = 0
+        for _, size, path in sorted(files):
+            if total <= 0.9 * max_bytes:
+                break
+            path.unlink(missing_ok=True)  # a plan without its image is never read
+            total -= size
+            removed += 1
+        return removed
+
     def forget(self, asset_id: str) -> None:
         for k in [k for k in self._hot if k.startswith(asset_id + "/")]:
             self._hot_size -= len(self._hot.pop(k)[0])

@@ -101,3 +101,19 @@ def test_safe_names_and_thumbnail_cache(tmp_path):
     fresh = ThumbnailCache(tmp_path, memory_bytes=1000)  # as after a restart: from disk
     assert fresh.get("a" * 32, "k", "png") == (data, etag, plan)
     assert list(tmp_path.rglob("*.tmp")) == []
+
+
+def test_thumbnail_cache_prunes_oldest_first(tmp_path):
+    import os
+    cache = ThumbnailCache(tmp_path, memory_bytes=0)
+    for i in range(10):
+        cache.put("a" * 32, f"k{i}", "png", bytes(100), "{}")
+        path = cache.path("a" * 32, f"k{i}", "png")
+        os.utime(path, (1000 + i, 1000 + i))
+        os.utime(path.with_suffix(".plan.json"), (1000 + i, 1000 + i))
+    assert cache.prune(max_bytes=10_000) == 0
+    assert cache.prune(max_bytes=800) > 0
+    left = sorted(p.name for p in tmp_path.rglob("*.png"))
+    assert left and "k9.png" in left and "k0.png" not in left
+    assert sum(p.stat().st_size for p in tmp_path.rglob("*") if p.is_file()) <= 720
+    assert cache.get("a" * 32, "k0", "png") is None
