@@ -45,7 +45,8 @@ def draw(name, env, cache, method, size=None, spec=None, **opts):
         size = load_reference(name).shape[0]
     frame = render(scenes.baked_asset(spec, cache), env,
                    RenderOptions(width=size, height=size, yaw=spec.yaw, pitch=spec.pitch,
-                                 fov=spec.fov, method=method, **opts))
+                                 fov=spec.fov, distance=spec.distance, method=method,
+                                 **opts))
     assert np.isfinite(frame.linear).all(), (name, method)
     assert frame.linear.min() >= 0, (name, method)
     return frame
