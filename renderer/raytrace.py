@@ -12,7 +12,9 @@ exact two-interface result that Wyman's method approximates.
 
 Materials (kd + kr + ks = 1, the paper's split): metallic m reflects m * EnvBRDF(F0 = base
 colour); the dielectric rest (1 - m) reflects F (exact Fresnel at the IOR), transmits
-(1 - F) * transmission * base colour and scatters the remainder diffusely. Diffuse and rough
+(1 - F) * transmission * base colour times eta^2 (radiance scales with n^2 across an interface:
+it cancels on a way in and out, and matters for a camera inside the glass) and scatters the
+remainder diffusely. Diffuse and rough
 specular lobes are not traced: the diffuse share reads the roughest mip along the normal and
 a rough reflection or refraction keeps its mirror direction and, at escape, reads the
 prefiltered mip for the lobe width gathered along the path (as the raster path's split-sum
@@ -298,12 +300,14 @@ def _trace_paths(ts: TraceScene, env: BakedEnvironment, options: RenderOptions,
     weight = np.ones((len(dirs), 3))  # throughput of a sample (decides what is traced on)
     share = np.full(len(dirs), sample_share)  # its part of the pixel
     blur = np.zeros(len(dirs))  # sum of squared GGX alphas of the lobes along the path
+    medium = np.ones(len(dirs))  # IOR around the ray (outside every object: air)
 
     for depth in range(max(int(options.bounces), 0) + 1):
         if len(dirs) == 0:
             break
         if depth == options.bounces:  # out of bounces: read the environment where they point
-            add((weight * share[:, None]) * _env(env, dirs, blur ** 0.25), pix)
+            # ... as if it left the medium it is in, without a Fresnel loss
+            add((weight * (share * medium ** 2)[:, None]) * _env(env, dirs, blur ** 0.25), pix)
             break
         prim, u, v, t = _intersect(ts, origins, dirs)
         stats["rays"] += len(dirs)
@@ -323,7 +327,7 @@ def _trace_paths(ts: TraceScene, env: BakedEnvironment, options: RenderOptions,
         hit = ~miss
         prim, u, v, t = prim[hit], u[hit, None], v[hit, None], t[hit]
         d = dirs[hit].astype(np.float64)
-        w, px, v_in, sh = weight[hit], pix[hit], blur[hit], share[hit]
+        w, px, v_in, sh, n_in = weight[hit], pix[hit], blur[hit], share[hit], medium[hit]
         p = origins[hit] + d * t[:, None]
         corner = ts.normals[prim].astype(np.float64)
         ns = (1 - u - v) * corner[:, 0] + u * corner[:, 1] + v * corner[:, 2]
@@ -348,7 +352,9 @@ def _trace_paths(ts: TraceScene, env: BakedEnvironment, options: RenderOptions,
         refl_w = (metal[:, None] * _env_brdf(base, cos_i, rough_k)
                   + ((1 - metal) * fres)[:, None]) * w
         tint = np.where(entering[:, None], base, 1.0)  # glTF tints transmission by base colour once
-        trans_w = ((1 - metal) * (1 - fres) * trans)[:, None] * tint * w
+        # Radiance crossing an interface scales by (n_camera_side / n_far_side)^2 = eta^2: it
+        # cancels on a path in and out again and matters when the camera is inside the glass.
+        trans_w = ((1 - metal) * (1 - fres) * trans * eta * eta)[:, None] * tint * w
         diffuse_w = ((1 - metal) * (1 - fres) * (1 - trans))[:, None] * base * w
         # Lobe widths add as variances. A rough refraction bends directions by
         # |1 - eta| per unit of microfacet tilt where a reflection bends them by 2, so its
@@ -362,8 +368,10 @@ def _trace_paths(ts: TraceScene, env: BakedEnvironment, options: RenderOptions,
         rdir = reflect(d, ns)
         tdir, tir = refract(d, ns, eta)
         stats["tir"] += int(np.sum(tir & (trans > 0)))
-        keep_r = refl_w.max(axis=1) > MIN_WEIGHT
-        keep_t = (trans_w.max(axis=1) > MIN_WEIGHT) & ~tir
+        n_t = np.where(entering, ior, 1.0)
+        # Culling compares what a child would carry back out into the air.
+        keep_r = refl_w.max(axis=1) * n_in ** 2 > MIN_WEIGHT
+        keep_t = (trans_w.max(axis=1) * n_t ** 2 > MIN_WEIGHT) & ~tir
         # Reflected rays start on the incoming side, refracted ones on the far side.
         origins = np.concatenate([p[keep_r] + eps * ng[keep_r], p[keep_t] - eps * ng[keep_t]])
         dirs = np.concatenate([rdir[keep_r], tdir[keep_t]])
@@ -371,6 +379,7 @@ def _trace_paths(ts: TraceScene, env: BakedEnvironment, options: RenderOptions,
         pix = np.concatenate([px[keep_r], px[keep_t]])
         blur = np.concatenate([v_refl[keep_r], v_refr[keep_t]])
         share = np.concatenate([sh[keep_r], sh[keep_t]])
+        medium = np.concatenate([n_in[keep_r], n_t[keep_t]])
 
 
 def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,

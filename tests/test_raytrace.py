@@ -215,3 +215,21 @@ def test_chunked_tracing_gives_the_same_image(env, monkeypatch):
     chunked = render_raytrace(asset, env, opts)
     np.testing.assert_allclose(chunked.linear, whole.linear, atol=1e-5)
     assert chunked.plan["rays"] == whole.plan["rays"]
+
+
+@pytest.mark.parametrize("ior", [1.3, 1.5])
+def test_furnace_seen_from_inside_the_glass_is_n_squared(ior):
+    """Radiance inside a dielectric in equilibrium with a uniform sky is n^2 times the sky's
+    (the eta^2 factor at each crossing; it cancels for a camera outside)."""
+    spec = scenes.scene("glass_sphere_ior1.5")
+    spec = replace(spec, material=replace(spec.material, ior=ior))
+    frame = render_raytrace(scenes.baked_asset(spec), uniform_env(),
+                            RenderOptions(width=24, height=24, distance=0.4))
+    np.testing.assert_allclose(frame.linear[..., :3], ior * ior, rtol=0.01)
+
+
+def test_camera_inside_matches_mitsuba(env, cache):
+    """The stability suite's camera-inside case (bench.scenes), against its reference."""
+    err = relative_mae(render("case_camera_inside", env, cache).linear,
+                       load_reference("case_camera_inside"))
+    assert err < 0.03, err  # [0.017]; 0.56 without the eta^2 radiance factor
