@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import os
+import socket
 import sys
 import time
 from pathlib import Path
@@ -24,7 +25,7 @@ from pathlib import Path
 log = logging.getLogger(__name__)
 
 RAY_MISSING = ("--executor ray needs Ray, which is not installed: "
-               "pip install 'asset-preview[ray]' (or pip install 'ray>=2.9')")
+               "pip install 'asset-preview[ray]' (or pip install 'ray[client]>=2.9')")
 MAX_RETRIES = 3  # a task whose worker process dies (crash, OOM kill, lost node) runs again
 IN_FLIGHT_PER_CPU = 4  # tasks submitted ahead of results: bounded driver memory at 100k assets
 
@@ -62,6 +63,8 @@ def connect(address: str | None = None, num_cpus: int | None = None) -> None:
     address = address or os.environ.get("RAY_ADDRESS") or None
     # Worker output stays in Ray's session logs: stdout is for result lines only.
     kwargs = {"logging_level": logging.WARNING, "log_to_driver": False}
+    if address and address != "auto":
+        _probe(address)
     try:
         if address:
             ray.init(address=address, **kwargs)
@@ -73,6 +76,17 @@ def connect(address: str | None = None, num_cpus: int | None = None) -> None:
     _connected_here = True
     log.info("ray: connected to %s (%s CPUs)", address or "a new local cluster",
              ray.cluster_resources().get("CPU", 0))
+
+
+def _probe(address: str, timeout: float = 10.0) -> None:
+    """Fail fast when nothing listens at HOST:PORT (Ray itself retries for minutes)."""
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout).close()
+    except ValueError:
+        raise ExecutorUnavailable(f"not a Ray address: {address!r} (auto, HOST:PORT or ray://HOST:PORT)") from None
+    except OSError as exc:
+        raise ExecutorUnavailable(f"cannot reach the Ray cluster at {address}: {exc.strerror or exc}") from None
 
 
 def disconnect() -> None:
