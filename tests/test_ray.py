@@ -64,6 +64,16 @@ def test_without_ray_the_executor_fails_clearly(assets, tmp_path, monkeypatch, c
         RayWorkerPool(1, str(tmp_path / "cache"))
 
 
+def test_unreachable_cluster_fails_fast_and_clearly(assets, tmp_path, capsys):
+    pytest.importorskip("ray")
+    from service_server import free_port
+    start = time.monotonic()
+    code = bake_cmd.main([str(assets / "gltf" / "Duck.glb"), "--executor", "ray",
+                          "--ray-address", f"127.0.0.1:{free_port()}", "--cache", str(tmp_path)])
+    assert code == 2 and "cannot reach the Ray cluster" in capsys.readouterr().err
+    assert time.monotonic() - start < 30  # Ray alone would retry for minutes
+
+
 @pytest.fixture(scope="module")
 def cluster():
     ray = pytest.importorskip("ray")
