@@ -302,7 +302,12 @@ def _trace_paths(ts: TraceScene, env: BakedEnvironment, options: RenderOptions,
     blur = np.zeros(len(dirs))  # sum of squared GGX alphas of the lobes along the path
     medium = np.ones(len(dirs))  # IOR around the ray (outside every object: air)
 
-    for depth in range(max(int(options.bounces), 0) + 1):
+    if options.bounces <= 0:  # no surfaces: every camera ray reads the environment
+        hit = _intersect(ts, origins, dirs)[0] >= 0
+        image.coverage += np.bincount(pix[hit], share[hit], minlength=image.npix)
+        add(_env(env, dirs, np.zeros(len(dirs))) * share[:, None], pix)
+        return
+    for depth in range(int(options.bounces) + 1):
         if len(dirs) == 0:
             break
         if depth == options.bounces:  # out of bounces: read the environment where they point
