@@ -58,6 +58,11 @@ def run(args: argparse.Namespace) -> int:
     from . import scenes
     from .reference import relative_mae, render_reference
 
+    try:
+        import mitsuba  # noqa: F401  (the peer and the reference)
+    except ImportError:
+        print("error: bench refraction needs Mitsuba 3: pip install -e '.[reference]'")
+        return 2
     if args.quick:
         args.scenes, args.sizes, args.repeat = SCENES[0], "64", 1
         args.spp, args.peer_spp = min(args.spp, 64), min(args.peer_spp, 4)
