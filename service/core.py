@@ -67,7 +67,7 @@ class ThumbnailService:
         self._bake_slots: asyncio.Semaphore | None = None
         self._renders: dict[str, asyncio.Future] = {}
         self._background: set[asyncio.Task] = set()
-        self._writes: set[asyncio.Task] = set()  # thumbnails on their way to disk
+        self._writes: dict[asyncio.Task, str] = {}  # thumbnails on their way to disk -> asset id
         self._bundled_envs: list[str] | None = None
         m = self.metrics
         m.gauges["asset_preview_render_queue"] = ("Renders waiting or running", lambda: {"": self.pool.pending})
@@ -192,9 +192,14 @@ class ThumbnailService:
             raise MalformedAsset(name, "the upload is empty")
         return path, digest, size
 
-    def delete_asset(self, asset_id: str) -> None:
+    async def delete_asset(self, asset_id: str) -> None:
         if asset_id not in self.store.assets:
             raise NotFound(asset_id)
+        writing = [t for t, a in self._writes.items() if a == asset_id]
+        if writing:  # let them land, so nothing of the asset reappears after the answer
+            await asyncio.wait(writing, timeout=10)
+        if asset_id not in self.store.assets:  # deleted by a concurrent request meanwhile
+            return
         self.store.delete_asset(asset_id)
         self.thumbs.forget(asset_id)
         event = self._baked.pop(asset_id, None)
@@ -376,8 +381,8 @@ class ThumbnailService:
         # Answer from memory now; the disk copy (two fsyncs) is written off the request path.
         task = asyncio.get_running_loop().create_task(
             self._persist(asset_id, key, params.format, out["image"], plan))
-        self._writes.add(task)
-        task.add_done_callback(self._writes.discard)
+        self._writes[task] = asset_id
+        task.add_done_callback(lambda t: self._writes.pop(t, None))
         return self.thumbs.remember(asset_id, key, params.format, out["image"], plan)
 
     async def _persist(self, asset_id: str, key: str, fmt: str, image: bytes, plan: str) -> None:

@@ -54,7 +54,7 @@ async def get_asset(asset_id: str, service: Service):
 
 @router.delete("/{asset_id}", response_model=Deleted, dependencies=[Depends(require_key)], responses=ERRORS)
 async def delete_asset(asset_id: str, service: Service):
-    service.delete_asset(asset_id)
+    await service.delete_asset(asset_id)
     return Deleted(id=asset_id)
 
 
