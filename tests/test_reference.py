@@ -84,3 +84,22 @@ def test_regenerating_a_reference_reproduces_the_committed_one():
     box = committed.reshape(32, 8, 32, 8, 4).mean(axis=(1, 3))   # the same box filter
     assert relative_mae(small, box) < 0.04  # [0.020; sampling noise]
     np.testing.assert_allclose(small[..., 3], box[..., 3], atol=0.15)
+
+
+@pytest.mark.slow
+def test_bench_refraction_quick_writes_the_table(tmp_path, capsys):
+    pytest.importorskip("mitsuba", reason="the `reference` extra is not installed")
+    import csv
+
+    from service.cli import main
+
+    assert main(["bench", "refraction", "--quick", "--out", str(tmp_path),
+                 "--cache", str(tmp_path / "cache")]) == 0
+    rows = list(csv.DictReader(open(tmp_path / "refraction.csv")))
+    methods = {r["method"] for r in rows}
+    assert {"raytrace-1", "raytrace-2", "raytrace-8"} <= methods
+    assert any(m.startswith("mitsuba-") for m in methods)
+    errs = {r["method"]: float(r["rel_mae"]) for r in rows}
+    assert errs["raytrace-8"] < errs["raytrace-1"]
+    assert all(float(r["time_ms"]) > 0 for r in rows)
+    assert "paper anchor" in capsys.readouterr().out
