@@ -226,7 +226,13 @@ void main() {
 #else
     float d_interior = u_thickness;
 #endif
-    float roughness = m.roughness;
+    // Blur of the refracted lookup as a variance in alpha^2 units (lobes add as variances,
+    // as in renderer/raytrace.py): a microfacet tilt bends a refracted ray by |1 - eta| where
+    // it bends a reflected one by 2, so each interface's lobe is that much narrower than the
+    // reflection lobe the mips were prefiltered for. Looked up at roughness variance^(1/4).
+    float alpha = m.roughness * m.roughness;
+    float variance = pow(alpha * abs(1.0 - eta) * 0.5, 2.0);
+    float variance_reflected = variance;
     float path = d_interior;
     bool tir = false;
     vec3 through;
@@ -254,7 +260,9 @@ void main() {
 #endif
     if (!inside_hit && project(p_exit, uv)
             && surface_at(u_back_position, u_back_normal, uv0, uv, bpos, n2)) {
-        roughness = sqrt(roughness * roughness + bpos.w * bpos.w);
+        float alpha_back = bpos.w * bpos.w;
+        variance_reflected = variance + alpha_back * alpha_back;
+        variance += pow(alpha_back * abs(1.0 - u_ior) * 0.5, 2.0);
         vec3 r2;
         if (refract_ray(r1, -n2, u_ior, r2)) {
             dir = r2;
@@ -282,10 +290,11 @@ void main() {
 #endif
         }
     }
-    if (!inside_hit) through = outside_radiance(origin, dir, roughness_to_lod(roughness));
-    through = (1.0 - exit_F) * through + exit_F * textureLod(u_env, exit_refl, roughness_to_lod(roughness)).rgb;
+    if (!inside_hit) through = outside_radiance(origin, dir, roughness_to_lod(pow(variance, 0.25)));
+    through = (1.0 - exit_F) * through
+            + exit_F * textureLod(u_env, exit_refl, roughness_to_lod(pow(variance_reflected, 0.25))).rgb;
 #else
-    through = outside_radiance(v_world, r1, roughness_to_lod(roughness));
+    through = outside_radiance(v_world, r1, roughness_to_lod(pow(variance, 0.25)));
 #endif
     vec3 refracted = through * beer_lambert(u_sigma, path) * m.base_color.rgb;
 
