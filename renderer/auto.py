@@ -11,9 +11,8 @@ to be within tolerance of the best raster method:
   low IOR (the exit refraction hides inside the rough lobe), tiny on screen, camera inside (no
   front face to refract at). Thin objects keep `wyman`: the exit face undoes the entry
   refraction, which single misses (stability suite, slab: single FLIP 0.31, wyman 0.06);
-- transmissive otherwise: `wyman` with the renderer's default TIR treatment (the chart shows
-  tir=paper 1.3-2x cheaper at equal FLIP except on cubes, +1-4%; the default is the refraction
-  module's to set);
+- transmissive otherwise: `wyman`, with the request's TIR treatment or else AUTO_TIR (the
+  chart shows tir=paper 1.3-2x cheaper than tir=reflect at equal FLIP except on cubes, +1-4%);
 - `raytrace` for the whole frame only when the request gives a time budget
   (RenderOptions.time_budget_ms), the estimated ray-trace time fits it, and some object is in
   a case where the raster methods fail (genus > 0 at IOR >= RAYTRACE_MIN_IOR, an open mesh,
@@ -48,6 +47,10 @@ SINGLE_IOR_TOLERANCE = 0.02  # |IOR - 1| below this: the exit refraction bends r
 # wyman's at IOR 1.15 (|IOR - 1| = 0.15 < 2 x 0.09), 14-31% above at IOR 1.3 (0.3 > 0.18);
 # on smooth glass it is 50-550% above wyman's at every IOR from 1.15 up.
 SINGLE_LOBE_FACTOR = 2.0
+# Wyman's TIR treatment when the request names none. Chart, 35 transmissive scenes at 128 px:
+# tir=paper mean FLIP 0.240 at 20.9 ms geo-mean, tir=reflect 0.239 at 30.3 ms (its extra
+# front-face pass); reflect is better only on the cubes, by 1-4%.
+AUTO_TIR = "paper"
 TINY_PX = 12.0               # projected diameter: below it the back-face pass buys nothing visible
 RAYTRACE_MIN_IOR = 1.15      # genus > 0 fails raster refraction above this (paper Fig. 11: 1.2)
 DIAMOND_IOR = 2.0            # above it most exit rays are totally internally reflected
@@ -90,6 +93,7 @@ class Plan:
     """Per-object decisions and the per-request ones."""
     objects: list[Decision]
     frame_method: str | None = None      # "raytrace" when the whole frame is ray traced
+    tir: str | None = None               # wyman's TIR treatment for this request
     bounces: int | None = None
     why: str = ""
     estimate_ms: dict = field(default_factory=dict)
@@ -102,6 +106,8 @@ class Plan:
         """JSON-ready summary (Frame.plan["auto"], the X-Render-Plan header)."""
         out = {"request": self.why,
                "objects": [{"mesh": d.mesh, "method": d.method, "why": d.why} for d in self.objects]}
+        if self.tir:
+            out["tir"] = self.tir
         if self.frame_method:
             out["frame_method"] = self.frame_method
             out["bounces"] = self.bounces
@@ -278,6 +284,8 @@ def plan_request(asset: BakedAsset, options: RenderOptions, available: list[str]
             r_px = min(f.screen_px, max(options.width, options.height)) / 2
             coverage += math.pi * r_px * r_px
     plan = Plan(decisions)
+    if any(d.method == "wyman" for d in decisions):
+        plan.tir = options.tir or AUTO_TIR
     budget = options.time_budget_ms
     if not failing:
         plan.why = "raster: every object within the raster methods' tolerance"

@@ -163,6 +163,8 @@ def render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions) -> 
         auto = plan_request(asset, options, available_methods())
         if auto.frame_method:
             return run_frame_method(auto, _FRAME_METHODS[auto.frame_method], asset, env, options)
+        if auto.tir:
+            options = dataclasses.replace(options, tir=auto.tir)
     with _lock:  # one GL context per process: one frame at a time
         return _render(asset, env, options, auto)
 

@@ -73,6 +73,13 @@ def test_a_budget_alone_does_not_buy_raytrace(name):
     assert p.frame_method is None and methods(p) == ["wyman"]
 
 
+def test_tir_treatment_follows_the_request_else_auto():
+    assert plan("glass_sphere_ior1.5").tir == auto.AUTO_TIR
+    assert plan("glass_sphere_ior1.5", tir="reflect").tir == "reflect"
+    assert plan("dielectric_sphere").tir is None  # no wyman object: nothing to choose
+    assert "tir" in plan("glass_sphere_ior1.5").explain()
+
+
 def test_ray_tracer_not_installed_keeps_raster():
     p = plan("glass_torus_ior1.5", available=["auto", "opaque", "single", "wyman"],
              time_budget_ms=1e6)
@@ -147,6 +154,7 @@ def test_render_carries_the_plan(cache):
     o = RenderOptions(width=32, height=32, yaw=spec.yaw, pitch=spec.pitch)
     frame = render(asset, env, o)
     assert frame.plan["objects"][0]["method"] == "wyman"
+    assert frame.plan["objects"][0]["why"].endswith(f"tir={auto.AUTO_TIR}")  # reached the pass
     assert frame.plan["auto"]["objects"][0]["method"] == "wyman"
     assert "genus 1" in frame.plan["auto"]["request"]
     traced = render(asset, env, replace(o, time_budget_ms=1e6))

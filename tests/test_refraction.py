@@ -138,7 +138,7 @@ def test_opaque_scene_runs_no_refraction_pass(env, cache):
     assert refraction.stats["backface_passes"] == before["backface_passes"] + 1
     assert ("back", 64, 64) in refraction.allocated()
     assert refraction.stats["frontface_passes"] == before["frontface_passes"] + (
-        refraction.DEFAULT_TIR == "reflect")
+        frame.plan["auto"]["tir"] == "reflect")  # auto picks the TIR treatment (renderer.auto)
 
 
 # --- against the Mitsuba references ------------------------------------------------------------
