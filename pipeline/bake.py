@@ -286,8 +286,7 @@ def bake_environment(source, cache_dir=None, face_size: int = 256, prefilter: st
 def bake_or_load_environment(source, cache_dir=None, face_size: int = 256, prefilter: str = "ggx",
                              force: bool = False, limits: Limits | None = None
                              ) -> tuple[BakedEnvironment, bool]:
-    from .panorama import _resolve as resolve_panorama  # file path or bundled name -> file
-    from .panorama import load_panorama
+    from .panorama import load_panorama, resolve_panorama
 
     if prefilter not in PREFILTERS:
         raise ValueError(f"prefilter must be one of {PREFILTERS}, not {prefilter!r}")
@@ -295,7 +294,7 @@ def bake_or_load_environment(source, cache_dir=None, face_size: int = 256, prefi
 
     cache = _cache(cache_dir)
     # The filter's own constants are part of the key: changing them must not serve old bakes.
-    opts = {"face_size": face_size, "prefilter": prefilter,
+    opts = {"face_size": face_size, "prefilter": prefilter, "version": environment.PREFILTER_VERSION,
             "levels": environment.default_levels(face_size), "ggx_samples": environment.GGX_SAMPLES,
             "lut": [environment.LUT_SIZE, environment.LUT_SAMPLES]}
     source_files = SourceFiles.hash(resolve_panorama(source))

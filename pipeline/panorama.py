@@ -103,9 +103,6 @@ def _sanitize(pixels: np.ndarray, path: Path) -> np.ndarray:
     return pixels
 
 
-_resolve = resolve_panorama  # the name pipeline/bake.py imported first
-
-
 # Radiance RGBE (.hdr) -------------------------------------------------------------------------
 
 _RESOLUTION = re.compile(rb"([-+])([XY]) +(\d+) +([-+])([XY]) +(\d+)")
