@@ -61,6 +61,7 @@ RAYTRACE_BOUNCES = 8         # enough for the torus and diamond cases (stability
 RT_FIXED_MS = 30.0
 RT_MS_PER_TRIANGLE = 0.004
 RT_MS_PER_PIXEL_BOUNCE = 0.02
+MAX_EXPLAINED_OBJECTS = 16    # more meshes than this are explained in groups (header size)
 SMOOTH_ROUGHNESS = 0.05      # environment: a material smoother than this needs full-size faces
 
 
@@ -104,8 +105,14 @@ class Plan:
 
     def explain(self) -> dict:
         """JSON-ready summary (Frame.plan["auto"], the X-Render-Plan header)."""
-        out = {"request": self.why,
-               "objects": [{"mesh": d.mesh, "method": d.method, "why": d.why} for d in self.objects]}
+        objects = [{"mesh": d.mesh, "method": d.method, "why": d.why} for d in self.objects]
+        if len(objects) > MAX_EXPLAINED_OBJECTS:  # keep the HTTP header small: group alike
+            groups: dict = {}
+            for o in objects:
+                g = groups.setdefault((o["method"], o["why"]), {**o, "count": 0})
+                g["count"] += 1
+            objects = list(groups.values())
+        out = {"request": self.why, "objects": objects}
         if self.tir:
             out["tir"] = self.tir
         if self.frame_method:

@@ -106,7 +106,8 @@ def run(args: argparse.Namespace) -> int:
         if auto:
             print(f"request: {auto['request']}")
         for o in auto.get("objects") or frame.plan.get("objects", []):
-            print(f"{o['mesh']}: {o['method']}: {o['why']}")
+            alike = f" and {o['count'] - 1} more" if o.get("count", 1) > 1 else ""
+            print(f"{o['mesh']}{alike}: {o['method']}: {o['why']}")
     if args.json:
         print(json.dumps({"out": args.out, "plan": frame.plan, "timings": frame.timings}, indent=1))
     log.info("wrote %s (%dx%d) in %.1f ms", args.out, width, height,

@@ -80,6 +80,13 @@ def test_tir_treatment_follows_the_request_else_auto():
     assert "tir" in plan("glass_sphere_ior1.5").explain()
 
 
+def test_many_objects_are_explained_in_groups():
+    p = auto.Plan([auto.Decision(f"m{i}", "opaque", "opaque: PBR") for i in range(40)]
+                  + [auto.Decision("glass", "wyman", "IOR 1.5")])
+    objects = p.explain()["objects"]
+    assert [(o["method"], o["count"]) for o in objects] == [("opaque", 40), ("wyman", 1)]
+
+
 def test_ray_tracer_not_installed_keeps_raster():
     p = plan("glass_torus_ior1.5", available=["auto", "opaque", "single", "wyman"],
              time_budget_ms=1e6)
