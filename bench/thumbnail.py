@@ -7,7 +7,9 @@ Per asset and size, each tool runs in processes of its own (GL contexts do not m
   bake, Mesa's shader cache), then the median of `--cold-repeat` runs.
 - warm: in one process, after a first thumbnail, the median time of the next `--repeat`
   thumbnails rendered into a uint8 RGB(A) array in memory ("+png": plus PNG encoding with the
-  same Pillow settings for every tool).
+  same Pillow settings for every tool), and the median CPU time of the process (all threads,
+  llvmpipe's included) per render: the work a thumbnail costs, much less disturbed than wall
+  time when other jobs share the two cores.
 Peers: pyrender (EGL, one directional light from the camera plus ambient: punctual lights,
 no image-based lighting, 4x MSAA) and f3d's Python module (EGL, HDRI = the same panorama with
 `render.hdri.ambient` on and the skybox shown, FXAA, tone mapping). f3d reads no USD in its
@@ -151,9 +153,13 @@ def _camera(job: dict):
 
 def _png(rgb) -> bytes:
     import io
+
+    import numpy as np
     from PIL import Image
+    if rgb.shape[2] == 4 and rgb[..., 3].min() == 255:
+        rgb = rgb[..., :3]  # opaque: RGB, as Frame.encode writes it
     buf = io.BytesIO()
-    Image.fromarray(rgb).save(buf, "PNG", compress_level=1)
+    Image.fromarray(np.ascontiguousarray(rgb)).save(buf, "PNG", compress_level=1)
     return buf.getvalue()
 
 
@@ -209,18 +215,18 @@ def _worker(tool: str, job: dict, mode: str, repeat: int) -> None:
         Path(job["out"].format(tool=tool)).write_bytes(_png(shot()))
         return
     shot()
-    render_ms, png_ms = [], []
-    cpu0 = _cpu()
+    render_ms, png_ms, cpu_ms = [], [], []
     for _ in range(repeat):
+        c = _cpu()
         t = time.perf_counter()
         img = shot()
         t1 = time.perf_counter()
+        cpu_ms.append((_cpu() - c) * 1e3)
         _png(img)
         t2 = time.perf_counter()
         render_ms.append((t1 - t) * 1e3)
         png_ms.append((t2 - t) * 1e3)
-    cpu_ms = (_cpu() - cpu0) / repeat * 1e3
-    print(json.dumps({"render": render_ms, "render_png": png_ms, "cpu_ms": cpu_ms}))
+    print(json.dumps({"render": render_ms, "render_png": png_ms, "cpu_ms": statistics.median(cpu_ms)}))
 
 
 def _cpu() -> float:
