@@ -59,6 +59,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cache", default=None, help="bake cache (default: a temporary folder)")
     p.add_argument("--quick", action="store_true",
                    help=f"{len(QUICK_SCENES)} scenes at 64 px, one timed run, no peer")
+    p.add_argument("--replot", action="store_true",
+                   help="redraw the chart and summary from OUT/accuracy.csv without rendering")
 
 
 def _time(fn, repeat: int, warm: bool = True):
@@ -119,6 +121,11 @@ def run(args: argparse.Namespace) -> int:
     cache = Path(args.cache) if args.cache else Path(tempfile.mkdtemp(prefix="bench-accuracy-"))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    if args.replot:
+        rows = read_csv(out / "accuracy.csv")
+        chart(rows, out / "speed_accuracy.png", int(rows[0]["size"]))
+        summary(rows)
+        return 0
     rows = measure(args.scenes.split(","), args.size, args.repeat, args.rt_repeat, cache,
                    [int(s) for s in args.peer_spp.split(",") if s.strip()])
     mark_fronts(rows)
@@ -191,6 +198,17 @@ def _peer(spec, size: int, spp: int, ref) -> dict:
 def _print(r: dict) -> None:
     print(f"{r['scene']:30s} {r['method']:22s} {r['time_ms']:9.1f} {r['flip']:7.4f} "
           f"{r['rel_mse']:8.4f} {r['flip_frame']:8.4f}", flush=True)
+
+
+def read_csv(path: Path) -> list[dict]:
+    with open(path) as f:
+        rows = list(csv.DictReader(f))
+    for r in rows:
+        for k in ("time_ms", "flip", "rel_mse", "flip_frame", "rel_mse_frame"):
+            r[k] = float(r[k])
+        r["on_front"] = r["on_front"] == "True"
+        r["front_gap"] = float(r["front_gap"]) if r["front_gap"] else ""
+    return rows
 
 
 def is_auto(method: str) -> bool:
@@ -272,7 +290,8 @@ def chart(rows: list[dict], path: Path, size: int) -> None:
     methods = list(dict.fromkeys(r["method"] for r in rows))
     cmap = plt.get_cmap("tab20")
     color = {m: cmap(i % 20) for i, m in enumerate(methods)}
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(15, 6.5))
+    fig, (ax, bx, gx) = plt.subplots(1, 3, figsize=(21, 8),
+                                     gridspec_kw={"width_ratios": [1.2, 1.0, 0.8]})
     for m in methods:
         rs = [r for r in rows if r["method"] == m]
         auto = m == "auto"
@@ -312,6 +331,19 @@ def chart(rows: list[dict], path: Path, size: int) -> None:
     bx.set_ylabel("mean object HDR-FLIP over those scenes")
     bx.set_title(f"per method over the {len(glass)} transmissive scenes; red: Pareto front")
     bx.grid(True, which="both", alpha=0.25)
+    autos = sorted((r for r in rows if r["method"] == "auto"), key=lambda r: r["front_gap"])
+    gaps = [100 * max(r["front_gap"], 0.0) for r in autos]
+    gx.barh(range(len(autos)), [min(g, 100) for g in gaps],
+            color=["tab:green" if g <= 10 else "tab:red" for g in gaps])
+    for i, g in enumerate(gaps):
+        if g > 100:
+            gx.annotate(f"{g:.0f}%", (100, i), fontsize=6, va="center", ha="right", color="white")
+    gx.set_xlim(0, 100)
+    gx.set_yticks(range(len(autos)), [f"{r['scene']} ({r['plan'].split(': ')[-1]})"
+                                      for r in autos], fontsize=6)
+    gx.axvline(10, color="black", lw=0.8, ls="--")
+    gx.set_xlabel("auto's distance from the scene's Pareto front, % on its worse axis")
+    gx.set_title("auto per scene (target: <= 10%)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
