@@ -158,8 +158,21 @@ def topology(positions: np.ndarray, indices: np.ndarray) -> tuple[int | None, in
     return result
 
 
-def shape(mesh: BakedMesh) -> tuple[int | None, int, float | None, float]:
-    """(genus, open edges, convexity, normals_inward) of a mesh, cached per positions array."""
+@dataclass(frozen=True)
+class MeshShape:
+    """What auto needs of a mesh's geometry, independent of the request (computed once)."""
+    genus: int | None
+    open_edges: int
+    convexity: float | None
+    normals_inward: float
+    lo: np.ndarray                # object-space bounds
+    hi: np.ndarray
+    reach: float                  # farthest vertex from the bounds centre
+    thickness: float              # median interior distance (else smallest extent) / diameter
+
+
+def shape(mesh: BakedMesh) -> MeshShape:
+    """The mesh's MeshShape, cached per positions array (a small LRU)."""
     key = id(mesh.positions)
     hit = _topology.get(key)
     if hit is not None and hit[0] is mesh.positions:
@@ -182,44 +195,39 @@ def shape(mesh: BakedMesh) -> tuple[int | None, int, float | None, float]:
             convexity = round(min(1.0, volume / ConvexHull(pos).volume), 3)
         except Exception:  # flat or degenerate point sets have no hull volume
             convexity = None
-    result = (genus, open_edges, convexity, round(inward, 3))
+    lo, hi = pos.min(0), pos.max(0)
+    reach = float(np.sqrt(np.max(np.sum((pos - (lo + hi) / 2) ** 2, axis=1))))
+    diameter = float(np.linalg.norm(hi - lo)) or 1.0
+    if mesh.interior is not None and len(mesh.interior):
+        thickness = float(np.median(mesh.interior_length)) / diameter
+    else:
+        thickness = float((hi - lo).min()) / diameter
+    result = MeshShape(genus, open_edges, convexity, round(inward, 3), lo, hi, reach,
+                       round(thickness, 4))
     _topology[key] = (mesh.positions, result)
     while len(_topology) > 64:
         _topology.popitem(last=False)
     return result
 
 
-def _world_sphere(mesh: BakedMesh) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
-    """Centre and radius of the bounding sphere of all instances, and the world AABB."""
-    lo, hi = mesh.positions.min(0).astype(np.float64), mesh.positions.max(0).astype(np.float64)
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
-                        for z in (lo[2], hi[2])])
-    pts = np.concatenate([corners @ np.asarray(m)[:3, :3].T + np.asarray(m)[:3, 3]
-                          for m in mesh.transforms])
-    wlo, whi = pts.min(0), pts.max(0)
-    # Radius: the farthest vertex from the box centre, scaled by the largest instance scale.
-    reach = float(np.sqrt(np.max(np.sum((mesh.positions - (lo + hi) / 2) ** 2, axis=1))))
-    scale = max(float(np.linalg.norm(np.asarray(m)[:3, :3], 2)) for m in mesh.transforms)
-    return (wlo + whi) / 2, reach * scale, wlo, whi
-
-
 def object_facts(mesh: BakedMesh, material: Material, camera: Camera) -> ObjectFacts:
-    centre, radius, wlo, whi = _world_sphere(mesh)
+    """The request-dependent facts (size on screen, camera inside) over the cached shape."""
+    sh = shape(mesh)
+    corners = np.array([[x, y, z] for x in (sh.lo[0], sh.hi[0]) for y in (sh.lo[1], sh.hi[1])
+                        for z in (sh.lo[2], sh.hi[2])])
+    mats = np.asarray(mesh.transforms, np.float64)
+    pts = (corners @ mats[:, :3, :3].transpose(0, 2, 1) + mats[:, None, :3, 3]).reshape(-1, 3)
+    wlo, whi = pts.min(0), pts.max(0)
+    centre = (wlo + whi) / 2
+    # Radius: the farthest vertex from the box centre, scaled by the largest instance scale.
+    radius = sh.reach * max(float(np.linalg.norm(m[:3, :3], 2)) for m in mats[:64])
     dist = float(np.linalg.norm(np.asarray(camera.position) - centre))
     half = math.tan(math.radians(camera.fov) / 2)
     screen = camera.height * radius / max(dist * half, 1e-12) if dist > radius else math.inf
     inside = bool(np.all(camera.position >= wlo) and np.all(camera.position <= whi))
-    genus, open_edges, convexity, inward = shape(mesh)
-    extent = mesh.positions.max(0) - mesh.positions.min(0)
-    diameter = float(np.linalg.norm(extent)) or 1.0
-    if mesh.interior is not None and len(mesh.interior):
-        thickness = float(np.median(mesh.interior_length)) / diameter
-    else:
-        thickness = float(extent.min()) / diameter
     return ObjectFacts(mesh.name, material.material_class, float(material.ior),
-                       float(material.roughness), genus, open_edges, convexity, inward,
-                       round(thickness, 4),
-                       round(float(screen), 1), inside)
+                       float(material.roughness), sh.genus, sh.open_edges, sh.convexity,
+                       sh.normals_inward, sh.thickness, round(float(screen), 1), inside)
 
 
 # --- decisions ------------------------------------------------------------------------------
