@@ -68,7 +68,7 @@ def connect(address: str | None = None, num_cpus: int | None = None) -> None:
     try:
         if address:
             ray.init(address=address, **kwargs)
-        else:  # a throwaway single-machine cluster: no dashboard, loopback only
+        else:  # a throwaway cluster on this machine, no dashboard
             ray.init(num_cpus=num_cpus, include_dashboard=False, **kwargs)
     except (ConnectionError, RuntimeError, ValueError) as exc:
         raise ExecutorUnavailable(f"cannot connect to the Ray cluster at {address or 'a new local one'}: "

@@ -77,7 +77,8 @@ def test_unreachable_cluster_fails_fast_and_clearly(assets, tmp_path, capsys):
 @pytest.fixture(scope="module")
 def cluster():
     ray = pytest.importorskip("ray")
-    ray.init(num_cpus=2, include_dashboard=False, logging_level="WARNING", log_to_driver=False)
+    ray.init(num_cpus=2, include_dashboard=False, logging_level="WARNING", log_to_driver=False,
+             _node_ip_address="127.0.0.1")  # loopback only
     try:
         yield ray.get_runtime_context().gcs_address
     finally:
