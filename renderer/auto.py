@@ -7,12 +7,11 @@ to be within tolerance of the best raster method:
 
 - opaque, mask and blend materials: the PBR + IBL raster pass only (the bake computed no
   interior vectors for them, and no refraction pass or texture is allocated);
-- transmissive, `single` where it is within tolerance of `wyman`: IOR near 1, rough glass at
-  low IOR (the exit refraction hides inside the rough lobe), tiny on screen, camera inside (no
-  front face to refract at). Thin objects keep `wyman`: the exit face undoes the entry
+- transmissive, `single` where it is within tolerance of `wyman`: IOR near 1, tiny on screen,
+  camera inside (no front face to refract at); nowhere else on the chart's set. Thin objects keep `wyman`: the exit face undoes the entry
   refraction, which single misses (stability suite, slab: single FLIP 0.31, wyman 0.06);
-- transmissive otherwise: `wyman`, with the request's TIR treatment or else AUTO_TIR (the
-  chart shows tir=paper 1.3-2x cheaper than tir=reflect at equal FLIP except on cubes, +1-4%);
+- transmissive otherwise: `wyman`, with the request's TIR treatment or else `reflect` when a
+  wyman object has flat faces (exit TIR is common there) and the cheaper `paper` otherwise;
 - `raytrace` for the whole frame only when the request gives a time budget
   (RenderOptions.time_budget_ms), the estimated ray-trace time fits it, and some object is in
   a case where the raster methods fail (genus > 0 at IOR >= RAYTRACE_MIN_IOR, an open mesh,
@@ -41,16 +40,13 @@ log = logging.getLogger(__name__)
 
 # Thresholds, each from the chart / stability figures quoted in the README section of issue 7.
 SINGLE_IOR_TOLERANCE = 0.02  # |IOR - 1| below this: the exit refraction bends rays by < 1 degree
-# A rough interface blurs the refracted environment over a lobe of alpha = roughness^2; where
-# the exit refraction's deviation (~ IOR - 1) is within SINGLE_LOBE_FACTOR lobes, single is
-# within tolerance of wyman. Chart (128 px, roughness 0.3): single's FLIP is 4-15% above
-# wyman's at IOR 1.15 (|IOR - 1| = 0.15 < 2 x 0.09), 14-31% above at IOR 1.3 (0.3 > 0.18);
-# on smooth glass it is 50-550% above wyman's at every IOR from 1.15 up.
-SINGLE_LOBE_FACTOR = 2.0
-# Wyman's TIR treatment when the request names none. Chart, 35 transmissive scenes at 128 px:
-# tir=paper mean FLIP 0.240 at 20.9 ms geo-mean, tir=reflect 0.239 at 30.3 ms (its extra
-# front-face pass); reflect is better only on the cubes, by 1-4%.
-AUTO_TIR = "paper"
+# Single refraction is never within tolerance of wyman on the chart's glass set (128 px,
+# IOR 1.15..2.4, roughness 0 and 0.3): its object FLIP is 1.3-6x wyman's, rough glass included.
+# Wyman's TIR treatment when the request names none. TIR at the exit is common behind flat
+# faces (the internal ray keeps its angle) and rare behind curved ones (a sphere's exact exit
+# never meets it). Chart, 128 px: on cubes tir=reflect's FLIP is 13-45% below tir=paper's
+# (0.16 vs 0.30 at IOR 1.15); on smooth meshes within 0-5%, at 2-2.5x paper's time.
+TIR_FLAT_SHARE = 0.5          # faceted share of the surface above which reflect pays
 TINY_PX = 12.0               # projected diameter: below it the back-face pass buys nothing visible
 RAYTRACE_MIN_IOR = 1.15      # genus > 0 fails raster refraction above this (paper Fig. 11: 1.2)
 DIAMOND_IOR = 2.0            # above it most exit rays are totally internally reflected
@@ -78,6 +74,7 @@ class ObjectFacts:
     open_edges: int              # edges used by one triangle only
     convexity: float | None      # volume / convex hull volume (closed meshes; 1 = convex)
     normals_inward: float        # share of triangles whose stored normals oppose the winding
+    faceted: float               # share of the surface shaded flat (vertex normals = face normal)
     thickness: float             # median interior distance / object diameter (1 = solid ball)
     screen_px: float             # projected diameter of the mesh's bounding sphere, pixels
     camera_inside: bool          # camera inside the mesh's world bounding box
@@ -97,6 +94,7 @@ class Plan:
     objects: list[Decision]
     frame_method: str | None = None      # "raytrace" when the whole frame is ray traced
     tir: str | None = None               # wyman's TIR treatment for this request
+    tir_why: str = ""
     bounces: int | None = None
     why: str = ""
     estimate_ms: dict = field(default_factory=dict)
@@ -117,6 +115,7 @@ class Plan:
         out = {"request": self.why, "objects": objects}
         if self.tir:
             out["tir"] = self.tir
+            out["tir_why"] = self.tir_why
         if self.frame_method:
             out["frame_method"] = self.frame_method
             out["bounces"] = self.bounces
@@ -167,6 +166,7 @@ class MeshShape:
     open_edges: int
     convexity: float | None
     normals_inward: float
+    faceted: float
     lo: np.ndarray                # object-space bounds
     hi: np.ndarray
     reach: float                  # farthest vertex from the bounds centre
@@ -189,6 +189,11 @@ def shape(mesh: BakedMesh) -> MeshShape:
     genus, open_edges = topology(pos, tri[solid])
     stored = np.asarray(mesh.normals, np.float64)[tri].sum(axis=1)
     inward = float(area[np.einsum("ij,ij->i", winding, stored) < 0].sum() / max(area.sum(), 1e-30))
+    unit = winding / np.maximum(area, 1e-30)[:, None]
+    corner = np.asarray(mesh.normals, np.float64)[tri]
+    corner = corner / np.maximum(np.linalg.norm(corner, axis=-1, keepdims=True), 1e-30)
+    flat = np.all(np.abs(np.einsum("tki,ti->tk", corner, unit)) > 0.9998, axis=1)  # within ~1 deg
+    faceted = float(area[flat].sum() / max(area.sum(), 1e-30))
     convexity = None
     if genus is not None:
         from scipy.spatial import ConvexHull
@@ -204,7 +209,8 @@ def shape(mesh: BakedMesh) -> MeshShape:
         thickness = float(np.median(mesh.interior_length)) / diameter
     else:
         thickness = float((hi - lo).min()) / diameter
-    result = MeshShape(genus, open_edges, convexity, round(inward, 3), lo, hi, reach,
+    result = MeshShape(genus, open_edges, convexity, round(inward, 3), round(faceted, 3), lo, hi,
+                       reach,
                        round(thickness, 4))
     _topology[key] = (mesh.positions, result)
     while len(_topology) > 64:
@@ -229,7 +235,8 @@ def object_facts(mesh: BakedMesh, material: Material, camera: Camera) -> ObjectF
     inside = bool(np.all(camera.position >= wlo) and np.all(camera.position <= whi))
     return ObjectFacts(mesh.name, material.material_class, float(material.ior),
                        float(material.roughness), sh.genus, sh.open_edges, sh.convexity,
-                       sh.normals_inward, sh.thickness, round(float(screen), 1), inside)
+                       sh.normals_inward, sh.faceted, sh.thickness, round(float(screen), 1),
+                       inside)
 
 
 # --- decisions ------------------------------------------------------------------------------
@@ -256,10 +263,6 @@ def choose_raster(f: ObjectFacts, available: list[str]) -> tuple[str, str]:
     if "single" in available:
         if abs(f.ior - 1.0) < SINGLE_IOR_TOLERANCE:
             return "single", f"IOR {f.ior:g}: rays barely bend, single is within tolerance of wyman"
-        lobe = SINGLE_LOBE_FACTOR * f.roughness ** 2
-        if abs(f.ior - 1.0) < SINGLE_IOR_TOLERANCE + lobe:
-            return "single", (f"IOR {f.ior:g} at roughness {f.roughness:g}: the exit refraction "
-                              f"is within the rough lobe, single is within tolerance of wyman")
         if f.screen_px < TINY_PX:
             return "single", f"{f.screen_px:.0f} px on screen: single is within tolerance of wyman"
         if f.camera_inside:
@@ -301,8 +304,13 @@ def plan_request(asset: BakedAsset, options: RenderOptions, available: list[str]
             r_px = min(f.screen_px, max(options.width, options.height)) / 2
             coverage += math.pi * r_px * r_px
     plan = Plan(decisions)
-    if any(d.method == "wyman" for d in decisions):
-        plan.tir = options.tir or AUTO_TIR
+    wyman = [d.facts for d in decisions if d.method == "wyman"]
+    if wyman:
+        flat = [f.mesh for f in wyman if f.faceted >= TIR_FLAT_SHARE]
+        plan.tir = options.tir or ("reflect" if flat else "paper")
+        plan.tir_why = ("requested" if options.tir else
+                        f"flat faces ({', '.join(flat)}): exit TIR is common" if flat else
+                        "curved surfaces only: exit TIR is rare, paper's fallback suffices")
     budget = options.time_budget_ms
     if not failing:
         plan.why = "raster: every object within the raster methods' tolerance"

@@ -34,7 +34,7 @@ def methods(p) -> list[str]:
     ("case_tiny", "single", "px on screen"),
     ("case_camera_inside", "single", "camera inside"),
     ("case_thin_slab", "wyman", "exit refraction"),
-    ("frosted_bunny_ior1.15_r0.3", "single", "within the rough lobe"),
+    ("frosted_bunny_ior1.15_r0.3", "wyman", "exit refraction is needed"),
     ("frosted_bunny_ior1.3_r0.3", "wyman", "exit refraction is needed"),
 ])
 def test_per_object_choice_and_reason(name, method, reason):
@@ -74,7 +74,10 @@ def test_a_budget_alone_does_not_buy_raytrace(name):
 
 
 def test_tir_treatment_follows_the_request_else_auto():
-    assert plan("glass_sphere_ior1.5").tir == auto.AUTO_TIR
+    assert plan("glass_sphere_ior1.5").tir == "paper"     # curved: exit TIR is rare
+    assert plan("glass_cube_ior1.5").tir == "reflect"     # flat faces: exit TIR is common
+    assert plan("case_thin_slab").tir == "reflect"
+    assert plan("glass_cube_ior1.5", tir="paper").tir == "paper"
     assert plan("glass_sphere_ior1.5", tir="reflect").tir == "reflect"
     assert plan("dielectric_sphere").tir is None  # no wyman object: nothing to choose
     assert "tir" in plan("glass_sphere_ior1.5").explain()
@@ -161,7 +164,7 @@ def test_render_carries_the_plan(cache):
     o = RenderOptions(width=32, height=32, yaw=spec.yaw, pitch=spec.pitch)
     frame = render(asset, env, o)
     assert frame.plan["objects"][0]["method"] == "wyman"
-    assert frame.plan["objects"][0]["why"].endswith(f"tir={auto.AUTO_TIR}")  # reached the pass
+    assert frame.plan["objects"][0]["why"].endswith("tir=paper")  # reached the pass
     assert frame.plan["auto"]["objects"][0]["method"] == "wyman"
     assert "genus 1" in frame.plan["auto"]["request"]
     traced = render(asset, env, replace(o, time_budget_ms=1e6))
