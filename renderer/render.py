@@ -153,7 +153,6 @@ _load_plugins.done = False
 def render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions) -> Frame:
     """Render `asset` lit by `env` as `options` say. Raises UnsupportedMethod or ValueError
     for options this build cannot honour."""
-    _load_plugins()
     validate_options(options)
     if options.method in _FRAME_METHODS:
         return _FRAME_METHODS[options.method](asset, env, options)
@@ -238,6 +237,7 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
 
 def validate_options(o: RenderOptions) -> None:
     """Raise ValueError (UnsupportedMethod for methods) for options this build cannot honour."""
+    _load_plugins()  # the method list is only complete once the plugins have registered
     if not (1 <= o.width and 1 <= o.height and o.width * o.height <= MAX_PIXELS):
         raise ValueError(f"image size {o.width}x{o.height} is outside 1..{MAX_PIXELS} pixels")
     if o.tonemap not in _TONEMAPS:
