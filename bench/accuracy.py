@@ -4,7 +4,8 @@ For every scene of the set (bench.scenes) and every method that applies, render 
 px, time it (warm median of `--repeat` runs; ray tracing: median of `--rt-repeat`, each run
 seconds long) and measure the error of the linear frame against the committed Mitsuba
 reference (bench.metrics: mean HDR-FLIP and relative MSE, over the object's pixels and over
-the whole frame). The peer, Mitsuba 3 itself at a few samples per pixel, is timed and measured
+the whole frame). Raster methods are timed round-robin, at least `--repeat` rounds and, for
+cheap scenes, up to MAX_ROUNDS so that each gets ~ROUND_MS of runs. The peer, Mitsuba 3 itself at a few samples per pixel, is timed and measured
 in the same run (`--peer-spp`, off in --quick and without Mitsuba).
 
 Methods: `opaque` (opaque scenes), `single`, `wyman/tir=paper`, `wyman/tir=reflect`,
@@ -74,12 +75,23 @@ def _time(fn, repeat: int, warm: bool = True):
     return statistics.median(times), result
 
 
+ROUND_MS = 400.0     # cheap scenes get more rounds: at least this much time per method...
+MAX_ROUNDS = 30     # ...up to this many (a 2 ms cube frame is otherwise all noise)
+
+
 def _interleaved(jobs: dict, repeat: int) -> dict:
-    """Warm every job once, then time them round-robin `repeat` times (load drifts hit all
-    methods alike): {name: (median ms, last result)}."""
-    results = {m: fn() for m, fn in jobs.items()}
+    """Warm every job once, then time them round-robin (load drifts hit all methods alike),
+    `repeat` rounds or more for cheap scenes: {name: (median ms, last result)}."""
+    results, warm = {}, 0.0
+    for m, fn in jobs.items():
+        t0 = time.perf_counter()
+        results[m] = fn()
+        warm = max(warm, (time.perf_counter() - t0) * 1e3)
+    rounds = max(1, repeat)
+    if repeat > 1:
+        rounds = max(repeat, min(MAX_ROUNDS, int(ROUND_MS / max(warm, 1e-3))))
     times: dict = {m: [] for m in jobs}
-    for _ in range(max(1, repeat)):
+    for _ in range(rounds):
         for m, fn in jobs.items():
             t0 = time.perf_counter()
             results[m] = fn()
