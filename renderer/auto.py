@@ -40,8 +40,8 @@ log = logging.getLogger(__name__)
 
 # Thresholds, each from the chart / stability figures quoted in the README section of issue 7.
 SINGLE_IOR_TOLERANCE = 0.02  # |IOR - 1| below this: the exit refraction bends rays by < 1 degree
-# Single refraction is never within tolerance of wyman on the chart's glass set (128 px,
-# IOR 1.15..2.4, roughness 0 and 0.3): its object FLIP is 1.3-6x wyman's, rough glass included.
+# Single refraction is never within 10% of wyman on the chart's glass set (128 px,
+# IOR 1.15..2.4, roughness 0 and 0.3): its object FLIP is 1.2-6.6x wyman's, rough glass included.
 # Wyman's TIR treatment when the request names none. TIR at the exit is common behind flat
 # faces (the internal ray keeps its angle) and rare behind curved ones (a sphere's exact exit
 # never meets it). Chart, 128 px: on cubes tir=reflect's FLIP is 13-45% below tir=paper's
