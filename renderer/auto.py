@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import logging
 import math
+import threading
 from collections import OrderedDict
 from dataclasses import asdict, dataclass, field
 
@@ -128,6 +129,7 @@ class Plan:
 
 # --- facts ----------------------------------------------------------------------------------
 
+_topology_lock = threading.Lock()
 _topology: OrderedDict[int, tuple[np.ndarray, tuple[int | None, int]]] = OrderedDict()
 
 
@@ -178,10 +180,11 @@ class MeshShape:
 def shape(mesh: BakedMesh) -> MeshShape:
     """The mesh's MeshShape, cached per positions array (a small LRU)."""
     key = id(mesh.positions)
-    hit = _topology.get(key)
-    if hit is not None and hit[0] is mesh.positions:
-        _topology.move_to_end(key)
-        return hit[1]
+    with _topology_lock:
+        hit = _topology.get(key)
+        if hit is not None and hit[0] is mesh.positions:
+            _topology.move_to_end(key)
+            return hit[1]
     pos = np.asarray(mesh.positions, np.float64)
     tri = np.asarray(mesh.indices, np.int64).reshape(-1, 3)
     p0, p1, p2 = pos[tri[:, 0]], pos[tri[:, 1]], pos[tri[:, 2]]
@@ -214,9 +217,10 @@ def shape(mesh: BakedMesh) -> MeshShape:
     result = MeshShape(genus, open_edges, convexity, round(inward, 3), round(faceted, 3), lo, hi,
                        reach,
                        round(thickness, 4))
-    _topology[key] = (mesh.positions, result)
-    while len(_topology) > 64:
-        _topology.popitem(last=False)
+    with _topology_lock:
+        _topology[key] = (mesh.positions, result)
+        while len(_topology) > 64:
+            _topology.popitem(last=False)
     return result
 
 
