@@ -8,8 +8,9 @@ to be within tolerance of the best raster method:
 - opaque, mask and blend materials: the PBR + IBL raster pass only (the bake computed no
   interior vectors for them, and no refraction pass or texture is allocated);
 - transmissive, `single` where it is within tolerance of `wyman`: IOR near 1, tiny on screen,
-  camera inside (no front face to refract at); nowhere else on the chart's set. Thin objects keep `wyman`: the exit face undoes the entry
-  refraction, which single misses (stability suite, slab: single FLIP 0.31, wyman 0.06);
+  camera inside (no front face to refract at); nowhere else on the chart's set. Thin objects
+  keep `wyman`: the exit face undoes the entry refraction, which single misses (stability
+  suite, slab: single FLIP 0.31, wyman 0.06);
 - transmissive otherwise: `wyman`, with the request's TIR treatment or else `reflect` when a
   wyman object has flat faces (exit TIR is common there) and the cheaper `paper` otherwise;
 - `raytrace` for the whole frame only when the request gives a time budget
@@ -57,7 +58,8 @@ CONCAVE_CONVEXITY = 0.6      # bowl (0.4) degrades raster refraction; bunny, duc
 RAYTRACE_BOUNCES = 8         # enough for the torus and diamond cases (stability suite)
 # Ray-trace time model, fitted to the chart's raytrace-1..8 times (128 px, 2 shared cores):
 # fixed + per triangle (BVH build) + per frame pixel (centre rays, environment) + per covered
-# pixel per bounce (2 x 2 rays). IOR 1.5 sphere: 1.03 s predicted, 1.25 s measured (8 bounces).
+# pixel per bounce (2 x 2 rays). Conservative: IOR 1.5 sphere, 8 bounces, 1.0 s predicted,
+# 0.45-1.25 s measured as the shared machine's load varied.
 RT_FIXED_MS = 100.0
 RT_MS_PER_TRIANGLE = 0.01
 RT_MS_PER_FRAME_PIXEL = 0.01
