@@ -59,7 +59,7 @@ RAYTRACE_BOUNCES = 8         # enough for the torus and diamond cases (stability
 # Ray-trace time model, fitted to the chart's raytrace-1..8 times (128 px, 2 shared cores):
 # fixed + per triangle (BVH build) + per frame pixel (centre rays, environment) + per covered
 # pixel per bounce (2 x 2 rays). Conservative: IOR 1.5 sphere, 8 bounces, 1.0 s predicted,
-# 0.45-1.25 s measured as the shared machine's load varied.
+# 0.38-1.25 s measured as the shared machine's load varied.
 RT_FIXED_MS = 100.0
 RT_MS_PER_TRIANGLE = 0.01
 RT_MS_PER_FRAME_PIXEL = 0.01
