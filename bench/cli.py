@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import importlib
+
+from service.cli import add_commands
 
 BENCHMARKS = {
     "ingest": ("bench.ingest", "load every sample asset: our load_scene vs trimesh.load"),
@@ -18,17 +19,7 @@ BENCHMARKS = {
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    sub = parser.add_subparsers(dest="benchmark", required=True, metavar="BENCHMARK")
-    for name, (module, help_text) in BENCHMARKS.items():
-        try:
-            mod = importlib.import_module(module)
-        except ModuleNotFoundError as exc:
-            if exc.name != module:
-                raise
-            continue  # not built in this version
-        p = sub.add_parser(name, help=help_text, description=help_text)
-        mod.configure(p)
-        p.set_defaults(_bench=mod.run)
+    add_commands(parser, BENCHMARKS, "benchmark", "_bench")
 
 
 def run(args: argparse.Namespace) -> int:

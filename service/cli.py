@@ -20,20 +20,21 @@ COMMANDS = {
 }
 
 
+def add_commands(parser: argparse.ArgumentParser, table: dict[str, tuple[str, str]],
+                 dest: str, run_attr: str) -> None:
+    """One subcommand per (module, help) entry; the module's `run` lands in `args.<run_attr>`."""
+    sub = parser.add_subparsers(dest=dest, required=True, metavar=dest.upper())
+    for name, (module, help_text) in table.items():
+        mod = importlib.import_module(module)
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        mod.configure(p)
+        p.set_defaults(**{run_attr: mod.run})
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="asset-preview", description=__doc__.splitlines()[0])
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name, (module, help_text) in COMMANDS.items():
-        try:
-            mod = importlib.import_module(module)
-        except ModuleNotFoundError as exc:
-            if exc.name != module:
-                raise
-            continue  # not built in this version
-        p = sub.add_parser(name, help=help_text, description=help_text)
-        mod.configure(p)
-        p.set_defaults(_run=mod.run)
+    add_commands(parser, COMMANDS, "command", "_run")
     return parser
 
 

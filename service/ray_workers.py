@@ -18,12 +18,10 @@ from __future__ import annotations
 import asyncio
 import logging
 import os
-import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .workers import DeadlineExceeded, QueueFull, WorkerCrashed, _WorkerState, answer, unpack_reply
+from .workers import DeadlineExceeded, Pool, WorkerCrashed, _WorkerState, answer
 
 log = logging.getLogger(__name__)
 
@@ -72,27 +70,18 @@ class ActorWorker:
         return self.actor is not None and not self.dead
 
 
-class RayWorkerPool:
+class RayWorkerPool(Pool):
     def __init__(self, size: int, cache_dir: str, face_size: int = 256, limits: dict | None = None,
                  max_queue: int = 64, on_restart=None, address: str | None = None,
                  num_gpus: float = 0.0, num_cpus: float = 1.0):
         from pipeline.executors import require_ray
         self._ray = require_ray()  # fails here, at startup, with how to install it
-        self.size = size
         # Absolute: actors on other nodes resolve it on the same shared mount.
-        self.cache_dir = str(Path(cache_dir).absolute())
-        self.face_size = face_size
-        self.limits = dict(limits or {})
-        self.max_queue = max_queue
-        self.on_restart = on_restart or (lambda reason: None)
+        super().__init__(size, Path(cache_dir).absolute(), face_size, limits, max_queue,
+                         on_restart, "ray-render-pool")
         self.address = address
         self.num_gpus, self.num_cpus = num_gpus, num_cpus
         self.workers = [ActorWorker(i) for i in range(size)]
-        self._idle: asyncio.Queue[ActorWorker] | None = None
-        self.pending = 0
-        self.info: dict = {}
-        self._closing = False
-        self._executor = ThreadPoolExecutor(size + 1, thread_name_prefix="ray-render-pool")
         self._actor_class = None
 
     # -- life cycle -------------------------------------------------------------------------
@@ -100,7 +89,7 @@ class RayWorkerPool:
     async def start(self) -> None:
         from pipeline.executors import connect, task_env
         ray = self._ray
-        loop = asyncio.get_running_loop()
+        self._loop = loop = asyncio.get_running_loop()
         await loop.run_in_executor(self._executor, connect, self.address)
         options = {"num_cpus": self.num_cpus, "num_gpus": self.num_gpus, "max_restarts": 0,
                    "max_concurrency": 1}
@@ -154,55 +143,21 @@ class RayWorkerPool:
 
     # -- jobs -------------------------------------------------------------------------------
 
-    @property
-    def ready(self) -> bool:
-        return any(w.answered and w.alive() for w in self.workers)
-
-    async def run(self, op: str, *args, deadline: float, queue: bool = True):
-        """Run `op(*args)` on a free actor within `deadline` seconds of starting it."""
-        if queue:
-            if self.pending >= self.max_queue:
-                raise QueueFull(f"render queue is full ({self.pending} waiting or running)")
-            self.pending += 1
-        try:
-            w = await self._idle.get()
-            try:
-                return await asyncio.get_running_loop().run_in_executor(
-                    self._executor, self._call, w, op, args, deadline)
-            finally:
-                self._idle.put_nowait(w)
-        finally:
-            if queue:
-                self.pending -= 1
-
-    def _call(self, w: ActorWorker, op: str, args: tuple, deadline: float):
+    def _exchange(self, w: ActorWorker, op: str, args: tuple, deadline: float):
         ray = self._ray
         if w.dead:
             self._replace(w, "was found dead")
-        w.busy_since, w.op = time.time(), op
+        ref = w.actor.call.remote(op, args)
         try:
-            ref = w.actor.call.remote(op, args)
-            try:
-                status, value = ray.get(ref, timeout=deadline)
-            except ray.exceptions.GetTimeoutError:
-                self._replace(w, f"passed the {deadline:g} s deadline of a {op} job")
-                raise DeadlineExceeded(f"{op} did not finish within its deadline of {deadline:g} s; "
-                                       "the render actor was stopped") from None
-            except ray.exceptions.RayActorError as exc:
-                pid, node = w.pid or w.where.get("pid"), w.where.get("node", "?")
-                cause = str(exc).strip().splitlines()[0][:160] if str(exc).strip() else type(exc).__name__
-                w.dead = True
-                self._replace(w, f"died during a {op} job")
-                raise WorkerCrashed(f"render actor (pid {pid} on {node}) died during {op} ({cause}); "
-                                    "it has been replaced, retry the request") from None
-        finally:
-            w.busy_since, w.op = None, None
-        w.jobs += 1
-        w.answered = True
-        return unpack_reply(op, status, value)
-
-    def status(self) -> list[dict]:
-        now = time.time()
-        return [{"index": w.index, "pid": w.pid, "alive": w.alive(), "busy": w.busy_since is not None,
-                 "op": w.op, "busy_seconds": round(now - w.busy_since, 3) if w.busy_since else None,
-                 "jobs": w.jobs, "restarts": w.restarts} for w in self.workers]
+            return ray.get(ref, timeout=deadline)
+        except ray.exceptions.GetTimeoutError:
+            self._replace(w, f"passed the {deadline:g} s deadline of a {op} job")
+            raise DeadlineExceeded(f"{op} did not finish within its deadline of {deadline:g} s; "
+                                   "the render actor was stopped") from None
+        except ray.exceptions.RayActorError as exc:
+            pid, node = w.pid or w.where.get("pid"), w.where.get("node", "?")
+            cause = str(exc).strip().splitlines()[0][:160] if str(exc).strip() else type(exc).__name__
+            w.dead = True
+            self._replace(w, f"died during a {op} job")
+            raise WorkerCrashed(f"render actor (pid {pid} on {node}) died during {op} ({cause}); "
+                                "it has been replaced, retry the request") from None

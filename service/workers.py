@@ -197,25 +197,84 @@ class Worker:
         return bool(self.process and self.process.is_alive())
 
 
-class WorkerPool:
-    def __init__(self, size: int, cache_dir: str, face_size: int = 256, limits: dict | None = None,
-                 max_queue: int = 64, on_restart=None):
+class Pool:
+    """What the process pool and the Ray actor pool (service/ray_workers.py) share: the queue
+    bound, one job per worker at a time, busy bookkeeping, readiness and status. A subclass
+    creates `self.workers` and supplies start/stop/_replace and `_exchange`, which runs one job
+    on one worker and returns its (status, value) reply."""
+
+    def __init__(self, size: int, cache_dir: str, face_size: int, limits: dict | None,
+                 max_queue: int, on_restart, thread_prefix: str):
         self.size = size
         self.cache_dir = str(cache_dir)
         self.face_size = face_size
         self.limits = dict(limits or {})
         self.max_queue = max_queue
         self.on_restart = on_restart or (lambda reason: None)
-        self._ctx = mp.get_context("spawn")
-        self.workers = [Worker(i) for i in range(size)]
-        self._idle: asyncio.Queue[Worker] | None = None
+        self.workers: list = []
+        self._idle: asyncio.Queue | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._tasks: set[asyncio.Task] = set()
         self.pending = 0  # jobs counted against the queue bound (waiting or running)
         self.info: dict = {}
         self._closing = False
         # One waiting thread per busy worker: jobs never wait on threads used elsewhere.
-        self._executor = ThreadPoolExecutor(size + 1, thread_name_prefix="render-pool")
+        self._executor = ThreadPoolExecutor(size + 1, thread_name_prefix=thread_prefix)
+
+    @property
+    def ready(self) -> bool:
+        return any(w.answered and w.alive() for w in self.workers)
+
+    async def run(self, op: str, *args, deadline: float, queue: bool = True):
+        """Run `op(*args)` on a free worker within `deadline` seconds of starting it.
+        `queue=True` counts the job against the bound (renders); background work does not."""
+        if queue:
+            if self.pending >= self.max_queue:
+                raise QueueFull(f"render queue is full ({self.pending} waiting or running)")
+            self.pending += 1
+        try:
+            w = await self._idle.get()
+            job = self._executor.submit(self._call, w, op, args, deadline)
+            # Back to the idle queue when the thread is done with the worker, not when this
+            # coroutine is (a cancelled request must not hand a busy worker to another).
+            job.add_done_callback(lambda _: self._release(w))
+            return await asyncio.wrap_future(job)
+        finally:
+            if queue:
+                self.pending -= 1
+
+    def _release(self, w) -> None:
+        try:
+            self._loop.call_soon_threadsafe(self._idle.put_nowait, w)
+        except RuntimeError:  # the loop is closed: the server is stopping
+            pass
+
+    def _call(self, w, op: str, args: tuple, deadline: float):
+        w.busy_since, w.op = time.time(), op
+        try:
+            status, value = self._exchange(w, op, args, deadline)
+        finally:
+            w.busy_since, w.op = None, None
+        w.jobs += 1
+        w.answered = True
+        return unpack_reply(op, status, value)
+
+    def _exchange(self, w, op: str, args: tuple, deadline: float) -> tuple[str, object]:
+        raise NotImplementedError
+
+    def status(self) -> list[dict]:
+        now = time.time()
+        return [{"index": w.index, "pid": w.pid, "alive": w.alive(), "busy": w.busy_since is not None,
+                 "op": w.op, "busy_seconds": round(now - w.busy_since, 3) if w.busy_since else None,
+                 "jobs": w.jobs, "restarts": w.restarts} for w in self.workers]
+
+
+class WorkerPool(Pool):
+    def __init__(self, size: int, cache_dir: str, face_size: int = 256, limits: dict | None = None,
+                 max_queue: int = 64, on_restart=None):
+        super().__init__(size, cache_dir, face_size, limits, max_queue, on_restart, "render-pool")
+        self._ctx = mp.get_context("spawn")
+        self.workers = [Worker(i) for i in range(size)]
+        self._tasks: set[asyncio.Task] = set()
 
     # -- life cycle -------------------------------------------------------------------------
 
@@ -286,62 +345,21 @@ class WorkerPool:
 
     # -- jobs -------------------------------------------------------------------------------
 
-    @property
-    def ready(self) -> bool:
-        return any(w.answered and w.alive() for w in self.workers)
-
-    async def run(self, op: str, *args, deadline: float, queue: bool = True):
-        """Run `op(*args)` on a free worker within `deadline` seconds of starting it.
-        `queue=True` counts the job against the bound (renders); background work does not."""
-        if queue:
-            if self.pending >= self.max_queue:
-                raise QueueFull(f"render queue is full ({self.pending} waiting or running)")
-            self.pending += 1
-        try:
-            w = await self._idle.get()
-            job = self._executor.submit(self._call, w, op, args, deadline)
-            # Back to the idle queue when the thread is done with the worker's pipe, not when
-            # this coroutine is (a cancelled request must not hand a busy worker to another).
-            job.add_done_callback(lambda _: self._release(w))
-            return await asyncio.wrap_future(job)
-        finally:
-            if queue:
-                self.pending -= 1
-
-    def _release(self, w: Worker) -> None:
-        try:
-            self._loop.call_soon_threadsafe(self._idle.put_nowait, w)
-        except RuntimeError:  # the loop is closed: the server is stopping
-            pass
-
-    def _call(self, w: Worker, op: str, args: tuple, deadline: float):
+    def _exchange(self, w: Worker, op: str, args: tuple, deadline: float):
         if not w.alive():
             self._replace(w, "was found dead")
-        w.busy_since, w.op = time.time(), op
         try:
-            try:
-                w.conn.send((op, args))
-                if not w.conn.poll(deadline):
-                    self._replace(w, f"passed the {deadline:g} s deadline of a {op} job")
-                    raise DeadlineExceeded(f"{op} did not finish within its deadline of "
-                                           f"{deadline:g} s; the worker was stopped")
-                status, value = w.conn.recv()
-            except (EOFError, OSError, BrokenPipeError):
-                pid = w.pid
-                w.process.join(timeout=5)
-                code = w.process.exitcode
-                how = f"killed by signal {-code}" if code is not None and code < 0 else f"exit status {code}"
-                self._replace(w, f"crashed during a {op} job ({how})")
-                raise WorkerCrashed(f"render worker (pid {pid}) crashed during {op} ({how}); "
-                                    "it has been restarted, retry the request") from None
-        finally:
-            w.busy_since, w.op = None, None
-        w.jobs += 1
-        w.answered = True
-        return unpack_reply(op, status, value)
-
-    def status(self) -> list[dict]:
-        now = time.time()
-        return [{"index": w.index, "pid": w.pid, "alive": w.alive(), "busy": w.busy_since is not None,
-                 "op": w.op, "busy_seconds": round(now - w.busy_since, 3) if w.busy_since else None,
-                 "jobs": w.jobs, "restarts": w.restarts} for w in self.workers]
+            w.conn.send((op, args))
+            if not w.conn.poll(deadline):
+                self._replace(w, f"passed the {deadline:g} s deadline of a {op} job")
+                raise DeadlineExceeded(f"{op} did not finish within its deadline of "
+                                       f"{deadline:g} s; the worker was stopped")
+            return w.conn.recv()
+        except (EOFError, OSError, BrokenPipeError):
+            pid = w.pid
+            w.process.join(timeout=5)
+            code = w.process.exitcode
+            how = f"killed by signal {-code}" if code is not None and code < 0 else f"exit status {code}"
+            self._replace(w, f"crashed during a {op} job ({how})")
+            raise WorkerCrashed(f"render worker (pid {pid}) crashed during {op} ({how}); "
+                                "it has been restarted, retry the request") from None
