@@ -64,17 +64,6 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="redraw the chart and summary from OUT/accuracy.csv without rendering")
 
 
-def _time(fn, repeat: int, warm: bool = True):
-    if warm:
-        fn()
-    times, result = [], None
-    for _ in range(max(1, repeat)):
-        t0 = time.perf_counter()
-        result = fn()
-        times.append((time.perf_counter() - t0) * 1e3)
-    return statistics.median(times), result
-
-
 ROUND_MS = 400.0     # cheap scenes get more rounds: at least this much time per method...
 MAX_ROUNDS = 30     # ...up to this many (a 2 ms cube frame is otherwise all noise)
 
@@ -155,7 +144,7 @@ def measure(names: list[str], size: int, repeat: int, rt_repeat: int, cache: Pat
     from renderer.render import available_methods, render
 
     from . import scenes
-    from .metrics import errors, reference_at
+    from .metrics import errors, median_ms, reference_at
 
     available = available_methods()
     rows = []
@@ -180,7 +169,7 @@ def measure(names: list[str], size: int, repeat: int, rt_repeat: int, cache: Pat
         timed = _interleaved({m: jobs[m] for m in raster}, repeat)
         for m in methods:
             if m not in timed:
-                timed[m] = _time(jobs[m], rt_repeat, warm=False)
+                timed[m] = median_ms(jobs[m], rt_repeat, warm=False)
         for method in methods:
             ms, frame = timed[method]
             row = {"scene": name, "method": method, "size": size, "time_ms": ms,

@@ -13,6 +13,9 @@ The object's pixels are those the reference's coverage marks (alpha > 0).
 """
 from __future__ import annotations
 
+import statistics
+import time
+
 import numpy as np
 
 REL_MSE_EPS = 1e-2
@@ -79,3 +82,16 @@ def front_gap(point: tuple[float, float], front: list[tuple[float, float]]) -> f
     t, e = point
     return min((max(t / max(tp, 1e-12), e / max(ep, 1e-12)) - 1.0 for tp, ep in front),
                default=0.0)
+
+
+def median_ms(fn, repeat: int, warm: bool = True):
+    """(median wall ms over `repeat` calls, last result); `warm` runs `fn` once untimed first
+    (thread pools, shader compiles, uploads)."""
+    if warm:
+        fn()
+    times, result = [], None
+    for _ in range(max(1, repeat)):
+        t0 = time.perf_counter()
+        result = fn()
+        times.append((time.perf_counter() - t0) * 1e3)
+    return statistics.median(times), result

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import statistics
 import tempfile
 import time
 from pathlib import Path
@@ -39,16 +38,6 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quick", action="store_true", help="one scene at 64 px, one repeat")
 
 
-def _median_ms(fn, repeat: int):
-    fn()  # warm: thread pool, shader compile, uploads
-    times, result = [], None
-    for _ in range(max(1, repeat)):
-        t0 = time.perf_counter()
-        result = fn()
-        times.append((time.perf_counter() - t0) * 1e3)
-    return statistics.median(times), result
-
-
 def run(args: argparse.Namespace) -> int:
     import pipeline
     from renderer.options import RenderOptions
@@ -56,6 +45,7 @@ def run(args: argparse.Namespace) -> int:
     from renderer.render import available_methods, render
 
     from . import scenes
+    from .metrics import median_ms
     from .reference import relative_mae, render_reference
 
     try:
@@ -94,11 +84,11 @@ def run(args: argparse.Namespace) -> int:
             print(f"{name:28s} {size:5d} {method:16s} {ms:10.1f} {err:8.4f}", flush=True)
 
         for method in raster:
-            ms, frame = _median_ms(lambda: render(asset, env, _with(opts, method=method)),
+            ms, frame = median_ms(lambda: render(asset, env, _with(opts, method=method)),
                                    args.repeat)
             row(method, ms, frame.linear)
         for b in RAYTRACE_BOUNCES:
-            ms, frame = _median_ms(lambda: render_raytrace(asset, env, _with(opts, bounces=b)),
+            ms, frame = median_ms(lambda: render_raytrace(asset, env, _with(opts, bounces=b)),
                                    args.repeat)
             row(f"raytrace-{b}", ms, frame.linear)
         t0 = time.perf_counter()
