@@ -368,7 +368,7 @@ class ThumbnailService:
         options = {"width": width, "height": height, "yaw": params.yaw, "pitch": params.pitch,
                    "fov": params.fov, "method": params.method, "tonemap": params.tonemap,
                    "exposure": params.exposure, "background": params.background,
-                   "override": override or None}
+                   "override": override or None, "time_budget_ms": params.budget_ms}
         try:
             out = await self.pool.run("render", rec["bake_key"], env_source, options, params.format,
                                       deadline=self.settings.render_seconds)

@@ -94,6 +94,8 @@ class ThumbnailParams(BaseModel):
     roughness: float | None = Field(None, ge=0, le=1)
     ior: float | None = Field(None, ge=1, le=3)
     transmission: float | None = Field(None, ge=0, le=1)
+    budget_ms: float | None = Field(None, gt=0, le=600_000, description=(
+        "time budget for method=auto: lets it ray trace objects where raster refraction fails"))
 
     @field_validator("background")
     @classmethod

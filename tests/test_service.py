@@ -128,6 +128,23 @@ def test_thumbnails_of_every_sample_in_every_format(server, samples):
     assert img[0, 0, 3] == 0 and img[..., 3].max() == 255  # corner clear, the duck opaque
 
 
+def test_time_budget_lets_auto_ray_trace_where_raster_fails(server, assets):
+    """A glass torus (genus 1) is a raster failure case: without a budget auto keeps `wyman`,
+    with one it ray traces the frame, and X-Render-Plan says so."""
+    torus = upload(server, "torus.STL", (assets / "mesh/torus.STL").read_bytes()).json()["id"]
+    assert server.wait_status(torus)["status"] == "ready"
+    glass = {"size": 48, "transmission": 1, "ior": 1.5, "metallic": 0, "roughness": 0}
+    plans = {}
+    for budget in (None, 60000):
+        params = dict(glass, **({"budget_ms": budget} if budget else {}))
+        r = server.client.get(f"/assets/{torus}/thumbnail", params=params)
+        assert r.status_code == 200, r.text
+        assert nontrivial(decode(r.content))
+        plans[budget] = json.loads(r.headers["x-render-plan"])["auto"]
+    assert [o["method"] for o in plans[None]["objects"]] == ["wyman"]
+    assert plans[60000]["frame_method"] == "raytrace", plans[60000]
+
+
 def test_etag_304_and_cache_hits_skip_workers(server, samples):
     url = f"/assets/{samples['Duck.glb']['id']}/thumbnail"
     params = {"size": 80, "yaw": 10}
