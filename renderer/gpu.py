@@ -120,39 +120,34 @@ def _check_context() -> moderngl.Context:
     return ctx
 
 
-def asset(baked: BakedAsset) -> GpuAsset:
-    """The GPU copy of `baked`, uploaded on first use and then reused (LRU by bake key)."""
+def _cached(table: OrderedDict, key: str, upload, stat: str, over_budget) -> object:
+    """LRU lookup in `table`; on a miss, `upload()` and evict the oldest entries (never the
+    newest) while `over_budget()` says the table is too big."""
     _check_context()
-    gpu = _assets.get(baked.key)
+    gpu = table.get(key)
     if gpu is not None:
-        _assets.move_to_end(baked.key)
+        table.move_to_end(key)
         return gpu
-    gpu = _upload_asset(baked)
-    _assets[baked.key] = gpu
-    stats["asset_uploads"] += 1
-    while len(_assets) > 1 and (len(_assets) > MAX_ASSETS
-                                or sum(a.nbytes for a in _assets.values()) > MAX_ASSET_BYTES):
-        _, old = _assets.popitem(last=False)
+    gpu = table[key] = upload()
+    stats[stat] += 1
+    while len(table) > 1 and over_budget():
+        _, old = table.popitem(last=False)
         old.release()
         stats["evictions"] += 1
     return gpu
+
+
+def asset(baked: BakedAsset) -> GpuAsset:
+    """The GPU copy of `baked`, uploaded on first use and then reused (LRU by bake key)."""
+    return _cached(_assets, baked.key, lambda: _upload_asset(baked), "asset_uploads",
+                   lambda: len(_assets) > MAX_ASSETS
+                   or sum(a.nbytes for a in _assets.values()) > MAX_ASSET_BYTES)
 
 
 def environment(baked: BakedEnvironment) -> GpuEnvironment:
     """The GPU copy of `baked` (cube with its prefiltered mips, BRDF LUT, SH), LRU by key."""
-    _check_context()
-    gpu = _environments.get(baked.key)
-    if gpu is not None:
-        _environments.move_to_end(baked.key)
-        return gpu
-    gpu = _upload_environment(baked)
-    _environments[baked.key] = gpu
-    stats["environment_uploads"] += 1
-    while len(_environments) > MAX_ENVIRONMENTS:
-        _, old = _environments.popitem(last=False)
-        old.release()
-        stats["evictions"] += 1
-    return gpu
+    return _cached(_environments, baked.key, lambda: _upload_environment(baked),
+                   "environment_uploads", lambda: len(_environments) > MAX_ENVIRONMENTS)
 
 
 def clear() -> None:

@@ -24,3 +24,18 @@ def assets() -> Path:
 @pytest.fixture(scope="session")
 def update_goldens(request) -> bool:
     return request.config.getoption("--update-goldens")
+
+
+@pytest.fixture(scope="session")
+def reference_env(tmp_path_factory):
+    """The environment the Mitsuba references were rendered with, baked at 512 px faces: the
+    cube resampling of a 256 px bake alone costs ~0.05 relative error against them."""
+    import pipeline
+    return pipeline.bake_environment("footprint_court", tmp_path_factory.mktemp("reference_env"),
+                                     face_size=512)
+
+
+@pytest.fixture(scope="session")
+def scene_cache(tmp_path_factory):
+    """One bake cache for the generated glass test scenes (bench/scenes.py)."""
+    return tmp_path_factory.mktemp("scene_cache")

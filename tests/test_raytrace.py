@@ -18,27 +18,14 @@ from renderer.frame import Frame
 from renderer.options import MaterialOverride, RenderOptions
 from renderer.raytrace import render_raytrace
 
-FACE = 512
 
-
-@pytest.fixture(scope="module")
-def env(tmp_path_factory):
-    return pipeline.bake_environment("footprint_court", tmp_path_factory.mktemp("env"),
-                                     face_size=FACE)
-
-
-@pytest.fixture(scope="module")
-def cache(tmp_path_factory):
-    return tmp_path_factory.mktemp("assets")
-
-
-def render(name, env, cache, size=None, **opts):
+def render(name, reference_env, scene_cache, size=None, **opts):
     spec = scenes.scene(name)
     if size is None:
         size = load_reference(name).shape[0]
     options = RenderOptions(width=size, height=size, yaw=spec.yaw, pitch=spec.pitch,
                             fov=spec.fov, distance=spec.distance, **opts)
-    frame = render_raytrace(scenes.baked_asset(spec, cache), env, options)
+    frame = render_raytrace(scenes.baked_asset(spec, scene_cache), reference_env, options)
     assert np.isfinite(frame.linear).all(), name
     assert frame.linear.min() >= 0, name
     return frame
@@ -61,8 +48,8 @@ def uniform_env(radiance=1.0, size=16) -> BakedEnvironment:
     ("glass_sphere_ior1.15", 0.03),     # [0.020]
     ("glass_cube_ior1.15", 0.02),       # [0.009]
 ])
-def test_matches_mitsuba_reference(name, limit, env, cache):
-    err = relative_mae(render(name, env, cache).linear, load_reference(name))
+def test_matches_mitsuba_reference(name, limit, reference_env, scene_cache):
+    err = relative_mae(render(name, reference_env, scene_cache).linear, load_reference(name))
     assert err < limit, f"{name}: relative error {err:.4f} >= {limit}"
 
 
@@ -74,56 +61,56 @@ def test_matches_mitsuba_reference(name, limit, env, cache):
     ("glass_bunny_ior1.5", 0.13),       # [0.088] open mesh, sub-pixel detail at 128 px
     ("frosted_sphere_ior1.5_r0.3", 0.16),  # [0.113] rough lobes as prefiltered mips, not traced
 ])
-def test_hard_cases_finite_and_error_recorded(name, limit, env, cache):
-    frame = render(name, env, cache)
+def test_hard_cases_finite_and_error_recorded(name, limit, reference_env, scene_cache):
+    frame = render(name, reference_env, scene_cache)
     err = relative_mae(frame.linear, load_reference(name))
     assert err < limit, f"{name}: relative error {err:.4f} >= {limit}"
     assert frame.plan["rays"] > 0
 
 
-def test_ior_one_sphere_is_invisible(env, cache):
+def test_ior_one_sphere_is_invisible(reference_env, scene_cache):
     """IOR 1, no roughness, no attenuation: the frame equals the background seen through the
     same rays (bounces=0 reads the environment along every primary ray)."""
-    glass = render("glass_sphere_ior1.0", env, cache, size=96)
-    background = render("glass_sphere_ior1.0", env, cache, size=96, bounces=0)
+    glass = render("glass_sphere_ior1.0", reference_env, scene_cache, size=96)
+    background = render("glass_sphere_ior1.0", reference_env, scene_cache, size=96, bounces=0)
     np.testing.assert_allclose(glass.linear, background.linear, atol=1e-5)
 
 
-def test_more_bounces_converge_to_the_reference(env, cache):
+def test_more_bounces_converge_to_the_reference(reference_env, scene_cache):
     """One bounce is the single-refraction method, two the exact two-interface result."""
     ref = load_reference("glass_sphere_ior1.5")
-    errs = [relative_mae(render("glass_sphere_ior1.5", env, cache, bounces=b).linear, ref)
+    errs = [relative_mae(render("glass_sphere_ior1.5", reference_env, scene_cache, bounces=b).linear, ref)
             for b in (1, 2, 8)]
     assert errs[0] > 5 * errs[1] and errs[1] > 2 * errs[2], errs  # [0.92, 0.052, 0.022]
 
 
-def test_orientation_matters(env, cache):
+def test_orientation_matters(reference_env, scene_cache):
     """A mirrored image is far from the reference: the match above is not a coincidence."""
     ref = load_reference("mirror_sphere")
-    img = render("mirror_sphere", env, cache).linear
+    img = render("mirror_sphere", reference_env, scene_cache).linear
     assert relative_mae(img[:, ::-1], ref) > 5 * relative_mae(img, ref)
 
 
 @pytest.mark.parametrize("name", ["glass_sphere_ior1.5", "glass_sphere_ior2.4", "mirror_sphere",
                                   "glass_torus_ior2.4"])
-def test_furnace_energy_conserved(name, cache):
+def test_furnace_energy_conserved(name, scene_cache):
     """Under a uniform white sky, lossless glass and a perfect mirror vanish: Fresnel splits
     every ray's energy between its children and all of it reaches the sky."""
-    frame = render(name, uniform_env(), cache, size=48)
+    frame = render(name, uniform_env(), scene_cache, size=48)
     rgb = frame.linear[..., :3]
     assert np.abs(rgb - 1.0).max() < 0.01, rgb.min()
 
 
-def test_beer_lambert_attenuation(cache):
+def test_beer_lambert_attenuation(scene_cache):
     """The centre ray crosses 2 units of glass at normal incidence: exp(-2 sigma)."""
     dist, colour = 2.0, (0.5, 0.8, 1.0)
     spec = scenes.scene("glass_sphere_ior1.5")
     spec = replace(spec, material=replace(spec.material, attenuation_color=colour,
                                           attenuation_distance=dist))
-    env = uniform_env()
+    reference_env = uniform_env()
     opts = RenderOptions(width=33, height=33)
-    clear = render_raytrace(scenes.baked_asset(scenes.scene("glass_sphere_ior1.5")), env, opts)
-    tinted = render_raytrace(scenes.baked_asset(spec), env, opts)
+    clear = render_raytrace(scenes.baked_asset(scenes.scene("glass_sphere_ior1.5")), reference_env, opts)
+    tinted = render_raytrace(scenes.baked_asset(spec), reference_env, opts)
     ratio = tinted.linear[16, 16, :3] / clear.linear[16, 16, :3]
     # The direct path carries (1-F0)^2 ~ 0.92 of the light; the 4% reflected off the front
     # face is not attenuated, which bounds the ratio from above.
@@ -133,19 +120,19 @@ def test_beer_lambert_attenuation(cache):
     assert ratio[0] < ratio[1] < ratio[2]
 
 
-def test_material_override_turns_a_mirror_into_glass(env, cache):
+def test_material_override_turns_a_mirror_into_glass(reference_env, scene_cache):
     spec = scenes.scene("mirror_sphere")
-    asset = scenes.baked_asset(spec, cache)
+    asset = scenes.baked_asset(spec, scene_cache)
     opts = RenderOptions(width=64, height=64, override=MaterialOverride(
         metallic=0.0, transmission=1.0, ior=1.5, roughness=0.0, base_color=(1, 1, 1)))
-    glass = render_raytrace(asset, env, opts)
-    ref = render_raytrace(scenes.baked_asset(scenes.scene("glass_sphere_ior1.5"), cache), env,
+    glass = render_raytrace(asset, reference_env, opts)
+    ref = render_raytrace(scenes.baked_asset(scenes.scene("glass_sphere_ior1.5"), scene_cache), reference_env,
                           replace(opts, override=None))
     np.testing.assert_allclose(glass.linear, ref.linear, atol=1e-5)
 
 
-def test_frame_and_transparent_background(env, cache):
-    frame = render("glass_sphere_ior1.5", env, cache, size=64, background="transparent")
+def test_frame_and_transparent_background(reference_env, scene_cache):
+    frame = render("glass_sphere_ior1.5", reference_env, scene_cache, size=64, background="transparent")
     assert isinstance(frame, Frame)
     assert frame.rgba8.shape == (64, 64, 4) and frame.rgba8.dtype == np.uint8
     alpha = frame.linear[..., 3]
@@ -156,7 +143,7 @@ def test_frame_and_transparent_background(env, cache):
     assert frame.plan["supersample"] == 4  # small frames get more rays per pixel
 
 
-def test_every_instance_is_traced(env):
+def test_every_instance_is_traced(reference_env):
     """Two placements of one mesh: both appear, left and right of the centre."""
     spec = scenes.scene("mirror_sphere")
     asset = scenes.baked_asset(spec)
@@ -164,7 +151,7 @@ def test_every_instance_is_traced(env):
     t[0, 0, 3], t[1, 0, 3] = -1.5, 1.5
     asset.meshes[0].transforms = t
     asset.bounds = np.array([[-2.5, -1, -1], [2.5, 1, 1]])
-    frame = render_raytrace(asset, env, RenderOptions(width=96, height=48,
+    frame = render_raytrace(asset, reference_env, RenderOptions(width=96, height=48,
                                                       background="transparent"))
     alpha = frame.linear[..., 3]
     assert alpha[:, :48].max() == 1 and alpha[:, 48:].max() == 1
@@ -172,7 +159,7 @@ def test_every_instance_is_traced(env):
     assert alpha[:, :48].sum() == pytest.approx(alpha[:, 48:].sum(), rel=0.02)
 
 
-def test_degenerate_geometry_stays_finite(env):
+def test_degenerate_geometry_stays_finite(reference_env):
     """Zero-area triangles, zero normals, a camera inside the object: finite output."""
     spec = scenes.scene("glass_sphere_ior2.4")
     asset = scenes.baked_asset(spec)
@@ -182,7 +169,7 @@ def test_degenerate_geometry_stays_finite(env):
     mesh.indices = np.concatenate([mesh.indices, np.array([[0, 0, 1], [2, 2, 2]], np.uint32)])
     for opts in (RenderOptions(width=40, height=40),
                  RenderOptions(width=40, height=40, distance=0.3, bounces=16)):
-        frame = render_raytrace(asset, env, opts)
+        frame = render_raytrace(asset, reference_env, opts)
         assert np.isfinite(frame.linear).all() and np.isfinite(frame.rgba8).all()
         assert math.isfinite(frame.timings["total"])
 
@@ -204,15 +191,15 @@ def test_scene_glb_round_trips_through_ingest(name, tmp_path):
     assert scene.triangle_count == len(idx)
 
 
-def test_chunked_tracing_gives_the_same_image(env, monkeypatch):
+def test_chunked_tracing_gives_the_same_image(reference_env, monkeypatch):
     """Large frames go through in chunks of pixels (bounded memory); the image is the same."""
     import renderer.raytrace as rt
 
     asset = scenes.baked_asset(scenes.scene("glass_torus_ior1.5"))
     opts = RenderOptions(width=40, height=40, yaw=20, pitch=30)
-    whole = render_raytrace(asset, env, opts)
+    whole = render_raytrace(asset, reference_env, opts)
     monkeypatch.setattr(rt, "CHUNK_PIXELS", 37)
-    chunked = render_raytrace(asset, env, opts)
+    chunked = render_raytrace(asset, reference_env, opts)
     np.testing.assert_allclose(chunked.linear, whole.linear, atol=1e-5)
     assert chunked.plan["rays"] == whole.plan["rays"]
 
@@ -228,8 +215,8 @@ def test_furnace_seen_from_inside_the_glass_is_n_squared(ior):
     np.testing.assert_allclose(frame.linear[..., :3], ior * ior, rtol=0.01)
 
 
-def test_camera_inside_matches_mitsuba(env, cache):
+def test_camera_inside_matches_mitsuba(reference_env, scene_cache):
     """The stability suite's camera-inside case (bench.scenes), against its reference."""
-    err = relative_mae(render("case_camera_inside", env, cache).linear,
+    err = relative_mae(render("case_camera_inside", reference_env, scene_cache).linear,
                        load_reference("case_camera_inside"))
     assert err < 0.03, err  # [0.017]; 0.56 without the eta^2 radiance factor

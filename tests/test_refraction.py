@@ -13,37 +13,23 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-import pipeline
 from bench import scenes
 from bench.reference import load_reference, relative_mae
 from pipeline.baked import BakedAsset, BakedMesh
 from pipeline.interior import interior_vectors
 from pipeline.scene import Material
 from renderer import refraction
-from renderer.context import get_context, program
+from renderer.context import get_context
 from renderer.optics import fresnel_dielectric, refract
 from renderer.options import MaterialOverride, RenderOptions
 from renderer.render import render
 
-FACE = 512
 
-
-@pytest.fixture(scope="module")
-def env(tmp_path_factory):
-    return pipeline.bake_environment("footprint_court", tmp_path_factory.mktemp("env"),
-                                     face_size=FACE)
-
-
-@pytest.fixture(scope="module")
-def cache(tmp_path_factory):
-    return tmp_path_factory.mktemp("assets")
-
-
-def draw(name, env, cache, method, size=None, spec=None, **opts):
+def draw(name, reference_env, scene_cache, method, size=None, spec=None, **opts):
     spec = spec or scenes.scene(name)
     if size is None:
         size = load_reference(name).shape[0]
-    frame = render(scenes.baked_asset(spec, cache), env,
+    frame = render(scenes.baked_asset(spec, scene_cache), reference_env,
                    RenderOptions(width=size, height=size, yaw=spec.yaw, pitch=spec.pitch,
                                  fov=spec.fov, distance=spec.distance, method=method,
                                  **opts))
@@ -59,8 +45,8 @@ def reference(name, size=None):
     return ref.reshape(ref.shape[0] // k, k, ref.shape[1] // k, k, 4).mean(axis=(1, 3))
 
 
-def error(name, env, cache, method, size=None, **opts):
-    frame = draw(name, env, cache, method, size=size, **opts)
+def error(name, reference_env, scene_cache, method, size=None, **opts):
+    frame = draw(name, reference_env, scene_cache, method, size=size, **opts)
     return relative_mae(frame.linear, reference(name, frame.width))
 
 
@@ -110,30 +96,30 @@ def test_glsl_snell_and_fresnel_match_numpy_optics():
 # --- invariants ------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("method", ["single", "wyman"])
-def test_ior_one_sphere_is_invisible(method, env, cache):
+def test_ior_one_sphere_is_invisible(method, reference_env, scene_cache):
     """IOR 1.0, roughness 0, no attenuation: the frame equals the frame without the object."""
     spec = scenes.scene("glass_sphere_ior1.0")
-    glass = draw(spec.name, env, cache, method, size=128).linear
-    asset = scenes.baked_asset(spec, cache)
+    glass = draw(spec.name, reference_env, scene_cache, method, size=128).linear
+    asset = scenes.baked_asset(spec, scene_cache)
     empty = replace(asset, key="empty:" + asset.key, meshes=[])
-    background = render(empty, env, RenderOptions(width=128, height=128, method=method)).linear
+    background = render(empty, reference_env, RenderOptions(width=128, height=128, method=method)).linear
     mask = load_reference(spec.name)[..., 3] > 0
     diff = np.abs(glass[..., :3] - background[..., :3])
     assert diff[mask].sum() / background[..., :3][mask].sum() < 0.005  # [0.0014]
     assert np.percentile(diff[mask].max(axis=-1), 99) < 0.02
 
 
-def test_opaque_scene_runs_no_refraction_pass(env, cache):
+def test_opaque_scene_runs_no_refraction_pass(reference_env, scene_cache):
     """An opaque scene allocates no back-face textures and runs no back-face pass, under
     `auto` and even when `wyman` is asked for; a transmissive one does."""
     before = dict(refraction.stats)
     allocated = set(refraction.allocated())
     for method in ("auto", "wyman"):
-        frame = draw("dielectric_sphere", env, cache, method, size=64)
+        frame = draw("dielectric_sphere", reference_env, scene_cache, method, size=64)
         assert [o["method"] for o in frame.plan["objects"]] == ["opaque"]
     assert refraction.stats == before
     assert set(refraction.allocated()) == allocated
-    frame = draw("glass_sphere_ior1.5", env, cache, "auto", size=64)
+    frame = draw("glass_sphere_ior1.5", reference_env, scene_cache, "auto", size=64)
     assert frame.plan["objects"][0]["method"] == "wyman"   # auto: transmissive -> wyman
     assert refraction.stats["backface_passes"] == before["backface_passes"] + 1
     assert ("back", 64, 64) in refraction.allocated()
@@ -151,51 +137,51 @@ def test_opaque_scene_runs_no_refraction_pass(env, cache):
     ("mirror_sphere", "single", 0.1),          # [0.080] opaque: the PBR path, no refraction
     ("mirror_sphere", "wyman", 0.1),           # [0.080]
 ])
-def test_matches_mitsuba_reference(name, method, limit, env, cache):
-    assert error(name, env, cache, method) < limit
+def test_matches_mitsuba_reference(name, method, limit, reference_env, scene_cache):
+    assert error(name, reference_env, scene_cache, method) < limit
 
 
-def test_wyman_beats_single_on_sphere_and_bunny(env, cache):
+def test_wyman_beats_single_on_sphere_and_bunny(reference_env, scene_cache):
     """The paper's Figure 4 claim, measured: two refractions beat one at IOR 1.5."""
     for name in ("glass_sphere_ior1.5", "glass_bunny_ior1.5"):   # [0.088 vs 0.93; 0.34 vs 0.58]
-        w, s = error(name, env, cache, "wyman"), error(name, env, cache, "single")
+        w, s = error(name, reference_env, scene_cache, "wyman"), error(name, reference_env, scene_cache, "single")
         assert w < 0.75 * s, (name, w, s)
 
 
-def test_exit_refinement_improves_on_the_paper_estimate(env, cache, monkeypatch):
+def test_exit_refinement_improves_on_the_paper_estimate(reference_env, scene_cache, monkeypatch):
     """EXIT_REFINE_STEPS = 0 is the paper's interpolated exit distance alone."""
-    refined = error("glass_sphere_ior1.5", env, cache, "wyman")
+    refined = error("glass_sphere_ior1.5", reference_env, scene_cache, "wyman")
     monkeypatch.setattr(refraction, "EXIT_REFINE_STEPS", 0)
-    paper = error("glass_sphere_ior1.5", env, cache, "wyman")   # [0.31]
+    paper = error("glass_sphere_ior1.5", reference_env, scene_cache, "wyman")   # [0.31]
     assert refined < 0.5 * paper
 
 
-def test_default_tir_treatment_has_the_lower_error(env, cache):
+def test_default_tir_treatment_has_the_lower_error(reference_env, scene_cache):
     """The default was chosen by this measurement: mean error over four shapes at 128 px."""
     names = ("glass_sphere_ior1.5", "glass_cube_ior1.15", "glass_bunny_ior1.5",
              "glass_torus_ior1.5")
-    mean = {tir: np.mean([error(n, env, cache, "wyman", size=128, tir=tir) for n in names])
+    mean = {tir: np.mean([error(n, reference_env, scene_cache, "wyman", size=128, tir=tir) for n in names])
             for tir in ("paper", "reflect")}                    # [0.27 vs 0.17]
     assert refraction.DEFAULT_TIR == min(mean, key=mean.get)
     # The cube's bottom shows the sky by total internal reflection: only "reflect" has it.
-    assert error("glass_cube_ior1.15", env, cache, "wyman", tir="reflect") < 0.25  # [0.19]
-    assert error("glass_cube_ior1.15", env, cache, "wyman", tir="paper") > 0.4     # [0.53]
+    assert error("glass_cube_ior1.15", reference_env, scene_cache, "wyman", tir="reflect") < 0.25  # [0.19]
+    assert error("glass_cube_ior1.15", reference_env, scene_cache, "wyman", tir="paper") > 0.4     # [0.53]
 
 
-def test_non_uniform_scale_uses_transformed_interior_vectors(env, cache, monkeypatch):
+def test_non_uniform_scale_uses_transformed_interior_vectors(reference_env, scene_cache, monkeypatch):
     """The 3:1:1 ellipsoid: seen along its long axis, the paper's estimate at the centre is
     eta * D_d + (1 - eta) * D_I with D_d = D_I = 6 only if the baked vector (length 2 in
     object space) is scaled by the node matrix; untransformed it would be 4.67."""
     spec = scenes.scene("glass_ellipsoid_311_ior1.5")
     monkeypatch.setattr(refraction, "EXIT_REFINE_STEPS", 0)
-    frame = draw(spec.name, env, cache, "wyman", size=65, spec=replace(spec, yaw=90.0),
+    frame = draw(spec.name, reference_env, scene_cache, "wyman", size=65, spec=replace(spec, yaw=90.0),
                  debug="exit_distance")
     radius = math.sqrt(3 ** 2 + 1 + 1)
     d = frame.linear[32, 32, 0] * 2 * radius    # the view shows D * 0.5 / bounding radius
     assert d == pytest.approx(6.0, rel=0.03)
     monkeypatch.undo()
-    ellipsoid = error(spec.name, env, cache, "wyman")            # [0.21]
-    sphere = error("glass_sphere_ior1.5", env, cache, "wyman", size=128)   # [0.10]
+    ellipsoid = error(spec.name, reference_env, scene_cache, "wyman")            # [0.21]
+    sphere = error("glass_sphere_ior1.5", reference_env, scene_cache, "wyman", size=128)   # [0.10]
     assert ellipsoid < 3.0 * sphere
 
 
@@ -205,9 +191,9 @@ def test_non_uniform_scale_uses_transformed_interior_vectors(env, cache, monkeyp
     ("glass_torus_ior2.4", 0.35),           # [0.242]
     ("frosted_sphere_ior1.5_r0.3", 0.18),   # [0.126] roughness through the prefiltered mips
 ])
-def test_hard_cases_finite_and_error_recorded(name, limit, env, cache):
+def test_hard_cases_finite_and_error_recorded(name, limit, reference_env, scene_cache):
     for method in ("single", "wyman"):
-        frame = draw(name, env, cache, method)   # finite and non-negative, checked in draw()
+        frame = draw(name, reference_env, scene_cache, method)   # finite and non-negative, checked in draw()
         err = relative_mae(frame.linear, load_reference(name))
         print(f"{name} {method}: relative error {err:.3f}")
         if method == "wyman":
@@ -216,7 +202,7 @@ def test_hard_cases_finite_and_error_recorded(name, limit, env, cache):
 
 # --- material, debug views, opaque parts -------------------------------------------------------
 
-def test_beer_lambert_attenuation_over_the_path(env, cache):
+def test_beer_lambert_attenuation_over_the_path(reference_env, scene_cache):
     """Half transmittance per unit length: the centre ray crosses the diameter 2, so its
     refracted share drops to 1/4 (an opaque-black volume leaves the reflection alone)."""
     clear = scenes.scene("glass_sphere_ior1.5")
@@ -225,43 +211,43 @@ def test_beer_lambert_attenuation_over_the_path(env, cache):
         return replace(clear, name=f"absorbing_sphere_{color}", material=scenes.glass(
             1.5, attenuation_color=(color,) * 3, attenuation_distance=1.0))
     for method in ("single", "wyman"):
-        a, b, black = (draw(s.name, env, cache, method, size=33, spec=s).linear[16, 16, :3]
+        a, b, black = (draw(s.name, reference_env, scene_cache, method, size=33, spec=s).linear[16, 16, :3]
                        for s in (clear, absorbing(0.5), absorbing(0.0)))
         ratio = (b - black).sum() / (a - black).sum()
         assert ratio == pytest.approx(0.25, rel=0.05), method
 
 
-def test_override_previews_an_opaque_mesh_as_glass(env, cache):
+def test_override_previews_an_opaque_mesh_as_glass(reference_env, scene_cache):
     """A mesh baked without interior vectors, shown as glass: wyman falls back to D_d."""
     glass = MaterialOverride(base_color=(1, 1, 1), metallic=0.0, roughness=0.0, ior=1.5,
                              transmission=1.0)
     spec = scenes.scene("dielectric_sphere")
-    assert scenes.baked_asset(spec, cache).meshes[0].interior is None
-    frame = draw(spec.name, env, cache, "wyman", size=128, spec=spec, override=glass)
+    assert scenes.baked_asset(spec, scene_cache).meshes[0].interior is None
+    frame = draw(spec.name, reference_env, scene_cache, "wyman", size=128, spec=spec, override=glass)
     assert frame.plan["objects"][0]["method"] == "wyman"
     err = relative_mae(frame.linear, reference("glass_sphere_ior1.5", 128))
     assert err < 0.2  # [0.10]
 
 
-def test_debug_views(env, cache):
-    sphere = draw("glass_sphere_ior1.5", env, cache, "wyman", size=65,
+def test_debug_views(reference_env, scene_cache):
+    sphere = draw("glass_sphere_ior1.5", reference_env, scene_cache, "wyman", size=65,
                   debug="backface_normals").linear
     # The back face behind the centre faces away from the camera: normal -Z -> (0.5, 0.5, 0).
     np.testing.assert_allclose(sphere[32, 32, :3], [0.5, 0.5, 0.0], atol=0.03)
-    tir = draw("glass_bunny_ior1.5", env, cache, "wyman", size=128, debug="tir",
+    tir = draw("glass_bunny_ior1.5", reference_env, scene_cache, "wyman", size=128, debug="tir",
                tir="paper").linear
     red = (tir[..., 0] > 0.99) & (tir[..., 1] < 0.01) & (tir[..., 2] < 0.01)
-    assert 0.005 < red.mean() < 0.3   # the bunny has real TIR; the env has no pure red
-    clean = draw("glass_sphere_ior1.5", env, cache, "wyman", size=128, debug="tir").linear
+    assert 0.005 < red.mean() < 0.3   # the bunny has real TIR; the reference_env has no pure red
+    clean = draw("glass_sphere_ior1.5", reference_env, scene_cache, "wyman", size=128, debug="tir").linear
     red = (clean[..., 0] > 0.99) & (clean[..., 1] < 0.01) & (clean[..., 2] < 0.01)
     assert red.mean() < 0.002         # a sphere has none (the paper's Fig. 6 rings were
     #                                   errors of the exit estimate, which refinement removes)
     with pytest.raises(ValueError, match="tir"):
-        draw("glass_sphere_ior1.5", env, cache, "wyman", size=16, tir="bogus")
+        draw("glass_sphere_ior1.5", reference_env, scene_cache, "wyman", size=16, tir="bogus")
 
 
 @pytest.mark.parametrize("method", ["single", "wyman"])
-def test_refracted_rays_see_the_assets_opaque_parts(method, env):
+def test_refracted_rays_see_the_assets_opaque_parts(method, reference_env):
     """A red core inside a glass sphere shows through it (screen-space, from the opaque pass)."""
     pos, nrm, idx = scenes.mesh_arrays("sphere")
     glass = BakedMesh("glass", pos, nrm, idx, scenes.glass(1.5), np.eye(4)[None],
@@ -270,7 +256,7 @@ def test_refracted_rays_see_the_assets_opaque_parts(method, env):
     core = BakedMesh("core", pos, nrm, idx, red, np.diag([0.35, 0.35, 0.35, 1.0])[None])
     asset = BakedAsset("test:glass_with_core", "test", "generated", [glass, core], [],
                        np.array([[-1.0] * 3, [1.0] * 3]))
-    frame = render(asset, env, RenderOptions(width=64, height=64, method=method))
+    frame = render(asset, reference_env, RenderOptions(width=64, height=64, method=method))
     assert np.isfinite(frame.linear).all()
     c = frame.linear[32, 32, :3]
     assert c[0] > 4 * c[1] and c[0] > 4 * c[2], c    # the core, magnified by the glass
