@@ -10,6 +10,7 @@ from contextlib import asynccontextmanager
 
 from fastapi import FastAPI, Request
 from fastapi.responses import JSONResponse
+from fastapi_offline import FastAPIOffline
 
 from pipeline.errors import AssetError, UnsupportedFormat
 
@@ -36,7 +37,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         finally:
             await service.stop()
 
-    app = FastAPI(title="asset-preview", version="0.1.0", lifespan=lifespan,
+    # FastAPIOffline serves the /docs and /redoc assets from the package, not from a CDN, so
+    # the API pages work on machines without internet access.
+    app = FastAPIOffline(title="asset-preview", version="0.1.0", lifespan=lifespan,
                   description="Upload glTF/USD assets; get physically based thumbnails.")
     for router in (assets.router, environments.router, health.router, pages.router):
         app.include_router(router)

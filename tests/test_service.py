@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import io
 import json
+import re
 import os
 import signal
 import threading
@@ -105,6 +106,12 @@ def test_health_ready_and_docs(server):
     spec = server.client.get("/openapi.json").json()
     assert {"/assets", "/assets/{asset_id}", "/assets/{asset_id}/thumbnail", "/environments",
             "/healthz", "/readyz", "/metrics"} <= set(spec["paths"])
+    # /docs works offline: its scripts and styles come from this server, not a CDN.
+    page = server.client.get("/docs").text
+    assets = re.findall(r'(?:src|href)="([^"]+\.(?:js|css))"', page) + re.findall(r"url: '([^']+)'", page)
+    assert assets and not [a for a in assets if a.startswith("http")], assets
+    for url in assets:
+        assert server.client.get(url).status_code == 200, url
 
 
 def test_thumbnails_of_every_sample_in_every_format(server, samples):
