@@ -249,12 +249,28 @@ def validate_options(o: RenderOptions) -> None:
     if o.distance is not None and not (math.isfinite(o.distance) and o.distance > 0):
         raise ValueError(f"distance {o.distance} must be a positive number")
     parse_background(o.background)
+    _validate_override(o.override)
     if o.method not in _KNOWN:
         raise UnsupportedMethod(f"unknown method {o.method!r}: use one of {', '.join(_KNOWN)}")
     if o.method not in ("auto", "opaque") and o.method not in _METHODS and o.method not in _FRAME_METHODS:
         raise UnsupportedMethod(
             f"method {o.method!r} is not available in this build (refraction and ray tracing "
             f"methods are not installed); available: {', '.join(available_methods())}")
+
+
+def _validate_override(m) -> None:
+    """Material override values must be physical: factors in 0..1, IOR at least 1 (glTF's
+    KHR_materials_ior range) and finite, so no request can steer a shader into NaN."""
+    if m is None:
+        return
+    for name in ("metallic", "roughness", "transmission"):
+        v = getattr(m, name)
+        if v is not None and not (0.0 <= v <= 1.0):
+            raise ValueError(f"{name} {v} must be between 0 and 1")
+    if m.ior is not None and not (1.0 <= m.ior <= 10.0):
+        raise ValueError(f"ior {m.ior} must be between 1 and 10")
+    if m.base_color is not None and not all(0.0 <= c <= 1.0 for c in m.base_color):
+        raise ValueError(f"base colour {m.base_color} must have components between 0 and 1")
 
 
 def parse_background(spec: str) -> tuple[float, float, float] | None:
