@@ -185,7 +185,9 @@ def _flat_normals(mesh: Mesh) -> None:
         value = getattr(mesh, name)
         if value is not None:
             setattr(mesh, name, value.take(corners, axis=0))
-    tri = mesh.positions.reshape(-1, 3, 3)
+    # float64: a float32 cross product of a tiny triangle (edges ~1e-12) is non-zero, as the
+    # degenerate test found, yet its squared length underflows to 0 and the normal to NaN.
+    tri = mesh.positions.reshape(-1, 3, 3).astype(np.float64)
     face = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     face /= np.linalg.norm(face, axis=1, keepdims=True)
     mesh.normals = np.repeat(face, 3, axis=0).astype(np.float32)

@@ -237,6 +237,16 @@ def test_degenerate_triangles_dropped_with_a_count(tmp_path):
     assert "dropped 3 degenerate triangles" in scene.warnings
 
 
+def test_tiny_triangles_get_finite_normals(tmp_path):
+    """A valid but tiny mesh without normals: its flat normals must not underflow to NaN."""
+    b = Builder()
+    b.node(b.mesh(CUBE_POSITIONS * np.float32(1e-12), CUBE_INDICES))
+    scene = loaded(b.write(tmp_path / "tiny.glb"))
+    normals = scene.meshes[0].normals
+    assert np.isfinite(normals).all()
+    np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, rtol=1e-5)
+
+
 @pytest.mark.parametrize("edit", [
     lambda d: d.update(scenes=[{"nodes": []}]),
     lambda d: d["nodes"][0].pop("mesh"),
