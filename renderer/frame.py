@@ -81,11 +81,19 @@ def write_exr(path: str, linear: np.ndarray) -> None:
         f.write(path)
 
 
-# --- the numpy twin of shaders/tonemap.frag ------------------------------------------------
+# --- the numpy twin of shaders/final.frag's tone mapping --------------------------------------
+
+MAX_EXPOSURE = 64.0  # stops either way; beyond it 2**EV overflows float32 (and Python floats)
+
+
+def exposure_scale(exposure: float) -> float:
+    """2**exposure with the exposure clamped to +-MAX_EXPOSURE (the GPU pass uses it too)."""
+    return float(2.0 ** max(min(exposure, MAX_EXPOSURE), -MAX_EXPOSURE))
+
 
 def tonemap(rgb: np.ndarray, method: str = "neutral", exposure: float = 0.0) -> np.ndarray:
     """Linear radiance -> display-referred linear [0, 1] (before the sRGB transfer)."""
-    c = np.maximum(rgb * np.float32(2.0 ** exposure), 0).astype(np.float32)
+    c = np.maximum(rgb * np.float32(exposure_scale(exposure)), 0).astype(np.float32)
     if method == "none":
         return np.clip(c, 0, 1)
     if method == "aces":

@@ -26,7 +26,7 @@ from pipeline.scene import Material
 
 from . import context, gpu
 from .camera import Camera, frame_bounds
-from .frame import Frame
+from .frame import Frame, exposure_scale
 from .options import MaterialOverride, RenderOptions
 
 log = logging.getLogger(__name__)
@@ -512,7 +512,7 @@ def _finish(ctx, target: _Target, camera: Camera, env: gpu.GpuEnvironment,
                             "SAMPLES": max(target.samples, 1)})
     prog["u_frame"].value = 0
     prog["u_height"].value = h
-    prog["u_exposure_scale"].value = float(2.0 ** max(min(options.exposure, 64), -64))
+    prog["u_exposure_scale"].value = exposure_scale(options.exposure)
     if mode == 1:
         prog["u_background"].value = bg
     elif mode == 2:

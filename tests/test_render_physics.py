@@ -256,6 +256,15 @@ def test_exposure_scales_linear_input_to_tonemapping():
     assert f1.rgba8[c, c, 0] > f0.rgba8[c, c, 0] + 20
 
 
+def test_extreme_exposure_saturates_instead_of_overflowing():
+    # The numpy tone mapper (ray tracer, reference) clamps the exposure as the GPU pass does:
+    # 2**5000 used to raise OverflowError out of `render --method raytrace --exposure 5000`.
+    from renderer.frame import tonemap_srgb8
+    linear = np.full((2, 2, 4), 0.5, np.float32)
+    assert np.all(tonemap_srgb8(linear, "none", 5000.0)[..., :3] == 255)
+    assert np.all(tonemap_srgb8(linear, "none", -5000.0)[..., :3] == 0)
+
+
 def test_override_makes_any_mesh_steel():
     env = make_env(gradient_radiance, size=64, key="gradient")
     asset = sphere_asset(0.0, 1.0, (0.8, 0.1, 0.1, 1.0))
