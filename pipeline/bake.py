@@ -292,6 +292,7 @@ def bake_or_load_environment(source, cache_dir=None, face_size: int = 256, prefi
         raise ValueError(f"prefilter must be one of {PREFILTERS}, not {prefilter!r}")
     from . import environment
 
+    environment.check_face_size(face_size)  # before the key: default_levels needs a valid one
     cache = _cache(cache_dir)
     # The filter's own constants are part of the key: changing them must not serve old bakes.
     opts = {"face_size": face_size, "prefilter": prefilter, "version": environment.PREFILTER_VERSION,

@@ -66,6 +66,12 @@ def default_face_size(thumbnail_px: int) -> int:
     return int(min(512, max(32, 1 << max(0, int(thumbnail_px) - 1).bit_length())))
 
 
+def check_face_size(face_size: int) -> None:
+    """ValueError unless `face_size` is a power of two no larger than MAX_FACE."""
+    if face_size < 1 or face_size & (face_size - 1) or face_size > MAX_FACE:
+        raise ValueError(f"face_size must be a power of two <= {MAX_FACE}, got {face_size}")
+
+
 def default_levels(face_size: int) -> int:
     """Mips from face_size down to MIN_FACE (4 px): log2(face_size) - 1 levels (7 for 256).
     Faces of 2 or 1 px cannot hold a roughness-1 lobe across a face without visible steps."""
@@ -88,8 +94,7 @@ def prefilter(pixels: np.ndarray, face_size: int = 256, method: str = "ggx",
 
     if method not in METHODS:
         raise ValueError(f"unknown prefilter method {method!r}; one of {METHODS}")
-    if face_size < 1 or face_size & (face_size - 1) or face_size > MAX_FACE:
-        raise ValueError(f"face_size must be a power of two <= {MAX_FACE}, got {face_size}")
+    check_face_size(face_size)
     levels = default_levels(face_size) if levels is None else int(levels)
     if not 1 <= levels <= int(math.log2(face_size)) + 1:
         raise ValueError(f"levels must be in 1..{int(math.log2(face_size)) + 1}, got {levels}")
