@@ -178,7 +178,7 @@ class MaterialReader:
         opacity = self._input(shader, "opacity")
         if isinstance(opacity, _Tex):
             self._check_tex(name, "opacity", opacity, None)
-            alpha = opacity.scale[opacity.channel]
+            alpha = _unit(opacity.scale[opacity.channel])
             base = mat.base_color_texture
             if base is not None and base.texture == opacity.texture and opacity.channel == 3:
                 pass  # already the base colour texture's alpha
@@ -190,7 +190,7 @@ class MaterialReader:
         elif isinstance(opacity, str):
             self._warn(f"{name}: opacity from primvar {opacity!r} is not supported; opaque")
         else:
-            alpha = float(_scalar(opacity, 1.0))
+            alpha = _unit(_scalar(opacity, 1.0))
         mat.base_color = (*[float(c) for c in rgb], 1.0)
 
         parts: dict[int, tuple[int, int]] = {}
@@ -204,7 +204,8 @@ class MaterialReader:
                 tex_for_ref = value
             else:
                 factors[slot] = float(_scalar(value, getattr(mat, slot)))
-        mat.roughness, mat.metallic = factors["roughness"], factors["metallic"]
+        # Clamped to 0..1 as the glTF reader clamps its factors: the one material model's range.
+        mat.roughness, mat.metallic = _unit(factors["roughness"]), _unit(factors["metallic"])
         if parts:
             mat.metallic_roughness_texture = ref(_with(tex_for_ref, self._pack(parts)))
 
@@ -409,6 +410,10 @@ def _transform2d(rotation, scale, translation):
     tx, ty = _vec(translation, 2, (0.0, 0.0))
     offset = (tx - math.sin(theta) * sy, 1.0 - ty - math.cos(theta) * sy)
     return (float(offset[0]), float(offset[1])), theta, (float(sx), float(sy))
+
+
+def _unit(value: float) -> float:
+    return min(max(float(value), 0.0), 1.0)
 
 
 def _scalar(value, default):

@@ -404,6 +404,15 @@ def test_opacity_and_ior_mapping(tmp_path, inputs, cls, transmission, alpha):
     assert mat.base_color[3] == pytest.approx(alpha)
 
 
+def test_factors_outside_0_1_are_clamped(tmp_path):
+    """As glTF's factors are: opacity -1 with an ior must not become transmission 2."""
+    inputs = ("float inputs:opacity = -1\n float inputs:ior = 1.5\n float inputs:roughness = 3"
+              "\n float inputs:metallic = -2")
+    text = '(\n metersPerUnit = 1\n)\n' + material("G", inputs) + mesh("M", binding="G")
+    mat = pipeline.load_scene(write(tmp_path / "range.usda", text)).materials[0]
+    assert (mat.transmission, mat.roughness, mat.metallic) == (1.0, 1.0, 0.0)
+
+
 def _textured(tmp_path: Path, tex_uri: str, st_reader: str = "st", extra_nodes: str = "",
               st_source: str = "</G/R.outputs:result>") -> str:
     nodes = f"""
