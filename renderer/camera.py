@@ -84,6 +84,7 @@ def frame_bounds(bounds: np.ndarray, width: int, height: int, yaw: float = 0.0,
     offset = np.array([math.sin(yaw_r) * math.cos(pitch_r), math.sin(pitch_r),
                        math.cos(yaw_r) * math.cos(pitch_r)])
     near = max(distance - radius * 1.05, radius * 1e-3, distance * 1e-4)
-    far = distance + radius * 1.05
+    # Far from a small object, distance +- radius rounds to one value: keep far beyond near.
+    far = max(distance + radius * 1.05, near * (1 + 1e-6))
     return Camera(position=center + distance * offset, target=center, up=np.array([0.0, 1.0, 0.0]),
                   fov=fov, width=width, height=height, near=near, far=far)

@@ -33,6 +33,7 @@ log = logging.getLogger(__name__)
 
 MAX_LIGHTS = 8
 MAX_PIXELS = 8192 * 8192
+MAX_DISTANCE = 1e12  # scene units (metres); beyond it the projection's arithmetic overflows
 _TONEMAPS = {"none": 0, "neutral": 1, "aces": 2}
 _SLOTS = ("base_color", "metallic_roughness", "normal", "occlusion", "emissive")
 _SRGB_SLOTS = ("base_color", "emissive")
@@ -246,8 +247,8 @@ def validate_options(o: RenderOptions) -> None:
         raise ValueError(f"fov {o.fov} must be between 0.1 and 180 degrees")
     if not all(math.isfinite(x) for x in (o.yaw, o.pitch, o.exposure, o.background_blur)):
         raise ValueError("yaw, pitch, exposure and background_blur must be finite")
-    if o.distance is not None and not (math.isfinite(o.distance) and o.distance > 0):
-        raise ValueError(f"distance {o.distance} must be a positive number")
+    if o.distance is not None and not (0 < o.distance <= MAX_DISTANCE):
+        raise ValueError(f"distance {o.distance} must be a positive number up to {MAX_DISTANCE:g}")
     parse_background(o.background)
     _validate_override(o.override)
     if o.method not in _KNOWN:

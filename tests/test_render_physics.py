@@ -286,6 +286,15 @@ def test_second_thumbnail_uploads_nothing():
     assert f.rgba8.shape == (48, 64, 4)
 
 
+def test_far_camera_keeps_a_finite_projection():
+    # distance +- radius rounds to one value this far out: near == far divided by zero.
+    cam = frame_bounds(np.array([[-1e-6] * 3, [1e-6] * 3]), 32, 32, distance=1e12)
+    assert cam.far > cam.near
+    assert np.all(np.isfinite(cam.projection_matrix()))
+    with pytest.raises(ValueError, match="distance"):
+        render(sphere_asset(0.0, 0.5), constant_env(0.5), opts(distance=1e17))
+
+
 def test_unavailable_and_bad_options_are_rejected_clearly():
     from renderer.render import _METHODS
     env = constant_env(1.0)
