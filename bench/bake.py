@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.ingest import DEFAULT_ASSETS, sample_files
+from bench.metrics import median_ms
 
 TARGET_RAYS = 2e6
 TARGET_HIT_MS = 20.0
@@ -40,13 +41,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def _median_s(fn, repeat: int) -> float:
-    fn()
-    times = []
-    for _ in range(repeat):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
+    """Median seconds of `repeat` calls after one warm-up (bench.metrics.median_ms)."""
+    return median_ms(fn, repeat)[0] / 1e3
 
 
 def _interior_meshes(assets: Path):
