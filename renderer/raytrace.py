@@ -39,17 +39,17 @@ import logging
 import math
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
 from pipeline.baked import BakedAsset, BakedEnvironment
 from pipeline.cubemap import sample_cube
-from pipeline.scene import Material
 
 from .camera import Camera, frame_bounds
 from .optics import fresnel_dielectric, reflect, refract
 from .options import RenderOptions
+from .render import _apply_override, parse_background, register_frame_method
 
 log = logging.getLogger(__name__)
 
@@ -76,17 +76,6 @@ class TraceScene:
     radius: float
 
 
-def _override(mat: Material, options: RenderOptions) -> Material:
-    o = options.override
-    if o is None or o.is_empty():
-        return mat
-    changes = {k: getattr(o, k) for k in ("metallic", "roughness", "ior", "transmission")
-               if getattr(o, k) is not None}
-    if o.base_color is not None:
-        changes["base_color"] = (*o.base_color, 1.0)
-    return replace(mat, **changes)
-
-
 def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> TraceScene:
     """Transform every instance into world space and hand the triangles to Embree."""
     from embreex import rtcore_scene as rtcs
@@ -94,7 +83,7 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
 
     tris, nrms, mats, tables = [], [], [], []
     for k, mesh in enumerate(asset.meshes):
-        mat = _override(mesh.material, options)
+        mat = _apply_override(mesh.material, options.override)
         a = mat.attenuation_color
         d = mat.attenuation_distance
         sigma = (-np.log(np.clip(a, 1e-6, 1.0)) / d) if math.isfinite(d) and d > 0 else np.zeros(3)
@@ -209,12 +198,6 @@ def _near(mask: np.ndarray) -> np.ndarray:
     out[:, 1:] |= grown[:, :-1]
     out[:, :-1] |= grown[:, 1:]
     return out
-
-
-def _background(options: RenderOptions) -> tuple[float, float, float] | None:
-    if options.background.startswith("#") and len(options.background) == 7:
-        return tuple(int(options.background[i:i + 2], 16) / 255 for i in (1, 3, 5))
-    return None
 
 
 class _Image:
@@ -394,7 +377,7 @@ def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOpt
 
     t0 = time.perf_counter()
     linear, stats = trace(asset, env, options, camera, supersample)
-    rgba8 = tonemap_srgb8(linear, options.tonemap, options.exposure, _background(options))
+    rgba8 = tonemap_srgb8(linear, options.tonemap, options.exposure, parse_background(options.background))
     t1 = time.perf_counter()
     plan = {"method": "raytrace", "bounces": int(options.bounces),
             "supersample": stats["supersample"],
@@ -406,11 +389,4 @@ def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOpt
     return Frame(linear=linear, rgba8=rgba8, plan=plan, timings=timings)
 
 
-def _register() -> None:
-    """Make `--method raytrace` reach this module through renderer.render."""
-    from .render import register_frame_method
-
-    register_frame_method("raytrace", render_raytrace)
-
-
-_register()
+register_frame_method("raytrace", render_raytrace)  # `--method raytrace` via renderer.render
