@@ -99,8 +99,8 @@ def methods_for(spec) -> list[str]:
     return out + (["auto/prefilter=paper"] if rough else [])
 
 
-def options_for(method: str, base):
-    """(RenderOptions, prefilter) for a method name of the chart."""
+def options_for(method: str, base, budget_ms: float = BUDGET_MS):
+    """(RenderOptions, prefilter) for a method name of the chart (also bench.stability's)."""
     if method.startswith("raytrace-"):
         return replace(base, method="raytrace", bounces=int(method.split("-")[1])), "ggx"
     if method.startswith("wyman/tir="):
@@ -108,7 +108,7 @@ def options_for(method: str, base):
     if method == "auto/prefilter=paper":
         return replace(base, method="auto"), "paper"
     if method == "auto+budget":
-        return replace(base, method="auto", time_budget_ms=BUDGET_MS), "ggx"
+        return replace(base, method="auto", time_budget_ms=budget_ms), "ggx"
     return replace(base, method=method), "ggx"
 
 
@@ -117,8 +117,6 @@ def run(args: argparse.Namespace) -> int:
     if args.quick:
         args.scenes, args.size, args.repeat, args.rt_repeat = ",".join(QUICK_SCENES), 64, 1, 1
         args.peer_spp = ""
-    global BUDGET_MS
-    BUDGET_MS = args.budget_ms
     cache = Path(args.cache) if args.cache else Path(tempfile.mkdtemp(prefix="bench-accuracy-"))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -128,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
         summary(rows)
         return 0
     rows = measure(args.scenes.split(","), args.size, args.repeat, args.rt_repeat, cache,
-                   [int(s) for s in args.peer_spp.split(",") if s.strip()])
+                   [int(s) for s in args.peer_spp.split(",") if s.strip()], args.budget_ms)
     mark_fronts(rows)
     write_csv(rows, out / "accuracy.csv")
     chart(rows, out / "speed_accuracy.png", args.size)
@@ -138,7 +136,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def measure(names: list[str], size: int, repeat: int, rt_repeat: int, cache: Path,
-            peer_spp: list[int]) -> list[dict]:
+            peer_spp: list[int], budget_ms: float = BUDGET_MS) -> list[dict]:
     import pipeline
     from renderer.options import RenderOptions
     from renderer.render import available_methods, render
@@ -161,9 +159,9 @@ def measure(names: list[str], size: int, repeat: int, rt_repeat: int, cache: Pat
         methods = [m for m in methods_for(spec)
                    if m.split("/")[0].split("-")[0] in (*available, "raytrace", "auto")]
         from renderer.auto import plan_request
-        if plan_request(asset, replace(base, time_budget_ms=BUDGET_MS), available).frame_method:
+        if plan_request(asset, replace(base, time_budget_ms=budget_ms), available).frame_method:
             methods.append("auto+budget")
-        jobs = {m: (lambda o=options_for(m, base): render(asset, envs[o[1]], o[0]))
+        jobs = {m: (lambda o=options_for(m, base, budget_ms): render(asset, envs[o[1]], o[0]))
                 for m in methods}
         raster = [m for m in methods if not (m.startswith("raytrace") or m == "auto+budget")]
         timed = _interleaved({m: jobs[m] for m in raster}, repeat)

@@ -81,13 +81,12 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 
 def _options(method: str, base, quick: bool):
-    if method.startswith("raytrace-"):
-        return replace(base, method="raytrace", bounces=4 if quick else int(method.split("-")[1]))
-    if method.startswith("wyman/tir="):
-        return replace(base, method="wyman", tir=method.split("=")[1])
-    if method == "auto+budget":
-        return replace(base, method="auto", time_budget_ms=BUDGET_MS)
-    return replace(base, method=method)
+    """The chart's options for a method name (bench.accuracy.options_for), with this suite's
+    budget; --quick ray traces 4 bounces."""
+    from .accuracy import options_for
+
+    opts = options_for(method, base, BUDGET_MS)[0]
+    return replace(opts, bounces=4) if quick and opts.method == "raytrace" else opts
 
 
 def _tir_fraction(asset, env, opts, frame, mask) -> float | None:
