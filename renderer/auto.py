@@ -28,7 +28,7 @@ import logging
 import math
 import threading
 from collections import OrderedDict
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -376,7 +376,3 @@ def environment_face_size(asset: BakedAsset, width: int, height: int,
                 why = (f"{face} px faces: smoothest material has roughness {rough:g} and the "
                        f"background hides the environment")
     return face, f"{why}; {default_levels(face)} mips"
-
-
-def facts_dict(f: ObjectFacts | None) -> dict | None:
-    return None if f is None else asdict(f)

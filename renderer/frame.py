@@ -136,10 +136,6 @@ def srgb_encode(x: np.ndarray) -> np.ndarray:
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
 
 
-def srgb_decode(x: np.ndarray) -> np.ndarray:
-    return np.where(x <= 0.04045, x / 12.92, np.power((x + 0.055) / 1.055, 2.4))
-
-
 def tonemap_srgb8(linear: np.ndarray, method: str = "neutral", exposure: float = 0.0,
                   background: tuple[float, float, float] | None = None) -> np.ndarray:
     """Premultiplied linear RGBA -> straight-alpha sRGB uint8, optionally composited over an

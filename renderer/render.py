@@ -116,8 +116,6 @@ FrameMethod = Callable[[BakedAsset, BakedEnvironment, RenderOptions], Frame]
 
 _METHODS: dict[str, Method] = {}
 _FRAME_METHODS: dict[str, FrameMethod] = {}
-# `auto` gives a transmissive mesh the first of these that is registered.
-TRANSMISSIVE_PREFERENCE = ["wyman", "single"]
 _KNOWN = ("auto", "opaque", "single", "wyman", "raytrace")
 
 
@@ -299,17 +297,13 @@ def _plan_items(gasset: gpu.GpuAsset, options: RenderOptions, auto=None) -> list
 
 
 def _choose_method(mat: Material, options: RenderOptions) -> tuple[str, str]:
+    """The method a request names (`auto` is decided by renderer.auto's plan instead)."""
     cls = mat.material_class
     if cls != "transmissive":
         return "opaque", f"{cls} material: PBR + IBL raster"
     if options.method == "opaque":
         return "opaque", "method opaque requested: transmission ignored"
-    if options.method != "auto":
-        return options.method, f"method {options.method} requested"
-    for m in TRANSMISSIVE_PREFERENCE:
-        if m in _METHODS:
-            return m, f"transmissive: {m} is the best raster refraction available"
-    return "opaque", "transmissive, but no refraction method is installed: transmission ignored"
+    return options.method, f"method {options.method} requested"
 
 
 def _apply_override(mat: Material, ov: MaterialOverride | None) -> Material:
