@@ -194,10 +194,10 @@ def shape(mesh: BakedMesh) -> MeshShape:
     area = np.linalg.norm(winding, axis=1)
     solid = area > 1e-3 * float(np.median(area)) if len(area) else area > 0  # slivers close nothing
     genus, open_edges = topology(pos, tri[solid])
-    stored = np.asarray(mesh.normals, np.float64)[tri].sum(axis=1)
+    corner = np.asarray(mesh.normals, np.float64)[tri]  # T x 3 corners x 3
+    stored = corner.sum(axis=1)
     inward = float(area[np.einsum("ij,ij->i", winding, stored) < 0].sum() / max(area.sum(), 1e-30))
     unit = winding / np.maximum(area, 1e-30)[:, None]
-    corner = np.asarray(mesh.normals, np.float64)[tri]
     corner = corner / np.maximum(np.linalg.norm(corner, axis=-1, keepdims=True), 1e-30)
     flat = np.all(np.abs(np.einsum("tki,ti->tk", corner, unit)) > 0.9998, axis=1)  # within ~1 deg
     faceted = float(area[flat].sum() / max(area.sum(), 1e-30))
