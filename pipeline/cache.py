@@ -148,20 +148,12 @@ class Entry:
         """A file's array(s): eager ones from memory, lazy ones read and checksummed now."""
         if name in self.arrays:
             return self.arrays[name]
-        meta = self.manifest["files"][name]
         try:
-            data = _read(self.path / name)
-            ok = len(data) == meta["bytes"] and hashlib.sha256(data).hexdigest() == meta["sha256"]
-            value = _decode(name, data) if ok else None
-        except Exception as exc:  # unreadable or undecodable: corrupt like a bad checksum
-            ok, why = False, f"{name}: {exc}"
-        else:
-            why = f"{name}: checksum mismatch"
-        if not ok:
+            return _verified(self.path, name, self.manifest["files"][name])
+        except _Invalid as exc:
             if self.cache is not None:
-                self.cache._corrupt(self.kind, self.key, why)
-            raise CorruptEntry(self.path, f"{why}; entry removed, bake the asset again")
-        return value
+                self.cache._corrupt(self.kind, self.key, str(exc))
+            raise CorruptEntry(self.path, f"{exc}; entry removed, bake the asset again") from None
 
 
 class Cache:
@@ -206,15 +198,9 @@ class Cache:
                     return self._corrupt(kind, key, f"{name}: {size} bytes, manifest says {meta.get('bytes')}")
                 continue
             try:
-                data = _read(path / name)
-            except OSError as exc:
-                return self._corrupt(kind, key, f"{name}: {exc.strerror or exc}")
-            if len(data) != meta.get("bytes") or hashlib.sha256(data).hexdigest() != meta.get("sha256"):
-                return self._corrupt(kind, key, f"{name}: checksum mismatch")
-            try:
-                arrays[name] = _decode(name, data)
-            except Exception as exc:  # a checksummed file that numpy rejects: still corrupt
-                return self._corrupt(kind, key, f"{name}: {exc}")
+                arrays[name] = _verified(path, name, meta)
+            except _Invalid as exc:
+                return self._corrupt(kind, key, str(exc))
         try:
             os.utime(path / MANIFEST)  # recency for LRU eviction
         except OSError:
@@ -376,6 +362,24 @@ class Cache:
                     shutil.rmtree(path, ignore_errors=True)
             except OSError:
                 pass
+
+
+class _Invalid(Exception):
+    """A cache file that is missing, unreadable, fails its checksum or does not decode."""
+
+
+def _verified(folder: Path, name: str, meta: dict):
+    """The array(s) of an entry's file, checked against its manifest record (size, SHA-256)."""
+    try:
+        data = _read(folder / name)
+    except OSError as exc:
+        raise _Invalid(f"{name}: {exc.strerror or exc}") from None
+    if len(data) != meta.get("bytes") or hashlib.sha256(data).hexdigest() != meta.get("sha256"):
+        raise _Invalid(f"{name}: checksum mismatch")
+    try:
+        return _decode(name, data)
+    except Exception as exc:  # a checksummed file that numpy rejects: still corrupt
+        raise _Invalid(f"{name}: {exc}") from None
 
 
 def _encode(name: str, value) -> bytes:
