@@ -7,7 +7,6 @@ inflated are counted too and extraction stops at the bound.
 """
 from __future__ import annotations
 
-import shutil
 import stat
 import zipfile
 from pathlib import Path, PurePosixPath
@@ -100,7 +99,3 @@ def find_root(files: list[str], name: str, main: str | None = None) -> str:
         return named[0]
     raise MalformedAsset(name, f"archive holds several asset files ({', '.join(top[:8])}); "
                                "name the one to use in the `main` form field")
-
-
-def remove_tree(path: Path) -> None:
-    shutil.rmtree(path, ignore_errors=True)

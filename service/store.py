@@ -29,16 +29,11 @@ from typing import Any
 log = logging.getLogger(__name__)
 
 ID_CHARS = 32  # hex digits of the SHA-256 kept as the id (128 bits)
-_ID = re.compile(r"^[0-9a-f]{%d}$" % ID_CHARS)
 _UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
 
 
 def content_id(digest: "hashlib._Hash") -> str:
     return digest.hexdigest()[:ID_CHARS]
-
-
-def is_id(text: str) -> bool:
-    return bool(_ID.match(text))
 
 
 def safe_name(filename: str, default: str = "upload") -> str:
