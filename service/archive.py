@@ -12,8 +12,10 @@ import zipfile
 from pathlib import Path, PurePosixPath
 
 from pipeline.errors import LimitExceeded, MalformedAsset, UnsafeReference
+from pipeline.ingest import READERS
 
-ROOT_SUFFIXES = (".gltf", ".glb", ".usd", ".usda", ".usdc", ".usdz", ".obj", ".ply", ".stl")
+ROOT_SUFFIXES = tuple(READERS)
+SCENE_SUFFIXES = tuple(s for s, kind in READERS.items() if kind != "mesh")  # glTF and USD
 _CHUNK = 1 << 16
 
 
@@ -89,7 +91,7 @@ def find_root(files: list[str], name: str, main: str | None = None) -> str:
     depth = min(f.count("/") for f in candidates)
     top = sorted(f for f in candidates if f.count("/") == depth)
     # A .gltf's sidecar .bin never competes; prefer scene files over plain meshes.
-    scenes = [f for f in top if f.lower().endswith((".gltf", ".glb", ".usd", ".usda", ".usdc", ".usdz"))]
+    scenes = [f for f in top if f.lower().endswith(SCENE_SUFFIXES)]
     top = scenes or top
     if len(top) == 1:
         return top[0]

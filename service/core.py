@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 from pipeline.errors import AssetError, LimitExceeded, UnsupportedFormat
+from pipeline.ingest import READERS
 from pipeline.limits import Limits
 
 from . import archive
@@ -26,7 +27,7 @@ from .workers import JobAssetError, WorkerFailure, WorkerPool
 
 log = logging.getLogger(__name__)
 
-ASSET_SUFFIXES = (".glb", ".gltf", ".usd", ".usda", ".usdc", ".usdz", ".obj", ".ply", ".stl", ".zip")
+ASSET_SUFFIXES = (*READERS, ".zip")  # what the pipeline reads, or an archive of it
 ENV_SUFFIXES = (".jpg", ".jpeg", ".png", ".hdr", ".exr")
 
 
