@@ -32,6 +32,7 @@ nested ones, curves, points and NURBS are skipped with a warning.
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -117,6 +118,9 @@ class _StageReader:
         self.time = (Usd.TimeCode(stage.GetStartTimeCode()) if stage.HasAuthoredTimeCodeRange()
                      else Usd.TimeCode.EarliestTime())
         self.xforms = UsdGeom.XformCache(self.time)
+        meters = UsdGeom.GetStageMetersPerUnit(stage)
+        if not (math.isfinite(meters) and meters > 0):  # 0 collapses the scene, < 0 mirrors it
+            raise MalformedAsset(graph.path, f"metersPerUnit = {meters} is not a positive number")
         self.to_scene = stage_matrix(stage)
         self.materials = MaterialReader(graph, scene, limits, self.time)
         self._meshes: dict[tuple, int] = {}

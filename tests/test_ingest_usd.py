@@ -215,6 +215,13 @@ def test_up_axis_z_and_meters_per_unit(tmp_path):
     np.testing.assert_allclose(scene.bounds, [[0, 0, 0], [1, 2, 0]], atol=1e-6)
 
 
+@pytest.mark.parametrize("meters", ["0", "-1", "nan"])
+def test_meters_per_unit_must_be_positive(tmp_path, meters):
+    path = write(tmp_path / "m.usda", f'(\n metersPerUnit = {meters}\n)\n' + mesh("M"))
+    with pytest.raises(MalformedAsset, match="metersPerUnit"):
+        pipeline.load_scene(path)
+
+
 def test_ngons_left_handed_and_holes(tmp_path):
     poly = """
         int[] faceVertexCounts = [5, 6, 3]
