@@ -50,11 +50,6 @@ class InteriorResult:
         """Throughput of the whole pass (BVH build included)."""
         return self.rays / self.seconds if self.seconds > 0 else 0.0
 
-    def stats(self) -> dict:
-        return {"rays": self.rays, "misses": self.misses, "degenerate": self.degenerate,
-                "build_s": round(self.build_seconds, 6), "trace_s": round(self.trace_seconds, 6),
-                "rays_per_s": round(self.rays_per_second)}
-
 
 def interior_vectors(positions: np.ndarray, normals: np.ndarray, indices: np.ndarray,
                      epsilon: float | None = None) -> InteriorResult:
