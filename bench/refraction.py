@@ -17,6 +17,7 @@ import argparse
 import csv
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 SCENES = ("glass_sphere_ior1.5", "glass_sphere_ior1.3", "mirror_sphere", "glass_bunny_ior1.5",
@@ -84,11 +85,11 @@ def run(args: argparse.Namespace) -> int:
             print(f"{name:28s} {size:5d} {method:16s} {ms:10.1f} {err:8.4f}", flush=True)
 
         for method in raster:
-            ms, frame = median_ms(lambda: render(asset, env, _with(opts, method=method)),
+            ms, frame = median_ms(lambda: render(asset, env, replace(opts, method=method)),
                                    args.repeat)
             row(method, ms, frame.linear)
         for b in RAYTRACE_BOUNCES:
-            ms, frame = median_ms(lambda: render_raytrace(asset, env, _with(opts, bounces=b)),
+            ms, frame = median_ms(lambda: render_raytrace(asset, env, replace(opts, bounces=b)),
                                    args.repeat)
             row(f"raytrace-{b}", ms, frame.linear)
         t0 = time.perf_counter()
@@ -104,11 +105,6 @@ def run(args: argparse.Namespace) -> int:
     _summary(rows)
     print(f"wrote {out / 'refraction.csv'}")
     return 0
-
-
-def _with(opts, **changes):
-    from dataclasses import replace
-    return replace(opts, **changes)
 
 
 def _summary(rows: list[dict]) -> None:
