@@ -174,9 +174,11 @@ def load_baked(key: str, cache_dir=None) -> BakedAsset:
 def pack_asset(baked: BakedAsset, options: dict) -> tuple[dict, dict[str, dict[str, np.ndarray]]]:
     """A BakedAsset as (manifest, {file name: arrays}) for the cache."""
     materials: list[Material] = []
+    material_index: dict[int, int] = {}  # id(material) -> index in `materials` (shared by meshes)
     mesh_arrays, mesh_meta = {}, []
     for i, m in enumerate(baked.meshes):
-        if not any(m.material is x for x in materials):
+        if id(m.material) not in material_index:
+            material_index[id(m.material)] = len(materials)
             materials.append(m.material)
         present = []
         for name in _MESH_ARRAYS + ("transforms",):
@@ -184,7 +186,7 @@ def pack_asset(baked: BakedAsset, options: dict) -> tuple[dict, dict[str, dict[s
             if value is not None:
                 mesh_arrays[f"{i}.{name}"] = np.ascontiguousarray(value)
                 present.append(name)
-        mesh_meta.append({"name": m.name, "material": next(j for j, x in enumerate(materials) if x is m.material),
+        mesh_meta.append({"name": m.name, "material": material_index[id(m.material)],
                           "arrays": present})
     arrays = {"meshes.npz": mesh_arrays}
     if baked.textures:
