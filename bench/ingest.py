@@ -13,7 +13,9 @@ import statistics
 import time
 from pathlib import Path
 
-DEFAULT_ASSETS = Path(__file__).resolve().parents[1].parent / "shared" / "assets"
+from bench.scenes import ASSETS
+
+DEFAULT_ASSETS = ASSETS  # the sample assets, ../shared/assets
 GROUPS = {"gltf": ("*.gltf", "*.glb"), "mesh": ("*.ply", "*.stl", "*.STL", "*.obj"),
           "usd": ("*.usd", "*.usda", "*.usdc", "*.usdz")}
 USD_SUFFIXES = {".usd", ".usda", ".usdc", ".usdz"}

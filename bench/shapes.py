@@ -8,13 +8,13 @@ the clean sphere's reference says what they should have looked like.
 from __future__ import annotations
 
 import logging
-from pathlib import Path
 
 import numpy as np
 
+from .scenes import ASSETS
+
 log = logging.getLogger(__name__)
 
-ASSETS = Path(__file__).resolve().parents[2] / "shared" / "assets"
 REAL_ASSETS = {"duck": "gltf/Duck.glb", "teapot": "usd/Teapot/Teapot.usd"}
 SLAB_THICKNESS = 0.1     # of a 2 x 2 plate: thickness / width = 1/20
 BOWL_WALL = 0.15         # wall thickness of the hemispherical bowl (outer radius 1)

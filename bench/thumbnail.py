@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     from pipeline.environment import default_face_size
     from pipeline.panorama import DEFAULT_ENVIRONMENT, load_panorama
 
-    assets_root = Path(__file__).resolve().parents[2] / "shared" / "assets"
+    from .scenes import ASSETS as assets_root
     work = Path(tempfile.mkdtemp(prefix="bench-thumbnail-"))
     cache = Path(args.cache) if args.cache else work / "cache"
     env_name = args.env or DEFAULT_ENVIRONMENT
