@@ -14,7 +14,7 @@ import shutil
 import time
 from pathlib import Path
 
-from pipeline.errors import AssetError, LimitExceeded, UnsupportedFormat
+from pipeline.errors import AssetError, LimitExceeded, MalformedAsset, UnsupportedFormat
 from pipeline.ingest import READERS
 from pipeline.limits import Limits
 
@@ -189,7 +189,6 @@ class ThumbnailService:
                 digest.update(chunk)
                 f.write(chunk)
         if size == 0:
-            from pipeline.errors import MalformedAsset
             raise MalformedAsset(name, "the upload is empty")
         return path, digest, size
 
