@@ -9,7 +9,7 @@ import pytest
 from pipeline import cubemap, environment as env
 from pipeline.errors import AssetError, LimitExceeded, MalformedAsset, MissingFile, UnsupportedFormat
 from pipeline.limits import Limits
-from pipeline.panorama import read_rgbe, srgb_to_linear, write_rgbe
+from pipeline.panorama import srgb_to_linear, write_rgbe
 
 log = logging.getLogger(__name__)
 
