@@ -216,7 +216,7 @@ def is_auto(method: str) -> bool:
 
 def mark_fronts(rows: list[dict]) -> None:
     """on_front per scene among the non-auto methods; auto rows get on_front and front_gap."""
-    from .metrics import front_gap, pareto_front
+    from .metrics import dominated, front_gap, pareto_front
 
     for name in dict.fromkeys(r["scene"] for r in rows):
         rs = [r for r in rows if r["scene"] == name]
@@ -229,7 +229,7 @@ def mark_fronts(rows: list[dict]) -> None:
         for r in rs:
             if is_auto(r["method"]):
                 t, e = r["time_ms"], r["flip"]
-                r["on_front"] = not any(t2 <= t and e2 <= e and (t2 < t or e2 < e) for t2, e2 in pts)
+                r["on_front"] = not dominated((t, e), pts)
                 r["front_gap"] = round(max(0.0, front_gap((t, e), front)), 4)
 
 

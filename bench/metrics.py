@@ -65,14 +65,16 @@ def errors(image: np.ndarray, reference: np.ndarray) -> dict:
             "flip_frame": float(f.mean()), "rel_mse_frame": float(r.mean())}
 
 
+def dominated(point: tuple[float, float], points) -> bool:
+    """Whether some (time, error) point is at least as good as `point` on both axes and better
+    on one (so never `point` itself)."""
+    t, e = point
+    return any(t2 <= t and e2 <= e and (t2 < t or e2 < e) for t2, e2 in points)
+
+
 def pareto_front(points: list[tuple[float, float]]) -> list[bool]:
-    """Whether each (time, error) point is on the front: no other point is at least as good
-    on both axes and better on one."""
-    out = []
-    for i, (t, e) in enumerate(points):
-        out.append(not any((t2 <= t and e2 <= e and (t2 < t or e2 < e))
-                           for j, (t2, e2) in enumerate(points) if j != i))
-    return out
+    """Whether each (time, error) point is on the front: no other point dominates it."""
+    return [not dominated(p, points) for p in points]
 
 
 def front_gap(point: tuple[float, float], front: list[tuple[float, float]]) -> float:
