@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import moderngl
 import numpy as np
 
-from .render import DrawItem, Pass, _apply_override, register_method
+from .render import DrawItem, Pass, register_method
 
 log = logging.getLogger(__name__)
 
@@ -105,13 +105,6 @@ def _opaque_copy(p: Pass) -> _Targets:
     p.ctx.copy_framebuffer(t.fbo, p.fbo)
     stats["opaque_copies"] += 1
     return t
-
-
-def _has_opaque(p: Pass) -> bool:
-    """Whether opaque geometry was drawn before the refraction passes."""
-    ov = p.options.override
-    return any(_apply_override(gm.baked.material, ov).material_class != "transmissive"
-               for gm in p.asset.meshes)
 
 
 def _surface_pass(p: Pass, items: list[DrawItem], side: str) -> _Targets:
@@ -204,7 +197,7 @@ def _draw_front(p: Pass, items: list[DrawItem], back: _Targets | None,
 
 
 def _draw(p: Pass, items: list[DrawItem], wyman: bool) -> None:
-    opaque = _opaque_copy(p) if _has_opaque(p) else None
+    opaque = _opaque_copy(p) if p.opaque_drawn else None
     back = _surface_pass(p, items, "back") if wyman else None
     front = _surface_pass(p, items, "front") if wyman and tir_mode(p.options) == "reflect" else None
     _draw_front(p, items, back, front, opaque)

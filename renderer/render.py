@@ -70,6 +70,7 @@ class Pass:
     options: RenderOptions
     frame_defines: dict
     frame_uniforms: dict[str, bytes]
+    opaque_drawn: bool = False  # the opaque pass has drawn into fbo (refraction reads it)
     _bound: set = field(default_factory=set)
 
     def program(self, item: DrawItem, fragment: str = "pbr.frag", vertex: str = "pbr.vert",
@@ -204,6 +205,7 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
             by_method.setdefault(it.method, []).append(it)
     if "opaque" in by_method:
         _draw_opaque(pass_, by_method.pop("opaque"))
+        pass_.opaque_drawn = True
     for method, its in by_method.items():
         _METHODS[method](pass_, its)
         target.draw_fbo.use()
