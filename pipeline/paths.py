@@ -27,18 +27,7 @@ def resolve_reference(asset: Path, uri: str, base_dir: Path | None = None,
     asset = Path(asset)
     base = Path(base_dir) if base_dir is not None else asset.parent
     top = Path(root) if root is not None else asset.parent
-    if not uri or not uri.strip():
-        raise UnsafeReference(asset, "empty file reference")
-    m = _SCHEME.match(uri)
-    if m and len(m.group(1)) > 1:
-        raise UnsafeReference(asset, f"refusing reference {uri!r}: {m.group(1)}: URIs are not "
-                                     "followed (only relative file paths)")
-    path_text = unquote(uri).replace("\\", "/")
-    if "\x00" in path_text:
-        raise UnsafeReference(asset, f"refusing reference {uri!r}: NUL byte in path")
-    if (m and len(m.group(1)) == 1) or path_text.startswith("/") or PurePosixPath(path_text).is_absolute():
-        raise UnsafeReference(asset, f"refusing absolute path {uri!r}: references must be "
-                                     "relative to the asset")
+    path_text = relative_path_text(asset, uri)
     top_real = top.resolve()
     candidate = base / path_text
     # Lexical check first (catches `..` even when the target is missing), then the real one
@@ -54,6 +43,27 @@ def resolve_reference(asset: Path, uri: str, base_dir: Path | None = None,
     if not real.is_file():
         raise MissingFile(asset, f"referenced file {uri!r} not found (looked at {candidate})")
     return real
+
+
+def relative_path_text(asset, uri: str) -> str:
+    """The relative path `uri` (found inside `asset`) spells, `/`-separated and unquoted.
+
+    Raises UnsafeReference for an empty reference, a URL of any scheme, a NUL byte and an
+    absolute path. Where the path leads is the caller's to check (`resolve_reference` on
+    disk, `usd_layers` inside a package)."""
+    if not uri or not uri.strip():
+        raise UnsafeReference(asset, "empty file reference")
+    m = _SCHEME.match(uri)
+    if m and len(m.group(1)) > 1:
+        raise UnsafeReference(asset, f"refusing reference {uri!r}: {m.group(1)}: URIs are not "
+                                     "followed (only relative file paths)")
+    path_text = unquote(uri).replace("\\", "/")
+    if "\x00" in path_text:
+        raise UnsafeReference(asset, f"refusing reference {uri!r}: NUL byte in path")
+    if (m and len(m.group(1)) == 1) or path_text.startswith("/") or PurePosixPath(path_text).is_absolute():
+        raise UnsafeReference(asset, f"refusing absolute path {uri!r}: references must be "
+                                     "relative to the asset")
+    return path_text
 
 
 def _normalise(p: Path) -> str:

@@ -637,6 +637,27 @@ def test_hostile_files_are_refused_fast(tmp_path):
         assert info.value.path and info.value.reason, name
 
 
+def test_usdz_nested_layer_references_are_relative_to_that_layer(tmp_path):
+    """`../geo.usda` in the package's sub/a.usda names geo.usda at the package root: inside
+    the package (it was refused as leaving it); one more `..` does leave it."""
+    geo = mesh("M", """
+        int[] faceVertexCounts = [3]
+        int[] faceVertexIndices = [0, 1, 2]
+        point3f[] points = [(0, 0, 0), (1, 0, 0), (0, 1, 0)]
+""")
+    for up, error in (("..", None), ("../..", UnsafeReference)):
+        pkg = tmp_path / f"nested{len(up)}.usdz"
+        with zipfile.ZipFile(pkg, "w", zipfile.ZIP_STORED) as z:
+            z.writestr("root.usda", "#usda 1.0\n(\n metersPerUnit = 1\n subLayers = [@sub/a.usda@]\n)\n")
+            z.writestr("sub/a.usda", f"#usda 1.0\n(\n subLayers = [@{up}/geo.usda@]\n)\n")
+            z.writestr("geo.usda", "#usda 1.0\n" + geo)
+        if error is None:
+            assert pipeline.load_scene(pkg).triangle_count == 1
+        else:
+            with pytest.raises(error, match="leaves the package"):
+                pipeline.load_scene(pkg)
+
+
 def test_usdz_entry_and_size_limits(tmp_path):
     pkg = tmp_path / "many.usdz"
     with zipfile.ZipFile(pkg, "w", zipfile.ZIP_STORED) as z:
