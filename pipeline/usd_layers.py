@@ -59,7 +59,7 @@ class LayerGraph:
                                          "format for it); its contents are skipped")
                     continue
                 if ext.lower() == "usdz" and not Ar.IsPackageRelativePath(target):
-                    self._check_package(Path(target))
+                    self._package(target)  # checked once, however many layers refer to it
                 if target not in self.layers:
                     pending.append(self._open_layer(target, self._name(layer)))
         return root_layer
