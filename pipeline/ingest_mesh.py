@@ -16,6 +16,7 @@ from . import deadline
 from .errors import LimitExceeded, MalformedAsset
 from .ingest import smooth_normals
 from .limits import Limits
+from .panorama import srgb_to_linear
 from .scene import Instance, Mesh, Scene, default_material
 
 log = logging.getLogger(__name__)
@@ -88,9 +89,9 @@ def _uv(geom) -> np.ndarray | None:
 def _colors(geom) -> np.ndarray | None:
     if getattr(geom.visual, "kind", None) != "vertex":
         return None
-    c = np.asarray(geom.visual.vertex_colors, np.float32) / 255.0
-    if c.shape != (len(geom.vertices), 4):
+    rgba8 = np.asarray(geom.visual.vertex_colors).astype(np.uint8, copy=False)  # trimesh: RGBA8
+    if rgba8.shape != (len(geom.vertices), 4):
         return None
-    rgb = c[:, :3]
-    c[:, :3] = np.where(rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4)
+    c = rgba8.astype(np.float32) / 255.0
+    c[:, :3] = srgb_to_linear(rgba8[:, :3])
     return c
