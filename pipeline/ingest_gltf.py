@@ -157,8 +157,9 @@ class _Reader:
         return min(max(float(value), lo), hi)
 
     # -- buffers and accessors ------------------------------------------------------------------
-    def _payload(self, uri, what: str) -> bytes:
-        """Bytes named by a buffer or image URI: a data: URI or a file beside the asset."""
+    def _payload(self, uri, what: str) -> tuple[bytes, str | None]:
+        """Bytes named by a buffer or image URI (a data: URI or a file beside the asset), and
+        the file they were read from (None for a data: URI)."""
         if not isinstance(uri, str):
             raise self._bad(f"{what} uri is not a string")
         if uri.startswith("data:"):
@@ -169,7 +170,7 @@ class _Reader:
                 raise LimitExceeded(self.path, f"{what} data: URI is over "
                                                f"{self.limits.max_file_bytes} bytes")
             try:
-                return base64.b64decode(body, validate=True)
+                return base64.b64decode(body, validate=True), None
             except (binascii.Error, ValueError) as exc:
                 raise self._bad(f"{what} data: URI is not valid base64: {exc}") from None
         target = str(resolve_reference(self.path, uri))
@@ -182,14 +183,14 @@ class _Reader:
             self.files.append(target)
             with open(target, "rb") as f:
                 self._files_read[target] = f.read()
-        return self._files_read[target]
+        return self._files_read[target], target
 
     def _buffer(self, index: int) -> bytes | memoryview:
         if index not in self._buffers:
             buf = self._get("buffers", index)
             declared = self._int(buf, "byteLength", lo=1)
             if "uri" in buf:
-                data = self._payload(buf["uri"], f"buffer {index}")
+                data = self._payload(buf["uri"], f"buffer {index}")[0]
             elif index == 0 and self.glb_bin is not None:
                 data = self.glb_bin
             else:
@@ -397,9 +398,8 @@ class _Reader:
             data = self._view(self._int(img, "bufferView"))[0]  # no copy: decoded later
             label = f"{self.path} image {source}"
         elif "uri" in img:
-            data = self._payload(img["uri"], f"image {source}")
-            label = f"{self.path} image {source}" if img["uri"].startswith("data:") \
-                else str(resolve_reference(self.path, img["uri"]))
+            data, file = self._payload(img["uri"], f"image {source}")
+            label = file or f"{self.path} image {source}"
         else:
             raise self._bad(f"image {source} has neither uri nor bufferView")
         try:
