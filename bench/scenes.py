@@ -124,13 +124,7 @@ def mesh_arrays(kind: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         m = trimesh.creation.icosphere(subdivisions=ICOSPHERE_SUBDIVISIONS, radius=1.0)
         pos = m.vertices / np.linalg.norm(m.vertices, axis=1, keepdims=True)
         return pos.astype(np.float32), pos.astype(np.float32), m.faces.astype(np.uint32)
-    if kind == "cube":  # faceted: each face keeps its own 4 vertices and flat normal
-        m = trimesh.creation.box(extents=(2.0, 2.0, 2.0))
-        pos = m.vertices[m.faces].reshape(-1, 3)
-        nrm = np.repeat(m.face_normals, 3, axis=0)
-        idx = np.arange(len(pos)).reshape(-1, 3)
-        return pos.astype(np.float32), nrm.astype(np.float32), idx.astype(np.uint32)
-    from .shapes import BUILDERS  # chart and stability-suite shapes
+    from .shapes import BUILDERS  # the cube, chart and stability-suite shapes
     if kind in BUILDERS:
         return BUILDERS[kind]()
     if kind in MESH_FILES:

@@ -40,6 +40,14 @@ def _faceted(m):
     return pos, nrm, np.arange(len(pos)).reshape(-1, 3)
 
 
+def cube():
+    """A 2 x 2 x 2 box, faceted (every triangle its own corners and flat normal); half-extent 1,
+    not radius 1: the committed cube references were made from it so."""
+    import trimesh
+
+    return _out(*_faceted(trimesh.creation.box(extents=(2.0, 2.0, 2.0))))
+
+
 def slab():
     """A thin plate 2 x 2 x SLAB_THICKNESS (faceted), normalised to radius 1."""
     import trimesh
@@ -122,7 +130,7 @@ def real_asset(kind: str):
 
 
 BUILDERS = {
-    "slab": slab, "bowl": bowl, "open_sphere": open_sphere,
+    "cube": cube, "slab": slab, "bowl": bowl, "open_sphere": open_sphere,
     "degenerate_sphere": degenerate_sphere, "flipped_sphere": flipped_sphere,
     "duck": lambda: real_asset("duck"), "teapot": lambda: real_asset("teapot"),
 }
