@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from .cubemap import equirect_direction
+from .deadline import check, within
 from .errors import AssetError, LimitExceeded, MalformedAsset, MissingFile, UnsupportedFormat
 from .limits import Limits
 
@@ -62,7 +63,8 @@ def load_panorama(source: str | Path, limits: Limits | None = None) -> Panorama:
             from .images import decode_image
             pixels = srgb_to_linear(decode_image(data, str(path), limits)[..., :3])
         else:
-            pixels = read_rgbe(data, str(path), limits)
+            with within(limits.ingest_seconds, path):  # the RLE decoder checks it per scanline
+                pixels = read_rgbe(data, str(path), limits)
     if pixels.shape[0] < 2 or pixels.shape[1] < 4:
         raise MalformedAsset(path, f"panorama of {pixels.shape[1]}x{pixels.shape[0]} pixels is too small")
     if pixels.shape[1] != 2 * pixels.shape[0]:
@@ -152,6 +154,7 @@ def _decode_scanlines(buf: memoryview, rows: int, cols: int, source: str) -> np.
     n = len(buf)
     planar = bytearray(cols * 4)
     for row in range(rows):
+        check()
         if n - pos < 4:
             raise MalformedAsset(source, f"HDR data truncated at scanline {row}")
         head = bytes(buf[pos:pos + 4])

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from pipeline import cubemap, environment as env
-from pipeline.errors import AssetError, LimitExceeded, MalformedAsset, MissingFile, UnsupportedFormat
+from pipeline.errors import (AssetError, IngestTimeout, LimitExceeded, MalformedAsset, MissingFile,
+                             UnsupportedFormat)
 from pipeline.limits import Limits
 from pipeline.panorama import srgb_to_linear, write_rgbe
 
@@ -412,3 +413,14 @@ def test_brdf_lut_matches_independent_quadrature():
     # a smooth mirror at normal incidence reflects everything; single-scattering GGX at
     # roughness 1 loses a good part of it
     assert abs(lut[0, -1].sum() - 1) < 0.02 and lut[-1].sum(axis=-1).mean() < 0.8
+
+
+def test_hostile_rle_hdr_stops_at_the_ingest_time_bound(tmp_path):
+    """Runs of length one make the RLE decoder walk every byte in Python: a file like that
+    must end at the ingest bound with a message, not run for minutes."""
+    w, h = 2048, 1024
+    row = b"\x02\x02" + w.to_bytes(2, "big") + (b"\x01\x80" * w) * 4
+    path = tmp_path / "runs.hdr"
+    path.write_bytes(f"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y {h} +X {w}\n".encode() + row * h)
+    with pytest.raises(IngestTimeout, match="runs.hdr.*time bound"):
+        env.load_panorama(path, Limits(ingest_seconds=0.05))
