@@ -93,6 +93,15 @@ class Material:
             return "transmissive"
         return {"MASK": "mask", "BLEND": "blend"}.get(self.alpha_mode, "opaque")
 
+    def absorption(self) -> np.ndarray:
+        """Beer-Lambert coefficient per scene unit (KHR_materials_volume): light keeps
+        attenuation_color after attenuation_distance, so sigma = -ln(color) / distance; zero
+        when no distance is given."""
+        d = self.attenuation_distance
+        if not (math.isfinite(d) and d > 0):
+            return np.zeros(3)
+        return -np.log(np.clip(np.asarray(self.attenuation_color, np.float64), 1e-6, 1.0)) / d
+
     def texture_refs(self) -> dict[str, TextureRef]:
         """The texture slots in use, by slot name."""
         return {k: v for k, v in vars(self).items() if k.endswith("_texture") and v is not None}

@@ -15,9 +15,11 @@ import moderngl
 import numpy as np
 
 from pipeline.baked import BakedAsset, BakedEnvironment, BakedMesh
+from pipeline.panorama import srgb_to_linear
 from pipeline.scene import CLAMP_TO_EDGE, Light, Texture
 
 from . import context
+from .frame import srgb_encode
 
 log = logging.getLogger(__name__)
 
@@ -222,17 +224,13 @@ def _upload_texture(ctx: moderngl.Context, tex: Texture, srgb: bool) -> moderngl
     return gl_tex
 
 
-_SRGB_TO_LINEAR = np.where(np.arange(256) / 255 <= 0.04045, np.arange(256) / 255 / 12.92,
-                           ((np.arange(256) / 255 + 0.055) / 1.055) ** 2.4).astype(np.float32)
-
-
 def mip_chain(img: np.ndarray, srgb: bool) -> list[np.ndarray]:
     """2x2 box-filtered mip levels down to 1 x 1 (odd edges dropped), RGBA8; colour of sRGB
     images is averaged in linear light, alpha always linearly."""
     chain = [img]
     if srgb:
         cur = np.empty(img.shape, np.float32)
-        cur[..., :3] = _SRGB_TO_LINEAR[img[..., :3]]
+        cur[..., :3] = srgb_to_linear(img[..., :3])
         cur[..., 3] = img[..., 3] / np.float32(255)
     else:
         cur = img.astype(np.float32) / 255
@@ -244,8 +242,7 @@ def mip_chain(img: np.ndarray, srgb: bool) -> list[np.ndarray]:
             cur = 0.5 * (cur[:, 0:w - 1:2] + cur[:, 1:w:2])
         out = cur.copy()
         if srgb:
-            c = np.clip(out[..., :3], 0, 1)
-            out[..., :3] = np.where(c <= 0.0031308, 12.92 * c, 1.055 * np.power(c, 1 / 2.4) - 0.055)
+            out[..., :3] = srgb_encode(out[..., :3])
         chain.append(np.ascontiguousarray(np.clip(out * 255 + 0.5, 0, 255).astype(np.uint8)))
     return chain
 

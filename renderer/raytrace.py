@@ -84,11 +84,8 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
     tris, nrms, mats, tables = [], [], [], []
     for k, mesh in enumerate(asset.meshes):
         mat = _apply_override(mesh.material, options.override)
-        a = mat.attenuation_color
-        d = mat.attenuation_distance
-        sigma = (-np.log(np.clip(a, 1e-6, 1.0)) / d) if math.isfinite(d) and d > 0 else np.zeros(3)
         tables.append((mat.base_color[:3], mat.metallic, mat.roughness, mat.transmission,
-                       mat.ior, sigma))
+                       mat.ior, mat.absorption()))
         idx = mesh.indices.astype(np.int64)
         for m in mesh.transforms:
             m = np.asarray(m, np.float64)

@@ -23,7 +23,6 @@ runs the passes or allocates them (`stats` counts both, for the tests).
 from __future__ import annotations
 
 import logging
-import math
 from collections import OrderedDict
 from dataclasses import dataclass
 
@@ -128,14 +127,6 @@ def _surface_pass(p: Pass, items: list[DrawItem], side: str) -> _Targets:
     return t
 
 
-def _sigma(mat) -> tuple[float, float, float]:
-    d = mat.attenuation_distance
-    if not (math.isfinite(d) and d > 0):
-        return (0.0, 0.0, 0.0)
-    a = np.clip(np.asarray(mat.attenuation_color, np.float64), 1e-6, 1.0)
-    return tuple(float(x) for x in -np.log(a) / d)
-
-
 def tir_mode(options) -> str:
     mode = options.tir or DEFAULT_TIR
     if mode not in ("paper", "reflect"):
@@ -172,7 +163,7 @@ def _draw_front(p: Pass, items: list[DrawItem], back: _Targets | None,
         values = {
             "u_viewport": (float(w), float(h)), "u_ior": float(max(mat.ior, 1e-3)),
             "u_transmission": float(min(max(mat.transmission, 0.0), 1.0)),
-            "u_sigma": _sigma(mat), "u_thickness": float(max(mat.thickness, 0.0)),
+            "u_sigma": tuple(float(x) for x in mat.absorption()), "u_thickness": float(max(mat.thickness, 0.0)),
             "u_near_far": (float(cam.near), float(cam.far)),
             "u_camera_forward": tuple(float(x) for x in cam.basis()[2]),
             "u_trace_length": 2.0 * radius, "u_debug_scale": 0.5 / radius,

@@ -4,7 +4,10 @@ from __future__ import annotations
 import re
 from typing import Literal
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from pipeline.panorama import srgb_to_linear
 
 AssetStatus = Literal["baking", "ready", "failed"]
 ImageFormat = Literal["png", "jpeg", "webp"]
@@ -124,6 +127,5 @@ class ThumbnailParams(BaseModel):
 
 def srgb_hex_to_linear(hex6: str) -> tuple[float, float, float]:
     """'rrggbb' (sRGB, as people pick colours) -> linear RGB, as the renderer shades."""
-    def lin(c: float) -> float:
-        return c / 12.92 if c <= 0.04045 else ((c + 0.055) / 1.055) ** 2.4
-    return tuple(round(lin(int(hex6[i:i + 2], 16) / 255), 6) for i in (0, 2, 4))
+    rgb8 = np.array([int(hex6[i:i + 2], 16) for i in (0, 2, 4)], np.uint8)
+    return tuple(round(float(c), 6) for c in srgb_to_linear(rgb8))
