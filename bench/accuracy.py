@@ -108,7 +108,7 @@ def options_for(method: str, base, budget_ms: float = BUDGET_MS):
     if method == "auto/prefilter=paper":
         return replace(base, method="auto"), "paper"
     if method == "auto+budget":
-        return replace(base, method="auto", time_budget_ms=budget_ms), "ggx"
+        return replace(base, method="auto", budget_ms=budget_ms), "ggx"
     return replace(base, method=method), "ggx"
 
 
@@ -159,7 +159,7 @@ def measure(names: list[str], size: int, repeat: int, rt_repeat: int, cache: Pat
         methods = [m for m in methods_for(spec)
                    if m.split("/")[0].split("-")[0] in (*available, "raytrace", "auto")]
         from renderer.auto import plan_request
-        if plan_request(asset, replace(base, time_budget_ms=budget_ms), available).frame_method:
+        if plan_request(asset, replace(base, budget_ms=budget_ms), available).frame_method:
             methods.append("auto+budget")
         jobs = {m: (lambda o=options_for(m, base, budget_ms): render(asset, envs[o[1]], o[0]))
                 for m in methods}

@@ -47,7 +47,7 @@ def _median_s(fn, repeat: int) -> float:
 
 def _interior_meshes(assets: Path):
     """(label, [(positions, normals, indices)]) for each sample asset and glass test mesh."""
-    from bench.scenes import mesh_arrays
+    from bench.shapes import mesh_arrays
     from pipeline.errors import AssetError
     from pipeline.ingest import load_scene
 

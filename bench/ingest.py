@@ -13,7 +13,7 @@ import statistics
 import time
 from pathlib import Path
 
-from bench.scenes import ASSETS
+from bench.assets import ASSETS
 
 DEFAULT_ASSETS = ASSETS  # the sample assets, ../shared/assets
 GROUPS = {"gltf": ("*.gltf", "*.glb"), "mesh": ("*.ply", "*.stl", "*.STL", "*.obj"),

@@ -19,11 +19,10 @@ import numpy as np
 
 from pipeline.scene import Material
 
+from .shapes import mesh_arrays
+
 log = logging.getLogger(__name__)
 
-ASSETS = Path(__file__).resolve().parents[2] / "shared" / "assets"
-MESH_FILES = {"bunny": "bunny.ply", "torus": "torus.STL"}
-ICOSPHERE_SUBDIVISIONS = 5  # 20480 triangles: the smooth-normal error is far below the errors measured
 
 
 @dataclass(frozen=True)
@@ -112,37 +111,6 @@ def scene(name: str, **changes) -> SceneSpec:
     except KeyError:
         raise KeyError(f"unknown scene {name!r}; known: {', '.join(SCENES)}") from None
     return replace(spec, **changes) if changes else spec
-
-
-@lru_cache(maxsize=None)
-def mesh_arrays(kind: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(positions N x 3 float32, normals N x 3 float32, indices M x 3 uint32), centred at the
-    origin with bounding radius 1 (before the spec's scale)."""
-    import trimesh
-
-    if kind == "sphere":
-        m = trimesh.creation.icosphere(subdivisions=ICOSPHERE_SUBDIVISIONS, radius=1.0)
-        pos = m.vertices / np.linalg.norm(m.vertices, axis=1, keepdims=True)
-        return pos.astype(np.float32), pos.astype(np.float32), m.faces.astype(np.uint32)
-    from .shapes import BUILDERS  # the cube, chart and stability-suite shapes
-    if kind in BUILDERS:
-        return BUILDERS[kind]()
-    if kind in MESH_FILES:
-        m = trimesh.load(ASSETS / "mesh" / MESH_FILES[kind], force="mesh")
-        lo, hi = m.bounds
-        m.apply_translation(-(lo + hi) / 2)
-        m.apply_scale(1.0 / (np.linalg.norm(hi - lo) / 2))
-        nrm = np.array(m.vertex_normals)
-        # Where face normals cancel (bunny: 22 vertices) take one adjacent face's normal, so
-        # no vertex has a zero normal (Mitsuba turns those into NaN samples).
-        bad = np.linalg.norm(nrm, axis=1) < 0.5
-        if bad.any():
-            one_face = np.zeros_like(nrm)
-            for k in range(3):
-                one_face[m.faces[:, k]] = m.face_normals
-            nrm[bad] = one_face[bad]
-        return (m.vertices.astype(np.float32), nrm.astype(np.float32), m.faces.astype(np.uint32))
-    raise KeyError(f"unknown mesh {kind!r}")
 
 
 def write_glb(spec: SceneSpec, path: str | Path) -> Path:

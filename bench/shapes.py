@@ -1,17 +1,18 @@
 """Extra geometry for the speed-vs-accuracy chart and the stability suite (bench.scenes kinds).
 
 Each builder returns (positions N x 3 float32, normals N x 3 float32, indices M x 3 uint32)
-centred at the origin with bounding radius 1, as bench.scenes.mesh_arrays does. The broken
+centred at the origin with bounding radius 1, as `mesh_arrays` (below) gives every kind. The broken
 ones (open, degenerate, flipped) start from the same icosphere as the "sphere" kind so that
 the clean sphere's reference says what they should have looked like.
 """
 from __future__ import annotations
 
 import logging
+from functools import lru_cache
 
 import numpy as np
 
-from .scenes import ASSETS
+from .assets import ASSETS
 
 log = logging.getLogger(__name__)
 
@@ -19,6 +20,8 @@ REAL_ASSETS = {"duck": "gltf/Duck.glb", "teapot": "usd/Teapot/Teapot.usd"}
 SLAB_THICKNESS = 0.1     # of a 2 x 2 plate: thickness / width = 1/20
 BOWL_WALL = 0.15         # wall thickness of the hemispherical bowl (outer radius 1)
 DEGENERATE_EXTRA = 200   # zero-area triangles added to the sphere
+MESH_FILES = {"bunny": "bunny.ply", "torus": "torus.STL"}
+ICOSPHERE_SUBDIVISIONS = 5  # 20480 triangles: the smooth-normal error is far below the errors measured
 
 
 def _normalise(pos: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
@@ -77,7 +80,6 @@ def bowl(sections: int = 96, steps: int = 24):
 
 
 def _sphere():
-    from .scenes import mesh_arrays
     return mesh_arrays("sphere")
 
 
@@ -134,3 +136,33 @@ BUILDERS = {
     "degenerate_sphere": degenerate_sphere, "flipped_sphere": flipped_sphere,
     "duck": lambda: real_asset("duck"), "teapot": lambda: real_asset("teapot"),
 }
+
+
+@lru_cache(maxsize=None)
+def mesh_arrays(kind: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(positions N x 3 float32, normals N x 3 float32, indices M x 3 uint32), centred at the
+    origin with bounding radius 1 (before the spec's scale)."""
+    import trimesh
+
+    if kind == "sphere":
+        m = trimesh.creation.icosphere(subdivisions=ICOSPHERE_SUBDIVISIONS, radius=1.0)
+        pos = m.vertices / np.linalg.norm(m.vertices, axis=1, keepdims=True)
+        return pos.astype(np.float32), pos.astype(np.float32), m.faces.astype(np.uint32)
+    if kind in BUILDERS:
+        return BUILDERS[kind]()
+    if kind in MESH_FILES:
+        m = trimesh.load(ASSETS / "mesh" / MESH_FILES[kind], force="mesh")
+        lo, hi = m.bounds
+        m.apply_translation(-(lo + hi) / 2)
+        m.apply_scale(1.0 / (np.linalg.norm(hi - lo) / 2))
+        nrm = np.array(m.vertex_normals)
+        # Where face normals cancel (bunny: 22 vertices) take one adjacent face's normal, so
+        # no vertex has a zero normal (Mitsuba turns those into NaN samples).
+        bad = np.linalg.norm(nrm, axis=1) < 0.5
+        if bad.any():
+            one_face = np.zeros_like(nrm)
+            for k in range(3):
+                one_face[m.faces[:, k]] = m.face_normals
+            nrm[bad] = one_face[bad]
+        return (m.vertices.astype(np.float32), nrm.astype(np.float32), m.faces.astype(np.uint32))
+    raise KeyError(f"unknown mesh {kind!r}")

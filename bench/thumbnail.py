@@ -49,10 +49,9 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     import pipeline
-    from pipeline.environment import default_face_size
     from pipeline.panorama import DEFAULT_ENVIRONMENT, load_panorama
 
-    from .scenes import ASSETS as assets_root
+    from .assets import ASSETS as assets_root
     work = Path(tempfile.mkdtemp(prefix="bench-thumbnail-"))
     cache = Path(args.cache) if args.cache else work / "cache"
     env_name = args.env or DEFAULT_ENVIRONMENT
@@ -65,7 +64,6 @@ def run(args: argparse.Namespace) -> int:
         baked = pipeline.bake_asset(src, cache)  # ours renders from the cache, as the service does
         peer_file = str(src) if src.suffix in (".glb", ".gltf") else _export_glb(baked, work / f"{name}.glb")
         for size in sizes:
-            pipeline.bake_environment(env_name, cache, face_size=default_face_size(size))
             job = {"asset": str(src), "peer_file": peer_file, "size": size, "cache": str(cache),
                    "env": env_name, "panorama": panorama, "bounds": baked.bounds.tolist(),
                    "out": str(work / f"{name}-{size}-{{tool}}.png")}
@@ -165,12 +163,13 @@ def _png(rgb) -> bytes:
 
 def _ours(job: dict):
     import pipeline
-    from pipeline.environment import default_face_size
     from renderer import render
+    from renderer.auto import environment_face_size
     from renderer.options import RenderOptions
     asset = pipeline.bake_asset(job["asset"], job["cache"])
-    env = pipeline.bake_environment(job["env"], job["cache"], face_size=default_face_size(job["size"]))
     options = RenderOptions(width=job["size"], height=job["size"], **VIEW)
+    env = pipeline.bake_environment(job["env"], job["cache"],
+                                    face_size=environment_face_size(asset, options)[0])
     return lambda: render(asset, env, options).rgba8
 
 

@@ -4,6 +4,7 @@ The functions here import their modules lazily so that `import pipeline` stays c
 """
 from __future__ import annotations
 
+from .baked import DEFAULT_FACE_SIZE
 from .errors import AssetError
 from .scene import Scene
 
@@ -22,7 +23,7 @@ def bake_asset(path, cache_dir=None, **options):
     return _bake(path, cache_dir, **options)
 
 
-def bake_environment(source, cache_dir=None, face_size=256, prefilter="ggx"):
+def bake_environment(source, cache_dir=None, face_size=DEFAULT_FACE_SIZE, prefilter="ggx"):
     """Bake a panorama (file or bundled name) into a `BakedEnvironment` (cached)."""
     from .bake import bake_environment as _bake
     return _bake(source, cache_dir, face_size=face_size, prefilter=prefilter)

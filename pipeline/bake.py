@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .baked import BakedAsset, BakedEnvironment, BakedMesh
+from .baked import DEFAULT_FACE_SIZE, BakedAsset, BakedEnvironment, BakedMesh
 from .cache import BAKE_FORMAT_VERSION, Cache, Entry, NotInCache, SourceFiles
 from .errors import MissingFile, UnsupportedFormat
 from .interior import interior_vectors
@@ -278,14 +278,14 @@ def _versions() -> dict:
 
 # -- environments ------------------------------------------------------------------------------
 
-def bake_environment(source, cache_dir=None, face_size: int = 256, prefilter: str = "ggx",
+def bake_environment(source, cache_dir=None, face_size: int = DEFAULT_FACE_SIZE, prefilter: str = "ggx",
                      force: bool = False, limits: Limits | None = None) -> BakedEnvironment:
     """Prefilter a panorama (file or bundled name) into the cache, or load it from there."""
     return bake_or_load_environment(source, cache_dir, face_size=face_size, prefilter=prefilter,
                                     force=force, limits=limits)[0]
 
 
-def bake_or_load_environment(source, cache_dir=None, face_size: int = 256, prefilter: str = "ggx",
+def bake_or_load_environment(source, cache_dir=None, face_size: int = DEFAULT_FACE_SIZE, prefilter: str = "ggx",
                              force: bool = False, limits: Limits | None = None
                              ) -> tuple[BakedEnvironment, bool]:
     from .panorama import load_panorama, resolve_panorama
@@ -346,3 +346,34 @@ def unpack_environment(entry: Entry) -> BakedEnvironment:
                             irradiance_sh=a["small.npz"]["irradiance_sh"], brdf_lut=a["small.npz"]["brdf_lut"],
                             prefilter=m["options"]["prefilter"], manifest=m)
 
+
+def bake_one(kind: str, source: str, *, cache=None, max_bytes=None, force=False,
+             face_size=DEFAULT_FACE_SIZE, prefilter="ggx") -> dict:
+    """The unit of work of `asset-bake` (in processes or Ray tasks): bake one asset or
+    environment; never raises (the result says what went wrong)."""
+    from .errors import AssetError
+
+    start = time.perf_counter()
+    result = {"kind": kind, "path": source}
+    try:
+        store = Cache(cache, max_bytes=max_bytes)
+        if kind == "asset":
+            baked, hit = bake_or_load_asset(source, store, force=force)
+            result.update(triangles=int(baked.triangle_count), meshes=len(baked.meshes))
+            interior = baked.manifest.get("stats", {}).get("interior", {})
+            if interior.get("rays"):
+                result.update(interior_rays=interior["rays"], interior_misses=interior["misses"])
+        else:
+            baked, hit = bake_or_load_environment(source, store, face_size=face_size,
+                                                       prefilter=prefilter, force=force)
+            result.update(face_size=baked.face_size, mips=len(baked.specular))
+        result.update(status="cached" if hit else "baked", key=baked.key)
+    except AssetError as exc:
+        result.update(status="failed", error=str(exc))
+    except (ValueError, OSError) as exc:  # bad option values, unwritable cache
+        result.update(status="failed", error=f"{source}: {exc}")
+    except Exception as exc:  # a bug: report it for this input and carry on with the others
+        log.exception("%s: unexpected error while baking", source)
+        result.update(status="failed", error=f"{source}: internal error ({type(exc).__name__}: {exc})")
+    result["seconds"] = round(time.perf_counter() - start, 4)
+    return result

@@ -16,6 +16,9 @@ import sys
 import time
 from pathlib import Path
 
+from .bake import bake_one
+from .baked import DEFAULT_FACE_SIZE
+
 log = logging.getLogger(__name__)
 
 EXIT_FAILED = 3
@@ -112,39 +115,6 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # `asset-bake ... | head`: stop quietly, as Unix tools do
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141
-
-
-def bake_one(kind: str, source: str, *, cache=None, max_bytes=None, force=False,
-             face_size=256, prefilter="ggx") -> dict:
-    """Bake one asset or environment; never raises (the result says what went wrong)."""
-    from . import bake
-    from .cache import Cache
-    from .errors import AssetError
-
-    start = time.perf_counter()
-    result = {"kind": kind, "path": source}
-    try:
-        store = Cache(cache, max_bytes=max_bytes)
-        if kind == "asset":
-            baked, hit = bake.bake_or_load_asset(source, store, force=force)
-            result.update(triangles=int(baked.triangle_count), meshes=len(baked.meshes))
-            interior = baked.manifest.get("stats", {}).get("interior", {})
-            if interior.get("rays"):
-                result.update(interior_rays=interior["rays"], interior_misses=interior["misses"])
-        else:
-            baked, hit = bake.bake_or_load_environment(source, store, face_size=face_size,
-                                                       prefilter=prefilter, force=force)
-            result.update(face_size=baked.face_size, mips=len(baked.specular))
-        result.update(status="cached" if hit else "baked", key=baked.key)
-    except AssetError as exc:
-        result.update(status="failed", error=str(exc))
-    except (ValueError, OSError) as exc:  # bad option values, unwritable cache
-        result.update(status="failed", error=f"{source}: {exc}")
-    except Exception as exc:  # a bug: report it for this input and carry on with the others
-        log.exception("%s: unexpected error while baking", source)
-        result.update(status="failed", error=f"{source}: internal error ({type(exc).__name__}: {exc})")
-    result["seconds"] = round(time.perf_counter() - start, 4)
-    return result
 
 
 def _collect(paths: list[str], cache: str | None) -> tuple[list[tuple[str, str]], list[dict]]:

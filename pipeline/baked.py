@@ -7,6 +7,8 @@ import numpy as np
 
 from .scene import Light, Material, Texture
 
+DEFAULT_FACE_SIZE = 256  # environment cube faces of a bake that names no size (asset-bake, uploads)
+
 
 @dataclass
 class BakedMesh:

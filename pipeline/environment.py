@@ -26,6 +26,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from .baked import DEFAULT_FACE_SIZE
 from .panorama import (DEFAULT_ENVIRONMENT, Panorama, list_bundled, load_panorama,  # noqa: F401
                        synthetic_panorama)
 
@@ -86,7 +87,7 @@ def roughness_to_lod(roughness, levels: int, method: str = "ggx"):
     return np.clip(roughness, 0.0, 1.0) * (levels - 1)
 
 
-def prefilter(pixels: np.ndarray, face_size: int = 256, method: str = "ggx",
+def prefilter(pixels: np.ndarray, face_size: int = DEFAULT_FACE_SIZE, method: str = "ggx",
               levels: int | None = None) -> EnvironmentArrays:
     """Bake a linear H x W x 3 panorama into the specular mip chain, SH and BRDF LUT (see the
     module docstring for the methods and their LOD mapping)."""

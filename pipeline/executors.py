@@ -1,6 +1,6 @@
 """Where `asset-bake` runs its jobs beyond this machine: Ray tasks, one per asset or environment.
 
-The unit of work is the local executor's own `bake_cmd.bake_one`, so results, cache keys and
+The unit of work is the local executor's own `bake.bake_one`, so results, cache keys and
 cache bytes are the same whichever executor ran it; only the fan-out differs. Each environment
 is one task like each asset (so it is baked once per cluster, never once per worker), and the
 content-addressed cache on a shared filesystem makes a job that two nodes run anyway
@@ -100,7 +100,7 @@ def disconnect() -> None:
 
 def _bake_task(kind: str, source: str, cwd: str, common: dict) -> dict:
     """One bake job in a Ray worker, in the driver's working directory when this node has it."""
-    from .bake_cmd import bake_one
+    from .bake import bake_one
 
     if os.path.isdir(cwd):
         os.chdir(cwd)

@@ -77,7 +77,7 @@ def load_scene(path, limits: Limits | None = None) -> Scene:
         except Exception as exc:  # a parser choking on hostile bytes must not crash the caller
             log.exception("%s: reader failed", path)
             raise MalformedAsset(path, f"could not be read ({type(exc).__name__}: {exc})") from None
-    own = os.path.abspath(path)
+    own = os.path.realpath(path)  # references are resolved paths too (a symlinked folder is one file set)
     if own not in scene.files:
         scene.files.insert(0, own)
     if log.isEnabledFor(logging.INFO):

@@ -14,7 +14,7 @@ to be within tolerance of the best raster method:
 - transmissive otherwise: `wyman`, with the request's TIR treatment or else `reflect` when a
   wyman object has flat faces (exit TIR is common there) and the cheaper `paper` otherwise;
 - `raytrace` for the whole frame only when the request gives a time budget
-  (RenderOptions.time_budget_ms), the estimated ray-trace time fits it, and some object is in
+  (RenderOptions.budget_ms), the estimated ray-trace time fits it, and some object is in
   a case where the raster methods fail (genus > 0 at IOR >= RAYTRACE_MIN_IOR, an open mesh,
   diamond-like IOR, the camera inside).
 
@@ -36,7 +36,7 @@ from pipeline.baked import BakedAsset, BakedMesh
 from pipeline.scene import Material
 
 from .camera import Camera, frame_bounds
-from .options import RenderOptions
+from .options import RenderOptions, apply_override
 
 log = logging.getLogger(__name__)
 
@@ -291,13 +291,12 @@ def estimate_raytrace_ms(asset: BakedAsset, options: RenderOptions, coverage_px:
 
 def plan_request(asset: BakedAsset, options: RenderOptions, available: list[str]) -> Plan:
     """Decide every mesh's method for `options` (method "auto") and whether to ray trace."""
-    from .render import _apply_override
 
     camera = frame_bounds(asset.bounds, options.width, options.height, options.yaw,
                           options.pitch, options.fov, options.distance)
     decisions, failing, coverage = [], [], 0.0
     for mesh in asset.meshes:
-        mat = _apply_override(mesh.material, options.override)
+        mat = apply_override(mesh.material, options.override)
         cls = mat.material_class
         if cls != "transmissive":
             decisions.append(Decision(mesh.name, "opaque", f"{cls}: PBR + IBL raster only, "
@@ -319,7 +318,7 @@ def plan_request(asset: BakedAsset, options: RenderOptions, available: list[str]
         plan.tir_why = ("requested" if options.tir else
                         f"flat faces ({', '.join(flat)}): exit TIR is common" if flat else
                         "curved surfaces only: exit TIR is rare, paper's fallback suffices")
-    budget = options.time_budget_ms
+    budget = options.budget_ms
     if not failing:
         plan.why = "raster: every object within the raster methods' tolerance"
         return plan
@@ -352,9 +351,10 @@ def run_frame_method(plan: Plan, fn, asset: BakedAsset, env, options: RenderOpti
     return frame
 
 
-def environment_face_size(asset: BakedAsset, width: int, height: int,
-                          background: str = "env", override=None) -> tuple[int, str]:
-    """Cube face size for the environment bake of this request, and why.
+def environment_face_size(asset: BakedAsset, options: RenderOptions) -> tuple[int, str]:
+    """Cube face size for the environment bake of this request, and why. The one policy: the
+    CLI, the service's workers and the bench all size environments with it, so the same
+    request gets the same cubemap everywhere (and its inputs are all in the request).
 
     The output size bounds it (pipeline.environment.default_face_size). When the background
     does not show the environment, the smoothest material bounds it too: a GGX lobe of
@@ -363,12 +363,11 @@ def environment_face_size(asset: BakedAsset, width: int, height: int,
     mip m holds roughness m / (levels - 1), so the chain always reaches roughness 1)."""
     from pipeline.environment import default_face_size, default_levels
 
-    from .render import _apply_override
-
-    face = default_face_size(max(width, height))
-    why = f"{face} px faces for a {max(width, height)} px frame"
-    if background != "env" and asset.meshes:
-        rough = min(_apply_override(m.material, override).roughness for m in asset.meshes)
+    px = max(options.width, options.height)
+    face = default_face_size(px)
+    why = f"{face} px faces for a {px} px frame"
+    if options.background != "env" and asset.meshes:
+        rough = min(apply_override(m.material, options.override).roughness for m in asset.meshes)
         if rough >= SMOOTH_ROUGHNESS:
             need = 1 << max(0, math.ceil(math.log2(math.pi / (rough * rough))))
             if need < face:

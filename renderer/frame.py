@@ -18,12 +18,23 @@ log = logging.getLogger(__name__)
 _PIL_FORMATS = {"png": "PNG", "jpeg": "JPEG", "jpg": "JPEG", "webp": "WEBP"}
 
 
+@dataclass(frozen=True)
+class FrameTimings:
+    """Where a frame's time went: the stages differ by method (raster: upload, draw, finish;
+    raytrace: build, trace, tonemap), the total is always there."""
+    total_ms: float
+    stages_ms: dict[str, float] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, float]:
+        return {**{k + "_ms": v for k, v in self.stages_ms.items()}, "total_ms": self.total_ms}
+
+
 @dataclass
 class Frame:
     linear: np.ndarray   # H x W x 4 float32: linear radiance (premultiplied by alpha), alpha
     rgba8: np.ndarray    # H x W x 4 uint8: tone-mapped sRGB, straight alpha
     plan: dict = field(default_factory=dict)     # what ran and why
-    timings: dict = field(default_factory=dict)  # milliseconds per stage
+    timings: FrameTimings = field(default_factory=lambda: FrameTimings(0.0))
 
     @property
     def width(self) -> int:

@@ -1,45 +1,273 @@
-"""Everything a render request can set. The service, the CLI and the bench build these."""
+"""Everything a render request can set, declared once.
+
+`RenderOptions` (with `MaterialOverride`) is the single schema of a render: each field's type,
+range, default and help live here and nowhere else. The command line (`add_arguments` /
+`from_arguments`) and the HTTP query model (service.models.ThumbnailParams, its OpenAPI
+description included) are derived from `request_fields()`, the flat view of these two classes
+that both surfaces share, and a request crosses the process boundary as a `RenderOptions`.
+Adding a render parameter means adding one field here, plus its implementation.
+
+The classes are pydantic dataclasses: constructing one validates it (a `ValueError`), and
+`dataclasses.replace` and `dataclasses.asdict` work as on any dataclass.
+"""
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-from typing import Literal
+import argparse
+import dataclasses
+import math
+import re
+import typing
+from typing import Annotated, Any, Literal, Mapping
+
+import numpy as np
+from pydantic import ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic.dataclasses import dataclass
+from pydantic.fields import FieldInfo
+
+if typing.TYPE_CHECKING:
+    from pipeline.scene import Material
 
 Method = Literal["auto", "opaque", "single", "wyman", "raytrace"]
+METHODS: tuple[str, ...] = typing.get_args(Method)
 Tonemap = Literal["neutral", "aces", "none"]
+TONEMAPS: tuple[str, ...] = typing.get_args(Tonemap)
+
+MAX_PIXELS = 8192 * 8192
+MAX_SIDE = 8192
+MAX_DISTANCE = 1e12  # scene units (metres); beyond it the projection's arithmetic overflows
+MAX_BUDGET_MS = 60_000.0  # a render's time budget cannot exceed the service's render deadline
+
+Unit = Annotated[float, Field(ge=0.0, le=1.0)]
+_HEX = re.compile(r"^#?([0-9a-fA-F]{6})$")
+_CONFIG = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, config=_CONFIG)
 class MaterialOverride:
     """Per-request material applied to every mesh ("preview any mesh as glass or steel").
     None leaves the asset's own value."""
-    base_color: tuple[float, float, float] | None = None  # linear RGB
-    metallic: float | None = None
-    roughness: float | None = None
-    ior: float | None = None
-    transmission: float | None = None
+    base_color: tuple[Unit, Unit, Unit] | None = Field(None, description=(
+        "override base colour for every mesh: sRGB hex RRGGBB, or linear r,g,b in 0..1"))
+    metallic: float | None = Field(None, ge=0, le=1, description="override metalness for every mesh")
+    roughness: float | None = Field(None, ge=0, le=1, description="override roughness for every mesh")
+    ior: float | None = Field(None, ge=1, le=3, description=(
+        "override index of refraction for every mesh (with transmission: glass); 1..3 covers "
+        "every common dielectric, diamond is 2.42"))
+    transmission: float | None = Field(None, ge=0, le=1, description="override transmission, 0..1")
+
+    @field_validator("base_color", mode="before")
+    @classmethod
+    def _parse_color(cls, v: Any) -> Any:
+        return parse_color(v) if isinstance(v, str) else v
 
     def is_empty(self) -> bool:
-        return all(v is None for v in asdict(self).values())
+        return all(v is None for v in dataclasses.asdict(self).values())
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, config=_CONFIG)
 class RenderOptions:
-    width: int = 512
-    height: int = 512
-    yaw: float = 0.0          # degrees, see renderer.camera
-    pitch: float = 0.0
-    fov: float = 40.0         # vertical, degrees
-    distance: float | None = None  # None: auto-frame
-    method: Method = "auto"
-    tonemap: Tonemap = "neutral"
-    exposure: float = 0.0     # stops (EV): linear radiance is scaled by 2**exposure before tone mapping
-    background: str = "env"   # "env" | "transparent" | "#rrggbb"
-    background_blur: float = 0.0  # 0..1, roughness of the prefiltered mip shown behind the asset
+    width: int = Field(256, ge=1, le=MAX_SIDE, description="image width in pixels")
+    height: int = Field(256, ge=1, le=MAX_SIDE, description="image height in pixels")
+    yaw: float = Field(30.0, ge=-3600, le=3600, description=(
+        "camera turn about +Y, degrees; 0 looks from +Z, positive turns toward +X"))
+    pitch: float = Field(15.0, ge=-90, le=90, description="camera elevation, degrees; positive looks down from above")
+    fov: float = Field(40.0, ge=1, le=170, description="vertical field of view, degrees")
+    distance: float | None = Field(None, gt=0, le=MAX_DISTANCE, description=(
+        "camera distance from the bounds centre in scene units (default: fit the object)"))
+    method: Method = Field("auto", description=(
+        "auto picks per object; opaque ignores transmission; single / wyman are raster "
+        "refraction; raytrace is the slow, accurate method"))
+    tonemap: Tonemap = Field("neutral", description="tone mapping: Khronos PBR Neutral, ACES or none")
+    exposure: float = Field(0.0, ge=-16, le=16, description="stops (EV): radiance is scaled by 2**exposure")
+    background: str = Field("env", description="env | transparent | sRGB colour #RRGGBB")
+    background_blur: float = Field(0.0, ge=0, le=1, description=(
+        "roughness of the prefiltered environment mip shown behind the asset, 0..1"))
     override: MaterialOverride | None = None
-    msaa: int = 4
-    lights: bool = True       # the asset's KHR_lights_punctual lights
-    multiscatter: bool = False  # energy compensation for rough metals
-    tir: Literal["paper", "reflect"] | None = None  # wyman TIR treatment; None = default
-    bounces: int = 8          # raytrace
-    debug: Literal["backface_normals", "tir", "exit_distance"] | None = None
-    time_budget_ms: float | None = None  # lets `auto` pick raytrace where it pays
+    msaa: int = Field(4, ge=0, le=16, description="samples per pixel (0 or 1: off)")
+    lights: bool = Field(True, description="the asset's own KHR_lights_punctual lights")
+    multiscatter: bool = Field(False, description="multiple-scattering energy compensation for rough metals")
+    tir: Literal["paper", "reflect"] | None = Field(None, description=(
+        "wyman: total internal reflection treatment (default: reflect)"))
+    bounces: int = Field(8, ge=0, le=64, description="raytrace: path depth (0: the environment along each primary ray)")
+    debug: Literal["backface_normals", "tir", "exit_distance"] | None = Field(None, description="wyman debug view")
+    budget_ms: float | None = Field(None, gt=0, le=MAX_BUDGET_MS, description=(
+        "time budget in milliseconds: lets method auto ray trace objects where raster "
+        "refraction fails, when the estimate fits"))
+
+    @field_validator("background", mode="before")
+    @classmethod
+    def _background(cls, v: Any) -> Any:
+        if not isinstance(v, str):
+            return v
+        s = v.strip().lower()
+        if s in ("env", "transparent"):
+            return s
+        m = _HEX.match(s)
+        if not m:
+            raise ValueError(f"background {v!r}: use env, transparent or a colour #rrggbb")
+        return "#" + m.group(1)
+
+    @model_validator(mode="after")
+    def _pixels(self) -> "RenderOptions":
+        if self.width * self.height > MAX_PIXELS:
+            raise ValueError(f"image size {self.width}x{self.height} is over {MAX_PIXELS} pixels")
+        if self.override is not None and self.override.is_empty():
+            object.__setattr__(self, "override", None)  # one spelling of "no override"
+        return self
+
+    def replace(self, **changes) -> "RenderOptions":
+        return dataclasses.replace(self, **changes)
+
+    def key_dict(self) -> dict:
+        """Every field, floats rounded so that equal requests give equal cache keys."""
+        def norm(v):
+            if isinstance(v, float):
+                return round(v, 4)
+            if isinstance(v, (tuple, list)):
+                return [norm(x) for x in v]
+            if isinstance(v, dict):
+                return {k: norm(x) for k, x in v.items()}
+            return v
+        return norm(dataclasses.asdict(self))
+
+
+def apply_override(mat: "Material", ov: MaterialOverride | None) -> "Material":
+    """`mat` with the request's override applied (a texture an override replaces is dropped)."""
+    if ov is None or ov.is_empty():
+        return mat
+    changes: dict = {}
+    if ov.base_color is not None:
+        changes["base_color"] = (*map(float, ov.base_color[:3]), mat.base_color[3])
+        changes["base_color_texture"] = None
+    for name in ("metallic", "roughness", "ior", "transmission"):
+        if getattr(ov, name) is not None:
+            changes[name] = float(getattr(ov, name))
+    if ov.metallic is not None and ov.roughness is not None:
+        changes["metallic_roughness_texture"] = None
+    if ov.transmission is not None:
+        changes["transmission_texture"] = None
+    return dataclasses.replace(mat, **changes)
+
+
+def background_rgb(spec: str) -> tuple[float, float, float] | None:
+    """A validated `background`: `env` / `transparent` -> None; `#rrggbb` -> sRGB in 0..1."""
+    if spec in ("env", "transparent"):
+        return None
+    s = spec.lstrip("#")
+    return tuple(int(s[i:i + 2], 16) / 255 for i in (0, 2, 4))  # type: ignore[return-value]
+
+
+def parse_color(text: str) -> tuple[float, float, float]:
+    """`RRGGBB` / `#RRGGBB` (sRGB, as people pick colours) or `r,g,b` (linear) -> linear RGB."""
+    m = _HEX.match(text.strip())
+    if m:
+        from pipeline.panorama import srgb_to_linear
+        rgb8 = np.array([int(m.group(1)[i:i + 2], 16) for i in (0, 2, 4)], np.uint8)
+        return tuple(round(float(c), 6) for c in srgb_to_linear(rgb8))  # type: ignore[return-value]
+    try:
+        rgb = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        rgb = ()
+    if len(rgb) != 3 or not all(math.isfinite(c) for c in rgb):
+        raise ValueError(f"colour {text!r}: expected sRGB hex RRGGBB or linear r,g,b")
+    return rgb  # type: ignore[return-value]
+
+
+# --- the flat request: what the CLI and HTTP surfaces expose ---------------------------------
+
+SIZE_FIELD = FieldInfo.from_annotated_attribute(int, Field(256, ge=1, le=MAX_SIDE, description=(
+    "width and height in pixels, unless those are given")))
+
+
+def _fields(cls) -> dict[str, FieldInfo]:
+    return dict(cls.__pydantic_fields__)
+
+
+def request_fields() -> dict[str, FieldInfo]:
+    """RenderOptions flattened for a query string or a command line: `size` for width and
+    height, and the MaterialOverride fields in place of `override`. Width and height default
+    to None there (meaning: `size`)."""
+    out: dict[str, FieldInfo] = {"size": SIZE_FIELD}
+    for name, info in _fields(RenderOptions).items():
+        if name == "override":
+            out.update(_override_fields())
+        elif name in ("width", "height"):
+            out[name] = _optional(info)
+        else:
+            out[name] = info
+    return out
+
+
+def _override_fields() -> dict[str, FieldInfo]:
+    fields = _fields(MaterialOverride)
+    color = fields["base_color"]
+    fields["base_color"] = FieldInfo.from_annotated_attribute(
+        str | None, Field(None, description=color.description))  # parsed by MaterialOverride
+    return fields
+
+
+def _optional(info: FieldInfo) -> FieldInfo:
+    ann = info.annotation
+    return FieldInfo.merge_field_infos(info, FieldInfo.from_annotation(ann | None), default=None)  # type: ignore[operator]
+
+
+def from_request(values: Mapping[str, Any]) -> RenderOptions:
+    """The RenderOptions of a flat request (unset or None values take their defaults)."""
+    given = {k: v for k, v in values.items() if v is not None}
+    unknown = set(given) - set(request_fields())
+    if unknown:
+        raise ValueError(f"unknown render parameter(s): {', '.join(sorted(unknown))}")
+    size = given.pop("size", None)
+    if size is not None:
+        given.setdefault("width", size)
+        given.setdefault("height", size)
+    ov = {k: given.pop(k) for k in list(given) if k in _fields(MaterialOverride)}
+    if ov:
+        given["override"] = MaterialOverride(**ov)
+    return RenderOptions(**given)
+
+
+# --- the command line ------------------------------------------------------------------------
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """One flag per request field: `--name-with-dashes`, type, choices and help from the schema."""
+    group = parser.add_argument_group("render options (renderer/options.py)")
+    for name, info in request_fields().items():
+        flag = "--" + name.replace("_", "-")
+        ann = _strip_optional(info.annotation)
+        default = info.get_default()
+        help_text = (info.description or "") + (f" (default: {default})" if default is not None else "")
+        help_text = help_text.replace("%", "%%")
+        if ann is bool:
+            group.add_argument(flag, dest=name, action=argparse.BooleanOptionalAction,
+                               default=None, help=help_text)
+        elif typing.get_origin(ann) is Literal:
+            group.add_argument(flag, dest=name, choices=typing.get_args(ann), default=None, help=help_text)
+        else:
+            kind = ann if ann in (int, float) else str
+            group.add_argument(flag, dest=name, type=kind, default=None, help=help_text,
+                               metavar=name.upper())
+
+
+def from_arguments(args: argparse.Namespace) -> RenderOptions:
+    """The RenderOptions of parsed `add_arguments` flags."""
+    return from_request({name: getattr(args, name, None) for name in request_fields()})
+
+
+def _strip_optional(ann):
+    if typing.get_origin(ann) in (typing.Union, getattr(__import__("types"), "UnionType")):
+        args = [a for a in typing.get_args(ann) if a is not type(None)]
+        if len(args) == 1:
+            return args[0]
+    return ann
+
+
+def describe_error(exc: ValidationError) -> str:
+    """A pydantic error as one line a person reads: `field: reason; field: reason`."""
+    parts = []
+    for e in exc.errors(include_url=False):
+        loc = ".".join(str(x) for x in e["loc"] if x != "override") or "options"
+        given = e.get("input")
+        shown = f" {given!r}" if isinstance(given, (int, float, str)) and loc != "options" else ""
+        parts.append(f"{loc}{shown}: {e['msg']}")
+    return "; ".join(parts)

@@ -48,8 +48,8 @@ from pipeline.cubemap import sample_cube
 
 from .camera import Camera, frame_bounds
 from .optics import fresnel_dielectric, reflect, refract
-from .options import RenderOptions
-from .render import _apply_override, parse_background, register_frame_method
+from .options import RenderOptions, apply_override, background_rgb
+from .render import register_frame_method
 
 log = logging.getLogger(__name__)
 
@@ -83,7 +83,7 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
 
     tris, nrms, mats, tables = [], [], [], []
     for k, mesh in enumerate(asset.meshes):
-        mat = _apply_override(mesh.material, options.override)
+        mat = apply_override(mesh.material, options.override)
         tables.append((mat.base_color[:3], mat.metallic, mat.roughness, mat.transmission,
                        mat.ior, mat.absorption()))
         idx = mesh.indices.astype(np.int64)
@@ -370,19 +370,19 @@ def _trace_paths(ts: TraceScene, env: BakedEnvironment, options: RenderOptions,
 def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
                     camera: Camera | None = None, supersample: int | None = None):
     """Render with the ray tracer: a renderer.frame.Frame (linear + tone-mapped sRGB)."""
-    from .frame import Frame, tonemap_srgb8
+    from .frame import Frame, FrameTimings, tonemap_srgb8
 
     t0 = time.perf_counter()
     linear, stats = trace(asset, env, options, camera, supersample)
-    rgba8 = tonemap_srgb8(linear, options.tonemap, options.exposure, parse_background(options.background))
+    rgba8 = tonemap_srgb8(linear, options.tonemap, options.exposure, background_rgb(options.background))
     t1 = time.perf_counter()
     plan = {"method": "raytrace", "bounces": int(options.bounces),
             "supersample": stats["supersample"],
             "rays": stats["rays"], "rays_per_bounce": stats["bounces"],
             "tir_events": stats["tir"]}
-    timings = {"build": stats["build_ms"], "trace": stats["trace_ms"],
-               "tonemap": (t1 - t0) * 1e3 - stats["build_ms"] - stats["trace_ms"],
-               "total": (t1 - t0) * 1e3}
+    total = (t1 - t0) * 1e3
+    timings = FrameTimings(total, {"build": stats["build_ms"], "trace": stats["trace_ms"],
+                                   "tonemap": total - stats["build_ms"] - stats["trace_ms"]})
     return Frame(linear=linear, rgba8=rgba8, plan=plan, timings=timings)
 
 

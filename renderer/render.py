@@ -26,14 +26,12 @@ from pipeline.scene import Material
 
 from . import context, gpu
 from .camera import Camera, frame_bounds
-from .frame import Frame, exposure_scale
-from .options import MaterialOverride, RenderOptions
+from .frame import Frame, FrameTimings, exposure_scale
+from .options import RenderOptions, apply_override, background_rgb
 
 log = logging.getLogger(__name__)
 
 MAX_LIGHTS = 8
-MAX_PIXELS = 8192 * 8192
-MAX_DISTANCE = 1e12  # scene units (metres); beyond it the projection's arithmetic overflows
 _TONEMAPS = {"none": 0, "neutral": 1, "aces": 2}
 _SLOTS = ("base_color", "metallic_roughness", "normal", "occlusion", "emissive")
 _SRGB_SLOTS = ("base_color", "emissive")
@@ -117,7 +115,6 @@ FrameMethod = Callable[[BakedAsset, BakedEnvironment, RenderOptions], Frame]
 
 _METHODS: dict[str, Method] = {}
 _FRAME_METHODS: dict[str, FrameMethod] = {}
-_KNOWN = ("auto", "opaque", "single", "wyman", "raytrace")
 
 
 def register_method(name: str, fn: Method) -> None:
@@ -231,60 +228,20 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     }
     if auto is not None:
         plan["auto"] = auto.explain()
-    timings = {"upload_ms": (t_upload - t0) * 1e3, "draw_ms": (t_draw - t_upload) * 1e3,
-               "finish_ms": (t_end - t_draw) * 1e3, "total_ms": (t_end - t0) * 1e3}
+    timings = FrameTimings((t_end - t0) * 1e3, {"upload": (t_upload - t0) * 1e3,
+                                                "draw": (t_draw - t_upload) * 1e3,
+                                                "finish": (t_end - t_draw) * 1e3})
     return Frame(linear, rgba8, plan, timings)
 
 
 def validate_options(o: RenderOptions) -> None:
-    """Raise ValueError (UnsupportedMethod for methods) for options this build cannot honour."""
+    """UnsupportedMethod for a method this build does not provide. Everything else a request
+    can get wrong is refused when its RenderOptions is built (renderer/options.py)."""
     _load_plugins()  # the method list is only complete once the plugins have registered
-    if not (1 <= o.width and 1 <= o.height and o.width * o.height <= MAX_PIXELS):
-        raise ValueError(f"image size {o.width}x{o.height} is outside 1..{MAX_PIXELS} pixels")
-    if o.tonemap not in _TONEMAPS:
-        raise ValueError(f"unknown tone mapping {o.tonemap!r}: use neutral, aces or none")
-    if not (0.1 <= o.fov < 180):
-        raise ValueError(f"fov {o.fov} must be between 0.1 and 180 degrees")
-    if not all(math.isfinite(x) for x in (o.yaw, o.pitch, o.exposure, o.background_blur)):
-        raise ValueError("yaw, pitch, exposure and background_blur must be finite")
-    if o.distance is not None and not (0 < o.distance <= MAX_DISTANCE):
-        raise ValueError(f"distance {o.distance} must be a positive number up to {MAX_DISTANCE:g}")
-    parse_background(o.background)
-    _validate_override(o.override)
-    if o.method not in _KNOWN:
-        raise UnsupportedMethod(f"unknown method {o.method!r}: use one of {', '.join(_KNOWN)}")
     if o.method not in ("auto", "opaque") and o.method not in _METHODS and o.method not in _FRAME_METHODS:
         raise UnsupportedMethod(
             f"method {o.method!r} is not available in this build (refraction and ray tracing "
             f"methods are not installed); available: {', '.join(available_methods())}")
-
-
-def _validate_override(m) -> None:
-    """Material override values must be physical: factors in 0..1, IOR at least 1 (glTF's
-    KHR_materials_ior range) and finite, so no request can steer a shader into NaN."""
-    if m is None:
-        return
-    for name in ("metallic", "roughness", "transmission"):
-        v = getattr(m, name)
-        if v is not None and not (0.0 <= v <= 1.0):
-            raise ValueError(f"{name} {v} must be between 0 and 1")
-    if m.ior is not None and not (1.0 <= m.ior <= 10.0):
-        raise ValueError(f"ior {m.ior} must be between 1 and 10")
-    if m.base_color is not None and not all(0.0 <= c <= 1.0 for c in m.base_color):
-        raise ValueError(f"base colour {m.base_color} must have components between 0 and 1")
-
-
-def parse_background(spec: str) -> tuple[float, float, float] | None:
-    """`env` / `transparent` -> None; `#rrggbb` -> sRGB colour in 0..1."""
-    if spec in ("env", "transparent"):
-        return None
-    s = spec.lstrip("#")
-    if spec.startswith("#") and len(s) == 6:
-        try:
-            return tuple(int(s[i:i + 2], 16) / 255 for i in (0, 2, 4))
-        except ValueError:
-            pass
-    raise ValueError(f"background {spec!r}: use env, transparent or #rrggbb")
 
 
 # --- planning -------------------------------------------------------------------------------
@@ -292,7 +249,7 @@ def parse_background(spec: str) -> tuple[float, float, float] | None:
 def _plan_items(gasset: gpu.GpuAsset, options: RenderOptions, auto=None) -> list[DrawItem]:
     items = []
     for i, gm in enumerate(gasset.meshes):
-        mat = _apply_override(gm.baked.material, options.override)
+        mat = apply_override(gm.baked.material, options.override)
         method, why = auto.method_for(i) if auto is not None else _choose_method(mat, options)
         items.append(DrawItem(gm, mat, method, why))
     return items
@@ -306,23 +263,6 @@ def _choose_method(mat: Material, options: RenderOptions) -> tuple[str, str]:
     if options.method == "opaque":
         return "opaque", "method opaque requested: transmission ignored"
     return options.method, f"method {options.method} requested"
-
-
-def _apply_override(mat: Material, ov: MaterialOverride | None) -> Material:
-    if ov is None or ov.is_empty():
-        return mat
-    changes: dict = {}
-    if ov.base_color is not None:
-        changes["base_color"] = (*map(float, ov.base_color[:3]), mat.base_color[3])
-        changes["base_color_texture"] = None
-    for name in ("metallic", "roughness", "ior", "transmission"):
-        if getattr(ov, name) is not None:
-            changes[name] = float(getattr(ov, name))
-    if ov.metallic is not None and ov.roughness is not None:
-        changes["metallic_roughness_texture"] = None
-    if ov.transmission is not None:
-        changes["transmission_texture"] = None
-    return dataclasses.replace(mat, **changes)
 
 
 # --- per-material and per-frame state --------------------------------------------------------
@@ -502,7 +442,7 @@ def _finish(ctx, target: _Target, camera: Camera, env: gpu.GpuEnvironment,
             options: RenderOptions) -> tuple[np.ndarray, np.ndarray]:
     """One pass: resolve, background, tone map; then one readback of each output."""
     w, h = options.width, options.height
-    bg = parse_background(options.background)
+    bg = background_rgb(options.background)
     mode = 2 if options.background == "env" else 1 if bg is not None else 0
     prog = context.program("screen_triangle.vert", "final.frag",
                            {"TONEMAP": _TONEMAPS[options.tonemap], "BACKGROUND": mode,

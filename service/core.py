@@ -18,9 +18,10 @@ from pipeline.errors import AssetError, LimitExceeded, MalformedAsset, Unsupport
 from pipeline.ingest import READERS
 from pipeline.limits import Limits
 
+from renderer.options import RenderOptions
+
 from . import archive
 from .metrics import Metrics
-from .models import ThumbnailParams, srgb_hex_to_linear
 from .settings import Settings
 from .store import Store, ThumbnailCache, content_id, safe_name
 from .workers import JobAssetError, WorkerFailure, WorkerPool
@@ -56,11 +57,11 @@ class ThumbnailService:
         self.metrics = Metrics()
         if settings.executor == "ray":  # actors on a Ray cluster, same interface
             from .ray_workers import RayWorkerPool
-            self.pool = RayWorkerPool(settings.worker_count, str(settings.cache), settings.face_size,
+            self.pool = RayWorkerPool(settings.worker_count, str(settings.cache),
                                       max_queue=settings.max_queue, on_restart=self._restarted,
                                       address=settings.ray_address or None, num_gpus=settings.ray_gpus)
         else:
-            self.pool = WorkerPool(settings.worker_count, str(settings.cache), settings.face_size,
+            self.pool = WorkerPool(settings.worker_count, str(settings.cache),
                                    max_queue=settings.max_queue, on_restart=self._restarted)
         self.renderer_version = _renderer_version()
         self._bakes: dict[str, asyncio.Task] = {}
@@ -320,33 +321,33 @@ class ThumbnailService:
 
     # -- thumbnails -------------------------------------------------------------------------
 
-    def thumbnail_key(self, asset_id: str, params: ThumbnailParams, env_identity: str) -> str:
-        width, height = params.dimensions()
-        norm = params.model_dump(exclude={"size", "width", "height", "env", "format"}, exclude_none=True)
-        norm = {k: round(v, 4) if isinstance(v, float) else v for k, v in norm.items()}
-        norm.update(asset=asset_id, width=width, height=height, env=env_identity,
-                    renderer=self.renderer_version)
+    def thumbnail_key(self, asset_id: str, options: RenderOptions, env_identity: str) -> str:
+        """Every input of the render: the asset, the whole RenderOptions, the environment and
+        the renderer (its version covers the environment face-size policy, which derives the
+        cubemap from the asset and the options alone)."""
+        norm = {"asset": asset_id, "options": options.key_dict(), "env": env_identity,
+                "renderer": self.renderer_version}
         return hashlib.sha256(json.dumps(norm, sort_keys=True).encode()).hexdigest()[:32]
 
-    def check_size(self, params: ThumbnailParams) -> None:
-        width, height = params.dimensions()
+    def check_size(self, options: RenderOptions) -> None:
         limit = self.settings.max_thumbnail_size
-        if max(width, height) > limit:
-            raise LimitExceeded("thumbnail", f"{width}x{height} pixels asked; the limit is {limit} "
-                                             "on either side")
+        if max(options.width, options.height) > limit:
+            raise LimitExceeded("thumbnail", f"{options.width}x{options.height} pixels asked; "
+                                             f"the limit is {limit} on either side")
 
     def cached(self, asset_id: str, key: str, fmt: str):
         return self.thumbs.get(asset_id, key, fmt)
 
-    async def render(self, asset_id: str, params: ThumbnailParams, key: str, env_source: str):
+    async def render(self, asset_id: str, options: RenderOptions, fmt: str, key: str,
+                     env_source: str):
         """Render (once, however many requests ask at the same time) and cache."""
-        fut = self._renders.get(key + params.format)
+        fut = self._renders.get(key + fmt)
         if fut is not None:
             return await asyncio.shield(fut)
         fut = asyncio.get_running_loop().create_future()
-        self._renders[key + params.format] = fut
+        self._renders[key + fmt] = fut
         try:
-            result = await self._render(asset_id, params, key, env_source)
+            result = await self._render(asset_id, options, fmt, key, env_source)
             fut.set_result(result)
             return result
         except BaseException as exc:
@@ -354,23 +355,15 @@ class ThumbnailService:
             fut.exception()  # retrieved: no "never retrieved" warning when nobody else waits
             raise
         finally:
-            self._renders.pop(key + params.format, None)
+            self._renders.pop(key + fmt, None)
 
-    async def _render(self, asset_id: str, params: ThumbnailParams, key: str, env_source: str):
+    async def _render(self, asset_id: str, options: RenderOptions, fmt: str, key: str,
+                      env_source: str):
         rec = await self.wait_baked(asset_id, self.settings.bake_wait_seconds)
         if rec["status"] == "failed":
             raise BakeFailed(rec["name"], f"the asset failed to bake: {rec['reason']}")
-        width, height = params.dimensions()
-        override = {k: getattr(params, k) for k in ("metallic", "roughness", "ior", "transmission")
-                    if getattr(params, k) is not None}
-        if params.base_color:
-            override["base_color"] = srgb_hex_to_linear(params.base_color)
-        options = {"width": width, "height": height, "yaw": params.yaw, "pitch": params.pitch,
-                   "fov": params.fov, "method": params.method, "tonemap": params.tonemap,
-                   "exposure": params.exposure, "background": params.background,
-                   "override": override or None, "time_budget_ms": params.budget_ms}
         try:
-            out = await self.pool.run("render", rec["bake_key"], env_source, options, params.format,
+            out = await self.pool.run("render", rec["bake_key"], env_source, options, fmt,
                                       deadline=self.settings.render_seconds)
         except JobAssetError as exc:
             raise _public_error(exc, self.store.asset_dir(asset_id) / "src", rec["name"]) from None
@@ -380,10 +373,10 @@ class ThumbnailService:
             raise NotFound(asset_id)
         # Answer from memory now; the disk copy (two fsyncs) is written off the request path.
         task = asyncio.get_running_loop().create_task(
-            self._persist(asset_id, key, params.format, out["image"], plan))
+            self._persist(asset_id, key, fmt, out["image"], plan))
         self._writes[task] = asset_id
         task.add_done_callback(lambda t: self._writes.pop(t, None))
-        return self.thumbs.remember(asset_id, key, params.format, out["image"], plan)
+        return self.thumbs.remember(asset_id, key, fmt, out["image"], plan)
 
     async def _persist(self, asset_id: str, key: str, fmt: str, image: bytes, plan: str) -> None:
         try:

@@ -1,18 +1,15 @@
 """Pydantic models for every request and response (they are the OpenAPI schema at /docs)."""
 from __future__ import annotations
 
-import re
 from typing import Literal
 
-import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, create_model
 
-from pipeline.panorama import srgb_to_linear
+from renderer.options import RenderOptions, from_request, request_fields
 
 AssetStatus = Literal["baking", "ready", "failed"]
 ImageFormat = Literal["png", "jpeg", "webp"]
 MEDIA_TYPES = {"png": "image/png", "jpeg": "image/jpeg", "webp": "image/webp"}
-_HEX = re.compile(r"^#?([0-9a-fA-F]{6})$")
 
 
 class ErrorDetail(BaseModel):
@@ -76,56 +73,22 @@ class Ready(BaseModel):
     workers: list[WorkerStatus]
 
 
-class ThumbnailParams(BaseModel):
-    """Query parameters of GET /assets/{id}/thumbnail. Colours are sRGB hex `RRGGBB`."""
-    model_config = ConfigDict(extra="forbid")
-
-    size: int = Field(256, ge=1, description="width and height, unless those are given")
-    width: int | None = Field(None, ge=1)
-    height: int | None = Field(None, ge=1)
-    format: ImageFormat = "png"
-    env: str | None = Field(None, description="environment name (GET /environments); default bundled")
-    yaw: float = Field(30.0, ge=-3600, le=3600, description="degrees; positive turns toward +X")
-    pitch: float = Field(15.0, ge=-90, le=90, description="degrees; positive looks down from above")
-    fov: float = Field(40.0, gt=1, lt=170, description="vertical field of view, degrees")
-    method: Literal["auto", "opaque", "single", "wyman"] = "auto"
-    background: str = Field("env", description="env | transparent | RRGGBB")
-    tonemap: Literal["neutral", "aces", "none"] = "neutral"
-    exposure: float = Field(0.0, ge=-16, le=16, description="stops")
-    base_color: str | None = Field(None, description="override base colour, RRGGBB")
-    metallic: float | None = Field(None, ge=0, le=1)
-    roughness: float | None = Field(None, ge=0, le=1)
-    ior: float | None = Field(None, ge=1, le=3)
-    transmission: float | None = Field(None, ge=0, le=1)
-    budget_ms: float | None = Field(None, gt=0, le=600_000, description=(
-        "time budget for method=auto: lets it ray trace objects where raster refraction fails"))
-
-    @field_validator("background")
-    @classmethod
-    def _background(cls, v: str) -> str:
-        v = v.strip().lower()
-        if v in ("env", "transparent"):
-            return v
-        m = _HEX.match(v)
-        if not m:
-            raise ValueError("background must be env, transparent or a colour RRGGBB")
-        return "#" + m.group(1).lower()
-
-    @field_validator("base_color")
-    @classmethod
-    def _base_color(cls, v: str | None) -> str | None:
-        if v is None:
-            return None
-        m = _HEX.match(v.strip())
-        if not m:
-            raise ValueError("base_color must be a colour RRGGBB")
-        return m.group(1).lower()
-
-    def dimensions(self) -> tuple[int, int]:
-        return self.width or self.size, self.height or self.size
+def _thumbnail_params() -> type[BaseModel]:
+    """Query parameters of GET /assets/{id}/thumbnail: the flat render request
+    (renderer.options.request_fields, the single schema) plus the image format and the
+    environment, which choose what is encoded and what is baked rather than how it renders."""
+    fields = {name: (info.annotation, info) for name, info in request_fields().items()}
+    fields["format"] = (ImageFormat, Field("png", description="image encoding"))
+    fields["env"] = (str | None, Field(None, description=(
+        "environment name (GET /environments); default the bundled one")))
+    model = create_model("ThumbnailParams", __config__=ConfigDict(extra="forbid"), **fields)
+    model.__doc__ = _thumbnail_params.__doc__
+    return model
 
 
-def srgb_hex_to_linear(hex6: str) -> tuple[float, float, float]:
-    """'rrggbb' (sRGB, as people pick colours) -> linear RGB, as the renderer shades."""
-    rgb8 = np.array([int(hex6[i:i + 2], 16) for i in (0, 2, 4)], np.uint8)
-    return tuple(round(float(c), 6) for c in srgb_to_linear(rgb8))
+ThumbnailParams = _thumbnail_params()
+
+
+def render_options(params: BaseModel) -> RenderOptions:
+    """The RenderOptions of validated thumbnail parameters (ValueError when they conflict)."""
+    return from_request(params.model_dump(exclude={"format", "env"}))

@@ -4,7 +4,7 @@ Same interface as `service.workers.WorkerPool` (start, warm_up, run, stop, ready
 pending, workers), so the service switches with one setting (`--executor ray`). An actor is
 the Ray counterpart of a worker process: it keeps its GL context, shaders, loaded bakes and
 GPU data warm between jobs and runs one job at a time; it runs the very same job code
-(`workers._WorkerState` through `workers.answer`). Actors are placed by Ray anywhere in the
+(`workers.WorkerState` through `workers.answer`). Actors are placed by Ray anywhere in the
 cluster (`num_gpus` > 0 puts each on a GPU share), and read bakes from the shared cache, which
 must sit at the same absolute path on every node.
 
@@ -21,7 +21,7 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .workers import DeadlineExceeded, Pool, WorkerCrashed, _WorkerState, answer
+from .workers import DeadlineExceeded, Pool, WorkerCrashed, WorkerState, answer
 
 log = logging.getLogger(__name__)
 
@@ -29,9 +29,9 @@ log = logging.getLogger(__name__)
 class RenderActor:
     """Runs in a Ray worker process: one GL context and warm state, jobs one at a time."""
 
-    def __init__(self, cache_dir: str, face_size: int, limits: dict, log_level: int):
+    def __init__(self, cache_dir: str, limits: dict, log_level: int):
         logging.basicConfig(level=log_level, format="%(levelname)s actor %(process)d %(name)s: %(message)s")
-        self.state = _WorkerState(cache_dir, face_size, limits)
+        self.state = WorkerState(cache_dir, limits)
 
     def call(self, op: str, args: tuple) -> tuple[str, object]:
         return answer(self.state, op, args)
@@ -71,13 +71,13 @@ class ActorWorker:
 
 
 class RayWorkerPool(Pool):
-    def __init__(self, size: int, cache_dir: str, face_size: int = 256, limits: dict | None = None,
+    def __init__(self, size: int, cache_dir: str, limits: dict | None = None,
                  max_queue: int = 64, on_restart=None, address: str | None = None,
                  num_gpus: float = 0.0, num_cpus: float = 1.0):
         from pipeline.executors import require_ray
         self._ray = require_ray()  # fails here, at startup, with how to install it
         # Absolute: actors on other nodes resolve it on the same shared mount.
-        super().__init__(size, Path(cache_dir).absolute(), face_size, limits, max_queue,
+        super().__init__(size, Path(cache_dir).absolute(), limits, max_queue,
                          on_restart, "ray-render-pool")
         self.address = address
         self.num_gpus, self.num_cpus = num_gpus, num_cpus
@@ -119,7 +119,7 @@ class RayWorkerPool(Pool):
         disconnect()
 
     def _spawn(self, w: ActorWorker) -> None:
-        w.actor = self._actor_class.remote(self.cache_dir, self.face_size, self.limits,
+        w.actor = self._actor_class.remote(self.cache_dir, self.limits,
                                            logging.getLogger().getEffectiveLevel())
         w.where_ref, w.where, w.dead, w.answered = w.actor.where.remote(), {}, False, False
         log.info("render actor %d created", w.index)

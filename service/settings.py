@@ -31,7 +31,6 @@ class Settings:
     cache_max_age: int = 86400            # Cache-Control max-age of thumbnails
     memory_cache_bytes: int = 64 * 2**20  # hot thumbnails kept in the server process
     max_thumbnail_bytes: int = 4 * 2**30  # thumbnails on disk; least recently made go first
-    face_size: int = 256                  # environment cubemap face size baked for renders
     default_env: str = "footprint_court"
     seed: bool = True                     # seed the sample assets into an empty store
     samples: Path | None = None           # folder to seed from; default ../shared/assets or service/samples

@@ -52,12 +52,11 @@ class JobAssetError(Exception):
 # The worker process
 
 
-class _WorkerState:
+class WorkerState:
     """What a worker keeps warm between jobs (the renderer keeps its own GPU-side LRU)."""
 
-    def __init__(self, cache_dir: str, face_size: int, limits: dict):
+    def __init__(self, cache_dir: str, limits: dict):
         self.cache_dir = cache_dir
-        self.face_size = face_size
         self.limits_overrides = limits
         self.assets: OrderedDict[str, object] = OrderedDict()
         self.envs: OrderedDict[str, object] = OrderedDict()
@@ -94,27 +93,27 @@ class _WorkerState:
                 "seconds": time.perf_counter() - t0}
 
     def bake_env(self, source: str) -> dict:
-        env = self._env(source)
+        from pipeline.baked import DEFAULT_FACE_SIZE
+        env = self._env(source, DEFAULT_FACE_SIZE)
         return {"key": env.key, "face_size": env.face_size}
 
-    def render(self, key: str, env_source: str, options: dict, fmt: str) -> dict:
+    def render(self, key: str, env_source: str, options, fmt: str) -> dict:
+        """`options` is a renderer.options.RenderOptions; the environment is sized for it by
+        the same policy the CLI uses (renderer.auto.environment_face_size)."""
         import renderer
-        from renderer.options import MaterialOverride, RenderOptions
+        from renderer.auto import environment_face_size
         t0 = time.perf_counter()
         asset = self._cached(self.assets, key, 16, lambda: _load_baked(key, self.cache_dir))
-        env = self._env(env_source)
-        opts = dict(options)
-        if opts.get("override"):
-            opts["override"] = MaterialOverride(**opts["override"])
-        frame = renderer.render(asset, env, RenderOptions(**opts))
+        env = self._env(env_source, environment_face_size(asset, options)[0])
+        frame = renderer.render(asset, env, options)
         data = frame.encode(fmt)
         plan = dict(getattr(frame, "plan", {}) or {})
         return {"image": data, "plan": plan, "seconds": time.perf_counter() - t0}
 
-    def _env(self, source: str):
+    def _env(self, source: str, face_size: int):
         import pipeline
-        return self._cached(self.envs, source, 4, lambda: pipeline.bake_environment(
-            source, self.cache_dir, face_size=self.face_size))
+        return self._cached(self.envs, f"{face_size}:{source}", 4, lambda: pipeline.bake_environment(
+            source, self.cache_dir, face_size=face_size))
 
     @staticmethod
     def _cached(table: OrderedDict, key: str, size: int, make):
@@ -133,7 +132,7 @@ def _load_baked(key: str, cache_dir: str):
     return pipeline.load_baked(key, cache_dir)
 
 
-def answer(state: _WorkerState, op: str, args: tuple) -> tuple[str, object]:
+def answer(state: WorkerState, op: str, args: tuple) -> tuple[str, object]:
     """Run one job in a worker (process or Ray actor): ("ok", value), ("asset_error",
     (class name, path, reason)) or ("error", text); `unpack_reply` turns it back server-side."""
     from pipeline.errors import AssetError
@@ -157,10 +156,10 @@ def unpack_reply(op: str, status: str, value):
     raise WorkerFailure(f"{op} failed in the render worker: {value}")
 
 
-def _worker_main(conn, cache_dir: str, face_size: int, limits: dict, log_level: int) -> None:
+def _worker_main(conn, cache_dir: str, limits: dict, log_level: int) -> None:
     logging.basicConfig(level=log_level, format="%(levelname)s worker %(process)d %(name)s: %(message)s")
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the server stops us; Ctrl-C goes to it
-    state = _WorkerState(cache_dir, face_size, limits)
+    state = WorkerState(cache_dir, limits)
     while True:
         try:
             op, args = conn.recv()
@@ -203,11 +202,10 @@ class Pool:
     creates `self.workers` and supplies start/stop/_replace and `_exchange`, which runs one job
     on one worker and returns its (status, value) reply."""
 
-    def __init__(self, size: int, cache_dir: str, face_size: int, limits: dict | None,
+    def __init__(self, size: int, cache_dir: str, limits: dict | None,
                  max_queue: int, on_restart, thread_prefix: str):
         self.size = size
         self.cache_dir = str(cache_dir)
-        self.face_size = face_size
         self.limits = dict(limits or {})
         self.max_queue = max_queue
         self.on_restart = on_restart or (lambda reason: None)
@@ -269,9 +267,9 @@ class Pool:
 
 
 class WorkerPool(Pool):
-    def __init__(self, size: int, cache_dir: str, face_size: int = 256, limits: dict | None = None,
+    def __init__(self, size: int, cache_dir: str, limits: dict | None = None,
                  max_queue: int = 64, on_restart=None):
-        super().__init__(size, cache_dir, face_size, limits, max_queue, on_restart, "render-pool")
+        super().__init__(size, cache_dir, limits, max_queue, on_restart, "render-pool")
         self._ctx = mp.get_context("spawn")
         self.workers = [Worker(i) for i in range(size)]
         self._tasks: set[asyncio.Task] = set()
@@ -307,7 +305,7 @@ class WorkerPool(Pool):
     def _spawn(self, w: Worker) -> None:
         parent, child = self._ctx.Pipe()
         proc = self._ctx.Process(target=_worker_main, name=f"render-worker-{w.index}", daemon=True,
-                                 args=(child, self.cache_dir, self.face_size, self.limits,
+                                 args=(child, self.cache_dir, self.limits,
                                        logging.getLogger().getEffectiveLevel()))
         proc.start()
         child.close()

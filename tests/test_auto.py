@@ -57,9 +57,9 @@ def test_raytrace_only_with_a_budget_where_raster_fails(name, failure):
     without = plan(name)
     assert without.frame_method is None and failure in without.why
     assert "no time budget" in without.why
-    tight = plan(name, time_budget_ms=1.0)
+    tight = plan(name, budget_ms=1.0)
     assert tight.frame_method is None and "> budget" in tight.why
-    roomy = plan(name, time_budget_ms=1e6)
+    roomy = plan(name, budget_ms=6e4)
     assert roomy.frame_method == "raytrace" and roomy.bounces == auto.RAYTRACE_BOUNCES
     assert methods(roomy) == ["raytrace"] and failure in roomy.why
 
@@ -69,7 +69,7 @@ def test_raytrace_only_with_a_budget_where_raster_fails(name, failure):
                                   "glass_duck_ior1.5", "glass_torus_ior1.2"])
 def test_a_budget_alone_does_not_buy_raytrace(name):
     """Where wyman holds up (stability suite: fine), a generous budget changes nothing."""
-    p = plan(name, time_budget_ms=1e6)
+    p = plan(name, budget_ms=6e4)
     assert p.frame_method is None and methods(p) == ["wyman"]
 
 
@@ -92,7 +92,7 @@ def test_many_objects_are_explained_in_groups():
 
 def test_ray_tracer_not_installed_keeps_raster():
     p = plan("glass_torus_ior1.5", available=["auto", "opaque", "single", "wyman"],
-             time_budget_ms=1e6)
+             budget_ms=6e4)
     assert p.frame_method is None and "not installed" in p.why
 
 
@@ -136,15 +136,15 @@ def test_facts_follow_the_camera():
 
 def test_environment_face_size():
     asset = scenes.baked_asset(scenes.scene("rough_metal_sphere"))  # roughness 0.6
-    face, why = auto.environment_face_size(asset, 512, 512, "env")
+    face, why = auto.environment_face_size(asset, RenderOptions(width=512, height=512, background="env"))
     assert face == 512 and "512 px frame" in why  # the background shows mip 0
-    face, why = auto.environment_face_size(asset, 512, 512, "transparent")
+    face, why = auto.environment_face_size(asset, RenderOptions(width=512, height=512, background="transparent"))
     assert face == 32 and "roughness 0.6" in why and "mips" in why
     mirror = scenes.baked_asset(scenes.scene("mirror_sphere"))
-    assert auto.environment_face_size(mirror, 512, 512, "transparent")[0] == 512
-    assert auto.environment_face_size(mirror, 64, 64, "env")[0] == 64
+    assert auto.environment_face_size(mirror, RenderOptions(width=512, height=512, background="transparent"))[0] == 512
+    assert auto.environment_face_size(mirror, RenderOptions(width=64, height=64, background="env"))[0] == 64
     rough = MaterialOverride(roughness=0.3)
-    assert auto.environment_face_size(mirror, 512, 512, "#ffffff", rough)[0] == 64
+    assert auto.environment_face_size(mirror, RenderOptions(width=512, height=512, background="#ffffff", override=rough))[0] == 64
 
 
 @pytest.fixture(scope="module")
@@ -167,7 +167,7 @@ def test_render_carries_the_plan(cache):
     assert frame.plan["objects"][0]["why"].endswith("tir=paper")  # reached the pass
     assert frame.plan["auto"]["objects"][0]["method"] == "wyman"
     assert "genus 1" in frame.plan["auto"]["request"]
-    traced = render(asset, env, replace(o, time_budget_ms=1e6))
+    traced = render(asset, env, replace(o, budget_ms=6e4))
     assert traced.plan["method"] == "raytrace" and traced.plan["auto"]["frame_method"] == "raytrace"
     assert np.isfinite(traced.linear).all()
     forced = render(asset, env, replace(o, method="single"))

@@ -102,7 +102,7 @@ def test_ior_one_sphere_is_invisible(method, reference_env, scene_cache):
     glass = draw(spec.name, reference_env, scene_cache, method, size=128).linear
     asset = scenes.baked_asset(spec, scene_cache)
     empty = replace(asset, key="empty:" + asset.key, meshes=[])
-    background = render(empty, reference_env, RenderOptions(width=128, height=128, method=method)).linear
+    background = render(empty, reference_env, RenderOptions(yaw=0.0, pitch=0.0, width=128, height=128, method=method)).linear
     mask = load_reference(spec.name)[..., 3] > 0
     diff = np.abs(glass[..., :3] - background[..., :3])
     assert diff[mask].sum() / background[..., :3][mask].sum() < 0.005  # [0.0014]
@@ -256,7 +256,7 @@ def test_refracted_rays_see_the_assets_opaque_parts(method, reference_env):
     core = BakedMesh("core", pos, nrm, idx, red, np.diag([0.35, 0.35, 0.35, 1.0])[None])
     asset = BakedAsset("test:glass_with_core", "test", "generated", [glass, core], [],
                        np.array([[-1.0] * 3, [1.0] * 3]))
-    frame = render(asset, reference_env, RenderOptions(width=64, height=64, method=method))
+    frame = render(asset, reference_env, RenderOptions(yaw=0.0, pitch=0.0, width=64, height=64, method=method))
     assert np.isfinite(frame.linear).all()
     c = frame.linear[32, 32, :3]
     assert c[0] > 4 * c[1] and c[0] > 4 * c[2], c    # the core, magnified by the glass

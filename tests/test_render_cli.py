@@ -46,8 +46,8 @@ def test_render_transparent_webp_and_exr(assets, cache, tmp_path):
     (["--method", "magic"], 2, "invalid choice"),
     (["--background", "#12"], 2, "background"),
     (["--out-ext"], 2, "extension"),
-    (["--transmission", "1", "--ior", "-3"], 2, "ior -3.0 must be between 1 and 10"),
-    (["--roughness", "nan"], 2, "roughness nan must be between 0 and 1"),
+    (["--transmission", "1", "--ior", "-3"], 2, "ior -3.0: Input should be greater than or equal to 1"),
+    (["--roughness", "nan"], 2, "roughness nan: Input should be a finite number"),
 ])
 def test_render_rejects_bad_options(assets, cache, tmp_path, capsys, argv, code, text):
     out = tmp_path / ("x.bmp" if argv == ["--out-ext"] else "x.png")

@@ -35,7 +35,8 @@ def quad_asset(key: str, material: Material) -> BakedAsset:
 
 
 def opts(**kw) -> RenderOptions:
-    return RenderOptions(**{"width": S, "height": S, "tonemap": "none", "background": "transparent", **kw})
+    return RenderOptions(**{"width": S, "height": S, "yaw": 0.0, "pitch": 0.0, "tonemap": "none",
+                            "background": "transparent", **kw})
 
 
 def unlit(**kw) -> Material:

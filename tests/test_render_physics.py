@@ -125,7 +125,7 @@ def interior(mask: np.ndarray, n: np.ndarray, d: np.ndarray, min_cos: float) -> 
 
 
 def opts(**kw) -> RenderOptions:
-    return RenderOptions(**{"width": SIZE, "height": SIZE, "tonemap": "none", **kw})
+    return RenderOptions(**{"width": SIZE, "height": SIZE, "yaw": 0.0, "pitch": 0.0, "tonemap": "none", **kw})
 
 
 # --- tests ----------------------------------------------------------------------------------
@@ -302,9 +302,9 @@ def test_unavailable_and_bad_options_are_rejected_clearly():
     if "wyman" not in _METHODS:
         with pytest.raises(UnsupportedMethod, match="wyman"):
             render(asset, env, opts(method="wyman"))
-    with pytest.raises(UnsupportedMethod):
+    with pytest.raises(ValueError, match="method"):  # refused by the schema, before any render
         render(asset, env, opts(method="magic"))
     with pytest.raises(ValueError, match="background"):
         render(asset, env, opts(background="#12345"))
-    with pytest.raises(ValueError, match="size"):
+    with pytest.raises(ValueError, match="width"):
         render(asset, env, opts(width=0))

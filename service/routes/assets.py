@@ -10,7 +10,8 @@ from pydantic import ValidationError
 
 from ..core import NotFound, ThumbnailService
 from ..deps import get_service, require_key
-from ..models import MEDIA_TYPES, AssetInfo, AssetList, Deleted, ErrorDetail, ThumbnailParams
+from ..models import (MEDIA_TYPES, AssetInfo, AssetList, Deleted, ErrorDetail, ThumbnailParams,
+                      render_options)
 
 router = APIRouter(prefix="/assets", tags=["assets"])
 Service = Annotated[ThumbnailService, Depends(get_service)]
@@ -79,19 +80,20 @@ async def thumbnail(asset_id: str, request: Request, service: Service):
     which costs a fraction of FastAPI's per-parameter query-model machinery."""
     try:
         params = ThumbnailParams.model_validate(dict(request.query_params))
+        options = render_options(params)
     except ValidationError as exc:
         raise RequestValidationError([dict(e, loc=("query", *e["loc"])) for e in
                                       exc.errors(include_url=False, include_context=False)]) from None
     if asset_id not in service.store.assets:
         raise NotFound(asset_id)
-    service.check_size(params)
+    service.check_size(options)
     env_identity, env_source = service.resolve_environment(params.env)
-    key = service.thumbnail_key(asset_id, params, env_identity)
+    key = service.thumbnail_key(asset_id, options, env_identity)
     hit = service.cached(asset_id, key, params.format)
     outcome = "hit"
     if hit is None:
         outcome = "miss"
-        hit = await service.render(asset_id, params, key, env_source)
+        hit = await service.render(asset_id, options, params.format, key, env_source)
     data, etag, plan = hit
     headers = {"ETag": etag, "Cache-Control": f"public, max-age={service.settings.cache_max_age}",
                "X-Render-Plan": plan}
