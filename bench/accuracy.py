@@ -138,7 +138,7 @@ def run(args: argparse.Namespace) -> int:
 def measure(names: list[str], size: int, repeat: int, rt_repeat: int, cache: Path,
             peer_spp: list[int], budget_ms: float = BUDGET_MS) -> list[dict]:
     import pipeline
-    from renderer.options import RenderOptions
+    from core.options import RenderOptions
     from renderer.render import available_methods, render
 
     from . import scenes
@@ -317,7 +317,7 @@ def chart(rows: list[dict], path: Path, size: int) -> None:
     means = {m: v for m, v in set_means(rs).items() if v[2] == len(glass)}
     plain = [means[m][:2] for m in means if not is_auto(m)]
     front_pts = sorted(p for p, f in zip(plain, pareto_front(plain)) if f)
-    for m, (t, e, n) in means.items():
+    for m, (t, e, _n) in means.items():
         auto = m == "auto"
         bx.scatter([t], [e], s=160 if auto else 50, marker="*" if auto else "o",
                    color="black" if auto else color[m], zorder=3)

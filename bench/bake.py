@@ -47,11 +47,11 @@ def _median_s(fn, repeat: int) -> float:
 
 def _interior_meshes(assets: Path):
     """(label, [(positions, normals, indices)]) for each sample asset and glass test mesh."""
-    from bench.shapes import mesh_arrays
-    from pipeline.errors import AssetError
-    from pipeline.ingest import load_scene
-
     import trimesh
+
+    from bench.shapes import mesh_arrays
+    from core.errors import AssetError
+    from pipeline.ingest import load_scene
 
     out = []
     for path in sample_files(assets):
@@ -107,8 +107,8 @@ def interior_table(assets: Path, repeat: int) -> list[float]:
 
 
 def asset_table(assets: Path, repeat: int, cache: Path) -> list[float]:
+    from core.errors import AssetError
     from pipeline.bake import bake_or_load_asset
-    from pipeline.errors import AssetError
     from pipeline.ingest import load_scene
 
     print(f"\nasset bake (target: hit <= {TARGET_HIT_MS:.0f} ms; medians of {repeat})")

@@ -68,7 +68,7 @@ def _median_ms(fns, repeat: int) -> list[float]:
 def run(args: argparse.Namespace) -> int:
     import trimesh
 
-    from pipeline.errors import AssetError
+    from core.errors import AssetError
     from pipeline.ingest import load_scene
 
     paths = args.paths or sample_files(args.assets)

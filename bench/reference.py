@@ -7,7 +7,7 @@ same triangles (written as PLY with their vertex normals), under the same camera
 (renderer.camera.frame_bounds -> a `perspective` sensor, fov_axis y, box pixel filter) and
 the same linear panorama (bench.scenes.load_panorama) as an `envmap`. Mitsuba's envmap maps
 a world direction (x, y, z) to u = 0.5 + atan2(-x, z) / 2pi, v = acos(y) / pi, which is
-pipeline.cubemap's convention, so no rotation is applied (checked by the mirror-sphere test).
+core.cubemap's convention, so no rotation is applied (checked by the mirror-sphere test).
 Materials: `dielectric` / `roughdielectric` (GGX, alpha = roughness^2) for glass,
 `conductor` (perfect mirror) for the mirror, `principled` for the other opaque spheres.
 
@@ -52,7 +52,7 @@ DEFAULT_SET = {
 
 def spec_camera(spec: scenes.SceneSpec, width: int, height: int):
     """The camera every method and the reference use for a scene (renderer.camera convention)."""
-    from pipeline.scene import transformed_bounds
+    from core.scene import transformed_bounds
     from renderer.camera import frame_bounds
 
     pos, _, _ = scenes.mesh_arrays(spec.mesh)

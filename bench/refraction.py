@@ -41,7 +41,7 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     import pipeline
-    from renderer.options import RenderOptions
+    from core.options import RenderOptions
     from renderer.raytrace import render_raytrace
     from renderer.render import available_methods, render
 

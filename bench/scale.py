@@ -110,7 +110,7 @@ def build_corpus(assets: Path, root: Path, copies: int) -> list[Path]:
 
 def bake_run(files: list[Path], cache: Path, *extra: str) -> dict:
     """One cold `asset-bake` in a fresh process: wall time, bake-phase time, per-asset seconds."""
-    cmd = [sys.executable, "-m", "pipeline.bake_cmd", "--cache", str(cache), "--json", *extra,
+    cmd = [sys.executable, "-m", "cli.bake", "--cache", str(cache), "--json", *extra,
            *map(str, files)]
     start = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=3600)

@@ -12,12 +12,11 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field, replace
-from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
-from pipeline.scene import Material
+from core.scene import Material
 
 from .shapes import mesh_arrays
 
@@ -176,8 +175,8 @@ def baked_asset(spec: SceneSpec, cache_dir: str | Path | None = None):
 
         glb = write_glb(spec, Path(cache_dir) / "scenes" / f"{spec.name}.glb")
         return pipeline.bake_asset(glb, cache_dir)
-    from pipeline.baked import BakedAsset, BakedMesh
-    from pipeline.scene import transformed_bounds
+    from core.baked import BakedAsset, BakedMesh
+    from core.scene import transformed_bounds
 
     pos, nrm, idx = mesh_arrays(spec.mesh)
     mesh = BakedMesh(name=spec.mesh, positions=pos, normals=nrm, indices=idx,

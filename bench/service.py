@@ -123,7 +123,7 @@ class Load:
         out = subprocess.run(["wrk", "-t1", f"-c{connections}", f"-d{max(1, round(duration))}s",
                               "--timeout", "60s", "-s", script, url],
                              capture_output=True, text=True, check=True).stdout
-        line = next(l for l in out.splitlines() if l.startswith("RESULT"))
+        line = next(row for row in out.splitlines() if row.startswith("RESULT"))
         p50, p99, n, dur_us, bad = (int(x) for x in line.split()[1:])
         return p50 / 1000, p99 / 1000, n / (dur_us / 1e6), bad
 
@@ -179,7 +179,7 @@ def run(args: argparse.Namespace) -> int:
     env = {k: v for k, v in os.environ.items() if not k.startswith("ASSET_PREVIEW_")}
     log_path = tmp / "server.log"
     log_file = open(log_path, "wb")
-    server = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--port", str(port),
+    server = subprocess.Popen([sys.executable, "-m", "cli.main", "serve", "--port", str(port),
                                "--cache", str(tmp / "cache"), "--workers", str(args.workers),
                                "--no-seed", "--log-level", "warning"],
                               cwd=ROOT, env=env, stdout=log_file, stderr=subprocess.STDOUT)
@@ -288,7 +288,7 @@ class InProcess:
 
     def _render(self, asset, yaw: float) -> bytes:
         import renderer
-        from renderer.options import RenderOptions
+        from core.options import RenderOptions
         opts = RenderOptions(width=self.size, height=self.size, yaw=yaw, pitch=15)
         return renderer.render(asset, self.env, opts).encode("png")
 

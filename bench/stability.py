@@ -103,8 +103,8 @@ def _tir_fraction(asset, env, opts, frame, mask) -> float | None:
 def run_case(case: str, cache: Path, quick: bool = False) -> tuple[list[dict], dict]:
     """Rows for one case, and {column: linear image} for the contact sheet."""
     import pipeline
-    from pipeline.errors import AssetError
-    from renderer.options import RenderOptions
+    from core.errors import AssetError
+    from core.options import RenderOptions
     from renderer.render import render
 
     from . import scenes

@@ -145,6 +145,7 @@ def _print_summary(results: list[dict], tools: list[str]) -> None:
 
 def _camera(job: dict):
     import numpy as np
+
     from renderer.camera import frame_bounds
     return frame_bounds(np.array(job["bounds"]), job["size"], job["size"], **VIEW)
 
@@ -163,9 +164,9 @@ def _png(rgb) -> bytes:
 
 def _ours(job: dict):
     import pipeline
+    from core.options import RenderOptions
     from renderer import render
     from renderer.auto import environment_face_size
-    from renderer.options import RenderOptions
     asset = pipeline.bake_asset(job["asset"], job["cache"])
     options = RenderOptions(width=job["size"], height=job["size"], **VIEW)
     env = pipeline.bake_environment(job["env"], job["cache"],

@@ -4,9 +4,9 @@ The functions here import their modules lazily so that `import pipeline` stays c
 """
 from __future__ import annotations
 
-from .baked import DEFAULT_FACE_SIZE
-from .errors import AssetError
-from .scene import Scene
+from core.cubemap import DEFAULT_FACE_SIZE
+from core.errors import AssetError
+from core.scene import Scene
 
 __all__ = ["AssetError", "Scene", "load_scene", "bake_asset", "bake_environment", "load_baked"]
 

@@ -18,12 +18,14 @@ from pathlib import Path
 
 import numpy as np
 
-from .baked import DEFAULT_FACE_SIZE, BakedAsset, BakedEnvironment, BakedMesh
+from core.baked import BakedAsset, BakedEnvironment, BakedMesh
+from core.cubemap import DEFAULT_FACE_SIZE
+from core.errors import MissingFile, UnsupportedFormat
+from core.scene import Light, Material, Sampler, Scene, Texture, TextureRef
+
 from .cache import BAKE_FORMAT_VERSION, Cache, Entry, NotInCache, SourceFiles
-from .errors import MissingFile, UnsupportedFormat
 from .interior import interior_vectors
 from .limits import Limits
-from .scene import Light, Material, Sampler, Scene, Texture, TextureRef
 
 log = logging.getLogger(__name__)
 
@@ -351,7 +353,7 @@ def bake_one(kind: str, source: str, *, cache=None, max_bytes=None, force=False,
              face_size=DEFAULT_FACE_SIZE, prefilter="ggx") -> dict:
     """The unit of work of `asset-bake` (in processes or Ray tasks): bake one asset or
     environment; never raises (the result says what went wrong)."""
-    from .errors import AssetError
+    from core.errors import AssetError
 
     start = time.perf_counter()
     result = {"kind": kind, "path": source}

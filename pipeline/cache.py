@@ -58,7 +58,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import AssetError
+from core.errors import AssetError
 
 log = logging.getLogger(__name__)
 

@@ -13,7 +13,7 @@ import contextvars
 import time
 from collections.abc import Iterator
 
-from .errors import IngestTimeout
+from core.errors import IngestTimeout
 
 _current: contextvars.ContextVar[tuple[float, str, float] | None] = contextvars.ContextVar(
     "ingest_deadline", default=None)

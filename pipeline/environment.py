@@ -1,9 +1,9 @@
 """Environment bake (paper section 4.1): equirect panorama -> cube faces -> specular mip chain,
 9 spherical-harmonic coefficients for diffuse light, and the split-sum BRDF LUT.
 
-Prefiltering runs as GLSL in the process's headless context (`renderer.context`); every face of
+Prefiltering runs as GLSL in the process's headless context (`core.context`); every face of
 a mip is drawn in one pass into an S x 6S atlas (shaders/cube_atlas.glsl) and read back as
-6 x S x S x 3 float32 in `pipeline.cubemap`'s face order and orientation.
+6 x S x S x 3 float32 in `core.cubemap`'s face order and orientation.
 
 Two methods, and the LOD the renderer must use for each (`roughness_to_lod`):
 - "ggx" (default): mip m holds the environment convolved with the GGX lobe of roughness
@@ -26,20 +26,18 @@ from functools import lru_cache
 
 import numpy as np
 
-from .baked import DEFAULT_FACE_SIZE
-from .panorama import (DEFAULT_ENVIRONMENT, Panorama, list_bundled, load_panorama,  # noqa: F401
-                       synthetic_panorama)
+from core.cubemap import DEFAULT_FACE_SIZE, check_face_size, default_levels
+
+from .panorama import DEFAULT_ENVIRONMENT, Panorama, list_bundled, load_panorama, synthetic_panorama  # noqa: F401
 
 log = logging.getLogger(__name__)
 
 METHODS = ("ggx", "paper")
 PREFILTER_VERSION = 2      # bump when the filter's output changes (cache keys include it)
-MIN_FACE = 4               # smallest mip face; rougher lobes need no finer than this, see default_levels
 GGX_SAMPLES = 64           # per texel at mip 1, doubling per mip (coarse mips have few texels)
 GGX_MAX_SAMPLES = 512
 LUT_SIZE = 64
 LUT_SAMPLES = 256
-MAX_FACE = 2048
 
 # Real SH basis l <= 2, standard order, in world coordinates (x, y, z):
 # Y00; Y1-1 = c1 y, Y10 = c1 z, Y11 = c1 x; Y2-2 = c2 xy, Y2-1 = c2 yz, Y20 = c3 (3z^2 - 1),
@@ -60,25 +58,6 @@ class EnvironmentArrays:
     method: str = "ggx"
 
 
-def default_face_size(thumbnail_px: int) -> int:
-    """Cube face size for thumbnails of `thumbnail_px`: the power of two >= it, in [32, 512].
-    A background spanning ~60 degrees over the thumbnail wants about 1.5 px per pixel per 90
-    degrees; past 512 the bundled 1024 x 512 panoramas (256 px per 90 degrees) have no detail."""
-    return int(min(512, max(32, 1 << max(0, int(thumbnail_px) - 1).bit_length())))
-
-
-def check_face_size(face_size: int) -> None:
-    """ValueError unless `face_size` is a power of two no larger than MAX_FACE."""
-    if face_size < 1 or face_size & (face_size - 1) or face_size > MAX_FACE:
-        raise ValueError(f"face_size must be a power of two <= {MAX_FACE}, got {face_size}")
-
-
-def default_levels(face_size: int) -> int:
-    """Mips from face_size down to MIN_FACE (4 px): log2(face_size) - 1 levels (7 for 256).
-    Faces of 2 or 1 px cannot hold a roughness-1 lobe across a face without visible steps."""
-    return max(1, int(math.log2(face_size)) - int(math.log2(MIN_FACE)) + 1)
-
-
 def roughness_to_lod(roughness, levels: int, method: str = "ggx"):
     """The cube LOD the renderer samples for a roughness, for either method: roughness x
     (levels - 1) (ggx: mip m was filtered for roughness m / (levels - 1); paper: its rule)."""
@@ -91,7 +70,7 @@ def prefilter(pixels: np.ndarray, face_size: int = DEFAULT_FACE_SIZE, method: st
               levels: int | None = None) -> EnvironmentArrays:
     """Bake a linear H x W x 3 panorama into the specular mip chain, SH and BRDF LUT (see the
     module docstring for the methods and their LOD mapping)."""
-    from renderer import context as gl
+    from core import context as gl
 
     if method not in METHODS:
         raise ValueError(f"unknown prefilter method {method!r}; one of {METHODS}")
@@ -271,7 +250,7 @@ def ggx_samples(roughness: float, count: int, source_size: int, max_lod: float) 
 
 @lru_cache(maxsize=4)
 def _brdf_lut_cached(size: int, samples: int) -> np.ndarray:
-    from renderer import context as gl
+    from core import context as gl
     ctx = gl.get_context()
     tex = ctx.texture((size, size), 4, dtype="f4")
     fbo = ctx.framebuffer(color_attachments=[tex])

@@ -10,9 +10,10 @@ import warnings
 import numpy as np
 from PIL import Image
 
-from .errors import LimitExceeded, MalformedAsset
+from core.errors import LimitExceeded, MalformedAsset
+from core.scene import Sampler, Texture
+
 from .limits import Limits
-from .scene import Sampler, Texture
 
 log = logging.getLogger(__name__)
 

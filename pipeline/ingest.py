@@ -21,11 +21,11 @@ from pathlib import Path
 
 import numpy as np
 
+from core.errors import AssetError, EmptyScene, LimitExceeded, MalformedAsset, MissingFile, UnsupportedFormat
+from core.scene import Instance, Mesh, Scene
+
 from . import deadline
-from .errors import (AssetError, EmptyScene, LimitExceeded, MalformedAsset, MissingFile,
-                     UnsupportedFormat)
 from .limits import Limits
-from .scene import Instance, Mesh, Scene
 
 log = logging.getLogger(__name__)
 

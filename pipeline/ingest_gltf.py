@@ -19,13 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
+from core.errors import LimitExceeded, MalformedAsset, UnsupportedFormat
+from core.scene import Instance, Light, Material, Mesh, Sampler, Scene, TextureRef, default_material
+
 from . import deadline
-from .errors import LimitExceeded, MalformedAsset, UnsupportedFormat
 from .images import DeferredTexture, probe_image
 from .limits import Limits
 from .paths import resolve_reference
-from .scene import (Instance, Light, Material, Mesh, Sampler, Scene, TextureRef,
-                    default_material)
 
 log = logging.getLogger(__name__)
 

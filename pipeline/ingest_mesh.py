@@ -12,12 +12,13 @@ from pathlib import Path
 
 import numpy as np
 
+from core.colour import srgb_to_linear
+from core.errors import LimitExceeded, MalformedAsset
+from core.scene import Instance, Mesh, Scene, default_material
+
 from . import deadline
-from .errors import LimitExceeded, MalformedAsset
 from .ingest import smooth_normals
 from .limits import Limits
-from .panorama import srgb_to_linear
-from .scene import Instance, Mesh, Scene, default_material
 
 log = logging.getLogger(__name__)
 

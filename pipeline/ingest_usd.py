@@ -39,10 +39,11 @@ from pathlib import Path
 import numpy as np
 from pxr import Sdf, Tf, Usd, UsdGeom, UsdShade
 
+from core.errors import LimitExceeded, MalformedAsset, UnsafeReference
+from core.scene import Instance, Mesh, Scene
+
 from . import deadline
-from .errors import LimitExceeded, MalformedAsset, UnsafeReference
 from .limits import Limits
-from .scene import Instance, Mesh, Scene
 from .usd_layers import LayerGraph
 from .usd_materials import Binding, MaterialReader
 from .usd_shapes import SHAPES, tessellate

@@ -2,7 +2,7 @@
 sample environments, and synthetic HDR panoramas for tests and the reference renderer.
 
 Pixels are H x W x 3 float32 linear radiance, row 0 at the top, in the equirect convention of
-`pipeline.cubemap` (centre column looks toward +Z, top row straight up).
+`core.cubemap` (centre column looks toward +Z, top row straight up).
 """
 from __future__ import annotations
 
@@ -13,9 +13,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .cubemap import equirect_direction
+from core.colour import srgb_to_linear
+from core.cubemap import equirect_direction
+from core.errors import AssetError, LimitExceeded, MalformedAsset, MissingFile, UnsupportedFormat
+
 from .deadline import check, within
-from .errors import AssetError, LimitExceeded, MalformedAsset, MissingFile, UnsupportedFormat
 from .limits import Limits
 
 log = logging.getLogger(__name__)
@@ -85,13 +87,6 @@ def resolve_panorama(source: str | Path) -> Path:
         raise MissingFile(source, "no such file or bundled environment (bundled: "
                                   f"{', '.join(list_bundled())})")
     raise MissingFile(path, "no such file")
-
-
-def srgb_to_linear(rgb8: np.ndarray) -> np.ndarray:
-    """uint8 sRGB -> float32 linear (IEC 61966-2-1), through a 256-entry table."""
-    c = np.arange(256, dtype=np.float64) / 255.0
-    table = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
-    return table[rgb8]
 
 
 def _sanitize(pixels: np.ndarray, path: Path) -> np.ndarray:

@@ -10,7 +10,7 @@ import re
 from pathlib import Path, PurePosixPath
 from urllib.parse import unquote
 
-from .errors import MissingFile, UnsafeReference
+from core.errors import MissingFile, UnsafeReference
 
 # "scheme:" per RFC 3986; a single letter is a Windows drive ("C:"), refused as absolute.
 _SCHEME = re.compile(r"^([A-Za-z][A-Za-z0-9+.\-]*):")

@@ -17,8 +17,9 @@ from pathlib import Path
 
 from pxr import Ar, Sdf, Tf, UsdUtils
 
+from core.errors import LimitExceeded, MalformedAsset, MissingFile, UnsafeReference
+
 from . import deadline
-from .errors import LimitExceeded, MalformedAsset, MissingFile, UnsafeReference
 from .limits import Limits
 from .paths import relative_path_text, resolve_reference
 

@@ -29,12 +29,22 @@ from dataclasses import dataclass
 import numpy as np
 from pxr import Sdf, Usd, UsdShade
 
+from core.errors import LimitExceeded, MalformedAsset
+from core.scene import (
+    CLAMP_TO_EDGE,
+    MIRRORED_REPEAT,
+    REPEAT,
+    Material,
+    Sampler,
+    Scene,
+    Texture,
+    TextureRef,
+    default_material,
+)
+
 from . import deadline
-from .errors import LimitExceeded, MalformedAsset
 from .images import DeferredTexture, probe_image
 from .limits import Limits
-from .scene import (CLAMP_TO_EDGE, MIRRORED_REPEAT, REPEAT, Material, Sampler, Scene, Texture,
-                    TextureRef, default_material)
 from .usd_layers import LayerGraph
 
 log = logging.getLogger(__name__)

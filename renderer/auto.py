@@ -32,11 +32,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.baked import BakedAsset, BakedMesh
-from pipeline.scene import Material
+from core.baked import BakedAsset, BakedMesh
+from core.options import RenderOptions, apply_override
+from core.scene import Material
 
 from .camera import Camera, frame_bounds
-from .options import RenderOptions, apply_override
 
 log = logging.getLogger(__name__)
 
@@ -361,7 +361,7 @@ def environment_face_size(asset: BakedAsset, options: RenderOptions) -> tuple[in
     alpha = roughness^2 radians half-width needs about pi / alpha texels per face (two texels
     across it); the mip count then follows the face size (pipeline.environment.default_levels:
     mip m holds roughness m / (levels - 1), so the chain always reaches roughness 1)."""
-    from pipeline.environment import default_face_size, default_levels
+    from core.cubemap import default_face_size, default_levels
 
     px = max(options.width, options.height)
     face = default_face_size(px)

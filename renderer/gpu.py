@@ -14,11 +14,11 @@ from dataclasses import dataclass, field
 import moderngl
 import numpy as np
 
-from pipeline.baked import BakedAsset, BakedEnvironment, BakedMesh
-from pipeline.panorama import srgb_to_linear
-from pipeline.scene import CLAMP_TO_EDGE, Light, Texture
+from core import context
+from core.baked import BakedAsset, BakedEnvironment, BakedMesh
+from core.colour import srgb_to_linear
+from core.scene import CLAMP_TO_EDGE, Light, Texture
 
-from . import context
 from .frame import srgb_encode
 
 log = logging.getLogger(__name__)

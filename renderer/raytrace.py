@@ -43,12 +43,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.baked import BakedAsset, BakedEnvironment
-from pipeline.cubemap import sample_cube
+from core.baked import BakedAsset, BakedEnvironment
+from core.cubemap import sample_cube
+from core.options import RenderOptions, apply_override, background_rgb
 
 from .camera import Camera, frame_bounds
 from .optics import fresnel_dielectric, reflect, refract
-from .options import RenderOptions, apply_override, background_rgb
 from .render import register_frame_method
 
 log = logging.getLogger(__name__)

@@ -21,13 +21,14 @@ from typing import Callable
 import moderngl
 import numpy as np
 
-from pipeline.baked import BakedAsset, BakedEnvironment
-from pipeline.scene import Material
+from core import context
+from core.baked import BakedAsset, BakedEnvironment
+from core.options import RenderOptions, apply_override, background_rgb
+from core.scene import Material
 
-from . import context, gpu
+from . import gpu
 from .camera import Camera, frame_bounds
 from .frame import Frame, FrameTimings, exposure_scale
-from .options import RenderOptions, apply_override, background_rgb
 
 log = logging.getLogger(__name__)
 
@@ -155,7 +156,7 @@ def render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions) -> 
         return _FRAME_METHODS[options.method](asset, env, options)
     auto = None
     if options.method == "auto":  # renderer.auto decides per object, or ray traces the frame
-        from .auto import run_frame_method, plan_request
+        from .auto import plan_request, run_frame_method
         auto = plan_request(asset, options, available_methods())
         if auto.frame_method:
             return run_frame_method(auto, _FRAME_METHODS[auto.frame_method], asset, env, options)

@@ -12,7 +12,7 @@ from fastapi import FastAPI, Request
 from fastapi.responses import JSONResponse
 from fastapi_offline import FastAPIOffline
 
-from pipeline.errors import AssetError, UnsupportedFormat
+from core.errors import AssetError, UnsupportedFormat
 
 from .core import BadParameter, Conflict, NotFound, StillBaking, ThumbnailService, UploadTooLarge
 from .metrics import MetricsMiddleware

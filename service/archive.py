@@ -11,7 +11,7 @@ import stat
 import zipfile
 from pathlib import Path, PurePosixPath
 
-from pipeline.errors import LimitExceeded, MalformedAsset, UnsafeReference
+from core.errors import LimitExceeded, MalformedAsset, UnsafeReference
 from pipeline.ingest import READERS
 
 ROOT_SUFFIXES = tuple(READERS)

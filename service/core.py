@@ -14,11 +14,10 @@ import shutil
 import time
 from pathlib import Path
 
-from pipeline.errors import AssetError, LimitExceeded, MalformedAsset, UnsupportedFormat
+from core.errors import AssetError, LimitExceeded, MalformedAsset, UnsupportedFormat
+from core.options import RenderOptions
 from pipeline.ingest import READERS
 from pipeline.limits import Limits
-
-from renderer.options import RenderOptions
 
 from . import archive
 from .metrics import Metrics
@@ -398,7 +397,7 @@ class BakeFailed(AssetError):
 
 def _public_error(exc: JobAssetError, folder: Path, name: str) -> AssetError:
     """The worker's error with server paths replaced by the names the client knows."""
-    from pipeline import errors
+    from core import errors
     cls = getattr(errors, exc.kind, None)
     if not (isinstance(cls, type) and issubclass(cls, AssetError)):
         cls = AssetError

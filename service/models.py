@@ -5,7 +5,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, create_model
 
-from renderer.options import RenderOptions, from_request, request_fields
+from core.options import RenderOptions, from_request, request_fields
 
 AssetStatus = Literal["baking", "ready", "failed"]
 ImageFormat = Literal["png", "jpeg", "webp"]
@@ -75,7 +75,7 @@ class Ready(BaseModel):
 
 def _thumbnail_params() -> type[BaseModel]:
     """Query parameters of GET /assets/{id}/thumbnail: the flat render request
-    (renderer.options.request_fields, the single schema) plus the image format and the
+    (core.options.request_fields, the single schema) plus the image format and the
     environment, which choose what is encoded and what is baked rather than how it renders."""
     fields = {name: (info.annotation, info) for name, info in request_fields().items()}
     fields["format"] = (ImageFormat, Field("png", description="image encoding"))

@@ -63,7 +63,8 @@ def _zip(folder: Path, names: list[str]) -> bytes:
 
 async def seed(service) -> None:
     """Upload every sample (each failure logged, not fatal), then mark the store seeded."""
-    from pipeline.errors import AssetError
+    from core.errors import AssetError
+
     from .store import write_atomic
     from .workers import JobAssetError, WorkerFailure
 

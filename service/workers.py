@@ -67,8 +67,8 @@ class WorkerState:
 
     def ping(self) -> dict:
         """Creates the GL context (the slow part of a first render) and says what we run."""
-        from renderer.context import get_context
         import renderer
+        from core.context import get_context
         ctx = get_context()
         info = {"pid": os.getpid(), "gl_renderer": ctx.info.get("GL_RENDERER", ""),
                 "renderer_version": str(getattr(renderer, "RENDERER_VERSION", "0"))}
@@ -93,12 +93,12 @@ class WorkerState:
                 "seconds": time.perf_counter() - t0}
 
     def bake_env(self, source: str) -> dict:
-        from pipeline.baked import DEFAULT_FACE_SIZE
+        from core.cubemap import DEFAULT_FACE_SIZE
         env = self._env(source, DEFAULT_FACE_SIZE)
         return {"key": env.key, "face_size": env.face_size}
 
     def render(self, key: str, env_source: str, options, fmt: str) -> dict:
-        """`options` is a renderer.options.RenderOptions; the environment is sized for it by
+        """`options` is a core.options.RenderOptions; the environment is sized for it by
         the same policy the CLI uses (renderer.auto.environment_face_size)."""
         import renderer
         from renderer.auto import environment_face_size
@@ -135,7 +135,7 @@ def _load_baked(key: str, cache_dir: str):
 def answer(state: WorkerState, op: str, args: tuple) -> tuple[str, object]:
     """Run one job in a worker (process or Ray actor): ("ok", value), ("asset_error",
     (class name, path, reason)) or ("error", text); `unpack_reply` turns it back server-side."""
-    from pipeline.errors import AssetError
+    from core.errors import AssetError
     try:
         return ("ok", getattr(state, op)(*args))
     except AssetError as exc:

@@ -28,7 +28,7 @@ class Server:
         self.log = log or self.cache.parent / f"server-{self.port}.log"
         full_env = {k: v for k, v in os.environ.items() if not k.startswith("ASSET_PREVIEW_")}
         full_env.update(env or {})
-        cmd = [sys.executable, "-m", "service.cli", "serve", "--port", str(self.port),
+        cmd = [sys.executable, "-m", "cli.main", "serve", "--port", str(self.port),
                "--cache", str(self.cache), *args]
         self._log_file = open(self.log, "ab")
         self.proc = subprocess.Popen(cmd, cwd=ROOT, env=full_env, stdout=self._log_file,

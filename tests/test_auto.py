@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from bench import scenes
+from core.options import MaterialOverride, RenderOptions
 from renderer import auto
-from renderer.options import MaterialOverride, RenderOptions
 
 RASTER = ["auto", "opaque", "single", "wyman", "raytrace"]
 
@@ -175,7 +175,7 @@ def test_render_carries_the_plan(cache):
 
 
 def test_render_cli_explain(cache, capsys):
-    from service.cli import main
+    from cli.main import main
 
     glb = scenes.write_glb(scenes.scene("glass_sphere_ior1.0"), cache / "ior1.glb")
     out = cache / "ior1.png"

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from pipeline import bake_cmd
+from cli import bake as bake_cmd
 
 
 @pytest.fixture
@@ -57,7 +57,7 @@ def test_failures_exit_3_and_the_rest_still_bakes(library, tmp_path, capsys):
 
 
 def test_environment_and_asset_preview_bake_alias(tmp_path, capsys):
-    from service.cli import main as asset_preview
+    from cli.main import main as asset_preview
     args = ["bake", "--env", "neutral", "--face-size", "32", "--prefilter", "paper",
             "--cache", str(tmp_path / "cache"), "--json"]
     assert asset_preview(args) == 0
@@ -71,7 +71,7 @@ def test_environment_and_asset_preview_bake_alias(tmp_path, capsys):
 def test_workers_bake_in_parallel_processes(library, tmp_path):
     for i in range(2):
         shutil.copyfile(library / "Duck.glb", library / f"copy{i}.glb")  # same bytes: one key
-    proc = subprocess.run([sys.executable, "-m", "pipeline.bake_cmd", str(library), "--workers", "2",
+    proc = subprocess.run([sys.executable, "-m", "cli.bake", str(library), "--workers", "2",
                            "--cache", str(tmp_path / "cache"), "--json"],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr

@@ -101,7 +101,7 @@ def test_corrupted_texture_is_never_used(assets, tmp_path):
     data[-10] ^= 0xFF
     tex.write_bytes(bytes(data))
     with pytest.raises(CorruptEntry):
-        load_baked(key, cache).textures[0].image  # read lazily, checksummed on first use
+        _ = load_baked(key, cache).textures[0].image  # read lazily, checksummed on first use
     assert not (cache / "assets" / key).exists()
     assert not bake_or_load_asset(src, cache)[1]
 

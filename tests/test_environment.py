@@ -6,11 +6,12 @@ import logging
 import numpy as np
 import pytest
 
-from pipeline import cubemap, environment as env
-from pipeline.errors import (AssetError, IngestTimeout, LimitExceeded, MalformedAsset, MissingFile,
-                             UnsupportedFormat)
+from core import cubemap
+from core.colour import srgb_to_linear
+from core.errors import AssetError, IngestTimeout, LimitExceeded, MalformedAsset, MissingFile, UnsupportedFormat
+from pipeline import environment as env
 from pipeline.limits import Limits
-from pipeline.panorama import srgb_to_linear, write_rgbe
+from pipeline.panorama import write_rgbe
 
 log = logging.getLogger(__name__)
 
@@ -203,7 +204,7 @@ def test_exr_round_trip(tmp_path):
 # prefiltering -------------------------------------------------------------------------------
 
 def test_gl_cube_faces_follow_the_cubemap_conventions(court, court_ggx, court_paper):
-    """Mip 0 (roughness 0) is the source resampled: equal to pipeline.cubemap's own lookup."""
+    """Mip 0 (roughness 0) is the source resampled: equal to core.cubemap's own lookup."""
     expected = cubemap.sample_equirect(court.pixels, cubemap.face_directions(256))
     for result in (court_ggx, court_paper):
         mip0 = result.specular[0]
@@ -213,14 +214,14 @@ def test_gl_cube_faces_follow_the_cubemap_conventions(court, court_ggx, court_pa
 
 
 def test_mip_chain_shapes_and_lod_mapping(court_ggx, court_paper):
-    levels = env.default_levels(256)
+    levels = cubemap.default_levels(256)
     for result in (court_ggx, court_paper):
         assert [m.shape[1] for m in result.specular] == [256 >> m for m in range(levels)]
         assert all(np.isfinite(m).all() and (m >= 0).all() for m in result.specular)
     assert env.roughness_to_lod(1.0, levels, "ggx") == levels - 1
     assert env.roughness_to_lod(0.5, levels, "paper") == 0.5 * (levels - 1)
-    assert env.default_face_size(256) == 256 and env.default_face_size(100) == 128
-    assert env.default_face_size(16) == 32 and env.default_face_size(4096) == 512
+    assert cubemap.default_face_size(256) == 256 and cubemap.default_face_size(100) == 128
+    assert cubemap.default_face_size(16) == 32 and cubemap.default_face_size(4096) == 512
 
 
 @pytest.mark.parametrize("method", ["ggx", "paper"])
@@ -342,7 +343,7 @@ def test_sh_irradiance_matches_cosine_convolution(court):
 
 def test_glsl_sh_irradiance_equals_numpy(court):
     import shaders
-    from renderer import context as gl
+    from core import context as gl
     ctx = gl.get_context()
     src = ("#version 430\n" + shaders.load("sh.glsl") + """
         uniform vec3 u_sh[9];
@@ -388,7 +389,7 @@ def _lut_quadrature(size: int) -> np.ndarray:
         dtheta = alpha * (np.pi / 2) / np.cos(np.pi * t / 2) ** 2 / (1 + (alpha * tan_w) ** 2)
         ch, sh_ = np.cos(theta)[:, None], np.sin(theta)[:, None]
         d = alpha ** 2 / (np.pi * (ch * ch * (alpha ** 2 - 1) + 1) ** 2)
-        hx, hy, hz = sh_ * np.cos(phi), sh_ * np.sin(phi), ch * np.ones_like(phi)
+        hx, hz = sh_ * np.cos(phi), ch * np.ones_like(phi)
         area = (wt * dtheta)[:, None] * sh_ * wphi[None, :]   # dw_h = sin dtheta dphi
         for i, nv in enumerate(n_v):
             vx = np.sqrt(1 - nv * nv)

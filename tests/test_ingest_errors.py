@@ -11,11 +11,19 @@ import zlib
 
 import numpy as np
 import pytest
-
 from gltf_builder import CUBE_INDICES, CUBE_POSITIONS, Builder, cube, glb, png_bytes
+
+from core.errors import (
+    AssetError,
+    EmptyScene,
+    IngestTimeout,
+    LimitExceeded,
+    MalformedAsset,
+    MissingFile,
+    UnsafeReference,
+    UnsupportedFormat,
+)
 from pipeline import load_scene
-from pipeline.errors import (AssetError, EmptyScene, IngestTimeout, LimitExceeded, MalformedAsset,
-                             MissingFile, UnsafeReference, UnsupportedFormat)
 from pipeline.limits import Limits
 
 SECONDS = 10.0  # generous for 2 shared cores; every case here takes milliseconds

@@ -15,7 +15,7 @@ from PIL import Image
 from pxr import Sdf, Usd, UsdGeom, UsdUtils
 
 import pipeline
-from pipeline.errors import AssetError, LimitExceeded, MalformedAsset, MissingFile, UnsafeReference
+from core.errors import AssetError, LimitExceeded, MalformedAsset, MissingFile, UnsafeReference
 from pipeline.limits import Limits
 
 USD_SUFFIXES = {".usd", ".usda", ".usdc", ".usdz"}

@@ -6,12 +6,11 @@ import subprocess
 import sys
 
 import pytest
-
 from gltf_builder import cube
 
 
 def inspect(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "service.cli", "inspect", *map(str, args)],
+    return subprocess.run([sys.executable, "-m", "cli.main", "inspect", *map(str, args)],
                           capture_output=True, text=True, timeout=120)
 
 

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 import trimesh
 
+from core.scene import Instance, Material, Mesh, Scene
 from pipeline.bake import build_baked
 from pipeline.interior import interior_vectors
-from pipeline.scene import Instance, Material, Mesh, Scene
 
 
 def _run(m: trimesh.Trimesh, normals=None):

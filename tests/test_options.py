@@ -6,8 +6,15 @@ import pickle
 import pytest
 from pydantic import ValidationError
 
-from renderer.options import (METHODS, MaterialOverride, RenderOptions, add_arguments,
-                              from_arguments, from_request, request_fields)
+from core.options import (
+    METHODS,
+    MaterialOverride,
+    RenderOptions,
+    add_arguments,
+    from_arguments,
+    from_request,
+    request_fields,
+)
 from service.models import ThumbnailParams, render_options
 
 

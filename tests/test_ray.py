@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 from PIL import Image
-
-from pipeline import bake_cmd
-from pipeline.cache import KINDS, MANIFEST, Cache
 from service_server import Server
+
+from cli import bake as bake_cmd
+from pipeline.cache import KINDS, MANIFEST, Cache
 
 ENV = ["--env", "neutral", "--face-size", "32"]
 # What a manifest records about when and how fast, which no two bakes share.

@@ -13,9 +13,9 @@ import pytest
 import pipeline
 from bench import scenes
 from bench.reference import load_reference, relative_mae
-from pipeline.baked import BakedEnvironment
+from core.baked import BakedEnvironment
+from core.options import MaterialOverride, RenderOptions
 from renderer.frame import Frame
-from renderer.options import MaterialOverride, RenderOptions
 from renderer.raytrace import render_raytrace
 
 

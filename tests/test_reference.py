@@ -8,7 +8,7 @@ import pytest
 
 from bench import scenes
 from bench.reference import DEFAULT_SET, load_reference, relative_mae, spec_camera
-from pipeline.cubemap import sample_equirect
+from core.cubemap import sample_equirect
 from renderer.optics import reflect
 
 
@@ -45,7 +45,7 @@ def test_invisible_sphere_reference_is_the_panorama(pano):
 
 def test_mirror_sphere_reference_follows_equirect_convention(pano):
     """An analytic mirror sphere (reflection about the exact sphere normal) lookup in the
-    panorama with pipeline.cubemap's convention reproduces Mitsuba's image; the mirrored
+    panorama with core.cubemap's convention reproduces Mitsuba's image; the mirrored
     convention (u -> 1 - u) does not."""
     ref = load_reference("mirror_sphere")
     o, d = _camera_rays("mirror_sphere", ref.shape[0])
@@ -91,7 +91,7 @@ def test_bench_refraction_quick_writes_the_table(tmp_path, capsys):
     pytest.importorskip("mitsuba", reason="the `reference` extra is not installed")
     import csv
 
-    from service.cli import main
+    from cli.main import main
 
     assert main(["bench", "refraction", "--quick", "--out", str(tmp_path),
                  "--cache", str(tmp_path / "cache")]) == 0

@@ -15,13 +15,13 @@ import pytest
 
 from bench import scenes
 from bench.reference import load_reference, relative_mae
-from pipeline.baked import BakedAsset, BakedMesh
+from core.baked import BakedAsset, BakedMesh
+from core.context import get_context
+from core.options import MaterialOverride, RenderOptions
+from core.scene import Material
 from pipeline.interior import interior_vectors
-from pipeline.scene import Material
 from renderer import refraction
-from renderer.context import get_context
 from renderer.optics import fresnel_dielectric, refract
-from renderer.options import MaterialOverride, RenderOptions
 from renderer.render import render
 
 

@@ -6,10 +6,10 @@ import dataclasses
 import numpy as np
 import pytest
 from PIL import Image
-
-from service.cli import main
-from renderer.render import render
 from test_render_physics import constant_env, opts, sphere_asset
+
+from cli.main import main
+from renderer.render import render
 
 
 @pytest.fixture(scope="module")

@@ -13,10 +13,10 @@ import pytest
 from PIL import Image
 
 import pipeline
-from pipeline.environment import default_face_size
+from core.cubemap import default_face_size
+from core.options import RenderOptions
 from pipeline.panorama import DEFAULT_ENVIRONMENT
 from renderer import render
-from renderer.options import RenderOptions
 
 GOLDENS = Path(__file__).parent / "goldens"
 SIZE = 256

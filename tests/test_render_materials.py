@@ -6,12 +6,12 @@ import math
 
 import numpy as np
 import pytest
-
-from pipeline.baked import BakedAsset, BakedMesh
-from pipeline.scene import NEAREST, Light, Material, Sampler, Texture, TextureRef
-from renderer.options import RenderOptions
-from renderer.render import render
 from test_render_physics import constant_env, sphere_asset
+
+from core.baked import BakedAsset, BakedMesh
+from core.options import RenderOptions
+from core.scene import NEAREST, Light, Material, Sampler, Texture, TextureRef
+from renderer.render import render
 
 S = 96
 RED, GREEN, BLUE, WHITE = (255, 0, 0, 255), (0, 255, 0, 255), (0, 0, 255, 255), (255, 255, 255, 255)

@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 import trimesh
 
-from pipeline.baked import BakedAsset, BakedEnvironment, BakedMesh
-from pipeline.cubemap import face_directions, sample_cube
-from pipeline.scene import Material
+from core.baked import BakedAsset, BakedEnvironment, BakedMesh
+from core.cubemap import face_directions, sample_cube
+from core.options import MaterialOverride, RenderOptions
+from core.scene import Material
 from renderer import gpu
 from renderer.camera import frame_bounds
-from renderer.options import MaterialOverride, RenderOptions
 from renderer.render import UnsupportedMethod, render
 
 SIZE = 128

@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import io
 import json
-import re
 import os
+import re
 import signal
 import threading
 import time
@@ -15,7 +15,6 @@ import httpx
 import numpy as np
 import pytest
 from PIL import Image
-
 from service_server import Server
 
 UPLOAD_LIMIT = 16 * 2**20

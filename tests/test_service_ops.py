@@ -7,7 +7,6 @@ from pathlib import Path
 
 import httpx
 import pytest
-
 from service_server import Server
 from test_service import decode, nontrivial, upload
 

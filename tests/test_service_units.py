@@ -7,7 +7,7 @@ import zipfile
 
 import pytest
 
-from pipeline.errors import LimitExceeded, MalformedAsset, UnsafeReference
+from core.errors import LimitExceeded, MalformedAsset, UnsafeReference
 from service import archive
 from service.settings import Settings
 from service.store import ThumbnailCache, safe_name

@@ -10,8 +10,7 @@ from pydantic import ValidationError
 
 from ..core import NotFound, ThumbnailService
 from ..deps import get_service, require_key
-from ..models import (MEDIA_TYPES, AssetInfo, AssetList, Deleted, ErrorDetail, ThumbnailParams,
-                      render_options)
+from ..models import MEDIA_TYPES, AssetInfo, AssetList, Deleted, ErrorDetail, ThumbnailParams, render_options
 
 router = APIRouter(prefix="/assets", tags=["assets"])
 Service = Annotated[ThumbnailService, Depends(get_service)]

@@ -11,6 +11,8 @@ centre column looks toward +Z, u = 0.25 toward +X, and the top row is straight u
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 # (major axis, sign, sc axis & sign, tc axis & sign) per face, from the OpenGL spec's table.
@@ -101,3 +103,29 @@ def sample_cube(faces: np.ndarray, d: np.ndarray) -> np.ndarray:
     top = f[face, y0, x0] * (1 - fx) + f[face, y0, x1] * fx
     bottom = f[face, y1, x0] * (1 - fx) + f[face, y1, x1] * fx
     return top * (1 - fy) + bottom * fy
+
+
+# --- sizes of baked environment cubemaps ----------------------------------------------------
+
+DEFAULT_FACE_SIZE = 256  # environment cube faces of a bake that names no size (asset-bake, uploads)
+MIN_FACE = 4             # smallest mip face; rougher lobes need no finer than this, see default_levels
+MAX_FACE = 2048
+
+
+def default_face_size(thumbnail_px: int) -> int:
+    """Cube face size for thumbnails of `thumbnail_px`: the power of two >= it, in [32, 512].
+    A background spanning ~60 degrees over the thumbnail wants about 1.5 px per pixel per 90
+    degrees; past 512 the bundled 1024 x 512 panoramas (256 px per 90 degrees) have no detail."""
+    return int(min(512, max(32, 1 << max(0, int(thumbnail_px) - 1).bit_length())))
+
+
+def check_face_size(face_size: int) -> None:
+    """ValueError unless `face_size` is a power of two no larger than MAX_FACE."""
+    if face_size < 1 or face_size & (face_size - 1) or face_size > MAX_FACE:
+        raise ValueError(f"face_size must be a power of two <= {MAX_FACE}, got {face_size}")
+
+
+def default_levels(face_size: int) -> int:
+    """Mips from face_size down to MIN_FACE (4 px): log2(face_size) - 1 levels (7 for 256).
+    Faces of 2 or 1 px cannot hold a roughness-1 lobe across a face without visible steps."""
+    return max(1, int(math.log2(face_size)) - int(math.log2(MIN_FACE)) + 1)

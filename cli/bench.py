@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from service.cli import add_commands
+from cli.main import add_commands
 
 BENCHMARKS = {
     "ingest": ("bench.ingest", "load every sample asset: our load_scene vs trimesh.load"),

@@ -32,8 +32,8 @@ def run(args: argparse.Namespace) -> int:
 
     import uvicorn
 
-    from .app import create_app
-    from .settings import Settings
+    from service.app import create_app
+    from service.settings import Settings
 
     logging.getLogger().setLevel(args.log_level.upper())
     settings = Settings.from_env(

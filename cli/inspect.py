@@ -1,6 +1,6 @@
 """`asset-preview inspect PATH [--json]`: what an asset holds, after ingest's validation.
 
-Exit 0 on success; an AssetError becomes `error: FILE: REASON` and exit 3 (service.cli's
+Exit 0 on success; an AssetError becomes `error: FILE: REASON` and exit 3 (cli.main's
 run_guarded); argparse's usage errors exit 2.
 """
 from __future__ import annotations
@@ -44,7 +44,7 @@ def summary(scene) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .ingest import load_scene
+    from pipeline.ingest import load_scene
 
     info = summary(load_scene(args.path))
     if args.json:

@@ -16,8 +16,7 @@ import sys
 import time
 from pathlib import Path
 
-from .bake import bake_one
-from .baked import DEFAULT_FACE_SIZE
+from pipeline.bake import bake_one
 
 log = logging.getLogger(__name__)
 
@@ -53,7 +52,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .cache import parse_size
+    from pipeline.cache import parse_size
 
     if not args.paths and not args.env:
         print("error: nothing to bake: give asset paths and/or --env", file=sys.stderr)
@@ -67,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"error: --max-size: {exc}", file=sys.stderr)
         return 2
     if args.executor == "ray":
-        from .executors import ExecutorUnavailable, connect
+        from pipeline.executors import ExecutorUnavailable, connect
         try:
             connect(args.ray_address, num_cpus=args.workers if args.workers > 1 else None)
         except ExecutorUnavailable as exc:
@@ -84,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     try:
         if args.executor == "ray":
-            from .executors import run_ray
+            from pipeline.executors import run_ray
             run_ray(jobs, common, report)
         elif args.workers == 1 or len(jobs) <= 1:
             for kind, source in jobs:
@@ -119,8 +118,8 @@ def main(argv: list[str] | None = None) -> int:
 
 def _collect(paths: list[str], cache: str | None) -> tuple[list[tuple[str, str]], list[dict]]:
     """Asset jobs for the given files and folders, and failures for paths that are neither."""
-    from .cache import default_cache_dir
-    from .ingest import READERS
+    from pipeline.cache import default_cache_dir
+    from pipeline.ingest import READERS
 
     cache_root = Path(cache or default_cache_dir()).resolve()
     jobs, failures, seen = [], [], set()

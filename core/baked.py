@@ -5,9 +5,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .scene import Light, Material, Texture
-
-DEFAULT_FACE_SIZE = 256  # environment cube faces of a bake that names no size (asset-bake, uploads)
+from core.scene import Light, Material, Texture
 
 
 @dataclass

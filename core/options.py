@@ -16,6 +16,7 @@ import argparse
 import dataclasses
 import math
 import re
+import types
 import typing
 from typing import Annotated, Any, Literal, Mapping
 
@@ -25,7 +26,7 @@ from pydantic.dataclasses import dataclass
 from pydantic.fields import FieldInfo
 
 if typing.TYPE_CHECKING:
-    from pipeline.scene import Material
+    from core.scene import Material
 
 Method = Literal["auto", "opaque", "single", "wyman", "raytrace"]
 METHODS: tuple[str, ...] = typing.get_args(Method)
@@ -161,7 +162,7 @@ def parse_color(text: str) -> tuple[float, float, float]:
     """`RRGGBB` / `#RRGGBB` (sRGB, as people pick colours) or `r,g,b` (linear) -> linear RGB."""
     m = _HEX.match(text.strip())
     if m:
-        from pipeline.panorama import srgb_to_linear
+        from core.colour import srgb_to_linear
         rgb8 = np.array([int(m.group(1)[i:i + 2], 16) for i in (0, 2, 4)], np.uint8)
         return tuple(round(float(c), 6) for c in srgb_to_linear(rgb8))  # type: ignore[return-value]
     try:
@@ -255,7 +256,7 @@ def from_arguments(args: argparse.Namespace) -> RenderOptions:
 
 
 def _strip_optional(ann):
-    if typing.get_origin(ann) in (typing.Union, getattr(__import__("types"), "UnionType")):
+    if typing.get_origin(ann) in (typing.Union, types.UnionType):
         args = [a for a in typing.get_args(ann) if a is not type(None)]
         if len(args) == 1:
             return args[0]

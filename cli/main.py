@@ -12,11 +12,11 @@ import os
 import sys
 
 COMMANDS = {
-    "inspect": ("pipeline.inspect_cmd", "print what an asset holds (meshes, materials, bounds)"),
-    "bake": ("pipeline.bake_cmd", "bake assets and environments into the cache (= asset-bake)"),
-    "render": ("renderer.render_cmd", "render a thumbnail of an asset"),
-    "serve": ("service.serve_cmd", "run the thumbnail HTTP service"),
-    "bench": ("bench.cli", "benchmarks: our figures beside peers measured in the same run"),
+    "inspect": ("cli.inspect", "print what an asset holds (meshes, materials, bounds)"),
+    "bake": ("cli.bake", "bake assets and environments into the cache (= asset-bake)"),
+    "render": ("cli.render", "render a thumbnail of an asset"),
+    "serve": ("cli.serve", "run the thumbnail HTTP service"),
+    "bench": ("cli.bench", "benchmarks: our figures beside peers measured in the same run"),
 }
 
 
@@ -40,7 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def run_guarded(run, args) -> int:
     """Run a command; an AssetError becomes `error: FILE: REASON` and exit status 3."""
-    from pipeline.errors import AssetError
+    from core.errors import AssetError
     try:
         return int(run(args) or 0)
     except AssetError as exc:

@@ -15,7 +15,7 @@ _IMAGE_EXT = (".png", ".jpg", ".jpeg", ".webp", ".npy", ".exr")
 
 
 def configure(p: argparse.ArgumentParser) -> None:
-    from .options import add_arguments
+    from core.options import add_arguments
     p.add_argument("path", help="asset file (.gltf .glb .usd .usda .usdc .usdz .obj .ply .stl)")
     p.add_argument("--out", required=True, help="image file: .png .jpg .webp (tone-mapped) or .npy .exr (linear)")
     p.add_argument("--env", default=None, help="bundled environment name or panorama file (default: footprint_court)")
@@ -40,11 +40,10 @@ def run(args: argparse.Namespace) -> int:
     if args.linear and os.path.splitext(args.linear)[1].lower() not in (".npy", ".exr"):
         return _fail(f"{args.linear}: --linear takes .npy or .exr")
     import pipeline
+    from core.options import describe_error, from_arguments
     from pipeline.panorama import DEFAULT_ENVIRONMENT
-
-    from .auto import environment_face_size
-    from .options import describe_error, from_arguments
-    from .render import UnsupportedMethod, render, validate_options
+    from renderer.auto import environment_face_size
+    from renderer.render import UnsupportedMethod, render, validate_options
 
     try:
         options = from_arguments(args)

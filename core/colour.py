@@ -1,0 +1,12 @@
+"""Colour conventions: sRGB (IEC 61966-2-1) <-> linear. Textures and LDR panoramas are sRGB
+and become linear when decoded or sampled; all shading is linear."""
+from __future__ import annotations
+
+import numpy as np
+
+
+def srgb_to_linear(rgb8: np.ndarray) -> np.ndarray:
+    """uint8 sRGB -> float32 linear (IEC 61966-2-1), through a 256-entry table."""
+    c = np.arange(256, dtype=np.float64) / 255.0
+    table = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
+    return table[rgb8]

@@ -1,0 +1,122 @@
+"""The architecture, asserted: layers imported only downward, no import cycles between modules,
+no private names reached into across modules (DESIGN.md, "Layers").
+
+core      plain data and conventions (scene, baked types, render options, errors, cubemap and
+          colour conventions, the GL context): imports nothing of ours but itself and shaders
+pipeline  ingest, bake, cache                      -> core
+renderer  GL passes and methods, from baked data   -> core (never pipeline: no source files)
+service   HTTP, workers                            -> core, pipeline, renderer
+cli       the command lines                        -> everything
+bench     benchmarks                               -> everything but cli
+Every import counts, at module level or inside a function.
+"""
+import ast
+from functools import lru_cache
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+OURS = ("core", "pipeline", "renderer", "service", "cli", "bench", "shaders")
+ALLOWED = {
+    "core": {"core", "shaders"},
+    "pipeline": {"core", "pipeline", "shaders"},
+    "renderer": {"core", "renderer", "shaders"},
+    "service": {"core", "pipeline", "renderer", "service"},
+    "cli": {"core", "pipeline", "renderer", "service", "cli", "bench"},
+    "bench": {"core", "pipeline", "renderer", "service", "bench", "shaders"},
+    "shaders": {"shaders"},
+}
+
+
+def _modules() -> dict[str, Path]:
+    mods = {}
+    for pkg in OURS:
+        for path in (ROOT / pkg).rglob("*.py"):
+            parts = path.relative_to(ROOT).with_suffix("").parts
+            name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+            mods[name] = path
+    return mods
+
+
+def _imports(name: str, path: Path, mods: dict[str, Path]):
+    """(imported module, names taken from it, line) for every import of ours in a module."""
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                if a.name.split(".")[0] in OURS:
+                    yield a.name, [], node.lineno
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")
+                base = base[:len(base) - node.level + 1]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            if target.split(".")[0] not in OURS:
+                continue
+            plain = []
+            for a in node.names:
+                sub = f"{target}.{a.name}"
+                if sub in mods:  # `from pkg import module`
+                    yield sub, [], node.lineno
+                else:
+                    plain.append(a.name)
+            if plain or target in mods:
+                yield target, plain, node.lineno
+
+
+@lru_cache(maxsize=1)
+def _graph():
+    mods = _modules()
+    return mods, {n: list(_imports(n, p, mods)) for n, p in mods.items()}
+
+
+def test_layers_are_imported_only_downward():
+    mods, graph = _graph()
+    bad = [f"{mods[n].relative_to(ROOT)}:{line} imports {t}"
+           for n, edges in graph.items() for t, _, line in edges
+           if t.split(".")[0] not in ALLOWED[n.split(".")[0]]]
+    assert not bad, "\n".join(bad)
+
+
+def test_no_private_names_across_modules():
+    mods, graph = _graph()
+    bad = [f"{mods[n].relative_to(ROOT)}:{line} takes {t}.{x}"
+           for n, edges in graph.items() for t, names, line in edges if t != n
+           for x in names if x.startswith("_") and not x.startswith("__")]
+    assert not bad, "\n".join(bad)
+
+
+def test_no_import_cycles():
+    mods, graph = _graph()
+    edges = {n: sorted({t for t, _, _ in es if t in mods and t != n and not n.startswith(t + ".")})
+             for n, es in graph.items()}
+    # Tarjan's strongly connected components: any component of two or more is a cycle.
+    index, low, stack, on, cycles, counter = {}, {}, [], set(), [], [0]
+
+    def visit(v):
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on.add(v)
+        for w in edges[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                cycles.append(sorted(comp))
+
+    for v in edges:
+        if v not in index:
+            visit(v)
+    assert not cycles, cycles
