@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from core.options import MAX_BUDGET_MS
+
 log = logging.getLogger(__name__)
 
 # case -> (scene, reference scene)
@@ -44,7 +46,7 @@ CASES = {
     "flipped_normals": ("case_flipped_normals", "glass_sphere_ior1.5"),
 }
 METHODS = ("single", "wyman/tir=paper", "wyman/tir=reflect", "raytrace-8", "auto", "auto+budget")
-BUDGET_MS = 1e5  # auto+budget: ray tracing allowed wherever auto judges the raster methods fail
+BUDGET_MS = MAX_BUDGET_MS  # auto+budget: ray tracing allowed wherever auto judges the raster methods fail
 SIZE = 64
 FACE = 256
 

@@ -86,20 +86,32 @@ def cluster():
 
 
 @pytest.fixture(scope="module")
-def local_bake(assets, tmp_path_factory):
+def corpus(assets, tmp_path_factory) -> Path:
+    """The original sample corpus (glTF, USD, plain meshes: 15 files of every reader); the
+    Khronos sample models are the ingest tests' corpus, and baking all of them twice on Ray
+    would make this a benchmark-sized test."""
+    import shutil
+    root = tmp_path_factory.mktemp("corpus")
+    for sub in ("gltf", "usd", "mesh"):
+        shutil.copytree(assets / sub, root / sub)
+    return root
+
+
+@pytest.fixture(scope="module")
+def local_bake(corpus, tmp_path_factory):
     cache = tmp_path_factory.mktemp("local") / "cache"
     out = io.StringIO()
     from contextlib import redirect_stdout
     with redirect_stdout(out):
-        code = bake_cmd.main([str(assets), *ENV, "--cache", str(cache), "--json"])
+        code = bake_cmd.main([str(corpus), *ENV, "--cache", str(cache), "--json"])
     return code, rows(out.getvalue()), cache
 
 
 @pytest.mark.slow
-def test_ray_bake_of_the_corpus_equals_the_local_bake(cluster, local_bake, assets, tmp_path, capsys):
+def test_ray_bake_of_the_corpus_equals_the_local_bake(cluster, local_bake, corpus, tmp_path, capsys):
     local_code, local_rows, local_cache = local_bake
     cache = tmp_path / "cache"
-    code = bake_cmd.main([str(assets), *ENV, "--cache", str(cache), "--json", "--executor", "ray"])
+    code = bake_cmd.main([str(corpus), *ENV, "--cache", str(cache), "--json", "--executor", "ray"])
     got = rows(capsys.readouterr().out)
     assert code == local_code == 0
     assert len(got) == len(local_rows) >= 15
@@ -109,7 +121,7 @@ def test_ray_bake_of_the_corpus_equals_the_local_bake(cluster, local_bake, asset
     assert sorted(ours) == sorted(theirs) and any(k.startswith("environments/") for k in ours)
     assert ours == theirs
     # Plain lines too, and a rerun on Ray is all cache hits.
-    assert bake_cmd.main([str(assets), "--cache", str(cache), "--executor", "ray"]) == 0
+    assert bake_cmd.main([str(corpus), "--cache", str(cache), "--executor", "ray"]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert len(lines) == len(local_rows) - 1 and all(line.startswith("cached ") for line in lines)
 
@@ -140,13 +152,13 @@ class Killer(threading.Thread):
 
 @pytest.mark.slow
 def test_worker_killed_mid_bake_loses_no_asset_and_leaves_no_partial_entry(
-        cluster, local_bake, assets, tmp_path, capsys):
+        cluster, local_bake, corpus, tmp_path, capsys):
     _, local_rows, _ = local_bake
     cache = tmp_path / "cache"
     killer = Killer(cache)
     killer.start()
     try:
-        code = bake_cmd.main([str(assets), "--cache", str(cache), "--json", "--executor", "ray"])
+        code = bake_cmd.main([str(corpus), "--cache", str(cache), "--json", "--executor", "ray"])
     finally:
         killer.stop.set()
         killer.join()

@@ -1,0 +1,44 @@
+"""README's render-option table is the schema's (core/options.py), not a hand-kept copy.
+When this fails, paste the table from the failure message between the README markers."""
+import re
+import typing
+from pathlib import Path
+
+from core.options import request_fields
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+MARK = re.compile(r"<!-- render-options -->\n(.*?)<!-- /render-options -->", re.S)
+
+
+def _type(ann) -> str:
+    if typing.get_origin(ann) is not typing.Literal:
+        ann = next((a for a in typing.get_args(ann) if a is not type(None)), ann)
+    if typing.get_origin(ann) is typing.Literal:
+        return " \\| ".join(f"`{v}`" for v in typing.get_args(ann))
+    return getattr(ann, "__name__", str(ann))
+
+
+def _range(info) -> str:
+    def bound(*names):
+        return next((getattr(m, n) for m in info.metadata for n in names if hasattr(m, n)), None)
+    lo, hi = bound("ge", "gt"), bound("le", "lt")
+    return f"{lo:g}..{hi:g}" if lo is not None and hi is not None else ""
+
+
+def table() -> str:
+    rows = ["| parameter (`--flag`) | type | range | default | what it does |", "|---|---|---|---|---|"]
+    for name, info in request_fields().items():
+        default = info.get_default()
+        shown = "" if default is None else f"`{default}`"
+        flag = "--" + name.replace("_", "-")
+        if isinstance(default, bool):
+            flag += f"`, `--no-{name.replace('_', '-')}"
+        text = (info.description or "").replace("|", "\\|")
+        rows.append(f"| `{name}` (`{flag}`) | {_type(info.annotation)} | {_range(info)} | {shown} | {text} |")
+    return "\n".join(rows) + "\n"
+
+
+def test_readme_lists_the_render_options_from_the_schema():
+    m = MARK.search(README.read_text())
+    assert m, "README.md has no <!-- render-options --> block"
+    assert m.group(1) == table(), "README's render options differ from the schema; use:\n" + table()
