@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: run test install check-egl clean
+.PHONY: run test lint install check-egl clean
 
 $(STAMP): pyproject.toml
 	@$(PYTHON) -c 'import venv, ensurepip' 2>/dev/null || { echo "error: Python venv support missing; install it with: apt-get install -y python3-venv"; exit 1; }
@@ -25,7 +25,12 @@ check-egl: $(STAMP)
 run: check-egl
 	$(VENV)/bin/asset-preview serve --host 127.0.0.1 --port 8000
 
-test: check-egl
+# ruff (pyflakes, pycodestyle, bugbear, import order) and mypy, configured in pyproject.toml
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/mypy
+
+test: check-egl lint
 	$(PY) -m pytest -q
 
 clean:

@@ -173,43 +173,32 @@ def _run_pool(jobs, common: dict, workers: int, report: "_Report") -> None:
 
 
 class _Report:
-    """Result lines on stdout, and a progress bar on stderr when it is a terminal."""
+    """Result lines on stdout, and a tqdm progress bar on stderr when it is a terminal."""
 
     def __init__(self, total: int, as_json: bool):
-        self.total, self.as_json, self.done = total, as_json, 0
+        from tqdm import tqdm
+
+        self.as_json = as_json
         self.out = sys.stdout  # held: the Ray executor moves other writers' stdout to stderr
         self.counts = {"baked": 0, "cached": 0, "failed": 0}
-        self.bar = sys.stderr.isatty() and total > 1
-        self._draw()
+        self.bar = tqdm(total=total, file=sys.stderr, unit="file", leave=False,
+                        disable=not (sys.stderr.isatty() and total > 1))
 
     def add(self, result: dict) -> None:
-        self.done += 1
         self.counts[result["status"]] += 1
-        self._clear()
         if self.as_json:
-            print(json.dumps(result), file=self.out, flush=True)
+            line = json.dumps(result)
         elif result["status"] == "failed":
-            print(f"failed: {result['error']}", file=self.out, flush=True)
+            line = f"failed: {result['error']}"
         else:
-            print(f"{result['status']:<7}{result['path']}  (key {result['key'][:12]}, "
-                  f"{result['seconds']:.2f} s)", file=self.out, flush=True)
-        self._draw()
-
-    def _draw(self) -> None:
-        if self.bar:
-            width = 30
-            filled = width * self.done // max(self.total, 1)
-            sys.stderr.write(f"[{'#' * filled}{'.' * (width - filled)}] {self.done}/{self.total}")
-            sys.stderr.flush()
-
-    def _clear(self) -> None:
-        if self.bar:
-            sys.stderr.write("\r\033[K")
+            line = (f"{result['status']:<7}{result['path']}  (key {result['key'][:12]}, "
+                    f"{result['seconds']:.2f} s)")
+        self.bar.write(line, file=self.out)  # above the bar, which redraws below it
+        self.out.flush()
+        self.bar.update(1)
 
     def close(self) -> None:
-        self._clear()
-        if self.bar:
-            sys.stderr.flush()
+        self.bar.close()
 
 
 if __name__ == "__main__":

@@ -270,7 +270,7 @@ def _light_from_json(d: dict) -> Light:
 def _versions() -> dict:
     from importlib import metadata
     out = {"bake_format": BAKE_FORMAT_VERSION, "python": platform.python_version()}
-    for dist in ("asset-preview", "numpy", "embreex", "usd-core", "pygltflib", "trimesh", "moderngl"):
+    for dist in ("asset-preview", "numpy", "embreex", "usd-core", "trimesh", "moderngl"):
         try:
             out[dist] = metadata.version(dist)
         except metadata.PackageNotFoundError:
