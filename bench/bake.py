@@ -90,7 +90,7 @@ def interior_table(assets: Path, repeat: int) -> list[float]:
         rays = sum(len(p) for p, _, _ in meshes)
         if rays == 0:
             continue
-        results = []
+        results: list = []
 
         def ours():
             results.clear()

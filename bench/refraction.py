@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"{'scene':28s} {'size':>5s} {'method':16s} {'time_ms':>10s} {'rel_mae':>8s}")
     cases = [(name, int(size)) for name in args.scenes.split(",") for size in args.sizes.split(",")]
     if not args.quick:
-        cases.append((TARGET_SCENE, PAPER["size"]))  # the paper's and the 500 x 500 case
+        cases.append((TARGET_SCENE, int(PAPER["size"])))  # the paper's and the 500 x 500 case
     for name, size in cases:
         spec = scenes.scene(name)
         asset = scenes.baked_asset(spec, cache)

@@ -140,7 +140,7 @@ def ray_overheads(num_cpus: int) -> dict:
     import ray
 
     start = time.perf_counter()
-    ray.init(num_cpus=num_cpus, include_dashboard=False, logging_level="ERROR", log_to_driver=False)
+    ray.init(num_cpus=num_cpus, include_dashboard=False, logging_level="ERROR", log_to_driver=False)  # type: ignore[arg-type]  # a level name works
     started = time.perf_counter() - start
     try:
         noop = ray.remote(num_cpus=1)(_noop)
@@ -229,7 +229,7 @@ def _run(args: argparse.Namespace, work: Path) -> int:
     for n in (1, 4, 16, 64, 256):
         bounds = {"compute": CATALOGUE * (c + o) / (n * args.cores * e), "driver": CATALOGUE * d,
                   "filesystem": CATALOGUE * b / (args.fs_mb_s * 1e6)}
-        which = max(bounds, key=bounds.get)
+        which = max(bounds, key=bounds.__getitem__)
         t = bounds[which]
         print(f"{n:8d} {bounds['compute'] / 3600:9.3f} {bounds['driver'] / 3600:8.3f} "
               f"{bounds['filesystem'] / 3600:6.3f} {t / 3600:7.3f} {CATALOGUE / t:9.0f}  {which}")

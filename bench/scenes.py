@@ -13,6 +13,7 @@ import logging
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -125,7 +126,7 @@ def write_glb(spec: SceneSpec, path: str | Path) -> Path:
     if mat.ior != 1.5:
         extensions["KHR_materials_ior"] = {"ior": mat.ior}
     if mat.transmission > 0:
-        volume = {"thicknessFactor": 2.0 * float(np.max(spec.scale))}
+        volume: dict[str, Any] = {"thicknessFactor": 2.0 * float(np.max(spec.scale))}
         if math.isfinite(mat.attenuation_distance):
             volume.update(attenuationDistance=mat.attenuation_distance,
                           attenuationColor=list(mat.attenuation_color))

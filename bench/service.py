@@ -206,7 +206,7 @@ def run(args: argparse.Namespace) -> int:
         _wait_http(f"http://127.0.0.1:{peer_port}/image")
         targets = {"cached thumbnail": thumb,
                    "peer: bare Starlette, same bytes": f"http://127.0.0.1:{peer_port}/image?size=256"}
-        rounds = {label: [] for label in targets}
+        rounds: dict[str, list[tuple]] = {label: [] for label in targets}
         for _ in range(ROUNDS):
             for label, url in targets.items():
                 p50, p99, _, bad1 = load(url, 1, args.duration / (2 * ROUNDS))
@@ -225,7 +225,8 @@ def run(args: argparse.Namespace) -> int:
         local = InProcess(duck_bytes, tmp / "inproc", args.size)
         for i in range(2 * args.workers):  # every worker has the asset and environment on its GPU
             client.get(thumb + f"&yaw={-1 - i}")
-        http_ms, local_ms = [], []
+        http_ms: list[float] = []
+        local_ms: list[float] = []
         end = time.perf_counter() + args.duration
         i = 0
         while time.perf_counter() < end or len(http_ms) < 10:

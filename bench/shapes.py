@@ -8,6 +8,7 @@ the clean sphere's reference says what they should have looked like.
 from __future__ import annotations
 
 import logging
+import typing
 from functools import lru_cache
 
 import numpy as np
@@ -151,7 +152,7 @@ def mesh_arrays(kind: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if kind in BUILDERS:
         return BUILDERS[kind]()
     if kind in MESH_FILES:
-        m = trimesh.load(ASSETS / "mesh" / MESH_FILES[kind], force="mesh")
+        m = typing.cast(trimesh.Trimesh, trimesh.load(ASSETS / "mesh" / MESH_FILES[kind], force="mesh"))
         lo, hi = m.bounds
         m.apply_translation(-(lo + hi) / 2)
         m.apply_scale(1.0 / (np.linalg.norm(hi - lo) / 2))

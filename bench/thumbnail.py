@@ -26,6 +26,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 ASSETS = {
     "Duck": "gltf/Duck.glb",
@@ -33,7 +34,7 @@ ASSETS = {
     "Teapot": "usd/Teapot/Teapot.usd",
 }
 TOOLS = ("ours", "pyrender", "f3d")
-VIEW = {"yaw": 30.0, "pitch": 20.0, "fov": 40.0}
+VIEW: dict[str, Any] = {"yaw": 30.0, "pitch": 20.0, "fov": 40.0}
 
 
 def configure(p: argparse.ArgumentParser) -> None:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import logging
 import os
 import threading
+import typing
 
 import moderngl
 
@@ -18,7 +19,7 @@ log = logging.getLogger(__name__)
 _lock = threading.RLock()
 _ctx: moderngl.Context | None = None
 _pid: int | None = None
-_programs: dict[tuple, moderngl.Program] = {}
+_programs: dict[tuple, moderngl.Program | moderngl.ComputeShader] = {}
 _fullscreen: dict[int, moderngl.VertexArray] = {}
 
 
@@ -32,7 +33,7 @@ def get_context() -> moderngl.Context:
     with _lock:
         if _ctx is None or _pid != os.getpid():
             try:
-                _ctx = moderngl.create_standalone_context(backend="egl", require=430)
+                _ctx = moderngl.create_standalone_context(backend="egl", require=430)  # type: ignore[arg-type]  # stubs: backend is a str
             except Exception as exc:  # moderngl raises plain Exception for EGL failures
                 raise ContextError(
                     f"headless OpenGL 4.3 via EGL is not available ({exc}); install Mesa: "
@@ -54,9 +55,9 @@ def program(vertex: str, fragment: str | None = None, defines: dict | None = Non
             kwargs = {"vertex_shader": shaders.load(vertex, defines)}
             if fragment:
                 kwargs["fragment_shader"] = shaders.load(fragment, defines)
-            prog = ctx.program(**kwargs)
+            prog = ctx.program(**kwargs)  # type: ignore[arg-type]  # stubs: shader sources are str
             _programs[key] = prog
-        return prog
+        return typing.cast(moderngl.Program, prog)
 
 
 def compute(name: str, defines: dict | None = None) -> moderngl.ComputeShader:
@@ -68,7 +69,7 @@ def compute(name: str, defines: dict | None = None) -> moderngl.ComputeShader:
         if prog is None:
             prog = ctx.compute_shader(shaders.load(name, defines))
             _programs[key] = prog
-        return prog
+        return typing.cast(moderngl.ComputeShader, prog)
 
 
 def fullscreen_vao(prog: moderngl.Program) -> moderngl.VertexArray:

@@ -47,14 +47,14 @@ _CONFIG = ConfigDict(extra="forbid", allow_inf_nan=False)
 class MaterialOverride:
     """Per-request material applied to every mesh ("preview any mesh as glass or steel").
     None leaves the asset's own value."""
-    base_color: tuple[Unit, Unit, Unit] | None = Field(None, description=(
+    base_color: tuple[Unit, Unit, Unit] | None = Field(default=None, description=(
         "override base colour for every mesh: sRGB hex RRGGBB, or linear r,g,b in 0..1"))
-    metallic: float | None = Field(None, ge=0, le=1, description="override metalness for every mesh")
-    roughness: float | None = Field(None, ge=0, le=1, description="override roughness for every mesh")
-    ior: float | None = Field(None, ge=1, le=3, description=(
+    metallic: float | None = Field(default=None, ge=0, le=1, description="override metalness for every mesh")
+    roughness: float | None = Field(default=None, ge=0, le=1, description="override roughness for every mesh")
+    ior: float | None = Field(default=None, ge=1, le=3, description=(
         "override index of refraction for every mesh (with transmission: glass); 1..3 covers "
         "every common dielectric, diamond is 2.42"))
-    transmission: float | None = Field(None, ge=0, le=1, description="override transmission, 0..1")
+    transmission: float | None = Field(default=None, ge=0, le=1, description="override transmission, 0..1")
 
     @field_validator("base_color", mode="before")
     @classmethod
@@ -67,31 +67,31 @@ class MaterialOverride:
 
 @dataclass(frozen=True, config=_CONFIG)
 class RenderOptions:
-    width: int = Field(256, ge=1, le=MAX_SIDE, description="image width in pixels")
-    height: int = Field(256, ge=1, le=MAX_SIDE, description="image height in pixels")
-    yaw: float = Field(30.0, ge=-3600, le=3600, description=(
+    width: int = Field(default=256, ge=1, le=MAX_SIDE, description="image width in pixels")
+    height: int = Field(default=256, ge=1, le=MAX_SIDE, description="image height in pixels")
+    yaw: float = Field(default=30.0, ge=-3600, le=3600, description=(
         "camera turn about +Y, degrees; 0 looks from +Z, positive turns toward +X"))
-    pitch: float = Field(15.0, ge=-90, le=90, description="camera elevation, degrees; positive looks down from above")
-    fov: float = Field(40.0, ge=1, le=170, description="vertical field of view, degrees")
-    distance: float | None = Field(None, gt=0, le=MAX_DISTANCE, description=(
+    pitch: float = Field(default=15.0, ge=-90, le=90, description="camera elevation, degrees; positive looks down from above")
+    fov: float = Field(default=40.0, ge=1, le=170, description="vertical field of view, degrees")
+    distance: float | None = Field(default=None, gt=0, le=MAX_DISTANCE, description=(
         "camera distance from the bounds centre in scene units (default: fit the object)"))
-    method: Method = Field("auto", description=(
+    method: Method = Field(default="auto", description=(
         "auto picks per object; opaque ignores transmission; single / wyman are raster "
         "refraction; raytrace is the slow, accurate method"))
-    tonemap: Tonemap = Field("neutral", description="tone mapping: Khronos PBR Neutral, ACES or none")
-    exposure: float = Field(0.0, ge=-16, le=16, description="stops (EV): radiance is scaled by 2**exposure")
-    background: str = Field("env", description="env | transparent | sRGB colour #RRGGBB")
-    background_blur: float = Field(0.0, ge=0, le=1, description=(
+    tonemap: Tonemap = Field(default="neutral", description="tone mapping: Khronos PBR Neutral, ACES or none")
+    exposure: float = Field(default=0.0, ge=-16, le=16, description="stops (EV): radiance is scaled by 2**exposure")
+    background: str = Field(default="env", description="env | transparent | sRGB colour #RRGGBB")
+    background_blur: float = Field(default=0.0, ge=0, le=1, description=(
         "roughness of the prefiltered environment mip shown behind the asset, 0..1"))
     override: MaterialOverride | None = None
-    msaa: int = Field(4, ge=0, le=16, description="samples per pixel (0 or 1: off)")
-    lights: bool = Field(True, description="the asset's own KHR_lights_punctual lights")
-    multiscatter: bool = Field(False, description="multiple-scattering energy compensation for rough metals")
-    tir: Literal["paper", "reflect"] | None = Field(None, description=(
+    msaa: int = Field(default=4, ge=0, le=16, description="samples per pixel (0 or 1: off)")
+    lights: bool = Field(default=True, description="the asset's own KHR_lights_punctual lights")
+    multiscatter: bool = Field(default=False, description="multiple-scattering energy compensation for rough metals")
+    tir: Literal["paper", "reflect"] | None = Field(default=None, description=(
         "wyman: total internal reflection treatment (default: reflect)"))
-    bounces: int = Field(8, ge=0, le=64, description="raytrace: path depth (0: the environment along each primary ray)")
-    debug: Literal["backface_normals", "tir", "exit_distance"] | None = Field(None, description="wyman debug view")
-    budget_ms: float | None = Field(None, gt=0, le=MAX_BUDGET_MS, description=(
+    bounces: int = Field(default=8, ge=0, le=64, description="raytrace: path depth (0: the environment along each primary ray)")
+    debug: Literal["backface_normals", "tir", "exit_distance"] | None = Field(default=None, description="wyman debug view")
+    budget_ms: float | None = Field(default=None, gt=0, le=MAX_BUDGET_MS, description=(
         "time budget in milliseconds: lets method auto ray trace objects where raster "
         "refraction fails, when the estimate fits"))
 
@@ -176,7 +176,7 @@ def parse_color(text: str) -> tuple[float, float, float]:
 
 # --- the flat request: what the CLI and HTTP surfaces expose ---------------------------------
 
-SIZE_FIELD = FieldInfo.from_annotated_attribute(int, Field(256, ge=1, le=MAX_SIDE, description=(
+SIZE_FIELD = FieldInfo.from_annotated_attribute(int, Field(default=256, ge=1, le=MAX_SIDE, description=(
     "width and height in pixels, unless those are given")))
 
 
@@ -203,13 +203,13 @@ def _override_fields() -> dict[str, FieldInfo]:
     fields = _fields(MaterialOverride)
     color = fields["base_color"]
     fields["base_color"] = FieldInfo.from_annotated_attribute(
-        str | None, Field(None, description=color.description))  # parsed by MaterialOverride
+        str | None, Field(default=None, description=color.description))  # type: ignore[arg-type]  # a union is an annotation; parsed by MaterialOverride
     return fields
 
 
 def _optional(info: FieldInfo) -> FieldInfo:
     ann = info.annotation
-    return FieldInfo.merge_field_infos(info, FieldInfo.from_annotation(ann | None), default=None)  # type: ignore[operator]
+    return FieldInfo.merge_field_infos(info, FieldInfo.from_annotation(ann | None), default=None)  # type: ignore[operator,arg-type]  # annotation union
 
 
 def from_request(values: Mapping[str, Any]) -> RenderOptions:

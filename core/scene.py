@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Literal
+from typing import Literal, cast
 
 import numpy as np
 
@@ -91,7 +91,7 @@ class Material:
         """Decides which passes run and what is baked: transmissive wins over alpha modes."""
         if self.transmission > 0.0 or self.transmission_texture is not None:
             return "transmissive"
-        return {"MASK": "mask", "BLEND": "blend"}.get(self.alpha_mode, "opaque")
+        return cast(MaterialClass, {"MASK": "mask", "BLEND": "blend"}.get(self.alpha_mode, "opaque"))
 
     def absorption(self) -> np.ndarray:
         """Beer-Lambert coefficient per scene unit (KHR_materials_volume): light keeps

@@ -15,6 +15,7 @@ import time
 from datetime import datetime, timezone
 from functools import lru_cache
 from pathlib import Path
+from typing import Any, cast
 
 import numpy as np
 
@@ -46,10 +47,11 @@ class CachedTexture(Texture):
     """A baked texture whose pixels are read from the cache (and checksummed) on first use:
     a cache hit costs the geometry only, and bake runs that find everything cached read no
     pixels at all. A corrupt file raises CorruptEntry then (the entry is dropped for rebaking)."""
+    _image: np.ndarray | None
 
     def __init__(self, name: str, sampler: Sampler, source: str, entry: Entry, file: str):
         self._entry, self._file = entry, file
-        super().__init__(name=name, image=None, sampler=sampler, source=source)
+        super().__init__(name=name, image=None, sampler=sampler, source=source)  # type: ignore[arg-type]  # read on first use
 
     @property
     def image(self) -> np.ndarray:
@@ -190,7 +192,7 @@ def pack_asset(baked: BakedAsset, options: dict) -> tuple[dict, dict[str, dict[s
                 present.append(name)
         mesh_meta.append({"name": m.name, "material": material_index[id(m.material)],
                           "arrays": present})
-    arrays = {"meshes.npz": mesh_arrays}
+    arrays: dict[str, Any] = {"meshes.npz": mesh_arrays}
     if baked.textures:
         arrays.update({f"texture.{i}.npy": t.image for i, t in enumerate(baked.textures)})
     manifest = {
@@ -220,8 +222,8 @@ def unpack_asset(entry: Entry) -> BakedAsset:
     for i, meta in enumerate(m["meshes"]):
         fields = {name: arrays[f"{i}.{name}"] for name in meta["arrays"]}
         meshes.append(BakedMesh(name=meta["name"], material=materials[meta["material"]], **fields))
-    textures = [CachedTexture(t["name"], Sampler(**t["sampler"]), t["source"], entry, f"texture.{i}.npy")
-                for i, t in enumerate(m["textures"])]
+    textures: list[Texture] = [CachedTexture(t["name"], Sampler(**t["sampler"]), t["source"], entry, f"texture.{i}.npy")
+                               for i, t in enumerate(m["textures"])]
     return BakedAsset(key=entry.key, source=m["source"], format=m["source_format"], meshes=meshes,
                       textures=textures, bounds=np.asarray(m["bounds"], np.float64),
                       lights=[_light_from_json(d) for d in m["lights"]], warnings=list(m["warnings"]),
@@ -244,7 +246,7 @@ def _material_from_json(d: dict) -> Material:
             continue
         v = d[f.name]
         if f.name.endswith("_texture") and v is not None:
-            v = TextureRef(**{k: tuple(x) if isinstance(x, list) else x for k, x in v.items()})
+            v = TextureRef(**cast(dict[str, Any], {k: tuple(x) if isinstance(x, list) else x for k, x in v.items()}))
         elif isinstance(v, list):
             v = tuple(v)
         elif v is None and f.name == "attenuation_distance":
@@ -315,7 +317,7 @@ def bake_or_load_environment(source, cache_dir=None, face_size: int = DEFAULT_FA
     start = time.perf_counter()
     env = environment.prefilter(panorama.pixels, face_size=face_size, method=prefilter)
     prefilter_s = time.perf_counter() - start
-    arrays = {f"specular.{i}.npy": mip for i, mip in enumerate(env.specular)}
+    arrays: dict[str, Any] = {f"specular.{i}.npy": mip for i, mip in enumerate(env.specular)}
     arrays["small.npz"] = {"irradiance_sh": np.asarray(env.irradiance_sh),
                            "brdf_lut": np.asarray(env.brdf_lut)}
     manifest = {
@@ -343,7 +345,7 @@ def load_environment(key: str, cache_dir=None) -> BakedEnvironment:
 
 def unpack_environment(entry: Entry) -> BakedEnvironment:
     a, m = entry.arrays, entry.manifest
-    specular = [a[f"specular.{i}.npy"] for i in range(m["mips"])]
+    specular = [cast(np.ndarray, a[f"specular.{i}.npy"]) for i in range(m["mips"])]
     return BakedEnvironment(key=entry.key, name=m["name"], specular=specular,
                             irradiance_sh=a["small.npz"]["irradiance_sh"], brdf_lut=a["small.npz"]["brdf_lut"],
                             prefilter=m["options"]["prefilter"], manifest=m)
@@ -356,9 +358,10 @@ def bake_one(kind: str, source: str, *, cache=None, max_bytes=None, force=False,
     from core.errors import AssetError
 
     start = time.perf_counter()
-    result = {"kind": kind, "path": source}
+    result: dict[str, Any] = {"kind": kind, "path": source}
     try:
         store = Cache(cache, max_bytes=max_bytes)
+        baked: BakedAsset | BakedEnvironment
         if kind == "asset":
             baked, hit = bake_or_load_asset(source, store, force=force)
             result.update(triangles=int(baked.triangle_count), meshes=len(baked.meshes))

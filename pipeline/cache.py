@@ -255,7 +255,7 @@ class Cache:
             return  # already gone (another process removed it)
         shutil.rmtree(trash, ignore_errors=True)
 
-    def _corrupt(self, kind: str, key: str, why: str) -> None:
+    def _corrupt(self, kind: str, key: str, why: str) -> Entry | None:  # None: load() returns it
         log.warning("cache: %s/%s is corrupt (%s); removing it to rebake", kind, key, why)
         self.remove(kind, key)
         return None

@@ -211,7 +211,7 @@ def _paper_mips(ctx, gl, base_tex, size: int, levels: int) -> list[np.ndarray]:
 
 
 def _radical_inverse(i: np.ndarray) -> np.ndarray:
-    b = i.astype(np.uint32)
+    b: np.ndarray = i.astype(np.uint32)
     b = (b << 16) | (b >> 16)
     b = ((b & 0x55555555) << 1) | ((b & 0xAAAAAAAA) >> 1)
     b = ((b & 0x33333333) << 2) | ((b & 0xCCCCCCCC) >> 2)
@@ -255,7 +255,7 @@ def _brdf_lut_cached(size: int, samples: int) -> np.ndarray:
     tex = ctx.texture((size, size), 4, dtype="f4")
     fbo = ctx.framebuffer(color_attachments=[tex])
     prog = gl.program("screen_triangle.vert", "brdf_lut.frag", {"SAMPLES": samples})
-    prog["u_size"].value = size
+    prog["u_size"].value = size  # type: ignore[union-attr]  # a uniform
     _draw(ctx, gl, fbo, prog)
     lut = np.frombuffer(tex.read(), dtype=np.float32).reshape(size, size, 4)[..., :2].copy()
     fbo.release()

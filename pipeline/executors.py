@@ -21,6 +21,7 @@ import socket
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 log = logging.getLogger(__name__)
 
@@ -131,7 +132,7 @@ def run_ray(jobs: list[tuple[str, str]], common: dict, report, *, address: str |
     # Absolute, so that a worker that cannot chdir (another mount layout) fails loudly on
     # the path instead of writing a private cache of its own.
     common["cache"] = str(Path(common.get("cache") or default_cache_dir()).absolute())
-    options = {"num_cpus": 1, "max_retries": max_retries, "retry_exceptions": False}
+    options: dict[str, Any] = {"num_cpus": 1, "max_retries": max_retries, "retry_exceptions": False}
     if env := task_env():
         options["runtime_env"] = env
     remote = ray.remote(_bake_task).options(**options)

@@ -81,7 +81,7 @@ def _check_size(w: int, h: int, source: str, limits: Limits) -> None:
                                     f"{limits.max_texture_pixels} (ASSET_PREVIEW_MAX_TEXTURE_PIXELS)")
 
 
-def _check_complete(fmt: str | None, data: bytes, source: str) -> None:
+def _check_complete(fmt: str | None, data: bytes | memoryview, source: str) -> None:
     tail = bytes(data[-64:])  # `in` on a memoryview would look for one byte, not a sequence
     if fmt == "PNG" and b"IEND" not in tail[-16:]:
         raise MalformedAsset(source, "PNG image is truncated (no IEND chunk)")
@@ -114,15 +114,18 @@ class DeferredTexture(Texture):
     Ingest probes the image (format, size, completeness) so a broken one is caught there and
     becomes a warning; decoding waits until something needs the pixels (a bake), so inspecting
     an asset or hashing it never pays for it. Behaves as a Texture otherwise (pickles too)."""
+    _image: np.ndarray | None
+    _data: bytes | memoryview | None
 
     def __init__(self, name: str, data: bytes | memoryview, size: tuple[int, int], limits: Limits,
                  sampler: Sampler | None = None, source: str = ""):
         self._data, self._limits, self.size = data, limits, size
-        super().__init__(name=name, image=None, sampler=sampler or Sampler(), source=source)
+        super().__init__(name=name, image=None, sampler=sampler or Sampler(), source=source)  # type: ignore[arg-type]  # decoded on first use
 
     @property
     def image(self) -> np.ndarray:
         if self._image is None:
+            assert self._data is not None  # dropped only once decoded
             self._image = decode_image(self._data, self.source, self._limits)
             self._data = None
         return self._image

@@ -16,11 +16,12 @@ import math
 import os
 import struct
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
 from core.errors import LimitExceeded, MalformedAsset, UnsupportedFormat
-from core.scene import Instance, Light, Material, Mesh, Sampler, Scene, TextureRef, default_material
+from core.scene import Instance, Light, Material, Mesh, Sampler, Scene, Texture, TextureRef, default_material
 
 from . import deadline
 from .images import DeferredTexture, probe_image
@@ -34,8 +35,8 @@ SUPPORTED_EXTENSIONS = frozenset({
     "KHR_materials_emissive_strength", "KHR_texture_transform", "KHR_mesh_quantization",
     "KHR_materials_unlit", "KHR_lights_punctual", "EXT_texture_webp",
 })
-COMPONENTS = {5120: np.dtype("<i1"), 5121: np.dtype("<u1"), 5122: np.dtype("<i2"),
-              5123: np.dtype("<u2"), 5125: np.dtype("<u4"), 5126: np.dtype("<f4")}
+COMPONENTS: dict[int, np.dtype] = {5120: np.dtype("<i1"), 5121: np.dtype("<u1"), 5122: np.dtype("<i2"),
+                                   5123: np.dtype("<u2"), 5125: np.dtype("<u4"), 5126: np.dtype("<f4")}
 WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
 NORMALIZE = {5120: 127.0, 5121: 255.0, 5122: 32767.0, 5123: 65535.0}
 TRIANGLES, TRIANGLE_STRIP, TRIANGLE_FAN = 4, 5, 6
@@ -77,16 +78,17 @@ class _Reader:
         self.path, self.limits = path, limits
         self.files: list[str] = []  # referenced files; load_scene adds the asset itself
         self.warnings: list[str] = []
-        self._buffers: dict[int, bytes] = {}
+        self._buffers: dict[int, bytes | memoryview] = {}
         self._accessor_cache: dict[int, np.ndarray] = {}
         self._texture_map: dict[int, int | None] = {}
         self._image_map: dict[tuple, int | None] = {}  # (image, sampler) -> scene texture
         self._images: dict[int, tuple | None] = {}
         self._arrays: dict[str, list] = {}  # top-level JSON arrays, type-checked once
         self._files_read: dict[str, bytes] = {}  # by resolved path
-        self.textures: list[DeferredTexture] = []
+        self.textures: list[Texture] = []  # DeferredTextures
         self._unpacked = 0  # bytes of referenced files and decoded arrays, against the limit
         data = path.read_bytes()
+        text: bytes | memoryview
         if data[:4] == GLB_MAGIC:
             text, self.glb_bin = _split_glb(path, data)
         else:
@@ -189,6 +191,7 @@ class _Reader:
         if index not in self._buffers:
             buf = self._get("buffers", index)
             declared = self._int(buf, "byteLength", lo=1)
+            data: bytes | memoryview
             if "uri" in buf:
                 data = self._payload(buf["uri"], f"buffer {index}")[0]
             elif index == 0 and self.glb_bin is not None:
@@ -326,7 +329,7 @@ class _Reader:
             idx = np.arange(n, dtype=np.uint32)
         return Mesh(name=f"{self._name('meshes', mesh_index)}/{prim_index}",
                     positions=positions.astype(np.float32, copy=False),
-                    normals=attribute("NORMAL", (3,)), indices=_triangles(idx, mode),
+                    normals=attribute("NORMAL", (3,)), indices=_triangles(idx, mode),  # type: ignore[arg-type]  # None: pipeline.ingest computes them
                     tangents=attribute("TANGENT", (4,)), uv0=attribute("TEXCOORD_0", (2,)),
                     uv1=attribute("TEXCOORD_1", (2,)), colors=colors)
 
@@ -394,6 +397,7 @@ class _Reader:
         """An image's encoded bytes, size and label, probed once; None (warned) if unusable."""
         if source in self._images:
             return self._images[source]
+        data: bytes | memoryview
         if "bufferView" in img:
             data = self._view(self._int(img, "bufferView"))[0]  # no copy: decoded later
             label = f"{self.path} image {source}"
@@ -470,7 +474,7 @@ class _Reader:
             out.attenuation_distance = self._float(v, "attenuationDistance", math.inf, 1e-9)
         return out
 
-    def light(self, index: int, matrix: np.ndarray) -> Light:
+    def light(self, index: object, matrix: np.ndarray) -> Light:  # index from the JSON: checked here
         lights = self._list(self._dict(self._dict(self.doc.get("extensions"), "extensions")
                                        .get("KHR_lights_punctual"), "KHR_lights_punctual"), "lights")
         if not isinstance(index, int) or not 0 <= index < len(lights):
@@ -560,7 +564,7 @@ class _Reader:
                     materials[mat] = len(scene.materials)
                     scene.materials.append(default_material() if mat is None
                                            else self.material(self._int(prim, "material")))
-                scene.instances.append(Instance(prim_meshes[key], materials[mat], world))
+                scene.instances.append(Instance(cast(int, prim_meshes[key]), materials[mat], world))
         scene.textures = self.textures
         scene.warnings = self.warnings
         scene.files = self.files

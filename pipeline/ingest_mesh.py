@@ -64,7 +64,7 @@ def load(path: Path, limits: Limits) -> Scene:
             # vertex_normals costs twenty times as much on the bunny.
             normals = smooth_normals(positions, indices)
         scene.meshes.append(Mesh(name=name, positions=positions,
-                                 normals=normals, indices=indices,
+                                 normals=normals, indices=indices,  # type: ignore[arg-type]  # None: pipeline.ingest computes them
                                  uv0=_uv(geom), colors=_colors(geom)))
         scene.instances.append(Instance(len(scene.meshes) - 1, 0, matrix))
     return scene

@@ -254,6 +254,7 @@ class _StageReader:
                  or UsdShade.MaterialBindingAPI(s.GetPrim()).GetDirectBindingRel().GetTargets())]
         if not subsets:
             return [("", own if own else None, None)]
+        groups: list[tuple]  # (label, material, faces or ("rest", claimed faces))
         groups, claimed = [], []
         for subset in subsets:
             faces = np.asarray(subset.GetIndicesAttr().Get(self.time) or [], np.int64)
@@ -427,7 +428,7 @@ class _StageReader:
             alpha = np.ones((len(rgb), 1), np.float32) if alpha is None else alpha[:, :1]
             colors = pick(np.concatenate([np.broadcast_to(rgb, (len(rgb), 3)), alpha], axis=1))
         return Mesh(name=name, positions=pick(topo.positions),
-                    normals=None if topo.normals is None else pick(topo.normals),
+                    normals=None if topo.normals is None else pick(topo.normals),  # type: ignore[arg-type]  # None: pipeline.ingest computes them
                     indices=local.reshape(-1, 3).astype(np.uint32),
                     uv0=uvs[0], uv1=uvs[1], colors=colors)
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 import dataclasses
 import os
 from dataclasses import dataclass
+from typing import Any
 
 
 @dataclass(frozen=True)
@@ -21,7 +22,7 @@ class Limits:
     @classmethod
     def from_env(cls, **overrides) -> "Limits":
         """Defaults, overridden by ASSET_PREVIEW_<FIELD> variables, overridden by arguments."""
-        values = {}
+        values: dict[str, Any] = {}
         for field in dataclasses.fields(cls):
             raw = os.environ.get(f"ASSET_PREVIEW_{field.name.upper()}")
             if raw is not None:

@@ -65,7 +65,7 @@ def load_panorama(source: str | Path, limits: Limits | None = None) -> Panorama:
             from .images import decode_image
             pixels = srgb_to_linear(decode_image(data, str(path), limits)[..., :3])
         else:
-            with within(limits.ingest_seconds, path):  # the RLE decoder checks it per scanline
+            with within(limits.ingest_seconds, str(path)):  # the RLE decoder checks it per scanline
                 pixels = read_rgbe(data, str(path), limits)
     if pixels.shape[0] < 2 or pixels.shape[1] < 4:
         raise MalformedAsset(path, f"panorama of {pixels.shape[1]}x{pixels.shape[0]} pixels is too small")

@@ -145,6 +145,7 @@ class LayerGraph:
         """Bytes of a file resolved by `resolve` (on disk or stored in the package)."""
         if Ar.IsPackageRelativePath(identifier):
             outer, inner = _outer(identifier), _inner(identifier)
+            assert inner is not None  # a package-relative path has an inner part
             data = self._package(outer).read(inner)
         else:
             self._check_size(Path(identifier))

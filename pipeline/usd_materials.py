@@ -25,6 +25,7 @@ import dataclasses
 import logging
 import math
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 from pxr import Sdf, Usd, UsdShade
@@ -86,8 +87,8 @@ class _Packed(Texture):
     def __init__(self, name: str, parts: dict[int, tuple[Texture, int]], sampler: Sampler,
                  source: str):
         self.parts = parts  # dst channel -> (texture, src channel)
-        self._pixels = None
-        super().__init__(name=name, image=None, sampler=sampler, source=source)
+        self._pixels: np.ndarray | None = None
+        super().__init__(name=name, image=None, sampler=sampler, source=source)  # type: ignore[arg-type]  # made on first use
 
     @property
     def image(self) -> np.ndarray:
@@ -109,7 +110,7 @@ def _resized(channel: np.ndarray, h: int, w: int) -> np.ndarray:
     if channel.shape == (h, w):
         return channel
     from PIL import Image
-    return np.asarray(Image.fromarray(channel).resize((w, h), Image.BILINEAR))
+    return np.asarray(Image.fromarray(channel).resize((w, h), Image.Resampling.BILINEAR))
 
 
 class MaterialReader:
@@ -151,6 +152,7 @@ class MaterialReader:
             name = str(material.GetPath()) if material else "default"
             return default_material(name), (), None
         deadline.check()
+        assert material is not None  # a shader comes from a bound material
         return self._preview_surface(str(material.GetPath()), shader)
 
     def _preview_surface(self, name: str, shader: UsdShade.Shader):
@@ -201,7 +203,7 @@ class MaterialReader:
             self._warn(f"{name}: opacity from primvar {opacity!r} is not supported; opaque")
         else:
             alpha = _unit(_scalar(opacity, 1.0))
-        mat.base_color = (*[float(c) for c in rgb], 1.0)
+        mat.base_color = cast(tuple[float, float, float, float], (*[float(c) for c in rgb], 1.0))
 
         parts: dict[int, tuple[int, int]] = {}
         factors = {}
@@ -229,9 +231,9 @@ class MaterialReader:
         if isinstance(emissive, _Tex):
             self._check_tex(name, "emissiveColor", emissive, "sRGB")
             mat.emissive_texture = ref(emissive)
-            mat.emissive = tuple(float(c) for c in emissive.scale[:3])
+            mat.emissive = cast(tuple[float, float, float], tuple(float(c) for c in emissive.scale[:3]))
         else:
-            mat.emissive = tuple(float(c) for c in _vec(emissive, 3, (0.0, 0.0, 0.0)))
+            mat.emissive = cast(tuple[float, float, float], tuple(float(c) for c in _vec(emissive, 3, (0.0, 0.0, 0.0))))
 
         normal = self._input(shader, "normal")
         if isinstance(normal, _Tex):

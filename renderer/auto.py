@@ -29,6 +29,7 @@ import math
 import threading
 from collections import OrderedDict
 from dataclasses import dataclass, field
+from typing import Any, Literal, cast
 
 import numpy as np
 
@@ -97,8 +98,8 @@ class Decision:
 class Plan:
     """Per-object decisions and the per-request ones."""
     objects: list[Decision]
-    frame_method: str | None = None      # "raytrace" when the whole frame is ray traced
-    tir: str | None = None               # wyman's TIR treatment for this request
+    frame_method: Literal["raytrace"] | None = None  # "raytrace" when the whole frame is ray traced
+    tir: Literal["paper", "reflect"] | None = None  # wyman's TIR treatment for this request
     tir_why: str = ""
     bounces: int | None = None
     why: str = ""
@@ -117,7 +118,7 @@ class Plan:
                 g = groups.setdefault((o["method"], o["why"]), {**o, "count": 0})
                 g["count"] += 1
             objects = list(groups.values())
-        out = {"request": self.why, "objects": objects}
+        out: dict[str, Any] = {"request": self.why, "objects": objects}
         if self.tir:
             out["tir"] = self.tir
             out["tir_why"] = self.tir_why
@@ -132,7 +133,7 @@ class Plan:
 # --- facts ----------------------------------------------------------------------------------
 
 _topology_lock = threading.Lock()
-_topology: OrderedDict[int, tuple[np.ndarray, tuple[int | None, int]]] = OrderedDict()
+_topology: OrderedDict[int, tuple[np.ndarray, MeshShape]] = OrderedDict()
 
 
 def topology(positions: np.ndarray, indices: np.ndarray) -> tuple[int | None, int]:
@@ -213,7 +214,7 @@ def shape(mesh: BakedMesh) -> MeshShape:
     reach = float(np.sqrt(np.max(np.sum((pos - (lo + hi) / 2) ** 2, axis=1))))
     diameter = float(np.linalg.norm(hi - lo)) or 1.0
     if mesh.interior is not None and len(mesh.interior):
-        thickness = float(np.median(mesh.interior_length)) / diameter
+        thickness = float(np.median(cast(np.ndarray, mesh.interior_length))) / diameter
     else:
         thickness = float((hi - lo).min()) / diameter
     result = MeshShape(genus, open_edges, convexity, round(inward, 3), round(faceted, 3), lo, hi,
@@ -311,7 +312,7 @@ def plan_request(asset: BakedAsset, options: RenderOptions, available: list[str]
             r_px = min(f.screen_px, max(options.width, options.height)) / 2
             coverage += math.pi * r_px * r_px
     plan = Plan(decisions)
-    wyman = [d.facts for d in decisions if d.method == "wyman"]
+    wyman = [d.facts for d in decisions if d.method == "wyman" and d.facts is not None]
     if wyman:
         flat = [f.mesh for f in wyman if f.faceted >= TIR_FLAT_SHARE]
         plan.tir = options.tir or ("reflect" if flat else "paper")
@@ -346,6 +347,7 @@ def run_frame_method(plan: Plan, fn, asset: BakedAsset, env, options: RenderOpti
     """Render the whole frame with the frame method `plan` chose; its decisions in the plan."""
     from dataclasses import replace
 
+    assert plan.frame_method is not None and plan.bounces is not None  # set together by plan_request
     frame = fn(asset, env, replace(options, method=plan.frame_method, bounces=plan.bounces))
     frame.plan["auto"] = plan.explain()
     return frame

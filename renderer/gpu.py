@@ -10,6 +10,7 @@ import logging
 import os
 from collections import OrderedDict
 from dataclasses import dataclass, field
+from typing import Callable, TypeVar
 
 import moderngl
 import numpy as np
@@ -59,8 +60,8 @@ class GpuMesh:
         key = (prog.glo, mirrored)
         vao = self.vaos.get(key)
         if vao is None:
-            content = [(buf, _ATTRIBUTES[name][1], _ATTRIBUTES[name][0])
-                       for name, buf in self.buffers.items()]
+            content: list[tuple] = [(buf, _ATTRIBUTES[name][1], _ATTRIBUTES[name][0])
+                                   for name, buf in self.buffers.items()]
             inst = next(b for m, b, _ in self.instances if m == mirrored)
             content.append((inst, _INSTANCE[0], _INSTANCE[1], _INSTANCE[2]))
             vao = context.get_context().vertex_array(prog, content, self.index_buffer, 4,
@@ -122,7 +123,11 @@ def _check_context() -> moderngl.Context:
     return ctx
 
 
-def _cached(table: OrderedDict, key: str, upload, stat: str, over_budget) -> object:
+_Gpu = TypeVar("_Gpu", GpuAsset, GpuEnvironment)
+
+
+def _cached(table: OrderedDict[str, _Gpu], key: str, upload: Callable[[], _Gpu], stat: str,
+            over_budget: Callable[[], bool]) -> _Gpu:
     """LRU lookup in `table`; on a miss, `upload()` and evict the oldest entries (never the
     newest) while `over_budget()` says the table is too big."""
     _check_context()
@@ -229,7 +234,7 @@ def mip_chain(img: np.ndarray, srgb: bool) -> list[np.ndarray]:
     images is averaged in linear light, alpha always linearly."""
     chain = [img]
     if srgb:
-        cur = np.empty(img.shape, np.float32)
+        cur: np.ndarray = np.empty(img.shape, np.float32)
         cur[..., :3] = srgb_to_linear(img[..., :3])
         cur[..., 3] = img[..., 3] / np.float32(255)
     else:

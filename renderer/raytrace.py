@@ -40,6 +40,7 @@ import math
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -63,7 +64,7 @@ _pool: ThreadPoolExecutor | None = None
 @dataclass
 class TraceScene:
     """The world-space triangle soup with per-triangle shading data."""
-    embree: object               # embreex EmbreeScene
+    embree: Any                  # embreex EmbreeScene
     normals: np.ndarray          # T x 3 x 3 float32 world vertex normals per corner
     geo_normals: np.ndarray      # T x 3 float32 unit geometric normals (winding order)
     material: np.ndarray         # T int32 index into the material tables
@@ -229,7 +230,7 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     t_build = time.perf_counter()
     npix = camera.width * camera.height
     image = _Image(npix)
-    stats = {"rays": npix, "bounces": [], "tir": 0}
+    stats: dict[str, Any] = {"rays": npix, "bounces": [], "tir": 0}
     show_env = options.background == "env"
 
     # Adaptive anti-aliasing: one centre ray finds the object; pixels on or next to it get

@@ -59,7 +59,8 @@ class _Targets:
     depth: moderngl.Texture
 
     def release(self) -> None:
-        for r in (self.fbo, *self.color, self.depth):
+        resources: tuple[moderngl.Framebuffer | moderngl.Texture, ...] = (self.fbo, *self.color, self.depth)
+        for r in resources:
             r.release()
 
 
@@ -173,8 +174,8 @@ def _draw_front(p: Pass, items: list[DrawItem], back: _Targets | None,
         }
         for name, value in values.items():
             if name in prog:
-                prog[name].value = value
-        if wyman:
+                prog[name].value = value  # type: ignore[union-attr]  # a uniform
+        if back is not None:  # wyman
             back.color[0].use(_UNIT_BACK_POSITION)
             back.color[1].use(_UNIT_BACK_NORMAL)
         if front is not None:

@@ -81,10 +81,10 @@ class Pass:
         if prog.glo not in self._bound:
             for name, data in self.frame_uniforms.items():
                 if name in prog:
-                    prog[name].write(data)
+                    prog[name].write(data)  # type: ignore[union-attr]  # a uniform
             for unit, name in ((0, "u_env"), (1, "u_brdf_lut")):
                 if name in prog:
-                    prog[name].value = unit
+                    prog[name].value = unit  # type: ignore[union-attr]  # a uniform
             self._bound.add(prog.glo)
         return prog, state
 
@@ -93,10 +93,10 @@ class Pass:
         """Draw every instance of `item` with `prog` (material uniforms and textures bound)."""
         for name, value in state.uniforms:
             if name in prog:
-                prog[name].write(value)
+                prog[name].write(value)  # type: ignore[union-attr]  # a uniform
         for unit, (name, tex) in enumerate(state.textures, start=2):
             if name in prog:
-                prog[name].value = unit
+                prog[name].value = unit  # type: ignore[union-attr]  # a uniform
                 tex.use(unit)
         self.env.cube.use(0)
         self.env.lut.use(1)
@@ -133,9 +133,9 @@ def available_methods() -> list[str]:
 
 def _load_plugins() -> None:
     """Import the optional method modules once (they register themselves)."""
-    if _load_plugins.done:
+    if _load_plugins.done:  # type: ignore[attr-defined]  # a function attribute
         return
-    _load_plugins.done = True
+    _load_plugins.done = True  # type: ignore[attr-defined]
     import importlib
     for name in ("renderer.refraction", "renderer.raytrace"):
         try:
@@ -145,7 +145,7 @@ def _load_plugins() -> None:
                 raise
 
 
-_load_plugins.done = False
+_load_plugins.done = False  # type: ignore[attr-defined]
 
 
 def render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions) -> Frame:
@@ -355,7 +355,7 @@ def _frame_uniforms(camera: Camera, env: gpu.GpuEnvironment, lights) -> dict[str
         for light in lights:
             mtx = np.asarray(light.matrix, np.float64)
             axis = -mtx[:3, 2]
-            axis = axis / max(np.linalg.norm(axis), 1e-12)
+            axis = axis / max(float(np.linalg.norm(axis)), 1e-12)
             kind = {"directional": 0.0, "point": 1.0, "spot": 2.0}[light.type]
             pos.append([*mtx[:3, 3], kind])
             direction.append([*axis, light.range if math.isfinite(light.range) else 0.0])
@@ -384,7 +384,7 @@ def _draw_blend(p: Pass, items: list[DrawItem]) -> None:
     order = sorted(((float(np.linalg.norm(c - eye)), i, it) for i, it in enumerate(items)
                     for c in it.mesh.centers[:1]), key=lambda t: -t[0])
     p.ctx.enable(moderngl.BLEND)
-    p.ctx.blend_func = (moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA,
+    p.ctx.blend_func = (moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA,  # type: ignore[assignment]  # stubs: 2 or 4
                         moderngl.ONE, moderngl.ONE_MINUS_SRC_ALPHA)
     p.fbo.depth_mask = False
     for _, _, it in order:
@@ -448,19 +448,19 @@ def _finish(ctx, target: _Target, camera: Camera, env: gpu.GpuEnvironment,
     prog = context.program("screen_triangle.vert", "final.frag",
                            {"TONEMAP": _TONEMAPS[options.tonemap], "BACKGROUND": mode,
                             "SAMPLES": max(target.samples, 1)})
-    prog["u_frame"].value = 0
-    prog["u_height"].value = h
-    prog["u_exposure_scale"].value = exposure_scale(options.exposure)
+    prog["u_frame"].value = 0  # type: ignore[union-attr]  # a uniform
+    prog["u_height"].value = h  # type: ignore[union-attr]  # a uniform
+    prog["u_exposure_scale"].value = exposure_scale(options.exposure)  # type: ignore[union-attr]  # a uniform
     if mode == 1:
-        prog["u_background"].value = bg
+        prog["u_background"].value = bg  # type: ignore[union-attr]  # a uniform
     elif mode == 2:
         r, u, f = camera.basis()
         th = math.tan(math.radians(camera.fov) / 2)
-        prog["u_camera_basis"].write(np.ascontiguousarray(np.stack([r, u, f]), np.float32).tobytes())
-        prog["u_tan_half_fov"].value = (th * camera.aspect, th)
-        prog["u_blur"].value = float(min(max(options.background_blur, 0.0), 1.0))
-        prog["u_env_max_lod"].value = env.max_lod
-        prog["u_env"].value = 1
+        prog["u_camera_basis"].write(np.ascontiguousarray(np.stack([r, u, f]), np.float32).tobytes())  # type: ignore[union-attr]  # a uniform
+        prog["u_tan_half_fov"].value = (th * camera.aspect, th)  # type: ignore[union-attr]  # a uniform
+        prog["u_blur"].value = float(min(max(options.background_blur, 0.0), 1.0))  # type: ignore[union-attr]  # a uniform
+        prog["u_env_max_lod"].value = env.max_lod  # type: ignore[union-attr]  # a uniform
+        prog["u_env"].value = 1  # type: ignore[union-attr]  # a uniform
         env.cube.use(1)
     target.out_fbo.use()
     ctx.viewport = (0, 0, w, h)

@@ -13,6 +13,7 @@ import logging
 import shutil
 import time
 from pathlib import Path
+from typing import Any
 
 from core.errors import AssetError, LimitExceeded, MalformedAsset, UnsupportedFormat
 from core.options import RenderOptions
@@ -56,7 +57,7 @@ class ThumbnailService:
         self.metrics = Metrics()
         if settings.executor == "ray":  # actors on a Ray cluster, same interface
             from .ray_workers import RayWorkerPool
-            self.pool = RayWorkerPool(settings.worker_count, str(settings.cache),
+            self.pool: WorkerPool | RayWorkerPool = RayWorkerPool(settings.worker_count, str(settings.cache),
                                       max_queue=settings.max_queue, on_restart=self._restarted,
                                       address=settings.ray_address or None, num_gpus=settings.ray_gpus)
         else:
@@ -218,6 +219,7 @@ class ThumbnailService:
 
     async def _bake(self, asset_id: str) -> None:
         try:
+            assert self._bake_slots is not None  # made in start()
             async with self._bake_slots:
                 rec = self.store.assets.get(asset_id)
                 if rec is None:
@@ -228,7 +230,7 @@ class ThumbnailService:
                     out = await self.pool.run("bake", str(path), deadline=self.settings.bake_seconds,
                                               queue=False)
                 except JobAssetError as exc:
-                    fields = {"status": "failed", "reason": str(_public_error(exc, path.parent, rec["name"]))}
+                    fields: dict[str, Any] = {"status": "failed", "reason": str(_public_error(exc, path.parent, rec["name"]))}
                 except WorkerFailure as exc:
                     fields = {"status": "failed", "reason": str(exc)}
                 else:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import time
 from bisect import bisect_left
 from collections import defaultdict
+from typing import Any, Callable
 
 LATENCY_BUCKETS = (0.0005, 0.001, 0.002, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1, 2.5, 5, 10, 30)
 WORK_BUCKETS = (0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1, 2.5, 5, 10, 30, 60, 120, 300)
@@ -33,7 +34,7 @@ class Metrics:
         self.bake_results: dict[str, int] = defaultdict(int)        # ready | failed
         self.restarts: dict[str, int] = defaultdict(int)            # crash | deadline
         self.rejected: dict[str, int] = defaultdict(int)            # queue_full | too_large
-        self.gauges: dict[str, callable] = {}                       # name -> () -> {labels: value}
+        self.gauges: dict[str, tuple[str, Callable[[], dict[str, Any]]]] = {}  # name -> () -> {labels: value}
 
     def observe_request(self, method: str, route: str, status: int, seconds: float) -> None:
         self.requests[(method, route, status)] += 1

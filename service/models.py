@@ -1,7 +1,7 @@
 """Pydantic models for every request and response (they are the OpenAPI schema at /docs)."""
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, create_model
 
@@ -77,7 +77,7 @@ def _thumbnail_params() -> type[BaseModel]:
     """Query parameters of GET /assets/{id}/thumbnail: the flat render request
     (core.options.request_fields, the single schema) plus the image format and the
     environment, which choose what is encoded and what is baked rather than how it renders."""
-    fields = {name: (info.annotation, info) for name, info in request_fields().items()}
+    fields: dict[str, Any] = {name: (info.annotation, info) for name, info in request_fields().items()}
     fields["format"] = (ImageFormat, Field("png", description="image encoding"))
     fields["env"] = (str | None, Field(None, description=(
         "environment name (GET /environments); default the bundled one")))

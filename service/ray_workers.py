@@ -20,6 +20,7 @@ import logging
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from .workers import DeadlineExceeded, Pool, WorkerCrashed, WorkerState, answer
 
@@ -44,7 +45,7 @@ class RenderActor:
 @dataclass
 class ActorWorker:
     index: int
-    actor: object = None
+    actor: Any = None  # a Ray actor handle
     where_ref: object = None      # the actor's pid and node, resolved when it has answered
     where: dict = field(default_factory=dict)
     dead: bool = False
@@ -82,7 +83,7 @@ class RayWorkerPool(Pool):
         self.address = address
         self.num_gpus, self.num_cpus = num_gpus, num_cpus
         self.workers = [ActorWorker(i) for i in range(size)]
-        self._actor_class = None
+        self._actor_class: Any = None  # the Ray actor class, made in start()
 
     # -- life cycle -------------------------------------------------------------------------
 
@@ -91,7 +92,7 @@ class RayWorkerPool(Pool):
         ray = self._ray
         self._loop = loop = asyncio.get_running_loop()
         await loop.run_in_executor(self._executor, connect, self.address)
-        options = {"num_cpus": self.num_cpus, "num_gpus": self.num_gpus, "max_restarts": 0,
+        options: dict[str, Any] = {"num_cpus": self.num_cpus, "num_gpus": self.num_gpus, "max_restarts": 0,
                    "max_concurrency": 1}
         if env := task_env():
             options["runtime_env"] = env

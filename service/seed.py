@@ -37,13 +37,13 @@ def sample_uploads(folder: Path) -> list[tuple[str, bytes, str | None]]:
                         (gltf / "rgb_cube_with_primitives.gltf").read_bytes(), None))
         if (gltf / "TestScene.gltf").is_file():
             out.append(("TestScene.zip", _zip(gltf, ["TestScene.gltf", "TestScene.bin"]), "TestScene.gltf"))
-        for folder, main in (("TextureCoordinateTest", "TextureCoordinateTest.usda"), ("Teapot", "Teapot.usd")):
-            d = shared / "usd" / folder
+        for sample, main in (("TextureCoordinateTest", "TextureCoordinateTest.usda"), ("Teapot", "Teapot.usd")):
+            d = shared / "usd" / sample
             if (d / main).is_file():
                 files = [p.relative_to(d).as_posix() for p in sorted(d.rglob("*"))
                          if p.is_file() and p.suffix.lower() in (".usd", ".usda", ".usdc", ".png", ".jpg")
                          and "thumbnails" not in p.parts and "cards" not in p.parts]
-                out.append((f"{folder}.zip", _zip(d, files), main))
+                out.append((f"{sample}.zip", _zip(d, files), main))
     else:
         out += [(p.name, p.read_bytes(), None) for p in sorted(shared.iterdir())
                 if p.suffix.lower() in (".glb", ".gltf", ".usda", ".usdc", ".usdz", ".ply", ".stl", ".obj")]

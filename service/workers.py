@@ -19,6 +19,8 @@ import time
 from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from multiprocessing.connection import Connection
+from multiprocessing.process import BaseProcess
 
 log = logging.getLogger(__name__)
 
@@ -179,8 +181,8 @@ def _worker_main(conn, cache_dir: str, limits: dict, log_level: int) -> None:
 @dataclass
 class Worker:
     index: int
-    process: mp.Process | None = None
-    conn: object = None
+    process: BaseProcess | None = None
+    conn: Connection | None = None
     busy_since: float | None = None
     op: str | None = None
     jobs: int = 0
@@ -202,7 +204,7 @@ class Pool:
     creates `self.workers` and supplies start/stop/_replace and `_exchange`, which runs one job
     on one worker and returns its (status, value) reply."""
 
-    def __init__(self, size: int, cache_dir: str, limits: dict | None,
+    def __init__(self, size: int, cache_dir: str | os.PathLike, limits: dict | None,
                  max_queue: int, on_restart, thread_prefix: str):
         self.size = size
         self.cache_dir = str(cache_dir)
@@ -225,6 +227,7 @@ class Pool:
     async def run(self, op: str, *args, deadline: float, queue: bool = True):
         """Run `op(*args)` on a free worker within `deadline` seconds of starting it.
         `queue=True` counts the job against the bound (renders); background work does not."""
+        assert self._idle is not None, "the pool is not started"
         if queue:
             if self.pending >= self.max_queue:
                 raise QueueFull(f"render queue is full ({self.pending} waiting or running)")
@@ -241,6 +244,7 @@ class Pool:
                 self.pending -= 1
 
     def _release(self, w) -> None:
+        assert self._loop is not None and self._idle is not None  # started: a job ran
         try:
             self._loop.call_soon_threadsafe(self._idle.put_nowait, w)
         except RuntimeError:  # the loop is closed: the server is stopping
@@ -320,7 +324,8 @@ class WorkerPool(Pool):
         if w.process:
             w.process.join(timeout=5)
         try:
-            w.conn.close()
+            if w.conn is not None:
+                w.conn.close()
         except OSError:
             pass
         w.restarts += 1
@@ -328,9 +333,11 @@ class WorkerPool(Pool):
         log.warning("render worker %d (pid %s) %s; restarting it", w.index, w.pid, reason)
         self._spawn(w)
         # Warm the new worker (GL context) without holding up the failed request's answer.
+        assert self._loop is not None  # started: workers are replaced only then
         self._loop.call_soon_threadsafe(self._ping_soon)
 
     def _ping_soon(self) -> None:
+        assert self._loop is not None
         task = self._loop.create_task(self._ping())
         self._tasks.add(task)  # the loop keeps only weak references to tasks
         task.add_done_callback(self._tasks.discard)
@@ -346,6 +353,7 @@ class WorkerPool(Pool):
     def _exchange(self, w: Worker, op: str, args: tuple, deadline: float):
         if not w.alive():
             self._replace(w, "was found dead")
+        assert w.conn is not None and w.process is not None  # set by _spawn
         try:
             w.conn.send((op, args))
             if not w.conn.poll(deadline):

@@ -1,7 +1,7 @@
 """/assets: upload, list, inspect, delete, and thumbnails."""
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, File, Form, Request, UploadFile
 from fastapi.exceptions import RequestValidationError
@@ -14,7 +14,7 @@ from ..models import MEDIA_TYPES, AssetInfo, AssetList, Deleted, ErrorDetail, Th
 
 router = APIRouter(prefix="/assets", tags=["assets"])
 Service = Annotated[ThumbnailService, Depends(get_service)]
-ERRORS = {code: {"model": ErrorDetail} for code in (401, 404, 413, 415, 422, 500, 503, 504)}
+ERRORS: dict[int | str, dict[str, Any]] = {code: {"model": ErrorDetail} for code in (401, 404, 413, 415, 422, 500, 503, 504)}
 
 
 def asset_info(rec: dict) -> AssetInfo:
@@ -78,7 +78,7 @@ async def thumbnail(asset_id: str, request: Request, service: Service):
     This is the hot path: the query is validated here with the pydantic model directly,
     which costs a fraction of FastAPI's per-parameter query-model machinery."""
     try:
-        params = ThumbnailParams.model_validate(dict(request.query_params))
+        params: Any = ThumbnailParams.model_validate(dict(request.query_params))  # fields made by create_model
         options = render_options(params)
     except ValidationError as exc:
         raise RequestValidationError([dict(e, loc=("query", *e["loc"])) for e in
