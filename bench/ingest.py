@@ -4,6 +4,12 @@ Per asset: median ms of --repeat loads each (after one warm-up), and ours/trimes
 opens embedded images lazily (it never decodes their pixels), and so do we (textures decode
 on first use), so both columns measure parsing; the `+decode` column adds decoding every
 texture to RGBA, what a bake pays later. trimesh cannot read USD: ours only there.
+
+A second table measures compressed glTF (`--no-compressed` skips it): the shared samples'
+glTF-Draco variants, and meshopt / KTX2 (UASTC) variants of Duck made in the run with the
+encoders' wheels (bench/compressed.py). Per file: the bytes read, our load + decode (every
+texture transcoded too) in ms and ms per MB read, the uncompressed sibling's load + decode,
+and trimesh.load where it can read the file at all.
 """
 from __future__ import annotations
 
@@ -27,6 +33,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--assets", type=Path, default=DEFAULT_ASSETS,
                         help="sample asset folder (default: %(default)s)")
     parser.add_argument("--repeat", type=int, default=7, help="timed loads per asset")
+    parser.add_argument("--no-compressed", dest="compressed", action="store_false",
+                        help="skip the compressed glTF table (Draco, meshopt, KTX2)")
 
 
 def sample_files(root: Path) -> list[Path]:
@@ -100,4 +108,56 @@ def run(args: argparse.Namespace) -> int:
               f"{peer:10.2f} {ratio:6.2f}")
     print(f"worst glTF ratio ours/trimesh: {worst:.2f} (target <= 1.0); median of "
           f"{args.repeat} loads each, after one warm-up")
+    if args.compressed:
+        compressed_table(args.assets, args.repeat)
     return 0
+
+
+def compressed_files(assets: Path, tmp: Path) -> list[tuple[Path, str, Path]]:
+    """(compressed file, codec, uncompressed sibling) for the compressed glTF table."""
+    from bench.compressed import ktx2_variant, meshopt_variant
+
+    samples = assets / "gltf-samples"
+    rows = [(p, "draco", p.parent.parent / "glTF" / p.name)
+            for p in sorted(samples.glob("*/glTF-Draco/*.gltf"))]
+    duck = samples / "Duck" / "glTF" / "Duck.gltf"
+    if duck.exists():
+        rows.append((meshopt_variant(duck, tmp / "meshopt"), "meshopt", duck))
+        rows.append((ktx2_variant(duck, tmp / "ktx2"), "ktx2", duck))
+    return rows
+
+
+def compressed_table(assets: Path, repeat: int) -> None:
+    import tempfile
+
+    import trimesh
+
+    from pipeline.ingest import load_scene
+
+    def load_decoded(path: Path):
+        def fn():
+            for tex in load_scene(path).textures:
+                tex.image  # noqa: B018 - decoding is the point
+        return fn
+
+    def trimesh_fn(path: Path):
+        try:
+            trimesh.load(path)
+        except Exception as exc:  # noqa: BLE001 - a peer that cannot read the file
+            return f"({type(exc).__name__})"
+        return lambda: trimesh.load(path)
+
+    print(f"\n{'compressed glTF':34} {'codec':>7} {'MB read':>8} {'ours ms':>8} {'ms/MB':>7} "
+          f"{'plain ms':>8} {'trimesh ms':>12}")
+    with tempfile.TemporaryDirectory() as tmp:
+        for path, codec, plain in compressed_files(assets, Path(tmp)):
+            mb = sum(Path(f).stat().st_size for f in load_scene(path).files) / 2**20
+            peer = trimesh_fn(path)
+            fns = [load_decoded(path), load_decoded(plain)] + ([peer] if callable(peer) else [])
+            times = _median_ms(fns, repeat)
+            peer_text = f"{times[2]:12.2f}" if callable(peer) else f"{peer:>12}"
+            name = f"{path.parent.parent.name}/{path.name}" if codec == "draco" else path.name
+            print(f"{name[:34]:34} {codec:>7} {mb:8.3f} {times[0]:8.2f} {times[0] / mb:7.1f} "
+                  f"{times[1]:8.2f} {peer_text}")
+    print("ours and plain include decoding every texture (KTX2: transcoding to RGBA8); "
+          f"median of {repeat} each, after one warm-up")

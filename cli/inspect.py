@@ -38,6 +38,12 @@ def summary(scene) -> dict:
         "textures": len(scene.textures),
         "lights": len(scene.lights),
         "bounds": scene.bounds.tolist(),
+        "extensions": dict(scene.extensions),  # extensionsUsed -> supported|partial|ignored
+        "variants": list(scene.variants),
+        "cameras": [{"index": i, "name": c.name, "type": c.type,
+                     "position": [round(float(v), 6) for v in c.matrix[:3, 3]]}
+                    for i, c in enumerate(scene.cameras)],
+        "backdrop": sorted({scene.meshes[i.mesh].name for i in scene.instances if i.backdrop}),
         "warnings": list(scene.warnings),
         "files": list(scene.files),
     }
@@ -59,6 +65,14 @@ def run(args: argparse.Namespace) -> int:
     for m in info["materials"]:
         tex = f" textures: {', '.join(m['textures'])}" if m["textures"] else ""
         print(f"  material {m['name']!r}: {m['class']}{tex}")
+    if info["extensions"]:
+        print("  extensions " + ", ".join(f"{k} ({v})" for k, v in info["extensions"].items()))
+    if info["variants"]:
+        print("  variants " + ", ".join(map(repr, info["variants"])) + " (render --variant NAME)")
+    for c in info["cameras"]:
+        print(f"  camera {c['index']} {c['name']!r}: {c['type']} (render --camera {c['index']})")
+    if info["backdrop"]:
+        print("  backdrop (not framed): " + ", ".join(map(repr, info["backdrop"])))
     for w in info["warnings"]:
         print(f"  warning: {w}")
     return 0

@@ -10,3 +10,9 @@ def srgb_to_linear(rgb8: np.ndarray) -> np.ndarray:
     c = np.arange(256, dtype=np.float64) / 255.0
     table = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
     return table[rgb8]
+
+
+def srgb_encode(x: np.ndarray) -> np.ndarray:
+    """Linear (clipped to 0..1) -> sRGB-encoded float in 0..1 (IEC 61966-2-1)."""
+    x = np.clip(x, 0, 1)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)

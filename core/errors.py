@@ -39,3 +39,7 @@ class EmptyScene(AssetError):
 
 class IngestTimeout(AssetError):
     """Parsing took longer than the configured time bound."""
+
+
+class NotInAsset(AssetError):
+    """A request names a part the asset does not have (a material variant, a camera)."""

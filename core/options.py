@@ -91,6 +91,11 @@ class RenderOptions:
         "wyman: total internal reflection treatment (default: reflect)"))
     bounces: int = Field(default=8, ge=0, le=64, description="raytrace: path depth (0: the environment along each primary ray)")
     debug: Literal["backface_normals", "tir", "exit_distance"] | None = Field(default=None, description="wyman debug view")
+    variant: str | None = Field(default=None, min_length=1, max_length=256, description=(
+        "glTF KHR_materials_variants: bind the material variant of this name (inspect lists them)"))
+    camera: str | None = Field(default=None, min_length=1, max_length=256, description=(
+        "render through the asset's own camera, by index N or by name (inspect lists them); "
+        "yaw, pitch and distance are then unused"))
     budget_ms: float | None = Field(default=None, gt=0, le=MAX_BUDGET_MS, description=(
         "time budget in milliseconds: lets method auto ray trace objects where raster "
         "refraction fails, when the estimate fits"))

@@ -130,6 +130,23 @@ class Instance:
     mesh: int      # index into Scene.meshes
     material: int  # index into Scene.materials
     matrix: np.ndarray = field(default_factory=lambda: np.eye(4, dtype=np.float64))
+    variants: dict[int, int] = field(default_factory=dict)  # variant index -> material (glTF)
+    backdrop: bool = False  # a skybox/backdrop around the content: not framed (pipeline.framing)
+
+
+@dataclass
+class SceneCamera:
+    """A camera the asset defines (glTF), placed in world space; it looks down its local -Z
+    with +Y up. Angles in radians; an aspect of None follows the output's."""
+    name: str
+    type: Literal["perspective", "orthographic"] = "perspective"
+    matrix: np.ndarray = field(default_factory=lambda: np.eye(4, dtype=np.float64))
+    yfov: float = 0.8
+    aspect: float | None = None
+    znear: float = 0.01
+    zfar: float = math.inf
+    xmag: float = 1.0
+    ymag: float = 1.0
 
 
 @dataclass
@@ -155,6 +172,9 @@ class Scene:
     lights: list[Light] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     files: list[str] = field(default_factory=list)  # every file read (the asset and what it references)
+    cameras: list[SceneCamera] = field(default_factory=list)
+    variants: list[str] = field(default_factory=list)  # KHR_materials_variants names, by index
+    extensions: dict[str, str] = field(default_factory=dict)  # used -> supported|partial|ignored
 
     @property
     def triangle_count(self) -> int:
@@ -163,15 +183,26 @@ class Scene:
 
     @cached_property
     def bounds(self) -> np.ndarray:
-        """World-space axis-aligned bounds, 2 x 3 (min row, max row)."""
+        """World-space axis-aligned bounds, 2 x 3 (min row, max row), of what the camera
+        frames: backdrop instances left out."""
         lo = np.full(3, np.inf)
         hi = np.full(3, -np.inf)
-        for inst in self.instances:
+        framed = [i for i in self.instances if not i.backdrop] or self.instances
+        for inst in framed:
             lo_i, hi_i = transformed_bounds(self.meshes[inst.mesh].positions, inst.matrix)
             lo, hi = np.minimum(lo, lo_i), np.maximum(hi, hi_i)
         if not np.all(np.isfinite(lo)):
             return np.zeros((2, 3))
         return np.stack([lo, hi])
+
+
+def extent(scene: "Scene") -> np.ndarray:
+    """Bounds of everything drawn, backdrops included (Scene.bounds leaves those out)."""
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    for inst in scene.instances:
+        lo_i, hi_i = transformed_bounds(scene.meshes[inst.mesh].positions, inst.matrix)
+        lo, hi = np.minimum(lo, lo_i), np.maximum(hi, hi_i)
+    return np.stack([lo, hi]) if np.all(np.isfinite(lo)) else np.zeros((2, 3))
 
 
 def transformed_bounds(positions: np.ndarray, matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -22,7 +22,7 @@ import numpy as np
 from core.baked import BakedAsset, BakedEnvironment, BakedMesh
 from core.cubemap import DEFAULT_FACE_SIZE
 from core.errors import MissingFile, UnsupportedFormat
-from core.scene import Light, Material, Sampler, Scene, Texture, TextureRef
+from core.scene import Light, Material, Sampler, Scene, SceneCamera, Texture, TextureRef, extent
 
 from .cache import BAKE_FORMAT_VERSION, Cache, Entry, NotInCache, SourceFiles
 from .interior import interior_vectors
@@ -124,16 +124,18 @@ def bake_or_load_asset(path, cache_dir=None, *, force: bool = False, limits: Lim
 def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> BakedAsset:
     """Group a Scene's instances into BakedMeshes and compute interior vectors where needed."""
     opts = {**ASSET_OPTIONS, **(options or {})}
-    groups: dict[tuple[int, int], list[np.ndarray]] = {}
-    for inst in scene.instances:
-        groups.setdefault((inst.mesh, inst.material), []).append(np.asarray(inst.matrix, np.float64))
+    groups: dict[tuple, list[np.ndarray]] = {}
+    for inst in scene.instances:  # a glTF variant mapping belongs to the primitive: kept with it
+        group = (inst.mesh, inst.material, tuple(sorted(inst.variants.items())))
+        groups.setdefault(group, []).append(np.asarray(inst.matrix, np.float64))
     interiors: dict[int, np.ndarray] = {}
     stats = {"rays": 0, "misses": 0, "degenerate": 0, "build_s": 0.0, "trace_s": 0.0}
     meshes = []
-    for (mi, mat), transforms in groups.items():
+    for (mi, mat, variant_map), transforms in groups.items():
         mesh, material = scene.meshes[mi], scene.materials[mat]
+        variants = {scene.variants[v]: scene.materials[m] for v, m in variant_map}
         interior = None
-        if material.material_class == "transmissive":
+        if any(m.material_class == "transmissive" for m in (material, *variants.values())):
             if mi not in interiors:
                 result = interior_vectors(mesh.positions, mesh.normals, mesh.indices,
                                           epsilon=opts["interior_epsilon"])
@@ -150,7 +152,7 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> Bak
         meshes.append(BakedMesh(
             name=mesh.name, positions=mesh.positions, normals=mesh.normals, indices=mesh.indices,
             material=material, transforms=np.stack(transforms), tangents=mesh.tangents,
-            uv0=mesh.uv0, uv1=mesh.uv1, colors=mesh.colors, interior=interior))
+            uv0=mesh.uv0, uv1=mesh.uv1, colors=mesh.colors, interior=interior, variants=variants))
     interior_s = stats["build_s"] + stats["trace_s"]
     stats["rays_per_s"] = round(stats["rays"] / interior_s) if interior_s > 0 else 0
     manifest = {
@@ -162,7 +164,9 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> Bak
     }
     return BakedAsset(key=key, source=str(scene.source), format=scene.format, meshes=meshes,
                       textures=list(scene.textures), bounds=np.asarray(scene.bounds, np.float64),
-                      lights=list(scene.lights), warnings=list(scene.warnings), manifest=manifest)
+                      lights=list(scene.lights), warnings=list(scene.warnings), manifest=manifest,
+                      variants=list(scene.variants), cameras=list(scene.cameras),
+                      extent=extent(scene) if any(i.backdrop for i in scene.instances) else None)
 
 
 def load_baked(key: str, cache_dir=None) -> BakedAsset:
@@ -181,9 +185,10 @@ def pack_asset(baked: BakedAsset, options: dict) -> tuple[dict, dict[str, dict[s
     material_index: dict[int, int] = {}  # id(material) -> index in `materials` (shared by meshes)
     mesh_arrays, mesh_meta = {}, []
     for i, m in enumerate(baked.meshes):
-        if id(m.material) not in material_index:
-            material_index[id(m.material)] = len(materials)
-            materials.append(m.material)
+        for mat in (m.material, *m.variants.values()):
+            if id(mat) not in material_index:
+                material_index[id(mat)] = len(materials)
+                materials.append(mat)
         present = []
         for name in _MESH_ARRAYS + ("transforms",):
             value = getattr(m, name)
@@ -191,7 +196,8 @@ def pack_asset(baked: BakedAsset, options: dict) -> tuple[dict, dict[str, dict[s
                 mesh_arrays[f"{i}.{name}"] = np.ascontiguousarray(value)
                 present.append(name)
         mesh_meta.append({"name": m.name, "material": material_index[id(m.material)],
-                          "arrays": present})
+                          "arrays": present,
+                          "variants": {k: material_index[id(v)] for k, v in m.variants.items()}})
     arrays: dict[str, Any] = {"meshes.npz": mesh_arrays}
     if baked.textures:
         arrays.update({f"texture.{i}.npy": t.image for i, t in enumerate(baked.textures)})
@@ -210,6 +216,10 @@ def pack_asset(baked: BakedAsset, options: dict) -> tuple[dict, dict[str, dict[s
         "lights": [_light_to_json(light) for light in baked.lights],
         "bounds": np.asarray(baked.bounds).tolist(),
         "warnings": baked.warnings,
+        "variants": list(baked.variants),
+        "extent": None if baked.extent is None else np.asarray(baked.extent).tolist(),
+        "cameras": [{**{k: _finite(v) for k, v in dataclasses.asdict(c).items() if k != "matrix"},
+                     "matrix": np.asarray(c.matrix).tolist()} for c in baked.cameras],
     }
     return manifest, arrays
 
@@ -221,13 +231,24 @@ def unpack_asset(entry: Entry) -> BakedAsset:
     meshes = []
     for i, meta in enumerate(m["meshes"]):
         fields = {name: arrays[f"{i}.{name}"] for name in meta["arrays"]}
-        meshes.append(BakedMesh(name=meta["name"], material=materials[meta["material"]], **fields))
+        variants = {k: materials[v] for k, v in meta.get("variants", {}).items()}
+        meshes.append(BakedMesh(name=meta["name"], material=materials[meta["material"]],
+                                variants=variants, **fields))
     textures: list[Texture] = [CachedTexture(t["name"], Sampler(**t["sampler"]), t["source"], entry, f"texture.{i}.npy")
                                for i, t in enumerate(m["textures"])]
     return BakedAsset(key=entry.key, source=m["source"], format=m["source_format"], meshes=meshes,
                       textures=textures, bounds=np.asarray(m["bounds"], np.float64),
                       lights=[_light_from_json(d) for d in m["lights"]], warnings=list(m["warnings"]),
-                      manifest=m)
+                      manifest=m, variants=list(m.get("variants", [])),
+                      extent=None if m.get("extent") is None else np.asarray(m["extent"], np.float64),
+                      cameras=[_camera_from_json(d) for d in m.get("cameras", [])])
+
+
+def _camera_from_json(d: dict) -> SceneCamera:
+    d = dict(d, matrix=np.asarray(d["matrix"], np.float64))
+    if d.get("zfar") is None:
+        d["zfar"] = math.inf
+    return SceneCamera(**d)
 
 
 def _finite(x):

@@ -62,7 +62,7 @@ from core.errors import AssetError
 
 log = logging.getLogger(__name__)
 
-BAKE_FORMAT_VERSION = 1
+BAKE_FORMAT_VERSION = 2  # 2: glTF skins, morphs, instancing, variants, cameras baked
 KINDS = ("assets", "environments")
 MANIFEST = "manifest.json"
 _KEY = re.compile(r"[0-9a-f]{64}")

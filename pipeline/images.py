@@ -24,13 +24,15 @@ Image.init()
 
 
 def decode_image(data: bytes | memoryview, source: str, limits: Limits) -> np.ndarray:
-    """Decode PNG/JPEG/WebP bytes into an H x W x 4 uint8 array, row 0 at the top.
+    """Decode PNG/JPEG/WebP/KTX2 (Basis Universal) bytes into an H x W x 4 uint8 array, row 0 at the top.
 
     The size is read from the header (Pillow opens lazily) and checked against
     `limits.max_texture_pixels` before any pixel is decoded, so a decompression bomb costs
     nothing. Raises MalformedAsset (not an image, truncated, unsupported format) or
     LimitExceeded, naming `source`.
     """
+    if bytes(data[:12]) == KTX2_IDENTIFIER:
+        return _decode_ktx2(data, source, limits)
     with _pillow_errors(source):
         im = _open(data, source, limits)
         arr = np.asarray(im.convert("RGBA"), dtype=np.uint8)  # palette/grey/16-bit -> RGBA8
@@ -45,6 +47,8 @@ def probe_image(data: bytes | memoryview, source: str, limits: Limits) -> tuple[
     catches truncation; damage inside the pixel data shows when the texture is decoded.
     Returns (width, height); raises MalformedAsset or LimitExceeded naming `source`."""
     head = bytes(data[:16])
+    if head[:12] == KTX2_IDENTIFIER:
+        return _open_ktx2(data, source, limits).level_size(0)
     if head[:8] == PNG_SIGNATURE and head[12:] == b"IHDR" and len(data) >= 33:
         # PNG's size sits at a fixed place in IHDR: read it without Pillow (a third of ingest
         # time for a small asset); anything odd falls through to Pillow's full header parse.
@@ -60,6 +64,39 @@ def probe_image(data: bytes | memoryview, source: str, limits: Limits) -> tuple[
 
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+KTX2_IDENTIFIER = b"\xabKTX 20\xbb\r\n\x1a\n"
+
+
+def _open_ktx2(data: bytes | memoryview, source: str, limits: Limits):
+    """A Basis Universal KTX2 (KHR_texture_basisu) opened with opengl_basisu, its size checked
+    from the header (pixelWidth/Height at bytes 20..28) before the transcoder parses it."""
+    import opengl_basisu
+
+    if len(data) < 80:
+        raise MalformedAsset(source, f"KTX2 image is truncated ({len(data)} bytes)")
+    w, h = struct.unpack_from("<II", data, 20)
+    _check_size(w, max(h, 1), source, limits)
+    try:
+        tex = opengl_basisu.open(bytes(data))
+    except opengl_basisu.BasisuError as exc:  # UnsupportedError is a BasisuError
+        raise MalformedAsset(source, f"KTX2 image does not decode: {exc}") from None
+    if tex.faces != 1 or tex.codec.is_hdr:
+        raise MalformedAsset(source, f"KTX2 image is a {'cube map' if tex.faces != 1 else 'HDR'} "
+                                     "texture, not a 2D LDR one")
+    _check_size(tex.width, tex.height, source, limits)
+    return tex
+
+
+def _decode_ktx2(data: bytes | memoryview, source: str, limits: Limits) -> np.ndarray:
+    """KTX2 level 0 transcoded to RGBA8 (top row first, as KHR_texture_basisu requires)."""
+    import opengl_basisu
+
+    tex = _open_ktx2(data, source, limits)
+    try:
+        image = tex.transcode("rgba8", level=0)
+    except (opengl_basisu.BasisuError, IndexError) as exc:
+        raise MalformedAsset(source, f"KTX2 image does not transcode: {exc}") from None
+    return np.ascontiguousarray(image.data, np.uint8).reshape(image.height, image.width, 4)
 PNG_DEPTHS = {0: (1, 2, 4, 8, 16), 2: (8, 16), 3: (1, 2, 4, 8), 4: (8, 16), 6: (8, 16)}
 
 

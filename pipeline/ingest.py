@@ -12,6 +12,7 @@ by Limits.max_file_bytes instead, so its running time is bounded too.
 """
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import logging
 import os
@@ -22,9 +23,10 @@ from pathlib import Path
 import numpy as np
 
 from core.errors import AssetError, EmptyScene, LimitExceeded, MalformedAsset, MissingFile, UnsupportedFormat
-from core.scene import Instance, Mesh, Scene
+from core.scene import Mesh, Scene
 
 from . import deadline
+from .framing import mark_backdrops
 from .limits import Limits
 
 log = logging.getLogger(__name__)
@@ -130,6 +132,9 @@ def finish(scene: Scene, limits: Limits) -> Scene:
         raise EmptyScene(path, "no triangles to render" + (
             f" ({'; '.join(scene.warnings[:3])})" if scene.warnings else ""))
     scene.__dict__.pop("bounds", None)  # cached_property: recompute after the changes above
+    backdrop = mark_backdrops(scene)  # after the checks: it reads positions and indices
+    if backdrop:
+        log.info("%s: backdrop geometry left out of the framing: %s", path, ", ".join(backdrop))
     return scene
 
 
@@ -267,5 +272,5 @@ def _drop_empty(scene: Scene) -> None:
         return
     remap = {old: new for new, old in enumerate(keep)}
     scene.meshes = [scene.meshes[i] for i in keep]
-    scene.instances = [Instance(remap[inst.mesh], inst.material, inst.matrix)
+    scene.instances = [dataclasses.replace(inst, mesh=remap[inst.mesh])
                        for inst in scene.instances if inst.mesh in remap]

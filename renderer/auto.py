@@ -37,7 +37,7 @@ from core.baked import BakedAsset, BakedMesh
 from core.options import RenderOptions, apply_override
 from core.scene import Material
 
-from .camera import Camera, frame_bounds
+from .camera import Camera, request_camera
 
 log = logging.getLogger(__name__)
 
@@ -293,8 +293,7 @@ def estimate_raytrace_ms(asset: BakedAsset, options: RenderOptions, coverage_px:
 def plan_request(asset: BakedAsset, options: RenderOptions, available: list[str]) -> Plan:
     """Decide every mesh's method for `options` (method "auto") and whether to ray trace."""
 
-    camera = frame_bounds(asset.bounds, options.width, options.height, options.yaw,
-                          options.pitch, options.fov, options.distance)
+    camera = request_camera(asset, options)
     decisions, failing, coverage = [], [], 0.0
     for mesh in asset.meshes:
         mat = apply_override(mesh.material, options.override)

@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from core.colour import srgb_encode
+
 log = logging.getLogger(__name__)
 
 _PIL_FORMATS = {"png": "PNG", "jpeg": "JPEG", "jpg": "JPEG", "webp": "WEBP"}
@@ -140,11 +142,6 @@ def _aces_hill(c: np.ndarray) -> np.ndarray:
     c = (c / 0.6) @ _ACES_IN.T
     c = (c * (c + 0.0245786) - 0.000090537) / (c * (0.983729 * c + 0.4329510) + 0.238081)
     return np.clip(c @ _ACES_OUT.T, 0, 1)
-
-
-def srgb_encode(x: np.ndarray) -> np.ndarray:
-    x = np.clip(x, 0, 1)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
 
 
 def tonemap_srgb8(linear: np.ndarray, method: str = "neutral", exposure: float = 0.0,

@@ -17,10 +17,8 @@ import numpy as np
 
 from core import context
 from core.baked import BakedAsset, BakedEnvironment, BakedMesh
-from core.colour import srgb_to_linear
-from core.scene import CLAMP_TO_EDGE, Light, Texture
-
-from .frame import srgb_encode
+from core.colour import srgb_encode, srgb_to_linear
+from core.scene import CLAMP_TO_EDGE, MIRRORED_REPEAT, REPEAT, Light, Texture
 
 log = logging.getLogger(__name__)
 
@@ -224,8 +222,10 @@ def _upload_texture(ctx: moderngl.Context, tex: Texture, srgb: bool) -> moderngl
                         img.shape[1], img.shape[0], 0, GL_RGBA, GL_UNSIGNED_BYTE, img.ctypes.data)
     gl.glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAX_LEVEL, len(chain) - 1)
     gl_tex.filter = (tex.sampler.min_filter, tex.sampler.mag_filter)
-    gl_tex.repeat_x = tex.sampler.wrap_s != CLAMP_TO_EDGE
-    gl_tex.repeat_y = tex.sampler.wrap_t != CLAMP_TO_EDGE
+    # glTF wrap enums are GL's (REPEAT, CLAMP_TO_EDGE, MIRRORED_REPEAT); moderngl's repeat_x
+    # knows only the first two, so set both axes directly on the bound texture.
+    for axis, mode in ((GL_TEXTURE_WRAP_S, tex.sampler.wrap_s), (GL_TEXTURE_WRAP_T, tex.sampler.wrap_t)):
+        gl.glTexParameteri(GL_TEXTURE_2D, axis, mode if mode in WRAP_MODES else REPEAT)
     return gl_tex
 
 
@@ -286,6 +286,8 @@ GL_RGBA, GL_RGBA8, GL_UNSIGNED_BYTE = 0x1908, 0x8058, 0x1401
 GL_TEXTURE_CUBE_MAP = 0x8513
 GL_TEXTURE_CUBE_MAP_POSITIVE_X = 0x8515
 GL_TEXTURE_MAX_LEVEL = 0x813D
+GL_TEXTURE_WRAP_S, GL_TEXTURE_WRAP_T = 0x2802, 0x2803
+WRAP_MODES = (REPEAT, CLAMP_TO_EDGE, MIRRORED_REPEAT)
 GL_RGB16F, GL_RGB, GL_FLOAT = 0x881B, 0x1907, 0x1406
 
 

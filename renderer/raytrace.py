@@ -48,7 +48,7 @@ from core.baked import BakedAsset, BakedEnvironment
 from core.cubemap import sample_cube
 from core.options import RenderOptions, apply_override, background_rgb
 
-from .camera import Camera, frame_bounds
+from .camera import Camera, request_camera
 from .optics import fresnel_dielectric, reflect, refract
 from .render import register_frame_method
 
@@ -222,8 +222,7 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     """Linear H x W x 4 float32 (premultiplied RGB, alpha = coverage) and statistics."""
     t0 = time.perf_counter()
     if camera is None:
-        camera = frame_bounds(asset.bounds, options.width, options.height, options.yaw,
-                              options.pitch, options.fov, options.distance)
+        camera = request_camera(asset, options)
     if supersample is None:
         supersample = default_supersample(camera.width, camera.height)
     ts = build_scene(asset, options)

@@ -27,7 +27,7 @@ from core.options import RenderOptions, apply_override, background_rgb
 from core.scene import Material
 
 from . import gpu
-from .camera import Camera, frame_bounds
+from .camera import Camera, request_camera
 from .frame import Frame, FrameTimings, exposure_scale
 
 log = logging.getLogger(__name__)
@@ -152,6 +152,7 @@ def render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions) -> 
     """Render `asset` lit by `env` as `options` say. Raises UnsupportedMethod or ValueError
     for options this build cannot honour."""
     validate_options(options)
+    asset = asset.with_variant(options.variant)  # KHR_materials_variants: its own GPU key
     if options.method in _FRAME_METHODS:
         return _FRAME_METHODS[options.method](asset, env, options)
     auto = None
@@ -179,8 +180,7 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     t_upload = time.perf_counter()
 
     w, h = options.width, options.height
-    camera = frame_bounds(asset.bounds, w, h, options.yaw, options.pitch, options.fov,
-                          options.distance)
+    camera = request_camera(asset, options)
     items = _plan_items(gasset, options, auto)
     lights = gasset.lights[:MAX_LIGHTS] if options.lights else []
     target = _target(ctx, w, h, options.msaa)

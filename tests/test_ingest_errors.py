@@ -104,9 +104,9 @@ def test_invalid_json(tmp_path, text):
 
 
 def test_unknown_required_extension(tmp_path):
-    path = edited(tmp_path, lambda d: d.update(extensionsRequired=["KHR_draco_mesh_compression"]))
+    path = edited(tmp_path, lambda d: d.update(extensionsRequired=["EXT_unknown_compression"]))
     err = rejected(path, UnsupportedFormat)
-    assert "KHR_draco_mesh_compression" in err.reason
+    assert "EXT_unknown_compression" in err.reason
     # merely used (with a fallback), an unknown extension is fine
     ok = edited(tmp_path, lambda d: d.update(extensionsUsed=["EXT_unknown"]), "ok.gltf")
     assert loaded(ok).triangle_count == 12
@@ -258,8 +258,8 @@ def test_tiny_triangles_get_finite_normals(tmp_path):
 @pytest.mark.parametrize("edit", [
     lambda d: d.update(scenes=[{"nodes": []}]),
     lambda d: d["nodes"][0].pop("mesh"),
-    lambda d: d["meshes"][0]["primitives"][0].update(mode=1),  # lines only
-], ids=["no-nodes", "no-mesh", "lines-only"])
+    lambda d: d["meshes"][0]["primitives"][0]["attributes"].pop("POSITION"),
+], ids=["no-nodes", "no-mesh", "no-position"])
 def test_empty_scene(tmp_path, edit):
     rejected(edited(tmp_path, edit), EmptyScene)
 
@@ -295,13 +295,22 @@ def test_undecodable_image_is_a_warning(tmp_path, image):
     assert any("image 0" in w for w in scene.warnings)
 
 
-def test_missing_image_file_is_an_error(tmp_path):
+def test_missing_image_file_is_a_warning(tmp_path):
+    """A missing texture drops the texture, not the asset: the material keeps its factors
+    (missing geometry buffers stay a refusal: test_hostile_buffer_uris)."""
     def edit(doc):
         doc["images"] = [{"uri": "textures/none.png"}]
         doc["textures"] = [{"source": 0}]
-        doc["materials"] = [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}]
+        doc["materials"] = [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0},
+                                                      "baseColorFactor": [0.2, 0.4, 0.6, 1]}}]
         doc["meshes"][0]["primitives"][0]["material"] = 0
-    rejected(edited(tmp_path, edit), MissingFile)
+    scene = loaded(edited(tmp_path, edit))
+    assert scene.textures == [] and scene.materials[0].base_color_texture is None
+    assert scene.materials[0].base_color == (0.2, 0.4, 0.6, 1.0)
+    assert any("image 0" in w and "not found" in w for w in scene.warnings)
+    # an image URI that leaves the folder is still refused, not skipped
+    rejected(edited(tmp_path, lambda d: (edit(d), d["images"][0].update(uri="../x.png")),
+                    "out.gltf"), UnsafeReference)
 
 
 # -- files in general, plain meshes, the time bound ----------------------------------------------
