@@ -105,6 +105,7 @@ class _Reader:
         self._buffers: dict[int, bytes | memoryview] = {}
         self._accessor_cache: dict[int, np.ndarray] = {}
         self._decoded_views: dict[int, memoryview] = {}  # meshopt bufferViews, decoded
+        self._parents: dict[int, int] | None = None  # node -> parent, built when needed
         self._texture_map: dict[int, int | None] = {}
         self._image_map: dict[tuple, int | None] = {}  # (image, sampler) -> scene texture
         self._images: dict[int, tuple | None] = {}
@@ -748,24 +749,26 @@ class _Reader:
                 stack.append((child, world))
         return out
 
-    def _all_worlds(self, placed: list[tuple[int, np.ndarray]]) -> dict[int, np.ndarray]:
-        """World matrices of every node: those of the scene as placed, and (for joints of a
-        skin outside the default scene) the others from their own parents."""
-        worlds = dict(placed)
+    def _world_of(self, index: int, worlds: dict[int, np.ndarray]) -> np.ndarray:
+        """World matrix of node `index`, also for a node outside the default scene (a skin's
+        joints may be): composed down its parent chain, which is remembered in `worlds`."""
         nodes = self._list(self.doc, "nodes")
-        if len(worlds) < len(nodes):
-            parent = {c: i for i, n in enumerate(nodes) if isinstance(n, dict)
-                      for c in n.get("children", []) if isinstance(c, int)}
-
-            def world(i: int, depth: int = 0) -> np.ndarray:
-                if i not in worlds:
-                    if depth > len(nodes):
-                        raise self._bad("node hierarchy has a cycle")
-                    up = world(parent[i], depth + 1) if i in parent else np.eye(4)
-                    worlds[i] = up @ self._local(self._get("nodes", i, "node"), i)
-                return worlds[i]
-            self._world_of = world
-        return worlds
+        if self._parents is None:
+            self._parents = {c: i for i, n in enumerate(nodes) if isinstance(n, dict)
+                             for c in n.get("children", []) if isinstance(c, int)}
+        chain, j = [], index
+        while j not in worlds:
+            chain.append(j)
+            if len(chain) > len(nodes):
+                raise self._bad("node hierarchy has a cycle")
+            if j not in self._parents:
+                break
+            j = self._parents[j]
+        m = worlds[j] if j in worlds else np.eye(4)
+        for node in reversed(chain):
+            m = m @ self._local(self._get("nodes", node, "node"), node)
+            worlds[node] = m
+        return worlds[index]
 
     def _joint_matrices(self, skin_index: int, worlds: dict) -> np.ndarray:
         """J_i = world(joint_i) @ inverseBindMatrix_i for skin `skin_index` (K x 4 x 4)."""
@@ -783,7 +786,7 @@ class _Reader:
         out = np.empty((len(joints), 4, 4))
         for k, j in enumerate(joints):
             self._get("nodes", j, f"skin {skin_index} joint")
-            out[k] = (worlds[j] if j in worlds else self._world_of(j)) @ ibm[k]
+            out[k] = self._world_of(j, worlds) @ ibm[k]
         return out
 
     def _instancing(self, node: dict, index: int, world: np.ndarray) -> np.ndarray:
@@ -816,7 +819,7 @@ class _Reader:
         materials: dict[int | None, int] = {}
         wire: dict[int, int] = {}  # scene mesh -> primitive mode, for points and lines
         placed = self._world_matrices()
-        worlds = self._all_worlds(placed)
+        worlds = dict(placed)
         skins: dict[int, np.ndarray] = {}
         for index, world in placed:
             node = self._get("nodes", index, "node")

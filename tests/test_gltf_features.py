@@ -89,21 +89,27 @@ def test_simple_instancing_draws_every_instance(cache):
 
 # -- skins -----------------------------------------------------------------------------------
 
-def _skinned(tmp: Path) -> Path:
+def _skinned(tmp: Path, joint_in_scene: bool = True) -> Path:
     """A static cube at the origin, and a skinned cube bound at the origin whose only joint
-    stands at x = +6 (its node's own transform, y = +100, must be ignored)."""
+    stands at x = +6 (its node's own transform, y = +100, must be ignored). The joint may be
+    outside the scene's node tree (skins may name any node)."""
     b = Builder()
     b.node(b.mesh(CUBE_POSITIONS, CUBE_INDICES))
     joints = np.zeros((8, 4), np.uint8)
     weights = np.tile(np.array([1, 0, 0, 0], np.float32), (8, 1))
     mesh = b.mesh(CUBE_POSITIONS, CUBE_INDICES, JOINTS_0=joints, WEIGHTS_0=weights)
-    joint = b.node(translation=[6.0, 0.0, 0.0])
+    joint = b.node(translation=[6.0, 0.0, 0.0], root=joint_in_scene)
     ibm = np.eye(4, dtype=np.float32).T.reshape(1, 16)  # identity bind pose
     b.doc["accessors"].append({"bufferView": b.view(ibm.tobytes()), "componentType": 5126,
                                "count": 1, "type": "MAT4"})
     b.doc["skins"] = [{"joints": [joint], "inverseBindMatrices": len(b.doc["accessors"]) - 1}]
     b.node(mesh, skin=0, translation=[0.0, 100.0, 0.0])
     return b.write(tmp / "skinned.glb")
+
+
+def test_skin_joint_outside_the_scene(tmp_path):
+    scene = load_scene(_skinned(tmp_path, joint_in_scene=False))
+    np.testing.assert_allclose(scene.bounds, [[-1, -1, -1], [7, 1, 1]], atol=1e-5)
 
 
 def test_skinned_mesh_is_where_its_joints_put_it(tmp_path, cache, env):
