@@ -10,6 +10,10 @@ glTF-Draco variants, and meshopt / KTX2 (UASTC) variants of Duck made in the run
 encoders' wheels (bench/compressed.py). Per file: the bytes read, our load + decode (every
 texture transcoded too) in ms and ms per MB read, the uncompressed sibling's load + decode,
 and trimesh.load where it can read the file at all.
+
+The generated USD stages (bench/usd_stages.py; `--no-stages` skips them): 10,000 instances of a
+5,000-triangle mesh, by instanceable references and by a PointInstancer, and a stage of 64
+MaterialX materials, beside a plain pxr traversal of the same stage, with each side's peak memory.
 """
 from __future__ import annotations
 
@@ -35,6 +39,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--repeat", type=int, default=7, help="timed loads per asset")
     parser.add_argument("--no-compressed", dest="compressed", action="store_false",
                         help="skip the compressed glTF table (Draco, meshopt, KTX2)")
+    parser.add_argument("--no-stages", action="store_true",
+                        help="skip the generated USD stages (instanced, MaterialX)")
 
 
 def sample_files(root: Path) -> list[Path]:
@@ -110,6 +116,8 @@ def run(args: argparse.Namespace) -> int:
           f"{args.repeat} loads each, after one warm-up")
     if args.compressed:
         compressed_table(args.assets, args.repeat)
+    if not args.no_stages:
+        _stages(min(args.repeat, 3))
     return 0
 
 
@@ -161,3 +169,23 @@ def compressed_table(assets: Path, repeat: int) -> None:
                   f"{times[1]:8.2f} {peer_text}")
     print("ours and plain include decoding every texture (KTX2: transcoding to RGBA8); "
           f"median of {repeat} each, after one warm-up")
+
+
+def _stages(repeat: int) -> None:
+    import tempfile
+
+    from bench import usd_stages
+
+    with tempfile.TemporaryDirectory(prefix="bench-usd-") as tmp:
+        stages = usd_stages.write_stages(Path(tmp))
+        print(f"\n{'USD stage':16} {'drawn tris':>11} {'ours ms':>9} {'pxr ms':>8} {'ratio':>6} "
+              f"{'ours MB':>8} {'pxr MB':>7}")
+        for name, path in stages.items():
+            tris = usd_stages.ours(str(path))
+            assert tris == usd_stages.pxr_traversal(str(path)), name
+            a, b = _median_ms([lambda: usd_stages.ours(str(path)),
+                               lambda: usd_stages.pxr_traversal(str(path))], repeat)
+            ma, mb = usd_stages.peak_mb("ours", path), usd_stages.peak_mb("pxr", path)
+            print(f"{name:16} {tris:11d} {a:9.1f} {b:8.1f} {a / b:6.2f} {ma:8.1f} {mb:7.1f}")
+        print(f"median of {repeat} runs after one warm-up; MB: peak resident set a fresh "
+              "process adds above its size after imports")

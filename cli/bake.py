@@ -5,6 +5,8 @@ object per line with --json; a progress bar on stderr when it is a terminal; a s
 stderr. Exit status 0 when everything baked, 3 when anything failed (the rest is still baked).
 --workers N bakes in N spawned processes (not forked: EGL and Embree state do not survive fork);
 --executor ray runs the same jobs as Ray tasks on a cluster (pipeline/executors.py).
+Sandbox: an asset found under a folder argument may read files anywhere in that folder (a
+library's shared parts); a file argument only inside its own folder; --root DIR widens both.
 """
 from __future__ import annotations
 
@@ -47,6 +49,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-size", default=None, metavar="SIZE",
                         help="cap the cache at SIZE (e.g. 2G), evicting least recently used "
                              "entries (default: $ASSET_PREVIEW_CACHE_MAX_BYTES, else no cap)")
+    parser.add_argument("--root", default=None, metavar="DIR",
+                        help="folder every asset's references may read from (default: the folder "
+                             "argument an asset was found under, else the asset's own folder)")
     parser.add_argument("--force", action="store_true", help="bake again even when cached")
     parser.add_argument("--json", action="store_true", help="one JSON object per input")
 
@@ -73,10 +78,10 @@ def run(args: argparse.Namespace) -> int:
             print(f"error: {exc}", file=sys.stderr)
             return 2
     cache = str(args.cache) if args.cache else None
-    jobs, failures = _collect(args.paths, cache)
+    jobs, failures, roots = _collect(args.paths, cache, args.root)
     jobs += [("environment", src) for src in args.env]
     common = {"cache": cache, "max_bytes": max_bytes, "force": args.force,
-              "face_size": args.face_size, "prefilter": args.prefilter}
+              "face_size": args.face_size, "prefilter": args.prefilter, "roots": roots}
     report = _Report(len(jobs) + len(failures), args.json)
     for result in failures:
         report.add(result)
@@ -116,19 +121,22 @@ def main(argv: list[str] | None = None) -> int:
         return 141
 
 
-def _collect(paths: list[str], cache: str | None) -> tuple[list[tuple[str, str]], list[dict]]:
-    """Asset jobs for the given files and folders, and failures for paths that are neither."""
+def _collect(paths: list[str], cache: str | None, root: str | None = None):
+    """Asset jobs for the given files and folders, failures for paths that are neither, and
+    each asset's sandbox root (`root`, else the folder argument it was found under)."""
     from pipeline.cache import default_cache_dir
     from pipeline.ingest import READERS
 
     cache_root = Path(cache or default_cache_dir()).resolve()
-    jobs, failures, seen = [], [], set()
+    jobs, failures, seen, roots = [], [], set(), {}
 
-    def add(path: Path) -> None:
+    def add(path: Path, folder: Path | None = None) -> None:
         key = path.resolve()
         if key not in seen:
             seen.add(key)
             jobs.append(("asset", str(path)))
+            if root or folder:
+                roots[str(path)] = str(root or folder)
 
     for raw in paths:
         path = Path(raw)
@@ -140,7 +148,7 @@ def _collect(paths: list[str], cache: str | None) -> tuple[list[tuple[str, str]]
                                  and Path(folder, d).resolve() != cache_root)
                 for name in sorted(files):
                     if Path(name).suffix.lower() in READERS and not name.startswith("."):
-                        add(Path(folder, name))
+                        add(Path(folder, name), path)
                         found += 1
             if not found:
                 failures.append({"kind": "asset", "path": raw, "status": "failed",
@@ -148,7 +156,7 @@ def _collect(paths: list[str], cache: str | None) -> tuple[list[tuple[str, str]]
                                           f"({', '.join(sorted(READERS))})", "seconds": 0.0})
         else:
             add(path)  # a missing or unsupported file fails in bake_one, with the reason
-    return jobs, failures
+    return jobs, failures, roots
 
 
 def _run_pool(jobs, common: dict, workers: int, report: "_Report") -> None:

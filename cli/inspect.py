@@ -13,6 +13,9 @@ from pathlib import Path
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("path", type=Path, metavar="PATH", help="asset file (glTF, USD, OBJ/PLY/STL)")
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    parser.add_argument("--root", type=Path, default=None, metavar="DIR",
+                        help="folder the asset's references may read from (default: the "
+                             "asset's folder); widen it for libraries that share parts")
 
 
 def summary(scene) -> dict:
@@ -37,6 +40,7 @@ def summary(scene) -> dict:
         "materials": materials,
         "textures": len(scene.textures),
         "lights": len(scene.lights),
+        "environment": scene.environment,
         "bounds": scene.bounds.tolist(),
         "extensions": dict(scene.extensions),  # extensionsUsed -> supported|partial|ignored
         "variants": list(scene.variants),
@@ -52,7 +56,7 @@ def summary(scene) -> dict:
 def run(args: argparse.Namespace) -> int:
     from pipeline.ingest import load_scene
 
-    info = summary(load_scene(args.path))
+    info = summary(load_scene(args.path, root=args.root))
     if args.json:
         print(json.dumps(info))
         return 0
@@ -62,6 +66,8 @@ def run(args: argparse.Namespace) -> int:
           f"{info['triangles']}, vertices {info['vertices']}, textures {info['textures']}, "
           f"lights {info['lights']}")
     print("  bounds " + " .. ".join("(" + ", ".join(f"{v:.4g}" for v in b) + ")" for b in (lo, hi)))
+    if info["environment"]:
+        print(f"  environment {info['environment']} (dome light)")
     for m in info["materials"]:
         tex = f" textures: {', '.join(m['textures'])}" if m["textures"] else ""
         print(f"  material {m['name']!r}: {m['class']}{tex}")

@@ -22,6 +22,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quality", type=int, default=None, help="JPEG / WebP quality")
     p.add_argument("--linear", help="also write the linear frame (.exr or .npy)")
     p.add_argument("--cache", default=None, help="cache directory (default $ASSET_PREVIEW_CACHE or ./.cache)")
+    p.add_argument("--root", default=None, metavar="DIR",
+                   help="folder the asset's references may read from (default: the asset's folder)")
     p.add_argument("--json", action="store_true", help="print the plan and timings as JSON")
     p.add_argument("--explain", action="store_true", help="print the method chosen for each "
                    "object and why (auto's decisions, renderer/auto.py)")
@@ -52,10 +54,10 @@ def run(args: argparse.Namespace) -> int:
         return _fail(describe_error(exc))
     except ValueError as exc:
         return _fail(str(exc))
-    asset = pipeline.bake_asset(args.path, args.cache)
+    asset = pipeline.bake_asset(args.path, args.cache, root=args.root)
     face, env_why = environment_face_size(asset, options)
-    env = pipeline.bake_environment(args.env or DEFAULT_ENVIRONMENT, args.cache,
-                                    face_size=face)
+    env_source = args.env or _dome(asset, args.path) or DEFAULT_ENVIRONMENT
+    env = pipeline.bake_environment(env_source, args.cache, face_size=face)
     try:
         frame = render(asset, env, options)
     except (UnsupportedMethod, ValueError) as exc:
@@ -76,3 +78,15 @@ def run(args: argparse.Namespace) -> int:
     log.info("wrote %s (%dx%d) in %.1f ms", args.out, options.width, options.height,
              frame.timings.total_ms)
     return 0
+
+
+def _dome(asset, path: str) -> str | None:
+    """The panorama the asset's dome light names (USD), when the request gives no --env."""
+    rel = (asset.manifest or {}).get("environment")
+    if not rel:
+        return None
+    found = os.path.join(os.path.dirname(os.path.abspath(path)), rel)
+    if os.path.isfile(found):
+        return found
+    log.warning("%s: dome light texture %s not found; default environment used", path, found)
+    return None

@@ -85,6 +85,19 @@ class Material:
     thickness_texture: TextureRef | None = None  # G channel
     attenuation_color: tuple[float, float, float] = (1.0, 1.0, 1.0)
     attenuation_distance: float = math.inf
+    # KHR_materials_specular / _clearcoat / _sheen / _iridescence / _anisotropy (glTF defaults);
+    # MaterialX surfaces fill them (pipeline/materialx.py).
+    specular: float = 1.0
+    specular_color: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    clearcoat: float = 0.0
+    clearcoat_roughness: float = 0.0
+    sheen_color: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    sheen_roughness: float = 0.0
+    iridescence: float = 0.0
+    iridescence_ior: float = 1.3
+    iridescence_thickness_range: tuple[float, float] = (100.0, 400.0)
+    anisotropy_strength: float = 0.0
+    anisotropy_rotation: float = 0.0
 
     @property
     def material_class(self) -> MaterialClass:
@@ -118,6 +131,7 @@ class Mesh:
     uv0: np.ndarray | None = None    # N x 2, glTF convention (v down from the image top)
     uv1: np.ndarray | None = None
     colors: np.ndarray | None = None  # N x 4 linear
+    subdivision: str | None = None  # a subdivision cage ("catmullClark", "loop"): refined at bake
 
     @property
     def triangle_count(self) -> int:
@@ -170,6 +184,7 @@ class Scene:
     textures: list[Texture] = field(default_factory=list)
     instances: list[Instance] = field(default_factory=list)
     lights: list[Light] = field(default_factory=list)
+    environment: str | None = None  # panorama file the asset lights itself with (USD dome light)
     warnings: list[str] = field(default_factory=list)
     files: list[str] = field(default_factory=list)  # every file read (the asset and what it references)
     cameras: list[SceneCamera] = field(default_factory=list)

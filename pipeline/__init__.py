@@ -11,10 +11,11 @@ from core.scene import Scene
 __all__ = ["AssetError", "Scene", "load_scene", "bake_asset", "bake_environment", "load_baked"]
 
 
-def load_scene(path, limits=None) -> Scene:
-    """Read any supported asset file into a `Scene` (raises an `AssetError` on bad input)."""
+def load_scene(path, limits=None, root=None) -> Scene:
+    """Read any supported asset file into a `Scene` (raises an `AssetError` on bad input);
+    the files it references must lie inside `root` (default: its folder)."""
     from .ingest import load_scene as _load
-    return _load(path, limits)
+    return _load(path, limits, root)
 
 
 def bake_asset(path, cache_dir=None, **options):

@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import os
 import platform
 import time
 from datetime import datetime, timezone
@@ -24,13 +25,16 @@ from core.cubemap import DEFAULT_FACE_SIZE
 from core.errors import MissingFile, UnsupportedFormat
 from core.scene import Light, Material, Sampler, Scene, SceneCamera, Texture, TextureRef, extent
 
+from . import subdivision
 from .cache import BAKE_FORMAT_VERSION, Cache, Entry, NotInCache, SourceFiles
 from .interior import interior_vectors
 from .limits import Limits
 
 log = logging.getLogger(__name__)
 
-ASSET_OPTIONS = {"interior_epsilon": None}  # None: scale-aware (see interior.py)
+# interior_epsilon None: scale-aware (see interior.py); subdivision_levels None: by the cage's
+# coarseness, 0: draw cages as they are (see subdivision.py)
+ASSET_OPTIONS = {"interior_epsilon": None, "subdivision_levels": None}
 PREFILTERS = ("ggx", "paper")
 _MESH_ARRAYS = ("positions", "normals", "indices", "tangents", "uv0", "uv1", "colors", "interior")
 
@@ -71,13 +75,15 @@ class CachedTexture(Texture):
 # -- assets ------------------------------------------------------------------------------------
 
 def bake_asset(path, cache_dir=None, *, force: bool = False, limits: Limits | None = None,
-               **options) -> BakedAsset:
-    """Ingest and bake `path` into the cache, or load it from there when nothing changed."""
-    return bake_or_load_asset(path, cache_dir, force=force, limits=limits, **options)[0]
+               root=None, **options) -> BakedAsset:
+    """Ingest and bake `path` into the cache, or load it from there when nothing changed.
+    `root`: the folder its references must stay in (default its own; `paths.sandbox_root`)."""
+    return bake_or_load_asset(path, cache_dir, force=force, limits=limits, root=root,
+                              **options)[0]
 
 
 def bake_or_load_asset(path, cache_dir=None, *, force: bool = False, limits: Limits | None = None,
-                       **options) -> tuple[BakedAsset, bool]:
+                       root=None, **options) -> tuple[BakedAsset, bool]:
     """As `bake_asset`, also saying whether it came from the cache (True) or was baked."""
     from .ingest import load_scene
 
@@ -95,10 +101,10 @@ def bake_or_load_asset(path, cache_dir=None, *, force: bool = False, limits: Lim
         if not force:
             key = cache.lookup_source("assets", path, opts)
             entry = key and cache.load("assets", key, lazy=_is_texture)
-            if entry:
+            if entry and _inputs_inside(entry.manifest, path, root):
                 return unpack_asset(entry), True
         start = time.perf_counter()
-        scene = load_scene(path, limits)
+        scene = load_scene(path, limits, root)
         ingest_s = time.perf_counter() - start
         source = SourceFiles.hash(path, scene.files)
     except (FileNotFoundError, PermissionError, IsADirectoryError) as exc:  # changed under us
@@ -121,9 +127,25 @@ def bake_or_load_asset(path, cache_dir=None, *, force: bool = False, limits: Lim
     return baked, False
 
 
+def _inputs_inside(manifest: dict, path: Path, root) -> bool:
+    """Whether every input a cached bake read lies inside this call's root: a bake made with
+    a wider --root is not handed to a narrower call (it bakes again, and is refused)."""
+    from .paths import sandbox_root
+    top = sandbox_root(path, root)
+    for item in manifest.get("inputs", [])[1:]:
+        real = (path.parent / item["path"]).resolve()
+        if real != top and top not in real.parents:
+            return False
+    return True
+
+
 def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> BakedAsset:
     """Group a Scene's instances into BakedMeshes and compute interior vectors where needed."""
     opts = {**ASSET_OPTIONS, **(options or {})}
+    start = time.perf_counter()
+    refined = subdivision.refine_scene(scene, min(Limits.from_env().max_triangles,
+                                                  subdivision.BUDGET), opts["subdivision_levels"])
+    subdivide_s = time.perf_counter() - start
     groups: dict[tuple, list[np.ndarray]] = {}
     for inst in scene.instances:  # a glTF variant mapping belongs to the primitive: kept with it
         group = (inst.mesh, inst.material, tuple(sorted(inst.variants.items())))
@@ -156,11 +178,14 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> Bak
     interior_s = stats["build_s"] + stats["trace_s"]
     stats["rays_per_s"] = round(stats["rays"] / interior_s) if interior_s > 0 else 0
     manifest = {
-        "timings": {"interior_s": round(interior_s, 6)},
-        "stats": {"meshes": len(meshes), "instances": len(scene.instances),
+        "timings": {"interior_s": round(interior_s, 6), "subdivide_s": round(subdivide_s, 6)},
+        "stats": {"meshes": len(meshes), "instances": len(scene.instances), "refined": refined,
                   "vertices": int(sum(len(m.positions) for m in meshes)),
                   "triangles": int(sum(len(m.indices) * len(m.transforms) for m in meshes)),
                   "textures": len(scene.textures), "interior": stats},
+        # relative to the asset's folder, as the cache's inputs are (a moved tree keeps it)
+        "environment": None if scene.environment is None else
+        os.path.relpath(scene.environment, Path(scene.source).resolve().parent),
     }
     return BakedAsset(key=key, source=str(scene.source), format=scene.format, meshes=meshes,
                       textures=list(scene.textures), bounds=np.asarray(scene.bounds, np.float64),
@@ -373,9 +398,10 @@ def unpack_environment(entry: Entry) -> BakedEnvironment:
 
 
 def bake_one(kind: str, source: str, *, cache=None, max_bytes=None, force=False,
-             face_size=DEFAULT_FACE_SIZE, prefilter="ggx") -> dict:
+             face_size=DEFAULT_FACE_SIZE, prefilter="ggx", roots=None) -> dict:
     """The unit of work of `asset-bake` (in processes or Ray tasks): bake one asset or
-    environment; never raises (the result says what went wrong)."""
+    environment; never raises (the result says what went wrong). `roots` maps an asset to
+    the folder its references may read (cli.bake's `_collect`)."""
     from core.errors import AssetError
 
     start = time.perf_counter()
@@ -384,7 +410,8 @@ def bake_one(kind: str, source: str, *, cache=None, max_bytes=None, force=False,
         store = Cache(cache, max_bytes=max_bytes)
         baked: BakedAsset | BakedEnvironment
         if kind == "asset":
-            baked, hit = bake_or_load_asset(source, store, force=force)
+            baked, hit = bake_or_load_asset(source, store, force=force,
+                                            root=(roots or {}).get(source))
             result.update(triangles=int(baked.triangle_count), meshes=len(baked.meshes))
             interior = baked.manifest.get("stats", {}).get("interior", {})
             if interior.get("rays"):

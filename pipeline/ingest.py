@@ -36,8 +36,9 @@ READERS = {".gltf": "gltf", ".glb": "gltf",
            ".obj": "mesh", ".ply": "mesh", ".stl": "mesh"}
 
 
-def load_scene(path, limits: Limits | None = None) -> Scene:
-    """Read any supported asset into a finished Scene; bad input raises an AssetError."""
+def load_scene(path, limits: Limits | None = None, root=None) -> Scene:
+    """Read any supported asset into a finished Scene; bad input raises an AssetError.
+    Files it references must lie inside `root` (default: its folder; `paths.sandbox_root`)."""
     path = Path(path)
     limits = limits or Limits.from_env()
     try:
@@ -67,7 +68,7 @@ def load_scene(path, limits: Limits | None = None) -> Scene:
     start = time.perf_counter()
     with deadline.within(limits.ingest_seconds, str(path)):
         try:
-            scene = reader.load(path, limits)
+            scene = reader.load(path, limits, root)
             finish(scene, limits)
             deadline.check()
         except AssetError:

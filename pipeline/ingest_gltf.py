@@ -67,9 +67,10 @@ WIRE_RADIUS = {POINTS: 0.012, LINES: 0.006}  # x the scene diagonal: a few pixel
 GLB_MAGIC, CHUNK_JSON, CHUNK_BIN = b"glTF", 0x4E4F534A, 0x004E4942
 
 
-def load(path: Path, limits: Limits) -> Scene:
-    """Read a .gltf or .glb file (checked against `limits`) into a Scene."""
-    return _Reader(Path(path), limits).scene()
+def load(path: Path, limits: Limits, root: Path | None = None) -> Scene:
+    """Read a .gltf or .glb file (checked against `limits`) into a Scene; its URIs must lie
+    inside `root` (default: its folder; `paths.sandbox_root`)."""
+    return _Reader(Path(path), limits, root).scene()
 
 
 def _split_glb(path: Path, data: bytes) -> tuple[memoryview, memoryview | None]:
@@ -98,8 +99,8 @@ def _split_glb(path: Path, data: bytes) -> tuple[memoryview, memoryview | None]:
 
 
 class _Reader:
-    def __init__(self, path: Path, limits: Limits):
-        self.path, self.limits = path, limits
+    def __init__(self, path: Path, limits: Limits, root: Path | None = None):
+        self.path, self.limits, self.root = path, limits, root
         self.files: list[str] = []  # referenced files; load_scene adds the asset itself
         self.warnings: list[str] = []
         self._buffers: dict[int, bytes | memoryview] = {}
@@ -202,7 +203,7 @@ class _Reader:
                 return base64.b64decode(body, validate=True), None
             except (binascii.Error, ValueError) as exc:
                 raise self._bad(f"{what} data: URI is not valid base64: {exc}") from None
-        target = str(resolve_reference(self.path, uri))
+        target = str(resolve_reference(self.path, uri, root=self.root))
         if target not in self._files_read:  # many buffers may name one file: read it once
             size = os.stat(target).st_size
             if size > self.limits.max_file_bytes:

@@ -23,7 +23,7 @@ from .limits import Limits
 log = logging.getLogger(__name__)
 
 
-def load(path: Path, limits: Limits) -> Scene:
+def load(path: Path, limits: Limits, root: Path | None = None) -> Scene:  # noqa: ARG001 (no references)
     """Read a plain mesh file into a Scene with one default material."""
     import trimesh  # heavy import, only when a plain mesh is read
 

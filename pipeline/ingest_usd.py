@@ -23,11 +23,16 @@ so v' = 1 - v (texture transforms are converted to match). World matrices come f
 XformCache and are converted to the scene's +Y-up metres: upAxis Z is turned to Y by a -90
 degree rotation about X, and metersPerUnit scales (USD's fallback is 0.01, centimetres,
 when the stage does not author it). Time-varying values are read at the stage's start time
-code (or the earliest sample). Subdivision surfaces are drawn as their control cage with
-smooth normals; `model:drawMode` cards are viewport stand-ins and are not drawn. Implicit
+code (or the earliest sample). Subdivision surfaces (catmullClark, loop) are read as their control cage
+with smooth normals, marked for refinement at bake (`subdivision`) when the scheme is
+authored; `model:drawMode` cards are viewport stand-ins and are not drawn. Implicit
 shapes (Sphere, Cube, Cylinder, Cone, Capsule, Plane) are tessellated (`usd_shapes`).
-PointInstancers place their prototypes (one Mesh each, an Instance per unmasked point);
-nested ones, curves, points and NURBS are skipped with a warning.
+Meshes bound to a UsdSkel skeleton are skinned (UsdSkel.Cache / SkinningQuery, linear blend
+or dual quaternion as authored) and posed by the skeleton's animation at that time code, or
+at its rest transforms without one, as usdview shows them. PointInstancers place their prototypes (one Mesh each, an Instance per unmasked point);
+nested ones, curves, points and NURBS are skipped with a warning. UsdLux distant / sphere /
+rect / disk lights become KHR_lights_punctual lights (`_light`), a dome light's texture the
+scene's environment; UsdGeomCameras are listed (`Scene.cameras`) for `render --camera PATH`.
 """
 from __future__ import annotations
 
@@ -37,15 +42,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from pxr import Sdf, Tf, Usd, UsdGeom, UsdShade
+from pxr import Ar, Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade, UsdSkel
 
-from core.errors import LimitExceeded, MalformedAsset, UnsafeReference
-from core.scene import Instance, Mesh, Scene
+from core.errors import LimitExceeded, MalformedAsset, MissingFile, UnsafeReference
+from core.scene import Instance, Light, Mesh, Scene, SceneCamera
 
 from . import deadline
 from .limits import Limits
 from .usd_layers import LayerGraph
-from .usd_materials import Binding, MaterialReader
+from .usd_materials import Binding, MaterialReader, authoring_layer
 from .usd_shapes import SHAPES, tessellate
 
 log = logging.getLogger(__name__)
@@ -54,13 +59,14 @@ Y_UP_FROM_Z_UP = np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 
 PRUNED_TYPES = (UsdShade.Material, UsdShade.NodeGraph, UsdShade.Shader)
 
 
-def load(path: Path, limits: Limits) -> Scene:
-    """Read a USD file (any of its four forms) into a Scene; AssetError on bad input."""
+def load(path: Path, limits: Limits, root: Path | None = None) -> Scene:
+    """Read a USD file (any of its four forms) into a Scene; AssetError on bad input.
+    Files it references must lie inside `root` (default: its folder; `paths.sandbox_root`)."""
     path = Path(path)
-    graph = LayerGraph(path, limits)
+    graph = LayerGraph(path, limits, root)
     try:
         root_layer = graph.open()
-        stage = _compose(root_layer, graph)
+        stage = graph.stage = _compose(root_layer, graph)
         scene = Scene(source=str(path), format=path.suffix.lower().lstrip("."))
         scene.warnings.extend(graph.warnings)
         _StageReader(stage, graph, scene, limits).read()
@@ -111,6 +117,7 @@ class _Topology:
     tri_face: np.ndarray         # T, face of each triangle
     normals: np.ndarray | None
     attrs: dict[str, np.ndarray] = field(default_factory=dict)
+    subdivision: str | None = None  # catmullClark / loop: refined at bake (pipeline/subdivision.py)
 
 
 class _StageReader:
@@ -130,6 +137,7 @@ class _StageReader:
         self.vertices = 0
         self._nodes = 0
         self._skipped: set[str] = set()
+        self._skel: UsdSkel.Cache | None = None  # made at the first SkelRoot
         if not stage.HasAuthoredMetadata(UsdGeom.Tokens.metersPerUnit):
             self._warn("metersPerUnit not authored: USD's fallback 0.01 (centimetres) used")
 
@@ -155,12 +163,27 @@ class _StageReader:
             if not prim.IsA(UsdGeom.Imageable):
                 continue
             img = UsdGeom.Imageable(prim)
+            # purpose inherits from the nearest ancestor with one authored (which wins over
+            # the prim's own): only a prim whose own is guide/proxy needs the computed one
             if img.GetVisibilityAttr().Get(self.time) == UsdGeom.Tokens.invisible or \
-                    img.GetPurposeAttr().Get() in (UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy):
+                    img.GetPurposeAttr().Get() in (UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy) \
+                    and img.ComputePurpose() in (UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy):
                 it.PruneChildren()
                 continue
+            if prim.IsA(UsdSkel.Root):
+                self._skel_root(prim)
+            if placements is None and prim.HasAPI(UsdLux.LightAPI) and not prim.IsA(UsdGeom.Gprim):
+                self._light(prim)
+                continue
+            if placements is None and prim.IsA(UsdGeom.Camera):
+                self._camera(prim)
+                continue
             if prim.IsA(UsdGeom.Mesh) or str(prim.GetTypeName()) in SHAPES:
-                self._gprim(prim, self._matrices(prim, root, placements))
+                skinned = self._skinned(prim) if placements is None and self._skel else None
+                if skinned is not None:
+                    self._gprim(prim, skinned[0], skinned[1])
+                else:
+                    self._gprim(prim, self._matrices(prim, root, placements))
             elif prim.IsA(UsdGeom.PointInstancer):
                 it.PruneChildren()  # its prototypes are drawn only where it places them
                 if placements is None:
@@ -169,6 +192,130 @@ class _StageReader:
                     self._skipped.add("nested PointInstancer")
             elif prim.IsA(UsdGeom.Gprim):
                 self._skipped.add(str(prim.GetTypeName()))
+
+    # -- UsdLux lights and UsdGeom cameras -----------------------------------------------------
+    def _light(self, prim: Usd.Prim) -> None:
+        """UsdLux -> KHR_lights_punctual (or the scene's environment for a dome light).
+        Intensity is USD's intensity x 2^exposure x colour (x blackbody when enabled); for
+        sphere, rect and disk lights x their area (radiance -> intensity; unless normalized),
+        which become point / spot (cone from ShapingAPI) and a 90 degree spot."""
+        api = UsdLux.LightAPI(prim)
+        get = lambda a, d: _finite(a.Get(self.time), d)  # noqa: E731
+        color = np.array(api.GetColorAttr().Get(self.time) or (1.0, 1.0, 1.0), np.float64)
+        if api.GetEnableColorTemperatureAttr().Get(self.time):
+            color = color * np.array(UsdLux.BlackbodyTemperatureAsRgb(
+                get(api.GetColorTemperatureAttr(), 6500.0)))
+        intensity = get(api.GetIntensityAttr(), 1.0) * 2.0 ** get(api.GetExposureAttr(), 0.0)
+        normalize = bool(api.GetNormalizeAttr().Get(self.time))
+        world = self.to_scene @ np.array(self.xforms.GetLocalToWorldTransform(prim)).T
+        where = str(prim.GetPath())
+        if prim.IsA(UsdLux.DomeLight):
+            self._dome(prim, where)
+            return
+        if prim.IsA(UsdLux.DistantLight):
+            kind, area = "directional", 1.0
+        elif prim.IsA(UsdLux.SphereLight):
+            light = UsdLux.SphereLight(prim)
+            r = get(light.GetRadiusAttr(), 0.5)
+            kind = "point"
+            area = 1.0 if light.GetTreatAsPointAttr().Get() else math.pi * r * r
+        elif prim.IsA(UsdLux.RectLight):
+            light = UsdLux.RectLight(prim)
+            kind, area = "rect", get(light.GetWidthAttr(), 1.0) * get(light.GetHeightAttr(), 1.0)
+        elif prim.IsA(UsdLux.DiskLight):
+            kind, area = "rect", math.pi * get(UsdLux.DiskLight(prim).GetRadiusAttr(), 0.5) ** 2
+        else:
+            self._warn(f"{where}: {prim.GetTypeName()} lights are not drawn")
+            return
+        if normalize:
+            area = 1.0
+        r, g, b = (float(c) for c in np.clip(color, 0, None))
+        out = Light(type="point", color=(r, g, b),
+                    intensity=float(intensity * area), matrix=_orthonormal(world))
+        if kind == "directional":
+            out.type = "directional"
+        elif kind == "rect":  # one-sided emitter along -Z: a hemisphere spot
+            out.type, out.inner_cone, out.outer_cone = "spot", 0.0, math.pi / 2
+        shaping = UsdLux.ShapingAPI(prim) if prim.HasAPI(UsdLux.ShapingAPI) else None
+        cone = get(shaping.GetShapingConeAngleAttr(), 90.0) if shaping else 90.0
+        if shaping and cone < 90.0:
+            soft = min(max(get(shaping.GetShapingConeSoftnessAttr(), 0.0), 0.0), 1.0)
+            out.type, out.outer_cone = "spot", math.radians(cone)
+            out.inner_cone = out.outer_cone * (1.0 - soft)
+        self.scene.lights.append(out)
+
+    def _dome(self, prim: Usd.Prim, where: str) -> None:
+        attr = UsdLux.DomeLight(prim).GetTextureFileAttr()
+        asset = attr.Get(self.time)
+        if not asset or not asset.path:
+            self._warn(f"{where}: dome light without a texture; the render's environment is used")
+            return
+        try:
+            identifier = self.graph.resolve(authoring_layer(attr, self.time), asset.path)
+        except MissingFile as exc:
+            self._warn(f"{where}: {exc.reason}; the render's environment is used")
+            return
+        if Ar.IsPackageRelativePath(identifier):
+            self._warn(f"{where}: a dome texture inside a package is not read; the render's "
+                       "environment is used")
+            return
+        if self.scene.environment is None:
+            self.scene.environment = identifier
+            self.graph.files.append(identifier)
+        else:
+            self._warn(f"{where}: a second dome light; the first one's texture is used")
+
+    def _camera(self, prim: Usd.Prim) -> None:
+        """A UsdGeomCamera as a SceneCamera (`render --camera PRIM_PATH`): vertical field of
+        view (or, orthographic, half the vertical aperture as ymag), clipping range, in scene
+        units; the output's aspect is used, as for glTF cameras."""
+        cam = UsdGeom.Camera(prim).GetCamera(self.time)
+        world = _orthonormal(self.to_scene @ np.array(self.xforms.GetLocalToWorldTransform(prim)).T)
+        scale = UsdGeom.GetStageMetersPerUnit(self.stage)
+        near, far = cam.clippingRange.min * scale, cam.clippingRange.max * scale
+        out = SceneCamera(name=str(prim.GetPath()), matrix=world, znear=float(near),
+                          zfar=float(far) if math.isfinite(far) else math.inf)
+        if cam.projection == Gf.Camera.Orthographic:
+            # apertures are in tenths of a scene unit for orthographic cameras (Gf.Camera)
+            out.type = "orthographic"
+            out.ymag = float(cam.verticalAperture * Gf.Camera.APERTURE_UNIT * scale / 2)
+            out.xmag = float(cam.horizontalAperture * Gf.Camera.APERTURE_UNIT * scale / 2)
+        else:
+            out.yfov = math.radians(cam.GetFieldOfView(Gf.Camera.FOVVertical))
+        self.scene.cameras.append(out)
+
+    # -- UsdSkel: skinned meshes posed as usdview shows them --------------------------------
+    def _skel_root(self, prim: Usd.Prim) -> None:
+        if self._skel is None:
+            self._skel = UsdSkel.Cache()
+        self._skel.Populate(UsdSkel.Root(prim),
+                            Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate))
+
+    def _skinned(self, prim: Usd.Prim):
+        """(world matrices, skinned points or None) of a mesh bound to a skeleton, posed by
+        its animation at the read time, else at the skeleton's rest transforms; None when
+        `prim` is not skinned. Skinned points are in the skeleton's space (the gprim's own
+        transform does not apply, as UsdSkel specifies)."""
+        assert self._skel is not None  # _walk calls this only once a SkelRoot was seen
+        query = self._skel.GetSkinningQuery(prim)
+        skeleton = UsdSkel.BindingAPI(prim).GetInheritedSkeleton()
+        if not query or not skeleton or not prim.IsA(UsdGeom.Mesh):
+            return None
+        skel_query = self._skel.GetSkelQuery(skeleton)
+        xforms = skel_query.ComputeSkinningTransforms(self.time) if skel_query else None
+        if not xforms:
+            self._warn(f"{prim.GetPath()}: skeleton {skeleton.GetPath()} has no usable pose; "
+                       "drawn unskinned")
+            return None
+        skel_world = np.array(self.xforms.GetLocalToWorldTransform(skeleton.GetPrim()))
+        if query.IsRigidlyDeformed():
+            rows = np.array(query.ComputeSkinnedTransform(xforms, self.time)) @ skel_world
+            return self.to_scene @ rows.T[None], None
+        points = UsdGeom.Mesh(prim).GetPointsAttr().Get(self.time)
+        if points is None or not query.ComputeSkinnedPoints(xforms, points, self.time):
+            self._warn(f"{prim.GetPath()}: skinning failed; drawn unskinned")
+            return None
+        return (self.to_scene @ skel_world.T)[None], np.asarray(points, np.float32).reshape(-1, 3)
 
     def _matrices(self, prim: Usd.Prim, root: Usd.Prim, placements) -> np.ndarray:
         """World matrices (column vectors, scene space) of `prim`, once per placement."""
@@ -206,7 +353,7 @@ class _StageReader:
                 self._walk(proto, rows[chosen] @ world)
 
     # -- one mesh or implicit shape ----------------------------------------------------------
-    def _gprim(self, prim: Usd.Prim, matrices: np.ndarray) -> None:
+    def _gprim(self, prim: Usd.Prim, matrices: np.ndarray, points=None) -> None:
         mesh = UsdGeom.Mesh(prim) if prim.IsA(UsdGeom.Mesh) else None
         source = prim.GetPrimInPrototype() if prim.IsInstanceProxy() else prim
         groups = self._groups(prim, mesh)
@@ -217,10 +364,10 @@ class _StageReader:
                         | {b.color_primvar for b in bindings if b.color_primvar})
         if not any(b.uv_primvars for b in bindings):
             needed.append("st")  # no texture reads it, but keep the conventional UVs
-        topo_key = (str(source.GetPath()), tuple(needed))
+        topo_key = (str(source.GetPath() if points is None else prim.GetPath()), tuple(needed))
         if topo_key not in self._topology:
             deadline.check()
-            self._topology[topo_key] = self._triangulate(prim, mesh, needed) if mesh \
+            self._topology[topo_key] = self._triangulate(prim, mesh, needed, points) if mesh \
                 else self._shape(prim, needed)
         topo = self._topology[topo_key]
         if topo is None:
@@ -244,9 +391,7 @@ class _StageReader:
     def _groups(self, prim: Usd.Prim, mesh: UsdGeom.Mesh | None):
         """[(label, material, faces or None)]: one per material-bound GeomSubset, then the
         faces no subset claims (faces None = all faces)."""
-        purpose = UsdShade.Tokens.preview
-        api = UsdShade.MaterialBindingAPI(prim)
-        own = api.ComputeBoundMaterial(purpose)[0]
+        own = self.materials.bound(prim)
         subsets = [] if mesh is None else [
             s for s in UsdGeom.Subset.GetAllGeomSubsets(mesh)
             if s.GetElementTypeAttr().Get() == UsdGeom.Tokens.face
@@ -258,19 +403,20 @@ class _StageReader:
         groups, claimed = [], []
         for subset in subsets:
             faces = np.asarray(subset.GetIndicesAttr().Get(self.time) or [], np.int64)
-            mat = UsdShade.MaterialBindingAPI(subset.GetPrim()).ComputeBoundMaterial(purpose)[0]
+            mat = self.materials.bound(subset.GetPrim())
             groups.append((f":{subset.GetPrim().GetName()}", mat if mat else None, faces))
             claimed.append(faces)
         groups.append(("", own if own else None, ("rest", np.concatenate(claimed))))
         return groups
 
     # -- geometry --------------------------------------------------------------------------------
-    def _triangulate(self, prim: Usd.Prim, mesh: UsdGeom.Mesh,
-                     names: list[str]) -> _Topology | None:
+    def _triangulate(self, prim: Usd.Prim, mesh: UsdGeom.Mesh, names: list[str],
+                     skinned: np.ndarray | None = None) -> _Topology | None:
         where = f"mesh {prim.GetPath()}"
         counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(self.time) or [], np.int64)
         fvi = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(self.time) or [], np.int64)
-        points = np.asarray(mesh.GetPointsAttr().Get(self.time) or [], np.float32).reshape(-1, 3)
+        points = skinned if skinned is not None else \
+            np.asarray(mesh.GetPointsAttr().Get(self.time) or [], np.float32).reshape(-1, 3)
         if not len(counts) or not len(points):
             return None
         if counts.min() < 0:
@@ -331,7 +477,12 @@ class _StageReader:
             tri = fvi[corners]
             point_of_vertex = np.arange(len(points))
             elem = lambda pv: _point_elements(pv, len(points))  # noqa: E731
-        topo = _Topology(points[point_of_vertex], tri.astype(np.uint32), tri_face, None)
+        # Only an authored scheme is refined: most exporters leave USD's fallback
+        # (catmullClark) on hard-surface meshes, which usdview draws as cages by default.
+        attr = mesh.GetSubdivisionSchemeAttr()
+        scheme = str(attr.Get()) if attr.HasAuthoredValue() else "none"
+        topo = _Topology(points[point_of_vertex], tri.astype(np.uint32), tri_face, None,
+                         subdivision=scheme if scheme in ("catmullClark", "loop") else None)
         if normals is not None:
             topo.normals = normals.values[elem(normals)][:, :3].astype(np.float32)
         for name, pv in primvars.items():
@@ -430,12 +581,31 @@ class _StageReader:
         return Mesh(name=name, positions=pick(topo.positions),
                     normals=None if topo.normals is None else pick(topo.normals),  # type: ignore[arg-type]  # None: pipeline.ingest computes them
                     indices=local.reshape(-1, 3).astype(np.uint32),
-                    uv0=uvs[0], uv1=uvs[1], colors=colors)
+                    uv0=uvs[0], uv1=uvs[1], colors=colors, subdivision=topo.subdivision)
 
     def _warn(self, text: str) -> None:
         if text not in self.scene.warnings:
             self.scene.warnings.append(text)
             log.warning("%s: %s", self.graph.path, text)
+
+
+def _finite(value, default: float) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        return default
+    return v if math.isfinite(v) else default
+
+
+def _orthonormal(m: np.ndarray) -> np.ndarray:
+    """`m` with its rotation part's columns normalised (lights and cameras: the scale a
+    metersPerUnit or an Xform brings moves them, it does not stretch their frame)."""
+    out = np.array(m, np.float64)
+    for i in range(3):
+        n = np.linalg.norm(out[:3, i])
+        if n > 0:
+            out[:3, i] /= n
+    return out
 
 
 def _elements(pv: _Primvar, fvi, face_of_corner, corners) -> np.ndarray:

@@ -1,8 +1,11 @@
 """Resolving file references found inside an asset, refusing anything unsafe.
 
-An asset may only read files inside its own folder (or package root): no network, no
-absolute paths, no `..` escapes, no symlinks that lead out. `data:` URIs are not paths; the
-glTF reader decodes them before it would call this.
+An asset may only read files inside its sandbox root: no network, no absolute paths, no `..`
+escapes, no symlinks that lead out. The root is one rule for every format (`sandbox_root`):
+the asset's own folder by default; the CLI passes the folder given on its command line
+(`asset-bake LIB/`: LIB, so assets of a library may share LIB/parts) or `--root DIR`; the
+service passes the upload (or unpacked zip) folder. `data:` URIs are not paths; the glTF
+reader decodes them before it would call this.
 """
 from __future__ import annotations
 
@@ -16,30 +19,41 @@ from core.errors import MissingFile, UnsafeReference
 _SCHEME = re.compile(r"^([A-Za-z][A-Za-z0-9+.\-]*):")
 
 
+def sandbox_root(asset, root=None) -> Path:
+    """The folder every file `asset` references must lie in: `root` when given (it must hold
+    the asset), else the asset's own folder. Resolved (symlinks followed)."""
+    real = Path(asset).resolve()
+    if root is None:
+        return real.parent
+    top = Path(root).resolve()
+    if not _inside(real, top):
+        raise UnsafeReference(asset, f"the asset is outside the root {top}")
+    return top
+
+
 def resolve_reference(asset: Path, uri: str, base_dir: Path | None = None,
                       root: Path | None = None) -> Path:
     """The file `uri` (found inside `asset`) names, relative to `base_dir` (default the
-    asset's folder), guaranteed to lie inside `root` (default the asset's folder).
+    asset's folder), guaranteed to lie inside `sandbox_root(asset, root)`.
 
     Raises UnsafeReference for URLs of any scheme, absolute paths, and paths or symlinks that
-    resolve outside `root`; MissingFile when the target does not exist.
+    resolve outside the root (the message names it); MissingFile when the target does not exist.
     """
     asset = Path(asset)
     base = Path(base_dir) if base_dir is not None else asset.parent
-    top = Path(root) if root is not None else asset.parent
     path_text = relative_path_text(asset, uri)
-    top_real = top.resolve()
+    top_real = sandbox_root(asset, root)
     candidate = base / path_text
     # Lexical check first (catches `..` even when the target is missing), then the real one
     # (catches symlinks whose target lies outside).
     lexical = Path(_normalise(base.resolve() / path_text))
     if not _inside(lexical, top_real):
-        raise UnsafeReference(asset, f"refusing reference {uri!r}: it leaves the asset's "
-                                     f"folder {top_real}")
+        raise UnsafeReference(asset, f"refusing reference {uri!r}: it leaves the root "
+                                     f"{top_real} (widen it with --root DIR)")
     real = candidate.resolve()
     if not _inside(real, top_real):
         raise UnsafeReference(asset, f"refusing reference {uri!r}: it resolves (through a "
-                                     f"link) to {real}, outside the asset's folder")
+                                     f"link) to {real}, outside the root {top_real}")
     if not real.is_file():
         raise MissingFile(asset, f"referenced file {uri!r} not found (looked at {candidate})")
     return real

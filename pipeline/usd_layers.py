@@ -21,7 +21,7 @@ from core.errors import LimitExceeded, MalformedAsset, MissingFile, UnsafeRefere
 
 from . import deadline
 from .limits import Limits
-from .paths import relative_path_text, resolve_reference
+from .paths import relative_path_text, resolve_reference, sandbox_root
 
 log = logging.getLogger(__name__)
 
@@ -31,9 +31,10 @@ class LayerGraph:
     """The asset's layers, opened and checked. `files` lists every file on disk read, in order
     (layers and textures; for what a .usdz holds, the package file itself), for content hashing."""
 
-    def __init__(self, path: Path, limits: Limits):
+    def __init__(self, path: Path, limits: Limits, root: Path | None = None):
         self.path = Path(path)
-        self.root = self.path.resolve().parent
+        self.root = sandbox_root(self.path, root)
+        self.stage = None  # the composed stage, once composed (material readers look there)
         self.limits = limits
         self.layers: dict[str, Sdf.Layer] = {}   # identifier -> layer (held open)
         self.files: list[str] = []
@@ -52,17 +53,36 @@ class LayerGraph:
             deadline.check()
             layer = pending.pop()
             for dep in self._dependencies(layer):
-                target = self.resolve(layer, dep)
+                sublayer = dep in layer.subLayerPaths
+                try:
+                    target = self.resolve(layer, dep)
+                except MissingFile as exc:
+                    if not sublayer:  # a reference or payload: the geometry it holds is missing
+                        raise MissingFile(exc.path, f"{exc.reason} (a reference or payload; "
+                                                    "the prims it brings would be missing)") from None
+                    self.unreadable.add(layer.ComputeAbsolutePath(dep))
+                    self.warnings.append(f"{self._name(layer)}: sublayer {dep!r} not found; "
+                                         "the stage is composed without it")
+                    continue
                 ext = Path(_inner(target) or target).suffix.lstrip(".")
                 if Sdf.FileFormat.FindByExtension(ext) is None:
                     self.unreadable.add(target)
-                    self.warnings.append(f"{self._name(layer)}: cannot read {dep!r} (no USD file "
-                                         "format for it); its contents are skipped")
+                    if ext.lower() != "mtlx":  # .mtlx documents are read by usd_materials
+                        self.warnings.append(f"{self._name(layer)}: cannot read {dep!r} (no USD "
+                                             "file format for it); its contents are skipped")
                     continue
                 if ext.lower() == "usdz" and not Ar.IsPackageRelativePath(target):
                     self._package(target)  # checked once, however many layers refer to it
                 if target not in self.layers:
-                    pending.append(self._open_layer(target, self._name(layer)))
+                    try:
+                        pending.append(self._open_layer(target, self._name(layer)))
+                    except MalformedAsset as exc:
+                        if not sublayer:
+                            raise
+                        self.unreadable.add(target)
+                        self.warnings.append(f"{self._name(layer)}: sublayer {dep!r} is "
+                                             f"unreadable ({exc.reason}); the stage is composed "
+                                             "without it")
         return root_layer
 
     def _dependencies(self, layer: Sdf.Layer) -> list[str]:
@@ -118,6 +138,20 @@ class LayerGraph:
         # The identifier Ar itself will use (anchored, not symlink-resolved), so that composing
         # finds these very layers already open.
         return layer.ComputeAbsolutePath(uri)
+
+    def resolve_file(self, referrer: str, uri: str) -> str:
+        """As `resolve`, for a reference found in a file that is not a layer (a .mtlx
+        document): relative to that file, inside the same root or package."""
+        if Ar.IsPackageRelativePath(referrer):
+            outer, inner = _outer(referrer), _inner(referrer)
+            path_text = relative_path_text(referrer, uri)
+            norm = posixpath.normpath(posixpath.join(posixpath.dirname(inner), path_text))
+            if norm.startswith("..") or norm.startswith("/"):
+                raise UnsafeReference(referrer, f"refusing reference {uri!r}: it leaves the package")
+            if norm not in self._package(outer).NameToInfo:
+                raise MissingFile(referrer, f"referenced file {uri!r} not found in the package")
+            return Ar.JoinPackageRelativePath([outer, norm])
+        return str(resolve_reference(Path(referrer), uri, root=self.root))
 
     def _resolve_in_package(self, layer: Sdf.Layer, uri: str) -> str:
         name = self._name(layer)

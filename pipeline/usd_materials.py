@@ -30,7 +30,7 @@ from typing import cast
 import numpy as np
 from pxr import Sdf, Usd, UsdShade
 
-from core.errors import LimitExceeded, MalformedAsset
+from core.errors import LimitExceeded, MalformedAsset, MissingFile
 from core.scene import (
     CLAMP_TO_EDGE,
     MIRRORED_REPEAT,
@@ -43,7 +43,7 @@ from core.scene import (
     default_material,
 )
 
-from . import deadline
+from . import deadline, materialx
 from .images import DeferredTexture, probe_image
 from .limits import Limits
 from .usd_layers import LayerGraph
@@ -123,10 +123,26 @@ class MaterialReader:
         self._packed: dict[tuple, int] = {}
         self._materials: dict[str, int] = {}
         self._unpacked = 0
+        self._documents: dict[str, object] = {}  # .mtlx identifier -> MaterialX document
+        self._files: dict[tuple[str, str], materialx.File] = {}
 
-    def bind(self, material: UsdShade.Material | None, double_sided: bool,
-             has_display_color: bool) -> Binding:
-        key = (material.GetPath() if material else None, double_sided, has_display_color)
+    def bound(self, prim: Usd.Prim):
+        """The material bound to `prim` (preview purpose, else all-purpose), or the binding's
+        target path when no material prim is there (a .mtlx reference USD could not compose),
+        or None."""
+        material, rel = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial(
+            UsdShade.Tokens.preview)
+        if material:
+            return material
+        targets = rel.GetTargets() if rel else []
+        return targets[0] if targets else None
+
+    def bind(self, material, double_sided: bool, has_display_color: bool) -> Binding:
+        """`material`: what `bound` returned."""
+        if isinstance(material, Sdf.Path):
+            key = (material, double_sided, has_display_color)
+        else:
+            key = (material.GetPath() if material else None, double_sided, has_display_color)
         if key not in self._bindings:
             mat, uv_primvars, color_primvar = self._read(material, has_display_color)
             mat.double_sided = double_sided  # a gprim attribute in USD, a material one here
@@ -134,10 +150,21 @@ class MaterialReader:
         return self._bindings[key]
 
     # -- one material -----------------------------------------------------------------------
-    def _read(self, material: UsdShade.Material | None, has_display_color: bool):
+    def _read(self, material, has_display_color: bool):
         """(Material, uv primvar names, colour primvar name) for one bound material."""
         shader = None
+        if isinstance(material, Sdf.Path):
+            read = self._mtlx_reference(material)
+            if read is not None:
+                return read
+            self._warn(f"material binding to {material}: no such material; drawn with the "
+                       "fallback material")
+            material = None
         if material:
+            mtlx = material.ComputeSurfaceSource(materialx.RENDER_CONTEXT)[0]
+            if mtlx and (mtlx.GetShaderId() or "").startswith("ND_"):
+                return self._materialx(str(material.GetPath()), materialx.UsdNode(
+                    mtlx, self.time, self._resolve_usd_file))
             shader = material.ComputeSurfaceSource()[0]
             if not shader or shader.GetShaderId() != "UsdPreviewSurface":
                 what = shader.GetShaderId() if shader else "no surface shader"
@@ -154,6 +181,67 @@ class MaterialReader:
         deadline.check()
         assert material is not None  # a shader comes from a bound material
         return self._preview_surface(str(material.GetPath()), shader)
+
+    # -- MaterialX --------------------------------------------------------------------------
+    def _materialx(self, name: str, node: "materialx.Node"):
+        if node.category not in materialx.SURFACES:
+            self._warn(f"material {name}: MaterialX surface {node.category or node.name!r} is "
+                       f"not one of {', '.join(materialx.SURFACES)}; drawn with the fallback "
+                       "material")
+            return default_material(name), (), None
+        reader = materialx.SurfaceReader(self, name, node)
+        mat = reader.read()
+        return mat, tuple(reader.uv_names[:2]), None
+
+    def _mtlx_reference(self, target: Sdf.Path):
+        """The material a binding to `target` names inside a referenced .mtlx document."""
+        found = materialx.find_reference(self.graph.stage, target, self.graph)
+        if found is None:
+            return None
+        identifier, name = found
+        if identifier not in self._documents:
+            deadline.check()
+            try:
+                data = self.graph.read_bytes(identifier)
+                self._documents[identifier] = materialx.read_document(data, identifier)
+            except (MalformedAsset, OSError) as exc:
+                self._warn(f"{identifier}: {getattr(exc, 'reason', exc)}; its materials are "
+                           "drawn with the fallback material")
+                self._documents[identifier] = None
+        doc = self._documents[identifier]
+        shader = materialx.document_surface(doc, name) if doc is not None else None
+        if shader is None:
+            if doc is not None:
+                self._warn(f"{identifier}: no surfacematerial {name!r} with a surface shader; "
+                           "drawn with the fallback material")
+            return default_material(str(target)), (), None
+        resolve = lambda text: self._resolve_file(identifier, text)  # noqa: E731
+        return self._materialx(str(target), materialx.MxNode(shader, resolve))
+
+    def _resolve_usd_file(self, attr: Usd.Attribute, text: str) -> "materialx.File":
+        try:
+            return materialx.File(self.graph.resolve(authoring_layer(attr, self.time), text), text)
+        except MissingFile as exc:
+            return materialx.File(None, text, exc)
+
+    def _resolve_file(self, document: str, text: str) -> "materialx.File":
+        key = (document, text)  # documents name one texture from many materials
+        if key not in self._files:
+            try:
+                self._files[key] = materialx.File(self.graph.resolve_file(document, text), text)
+            except MissingFile as exc:
+                self._files[key] = materialx.File(None, text, exc)
+        return self._files[key]
+
+    # what materialx.SurfaceReader asks of its host
+    def warn(self, text: str) -> None:
+        self._warn(text)
+
+    def texture(self, identifier: str, wrap: tuple[str, str]) -> int | None:
+        return self._texture(identifier, wrap)
+
+    def pack(self, parts: dict[int, tuple[int, int]]) -> int:
+        return self._pack(parts)
 
     def _preview_surface(self, name: str, shader: UsdShade.Shader):
         mat = Material(name=name, metallic=METALLIC, roughness=ROUGHNESS, ior=IOR)
@@ -308,8 +396,12 @@ class MaterialReader:
             self._warn(f"{node.GetPath()}: UDIM texture {asset.path!r} is not supported; "
                        "its fallback is used")
             return fallback
-        layer = _authoring_layer(attr, self.time)
-        identifier = self.graph.resolve(layer, asset.path)  # refuses unsafe, MissingFile if absent
+        layer = authoring_layer(attr, self.time)
+        try:
+            identifier = self.graph.resolve(layer, asset.path)  # refuses unsafe
+        except MissingFile as exc:
+            self._warn(f"{node.GetPath()}: {exc.reason}; its fallback is used")
+            return fallback
         wrap = (str(self._input(node, "wrapS") or "useMetadata"),
                 str(self._input(node, "wrapT") or "useMetadata"))
         for w in wrap:
@@ -406,7 +498,7 @@ def _with(tex: _Tex, texture: int) -> _Tex:
     return dataclasses.replace(tex, texture=texture)
 
 
-def _authoring_layer(attr: Usd.Attribute, time: Usd.TimeCode) -> Sdf.Layer:
+def authoring_layer(attr: Usd.Attribute, time: Usd.TimeCode) -> Sdf.Layer:
     """The layer whose opinion gives `attr` its value: asset paths are relative to it."""
     for spec in attr.GetPropertyStack(time):
         if spec.HasDefaultValue() or spec.layer.GetNumTimeSamplesForPath(spec.path):

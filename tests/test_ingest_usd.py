@@ -175,12 +175,13 @@ def test_texture_coordinate_test(assets):
     assert {(round(u, 5), round(v, 5)) for u, v in mesh.uv0} == expected
 
 
-def test_materialx_only_material_falls_back_with_warning(assets):
+def test_materialx_reference_is_read(assets):
+    """The .mtlx document is read with PyMaterialX (tests/test_materialx.py has the details)."""
     path = assets / "usd/TextureCoordinateTest/TextureCoordinateTestMaterialX.usda"
     scene = pipeline.load_scene(path)
     assert scene.triangle_count == 10
-    assert any(".mtlx" in w for w in scene.warnings)
-    assert all(m.colors is not None for m in scene.meshes)  # displayColor stands in
+    assert not any("cannot read" in w for w in scene.warnings)
+    assert len(scene.textures) == 1 and scene.textures[0].source.endswith("Template.png")
 
 
 def test_primvar_interpolations(assets):
@@ -566,10 +567,33 @@ def test_symlink_inside_the_folder_is_followed(tmp_path):
     assert pipeline.load_scene(path).triangle_count == 4
 
 
-def test_missing_referenced_layer_is_missing_file(tmp_path):
-    path = write(tmp_path / "a.usda", '(\n subLayers = [@./gone.usda@]\n)\n')
-    with pytest.raises(MissingFile, match="gone.usda"):
-        pipeline.load_scene(path)
+def test_missing_sublayer_or_texture_is_a_warning_missing_payload_refused(tmp_path):
+    write(tmp_path / "geo.usda", mesh("M", binding="Mat") + material(
+        "Mat", "color3f inputs:diffuseColor.connect = </Mat/T.outputs:rgb>", """
+    def Shader "T"
+    {
+        uniform token info:id = "UsdUVTexture"
+        asset inputs:file = @gone.png@
+        float4 inputs:fallback = (0, 1, 0, 1)
+        float3 outputs:rgb
+    }"""))
+    path = write(tmp_path / "a.usda", '(\n subLayers = [@./gone.usda@, @./geo.usda@]\n)\n')
+    scene = pipeline.load_scene(path)
+    assert scene.triangle_count == 2
+    assert sum("gone.usda" in w for w in scene.warnings) == 1, scene.warnings
+    assert any("gone.png" in w for w in scene.warnings)
+    assert scene.materials[0].base_color[:3] == (0, 1, 0)  # UsdUVTexture's fallback
+    (tmp_path / "bad.usda").write_bytes(b"#usda 1.0\n def {{{ nonsense")
+    scene = pipeline.load_scene(write(tmp_path / "b.usda", '(\n subLayers = [@./bad.usda@, '
+                                                           '@./geo.usda@]\n)\n'))
+    assert scene.triangle_count == 2 and any("bad.usda" in w for w in scene.warnings)
+    for arc in ("references", "payload"):
+        path = write(tmp_path / f"{arc}.usda", f'def "A" (\n prepend {arc} = @./gone.usda@\n) {{}}\n'
+                     + mesh("M"))
+        with pytest.raises(MissingFile, match="gone.usda.*reference or payload"):
+            pipeline.load_scene(path)
+    with pytest.raises(MissingFile, match="no such file"):
+        pipeline.load_scene(tmp_path / "nothing.usda")
 
 
 # -- hostile files --------------------------------------------------------------------------------

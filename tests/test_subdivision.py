@@ -1,0 +1,94 @@
+"""Subdivision surfaces: ingest keeps the cage (pxr's count), bake refines coarse cages."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import pipeline
+from pipeline.bake import build_baked
+from pipeline.subdivision import levels_for, loop_step
+
+CUBE = """#usda 1.0
+(
+    metersPerUnit = 1
+)
+def Mesh "Cube"
+{{
+    int[] faceVertexCounts = [4, 4, 4, 4, 4, 4]
+    int[] faceVertexIndices = [0, 1, 3, 2, 2, 3, 5, 4, 4, 5, 7, 6, 6, 7, 1, 0, 1, 7, 5, 3, 6, 0, 2, 4]
+    point3f[] points = [(-1, -1, 1), (1, -1, 1), (-1, 1, 1), (1, 1, 1), (-1, 1, -1), (1, 1, -1),
+                        (-1, -1, -1), (1, -1, -1)]
+    texCoord2f[] primvars:st = [{st}] (interpolation = "faceVarying")
+    uniform token subdivisionScheme = "{scheme}"
+}}
+"""
+
+
+def cube(tmp_path, scheme="catmullClark"):
+    st = ", ".join(f"({i % 4 * 0.25}, {i // 4 * 0.1})" for i in range(24))  # every corner its own
+    path = tmp_path / f"cube_{scheme}.usda"
+    path.write_text(CUBE.format(scheme=scheme, st=st))
+    return path
+
+
+def watertight(positions, indices) -> bool:
+    """Every edge of the position-welded surface is shared by exactly two triangles."""
+    _, weld = np.unique(positions, axis=0, return_inverse=True)
+    tri = weld.reshape(-1)[indices]
+    edges = np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    return bool(np.all(counts == 2))
+
+
+@pytest.mark.parametrize("scheme", ["catmullClark", "loop"])
+def test_coarse_cage_is_refined_at_bake_and_stays_closed(tmp_path, scheme):
+    scene = pipeline.load_scene(cube(tmp_path, scheme))
+    assert scene.triangle_count == 12 and scene.meshes[0].subdivision == scheme  # the cage
+    baked = build_baked(scene)
+    mesh = baked.meshes[0]
+    assert len(mesh.indices) == 12 * 16  # two levels of a 12-triangle cage
+    assert baked.manifest["stats"]["refined"] == 1
+    r = np.linalg.norm(mesh.positions, axis=1)
+    assert r.max() / r.min() < 1.25  # rounded (the cube's corners are sqrt(3) = 1.73 x its faces)
+    assert watertight(mesh.positions, mesh.indices)  # welded across the split UV seams
+    assert mesh.uv0 is not None and len(mesh.uv0) == len(mesh.positions)
+    assert np.allclose(np.linalg.norm(mesh.normals, axis=1), 1, atol=1e-5)
+    assert np.all(np.einsum("ij,ij->i", mesh.normals, mesh.positions) > 0)  # outward
+
+
+def test_open_cage_keeps_its_corners(tmp_path):
+    path = tmp_path / "quad.usda"
+    path.write_text(CUBE.format(scheme="catmullClark", st="(0, 0)").replace(
+        "[4, 4, 4, 4, 4, 4]", "[4]").replace("[0, 1, 3, 2, 2, 3, 5, 4, 4, 5, 7, 6, 6, 7, 1, 0, "
+                                             "1, 7, 5, 3, 6, 0, 2, 4]", "[0, 1, 3, 2]")
+                    .replace('(interpolation = "faceVarying")', '(interpolation = "constant")'))
+    mesh = build_baked(pipeline.load_scene(path)).meshes[0]
+    assert len(mesh.indices) == 32
+    np.testing.assert_allclose(mesh.positions.min(0)[:2], (-1, -1), atol=1e-6)
+    np.testing.assert_allclose(mesh.positions.max(0)[:2], (1, 1), atol=1e-6)
+
+
+def test_unauthored_scheme_is_drawn_as_the_cage(tmp_path):
+    path = cube(tmp_path)
+    path.write_text(path.read_text().replace('uniform token subdivisionScheme = "catmullClark"', ""))
+    assert pipeline.load_scene(path).meshes[0].subdivision is None
+
+
+def test_scheme_none_and_levels_zero_keep_the_cage(tmp_path):
+    assert len(build_baked(pipeline.load_scene(cube(tmp_path, "none"))).meshes[0].indices) == 12
+    scene = pipeline.load_scene(cube(tmp_path))
+    assert len(build_baked(scene, options={"subdivision_levels": 0}).meshes[0].indices) == 12
+
+
+def test_teapot_cage_refined_two_levels(assets):
+    scene = pipeline.load_scene(assets / "usd/Teapot/Teapot.usd")
+    assert scene.triangle_count == 2472
+    assert build_baked(scene).manifest["stats"]["triangles"] == 2472 * 16
+
+
+def test_levels_follow_the_cage_size_and_loop_step_is_linear_in_attributes():
+    assert [levels_for(n) for n in (100, 10_000, 100_000)] == [2, 1, 0]
+    pos = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
+    new_pos, tri, attrs = loop_step(pos, np.array([[0, 1, 2]]), {"uv0": pos[:, :2].copy()})
+    assert len(tri) == 4 and len(new_pos) == 6
+    np.testing.assert_allclose(attrs["uv0"][3:], [[0.5, 0], [0, 0.5], [0.5, 0.5]], atol=1e-12)

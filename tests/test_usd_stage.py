@@ -1,0 +1,357 @@
+"""USD as studios ship it: counts that agree with a direct pxr traversal (purposes, visibility,
+instancing, GeomSubsets, variants, PointInstancers), UsdSkel posed at rest, UsdLux lights, a
+dome light's environment and UsdGeomCameras usable by `render --camera`."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from pxr import Usd, UsdGeom
+
+import pipeline
+from core.errors import NotInAsset
+from core.options import RenderOptions
+from pipeline.bake import build_baked
+from renderer.camera import request_camera
+
+USD_SUFFIXES = {".usd", ".usda", ".usdc", ".usdz"}
+
+
+def pxr_triangles(path) -> int:
+    """Triangles as usdview draws them, straight from pxr: visible, default/render purpose
+    Meshes with instance proxies, PointInstancer prototypes once per (unmasked) instance."""
+    stage = Usd.Stage.Open(str(path))
+    predicate = Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)
+
+    def mesh_triangles(prim) -> int:
+        mesh = UsdGeom.Mesh(prim)
+        counts = list(mesh.GetFaceVertexCountsAttr().Get() or [])
+        holes = set(mesh.GetHoleIndicesAttr().Get() or [])
+        return sum(max(c - 2, 0) for f, c in enumerate(counts) if f not in holes)
+
+    def drawn(prim) -> bool:
+        img = UsdGeom.Imageable(prim)
+        return img.ComputeVisibility() != UsdGeom.Tokens.invisible and \
+            img.ComputePurpose() in (UsdGeom.Tokens.default_, UsdGeom.Tokens.render)
+
+    def subtree(root) -> int:
+        total = 0
+        it = iter(Usd.PrimRange(root, predicate))
+        for prim in it:
+            if prim.IsA(UsdGeom.PointInstancer):
+                it.PruneChildren()
+                if drawn(prim):
+                    pi = UsdGeom.PointInstancer(prim)
+                    idx = np.asarray(pi.GetProtoIndicesAttr().Get() or [], int)
+                    mask = np.asarray(pi.ComputeMaskAtTime(Usd.TimeCode.Default()) or
+                                      [True] * len(idx), bool)
+                    for j, target in enumerate(pi.GetPrototypesRel().GetForwardedTargets()):
+                        total += int((mask & (idx == j)).sum()) * subtree(stage.GetPrimAtPath(target))
+            elif prim.IsA(UsdGeom.Mesh) and drawn(prim):
+                total += mesh_triangles(prim)
+        return total
+
+    return subtree(stage.GetPseudoRoot())
+
+
+def test_every_usd_sample_matches_a_direct_pxr_traversal(assets):
+    samples = sorted(p for p in (assets / "usd").rglob("*") if p.suffix in USD_SUFFIXES)
+    assert len(samples) >= 8
+    for path in samples:
+        assert pipeline.load_scene(path).triangle_count == pxr_triangles(path) > 0, path
+
+
+QUAD = """
+        int[] faceVertexCounts = [4, 4]
+        int[] faceVertexIndices = [0, 1, 2, 3, 1, 4, 5, 2]
+        point3f[] points = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (2, 0, 0), (2, 1, 0)]
+        uniform token subdivisionScheme = "none"
+"""
+
+STUDIO = f"""#usda 1.0
+(
+    metersPerUnit = 1
+    defaultPrim = "Set"
+)
+def Xform "Set"
+{{
+    def Xform "Prop" (
+        instanceable = true
+        prepend references = </Library/Crate>
+    )
+    {{
+    }}
+    def Xform "Prop2" (
+        instanceable = true
+        prepend references = </Library/Crate>
+    )
+    {{
+        double3 xformOp:translate = (5, 0, 0)
+        uniform token[] xformOpOrder = ["xformOp:translate"]
+    }}
+    def Xform "Prop3" (
+        instanceable = true
+        prepend references = </Library/Crate>
+    )
+    {{
+        double3 xformOp:translate = (10, 0, 0)
+        uniform token[] xformOpOrder = ["xformOp:translate"]
+    }}
+    def Xform "Hidden"
+    {{
+        token visibility = "invisible"
+        def Mesh "M"
+        {{{QUAD}
+        }}
+    }}
+    def Xform "Proxy"
+    {{
+        uniform token purpose = "proxy"
+        def Mesh "M"
+        {{{QUAD}
+        }}
+    }}
+    def Xform "Render"
+    {{
+        uniform token purpose = "render"
+        def Mesh "M"
+        {{
+            uniform token purpose = "proxy"{QUAD}
+        }}
+    }}
+    def Mesh "Guide"
+    {{
+        uniform token purpose = "guide"{QUAD}
+    }}
+    def Mesh "Split"
+    {{{QUAD}
+        def GeomSubset "a"
+        {{
+            uniform token elementType = "face"
+            uniform token familyName = "materialBind"
+            int[] indices = [0]
+        }}
+    }}
+    def Xform "Variant" (
+        variants = {{
+            string lod = "low"
+        }}
+        prepend variantSets = "lod"
+    )
+    {{
+        variantSet "lod" = {{
+            "high" {{
+                def Mesh "High"
+                {{{QUAD}
+                }}
+                def Mesh "High2"
+                {{{QUAD}
+                }}
+            }}
+            "low" {{
+                def Mesh "Low"
+                {{{QUAD}
+                }}
+            }}
+        }}
+    }}
+    def PointInstancer "Scatter"
+    {{
+        rel prototypes = [</Set/Scatter/Protos/Rock>]
+        int[] protoIndices = [0, 0, 0, 0, 0]
+        point3f[] positions = [(0, 5, 0), (1, 5, 0), (2, 5, 0), (3, 5, 0), (4, 5, 0)]
+        int64[] invisibleIds = [4]
+        def Scope "Protos"
+        {{
+            def Mesh "Rock"
+            {{{QUAD}
+            }}
+        }}
+    }}
+}}
+over "Library"
+{{
+    def Xform "Crate"
+    {{
+        def Mesh "Box"
+        {{{QUAD}
+        }}
+    }}
+}}
+"""
+
+
+def test_studio_stage_counts_and_instancing_agree_with_pxr(tmp_path):
+    path = tmp_path / "studio.usda"
+    path.write_text(STUDIO)
+    scene = pipeline.load_scene(path)
+    # 4 triangles a mesh: crates 3 x 4, Split 4, the selected variant's Low 4, Scatter 4
+    # unmasked x 4; not Hidden, Proxy, Guide, nor Render/M (its own proxy purpose wins)
+    assert scene.triangle_count == pxr_triangles(path) == 12 + 4 + 4 + 16
+    by_name = {}
+    for inst in scene.instances:
+        by_name.setdefault(scene.meshes[inst.mesh].name, []).append(inst)
+    crate = [n for n in by_name if n.endswith("/Box")]
+    assert len(crate) == 1 and len(by_name[crate[0]]) == 3  # one mesh, drawn three times
+    rock = [n for n in by_name if n.endswith("/Rock")]
+    assert len(rock) == 1 and len(by_name[rock[0]]) == 4
+    baked = build_baked(scene)
+    assert sorted(len(m.transforms) for m in baked.meshes)[-2:] == [3, 4]  # instanced draws
+
+
+SKEL = """#usda 1.0
+(
+    metersPerUnit = 1
+)
+def SkelRoot "Arm"
+{
+    def Skeleton "Skel" ( prepend apiSchemas = ["SkelBindingAPI"] )
+    {
+        uniform token[] joints = ["root", "root/elbow"]
+        uniform matrix4d[] bindTransforms = [((1,0,0,0),(0,1,0,0),(0,0,1,0),(0,0,0,1)), ((1,0,0,0),(0,1,0,0),(0,0,1,0),(1,0,0,1))]
+        uniform matrix4d[] restTransforms = [((1,0,0,0),(0,1,0,0),(0,0,1,0),(0,0,0,1)), ((0,1,0,0),(-1,0,0,0),(0,0,1,0),(1,0,0,1))]
+        double3 xformOp:translate = (0, 0, 2)
+        uniform token[] xformOpOrder = ["xformOp:translate"]
+    }
+    def Mesh "Skin" ( prepend apiSchemas = ["SkelBindingAPI"] )
+    {
+        int[] faceVertexCounts = [4]
+        int[] faceVertexIndices = [0, 1, 2, 3]
+        point3f[] points = [(1, 0, 0), (2, 0, 0), (2, 0.1, 0), (1, 0.1, 0)]
+        int[] primvars:skel:jointIndices = [1, 1, 1, 1] (
+            elementSize = 1
+            interpolation = "vertex"
+        )
+        float[] primvars:skel:jointWeights = [1, 1, 1, 1] (
+            elementSize = 1
+            interpolation = "vertex"
+        )
+        rel skel:skeleton = </Arm/Skel>
+        uniform token subdivisionScheme = "none"
+        double3 xformOp:translate = (0, 5, 0)
+        uniform token[] xformOpOrder = ["xformOp:translate"]
+    }
+}
+"""
+
+
+def test_skinned_mesh_is_posed_at_the_rest_transforms(tmp_path):
+    """The elbow's rest pose turns 90 degrees from its bind pose: the forearm, bound along +X
+    from x=1, points up +Y from the elbow. Skinned points are in the skeleton's space (its
+    translate applies, the mesh's own does not)."""
+    path = tmp_path / "arm.usda"
+    path.write_text(SKEL)
+    scene = pipeline.load_scene(path)
+    inst = scene.instances[0]
+    p = scene.meshes[inst.mesh].positions @ inst.matrix[:3, :3].T + inst.matrix[:3, 3]
+    lo, hi = p.min(0), p.max(0)
+    np.testing.assert_allclose(lo, (0.9, 0, 2), atol=1e-5)
+    np.testing.assert_allclose(hi, (1.0, 1.0, 2), atol=1e-5)
+
+
+LIGHTS = """#usda 1.0
+(
+    metersPerUnit = 1
+    upAxis = "Z"
+)
+def Xform "World"
+{
+    def DistantLight "Sun"
+    {
+        float inputs:intensity = 3
+        float inputs:exposure = 1
+        color3f inputs:color = (1, 0.5, 0.25)
+    }
+    def SphereLight "Bulb" ( prepend apiSchemas = ["ShapingAPI"] )
+    {
+        float inputs:radius = 0.5
+        float inputs:intensity = 4
+        float inputs:shaping:cone:angle = 30
+        float inputs:shaping:cone:softness = 0.5
+        double3 xformOp:translate = (0, 0, 3)
+        uniform token[] xformOpOrder = ["xformOp:translate"]
+    }
+    def RectLight "Panel"
+    {
+        float inputs:width = 2
+        float inputs:height = 0.5
+    }
+    def DomeLight "Sky"
+    {
+        asset inputs:texture:file = @sky.png@
+    }
+    def Camera "Shot"
+    {
+        float focalLength = 35
+        float verticalAperture = 20.25
+        float horizontalAperture = 36
+        float2 clippingRange = (0.1, 1000)
+        double3 xformOp:translate = (0, -10, 1)
+        float3 xformOp:rotateXYZ = (90, 0, 0)
+        uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:rotateXYZ"]
+    }
+    def Cube "Box"
+    {
+        double size = 2
+    }
+}
+"""
+
+
+def test_lights_dome_and_camera(tmp_path):
+    from PIL import Image
+    Image.new("RGB", (8, 4), (10, 20, 200)).save(tmp_path / "sky.png")
+    path = tmp_path / "lights.usda"
+    path.write_text(LIGHTS)
+    scene = pipeline.load_scene(path)
+    sun, bulb, panel = scene.lights
+    assert sun.type == "directional" and sun.intensity == pytest.approx(6)  # 3 x 2^1
+    assert sun.color == pytest.approx((1, 0.5, 0.25))
+    np.testing.assert_allclose(-sun.matrix[:3, 2], (0, -1, 0), atol=1e-9)  # -Z of Z-up: down
+    assert bulb.type == "spot" and bulb.intensity == pytest.approx(4 * math.pi * 0.25)
+    assert (bulb.outer_cone, bulb.inner_cone) == pytest.approx((math.radians(30), math.radians(15)))
+    np.testing.assert_allclose(bulb.matrix[:3, 3], (0, 3, 0), atol=1e-9)
+    assert panel.type == "spot" and panel.intensity == pytest.approx(1.0)
+    assert scene.environment == str((tmp_path / "sky.png").resolve())
+    assert str((tmp_path / "sky.png").resolve()) in scene.files
+    (cam,) = scene.cameras
+    assert cam.name == "/World/Shot"
+    assert math.degrees(cam.yfov) == pytest.approx(2 * math.degrees(math.atan(20.25 / 2 / 35)), rel=1e-4)
+    np.testing.assert_allclose(cam.matrix[:3, 3], (0, 1, 10), atol=1e-6)
+    np.testing.assert_allclose(-cam.matrix[:3, 2], (0, 0, -1), atol=1e-6)
+
+    baked = build_baked(scene)
+    for spec in ("/World/Shot", "0"):  # by prim path or by index, as glTF cameras
+        c = request_camera(baked, RenderOptions(width=64, height=64, camera=spec))
+        np.testing.assert_allclose(c.position, (0, 1, 10), atol=1e-6)
+        d = c.target - c.position
+        np.testing.assert_allclose(d / np.linalg.norm(d), (0, 0, -1), atol=1e-6)
+        assert c.fov == pytest.approx(math.degrees(cam.yfov)) and c.near == pytest.approx(0.1)
+    with pytest.raises(NotInAsset, match="'/World/Shot'"):
+        request_camera(baked, RenderOptions(camera="/Nope"))
+
+
+def test_render_through_the_usd_camera_and_dome(tmp_path, capsys):
+    from PIL import Image
+
+    from cli.main import main
+    Image.new("RGB", (16, 8), (10, 20, 200)).save(tmp_path / "sky.png")
+    path = tmp_path / "lights.usda"
+    path.write_text(LIGHTS)
+    def shot(*extra):
+        out = tmp_path / "shot.npy"
+        assert main(["render", str(path), "--camera", "/World/Shot", "--out", str(out), "--size",
+                     "64", "--cache", str(tmp_path / "cache"), "--msaa", "0", "--tonemap", "none",
+                     *extra]) == 0
+        return np.load(out)
+
+    covered = shot("--background", "transparent")[..., 3] > 0.5
+    img = shot()
+    # a 2-unit box 10 units away under a 32 degree fov: about 0.35 of the height, centred
+    rows = np.nonzero(covered.any(1))[0]
+    assert 0.25 < (rows.max() - rows.min() + 1) / 64 < 0.45
+    cols = np.nonzero(covered.any(0))[0]
+    assert abs((cols.min() + cols.max()) / 2 - 31.5) < 2
+    sky = img[~covered][:, :3].mean(0)
+    assert sky[2] > 3 * sky[0]  # the dome's blue, not the default environment
