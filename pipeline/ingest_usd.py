@@ -389,14 +389,21 @@ class _StageReader:
                                             for m in matrices)
 
     def _groups(self, prim: Usd.Prim, mesh: UsdGeom.Mesh | None):
-        """[(label, material, faces or None)]: one per material-bound GeomSubset, then the
-        faces no subset claims (faces None = all faces)."""
+        """[(label, material, faces or None)]: one per face subset of the materialBind family
+        (the only family material bindings apply to, as Hydra draws them: subsets of other
+        families would count their faces twice), then the faces no subset claims (faces None =
+        all faces)."""
         own = self.materials.bound(prim)
         subsets = [] if mesh is None else [
-            s for s in UsdGeom.Subset.GetAllGeomSubsets(mesh)
-            if s.GetElementTypeAttr().Get() == UsdGeom.Tokens.face
-            and (s.GetFamilyNameAttr().Get() == UsdShade.Tokens.materialBind
-                 or UsdShade.MaterialBindingAPI(s.GetPrim()).GetDirectBindingRel().GetTargets())]
+            s for s in UsdShade.MaterialBindingAPI(prim).GetMaterialBindSubsets()
+            if s.GetElementTypeAttr().Get() == UsdGeom.Tokens.face]
+        if mesh is not None:
+            for s in UsdGeom.Subset.GetAllGeomSubsets(mesh):
+                if s.GetFamilyNameAttr().Get() != UsdShade.Tokens.materialBind and \
+                        UsdShade.MaterialBindingAPI(s.GetPrim()).GetDirectBindingRel().GetTargets():
+                    self._warn(f"{s.GetPath()}: a material binding on a GeomSubset of family "
+                               f"{s.GetFamilyNameAttr().Get()!r}, not materialBind; ignored, as "
+                               "Hydra ignores it")
         if not subsets:
             return [("", own if own else None, None)]
         groups: list[tuple]  # (label, material, faces or ("rest", claimed faces))

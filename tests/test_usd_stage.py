@@ -133,6 +133,42 @@ def Xform "Set"
             int[] indices = [0]
         }}
     }}
+    def Mesh "TwoFamilies"
+    {{{QUAD}
+        def GeomSubset "left" (
+            prepend apiSchemas = ["MaterialBindingAPI"]
+        )
+        {{
+            uniform token elementType = "face"
+            uniform token familyName = "materialBind"
+            int[] indices = [0]
+            rel material:binding = </Set/Looks/Red>
+        }}
+        def GeomSubset "right" (
+            prepend apiSchemas = ["MaterialBindingAPI"]
+        )
+        {{
+            uniform token elementType = "face"
+            uniform token familyName = "materialBind"
+            int[] indices = [1]
+            rel material:binding = </Set/Looks/Red>
+        }}
+        def GeomSubset "partLeft" (
+            prepend apiSchemas = ["MaterialBindingAPI"]
+        )
+        {{
+            uniform token elementType = "face"
+            uniform token familyName = "parts"
+            int[] indices = [0]
+            rel material:binding = </Set/Looks/Red>
+        }}
+    }}
+    def Scope "Looks"
+    {{
+        def Material "Red"
+        {{
+        }}
+    }}
     def Xform "Variant" (
         variants = {{
             string lod = "low"
@@ -186,9 +222,11 @@ def test_studio_stage_counts_and_instancing_agree_with_pxr(tmp_path):
     path = tmp_path / "studio.usda"
     path.write_text(STUDIO)
     scene = pipeline.load_scene(path)
-    # 4 triangles a mesh: crates 3 x 4, Split 4, the selected variant's Low 4, Scatter 4
-    # unmasked x 4; not Hidden, Proxy, Guide, nor Render/M (its own proxy purpose wins)
-    assert scene.triangle_count == pxr_triangles(path) == 12 + 4 + 4 + 16
+    # 4 triangles a mesh: crates 3 x 4, Split 4, TwoFamilies 4 (its "parts" subset is not a
+    # second copy of face 0), the selected variant's Low 4, Scatter 4 unmasked x 4; not Hidden,
+    # Proxy, Guide, nor Render/M (its own proxy purpose wins)
+    assert scene.triangle_count == pxr_triangles(path) == 12 + 4 + 4 + 4 + 16
+    assert any("partLeft" in w and "not materialBind" in w for w in scene.warnings)
     by_name = {}
     for inst in scene.instances:
         by_name.setdefault(scene.meshes[inst.mesh].name, []).append(inst)
