@@ -157,10 +157,9 @@ class _StageReader:
                 raise LimitExceeded(self.graph.path, f"more than {self.limits.max_nodes} prims")
             if self._nodes % 256 == 0:
                 deadline.check()
-            if any(prim.IsA(t) for t in PRUNED_TYPES):
-                it.PruneChildren()
-                continue
-            if not prim.IsA(UsdGeom.Imageable):
+            if not prim.IsA(UsdGeom.Imageable):  # shading networks are not: tested only here
+                if any(prim.IsA(t) for t in PRUNED_TYPES):
+                    it.PruneChildren()
                 continue
             img = UsdGeom.Imageable(prim)
             # purpose inherits from the nearest ancestor with one authored (which wins over
