@@ -144,6 +144,7 @@ class LayerGraph:
         document): relative to that file, inside the same root or package."""
         if Ar.IsPackageRelativePath(referrer):
             outer, inner = _outer(referrer), _inner(referrer)
+            assert inner is not None  # a package-relative path has an inner part
             path_text = relative_path_text(referrer, uri)
             norm = posixpath.normpath(posixpath.join(posixpath.dirname(inner), path_text))
             if norm.startswith("..") or norm.startswith("/"):
