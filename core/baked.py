@@ -69,7 +69,7 @@ class BakedEnvironment:
     name: str
     specular: list[np.ndarray]       # mips, each 6 x S x S x 3 linear (faces +X,-X,+Y,-Y,+Z,-Z)
     irradiance_sh: np.ndarray        # 9 x 3, radiance SH (see environment.py for the basis)
-    brdf_lut: np.ndarray             # N x N x 2; x = N.V, y = roughness -> (scale, bias) for F0
+    brdf_lut: np.ndarray             # N x N x 3; x = N.V, y = roughness -> (scale, bias) for F0, sheen albedo
     prefilter: str = "ggx"           # "ggx" | "paper"
     manifest: dict = field(default_factory=dict)
 

@@ -14,6 +14,8 @@ from typing import Literal, cast
 import numpy as np
 
 MaterialClass = Literal["opaque", "mask", "blend", "transmissive"]
+# Material texture slots holding colour (sampled through sRGB decoding); the rest are data.
+SRGB_SLOTS = frozenset({"base_color", "emissive", "specular_color", "sheen_color"})
 AlphaMode = Literal["OPAQUE", "MASK", "BLEND"]
 
 # OpenGL / glTF sampler enums.
@@ -85,19 +87,42 @@ class Material:
     thickness_texture: TextureRef | None = None  # G channel
     attenuation_color: tuple[float, float, float] = (1.0, 1.0, 1.0)
     attenuation_distance: float = math.inf
-    # KHR_materials_specular / _clearcoat / _sheen / _iridescence / _anisotropy (glTF defaults);
-    # MaterialX surfaces fill them (pipeline/materialx.py).
+    # KHR_materials_specular / _clearcoat / _sheen / _iridescence / _anisotropy (glTF defaults,
+    # which mean "absent": a material that uses none compiles none, renderer.render defines);
+    # glTF fills them in pipeline/gltf_materials.py, MaterialX surfaces in pipeline/materialx.py.
     specular: float = 1.0
+    specular_texture: TextureRef | None = None  # A channel
     specular_color: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    specular_color_texture: TextureRef | None = None  # RGB, sRGB
     clearcoat: float = 0.0
+    clearcoat_texture: TextureRef | None = None  # R
     clearcoat_roughness: float = 0.0
+    clearcoat_roughness_texture: TextureRef | None = None  # G
+    clearcoat_normal_texture: TextureRef | None = None
+    clearcoat_normal_scale: float = 1.0
     sheen_color: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    sheen_color_texture: TextureRef | None = None  # RGB, sRGB
     sheen_roughness: float = 0.0
+    sheen_roughness_texture: TextureRef | None = None  # A
     iridescence: float = 0.0
     iridescence_ior: float = 1.3
     iridescence_thickness_range: tuple[float, float] = (100.0, 400.0)
     anisotropy_strength: float = 0.0
     anisotropy_rotation: float = 0.0
+
+    def uses(self, lobe: str) -> bool:
+        """Whether the material needs `lobe`'s shader code ("ior", "specular", "clearcoat",
+        "sheen"): the defaults of an extension cost nothing."""
+        if lobe == "ior":
+            return self.ior != 1.5
+        if lobe == "specular":
+            return (self.specular != 1.0 or self.specular_color != (1.0, 1.0, 1.0)
+                    or self.specular_texture is not None or self.specular_color_texture is not None)
+        if lobe == "clearcoat":
+            return self.clearcoat > 0.0
+        if lobe == "sheen":
+            return any(c > 0.0 for c in self.sheen_color)
+        raise ValueError(f"unknown lobe {lobe!r}")
 
     @property
     def material_class(self) -> MaterialClass:

@@ -1,5 +1,6 @@
 """Environment bake (paper section 4.1): equirect panorama -> cube faces -> specular mip chain,
-9 spherical-harmonic coefficients for diffuse light, and the split-sum BRDF LUT.
+9 spherical-harmonic coefficients for diffuse light, and the split-sum BRDF LUT (with the
+sheen albedo in its third channel).
 
 Prefiltering runs as GLSL in the process's headless context (`core.context`); every face of
 a mip is drawn in one pass into an S x 6S atlas (shaders/cube_atlas.glsl) and read back as
@@ -33,7 +34,7 @@ from .panorama import DEFAULT_ENVIRONMENT, Panorama, list_bundled, load_panorama
 log = logging.getLogger(__name__)
 
 METHODS = ("ggx", "paper")
-PREFILTER_VERSION = 2      # bump when the filter's output changes (cache keys include it)
+PREFILTER_VERSION = 3      # bump when the filter's output changes (cache keys include it)
 GGX_SAMPLES = 64           # per texel at mip 1, doubling per mip (coarse mips have few texels)
 GGX_MAX_SAMPLES = 512
 LUT_SIZE = 64
@@ -53,7 +54,7 @@ _SH_C4 = 0.25 * math.sqrt(15 / math.pi)
 class EnvironmentArrays:
     specular: list[np.ndarray]        # mips, each 6 x S x S x 3 float32 (+X,-X,+Y,-Y,+Z,-Z)
     irradiance_sh: np.ndarray         # 9 x 3 radiance SH coefficients (basis above)
-    brdf_lut: np.ndarray              # N x N x 2; row j: roughness (j+.5)/N, column i: N.V (i+.5)/N
+    brdf_lut: np.ndarray              # N x N x 3; row j: roughness (j+.5)/N, column i: N.V (i+.5)/N
     timings: dict = field(default_factory=dict)   # seconds per stage and "total"
     method: str = "ggx"
 
@@ -257,7 +258,7 @@ def _brdf_lut_cached(size: int, samples: int) -> np.ndarray:
     prog = gl.program("screen_triangle.vert", "brdf_lut.frag", {"SAMPLES": samples})
     prog["u_size"].value = size  # type: ignore[union-attr]  # a uniform
     _draw(ctx, gl, fbo, prog)
-    lut = np.frombuffer(tex.read(), dtype=np.float32).reshape(size, size, 4)[..., :2].copy()
+    lut = np.frombuffer(tex.read(), dtype=np.float32).reshape(size, size, 4)[..., :3].copy()
     fbo.release()
     tex.release()
     lut.flags.writeable = False
@@ -265,8 +266,9 @@ def _brdf_lut_cached(size: int, samples: int) -> np.ndarray:
 
 
 def brdf_lut(size: int = LUT_SIZE, samples: int = LUT_SAMPLES) -> np.ndarray:
-    """The split-sum LUT (size x size x 2; row j: roughness (j+.5)/size, column i: N.V
-    (i+.5)/size; values (scale, bias) for F0), drawn once per process by shaders/brdf_lut.frag."""
+    """The split-sum LUT (size x size x 3; row j: roughness (j+.5)/size, column i: N.V
+    (i+.5)/size; values (scale, bias) for F0 and the sheen lobe's directional albedo at sheen
+    roughness (j+.5)/size), drawn once per process by shaders/brdf_lut.frag."""
     return _brdf_lut_cached(int(size), int(samples)).copy()
 
 

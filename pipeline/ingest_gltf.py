@@ -41,6 +41,7 @@ from .gltf_skin import morph
 from .gltf_skin import skin as skin_vertices
 from .gltf_specgloss import conversion_textures, convert_factors
 from .images import DeferredTexture, probe_image
+from .gltf_materials import MATERIAL_EXTENSIONS, read_lobes
 from .limits import Limits
 from .paths import resolve_reference
 from .wire import LINE_LOOP, LINE_STRIP, LINES, POINTS, octahedra, segments, tubes
@@ -53,7 +54,7 @@ SUPPORTED_EXTENSIONS = frozenset({
     "KHR_materials_unlit", "KHR_lights_punctual", "EXT_texture_webp",
     "KHR_draco_mesh_compression", "EXT_meshopt_compression", "KHR_meshopt_compression",
     "KHR_texture_basisu", "EXT_mesh_gpu_instancing", "KHR_materials_variants",
-})
+}) | MATERIAL_EXTENSIONS
 # Read, with a documented approximation (README, "glTF extensions").
 PARTIAL_EXTENSIONS = frozenset({
     "KHR_materials_pbrSpecularGlossiness",  # converted to metallic-roughness at ingest
@@ -592,6 +593,7 @@ class _Reader:
             out.thickness_texture = self.texture_ref(v.get("thicknessTexture"), f"{slot} thickness")
             out.attenuation_color = self._floats(v, "attenuationColor", (1.0, 1.0, 1.0))
             out.attenuation_distance = self._float(v, "attenuationDistance", math.inf, 1e-9)
+        read_lobes(self, ext, out, slot)
         return out
 
     def _spec_gloss(self, out: Material, sg: dict, slot: str) -> None:

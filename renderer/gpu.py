@@ -18,7 +18,7 @@ import numpy as np
 from core import context
 from core.baked import BakedAsset, BakedEnvironment, BakedMesh
 from core.colour import srgb_encode, srgb_to_linear
-from core.scene import CLAMP_TO_EDGE, MIRRORED_REPEAT, REPEAT, Light, Texture
+from core.scene import CLAMP_TO_EDGE, MIRRORED_REPEAT, REPEAT, SRGB_SLOTS, Light, Texture
 
 log = logging.getLogger(__name__)
 
@@ -186,7 +186,7 @@ def _upload_asset(baked: BakedAsset) -> GpuAsset:
     textures: dict[tuple[int, bool], moderngl.Texture] = {}
     for m in baked.meshes:
         for slot, ref in m.material.texture_refs().items():
-            key = (ref.texture, slot in ("base_color_texture", "emissive_texture"))
+            key = (ref.texture, slot.removesuffix("_texture") in SRGB_SLOTS)
             if key not in textures and 0 <= ref.texture < len(baked.textures):
                 textures[key] = _upload_texture(ctx, baked.textures[ref.texture], key[1])
     nbytes = sum(m.nbytes for m in meshes) + sum(t.width * t.height * 4 * 4 // 3 for t in textures.values())
@@ -273,8 +273,11 @@ def _upload_environment(baked: BakedEnvironment) -> GpuEnvironment:
                             GL_RGB, GL_FLOAT, rgb[face].ctypes.data)
     gl.glTexParameteri(GL_TEXTURE_CUBE_MAP, GL_TEXTURE_MAX_LEVEL, levels - 1)
     cube.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
-    lut_arr = np.ascontiguousarray(baked.brdf_lut[..., :2], np.float32)
-    lut = ctx.texture((lut_arr.shape[1], lut_arr.shape[0]), 2, lut_arr, dtype="f4")
+    lut_arr = np.ascontiguousarray(baked.brdf_lut[..., :3], np.float32)
+    if lut_arr.shape[2] != 3:
+        raise ValueError(f"environment {baked.name}: BRDF LUT has {lut_arr.shape[2]} channels, "
+                         "expected 3 (scale, bias, sheen albedo); re-bake it")
+    lut = ctx.texture((lut_arr.shape[1], lut_arr.shape[0]), 3, lut_arr, dtype="f4")
     lut.repeat_x = lut.repeat_y = False
     sh = np.ascontiguousarray(baked.irradiance_sh, np.float32).reshape(9, 3)
     log.info("uploaded environment %s: %d px faces, %d mips", baked.name, size, levels)

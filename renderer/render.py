@@ -24,7 +24,7 @@ import numpy as np
 from core import context
 from core.baked import BakedAsset, BakedEnvironment
 from core.options import RenderOptions, apply_override, background_rgb
-from core.scene import Material
+from core.scene import SRGB_SLOTS, Material
 
 from . import gpu
 from .camera import Camera, request_camera
@@ -34,8 +34,14 @@ log = logging.getLogger(__name__)
 
 MAX_LIGHTS = 8
 _TONEMAPS = {"none": 0, "neutral": 1, "aces": 2}
-_SLOTS = ("base_color", "metallic_roughness", "normal", "occlusion", "emissive")
-_SRGB_SLOTS = ("base_color", "emissive")
+_SLOTS = ("base_color", "metallic_roughness", "normal", "occlusion", "emissive",
+          "specular", "specular_color", "clearcoat", "clearcoat_roughness", "clearcoat_normal",
+          "sheen_color", "sheen_roughness")
+# Slots read only when their lobe is compiled in (Material.uses).
+_LOBE_OF_SLOT = {"specular": "specular", "specular_color": "specular", "clearcoat": "clearcoat",
+                 "clearcoat_roughness": "clearcoat", "clearcoat_normal": "clearcoat",
+                 "sheen_color": "sheen", "sheen_roughness": "sheen"}
+_LOBES = ("ior", "specular", "clearcoat", "sheen")
 
 
 class UnsupportedMethod(ValueError):
@@ -282,11 +288,14 @@ def _material_state(item: DrawItem, p: Pass) -> _MaterialState:
         defines["HAS_UV0"] = 1
     textures = []
     uniforms: list[tuple[str, object]] = []
+    lobes = {lobe for lobe in _LOBES if m.uses(lobe)}
+    for lobe in lobes:
+        defines[f"MATERIAL_{lobe.upper()}"] = 1
     for slot in _SLOTS:
         ref = getattr(m, f"{slot}_texture")
-        if ref is None:
+        if ref is None or _LOBE_OF_SLOT.get(slot, "base") not in lobes | {"base"}:
             continue
-        tex = p.asset.textures.get((ref.texture, slot in _SRGB_SLOTS))
+        tex = p.asset.textures.get((ref.texture, slot in SRGB_SLOTS))
         if tex is None or not uv_sets.get(ref.uv_set, False):
             log.warning("%s: %s texture skipped (no image or no UV set %d)", mesh.name, slot, ref.uv_set)
             continue
@@ -322,7 +331,18 @@ def _material_state(item: DrawItem, p: Pass) -> _MaterialState:
         ("u_occlusion_strength", f4(m.occlusion_strength).tobytes()),
         ("u_emissive", emissive.tobytes()),
         ("u_alpha_cutoff", f4(m.alpha_cutoff).tobytes()),
+        ("u_ior", f4(max(m.ior, 1.0)).tobytes()),
     ]
+    if "specular" in lobes:
+        uniforms += [("u_specular", f4(m.specular).tobytes()),
+                     ("u_specular_color", np.asarray(m.specular_color, f4).tobytes())]
+    if "clearcoat" in lobes:
+        uniforms += [("u_clearcoat", f4(m.clearcoat).tobytes()),
+                     ("u_clearcoat_roughness", f4(m.clearcoat_roughness).tobytes()),
+                     ("u_clearcoat_normal_scale", f4(m.clearcoat_normal_scale).tobytes())]
+    if "sheen" in lobes:
+        uniforms += [("u_sheen_color", np.asarray(m.sheen_color, f4).tobytes()),
+                     ("u_sheen_roughness", f4(m.sheen_roughness).tobytes())]
     state = _MaterialState(defines, uniforms, textures)
     if len(item.mesh.states) >= 32:  # many distinct overrides (a service): keep it bounded
         item.mesh.states.clear()

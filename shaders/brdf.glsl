@@ -10,6 +10,13 @@ vec3 F_schlick(vec3 f0, float VdotH) {
     return f0 + (1.0 - f0) * (m2 * m2 * m);
 }
 
+// Schlick with a grazing reflectance f90 below 1 (KHR_materials_specular).
+vec3 F_schlick(vec3 f0, float f90, float VdotH) {
+    float m = 1.0 - VdotH;
+    float m2 = m * m;
+    return f0 + (f90 - f0) * (m2 * m2 * m);
+}
+
 float D_ggx(float NdotH, float alpha) {
     float a2 = alpha * alpha;
     float d = NdotH * NdotH * (a2 - 1.0) + 1.0;
@@ -38,6 +45,50 @@ float G_smith(float NdotV, float NdotL, float alpha) {
 vec3 brdf_specular(vec3 f0, float alpha, float NdotV, float NdotL, float NdotH, float VdotH) {
     return F_schlick(f0, VdotH) * (D_ggx(NdotH, alpha) * G_smith(NdotV, NdotL, alpha)
                                    / max(4.0 * NdotV * NdotL, 1e-6));
+}
+
+vec3 brdf_specular(vec3 f0, float f90, float alpha, float NdotV, float NdotL, float NdotH,
+                   float VdotH) {
+    return F_schlick(f0, f90, VdotH) * (D_ggx(NdotH, alpha) * G_smith(NdotV, NdotL, alpha)
+                                        / max(4.0 * NdotV * NdotL, 1e-6));
+}
+
+// Sheen (KHR_materials_sheen): the "Charlie" distribution (Estevez & Kulla 2017) with their
+// visibility term. Roughness below SHEEN_MIN_ROUGHNESS is raised to it: the distribution
+// collapses onto the tangent plane there and its albedo needs ever more samples to bake
+// (shaders/brdf_lut.frag uses the same floor, so lights and IBL agree).
+const float SHEEN_MIN_ROUGHNESS = 0.07;
+
+float D_charlie(float sheen_roughness, float NdotH) {
+    float alpha = max(sheen_roughness, SHEEN_MIN_ROUGHNESS);
+    alpha *= alpha;
+    float inv = 1.0 / alpha;
+    float sin2 = max(1.0 - NdotH * NdotH, 0.0);
+    return (2.0 + inv) * pow(sin2, 0.5 * inv) / (2.0 * BRDF_PI);
+}
+
+float sheen_l(float x, float alpha) {
+    float t = (1.0 - alpha) * (1.0 - alpha);
+    float a = mix(21.5473, 25.3245, t), b = mix(3.82987, 3.32435, t), c = mix(0.19823, 0.16801, t);
+    float d = mix(-1.97760, -1.27393, t), e = mix(-4.32054, -4.85967, t);
+    return a / (1.0 + b * pow(x, c)) + d * x + e;
+}
+
+float sheen_lambda(float cos_theta, float alpha) {
+    return cos_theta < 0.5 ? exp(sheen_l(cos_theta, alpha))
+                           : exp(2.0 * sheen_l(0.5, alpha) - sheen_l(1.0 - cos_theta, alpha));
+}
+
+// Estevez & Kulla's visibility, already divided by 4 N.L N.V.
+float V_sheen(float NdotV, float NdotL, float sheen_roughness) {
+    float alpha = max(sheen_roughness, SHEEN_MIN_ROUGHNESS);
+    alpha *= alpha;
+    return clamp(1.0 / ((1.0 + sheen_lambda(NdotV, alpha) + sheen_lambda(NdotL, alpha))
+                        * max(4.0 * NdotV * NdotL, 1e-6)), 0.0, 1.0e4);
+}
+
+vec3 brdf_sheen(vec3 sheen_color, float sheen_roughness, float NdotV, float NdotL, float NdotH) {
+    return sheen_color * D_charlie(sheen_roughness, NdotH) * V_sheen(NdotV, NdotL, sheen_roughness);
 }
 
 vec3 brdf_lambert(vec3 diffuse_color) {

@@ -3,10 +3,21 @@
 // roughness = (j + 0.5) / N, the scale and bias to F0 of the specular GGX BRDF's directional
 // albedo: integral of f * cos = F0 * scale + bias. Importance-sampled GGX with a Hammersley set.
 //
+// Blue: the directional albedo of the sheen lobe (shaders/brdf.glsl, Charlie D with its
+// visibility, sheen colour 1) at sheen roughness (j + 0.5) / N, by a midpoint rule over the
+// hemisphere (SHEEN_THETA x SHEEN_PHI cells, uniform in cos theta; the lobe is symmetric in
+// phi about the view plane): KHR_materials_sheen's albedo-scaling term for the base beneath.
+// Clamped to 1: Estevez & Kulla's fitted visibility is not energy conserving at grazing views
+// on smooth sheen (the integral reaches 2.2 at N.V < 0.06, roughness < 0.1), and reflecting
+// more than arrives would make 1 - E negative under the base.
+//
 // Smith-Schlick G with k = alpha / 2: Karis's fit of Schlick's form to the Smith GGX masking
 // function for image-based lighting. The paper's k = alpha / pi matches neither Smith GGX nor
 // Karis's punctual-light remapping and leaves rough surfaces too bright (too little masking).
+#include "brdf.glsl"
 const float PI = 3.14159265358979;
+const int SHEEN_THETA = 48;
+const int SHEEN_PHI = 24;
 
 uniform int u_size;
 out vec4 f_color;
@@ -48,5 +59,17 @@ void main() {
             sum += vec2(1.0 - fc, fc) * g_vis;
         }
     }
-    f_color = vec4(sum / float(SAMPLES), 0.0, 1.0);
+    float sheen = 0.0;
+    for (int i = 0; i < SHEEN_THETA; ++i) {
+        float cos_l = (float(i) + 0.5) / float(SHEEN_THETA);
+        float sin_l = sqrt(1.0 - cos_l * cos_l);
+        for (int j = 0; j < SHEEN_PHI; ++j) {
+            float phi = PI * (float(j) + 0.5) / float(SHEEN_PHI);
+            vec3 l = vec3(sin_l * cos(phi), sin_l * sin(phi), cos_l);
+            vec3 h = normalize(v + l);
+            sheen += D_charlie(roughness, h.z) * V_sheen(n_dot_v, cos_l, roughness) * cos_l;
+        }
+    }
+    sheen *= 2.0 * PI / float(SHEEN_THETA * SHEEN_PHI);  // d(cos) d(phi) over 2 x [0, pi]
+    f_color = vec4(sum / float(SAMPLES), min(sheen, 1.0), 1.0);
 }

@@ -6,6 +6,7 @@
 #define IBL_GLSL
 #include "brdf.glsl"
 #include "sh.glsl"
+#include "lobes.glsl"
 
 uniform samplerCube u_env;
 uniform sampler2D u_brdf_lut;   // x = N.V, y = roughness -> (scale, bias)
@@ -33,7 +34,7 @@ vec3 ibl(MaterialInfo m, vec3 v) {
     vec3 n = m.n;
     float NdotV = clamp(dot(n, v), 1e-4, 1.0);
     vec2 ab = texture(u_brdf_lut, vec2(NdotV, m.roughness)).rg;
-    vec3 FssEss = m.f0 * ab.x + ab.y;
+    vec3 FssEss = m.f0 * ab.x + m.f90 * ab.y;
     vec3 radiance = env_radiance(reflect(-v, n), m.roughness);
     vec3 irradiance = env_diffuse(n);
 #ifdef MULTISCATTER
@@ -47,6 +48,42 @@ vec3 ibl(MaterialInfo m, vec3 v) {
     vec3 color = FssEss * radiance + m.diffuse_color * (1.0 - FssEss) * irradiance;
 #endif
     return color * m.occlusion;
+}
+
+#ifdef MATERIAL_SHEEN
+// Sheen under image light: its albedo (LUT blue) times the cosine-weighted mean radiance.
+// The Charlie lobe spreads over the whole hemisphere toward grazing at every sheen roughness,
+// so the irradiance stands for it better than a GGX mip along the mirror direction; under a
+// uniform environment it is exact.
+vec3 ibl_sheen(MaterialInfo m, vec3 v) {
+    float NdotV = clamp(dot(m.n, v), 1e-4, 1.0);
+    float e = texture(u_brdf_lut, vec2(NdotV, m.sheen_roughness)).b;
+    return m.sheen_color * e * env_diffuse(m.n) * m.occlusion;
+}
+#endif
+
+#ifdef MATERIAL_CLEARCOAT
+// The coat's split-sum specular about its own normal (F0 0.04, F90 1).
+vec3 ibl_clearcoat(MaterialInfo m, vec3 v) {
+    vec3 n = m.clearcoat_n;
+    float NdotV = clamp(dot(n, v), 1e-4, 1.0);
+    vec2 ab = texture(u_brdf_lut, vec2(NdotV, m.clearcoat_roughness)).rg;
+    return (CLEARCOAT_F0 * ab.x + ab.y) * env_radiance(reflect(-v, n), m.clearcoat_roughness)
+         * m.occlusion;
+}
+#endif
+
+// Every lobe's image-based light.
+Lobes ibl_lobes(MaterialInfo m, vec3 v) {
+    Lobes l = no_lobes();
+    l.base = ibl(m, v);
+#ifdef MATERIAL_SHEEN
+    l.sheen = ibl_sheen(m, v);
+#endif
+#ifdef MATERIAL_CLEARCOAT
+    l.clearcoat = ibl_clearcoat(m, v);
+#endif
+    return l;
 }
 #endif
 #endif

@@ -1,5 +1,7 @@
 // One MaterialInfo per fragment: factors x textures x vertex colour, the shading normal, and
 // the derived F0 / diffuse colour. Everything the lighting code needs flows through it.
+// Each Khronos extension has one getter below, compiled in only under its MATERIAL_* define
+// (renderer.render sets them from Material.uses), so a material pays only for what it uses.
 #ifndef MATERIAL_INFO_GLSL
 #define MATERIAL_INFO_GLSL
 #include "textures.glsl"
@@ -11,6 +13,20 @@ uniform float u_normal_scale;
 uniform float u_occlusion_strength;
 uniform vec3 u_emissive;        // factor x strength
 uniform float u_alpha_cutoff;
+uniform float u_ior;            // KHR_materials_ior (also the refraction's)
+#ifdef MATERIAL_SPECULAR
+uniform float u_specular;
+uniform vec3 u_specular_color;
+#endif
+#ifdef MATERIAL_CLEARCOAT
+uniform float u_clearcoat;
+uniform float u_clearcoat_roughness;
+uniform float u_clearcoat_normal_scale;
+#endif
+#ifdef MATERIAL_SHEEN
+uniform vec3 u_sheen_color;
+uniform float u_sheen_roughness;
+#endif
 
 in vec3 v_world;
 in vec3 v_normal;
@@ -25,26 +41,38 @@ struct MaterialInfo {
     vec4 base_color;     // linear, with alpha
     float metallic;
     float roughness;     // perceptual; alpha = roughness^2
-    vec3 f0;
+    vec3 f0;             // normal-incidence reflectance (dielectric from IOR x specular, or metal)
+    float f90;           // grazing reflectance (KHR_materials_specular scales it for dielectrics)
     vec3 diffuse_color;  // base colour x (1 - metallic)
     float occlusion;
     vec3 emissive;
     vec3 n;              // shading normal, world space, facing the viewer on double-sided
+    vec3 ng;             // geometric normal, same side
+    float clearcoat;     // KHR_materials_clearcoat: 0 = no coat
+    float clearcoat_roughness;
+    vec3 clearcoat_n;
+    vec3 sheen_color;    // KHR_materials_sheen: black = no sheen
+    float sheen_roughness;
 };
 
-vec3 shading_normal(vec3 v) {
+vec3 geometric_normal() {
     vec3 ng = normalize(v_normal);
 #ifdef DOUBLE_SIDED
     if (!gl_FrontFacing) ng = -ng;
 #endif
-#ifdef HAS_NORMAL_MAP
+    return ng;
+}
+
+#if defined(HAS_NORMAL_MAP) || defined(HAS_CLEARCOAT_NORMAL_MAP)
+// Tangent frame about ng for a normal map sampled at uv; `tn` is its texel in 0..1, xy
+// scaled by `scale` (glTF normalTexture.scale).
+vec3 perturbed_normal(vec3 ng, vec2 uv, vec3 tn, float scale) {
     vec3 t, b;
 #ifdef HAS_TANGENTS
     t = normalize(v_tangent.xyz - ng * dot(ng, v_tangent.xyz));
     b = cross(ng, t) * v_tangent.w;
 #else
     // No baked tangents: derive the frame from screen-space derivatives of position and UV.
-    vec2 uv = NORMAL_UV;
     vec3 dp_dx = dFdx(v_world), dp_dy = dFdy(v_world);
     vec2 duv_dx = dFdx(uv), duv_dy = dFdy(uv);
     float det = duv_dx.x * duv_dy.y - duv_dy.x * duv_dx.y;
@@ -56,13 +84,90 @@ vec3 shading_normal(vec3 v) {
 #ifdef DOUBLE_SIDED
     if (!gl_FrontFacing) { t = -t; b = -b; }
 #endif
-    vec3 tn = SAMPLE_MAP(normal, NORMAL_UV).xyz * 2.0 - 1.0;
-    tn.xy *= u_normal_scale;
-    vec3 n = normalize(mat3(t, b, ng) * tn);
-#else
-    vec3 n = ng;
+    tn = tn * 2.0 - 1.0;
+    tn.xy *= scale;
+    return normalize(mat3(t, b, ng) * tn);
+}
 #endif
-    return n;
+
+vec3 shading_normal(vec3 ng) {
+#ifdef HAS_NORMAL_MAP
+    return perturbed_normal(ng, NORMAL_UV, SAMPLE_MAP(normal, NORMAL_UV).xyz, u_normal_scale);
+#else
+    return ng;
+#endif
+}
+
+// KHR_materials_ior: dielectric F0 = ((ior - 1) / (ior + 1))^2; 0.04 is ior 1.5.
+float dielectric_f0() {
+#ifdef MATERIAL_IOR
+    float r = (u_ior - 1.0) / (u_ior + 1.0);
+    return r * r;
+#else
+    return 0.04;
+#endif
+}
+
+// KHR_materials_specular: the dielectric F0 tinted by the specular colour (clamped to 1) and
+// both F0 and F90 scaled by the specular factor; metals keep F0 = base colour, F90 = 1.
+void material_specular(inout MaterialInfo m) {
+    vec3 f0 = vec3(dielectric_f0());
+    float weight = 1.0;
+#ifdef MATERIAL_SPECULAR
+    vec3 tint = u_specular_color;
+    weight = u_specular;
+#ifdef HAS_SPECULAR_COLOR_MAP
+    tint *= SAMPLE_MAP(specular_color, SPECULAR_COLOR_UV).rgb;  // sRGB texture
+#endif
+#ifdef HAS_SPECULAR_MAP
+    weight *= SAMPLE_MAP(specular, SPECULAR_UV).a;
+#endif
+    f0 = min(f0 * tint, vec3(1.0)) * weight;
+#endif
+    m.f0 = mix(f0, m.base_color.rgb, m.metallic);
+    m.f90 = mix(weight, 1.0, m.metallic);
+}
+
+// KHR_materials_clearcoat: a GGX layer of IOR 1.5 over everything, with its own normal
+// (the geometric one unless it has a normal texture: the base's normal map is under it).
+void material_clearcoat(inout MaterialInfo m) {
+    m.clearcoat = 0.0;
+    m.clearcoat_roughness = 0.0;
+    m.clearcoat_n = m.ng;
+#ifdef MATERIAL_CLEARCOAT
+    m.clearcoat = u_clearcoat;
+    m.clearcoat_roughness = u_clearcoat_roughness;
+#ifdef HAS_CLEARCOAT_MAP
+    m.clearcoat *= SAMPLE_MAP(clearcoat, CLEARCOAT_UV).r;
+#endif
+#ifdef HAS_CLEARCOAT_ROUGHNESS_MAP
+    m.clearcoat_roughness *= SAMPLE_MAP(clearcoat_roughness, CLEARCOAT_ROUGHNESS_UV).g;
+#endif
+#ifdef HAS_CLEARCOAT_NORMAL_MAP
+    m.clearcoat_n = perturbed_normal(m.ng, CLEARCOAT_NORMAL_UV,
+                                     SAMPLE_MAP(clearcoat_normal, CLEARCOAT_NORMAL_UV).xyz,
+                                     u_clearcoat_normal_scale);
+#endif
+    m.clearcoat = clamp(m.clearcoat, 0.0, 1.0);
+    m.clearcoat_roughness = clamp(m.clearcoat_roughness, 0.0, 1.0);
+#endif
+}
+
+// KHR_materials_sheen: colour (sRGB texture RGB) and roughness (texture A).
+void material_sheen(inout MaterialInfo m) {
+    m.sheen_color = vec3(0.0);
+    m.sheen_roughness = 0.0;
+#ifdef MATERIAL_SHEEN
+    m.sheen_color = u_sheen_color;
+    m.sheen_roughness = u_sheen_roughness;
+#ifdef HAS_SHEEN_COLOR_MAP
+    m.sheen_color *= SAMPLE_MAP(sheen_color, SHEEN_COLOR_UV).rgb;
+#endif
+#ifdef HAS_SHEEN_ROUGHNESS_MAP
+    m.sheen_roughness *= SAMPLE_MAP(sheen_roughness, SHEEN_ROUGHNESS_UV).a;
+#endif
+    m.sheen_roughness = clamp(m.sheen_roughness, 0.0, 1.0);
+#endif
 }
 
 MaterialInfo material_info(vec3 v) {
@@ -87,7 +192,7 @@ MaterialInfo material_info(vec3 v) {
 #endif
     m.metallic = clamp(m.metallic, 0.0, 1.0);
     m.roughness = clamp(m.roughness, 0.0, 1.0);
-    m.f0 = mix(vec3(0.04), m.base_color.rgb, m.metallic);
+    material_specular(m);
     m.diffuse_color = m.base_color.rgb * (1.0 - m.metallic);
     m.occlusion = 1.0;
 #ifdef HAS_OCCLUSION_MAP
@@ -97,7 +202,10 @@ MaterialInfo material_info(vec3 v) {
 #ifdef HAS_EMISSIVE_MAP
     m.emissive *= SAMPLE_MAP(emissive, EMISSIVE_UV).rgb;
 #endif
-    m.n = shading_normal(v);
+    m.ng = geometric_normal();
+    m.n = shading_normal(m.ng);
+    material_clearcoat(m);
+    material_sheen(m);
     return m;
 }
 #endif

@@ -17,10 +17,11 @@ void main() {
 #ifdef UNLIT
     vec3 color = m.base_color.rgb;
 #else
-    vec3 color = m.emissive + ibl(m, v);
+    Lobes lobes = ibl_lobes(m, v);
 #if LIGHT_COUNT > 0
-    color += punctual(m, v, v_world);
+    punctual(m, v, v_world, lobes);
 #endif
+    vec3 color = compose(m, v, lobes, u_brdf_lut);
 #endif
 #ifdef ALPHA_BLEND
     f_color = vec4(color, m.base_color.a);

@@ -3,17 +3,18 @@
 #ifndef PUNCTUAL_GLSL
 #define PUNCTUAL_GLSL
 #include "brdf.glsl"
+#include "lobes.glsl"
 #if LIGHT_COUNT > 0
 uniform vec4 u_light_position[LIGHT_COUNT];   // xyz world position, w: 0 directional, 1 point, 2 spot
 uniform vec4 u_light_direction[LIGHT_COUNT];  // xyz direction the light travels, w range (0 = infinite)
 uniform vec3 u_light_color[LIGHT_COUNT];      // colour x intensity
 uniform vec2 u_light_cone[LIGHT_COUNT];       // angle scale, angle offset
 
-vec3 punctual(MaterialInfo m, vec3 v, vec3 pos) {
+// Adds every light's share of each lobe to `lobes` (shaders/lobes.glsl composes them).
+void punctual(MaterialInfo m, vec3 v, vec3 pos, inout Lobes lobes) {
     vec3 n = m.n;
     float alpha = m.roughness * m.roughness;
     float NdotV = clamp(dot(n, v), 1e-4, 1.0);
-    vec3 color = vec3(0.0);
     for (int i = 0; i < LIGHT_COUNT; ++i) {
         vec3 l;
         float atten = 1.0;
@@ -35,16 +36,30 @@ vec3 punctual(MaterialInfo m, vec3 v, vec3 pos) {
                 atten *= s * s;
             }
         }
-        float NdotL = dot(n, l);
-        if (NdotL <= 0.0 || atten <= 0.0) continue;
+        if (atten <= 0.0) continue;
+        vec3 radiance = u_light_color[i] * atten;
         vec3 h = normalize(l + v);
-        float NdotH = clamp(dot(n, h), 0.0, 1.0);
         float VdotH = clamp(dot(v, h), 0.0, 1.0);
-        vec3 F = F_schlick(m.f0, VdotH);
-        vec3 spec = brdf_specular(m.f0, max(alpha, 1e-3), NdotV, NdotL, NdotH, VdotH);
-        color += (brdf_lambert(m.diffuse_color) * (1.0 - F) + spec) * u_light_color[i] * (NdotL * atten);
+#ifdef MATERIAL_CLEARCOAT
+        vec3 nc = m.clearcoat_n;
+        float NcdotL = dot(nc, l);
+        if (NcdotL > 0.0) {
+            float ac = max(m.clearcoat_roughness * m.clearcoat_roughness, 1e-3);
+            lobes.clearcoat += brdf_specular(CLEARCOAT_F0, ac, clamp(dot(nc, v), 1e-4, 1.0), NcdotL,
+                                             clamp(dot(nc, h), 0.0, 1.0), VdotH) * radiance * NcdotL;
+        }
+#endif
+        float NdotL = dot(n, l);
+        if (NdotL <= 0.0) continue;
+        float NdotH = clamp(dot(n, h), 0.0, 1.0);
+        vec3 F = F_schlick(m.f0, m.f90, VdotH);
+        vec3 spec = brdf_specular(m.f0, m.f90, max(alpha, 1e-3), NdotV, NdotL, NdotH, VdotH);
+        lobes.base += (brdf_lambert(m.diffuse_color) * (1.0 - F) + spec) * radiance * NdotL;
+#ifdef MATERIAL_SHEEN
+        lobes.sheen += brdf_sheen(m.sheen_color, m.sheen_roughness, NdotV, NdotL, NdotH)
+                     * radiance * NdotL;
+#endif
     }
-    return color;
 }
 #endif
 #endif

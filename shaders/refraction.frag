@@ -17,7 +17,6 @@
 uniform vec3 u_camera_position;
 uniform mat4 u_view_proj;
 uniform vec2 u_viewport;
-uniform float u_ior;
 uniform float u_transmission;
 uniform vec3 u_sigma;            // Beer-Lambert absorption per scene unit (KHR_materials_volume)
 uniform float u_thickness;       // path length without baked interior vectors
@@ -304,15 +303,17 @@ void main() {
     float kr = dielectric * (1.0 - F) * u_transmission;
     float kd = dielectric * (1.0 - F) * (1.0 - u_transmission);
     vec3 reflected = env_radiance(reflect(d, n), m.roughness);
-    vec3 color = m.emissive + (ks * reflected + kd * m.base_color.rgb * env_diffuse(n)) * m.occlusion
+    Lobes lobes = ibl_lobes(m, v);  // sheen and clearcoat over the glass, as on opaque
+    lobes.base = (ks * reflected + kd * m.base_color.rgb * env_diffuse(n)) * m.occlusion
                + kr * refracted;
 #if LIGHT_COUNT > 0
     float f0 = (u_ior - 1.0) / (u_ior + 1.0);
     m.f0 = mix(vec3(f0 * f0), m.base_color.rgb, m.metallic);
     m.diffuse_color *= 1.0 - u_transmission;
     m.n = n;
-    color += punctual(m, v, v_world);
+    punctual(m, v, v_world, lobes);
 #endif
+    vec3 color = compose(m, v, lobes, u_brdf_lut);
 #if defined(DEBUG_VIEW) && defined(WYMAN)
 #if DEBUG_VIEW == 1
     color = nback0.w > 0.5 ? nback0.xyz * 0.5 + 0.5 : vec3(0.0);  // paper Fig. 5

@@ -25,4 +25,31 @@ DECLARE_MAP(occlusion)
 #ifdef HAS_EMISSIVE_MAP
 DECLARE_MAP(emissive)
 #endif
+#ifdef HAS_SPECULAR_MAP
+DECLARE_MAP(specular)
+#endif
+#ifdef HAS_SPECULAR_COLOR_MAP
+DECLARE_MAP(specular_color)
+#endif
+#ifdef HAS_CLEARCOAT_MAP
+DECLARE_MAP(clearcoat)
+#endif
+#ifdef HAS_CLEARCOAT_ROUGHNESS_MAP
+DECLARE_MAP(clearcoat_roughness)
+#endif
+#ifdef HAS_CLEARCOAT_NORMAL_MAP
+DECLARE_MAP(clearcoat_normal)
+#endif
+#ifdef HAS_SHEEN_COLOR_MAP
+DECLARE_MAP(sheen_color)
+#endif
+#ifdef HAS_SHEEN_ROUGHNESS_MAP
+DECLARE_MAP(sheen_roughness)
+#endif
+#ifdef HAS_TRANSMISSION_MAP
+DECLARE_MAP(transmission)
+#endif
+#ifdef HAS_THICKNESS_MAP
+DECLARE_MAP(thickness)
+#endif
 #endif

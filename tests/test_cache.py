@@ -184,7 +184,7 @@ def test_environment_bake_hit_and_load_by_key(tmp_path):
     env, hit = bake_or_load_environment("neutral", tmp_path, face_size=32)
     assert not hit and env.face_size == 32 and env.prefilter == "ggx"
     assert [m.shape for m in env.specular][:2] == [(6, 32, 32, 3), (6, 16, 16, 3)]
-    assert env.irradiance_sh.shape == (9, 3) and env.brdf_lut.shape[2] == 2
+    assert env.irradiance_sh.shape == (9, 3) and env.brdf_lut.shape[2] == 3
     assert all(np.all(np.isfinite(m)) for m in env.specular)
     again = bake_environment("neutral", tmp_path, face_size=32)
     assert again.key == env.key

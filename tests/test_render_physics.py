@@ -15,6 +15,7 @@ from core.baked import BakedAsset, BakedEnvironment, BakedMesh
 from core.cubemap import face_directions, sample_cube
 from core.options import MaterialOverride, RenderOptions
 from core.scene import Material
+from lobes_numpy import sheen_albedo
 from renderer import gpu
 from renderer.camera import frame_bounds
 from renderer.render import UnsupportedMethod, render
@@ -41,11 +42,13 @@ def g1_schlick(nx, alpha):
 
 
 def numpy_brdf_lut(n: int = 32, samples: int = 1024) -> np.ndarray:
-    """Split-sum LUT [roughness row, N.V column] -> (scale, bias), GGX importance sampling."""
+    """Split-sum LUT [roughness row, N.V column] -> (scale, bias), GGX importance sampling,
+    and the sheen albedo (tests/lobes_numpy.py) as the third channel."""
     nv = (np.arange(n) + 0.5) / n
     xi1 = (np.arange(samples) + 0.5) / samples
     phi = 2 * np.pi * _van_der_corput(samples)
-    lut = np.zeros((n, n, 2), np.float32)
+    lut = np.zeros((n, n, 3), np.float32)
+    lut[..., 2] = sheen_albedo(n)
     for j, r in enumerate((np.arange(n) + 0.5) / n):
         a = r * r
         cos_h = np.sqrt((1 - xi1) / (1 + (a * a - 1) * xi1))
@@ -195,7 +198,7 @@ def test_mirror_sphere_reflects_the_environment():
     sel = interior(mask, n, d, 0.3)
     r = d - 2 * np.einsum("...i,...i->...", d, n)[..., None] * n
     expected = sample_cube(env.specular[0], r)
-    ab = _LUT[0, -1]
+    ab = _LUT[0, -1, :2]
     err = np.abs(frame.linear[..., :3][sel] - expected[sel] * (ab[0] + ab[1]))
     assert err.mean() < 0.01 and np.percentile(err, 99) < 0.03
 
@@ -222,7 +225,7 @@ def test_lambert_sphere_under_constant_environment(albedo):
     frame = render(sphere_asset(0.0, 1.0, (albedo, albedo, albedo, 1.0)), env, opts())
     mask, n, d = sphere_geometry(opts())
     sel = interior(mask, n, d, 0.95)
-    a, b = _LUT[31, 31]
+    a, b = _LUT[31, 31, :2]
     e_spec = 0.04 * a + b
     expected = L * (albedo * (1 - e_spec) + e_spec)
     got = frame.linear[..., :3][sel]

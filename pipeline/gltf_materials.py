@@ -1,0 +1,45 @@
+"""The Khronos material-lobe extensions beyond metallic-roughness: specular, clearcoat and
+sheen, read into `Material` fields (defaults are each extension's own, so a material without
+one is unchanged). `read_lobes` is called by the glTF reader with its checked JSON accessors;
+textures go through its `texture_ref` (UV set, KHR_texture_transform, limits)."""
+from __future__ import annotations
+
+from core.scene import Material
+
+# Extensions whose absence in a renderer would change the look but not the geometry.
+MATERIAL_EXTENSIONS = frozenset({
+    "KHR_materials_specular", "KHR_materials_clearcoat", "KHR_materials_sheen",
+})
+
+
+def read_lobes(r, ext: dict, out: Material, slot: str) -> None:
+    """Fill `out` from the extension objects in `ext` (a material's `extensions`); `r` is the
+    glTF reader (its `_dict`, `_float`, `_floats` and `texture_ref` raise MalformedAsset
+    naming the file)."""
+    if "KHR_materials_specular" in ext:
+        e = r._dict(ext["KHR_materials_specular"], f"{slot} KHR_materials_specular")
+        out.specular = r._float(e, "specularFactor", 1.0, 0.0, 1.0)
+        out.specular_texture = r.texture_ref(e.get("specularTexture"), f"{slot} specular")
+        out.specular_color = tuple(max(c, 0.0) for c in r._floats(e, "specularColorFactor",
+                                                                  (1.0, 1.0, 1.0)))
+        out.specular_color_texture = r.texture_ref(e.get("specularColorTexture"),
+                                                   f"{slot} specularColor")
+    if "KHR_materials_clearcoat" in ext:
+        e = r._dict(ext["KHR_materials_clearcoat"], f"{slot} KHR_materials_clearcoat")
+        out.clearcoat = r._float(e, "clearcoatFactor", 0.0, 0.0, 1.0)
+        out.clearcoat_texture = r.texture_ref(e.get("clearcoatTexture"), f"{slot} clearcoat")
+        out.clearcoat_roughness = r._float(e, "clearcoatRoughnessFactor", 0.0, 0.0, 1.0)
+        out.clearcoat_roughness_texture = r.texture_ref(e.get("clearcoatRoughnessTexture"),
+                                                        f"{slot} clearcoatRoughness")
+        normal = r._dict(e.get("clearcoatNormalTexture"), f"{slot} clearcoatNormalTexture")
+        out.clearcoat_normal_texture = r.texture_ref(e.get("clearcoatNormalTexture"),
+                                                     f"{slot} clearcoatNormal")
+        out.clearcoat_normal_scale = r._float(normal, "scale", 1.0)
+    if "KHR_materials_sheen" in ext:
+        e = r._dict(ext["KHR_materials_sheen"], f"{slot} KHR_materials_sheen")
+        out.sheen_color = tuple(min(max(c, 0.0), 1.0) for c in r._floats(
+            e, "sheenColorFactor", (0.0, 0.0, 0.0)))
+        out.sheen_color_texture = r.texture_ref(e.get("sheenColorTexture"), f"{slot} sheenColor")
+        out.sheen_roughness = r._float(e, "sheenRoughnessFactor", 0.0, 0.0, 1.0)
+        out.sheen_roughness_texture = r.texture_ref(e.get("sheenRoughnessTexture"),
+                                                    f"{slot} sheenRoughness")

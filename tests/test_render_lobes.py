@@ -1,0 +1,109 @@
+"""The Khronos material lobes (specular, IOR, clearcoat, sheen) under a uniform environment:
+white-furnace energy checks per lobe against the baked LUT, which the numpy twins in
+test_environment.py check in turn."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from core.baked import BakedAsset
+from renderer.render import render
+from test_render_physics import _LUT, constant_env, interior, opts, sphere_asset, sphere_geometry
+
+ENV = constant_env(1.0)
+N = _LUT.shape[0]
+
+
+def lobe_sphere(**material) -> BakedAsset:
+    """The unit sphere of test_render_physics with Material fields set."""
+    base = material.pop("base_color", (1.0, 1.0, 1.0, 1.0))
+    a = sphere_asset(material.pop("metallic", 0.0), material.pop("roughness", 0.5), base)
+    mesh = a.meshes[0]
+    mat = dataclasses.replace(mesh.material, **material)
+    return dataclasses.replace(a, key=f"{a.key}-{sorted(material.items())}",
+                               meshes=[dataclasses.replace(mesh, material=mat)])
+
+
+def furnace(asset: BakedAsset, min_cos: float = 0.2):
+    """Linear RGB of the sphere's interior pixels and their N.V."""
+    mask, n, d = sphere_geometry(opts())
+    sel = interior(mask, n, d, min_cos)
+    img = render(asset, ENV, opts()).linear[..., :3]
+    return img[sel], np.einsum("...i,...i->...", n, -d)[sel]
+
+
+def lut(nv: np.ndarray, roughness: float, channel: int) -> np.ndarray:
+    row = _LUT[min(int(roughness * N), N - 1)]
+    return row[np.clip((nv * N - 0.5).astype(int), 0, N - 1), channel]
+
+
+def schlick(f0, nv):
+    return f0 + (1 - f0) * (1 - nv) ** 5
+
+
+# Tolerances: 0.02 mean absolute error against the LUT-based expectation covers the LUT's
+# nearest-texel lookup here vs the renderer's bilinear one, half-float targets and MSAA edges;
+# no pixel may exceed 1 + 0.01 (the frame's float precision): a lobe must never create energy.
+
+@pytest.mark.parametrize("cc_roughness", [0.0, 0.5, 1.0])
+def test_clearcoat_over_white_lambert_furnace(cc_roughness):
+    """White Lambert base (specular 0: the base reflects exactly the environment's 1) under a
+    full coat. The coat removes F_coat(N.V) and returns its single-scattering split sum
+    0.04 A + B: the difference is the coat's loss (the split-sum's, up to 0.05 at roughness 1)."""
+    px, nv = furnace(lobe_sphere(specular=0.0, clearcoat=1.0, clearcoat_roughness=cc_roughness))
+    expected = 1 - schlick(0.04, nv) + 0.04 * lut(nv, cc_roughness, 0) + lut(nv, cc_roughness, 1)
+    assert np.abs(px - expected[:, None]).mean() < 0.02
+    assert px.max() <= 1.01
+    # never more taken away than the coat's Fresnel reflects (the base beneath stays)
+    assert (px.min(axis=1) >= 1 - schlick(0.04, nv) - 0.01).all()
+
+
+@pytest.mark.parametrize("sheen_roughness", [0.3, 0.6, 1.0])
+def test_sheen_on_black_furnace(sheen_roughness):
+    """Black base, white sheen: the frame is the sheen albedo E plus what is left of the
+    base's dielectric specular (scaled by 1 - E), never above 1."""
+    px, nv = furnace(lobe_sphere(base_color=(0.0, 0.0, 0.0, 1.0), roughness=0.5,
+                                 sheen_color=(1.0, 1.0, 1.0), sheen_roughness=sheen_roughness))
+    e = lut(nv, sheen_roughness, 2)
+    spec = 0.04 * lut(nv, 0.5, 0) + lut(nv, 0.5, 1)
+    expected = spec * (1 - e) + e
+    assert np.abs(px - expected[:, None]).mean() < 0.02
+    assert px.max() <= 1.01
+    assert px.mean() > spec.mean() + 0.03  # sheen makes a black cloth visible
+
+
+@pytest.mark.parametrize("specular,tint", [(0.0, 1.0), (1.0, 1.0), (1.0, 100.0)])
+def test_specular_extremes_furnace(specular, tint):
+    """Black dielectric: it reflects only its specular lobe, f0 A + f90 B with f0 = min(0.04
+    tint, 1) x specular and f90 = specular. Specular 0 is black; tint 100 clamps F0 to 1 and
+    reflects the whole single-scattering albedo, still never above 1."""
+    px, nv = furnace(lobe_sphere(base_color=(0.0, 0.0, 0.0, 1.0), roughness=0.3,
+                                 specular=specular, specular_color=(tint,) * 3))
+    f0 = min(0.04 * tint, 1.0) * specular
+    expected = f0 * lut(nv, 0.3, 0) + specular * lut(nv, 0.3, 1)
+    assert np.abs(px - expected[:, None]).mean() < 0.02
+    assert px.max() <= 1.01
+
+
+def test_ior_sets_f0_of_an_opaque_dielectric():
+    """KHR_materials_ior on an opaque material: F0 = ((ior - 1) / (ior + 1))^2, so the black
+    sphere reflects more as the IOR rises (ior 1 leaves only Schlick's grazing term, F90 = 1)."""
+    means = {}
+    for ior in (1.0, 1.5, 2.5):
+        px, nv = furnace(lobe_sphere(base_color=(0.0, 0.0, 0.0, 1.0), roughness=0.2, ior=ior),
+                         min_cos=0.5)
+        means[ior] = px.mean()
+        f0 = ((ior - 1) / (ior + 1)) ** 2
+        expected = f0 * lut(nv, 0.2, 0) + lut(nv, 0.2, 1)
+        assert np.abs(px - expected[:, None]).mean() < 0.02, ior
+    assert means[1.0] < means[1.5] - 0.02 and means[1.5] < means[2.5] - 0.05
+
+
+def test_no_extension_compiles_no_lobe():
+    """The switches: a plain material defines none of the lobes (it costs what it did)."""
+    from renderer.render import _LOBES
+    plain = sphere_asset(0.0, 0.5).meshes[0].material
+    assert not any(plain.uses(lobe) for lobe in _LOBES)
+    assert lobe_sphere(clearcoat=1.0).meshes[0].material.uses("clearcoat")
