@@ -62,7 +62,7 @@ from core.errors import AssetError
 
 log = logging.getLogger(__name__)
 
-BAKE_FORMAT_VERSION = 2  # 2: glTF skins, morphs, instancing, variants, cameras baked
+BAKE_FORMAT_VERSION = 3  # 2: glTF skins, morphs, instancing, variants, cameras baked; 3: Material lobes
 KINDS = ("assets", "environments")
 MANIFEST = "manifest.json"
 _KEY = re.compile(r"[0-9a-f]{64}")

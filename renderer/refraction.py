@@ -49,7 +49,8 @@ _UNIT_BACK_POSITION, _UNIT_BACK_NORMAL, _UNIT_OPAQUE_COLOR, _UNIT_OPAQUE_DEPTH =
 _UNIT_FRONT_POSITION, _UNIT_FRONT_NORMAL = 20, 21
 
 stats = {"backface_passes": 0, "frontface_passes": 0, "back_allocations": 0,
-         "front_allocations": 0, "opaque_allocations": 0, "opaque_copies": 0}
+         "front_allocations": 0, "opaque_allocations": 0, "opaque_copies": 0,
+         "opaque_mipmaps": 0}
 
 
 @dataclass
@@ -99,13 +100,21 @@ def _get_targets(ctx: moderngl.Context, kind: str, w: int, h: int) -> _Targets:
     return t
 
 
-def _opaque_copy(p: Pass) -> _Targets:
-    """Resolve the frame's opaque geometry (colour + depth) into textures the front pass reads."""
+def _opaque_copy(p: Pass, rough: bool) -> _Targets:
+    """Resolve the frame's opaque geometry (colour + depth) into textures the front pass reads;
+    with mips when some refractive material is `rough` (its lobe reads a blurred copy)."""
     w, h = p.fbo.size
     t = _get_targets(p.ctx, "opaque", w, h)
     p.ctx.copy_framebuffer(t.fbo, p.fbo)
+    if rough:
+        t.color[0].build_mipmaps()
+        stats["opaque_mipmaps"] += 1
     stats["opaque_copies"] += 1
     return t
+
+
+def _rough(mat) -> bool:
+    return mat.roughness > 0.0 and mat.ior != 1.0
 
 
 def _surface_pass(p: Pass, items: list[DrawItem], side: str) -> _Targets:
@@ -190,7 +199,7 @@ def _draw_front(p: Pass, items: list[DrawItem], back: _Targets | None,
 
 
 def _draw(p: Pass, items: list[DrawItem], wyman: bool) -> None:
-    opaque = _opaque_copy(p) if p.opaque_drawn else None
+    opaque = _opaque_copy(p, any(_rough(it.material) for it in items)) if p.opaque_drawn else None
     back = _surface_pass(p, items, "back") if wyman else None
     front = _surface_pass(p, items, "front") if wyman and tir_mode(p.options) == "reflect" else None
     _draw_front(p, items, back, front, opaque)

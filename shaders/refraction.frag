@@ -170,15 +170,33 @@ bool second_exit(vec3 p, vec3 r, vec2 uv0, out float t, out vec3 n) {
 #endif
 #endif
 
+// Angular radius of a lobe of `variance`: a reflection lobe of GGX alpha spreads directions
+// by about 2 alpha (a microfacet tilt bends a reflected ray twice over).
+float lobe_spread(float variance) {
+    return 2.0 * sqrt(variance);
+}
+
 #ifdef SCREEN_OPAQUE
 float view_depth(float d) {  // depth buffer value -> distance along the view axis
     float n = u_near_far.x, f = u_near_far.y, z = d * 2.0 - 1.0;
     return 2.0 * n * f / (f + n - z * (f - n));
 }
 
+// Mip of the opaque copy that averages a refracted lobe of angular radius `spread` (radians,
+// small-angle) after `dist` scene units: the footprint's diameter in pixels, projected at q.
+float footprint_lod(vec3 q, vec3 dir, float dist, float spread) {
+    if (spread <= 0.0) return 0.0;
+    vec3 side = normalize(cross(dir, abs(dir.y) < 0.99 ? vec3(0.0, 1.0, 0.0) : vec3(1.0, 0.0, 0.0)));
+    vec2 a, b;
+    if (!project(q, a) || !project(q + side * (dist * spread), b)) return 0.0;
+    return log2(max(2.0 * length((b - a) * u_viewport), 1.0));
+}
+
 // March along the ray; the first point that lands just behind opaque geometry drawn at its
-// pixel takes that geometry's colour.
-bool trace_opaque(vec3 origin, vec3 dir, float len, out vec3 color) {
+// pixel takes that geometry's colour: the texel itself for a smooth interface, or for a lobe
+// of angular radius `spread` the copy's mip that covers the lobe's footprint there (the
+// blurred view of what lies behind rough glass; renderer.refraction builds the mips).
+bool trace_opaque(vec3 origin, vec3 dir, float len, float spread, out vec3 color) {
     const int STEPS = 24;
     float step_len = len / float(STEPS);
     for (int i = 1; i <= STEPS; ++i) {
@@ -190,7 +208,9 @@ bool trace_opaque(vec3 origin, vec3 dir, float len, out vec3 color) {
         if (depth >= 1.0) continue;
         float behind = dot(q - u_camera_position, u_camera_forward) - view_depth(depth);
         if (behind > 0.0 && behind < 2.0 * step_len) {
-            color = texelFetch(u_opaque_color, texel_of(uv), 0).rgb;
+            float lod = footprint_lod(q, dir, step_len * float(i), spread);
+            color = lod > 0.0 ? textureLod(u_opaque_color, uv, lod).rgb
+                              : texelFetch(u_opaque_color, texel_of(uv), 0).rgb;
             return true;
         }
     }
@@ -198,13 +218,14 @@ bool trace_opaque(vec3 origin, vec3 dir, float len, out vec3 color) {
 }
 #endif
 
-// Radiance arriving along a ray that leaves the object at `origin`, from environment mip `lod`.
-vec3 outside_radiance(vec3 origin, vec3 dir, float lod) {
+// Radiance arriving along a ray that leaves the object at `origin`, through a lobe of
+// `variance` (alpha^2 units of the reflection lobes the environment mips hold).
+vec3 outside_radiance(vec3 origin, vec3 dir, float variance) {
 #ifdef SCREEN_OPAQUE
     vec3 c;
-    if (trace_opaque(origin, dir, u_trace_length, c)) return c;
+    if (trace_opaque(origin, dir, u_trace_length, lobe_spread(variance), c)) return c;
 #endif
-    return textureLod(u_env, dir, lod).rgb;
+    return textureLod(u_env, dir, roughness_to_lod(pow(variance, 0.25))).rgb;
 }
 
 void main() {
@@ -255,7 +276,7 @@ void main() {
     float exit_F = 0.0;     // exit Fresnel: the internally reflected share reads the
     vec3 exit_refl = r1;    // environment along its direction (as a 2-bounce ray tracer)
 #ifdef SCREEN_OPAQUE
-    inside_hit = trace_opaque(v_world, r1, D, through);  // opaque parts inside the volume
+    inside_hit = trace_opaque(v_world, r1, D, lobe_spread(variance), through);  // opaque parts inside
 #endif
     if (!inside_hit && project(p_exit, uv)
             && surface_at(u_back_position, u_back_normal, uv0, uv, bpos, n2)) {
@@ -289,11 +310,11 @@ void main() {
 #endif
         }
     }
-    if (!inside_hit) through = outside_radiance(origin, dir, roughness_to_lod(pow(variance, 0.25)));
+    if (!inside_hit) through = outside_radiance(origin, dir, variance);
     through = (1.0 - exit_F) * through
             + exit_F * textureLod(u_env, exit_refl, roughness_to_lod(pow(variance_reflected, 0.25))).rgb;
 #else
-    through = outside_radiance(v_world, r1, roughness_to_lod(pow(variance, 0.25)));
+    through = outside_radiance(v_world, r1, variance);
 #endif
     vec3 refracted = through * beer_lambert(u_sigma, path) * m.base_color.rgb;
 
