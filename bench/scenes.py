@@ -131,6 +131,15 @@ def write_glb(spec: SceneSpec, path: str | Path) -> Path:
             volume.update(attenuationDistance=mat.attenuation_distance,
                           attenuationColor=list(mat.attenuation_color))
         extensions["KHR_materials_volume"] = volume
+    if mat.uses("specular"):
+        extensions["KHR_materials_specular"] = {"specularFactor": mat.specular,
+                                                "specularColorFactor": list(mat.specular_color)}
+    if mat.uses("clearcoat"):
+        extensions["KHR_materials_clearcoat"] = {"clearcoatFactor": mat.clearcoat,
+                                                 "clearcoatRoughnessFactor": mat.clearcoat_roughness}
+    if mat.uses("sheen"):
+        extensions["KHR_materials_sheen"] = {"sheenColorFactor": list(mat.sheen_color),
+                                             "sheenRoughnessFactor": mat.sheen_roughness}
     gltf = g.GLTF2(
         asset=g.Asset(version="2.0", generator="asset-preview bench.scenes"),
         scene=0,

@@ -159,6 +159,22 @@ def _env(env: BakedEnvironment, d: np.ndarray, roughness: np.ndarray) -> np.ndar
     return out
 
 
+def _lut_albedo(env: BakedEnvironment, cos_v: np.ndarray, roughness: np.ndarray) -> np.ndarray:
+    """The GGX lobe's single-scattering albedo E_ss = scale + bias from the baked BRDF LUT
+    (bilinear, as the raster path's texture lookup); 1 for smooth interfaces."""
+    lut = np.asarray(env.brdf_lut, np.float64)
+    n = lut.shape[0]
+    x = np.clip(np.abs(cos_v) * n - 0.5, 0, n - 1)
+    y = np.clip(roughness * n - 0.5, 0, n - 1)
+    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    x1, y1 = np.minimum(x0 + 1, n - 1), np.minimum(y0 + 1, n - 1)
+    fx, fy = x - x0, y - y0
+    e = lut[..., 0] + lut[..., 1]
+    top = e[y0, x0] * (1 - fx) + e[y0, x1] * fx
+    bottom = e[y1, x0] * (1 - fx) + e[y1, x1] * fx
+    return np.where(roughness > 0, top * (1 - fy) + bottom * fy, 1.0)
+
+
 def _env_brdf(f0: np.ndarray, cos_v: np.ndarray, roughness: np.ndarray) -> np.ndarray:
     """Split-sum scale/bias for F0 from Karis' analytic fit of the BRDF LUT (mobile UE4)."""
     r = roughness[:, None]
@@ -339,7 +355,11 @@ def _trace_paths(ts: TraceScene, env: BakedEnvironment, options: RenderOptions,
         tint = np.where(entering[:, None], base, 1.0)  # glTF tints transmission by base colour once
         # Radiance crossing an interface scales by (n_camera_side / n_far_side)^2 = eta^2: it
         # cancels on a path in and out again and matters when the camera is inside the glass.
-        trans_w = ((1 - metal) * (1 - fres) * trans * eta * eta)[:, None] * tint * w
+        # A rough interface's microfacets mask and shadow part of what crosses it, as they do
+        # for reflection: the transmitted share keeps the GGX lobe's single-scattering albedo
+        # E_ss (split-sum scale + bias at F0 = 1), as the raster refraction does.
+        e_ss = _lut_albedo(env, cos_i, rough_k)
+        trans_w = ((1 - metal) * (1 - fres) * trans * eta * eta * e_ss)[:, None] * tint * w
         diffuse_w = ((1 - metal) * (1 - fres) * (1 - trans))[:, None] * base * w
         # Lobe widths add as variances. A rough refraction bends directions by
         # |1 - eta| per unit of microfacet tilt where a reflection bends them by 2, so its

@@ -170,6 +170,15 @@ bool second_exit(vec3 p, vec3 r, vec2 uv0, out float t, out vec3 n) {
 #endif
 #endif
 
+// What a rough interface lets through of the light crossing it: its microfacets mask and
+// shadow the transmitted share as they do the reflected one, so it keeps the GGX lobe's
+// single-scattering albedo E_ss (LUT scale + bias, F0 = 1); 1 when smooth. The ray tracer
+// applies the same factor (renderer/raytrace.py).
+float single_scatter_albedo(float cos_theta, float roughness) {
+    vec2 ab = texture(u_brdf_lut, vec2(clamp(abs(cos_theta), 1e-4, 1.0), roughness)).rg;
+    return ab.x + ab.y;
+}
+
 // Angular radius of a lobe of `variance`: a reflection lobe of GGX alpha spreads directions
 // by about 2 alpha (a microfacet tilt bends a reflected ray twice over).
 float lobe_spread(float variance) {
@@ -273,6 +282,7 @@ void main() {
     vec4 bpos;
     vec3 n2;
     bool inside_hit = false;
+    float exit_loss = 1.0;  // the exit interface's microfacet loss (single_scatter_albedo)
     float exit_F = 0.0;     // exit Fresnel: the internally reflected share reads the
     vec3 exit_refl = r1;    // environment along its direction (as a 2-bounce ray tracer)
 #ifdef SCREEN_OPAQUE
@@ -287,6 +297,7 @@ void main() {
         if (refract_ray(r1, -n2, u_ior, r2)) {
             dir = r2;
             exit_F = fresnel_dielectric(dot(r1, n2), u_ior);
+            exit_loss = single_scatter_albedo(dot(r1, n2), bpos.w);
             exit_refl = reflect(r1, n2);
         } else {
             tir = true;
@@ -311,7 +322,7 @@ void main() {
         }
     }
     if (!inside_hit) through = outside_radiance(origin, dir, variance);
-    through = (1.0 - exit_F) * through
+    through = (1.0 - exit_F) * exit_loss * through
             + exit_F * textureLod(u_env, exit_refl, roughness_to_lod(pow(variance_reflected, 0.25))).rgb;
 #else
     through = outside_radiance(v_world, r1, variance);
@@ -321,7 +332,7 @@ void main() {
     float dielectric = 1.0 - m.metallic;
     vec2 ab = texture(u_brdf_lut, vec2(cos_i, m.roughness)).rg;
     vec3 ks = m.metallic * (m.base_color.rgb * ab.x + ab.y) + vec3(dielectric * F);
-    float kr = dielectric * (1.0 - F) * u_transmission;
+    float kr = dielectric * (1.0 - F) * u_transmission * single_scatter_albedo(cos_i, m.roughness);
     float kd = dielectric * (1.0 - F) * (1.0 - u_transmission);
     vec3 reflected = env_radiance(reflect(d, n), m.roughness);
     Lobes lobes = ibl_lobes(m, v);  // sheen and clearcoat over the glass, as on opaque
