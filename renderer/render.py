@@ -36,11 +36,12 @@ MAX_LIGHTS = 8
 _TONEMAPS = {"none": 0, "neutral": 1, "aces": 2}
 _SLOTS = ("base_color", "metallic_roughness", "normal", "occlusion", "emissive",
           "specular", "specular_color", "clearcoat", "clearcoat_roughness", "clearcoat_normal",
-          "sheen_color", "sheen_roughness")
+          "sheen_color", "sheen_roughness", "transmission", "thickness")
 # Slots read only when their lobe is compiled in (Material.uses).
 _LOBE_OF_SLOT = {"specular": "specular", "specular_color": "specular", "clearcoat": "clearcoat",
                  "clearcoat_roughness": "clearcoat", "clearcoat_normal": "clearcoat",
-                 "sheen_color": "sheen", "sheen_roughness": "sheen"}
+                 "sheen_color": "sheen", "sheen_roughness": "sheen",
+                 "transmission": "transmission", "thickness": "transmission"}
 _LOBES = ("ior", "specular", "clearcoat", "sheen")
 
 
@@ -291,6 +292,8 @@ def _material_state(item: DrawItem, p: Pass) -> _MaterialState:
     lobes = {lobe for lobe in _LOBES if m.uses(lobe)}
     for lobe in lobes:
         defines[f"MATERIAL_{lobe.upper()}"] = 1
+    if m.material_class == "transmissive":  # its maps are read by shaders/refraction.frag
+        lobes.add("transmission")
     for slot in _SLOTS:
         ref = getattr(m, f"{slot}_texture")
         if ref is None or _LOBE_OF_SLOT.get(slot, "base") not in lobes | {"base"}:

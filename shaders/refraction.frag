@@ -246,6 +246,14 @@ void main() {
     if (nv < 1e-3) n = normalize(n + v * (1e-3 - nv));
     float cos_i = dot(n, v);
     vec3 d = -v;
+    float transmission = u_transmission;
+#ifdef HAS_TRANSMISSION_MAP
+    transmission *= SAMPLE_MAP(transmission, TRANSMISSION_UV).r;
+#endif
+    float thickness = u_thickness;
+#ifdef HAS_THICKNESS_MAP
+    thickness *= SAMPLE_MAP(thickness, THICKNESS_UV).g;
+#endif
     float eta = 1.0 / u_ior;
     vec3 r1;
     refract_ray(d, n, eta, r1);           // TIR on entry only for IOR < 1, where F = 1
@@ -253,7 +261,7 @@ void main() {
 #ifdef HAS_INTERIOR
     float d_interior = length(v_interior);  // transformed: non-uniform scale holds (4.2.3.2)
 #else
-    float d_interior = u_thickness;
+    float d_interior = thickness;
 #endif
     // Blur of the refracted lookup as a variance in alpha^2 units (lobes add as variances,
     // as in renderer/raytrace.py): a microfacet tilt bends a refracted ray by |1 - eta| where
@@ -332,8 +340,8 @@ void main() {
     float dielectric = 1.0 - m.metallic;
     vec2 ab = texture(u_brdf_lut, vec2(cos_i, m.roughness)).rg;
     vec3 ks = m.metallic * (m.base_color.rgb * ab.x + ab.y) + vec3(dielectric * F);
-    float kr = dielectric * (1.0 - F) * u_transmission * single_scatter_albedo(cos_i, m.roughness);
-    float kd = dielectric * (1.0 - F) * (1.0 - u_transmission);
+    float kr = dielectric * (1.0 - F) * transmission * single_scatter_albedo(cos_i, m.roughness);
+    float kd = dielectric * (1.0 - F) * (1.0 - transmission);
     vec3 reflected = env_radiance(reflect(d, n), m.roughness);
     Lobes lobes = ibl_lobes(m, v);  // sheen and clearcoat over the glass, as on opaque
     lobes.base = (ks * reflected + kd * m.base_color.rgb * env_diffuse(n)) * m.occlusion
@@ -341,7 +349,7 @@ void main() {
 #if LIGHT_COUNT > 0
     float f0 = (u_ior - 1.0) / (u_ior + 1.0);
     m.f0 = mix(vec3(f0 * f0), m.base_color.rgb, m.metallic);
-    m.diffuse_color *= 1.0 - u_transmission;
+    m.diffuse_color *= 1.0 - transmission;
     m.n = n;
     punctual(m, v, v_world, lobes);
 #endif
