@@ -43,6 +43,7 @@ _LOBE_OF_SLOT = {"specular": "specular", "specular_color": "specular", "clearcoa
                  "sheen_color": "sheen", "sheen_roughness": "sheen",
                  "transmission": "transmission", "thickness": "transmission"}
 _LOBES = ("ior", "specular", "clearcoat", "sheen")
+MATERIAL_DEBUG_VIEWS = {"base": 1, "clearcoat": 2, "sheen": 3, "specular": 4, "transmission": 5}
 
 
 class UnsupportedMethod(ValueError):
@@ -361,6 +362,8 @@ def _frame_defines(options: RenderOptions, lights) -> dict:
     d = {"LIGHT_COUNT": len(lights)}
     if options.multiscatter:
         d["MULTISCATTER"] = 1
+    if options.material_debug:  # shaders/lobes.glsl: one lobe alone
+        d["MATERIAL_DEBUG"] = MATERIAL_DEBUG_VIEWS[options.material_debug]
     return d
 
 

@@ -11,19 +11,40 @@
 #include "brdf.glsl"
 
 struct Lobes {
-    vec3 base;       // diffuse + specular of the base material
-    vec3 sheen;      // sheen lobe (colour included)
-    vec3 clearcoat;  // coat's specular, before its factor
+    vec3 base;          // diffuse + specular of the base material (transmission included)
+    vec3 sheen;         // sheen lobe (colour included)
+    vec3 clearcoat;     // coat's specular, before its factor
+    vec3 transmission;  // throughput of the refracted share (refraction.frag), for debug views
 };
 
 Lobes no_lobes() {
-    return Lobes(vec3(0.0), vec3(0.0), vec3(0.0));
+    return Lobes(vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
 }
 
 const vec3 CLEARCOAT_F0 = vec3(0.04);
 
 #ifdef MATERIAL_INFO_GLSL
+#ifdef MATERIAL_DEBUG
+// `render --material-debug LOBE`: one lobe alone (renderer.render.MATERIAL_DEBUG_VIEWS).
+vec3 debug_lobe(MaterialInfo m, Lobes l) {
+#if MATERIAL_DEBUG == 1
+    return l.base;
+#elif MATERIAL_DEBUG == 2
+    return m.clearcoat * l.clearcoat;
+#elif MATERIAL_DEBUG == 3
+    return l.sheen;
+#elif MATERIAL_DEBUG == 4
+    return m.f0;
+#else
+    return l.transmission;
+#endif
+}
+#endif
+
 vec3 compose(MaterialInfo m, vec3 v, Lobes l, sampler2D brdf_lut) {
+#ifdef MATERIAL_DEBUG
+    return debug_lobe(m, l);
+#endif
     vec3 color = l.base;
 #ifdef MATERIAL_SHEEN
     float NdotV = clamp(dot(m.n, v), 1e-4, 1.0);

@@ -344,6 +344,8 @@ void main() {
     float kd = dielectric * (1.0 - F) * (1.0 - transmission);
     vec3 reflected = env_radiance(reflect(d, n), m.roughness);
     Lobes lobes = ibl_lobes(m, v);  // sheen and clearcoat over the glass, as on opaque
+    // what the debug view shows: the throughput, share x tint x volume attenuation
+    lobes.transmission = kr * beer_lambert(u_sigma, path) * m.base_color.rgb;
     lobes.base = (ks * reflected + kd * m.base_color.rgb * env_diffuse(n)) * m.occlusion
                + kr * refracted;
 #if LIGHT_COUNT > 0

@@ -10,12 +10,12 @@ import pytest
 from PIL import Image
 
 import pipeline
-from pipeline.baked import BakedAsset
-from pipeline.environment import default_face_size
+from core.baked import BakedAsset
+from core.cubemap import default_face_size
 from pipeline.panorama import DEFAULT_ENVIRONMENT
 from renderer import render
 from renderer.camera import frame_bounds
-from renderer.options import RenderOptions
+from core.options import RenderOptions
 from test_render_goldens import BAD_PIXELS, GOLDENS, MEAN_FLIP
 
 SIZE = 256
@@ -41,7 +41,9 @@ def sample(assets, cache):
 
 
 def opts(**kw) -> RenderOptions:
-    return RenderOptions(**{"width": SIZE, "height": SIZE, "tonemap": "none", **kw})
+    """Face-on (the test boards are laid out in the XY plane), linear output."""
+    return RenderOptions(**{"width": SIZE, "height": SIZE, "tonemap": "none", "yaw": 0.0,
+                            "pitch": 0.0, **kw})
 
 
 def windows(asset: BakedAsset, options: RenderOptions, select) -> list[tuple[int, slice, slice]]:
@@ -176,7 +178,7 @@ def test_attenuation_deepens_with_thickness(sample, env, method):
 def test_material_golden(name, sample, env, update_goldens):
     import flip_evaluator as flip
 
-    frame = render(sample(name), env, RenderOptions(width=SIZE, height=SIZE))
+    frame = render(sample(name), env, RenderOptions(width=SIZE, height=SIZE, yaw=0.0, pitch=0.0))
     assert np.isfinite(frame.linear).all() and frame.linear[..., :3].min() >= 0
     golden = GOLDENS / f"gltf-samples_{name}.png"
     if update_goldens:

@@ -70,7 +70,8 @@ CHANGED = {"width": 300, "height": 300, "yaw": 1.0, "pitch": 1.0, "fov": 50.0, "
            "method": "wyman", "tonemap": "aces", "exposure": 1.0, "background": "transparent",
            "background_blur": 0.5, "override": MaterialOverride(metallic=1.0), "msaa": 1,
            "lights": False, "multiscatter": True, "tir": "paper", "bounces": 2,
-           "debug": "tir", "budget_ms": 10.0, "variant": "red", "camera": "0"}
+           "debug": "tir", "budget_ms": 10.0, "variant": "red", "camera": "0",
+           "material_debug": "clearcoat"}
 
 
 def test_key_covers_every_field():

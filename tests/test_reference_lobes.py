@@ -11,8 +11,8 @@ import pytest
 
 from bench import scenes
 from bench.reference import relative_mae, render_reference
-from pipeline.scene import Material
-from renderer.options import RenderOptions
+from core.scene import Material
+from core.options import RenderOptions
 from renderer.render import render
 
 mi = pytest.importorskip("mitsuba")

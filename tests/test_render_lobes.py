@@ -107,3 +107,25 @@ def test_no_extension_compiles_no_lobe():
     plain = sphere_asset(0.0, 0.5).meshes[0].material
     assert not any(plain.uses(lobe) for lobe in _LOBES)
     assert lobe_sphere(clearcoat=1.0).meshes[0].material.uses("clearcoat")
+
+
+def test_material_debug_views_isolate_one_lobe():
+    """`material_debug`: specular shows F0 (ior 2: 1/9); clearcoat is black without a coat;
+    base is the frame with the coat taken off; sheen is E x colour under uniform light."""
+    px, _ = furnace_opts(lobe_sphere(base_color=(0.0, 0.0, 0.0, 1.0), ior=2.0), material_debug="specular")
+    assert np.abs(px - 1 / 9).max() < 2e-3
+    px, _ = furnace_opts(lobe_sphere(), material_debug="clearcoat")
+    assert px.max() < 1e-4
+    coated, _ = furnace_opts(lobe_sphere(clearcoat=1.0, clearcoat_roughness=0.2), material_debug="base")
+    bare, _ = furnace_opts(lobe_sphere())
+    assert np.abs(coated - bare).max() < 2e-3
+    px, nv = furnace_opts(lobe_sphere(sheen_color=(0.5, 0.5, 0.5), sheen_roughness=0.5),
+                          material_debug="sheen")
+    assert np.abs(px - 0.5 * lut(nv, 0.5, 2)[:, None]).mean() < 0.02
+
+
+def furnace_opts(asset: BakedAsset, **options):
+    mask, n, d = sphere_geometry(opts())
+    sel = interior(mask, n, d, 0.2)
+    img = render(asset, ENV, opts(**options)).linear[..., :3]
+    return img[sel], np.einsum("...i,...i->...", n, -d)[sel]
