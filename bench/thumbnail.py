@@ -32,6 +32,10 @@ ASSETS = {
     "Duck": "gltf/Duck.glb",
     "CesiumMilkTruck": "gltf/CesiumMilkTruck.glb",
     "Teapot": "usd/Teapot/Teapot.usd",
+    # Khronos material test models: clearcoat, sheen and rough transmission lobes
+    "ClearCoatTest": "gltf-samples/ClearCoatTest/glTF/ClearCoatTest.gltf",
+    "SheenCloth": "gltf-samples/SheenCloth/glTF/SheenCloth.gltf",
+    "TransmissionRoughnessTest": "gltf-samples/TransmissionRoughnessTest/glTF/TransmissionRoughnessTest.gltf",
 }
 TOOLS = ("ours", "pyrender", "f3d")
 VIEW: dict[str, Any] = {"yaw": 30.0, "pitch": 20.0, "fov": 40.0}
