@@ -96,11 +96,13 @@ class RenderOptions:
     camera: str | None = Field(default=None, min_length=1, max_length=256, description=(
         "render through the asset's own camera, by index N or by name (inspect lists them); "
         "yaw, pitch and distance are then unused"))
-    material_debug: Literal["base", "clearcoat", "sheen", "specular", "transmission"] | None = Field(
+    material_debug: Literal["base", "clearcoat", "sheen", "specular", "iridescence",
+                            "transmission"] | None = Field(
         default=None, description=(
             "show one material lobe alone: base (diffuse + specular under the layers), "
             "clearcoat, sheen (each lit as in the frame), specular (the base's normal-incidence "
-            "reflectance F0 from IOR and KHR_materials_specular) or transmission (the share "
+            "reflectance F0 from IOR and KHR_materials_specular), iridescence (the thin film's "
+            "reflectance at the view angle) or transmission (the share "
             "that refracts through, tinted and attenuated by the volume)"))
     budget_ms: float | None = Field(default=None, gt=0, le=MAX_BUDGET_MS, description=(
         "time budget in milliseconds: lets method auto ray trace objects where raster "

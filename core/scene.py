@@ -105,14 +105,16 @@ class Material:
     sheen_roughness: float = 0.0
     sheen_roughness_texture: TextureRef | None = None  # A
     iridescence: float = 0.0
+    iridescence_texture: TextureRef | None = None  # R
     iridescence_ior: float = 1.3
-    iridescence_thickness_range: tuple[float, float] = (100.0, 400.0)
+    iridescence_thickness_range: tuple[float, float] = (100.0, 400.0)  # nanometres
+    iridescence_thickness_texture: TextureRef | None = None  # G: minimum..maximum
     anisotropy_strength: float = 0.0
     anisotropy_rotation: float = 0.0
 
     def uses(self, lobe: str) -> bool:
         """Whether the material needs `lobe`'s shader code ("ior", "specular", "clearcoat",
-        "sheen"): the defaults of an extension cost nothing."""
+        "sheen", "iridescence"): the defaults of an extension cost nothing."""
         if lobe == "ior":
             return self.ior != 1.5
         if lobe == "specular":
@@ -122,6 +124,8 @@ class Material:
             return self.clearcoat > 0.0
         if lobe == "sheen":
             return any(c > 0.0 for c in self.sheen_color)
+        if lobe == "iridescence":
+            return self.iridescence > 0.0
         raise ValueError(f"unknown lobe {lobe!r}")
 
     @property

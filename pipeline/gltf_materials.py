@@ -1,5 +1,5 @@
-"""The Khronos material-lobe extensions beyond metallic-roughness: specular, clearcoat and
-sheen, read into `Material` fields (defaults are each extension's own, so a material without
+"""The Khronos material-lobe extensions beyond metallic-roughness: specular, clearcoat, sheen
+and iridescence, read into `Material` fields (defaults are each extension's own, so a material without
 one is unchanged). `read_lobes` is called by the glTF reader with its checked JSON accessors;
 textures go through its `texture_ref` (UV set, KHR_texture_transform, limits)."""
 from __future__ import annotations
@@ -9,6 +9,7 @@ from core.scene import Material
 # Extensions whose absence in a renderer would change the look but not the geometry.
 MATERIAL_EXTENSIONS = frozenset({
     "KHR_materials_specular", "KHR_materials_clearcoat", "KHR_materials_sheen",
+    "KHR_materials_iridescence",
 })
 
 
@@ -43,3 +44,13 @@ def read_lobes(r, ext: dict, out: Material, slot: str) -> None:
         out.sheen_roughness = r._float(e, "sheenRoughnessFactor", 0.0, 0.0, 1.0)
         out.sheen_roughness_texture = r.texture_ref(e.get("sheenRoughnessTexture"),
                                                     f"{slot} sheenRoughness")
+    if "KHR_materials_iridescence" in ext:
+        e = r._dict(ext["KHR_materials_iridescence"], f"{slot} KHR_materials_iridescence")
+        out.iridescence = r._float(e, "iridescenceFactor", 0.0, 0.0, 1.0)
+        out.iridescence_texture = r.texture_ref(e.get("iridescenceTexture"), f"{slot} iridescence")
+        out.iridescence_ior = r._float(e, "iridescenceIor", 1.3, 1.0, 10.0)
+        out.iridescence_thickness_range = (
+            r._float(e, "iridescenceThicknessMinimum", 100.0, 0.0, 1e5),
+            r._float(e, "iridescenceThicknessMaximum", 400.0, 0.0, 1e5))
+        out.iridescence_thickness_texture = r.texture_ref(e.get("iridescenceThicknessTexture"),
+                                                          f"{slot} iridescenceThickness")

@@ -36,14 +36,17 @@ MAX_LIGHTS = 8
 _TONEMAPS = {"none": 0, "neutral": 1, "aces": 2}
 _SLOTS = ("base_color", "metallic_roughness", "normal", "occlusion", "emissive",
           "specular", "specular_color", "clearcoat", "clearcoat_roughness", "clearcoat_normal",
-          "sheen_color", "sheen_roughness", "transmission", "thickness")
+          "sheen_color", "sheen_roughness", "transmission", "thickness", "iridescence",
+          "iridescence_thickness")
 # Slots read only when their lobe is compiled in (Material.uses).
 _LOBE_OF_SLOT = {"specular": "specular", "specular_color": "specular", "clearcoat": "clearcoat",
                  "clearcoat_roughness": "clearcoat", "clearcoat_normal": "clearcoat",
                  "sheen_color": "sheen", "sheen_roughness": "sheen",
-                 "transmission": "transmission", "thickness": "transmission"}
-_LOBES = ("ior", "specular", "clearcoat", "sheen")
-MATERIAL_DEBUG_VIEWS = {"base": 1, "clearcoat": 2, "sheen": 3, "specular": 4, "transmission": 5}
+                 "transmission": "transmission", "thickness": "transmission",
+                 "iridescence": "iridescence", "iridescence_thickness": "iridescence"}
+_LOBES = ("ior", "specular", "clearcoat", "sheen", "iridescence")
+MATERIAL_DEBUG_VIEWS = {"base": 1, "clearcoat": 2, "sheen": 3, "specular": 4, "transmission": 5,
+                        "iridescence": 6}
 
 
 class UnsupportedMethod(ValueError):
@@ -344,6 +347,10 @@ def _material_state(item: DrawItem, p: Pass) -> _MaterialState:
         uniforms += [("u_clearcoat", f4(m.clearcoat).tobytes()),
                      ("u_clearcoat_roughness", f4(m.clearcoat_roughness).tobytes()),
                      ("u_clearcoat_normal_scale", f4(m.clearcoat_normal_scale).tobytes())]
+    if "iridescence" in lobes:
+        uniforms += [("u_iridescence", f4(m.iridescence).tobytes()),
+                     ("u_iridescence_ior", f4(m.iridescence_ior).tobytes()),
+                     ("u_iridescence_thickness", np.asarray(m.iridescence_thickness_range, f4).tobytes())]
     if "sheen" in lobes:
         uniforms += [("u_sheen_color", np.asarray(m.sheen_color, f4).tobytes()),
                      ("u_sheen_roughness", f4(m.sheen_roughness).tobytes())]

@@ -35,6 +35,8 @@ vec3 debug_lobe(MaterialInfo m, Lobes l) {
     return l.sheen;
 #elif MATERIAL_DEBUG == 4
     return m.f0;
+#elif MATERIAL_DEBUG == 6
+    return m.iridescence * m.iridescence_fresnel;
 #else
     return l.transmission;
 #endif

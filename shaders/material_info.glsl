@@ -5,6 +5,7 @@
 #ifndef MATERIAL_INFO_GLSL
 #define MATERIAL_INFO_GLSL
 #include "textures.glsl"
+#include "iridescence.glsl"
 
 uniform vec4 u_base_color;
 uniform float u_metallic;
@@ -22,6 +23,11 @@ uniform vec3 u_specular_color;
 uniform float u_clearcoat;
 uniform float u_clearcoat_roughness;
 uniform float u_clearcoat_normal_scale;
+#endif
+#ifdef MATERIAL_IRIDESCENCE
+uniform float u_iridescence;
+uniform float u_iridescence_ior;
+uniform vec2 u_iridescence_thickness;  // nm: minimum, maximum
 #endif
 #ifdef MATERIAL_SHEEN
 uniform vec3 u_sheen_color;
@@ -53,6 +59,8 @@ struct MaterialInfo {
     vec3 clearcoat_n;
     vec3 sheen_color;    // KHR_materials_sheen: black = no sheen
     float sheen_roughness;
+    float iridescence;   // KHR_materials_iridescence: 0 = no film
+    vec3 iridescence_fresnel;  // the film's reflectance at N.V
 };
 
 vec3 geometric_normal() {
@@ -170,6 +178,30 @@ void material_sheen(inout MaterialInfo m) {
 #endif
 }
 
+// KHR_materials_iridescence: the thin film's reflectance at this view angle replaces the
+// base's Fresnel (by the factor). It enters as the F0 that Schlick needs to reproduce it at
+// N.V, so the split-sum IBL, the lights and the diffuse attenuation all see one Fresnel.
+void material_iridescence(inout MaterialInfo m, vec3 v) {
+    m.iridescence = 0.0;
+    m.iridescence_fresnel = vec3(0.0);
+#ifdef MATERIAL_IRIDESCENCE
+    m.iridescence = u_iridescence;
+#ifdef HAS_IRIDESCENCE_MAP
+    m.iridescence *= SAMPLE_MAP(iridescence, IRIDESCENCE_UV).r;
+#endif
+    float thickness = u_iridescence_thickness.y;
+#ifdef HAS_IRIDESCENCE_THICKNESS_MAP
+    thickness = mix(u_iridescence_thickness.x, u_iridescence_thickness.y,
+                    SAMPLE_MAP(iridescence_thickness, IRIDESCENCE_THICKNESS_UV).g);
+#endif
+    float c = clamp(dot(m.n, v), 1e-4, 1.0);
+    m.iridescence_fresnel = thin_film_fresnel(c, u_iridescence_ior, thickness, m.f0);
+    float w = pow(1.0 - c, 5.0);
+    vec3 f0 = clamp((m.iridescence_fresnel - m.f90 * w) / max(1.0 - w, 1e-4), 0.0, 1.0);
+    m.f0 = mix(m.f0, f0, m.iridescence);
+#endif
+}
+
 MaterialInfo material_info(vec3 v) {
     MaterialInfo m;
     m.base_color = u_base_color;
@@ -206,6 +238,7 @@ MaterialInfo material_info(vec3 v) {
     m.n = shading_normal(m.ng);
     material_clearcoat(m);
     material_sheen(m);
+    material_iridescence(m, v);
     return m;
 }
 #endif

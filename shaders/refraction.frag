@@ -339,9 +339,13 @@ void main() {
 
     float dielectric = 1.0 - m.metallic;
     vec2 ab = texture(u_brdf_lut, vec2(cos_i, m.roughness)).rg;
-    vec3 ks = m.metallic * (m.base_color.rgb * ab.x + ab.y) + vec3(dielectric * F);
-    float kr = dielectric * (1.0 - F) * transmission * single_scatter_albedo(cos_i, m.roughness);
-    float kd = dielectric * (1.0 - F) * (1.0 - transmission);
+    vec3 Fv = vec3(F);
+#ifdef MATERIAL_IRIDESCENCE
+    Fv = mix(Fv, m.iridescence_fresnel, m.iridescence);  // the film reflects, the rest enters
+#endif
+    vec3 ks = m.metallic * (m.base_color.rgb * ab.x + ab.y) + dielectric * Fv;
+    vec3 kr = dielectric * (1.0 - Fv) * transmission * single_scatter_albedo(cos_i, m.roughness);
+    vec3 kd = dielectric * (1.0 - Fv) * (1.0 - transmission);
     vec3 reflected = env_radiance(reflect(d, n), m.roughness);
     Lobes lobes = ibl_lobes(m, v);  // sheen and clearcoat over the glass, as on opaque
     // what the debug view shows: the throughput, share x tint x volume attenuation

@@ -46,6 +46,12 @@ DECLARE_MAP(sheen_color)
 #ifdef HAS_SHEEN_ROUGHNESS_MAP
 DECLARE_MAP(sheen_roughness)
 #endif
+#ifdef HAS_IRIDESCENCE_MAP
+DECLARE_MAP(iridescence)
+#endif
+#ifdef HAS_IRIDESCENCE_THICKNESS_MAP
+DECLARE_MAP(iridescence_thickness)
+#endif
 #ifdef HAS_TRANSMISSION_MAP
 DECLARE_MAP(transmission)
 #endif

@@ -46,3 +46,45 @@ def sheen_albedo(n: int = 32, theta: int = 256, phi: int = 128) -> np.ndarray:
         f = d_charlie(r, nh) * v_sheen(nv[:, None], l[None, :, 2], r) * l[None, :, 2]
         out[j] = np.minimum(f.sum(1) * (2 * np.pi / (theta * phi)), 1.0)
     return out
+
+
+_XYZ_TO_REC709 = np.array([[3.2404542, -1.5371385, -0.4985314],
+                           [-0.9692660, 1.8760108, 0.0415560],
+                           [0.0556434, -0.2040259, 1.0572252]])
+
+
+def _film_sensitivity(opd, shift):
+    phase = 2 * np.pi * opd * 1e-9
+    val = np.array([5.4856e-13, 4.4201e-13, 5.2481e-13])
+    pos = np.array([1.6810e+06, 1.7953e+06, 2.2084e+06])
+    var = np.array([4.3278e+09, 9.3046e+09, 6.6121e+09])
+    p = phase[..., None]
+    xyz = val * np.sqrt(2 * np.pi * var) * np.cos(pos * p + shift) * np.exp(-p * p * var)
+    xyz[..., 0] += (9.7470e-14 * np.sqrt(2 * np.pi * 4.5282e+09) * np.cos(2.2399e+06 * phase + shift[..., 0])
+                    * np.exp(-4.5282e+09 * phase * phase))
+    return (xyz / 1.0685e-7) @ _XYZ_TO_REC709.T
+
+
+def thin_film_fresnel(cos1, film_ior: float, thickness: float, base_f0) -> np.ndarray:
+    """Belcour & Barla's two-order Airy reflectance, (..., 3), as shaders/iridescence.glsl."""
+    cos1 = np.asarray(cos1, np.float64)
+    n2 = film_ior if thickness >= 30 else 1 + (film_ior - 1) * np.interp(thickness, [0, 30], [0, 1])
+    cos2 = np.sqrt(np.maximum(1 - (1 - cos1 ** 2) / n2 ** 2, 0))
+    r12 = ((n2 - 1) / (n2 + 1)) ** 2
+    R12 = (r12 + (1 - r12) * (1 - cos1) ** 5)[..., None]
+    T121 = 1 - R12
+    phi21 = np.pi - (np.pi if n2 < 1 else 0.0)
+    s = np.sqrt(np.clip(np.asarray(base_f0, np.float64), 0, 0.9999))
+    n3 = (1 + s) / (1 - s)
+    r23 = ((n3 - n2) / (n3 + n2)) ** 2
+    R23 = r23 + (1 - r23) * ((1 - cos2) ** 5)[..., None]
+    phi = phi21 + np.where(n3 < n2, np.pi, 0.0) * np.ones_like(R23)
+    opd = 2 * n2 * thickness * cos2
+    R123 = np.clip(R12 * R23, 1e-5, 0.9999)
+    Rs = T121 ** 2 * R23 / (1 - R123)
+    out = R12 + Rs
+    cm = Rs - T121
+    for k in (1, 2):
+        cm = cm * np.sqrt(R123)
+        out = out + cm * 2 * _film_sensitivity(k * opd, k * phi)
+    return np.clip(out, 0, 1)

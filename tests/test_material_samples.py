@@ -20,7 +20,7 @@ from test_render_goldens import BAD_PIXELS, GOLDENS, MEAN_FLIP
 
 SIZE = 256
 SAMPLES = ("ClearCoatTest", "SheenCloth", "SpecularTest", "TransmissionRoughnessTest",
-           "AttenuationTest")
+           "AttenuationTest", "IridescenceLamp")
 
 
 @pytest.fixture(scope="module")
@@ -129,6 +129,24 @@ def test_specular_rows_rise_monotonically(sample, env):
         values = [img[r, c].mean() for _, r, c in wins]
         assert len(values) == 5, [asset.meshes[i].name for i, _, _ in wins]
         assert all(b > a for a, b in zip(values, values[1:])), (prefix, values)
+
+
+def test_iridescence_colours_the_lamp_globe(sample, env):
+    """IridescenceLamp: the thin film on the glass globe changes its reflection by more than 5%
+    of the globe's mean, and not as a grey scale: the change differs between colour channels
+    (interference is wavelength-selective) by at least a third."""
+    asset = sample("IridescenceLamp")
+    o = opts(yaw=30.0, pitch=15.0)
+    wins = windows(asset, o, lambda m: m.material.uses("iridescence") and m.material.transmission > 0)
+    assert wins
+
+    def pixels(img):
+        return np.concatenate([img[r, c, :3].reshape(-1, 3) for _, r, c in wins]).astype(np.float64)
+    film = pixels(render(asset, env, o).linear)
+    bare = pixels(render(strip(asset, iridescence=0.0), env, o).linear)
+    change = np.abs(film - bare).mean(0)
+    assert change.mean() > 0.05 * bare.mean(), (change, bare.mean())
+    assert change.max() > 1.33 * change.min(), change
 
 
 def local_contrast(img: np.ndarray) -> float:
