@@ -110,11 +110,12 @@ class Material:
     iridescence_thickness_range: tuple[float, float] = (100.0, 400.0)  # nanometres
     iridescence_thickness_texture: TextureRef | None = None  # G: minimum..maximum
     anisotropy_strength: float = 0.0
-    anisotropy_rotation: float = 0.0
+    anisotropy_rotation: float = 0.0            # radians, counter-clockwise from the tangent
+    anisotropy_texture: TextureRef | None = None  # RG direction (-1..1), B strength
 
     def uses(self, lobe: str) -> bool:
         """Whether the material needs `lobe`'s shader code ("ior", "specular", "clearcoat",
-        "sheen", "iridescence"): the defaults of an extension cost nothing."""
+        "sheen", "iridescence", "anisotropy"): the defaults of an extension cost nothing."""
         if lobe == "ior":
             return self.ior != 1.5
         if lobe == "specular":
@@ -126,6 +127,8 @@ class Material:
             return any(c > 0.0 for c in self.sheen_color)
         if lobe == "iridescence":
             return self.iridescence > 0.0
+        if lobe == "anisotropy":
+            return self.anisotropy_strength > 0.0
         raise ValueError(f"unknown lobe {lobe!r}")
 
     @property

@@ -1,5 +1,5 @@
-"""The Khronos material-lobe extensions beyond metallic-roughness: specular, clearcoat, sheen
-and iridescence, read into `Material` fields (defaults are each extension's own, so a material without
+"""The Khronos material-lobe extensions beyond metallic-roughness: specular, clearcoat, sheen,
+iridescence and anisotropy, read into `Material` fields (defaults are each extension's own, so a material without
 one is unchanged). `read_lobes` is called by the glTF reader with its checked JSON accessors;
 textures go through its `texture_ref` (UV set, KHR_texture_transform, limits)."""
 from __future__ import annotations
@@ -9,7 +9,7 @@ from core.scene import Material
 # Extensions whose absence in a renderer would change the look but not the geometry.
 MATERIAL_EXTENSIONS = frozenset({
     "KHR_materials_specular", "KHR_materials_clearcoat", "KHR_materials_sheen",
-    "KHR_materials_iridescence",
+    "KHR_materials_iridescence", "KHR_materials_anisotropy",
 })
 
 
@@ -54,3 +54,8 @@ def read_lobes(r, ext: dict, out: Material, slot: str) -> None:
             r._float(e, "iridescenceThicknessMaximum", 400.0, 0.0, 1e5))
         out.iridescence_thickness_texture = r.texture_ref(e.get("iridescenceThicknessTexture"),
                                                           f"{slot} iridescenceThickness")
+    if "KHR_materials_anisotropy" in ext:
+        e = r._dict(ext["KHR_materials_anisotropy"], f"{slot} KHR_materials_anisotropy")
+        out.anisotropy_strength = r._float(e, "anisotropyStrength", 0.0, 0.0, 1.0)
+        out.anisotropy_rotation = r._float(e, "anisotropyRotation", 0.0)
+        out.anisotropy_texture = r.texture_ref(e.get("anisotropyTexture"), f"{slot} anisotropy")

@@ -37,14 +37,15 @@ _TONEMAPS = {"none": 0, "neutral": 1, "aces": 2}
 _SLOTS = ("base_color", "metallic_roughness", "normal", "occlusion", "emissive",
           "specular", "specular_color", "clearcoat", "clearcoat_roughness", "clearcoat_normal",
           "sheen_color", "sheen_roughness", "transmission", "thickness", "iridescence",
-          "iridescence_thickness")
+          "iridescence_thickness", "anisotropy")
 # Slots read only when their lobe is compiled in (Material.uses).
 _LOBE_OF_SLOT = {"specular": "specular", "specular_color": "specular", "clearcoat": "clearcoat",
                  "clearcoat_roughness": "clearcoat", "clearcoat_normal": "clearcoat",
                  "sheen_color": "sheen", "sheen_roughness": "sheen",
                  "transmission": "transmission", "thickness": "transmission",
-                 "iridescence": "iridescence", "iridescence_thickness": "iridescence"}
-_LOBES = ("ior", "specular", "clearcoat", "sheen", "iridescence")
+                 "iridescence": "iridescence", "iridescence_thickness": "iridescence",
+                 "anisotropy": "anisotropy"}
+_LOBES = ("ior", "specular", "clearcoat", "sheen", "iridescence", "anisotropy")
 MATERIAL_DEBUG_VIEWS = {"base": 1, "clearcoat": 2, "sheen": 3, "specular": 4, "transmission": 5,
                         "iridescence": 6}
 
@@ -312,7 +313,8 @@ def _material_state(item: DrawItem, p: Pass) -> _MaterialState:
             defines["HAS_UV1"] = 1
         textures.append((f"u_{slot}_map", tex))
         uniforms.append((f"u_{slot}_uvm", _mat3_bytes(ref.uv_matrix())))
-    if "HAS_NORMAL_MAP" in defines and mesh.tangents is not None:
+    needs_frame = {"HAS_NORMAL_MAP", "HAS_CLEARCOAT_NORMAL_MAP", "MATERIAL_ANISOTROPY"} & set(defines)
+    if needs_frame and mesh.tangents is not None:
         defines["HAS_TANGENTS"] = 1
     if mesh.colors is not None:
         defines["HAS_COLORS"] = 1
@@ -347,6 +349,9 @@ def _material_state(item: DrawItem, p: Pass) -> _MaterialState:
         uniforms += [("u_clearcoat", f4(m.clearcoat).tobytes()),
                      ("u_clearcoat_roughness", f4(m.clearcoat_roughness).tobytes()),
                      ("u_clearcoat_normal_scale", f4(m.clearcoat_normal_scale).tobytes())]
+    if "anisotropy" in lobes:
+        c, s_ = math.cos(m.anisotropy_rotation), math.sin(m.anisotropy_rotation)
+        uniforms += [("u_anisotropy", np.asarray([c, s_, m.anisotropy_strength], f4).tobytes())]
     if "iridescence" in lobes:
         uniforms += [("u_iridescence", f4(m.iridescence).tobytes()),
                      ("u_iridescence_ior", f4(m.iridescence_ior).tobytes()),

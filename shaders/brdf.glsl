@@ -53,6 +53,23 @@ vec3 brdf_specular(vec3 f0, float f90, float alpha, float NdotV, float NdotL, fl
                                         / max(4.0 * NdotV * NdotL, 1e-6));
 }
 
+// Anisotropic GGX (KHR_materials_anisotropy): alpha_t along the grain t, alpha_b across it,
+// with the exact height-correlated Smith masking of that distribution (at alpha_t = alpha_b
+// it is isotropic GGX with exact Smith rather than the Schlick fit above). Already divided
+// by 4 N.L N.V.
+float brdf_anisotropic_dv(float at, float ab, vec3 n, vec3 t, vec3 b, vec3 v, vec3 l, vec3 h) {
+    float NdotH = dot(n, h), TdotH = dot(t, h), BdotH = dot(b, h);
+    float d = TdotH * TdotH / (at * at) + BdotH * BdotH / (ab * ab) + NdotH * NdotH;
+    float D = 1.0 / (BRDF_PI * at * ab * d * d);
+    float NdotV = max(dot(n, v), 1e-4), NdotL = max(dot(n, l), 1e-4);
+    float lv = sqrt(1.0 + (at * at * pow(dot(t, v), 2.0) + ab * ab * pow(dot(b, v), 2.0))
+                          / (NdotV * NdotV));
+    float ll = sqrt(1.0 + (at * at * pow(dot(t, l), 2.0) + ab * ab * pow(dot(b, l), 2.0))
+                          / (NdotL * NdotL));
+    float G = 2.0 / (lv + ll);  // 1 / (1 + Lambda_v + Lambda_l), Lambda = (sqrt(..) - 1) / 2
+    return D * G / (4.0 * NdotV * NdotL);
+}
+
 // Sheen (KHR_materials_sheen): the "Charlie" distribution (Estevez & Kulla 2017) with their
 // visibility term. Roughness below SHEEN_MIN_ROUGHNESS is raised to it: the distribution
 // collapses onto the tangent plane there and its albedo needs ever more samples to bake

@@ -30,12 +30,28 @@ vec3 env_diffuse(vec3 n) {
 }
 
 #ifdef MATERIAL_INFO_GLSL  // the lookups above also serve the background pass
+// Where the specular lobe looks: the mirror direction, or for an anisotropic material the
+// mirror about a normal bent across the grain (the stretched lobe's mean direction moves
+// along the grain), blended back to n as the lobe gets rounder (KHR_materials_anisotropy's
+// recommended approximation of an anisotropic lookup with an isotropic prefiltered map).
+vec3 specular_direction(MaterialInfo m, vec3 v) {
+#ifdef MATERIAL_ANISOTROPY
+    vec3 bent = normalize(cross(cross(m.anisotropy_b, v), m.anisotropy_b));
+    float k = 1.0 - m.anisotropy * (1.0 - m.roughness);
+    k *= k;
+    bent = normalize(mix(bent, m.n, k * k));
+    return reflect(-v, bent);
+#else
+    return reflect(-v, m.n);
+#endif
+}
+
 vec3 ibl(MaterialInfo m, vec3 v) {
     vec3 n = m.n;
     float NdotV = clamp(dot(n, v), 1e-4, 1.0);
     vec2 ab = texture(u_brdf_lut, vec2(NdotV, m.roughness)).rg;
     vec3 FssEss = m.f0 * ab.x + m.f90 * ab.y;
-    vec3 radiance = env_radiance(reflect(-v, n), m.roughness);
+    vec3 radiance = env_radiance(specular_direction(m, v), m.roughness);
     vec3 irradiance = env_diffuse(n);
 #ifdef MULTISCATTER
     float Ess = ab.x + ab.y;

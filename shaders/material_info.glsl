@@ -29,6 +29,9 @@ uniform float u_iridescence;
 uniform float u_iridescence_ior;
 uniform vec2 u_iridescence_thickness;  // nm: minimum, maximum
 #endif
+#ifdef MATERIAL_ANISOTROPY
+uniform vec3 u_anisotropy;      // cos, sin of the rotation; strength
+#endif
 #ifdef MATERIAL_SHEEN
 uniform vec3 u_sheen_color;
 uniform float u_sheen_roughness;
@@ -61,6 +64,9 @@ struct MaterialInfo {
     float sheen_roughness;
     float iridescence;   // KHR_materials_iridescence: 0 = no film
     vec3 iridescence_fresnel;  // the film's reflectance at N.V
+    float anisotropy;    // KHR_materials_anisotropy: 0 = isotropic
+    vec3 anisotropy_t;   // world direction of the stretched highlight (the grain)
+    vec3 anisotropy_b;
 };
 
 vec3 geometric_normal() {
@@ -71,11 +77,10 @@ vec3 geometric_normal() {
     return ng;
 }
 
-#if defined(HAS_NORMAL_MAP) || defined(HAS_CLEARCOAT_NORMAL_MAP)
-// Tangent frame about ng for a normal map sampled at uv; `tn` is its texel in 0..1, xy
-// scaled by `scale` (glTF normalTexture.scale).
-vec3 perturbed_normal(vec3 ng, vec2 uv, vec3 tn, float scale) {
-    vec3 t, b;
+#if defined(HAS_NORMAL_MAP) || defined(HAS_CLEARCOAT_NORMAL_MAP) || defined(MATERIAL_ANISOTROPY)
+// Tangent frame (t, b) about ng: the baked tangents, else from the derivatives of position
+// and `uv`, else any frame (a mesh with no UVs).
+void tangent_frame(vec3 ng, vec2 uv, out vec3 t, out vec3 b) {
 #ifdef HAS_TANGENTS
     t = normalize(v_tangent.xyz - ng * dot(ng, v_tangent.xyz));
     b = cross(ng, t) * v_tangent.w;
@@ -92,6 +97,15 @@ vec3 perturbed_normal(vec3 ng, vec2 uv, vec3 tn, float scale) {
 #ifdef DOUBLE_SIDED
     if (!gl_FrontFacing) { t = -t; b = -b; }
 #endif
+}
+#endif
+
+#if defined(HAS_NORMAL_MAP) || defined(HAS_CLEARCOAT_NORMAL_MAP)
+// A normal map's normal sampled at uv; `tn` is its texel in 0..1, xy scaled by `scale`
+// (glTF normalTexture.scale).
+vec3 perturbed_normal(vec3 ng, vec2 uv, vec3 tn, float scale) {
+    vec3 t, b;
+    tangent_frame(ng, uv, t, b);
     tn = tn * 2.0 - 1.0;
     tn.xy *= scale;
     return normalize(mat3(t, b, ng) * tn);
@@ -202,6 +216,36 @@ void material_iridescence(inout MaterialInfo m, vec3 v) {
 #endif
 }
 
+// KHR_materials_anisotropy: direction (texture RG in -1..1, default the tangent) rotated by
+// the rotation, strength x texture B; roughness along it becomes mix(alpha, 1, strength^2).
+void material_anisotropy(inout MaterialInfo m) {
+    m.anisotropy = 0.0;
+    m.anisotropy_t = vec3(0.0);
+    m.anisotropy_b = vec3(0.0);
+#ifdef MATERIAL_ANISOTROPY
+    vec2 dir = vec2(1.0, 0.0);
+    float strength = u_anisotropy.z;
+#ifdef HAS_ANISOTROPY_MAP
+    vec3 a = SAMPLE_MAP(anisotropy, ANISOTROPY_UV).rgb;
+    dir = normalize(a.rg * 2.0 - 1.0);
+    strength *= a.b;
+    vec2 uv = ANISOTROPY_UV;
+#elif defined(HAS_UV0)
+    vec2 uv = v_uv0;
+#else
+    vec2 uv = vec2(0.0);
+#endif
+    dir = mat2(u_anisotropy.x, u_anisotropy.y, -u_anisotropy.y, u_anisotropy.x) * dir;
+    vec3 t, b;
+    tangent_frame(m.ng, uv, t, b);
+    vec3 at = t * dir.x + b * dir.y;
+    at = normalize(at - m.n * dot(m.n, at));  // onto the shading normal's plane
+    m.anisotropy = clamp(strength, 0.0, 1.0);
+    m.anisotropy_t = at;
+    m.anisotropy_b = cross(m.n, at);
+#endif
+}
+
 MaterialInfo material_info(vec3 v) {
     MaterialInfo m;
     m.base_color = u_base_color;
@@ -239,6 +283,7 @@ MaterialInfo material_info(vec3 v) {
     material_clearcoat(m);
     material_sheen(m);
     material_iridescence(m, v);
+    material_anisotropy(m);
     return m;
 }
 #endif

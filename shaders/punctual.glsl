@@ -53,7 +53,13 @@ void punctual(MaterialInfo m, vec3 v, vec3 pos, inout Lobes lobes) {
         if (NdotL <= 0.0) continue;
         float NdotH = clamp(dot(n, h), 0.0, 1.0);
         vec3 F = F_schlick(m.f0, m.f90, VdotH);
+#ifdef MATERIAL_ANISOTROPY
+        float a = max(alpha, 1e-3);
+        vec3 spec = F * brdf_anisotropic_dv(mix(a, 1.0, m.anisotropy * m.anisotropy), a, n,
+                                            m.anisotropy_t, m.anisotropy_b, v, l, h);
+#else
         vec3 spec = brdf_specular(m.f0, m.f90, max(alpha, 1e-3), NdotV, NdotL, NdotH, VdotH);
+#endif
         lobes.base += (brdf_lambert(m.diffuse_color) * (1.0 - F) + spec) * radiance * NdotL;
 #ifdef MATERIAL_SHEEN
         lobes.sheen += brdf_sheen(m.sheen_color, m.sheen_roughness, NdotV, NdotL, NdotH)

@@ -52,6 +52,9 @@ DECLARE_MAP(iridescence)
 #ifdef HAS_IRIDESCENCE_THICKNESS_MAP
 DECLARE_MAP(iridescence_thickness)
 #endif
+#ifdef HAS_ANISOTROPY_MAP
+DECLARE_MAP(anisotropy)
+#endif
 #ifdef HAS_TRANSMISSION_MAP
 DECLARE_MAP(transmission)
 #endif
