@@ -15,7 +15,8 @@ import numpy as np
 
 MaterialClass = Literal["opaque", "mask", "blend", "transmissive"]
 # Material texture slots holding colour (sampled through sRGB decoding); the rest are data.
-SRGB_SLOTS = frozenset({"base_color", "emissive", "specular_color", "sheen_color"})
+SRGB_SLOTS = frozenset({"base_color", "emissive", "specular_color", "sheen_color",
+                        "diffuse_transmission_color"})
 AlphaMode = Literal["OPAQUE", "MASK", "BLEND"]
 
 # OpenGL / glTF sampler enums.
@@ -112,10 +113,14 @@ class Material:
     anisotropy_strength: float = 0.0
     anisotropy_rotation: float = 0.0            # radians, counter-clockwise from the tangent
     anisotropy_texture: TextureRef | None = None  # RG direction (-1..1), B strength
+    diffuse_transmission: float = 0.0           # KHR_materials_diffuse_transmission
+    diffuse_transmission_texture: TextureRef | None = None  # A
+    diffuse_transmission_color: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    diffuse_transmission_color_texture: TextureRef | None = None  # RGB, sRGB
 
     def uses(self, lobe: str) -> bool:
         """Whether the material needs `lobe`'s shader code ("ior", "specular", "clearcoat",
-        "sheen", "iridescence", "anisotropy"): the defaults of an extension cost nothing."""
+        "sheen", "iridescence", "anisotropy", "diffuse_transmission"): the defaults of an extension cost nothing."""
         if lobe == "ior":
             return self.ior != 1.5
         if lobe == "specular":
@@ -129,6 +134,8 @@ class Material:
             return self.iridescence > 0.0
         if lobe == "anisotropy":
             return self.anisotropy_strength > 0.0
+        if lobe == "diffuse_transmission":
+            return self.diffuse_transmission > 0.0
         raise ValueError(f"unknown lobe {lobe!r}")
 
     @property

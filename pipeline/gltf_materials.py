@@ -1,5 +1,5 @@
 """The Khronos material-lobe extensions beyond metallic-roughness: specular, clearcoat, sheen,
-iridescence and anisotropy, read into `Material` fields (defaults are each extension's own, so a material without
+iridescence, anisotropy and diffuse transmission, read into `Material` fields (defaults are each extension's own, so a material without
 one is unchanged). `read_lobes` is called by the glTF reader with its checked JSON accessors;
 textures go through its `texture_ref` (UV set, KHR_texture_transform, limits)."""
 from __future__ import annotations
@@ -9,7 +9,7 @@ from core.scene import Material
 # Extensions whose absence in a renderer would change the look but not the geometry.
 MATERIAL_EXTENSIONS = frozenset({
     "KHR_materials_specular", "KHR_materials_clearcoat", "KHR_materials_sheen",
-    "KHR_materials_iridescence", "KHR_materials_anisotropy",
+    "KHR_materials_iridescence", "KHR_materials_anisotropy", "KHR_materials_diffuse_transmission",
 })
 
 
@@ -59,3 +59,13 @@ def read_lobes(r, ext: dict, out: Material, slot: str) -> None:
         out.anisotropy_strength = r._float(e, "anisotropyStrength", 0.0, 0.0, 1.0)
         out.anisotropy_rotation = r._float(e, "anisotropyRotation", 0.0)
         out.anisotropy_texture = r.texture_ref(e.get("anisotropyTexture"), f"{slot} anisotropy")
+    if "KHR_materials_diffuse_transmission" in ext:
+        e = r._dict(ext["KHR_materials_diffuse_transmission"],
+                    f"{slot} KHR_materials_diffuse_transmission")
+        out.diffuse_transmission = r._float(e, "diffuseTransmissionFactor", 0.0, 0.0, 1.0)
+        out.diffuse_transmission_texture = r.texture_ref(e.get("diffuseTransmissionTexture"),
+                                                         f"{slot} diffuseTransmission")
+        out.diffuse_transmission_color = tuple(min(max(c, 0.0), 1.0) for c in r._floats(
+            e, "diffuseTransmissionColorFactor", (1.0, 1.0, 1.0)))
+        out.diffuse_transmission_color_texture = r.texture_ref(
+            e.get("diffuseTransmissionColorTexture"), f"{slot} diffuseTransmissionColor")

@@ -37,15 +37,18 @@ _TONEMAPS = {"none": 0, "neutral": 1, "aces": 2}
 _SLOTS = ("base_color", "metallic_roughness", "normal", "occlusion", "emissive",
           "specular", "specular_color", "clearcoat", "clearcoat_roughness", "clearcoat_normal",
           "sheen_color", "sheen_roughness", "transmission", "thickness", "iridescence",
-          "iridescence_thickness", "anisotropy")
+          "iridescence_thickness", "anisotropy", "diffuse_transmission",
+          "diffuse_transmission_color")
 # Slots read only when their lobe is compiled in (Material.uses).
 _LOBE_OF_SLOT = {"specular": "specular", "specular_color": "specular", "clearcoat": "clearcoat",
                  "clearcoat_roughness": "clearcoat", "clearcoat_normal": "clearcoat",
                  "sheen_color": "sheen", "sheen_roughness": "sheen",
                  "transmission": "transmission", "thickness": "transmission",
                  "iridescence": "iridescence", "iridescence_thickness": "iridescence",
-                 "anisotropy": "anisotropy"}
-_LOBES = ("ior", "specular", "clearcoat", "sheen", "iridescence", "anisotropy")
+                 "anisotropy": "anisotropy", "diffuse_transmission": "diffuse_transmission",
+                 "diffuse_transmission_color": "diffuse_transmission"}
+_LOBES = ("ior", "specular", "clearcoat", "sheen", "iridescence", "anisotropy",
+          "diffuse_transmission")
 MATERIAL_DEBUG_VIEWS = {"base": 1, "clearcoat": 2, "sheen": 3, "specular": 4, "transmission": 5,
                         "iridescence": 6}
 
@@ -349,6 +352,9 @@ def _material_state(item: DrawItem, p: Pass) -> _MaterialState:
         uniforms += [("u_clearcoat", f4(m.clearcoat).tobytes()),
                      ("u_clearcoat_roughness", f4(m.clearcoat_roughness).tobytes()),
                      ("u_clearcoat_normal_scale", f4(m.clearcoat_normal_scale).tobytes())]
+    if "diffuse_transmission" in lobes:
+        uniforms += [("u_diffuse_transmission", np.asarray(
+            [*m.diffuse_transmission_color, m.diffuse_transmission], f4).tobytes())]
     if "anisotropy" in lobes:
         c, s_ = math.cos(m.anisotropy_rotation), math.sin(m.anisotropy_rotation)
         uniforms += [("u_anisotropy", np.asarray([c, s_, m.anisotropy_strength], f4).tobytes())]

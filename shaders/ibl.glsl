@@ -89,10 +89,24 @@ vec3 ibl_clearcoat(MaterialInfo m, vec3 v) {
 }
 #endif
 
+#ifdef MATERIAL_DIFFUSE_TRANSMISSION
+// Light through the surface from the far side: the back hemisphere's cosine-weighted mean,
+// less what the front's specular reflects (as the reflected diffuse).
+vec3 ibl_diffuse_transmission(MaterialInfo m, vec3 v) {
+    float NdotV = clamp(dot(m.n, v), 1e-4, 1.0);
+    vec2 ab = texture(u_brdf_lut, vec2(NdotV, m.roughness)).rg;
+    return m.diffuse_transmission * (1.0 - (m.f0 * ab.x + m.f90 * ab.y)) * env_diffuse(-m.n)
+         * m.occlusion;
+}
+#endif
+
 // Every lobe's image-based light.
 Lobes ibl_lobes(MaterialInfo m, vec3 v) {
     Lobes l = no_lobes();
     l.base = ibl(m, v);
+#ifdef MATERIAL_DIFFUSE_TRANSMISSION
+    l.base += ibl_diffuse_transmission(m, v);
+#endif
 #ifdef MATERIAL_SHEEN
     l.sheen = ibl_sheen(m, v);
 #endif

@@ -29,6 +29,9 @@ uniform float u_iridescence;
 uniform float u_iridescence_ior;
 uniform vec2 u_iridescence_thickness;  // nm: minimum, maximum
 #endif
+#ifdef MATERIAL_DIFFUSE_TRANSMISSION
+uniform vec4 u_diffuse_transmission;  // colour, factor
+#endif
 #ifdef MATERIAL_ANISOTROPY
 uniform vec3 u_anisotropy;      // cos, sin of the rotation; strength
 #endif
@@ -67,6 +70,7 @@ struct MaterialInfo {
     float anisotropy;    // KHR_materials_anisotropy: 0 = isotropic
     vec3 anisotropy_t;   // world direction of the stretched highlight (the grain)
     vec3 anisotropy_b;
+    vec3 diffuse_transmission;  // KHR_materials_diffuse_transmission: colour x factor
 };
 
 vec3 geometric_normal() {
@@ -246,6 +250,24 @@ void material_anisotropy(inout MaterialInfo m) {
 #endif
 }
 
+// KHR_materials_diffuse_transmission: the factor's share of the diffuse lobe passes through
+// the surface (thin-walled, Lambertian, tinted by its colour) instead of reflecting.
+void material_diffuse_transmission(inout MaterialInfo m) {
+    m.diffuse_transmission = vec3(0.0);
+#ifdef MATERIAL_DIFFUSE_TRANSMISSION
+    float share = u_diffuse_transmission.a;
+    vec3 tint = u_diffuse_transmission.rgb;
+#ifdef HAS_DIFFUSE_TRANSMISSION_MAP
+    share *= SAMPLE_MAP(diffuse_transmission, DIFFUSE_TRANSMISSION_UV).a;
+#endif
+#ifdef HAS_DIFFUSE_TRANSMISSION_COLOR_MAP
+    tint *= SAMPLE_MAP(diffuse_transmission_color, DIFFUSE_TRANSMISSION_COLOR_UV).rgb;
+#endif
+    m.diffuse_transmission = tint * share * (1.0 - m.metallic);
+    m.diffuse_color *= 1.0 - share;
+#endif
+}
+
 MaterialInfo material_info(vec3 v) {
     MaterialInfo m;
     m.base_color = u_base_color;
@@ -284,6 +306,7 @@ MaterialInfo material_info(vec3 v) {
     material_sheen(m);
     material_iridescence(m, v);
     material_anisotropy(m);
+    material_diffuse_transmission(m);
     return m;
 }
 #endif

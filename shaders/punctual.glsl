@@ -50,6 +50,10 @@ void punctual(MaterialInfo m, vec3 v, vec3 pos, inout Lobes lobes) {
         }
 #endif
         float NdotL = dot(n, l);
+#ifdef MATERIAL_DIFFUSE_TRANSMISSION
+        if (NdotL < 0.0)  // lit from behind: the share that passes through
+            lobes.base += brdf_lambert(m.diffuse_transmission) * radiance * -NdotL;
+#endif
         if (NdotL <= 0.0) continue;
         float NdotH = clamp(dot(n, h), 0.0, 1.0);
         vec3 F = F_schlick(m.f0, m.f90, VdotH);

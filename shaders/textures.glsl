@@ -55,6 +55,12 @@ DECLARE_MAP(iridescence_thickness)
 #ifdef HAS_ANISOTROPY_MAP
 DECLARE_MAP(anisotropy)
 #endif
+#ifdef HAS_DIFFUSE_TRANSMISSION_MAP
+DECLARE_MAP(diffuse_transmission)
+#endif
+#ifdef HAS_DIFFUSE_TRANSMISSION_COLOR_MAP
+DECLARE_MAP(diffuse_transmission_color)
+#endif
 #ifdef HAS_TRANSMISSION_MAP
 DECLARE_MAP(transmission)
 #endif

@@ -10,7 +10,8 @@ import pytest
 
 from core.baked import BakedAsset
 from renderer.render import render
-from test_render_physics import _LUT, constant_env, interior, opts, sphere_asset, sphere_geometry
+from test_render_physics import (_LUT, constant_env, interior, make_env, opts, sphere_asset,
+                                 sphere_geometry)
 
 ENV = constant_env(1.0)
 N = _LUT.shape[0]
@@ -148,3 +149,19 @@ def test_iridescence_thin_film_against_numpy_twin_and_furnace(thickness):
     chroma = (lit.max(axis=1) - lit.min(axis=1)).mean() / lit.mean()
     bare, _ = furnace(lobe_sphere(base_color=(0.0, 0.0, 0.0, 1.0), roughness=0.3))
     assert chroma > 0.1 and (bare.max(axis=1) - bare.min(axis=1)).max() < 1e-3, chroma
+
+
+def test_diffuse_transmission_furnace_and_back_light():
+    """KHR_materials_diffuse_transmission on a white dielectric: under uniform light, what
+    the diffuse lobe no longer reflects it lets through from behind, so the frame stays 1
+    (within 0.02, never above 1.01). Lit only from the camera's half (+Z) of the
+    environment, the front of a sphere transmitting half its diffuse reflects less: that half
+    now comes from the dark hemisphere behind."""
+    px, _ = furnace(lobe_sphere(diffuse_transmission=1.0))
+    assert np.abs(px - 1).mean() < 0.02 and px.max() <= 1.01
+    half = make_env(lambda d: np.where(d[..., 2:3] > 0, 1.0, 0.0) * np.ones(3), key="front-half")
+    mask, n, d = sphere_geometry(opts())
+    sel = interior(mask, n, d, 0.5)
+    plain = render(lobe_sphere(), half, opts()).linear[..., :3][sel].mean()
+    through = render(lobe_sphere(diffuse_transmission=0.5), half, opts()).linear[..., :3][sel].mean()
+    assert through < plain - 0.05, (through, plain)
