@@ -137,6 +137,8 @@ def write_glb(spec: SceneSpec, path: str | Path) -> Path:
     if mat.uses("clearcoat"):
         extensions["KHR_materials_clearcoat"] = {"clearcoatFactor": mat.clearcoat,
                                                  "clearcoatRoughnessFactor": mat.clearcoat_roughness}
+    if mat.uses("dispersion"):
+        extensions["KHR_materials_dispersion"] = {"dispersion": mat.dispersion}
     if mat.uses("sheen"):
         extensions["KHR_materials_sheen"] = {"sheenColorFactor": list(mat.sheen_color),
                                              "sheenRoughnessFactor": mat.sheen_roughness}

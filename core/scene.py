@@ -113,6 +113,7 @@ class Material:
     anisotropy_strength: float = 0.0
     anisotropy_rotation: float = 0.0            # radians, counter-clockwise from the tangent
     anisotropy_texture: TextureRef | None = None  # RG direction (-1..1), B strength
+    dispersion: float = 0.0                     # KHR_materials_dispersion: 20 / Abbe number
     diffuse_transmission: float = 0.0           # KHR_materials_diffuse_transmission
     diffuse_transmission_texture: TextureRef | None = None  # A
     diffuse_transmission_color: tuple[float, float, float] = (1.0, 1.0, 1.0)
@@ -120,7 +121,7 @@ class Material:
 
     def uses(self, lobe: str) -> bool:
         """Whether the material needs `lobe`'s shader code ("ior", "specular", "clearcoat",
-        "sheen", "iridescence", "anisotropy", "diffuse_transmission"): the defaults of an extension cost nothing."""
+        "sheen", "iridescence", "anisotropy", "diffuse_transmission", "dispersion"): the defaults of an extension cost nothing."""
         if lobe == "ior":
             return self.ior != 1.5
         if lobe == "specular":
@@ -136,6 +137,8 @@ class Material:
             return self.anisotropy_strength > 0.0
         if lobe == "diffuse_transmission":
             return self.diffuse_transmission > 0.0
+        if lobe == "dispersion":
+            return self.dispersion > 0.0
         raise ValueError(f"unknown lobe {lobe!r}")
 
     @property
@@ -153,6 +156,12 @@ class Material:
         if not (math.isfinite(d) and d > 0):
             return np.zeros(3)
         return -np.log(np.clip(np.asarray(self.attenuation_color, np.float64), 1e-6, 1.0)) / d
+
+    def channel_iors(self) -> tuple[float, float, float]:
+        """IOR per RGB channel (KHR_materials_dispersion): the spread (ior - 1) x dispersion / 20
+        between red and blue, centred on the given IOR (green)."""
+        half = (self.ior - 1.0) * 0.025 * self.dispersion
+        return (self.ior - half, self.ior, self.ior + half)
 
     def texture_refs(self) -> dict[str, TextureRef]:
         """The texture slots in use, by slot name."""

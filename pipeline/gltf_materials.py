@@ -1,5 +1,5 @@
 """The Khronos material-lobe extensions beyond metallic-roughness: specular, clearcoat, sheen,
-iridescence, anisotropy and diffuse transmission, read into `Material` fields (defaults are each extension's own, so a material without
+iridescence, anisotropy, diffuse transmission and dispersion, read into `Material` fields (defaults are each extension's own, so a material without
 one is unchanged). `read_lobes` is called by the glTF reader with its checked JSON accessors;
 textures go through its `texture_ref` (UV set, KHR_texture_transform, limits)."""
 from __future__ import annotations
@@ -10,6 +10,7 @@ from core.scene import Material
 MATERIAL_EXTENSIONS = frozenset({
     "KHR_materials_specular", "KHR_materials_clearcoat", "KHR_materials_sheen",
     "KHR_materials_iridescence", "KHR_materials_anisotropy", "KHR_materials_diffuse_transmission",
+    "KHR_materials_dispersion",
 })
 
 
@@ -69,3 +70,6 @@ def read_lobes(r, ext: dict, out: Material, slot: str) -> None:
             e, "diffuseTransmissionColorFactor", (1.0, 1.0, 1.0)))
         out.diffuse_transmission_color_texture = r.texture_ref(
             e.get("diffuseTransmissionColorTexture"), f"{slot} diffuseTransmissionColor")
+    if "KHR_materials_dispersion" in ext:
+        e = r._dict(ext["KHR_materials_dispersion"], f"{slot} KHR_materials_dispersion")
+        out.dispersion = r._float(e, "dispersion", 0.0, 0.0, 100.0)

@@ -35,6 +35,8 @@ between centre rays is missed (documented limit).
 """
 from __future__ import annotations
 
+import dataclasses
+
 import logging
 import math
 import time
@@ -244,7 +246,9 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     ts = build_scene(asset, options)
     t_build = time.perf_counter()
     npix = camera.width * camera.height
-    image = _Image(npix)
+    passes = _dispersion_passes(ts, asset, options)
+    images = [_Image(npix) for _ in passes]
+    image = images[0]
     stats: dict[str, Any] = {"rays": npix, "bounces": [], "tir": 0}
     show_env = options.background == "env"
 
@@ -260,13 +264,16 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     if show_env:
         for chunk in _chunks(np.flatnonzero(~near), 4 * CHUNK_PIXELS):
             d, _ = _subpixel_rays(camera, chunk, 1)
-            image.add(_env(env, d, np.full(len(d), options.background_blur)), chunk)
+            for img in images:
+                img.add(_env(env, d, np.full(len(d), options.background_blur)), chunk)
     for chunk in _chunks(np.flatnonzero(near), CHUNK_PIXELS):
         dirs, pix = _subpixel_rays(camera, chunk, supersample)
-        _trace_paths(ts, env, options, camera.position, dirs, pix, 1.0 / supersample ** 2,
-                     image, stats)
+        for scene, img in zip(passes, images):
+            _trace_paths(scene, env, options, camera.position, dirs, pix, 1.0 / supersample ** 2,
+                         img, stats)
 
-    rgb = image.rgb.reshape(camera.height, camera.width, 3)
+    rgb = image.rgb if len(images) == 1 else np.stack([img.rgb[:, c] for c, img in enumerate(images)], -1)
+    rgb = rgb.reshape(camera.height, camera.width, 3)
     alpha = (np.ones((camera.height, camera.width)) if show_env
              else image.coverage.reshape(rgb.shape[:2]))
     linear = np.concatenate([rgb, alpha[..., None]], axis=-1).astype(np.float32)
@@ -277,6 +284,16 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     log.info("raytrace %dx%d: %d rays in %.0f ms (%d bounces used)", camera.width,
              camera.height, stats["rays"], (t1 - t0) * 1e3, len(stats["bounces"]))
     return linear, stats
+
+
+def _dispersion_passes(ts: TraceScene, asset: BakedAsset, options: RenderOptions) -> list[TraceScene]:
+    """One scene to trace, or with KHR_materials_dispersion three: one per RGB channel, each
+    with that channel's IOR (Material.channel_iors); the frame takes channel c from pass c."""
+    mats = [apply_override(m.material, options.override) for m in asset.meshes]
+    if not any(m.dispersion > 0 for m in mats):
+        return [ts]
+    return [dataclasses.replace(ts, ior=np.asarray([m.channel_iors()[c] for m in mats], np.float64))
+            for c in range(3)]
 
 
 def _chunks(indices: np.ndarray, size: int):

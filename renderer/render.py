@@ -48,7 +48,7 @@ _LOBE_OF_SLOT = {"specular": "specular", "specular_color": "specular", "clearcoa
                  "anisotropy": "anisotropy", "diffuse_transmission": "diffuse_transmission",
                  "diffuse_transmission_color": "diffuse_transmission"}
 _LOBES = ("ior", "specular", "clearcoat", "sheen", "iridescence", "anisotropy",
-          "diffuse_transmission")
+          "diffuse_transmission", "dispersion")
 MATERIAL_DEBUG_VIEWS = {"base": 1, "clearcoat": 2, "sheen": 3, "specular": 4, "transmission": 5,
                         "iridescence": 6}
 
@@ -352,6 +352,9 @@ def _material_state(item: DrawItem, p: Pass) -> _MaterialState:
         uniforms += [("u_clearcoat", f4(m.clearcoat).tobytes()),
                      ("u_clearcoat_roughness", f4(m.clearcoat_roughness).tobytes()),
                      ("u_clearcoat_normal_scale", f4(m.clearcoat_normal_scale).tobytes())]
+    if "dispersion" in lobes:  # shaders/refraction.frag
+        iors = m.channel_iors()
+        uniforms += [("u_dispersion", f4((iors[2] - iors[0]) / 2).tobytes())]
     if "diffuse_transmission" in lobes:
         uniforms += [("u_diffuse_transmission", np.asarray(
             [*m.diffuse_transmission_color, m.diffuse_transmission], f4).tobytes())]

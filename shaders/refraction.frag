@@ -20,7 +20,10 @@ uniform vec2 u_viewport;
 uniform float u_transmission;
 uniform vec3 u_sigma;            // Beer-Lambert absorption per scene unit (KHR_materials_volume)
 uniform float u_thickness;       // path length without baked interior vectors
-uniform float u_trace_length;    // the scene's bounding diameter: how far rays are marched
+uniform float u_trace_length;
+#ifdef MATERIAL_DISPERSION
+uniform float u_dispersion;      // half the IOR spread between the red and blue channels
+#endif    // the scene's bounding diameter: how far rays are marched
 #ifdef HAS_INTERIOR
 in vec3 v_interior;              // world-space vertex->exit vector (pbr.vert)
 #endif
@@ -237,41 +240,27 @@ vec3 outside_radiance(vec3 origin, vec3 dir, float variance) {
     return textureLod(u_env, dir, roughness_to_lod(pow(variance, 0.25))).rgb;
 }
 
-void main() {
-    vec3 v = normalize(u_camera_position - v_world);
-    MaterialInfo m = material_info(v);
-    vec3 n = m.n;
-    // Interpolated normals can face away at the silhouette: bend them to grazing.
-    float nv = dot(n, v);
-    if (nv < 1e-3) n = normalize(n + v * (1e-3 - nv));
-    float cos_i = dot(n, v);
+// Radiance refracted through the object for one IOR: into the front face at n, through the
+// volume (WYMAN: out of the estimated back face; else the first refraction alone) to the
+// opaque layer or the environment. `path` is the length inside, `D` Wyman's exit distance,
+// `tir` whether the exit reflected totally.
+vec3 transmitted(vec3 v, vec3 n, float ior, float roughness, float d_interior, out float path,
+                 out float D, out bool tir) {
     vec3 d = -v;
-    float transmission = u_transmission;
-#ifdef HAS_TRANSMISSION_MAP
-    transmission *= SAMPLE_MAP(transmission, TRANSMISSION_UV).r;
-#endif
-    float thickness = u_thickness;
-#ifdef HAS_THICKNESS_MAP
-    thickness *= SAMPLE_MAP(thickness, THICKNESS_UV).g;
-#endif
-    float eta = 1.0 / u_ior;
+    float cos_i = dot(n, v);
+    float eta = 1.0 / ior;
     vec3 r1;
     refract_ray(d, n, eta, r1);           // TIR on entry only for IOR < 1, where F = 1
-    float F = fresnel_dielectric(cos_i, eta);
-#ifdef HAS_INTERIOR
-    float d_interior = length(v_interior);  // transformed: non-uniform scale holds (4.2.3.2)
-#else
-    float d_interior = thickness;
-#endif
     // Blur of the refracted lookup as a variance in alpha^2 units (lobes add as variances,
     // as in renderer/raytrace.py): a microfacet tilt bends a refracted ray by |1 - eta| where
     // it bends a reflected one by 2, so each interface's lobe is that much narrower than the
     // reflection lobe the mips were prefiltered for. Looked up at roughness variance^(1/4).
-    float alpha = m.roughness * m.roughness;
+    float alpha = roughness * roughness;
     float variance = pow(alpha * abs(1.0 - eta) * 0.5, 2.0);
     float variance_reflected = variance;
-    float path = d_interior;
-    bool tir = false;
+    path = d_interior;
+    tir = false;
+    D = d_interior;
     vec3 through;
 #ifdef WYMAN
     vec2 uv0 = gl_FragCoord.xy / u_viewport;
@@ -281,7 +270,7 @@ void main() {
 #ifndef HAS_INTERIOR
     d_interior = d_view;  // no baked vectors (a mesh previewed as glass): D_d alone
 #endif
-    float D = exit_distance(cos_i, dot(r1, -n), eta, d_view, d_interior);
+    D = exit_distance(cos_i, dot(r1, -n), eta, d_view, d_interior);
     bool on_surface = refine_exit(u_back_position, u_back_normal, 1.0, v_world, r1, D);
     path = D;
     vec3 p_exit = v_world + r1 * D;
@@ -300,11 +289,11 @@ void main() {
             && surface_at(u_back_position, u_back_normal, uv0, uv, bpos, n2)) {
         float alpha_back = bpos.w * bpos.w;
         variance_reflected = variance + alpha_back * alpha_back;
-        variance += pow(alpha_back * abs(1.0 - u_ior) * 0.5, 2.0);
+        variance += pow(alpha_back * abs(1.0 - ior) * 0.5, 2.0);
         vec3 r2;
-        if (refract_ray(r1, -n2, u_ior, r2)) {
+        if (refract_ray(r1, -n2, ior, r2)) {
             dir = r2;
-            exit_F = fresnel_dielectric(dot(r1, n2), u_ior);
+            exit_F = fresnel_dielectric(dot(r1, n2), ior);
             exit_loss = single_scatter_albedo(dot(r1, n2), bpos.w);
             exit_refl = reflect(r1, n2);
         } else {
@@ -319,7 +308,7 @@ void main() {
             vec3 n3, r3;
             dir = r1;
             if (on_surface && second_exit(p_exit, r_in, uv0, D2, n3)
-                    && refract_ray(r_in, -n3, u_ior, r3)) {
+                    && refract_ray(r_in, -n3, ior, r3)) {
                 dir = r3;
                 origin = p_exit + r_in * D2;
                 path += D2;
@@ -335,7 +324,51 @@ void main() {
 #else
     through = outside_radiance(v_world, r1, variance);
 #endif
-    vec3 refracted = through * beer_lambert(u_sigma, path) * m.base_color.rgb;
+    return through;
+}
+
+void main() {
+    vec3 v = normalize(u_camera_position - v_world);
+    MaterialInfo m = material_info(v);
+    vec3 n = m.n;
+    // Interpolated normals can face away at the silhouette: bend them to grazing.
+    float nv = dot(n, v);
+    if (nv < 1e-3) n = normalize(n + v * (1e-3 - nv));
+    float cos_i = dot(n, v);
+    vec3 d = -v;
+    float transmission = u_transmission;
+#ifdef HAS_TRANSMISSION_MAP
+    transmission *= SAMPLE_MAP(transmission, TRANSMISSION_UV).r;
+#endif
+    float thickness = u_thickness;
+#ifdef HAS_THICKNESS_MAP
+    thickness *= SAMPLE_MAP(thickness, THICKNESS_UV).g;
+#endif
+    float F = fresnel_dielectric(cos_i, 1.0 / u_ior);
+#ifdef HAS_INTERIOR
+    float d_interior = length(v_interior);  // transformed: non-uniform scale holds (4.2.3.2)
+#else
+    float d_interior = thickness;
+#endif
+    float D;
+    bool tir;
+#ifdef MATERIAL_DISPERSION
+    // KHR_materials_dispersion: each channel refracts with its own IOR (the spread about the
+    // IOR given by the Abbe number, u_dispersion = half the spread), and keeps its own path
+    vec3 path, through;
+    float path_c;
+    bool tir_c;
+    through.r = transmitted(v, n, u_ior - u_dispersion, m.roughness, d_interior, path_c, D, tir_c).r;
+    path.r = path_c;
+    through.b = transmitted(v, n, u_ior + u_dispersion, m.roughness, d_interior, path_c, D, tir_c).b;
+    path.b = path_c;
+    through.g = transmitted(v, n, u_ior, m.roughness, d_interior, path_c, D, tir).g;
+    path.g = path_c;
+#else
+    float path;
+    vec3 through = transmitted(v, n, u_ior, m.roughness, d_interior, path, D, tir);
+#endif
+    vec3 refracted = through * exp(-u_sigma * max(path, 0.0)) * m.base_color.rgb;
 
     float dielectric = 1.0 - m.metallic;
     vec2 ab = texture(u_brdf_lut, vec2(cos_i, m.roughness)).rg;
@@ -349,7 +382,7 @@ void main() {
     vec3 reflected = env_radiance(reflect(d, n), m.roughness);
     Lobes lobes = ibl_lobes(m, v);  // sheen and clearcoat over the glass, as on opaque
     // what the debug view shows: the throughput, share x tint x volume attenuation
-    lobes.transmission = kr * beer_lambert(u_sigma, path) * m.base_color.rgb;
+    lobes.transmission = kr * exp(-u_sigma * max(path, 0.0)) * m.base_color.rgb;
     lobes.base = (ks * reflected + kd * m.base_color.rgb * env_diffuse(n)) * m.occlusion
                + kr * refracted;
 #if LIGHT_COUNT > 0
@@ -362,6 +395,7 @@ void main() {
     vec3 color = compose(m, v, lobes, u_brdf_lut);
 #if defined(DEBUG_VIEW) && defined(WYMAN)
 #if DEBUG_VIEW == 1
+    vec4 nback0 = texelFetch(u_back_normal, ivec2(gl_FragCoord.xy), 0);
     color = nback0.w > 0.5 ? nback0.xyz * 0.5 + 0.5 : vec3(0.0);  // paper Fig. 5
 #elif DEBUG_VIEW == 2
     if (tir) color = vec3(1.0, 0.0, 0.0);                          // paper Fig. 6
