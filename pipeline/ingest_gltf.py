@@ -37,11 +37,11 @@ from core.scene import (
 
 from . import deadline
 from .gltf_decode import MESHOPT_EXTENSIONS, draco_primitive, meshopt_view
+from .gltf_materials import MATERIAL_EXTENSIONS, read_lobes
 from .gltf_skin import morph
 from .gltf_skin import skin as skin_vertices
 from .gltf_specgloss import conversion_textures, convert_factors
 from .images import DeferredTexture, probe_image
-from .gltf_materials import MATERIAL_EXTENSIONS, read_lobes
 from .limits import Limits
 from .paths import resolve_reference
 from .wire import LINE_LOOP, LINE_STRIP, LINES, POINTS, octahedra, segments, tubes

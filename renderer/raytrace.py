@@ -36,7 +36,6 @@ between centre rays is missed (documented limit).
 from __future__ import annotations
 
 import dataclasses
-
 import logging
 import math
 import time

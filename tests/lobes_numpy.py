@@ -36,14 +36,14 @@ def sheen_albedo(n: int = 32, theta: int = 256, phi: int = 128) -> np.ndarray:
     cl = (np.arange(theta) + 0.5) / theta
     ph = 2 * np.pi * (np.arange(phi) + 0.5) / phi
     sl = np.sqrt(1 - cl ** 2)
-    l = np.stack(np.broadcast_arrays(sl[:, None] * np.cos(ph), sl[:, None] * np.sin(ph),
-                                     cl[:, None]), -1).reshape(-1, 3)
+    ls = np.stack(np.broadcast_arrays(sl[:, None] * np.cos(ph), sl[:, None] * np.sin(ph),
+                                      cl[:, None]), -1).reshape(-1, 3)
     v = np.stack([np.sqrt(1 - nv ** 2), np.zeros(n), nv], -1)
-    h = v[:, None, :] + l[None]
+    h = v[:, None, :] + ls[None]
     nh = h[..., 2] / np.linalg.norm(h, axis=-1)
     out = np.zeros((n, n), np.float32)
     for j, r in enumerate((np.arange(n) + 0.5) / n):
-        f = d_charlie(r, nh) * v_sheen(nv[:, None], l[None, :, 2], r) * l[None, :, 2]
+        f = d_charlie(r, nh) * v_sheen(nv[:, None], ls[None, :, 2], r) * ls[None, :, 2]
         out[j] = np.minimum(f.sum(1) * (2 * np.pi / (theta * phi)), 1.0)
     return out
 

@@ -8,15 +8,15 @@ import dataclasses
 import numpy as np
 import pytest
 from PIL import Image
+from test_render_goldens import BAD_PIXELS, GOLDENS, MEAN_FLIP
 
 import pipeline
 from core.baked import BakedAsset
 from core.cubemap import default_face_size
+from core.options import RenderOptions
 from pipeline.panorama import DEFAULT_ENVIRONMENT
 from renderer import render
 from renderer.camera import frame_bounds
-from core.options import RenderOptions
-from test_render_goldens import BAD_PIXELS, GOLDENS, MEAN_FLIP
 
 SIZE = 256
 SAMPLES = ("ClearCoatTest", "SheenCloth", "SpecularTest", "TransmissionRoughnessTest",

@@ -4,15 +4,13 @@ pixels the object covers (bench.reference.relative_mae), thresholds stated per l
 values measured when they were set."""
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 
 from bench import scenes
 from bench.reference import relative_mae, render_reference
-from core.scene import Material
 from core.options import RenderOptions
+from core.scene import Material
 from renderer.render import render
 
 mi = pytest.importorskip("mitsuba")

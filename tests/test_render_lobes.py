@@ -7,12 +7,11 @@ import dataclasses
 
 import numpy as np
 import pytest
+from test_render_physics import _LUT, constant_env, interior, make_env, opts, sphere_asset, sphere_geometry
 
 from core.baked import BakedAsset
 from core.options import RenderOptions
 from renderer.render import render
-from test_render_physics import (_LUT, constant_env, interior, make_env, opts, sphere_asset,
-                                 sphere_geometry)
 
 ENV = constant_env(1.0)
 N = _LUT.shape[0]

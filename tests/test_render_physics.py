@@ -10,12 +10,12 @@ import math
 import numpy as np
 import pytest
 import trimesh
+from lobes_numpy import sheen_albedo
 
 from core.baked import BakedAsset, BakedEnvironment, BakedMesh
 from core.cubemap import face_directions, sample_cube
 from core.options import MaterialOverride, RenderOptions
 from core.scene import Material
-from lobes_numpy import sheen_albedo
 from renderer import gpu
 from renderer.camera import frame_bounds
 from renderer.render import UnsupportedMethod, render
