@@ -120,7 +120,7 @@ def write_glb(spec: SceneSpec, path: str | Path) -> Path:
     pos, nrm, idx = mesh_arrays(spec.mesh)
     blob = pos.tobytes() + nrm.tobytes() + idx.tobytes()
     mat = spec.material
-    extensions = {}
+    extensions: dict[str, dict[str, Any]] = {}
     if mat.transmission > 0:
         extensions["KHR_materials_transmission"] = {"transmissionFactor": mat.transmission}
     if mat.ior != 1.5:
