@@ -9,7 +9,7 @@
 #include "lobes.glsl"
 
 uniform samplerCube u_env;
-uniform sampler2D u_brdf_lut;   // x = N.V, y = roughness -> (scale, bias)
+uniform sampler2D u_brdf_lut;   // x = N.V, y = roughness -> (scale, bias, sheen albedo)
 uniform float u_env_max_lod;
 uniform vec3 u_sh[9];
 

@@ -29,8 +29,9 @@ def env(tmp_path_factory):
 def ours(spec: scenes.SceneSpec, env, method: str, tmp) -> np.ndarray:
     asset = scenes.baked_asset(spec, tmp)
     # the background in too: the reference's edge pixels mix it in (its beauty pass shows it)
-    return render(asset, env, RenderOptions(width=SIZE, height=SIZE, method=method,
-                                            tonemap="none")).linear
+    return render(asset, env, RenderOptions(width=SIZE, height=SIZE, method=method, tonemap="none",
+                                            yaw=spec.yaw, pitch=spec.pitch, fov=spec.fov,
+                                            distance=spec.distance)).linear
 
 
 # (roughness, IOR) -> thresholds for raytrace and wyman, ~25% above what was measured at
