@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import moderngl
 import numpy as np
 
-from .render import DrawItem, Pass, register_method
+from .render import FIRST_FREE_UNIT, DrawItem, Pass, register_method
 
 log = logging.getLogger(__name__)
 
@@ -43,10 +43,9 @@ DEFAULT_TIR = "reflect"
 EXIT_REFINE_STEPS = 2
 DEBUG_VIEWS = {"backface_normals": 1, "tir": 2, "exit_distance": 3}
 MAX_TARGETS = 6  # (kind, size) entries: back, front and opaque layers for two sizes
-# Texture units above the material's (render.Pass.draw binds 0, 1 and 2.. one per slot, at
-# most len(render._SLOTS) = 12 of them).
-_UNIT_BACK_POSITION, _UNIT_BACK_NORMAL, _UNIT_OPAQUE_COLOR, _UNIT_OPAQUE_DEPTH = 16, 17, 18, 19
-_UNIT_FRONT_POSITION, _UNIT_FRONT_NORMAL = 20, 21
+# Texture units above the material's (render.Pass.draw binds 0, 1 and one per material slot).
+(_UNIT_BACK_POSITION, _UNIT_BACK_NORMAL, _UNIT_OPAQUE_COLOR, _UNIT_OPAQUE_DEPTH,
+ _UNIT_FRONT_POSITION, _UNIT_FRONT_NORMAL) = range(FIRST_FREE_UNIT, FIRST_FREE_UNIT + 6)
 
 stats = {"backface_passes": 0, "frontface_passes": 0, "back_allocations": 0,
          "front_allocations": 0, "opaque_allocations": 0, "opaque_copies": 0,

@@ -49,6 +49,9 @@ _LOBE_OF_SLOT = {"specular": "specular", "specular_color": "specular", "clearcoa
                  "diffuse_transmission_color": "diffuse_transmission"}
 _LOBES = ("ior", "specular", "clearcoat", "sheen", "iridescence", "anisotropy",
           "diffuse_transmission", "dispersion")
+# Texture units: 0 environment, 1 BRDF LUT, then one per material slot; passes that bind more
+# (renderer.refraction) start at FIRST_FREE_UNIT.
+FIRST_FREE_UNIT = 2 + len(_SLOTS)
 MATERIAL_DEBUG_VIEWS = {"base": 1, "clearcoat": 2, "sheen": 3, "specular": 4, "transmission": 5,
                         "iridescence": 6}
 
