@@ -121,7 +121,8 @@ class Material:
 
     def uses(self, lobe: str) -> bool:
         """Whether the material needs `lobe`'s shader code ("ior", "specular", "clearcoat",
-        "sheen", "iridescence", "anisotropy", "diffuse_transmission", "dispersion"): the defaults of an extension cost nothing."""
+        "sheen", "iridescence", "anisotropy", "diffuse_transmission", "dispersion"): the
+        defaults of an extension cost nothing."""
         if lobe == "ior":
             return self.ior != 1.5
         if lobe == "specular":
