@@ -3,10 +3,48 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from functools import partial
+from typing import Callable
 
 import numpy as np
 
-from core.scene import Light, Material, SceneCamera, Texture
+from core.scene import Light, Material, Sampler, SceneCamera, Texture
+
+
+class BakedTexture:
+    """A texture as baked: a mip chain (RGBA8 levels, level 0 first, see core.mips) per
+    colour space the materials read it in (sRGB for colour slots, linear for data), capped at
+    the size the cache was baked for. `load(srgb)` yields a chain; it runs once per space, on
+    first use (from the cache: read, checksummed and decompressed then)."""
+
+    def __init__(self, name: str, sampler: Sampler, source: str, size: tuple[int, int],
+                 spaces: tuple[bool, ...], load: Callable[[bool], list[np.ndarray]]):
+        self.name, self.sampler, self.source = name, sampler, source
+        self.size = (int(size[0]), int(size[1]))  # level 0 height, width
+        self.spaces = tuple(spaces)
+        self._load, self._chains = load, {}
+
+    @classmethod
+    def from_texture(cls, tex: Texture, spaces=(True, False), cap: int | None = None) -> "BakedTexture":
+        """Mips of a decoded Texture, built on first use (hand-made assets, fresh bakes)."""
+        from .mips import capped_size
+        return cls(tex.name, tex.sampler, tex.source, capped_size(*tex.image.shape[:2], cap),
+                   spaces, partial(_chain_of, tex, cap))
+
+    def mips(self, srgb: bool) -> list[np.ndarray]:
+        """The chain in the requested space, or in the baked one where only that exists."""
+        space = srgb if srgb in self.spaces or not self.spaces else self.spaces[0]
+        if space not in self._chains:
+            self._chains[space] = self._load(space)
+        return self._chains[space]
+
+    def __repr__(self) -> str:
+        return f"BakedTexture({self.name!r}, {self.size[1]}x{self.size[0]}, loaded {sorted(self._chains)})"
+
+
+def _chain_of(tex: Texture, cap: int | None, srgb: bool) -> list[np.ndarray]:
+    from .mips import mip_chain
+    return mip_chain(tex.image, srgb, cap)
 
 
 @dataclass
@@ -36,7 +74,7 @@ class BakedAsset:
     source: str
     format: str
     meshes: list[BakedMesh]
-    textures: list[Texture]
+    textures: list[BakedTexture]     # plain Textures given here are wrapped (mips on first use)
     bounds: np.ndarray               # 2 x 3 world space
     lights: list[Light] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
@@ -44,6 +82,10 @@ class BakedAsset:
     variants: list[str] = field(default_factory=list)     # material variant names (glTF)
     cameras: list[SceneCamera] = field(default_factory=list)  # the asset's own cameras
     extent: np.ndarray | None = None  # 2 x 3 bounds incl. backdrops, when wider than `bounds`
+
+    def __post_init__(self):
+        self.textures = [t if isinstance(t, BakedTexture) else BakedTexture.from_texture(t)
+                         for t in self.textures]
 
     @property
     def triangle_count(self) -> int:

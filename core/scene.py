@@ -18,6 +18,8 @@ AlphaMode = Literal["OPAQUE", "MASK", "BLEND"]
 
 # OpenGL / glTF sampler enums.
 NEAREST, LINEAR = 9728, 9729
+# Material texture slots whose images are sRGB-encoded colour; every other slot holds linear data.
+SRGB_TEXTURE_SLOTS = ("base_color_texture", "emissive_texture")
 LINEAR_MIPMAP_LINEAR = 9987
 REPEAT, CLAMP_TO_EDGE, MIRRORED_REPEAT = 10497, 33071, 33648
 

@@ -175,7 +175,7 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     t0 = time.perf_counter()
     ctx = context.get_context()
     uploads_before = dict(gpu.stats)
-    gasset = gpu.asset(asset)
+    gasset = gpu.asset(asset, max(options.width, options.height))
     genv = gpu.environment(env)
     t_upload = time.perf_counter()
 
