@@ -23,6 +23,7 @@ import statistics
 import tempfile
 import time
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -67,7 +68,8 @@ def _interior_meshes(assets: Path):
         out.append((path.name, [(m.positions, m.normals, m.indices) for m in scene.meshes]))
     for kind in ("sphere", "bunny", "torus"):
         out.append((f"glass {kind}", [mesh_arrays(kind)]))
-    for label, m in (("bunny.ply", trimesh.load(assets / "mesh" / "bunny.ply", process=False)),
+    bunny = cast(trimesh.Trimesh, trimesh.load(assets / "mesh" / "bunny.ply", process=False))
+    for label, m in (("bunny.ply", bunny),
                      ("torus 100k", trimesh.creation.torus(1.0, 0.3, major_sections=250, minor_sections=200))):
         out.append((label, [(np.asarray(m.vertices, np.float32), np.asarray(m.vertex_normals, np.float32),
                              np.asarray(m.faces, np.uint32))]))

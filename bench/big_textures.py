@@ -33,6 +33,7 @@ def build(assets: Path, size: int = 8192) -> Path:
     pos = (np.c_[mesh.positions, np.ones(len(mesh.positions))] @ np.asarray(world).T)[:, :3]
     nrm = mesh.normals @ np.linalg.inv(np.asarray(world)[:3, :3])
     nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    assert mesh.uv0 is not None  # the Duck is textured
     arrays = [pos.astype(np.float32), nrm.astype(np.float32), mesh.uv0.astype(np.float32),
               mesh.indices.astype(np.uint32).ravel()]
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -44,7 +45,7 @@ def build(assets: Path, size: int = 8192) -> Path:
 
 def _base_color(duck: np.ndarray, size: int) -> np.ndarray:
     from PIL import Image
-    img = np.asarray(Image.fromarray(duck[..., :3]).resize((size, size), Image.BICUBIC), np.float32)
+    img = np.asarray(Image.fromarray(duck[..., :3]).resize((size, size), Image.Resampling.BICUBIC), np.float32)
     # detail the full resolution shows and a capped bake must average: a fine weave plus noise
     y, x = np.mgrid[:size, :size].astype(np.float32)
     weave = 10 * np.sin(x * 0.9) * np.sin(y * 0.7)
@@ -58,7 +59,7 @@ def _smooth_noise(size: int, cells: int, seed: int) -> np.ndarray:
     """Noise in [-1, 1] with `cells` features across, bicubically upsampled."""
     from PIL import Image
     g = np.random.default_rng(seed).random((cells, cells), np.float32)
-    return np.asarray(Image.fromarray(g).resize((size, size), Image.BICUBIC), np.float32) * 2 - 1
+    return np.asarray(Image.fromarray(g).resize((size, size), Image.Resampling.BICUBIC), np.float32) * 2 - 1
 
 
 def _metal_rough(height: np.ndarray) -> np.ndarray:

@@ -12,6 +12,8 @@ import argparse
 import io
 import statistics
 import time
+from functools import partial
+from typing import Callable
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -35,12 +37,10 @@ def run(args: argparse.Namespace) -> int:
     cache = args.cache or tempfile.mkdtemp(prefix="bench-encode-")
     asset = pipeline.bake_asset(ASSETS / "gltf" / "Duck.glb", cache)
 
-    def pillow(fmt, **kw):
-        def enc(px):
-            buf = io.BytesIO()
-            Image.fromarray(px).save(buf, fmt, **kw)
-            return buf.getvalue()
-        return enc
+    def pillow(px, fmt, **kw) -> bytes:
+        buf = io.BytesIO()
+        Image.fromarray(px).save(buf, fmt, **kw)
+        return buf.getvalue()
 
     print(f"{'px':>5} {'image':>12} {'encoder':>26} {'ms':>7} {'KB':>8}")
     for size in (int(s) for s in args.sizes.split(",")):
@@ -51,12 +51,13 @@ def run(args: argparse.Namespace) -> int:
             px = frame.rgba8[..., :3].copy() if background == "env" else frame.rgba8
             decoded = np.asarray(Image.open(io.BytesIO(frame.encode("png"))))
             assert np.array_equal(decoded, px), "PNG does not decode to the frame's pixels"
-            cases = {"ours png": lambda f=frame: f.encode("png"),
-                     "pillow png level 1": lambda: pillow("PNG", compress_level=1)(px),
-                     "pillow png level 6": lambda: pillow("PNG", compress_level=6)(px),
-                     "ours webp q90 (method 0)": lambda f=frame: f.encode("webp"),
-                     "pillow webp q90 method 4": lambda: pillow("WEBP", quality=90)(px),
-                     "ours jpeg q90": lambda f=frame: f.encode("jpeg")}
+            cases: dict[str, Callable[[], bytes]] = {
+                "ours png": partial(frame.encode, "png"),
+                "pillow png level 1": partial(pillow, px, "PNG", compress_level=1),
+                "pillow png level 6": partial(pillow, px, "PNG", compress_level=6),
+                "ours webp q90 (method 0)": partial(frame.encode, "webp"),
+                "pillow webp q90 method 4": partial(pillow, px, "WEBP", quality=90),
+                "ours jpeg q90": partial(frame.encode, "jpeg")}
             for name, fn in cases.items():
                 times, data = [], b""
                 for _ in range(args.repeat):

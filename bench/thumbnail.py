@@ -67,7 +67,8 @@ def run(args: argparse.Namespace) -> int:
     tools = [t for t in args.tools.split(",") if t]
     results = []
     for name in args.assets.split(","):
-        src = big_textures.build(assets_root) if name == big_textures.NAME else assets_root / ASSETS[name]
+        rel = ASSETS[name]
+        src = big_textures.build(assets_root) if rel is None else assets_root / rel
         baked = pipeline.bake_asset(src, cache)  # ours renders from the cache, as the service does
         if name == big_textures.NAME:
             _texture_report(src, baked, cache, env_name)
@@ -95,8 +96,8 @@ def _texture_report(src: Path, baked, cache: Path, env_name: str, px: int = 1024
     import numpy as np
 
     import pipeline
-    from pipeline.bake import build_baked
     from core.options import RenderOptions
+    from pipeline.bake import build_baked
     from renderer import render
     from renderer.auto import environment_face_size
     entry = cache / "assets" / baked.key

@@ -22,13 +22,15 @@ class BakedTexture:
         self.name, self.sampler, self.source = name, sampler, source
         self.size = (int(size[0]), int(size[1]))  # level 0 height, width
         self.spaces = tuple(spaces)
-        self._load, self._chains = load, {}
+        self._load = load
+        self._chains: dict[bool, list[np.ndarray]] = {}
 
     @classmethod
     def from_texture(cls, tex: Texture, spaces=(True, False), cap: int | None = None) -> "BakedTexture":
         """Mips of a decoded Texture, built on first use (hand-made assets, fresh bakes)."""
         from .mips import capped_size
-        return cls(tex.name, tex.sampler, tex.source, capped_size(*tex.image.shape[:2], cap),
+        h, w = tex.image.shape[:2]
+        return cls(tex.name, tex.sampler, tex.source, capped_size(h, w, cap),
                    spaces, partial(_chain_of, tex, cap))
 
     def mips(self, srgb: bool) -> list[np.ndarray]:

@@ -34,7 +34,8 @@ def mip_chain(image: np.ndarray, srgb: bool, cap: int | None = None) -> list[np.
     """RGBA8 levels of `image` (H x W x 4 uint8) from the first one no larger than `cap` on its
     longer side (the source itself when it fits) down to 1 x 1."""
     image = np.ascontiguousarray(image, np.uint8)
-    factor = _factor(*image.shape[:2], cap)
+    h, w = image.shape[:2]
+    factor = _factor(h, w, cap)
     if factor == 1:
         chain, cur = [image], _to_float(image, srgb)
     else:

@@ -25,8 +25,7 @@ from core.baked import BakedAsset, BakedEnvironment, BakedMesh, BakedTexture
 from core.cubemap import DEFAULT_FACE_SIZE
 from core.errors import MissingFile, UnsupportedFormat
 from core.mips import level_shapes, texture_size_for
-from core.scene import (SRGB_TEXTURE_SLOTS, Light, Material, Sampler, Scene, SceneCamera,
-                        TextureRef, extent)
+from core.scene import SRGB_TEXTURE_SLOTS, Light, Material, Sampler, Scene, SceneCamera, TextureRef, extent
 
 from . import subdivision
 from .cache import BAKE_FORMAT_VERSION, Cache, Entry, NotInCache, SourceFiles

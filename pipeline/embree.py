@@ -113,9 +113,9 @@ class TriangleScene:
         packets = -(-n // PACKET)
         buf = _aligned_words(packets * _ROWS * PACKET).reshape(packets, _ROWS, PACKET)
         f = buf.view(np.float32)
-        lanes = np.zeros((packets * PACKET, 6), np.float32)  # tail lanes: zero rays, ignored
-        lanes[:n, :3], lanes[:n, 3:] = origins, directions
-        lanes = lanes.reshape(packets, PACKET, 6)
+        flat = np.zeros((packets * PACKET, 6), np.float32)  # tail lanes: zero rays, ignored
+        flat[:n, :3], flat[:n, 3:] = origins, directions
+        lanes = flat.reshape(packets, PACKET, 6)
         for axis in range(3):
             f[:, axis] = lanes[..., axis]
             f[:, 4 + axis] = lanes[..., 3 + axis]

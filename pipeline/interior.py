@@ -95,6 +95,7 @@ def interior_vectors(positions: np.ndarray, normals: np.ndarray, indices: np.nda
             break
         d = direction[live]
         origin = p[live] + d * travelled[live, None]
+        assert scene is not None  # len(tris) > 0
         t = scene.closest(origin, d)
         found = np.isfinite(t)
         rays += len(live)

@@ -173,6 +173,7 @@ def _embreex_reference(positions, normals, indices, epsilon):
     Kept here to hold the new engine to the old results."""
     from embreex import rtcore_scene
     from embreex.mesh_construction import TriangleMesh
+
     from pipeline.interior import GRAZE_RETRIES, _box_exit
     p = np.ascontiguousarray(positions, np.float32)
     n = np.asarray(normals, np.float32)

@@ -5,11 +5,11 @@ import pickle
 
 import numpy as np
 import pytest
-
 from gltf_builder import CUBE_INDICES, CUBE_POSITIONS, Builder, png_bytes
+
+from core.mips import level_shapes, mip_chain, texture_size_for
 from pipeline import bake_asset, load_baked
 from pipeline.cache import CorruptEntry
-from core.mips import level_shapes, mip_chain, texture_size_for
 
 
 def _srgb_to_linear(c):
@@ -85,10 +85,11 @@ def _textured_cube(path, texture: np.ndarray):
 
 
 def test_bake_stores_capped_compressed_chains_and_renders_upload_by_need(tmp_path):
-    from renderer import gpu
-    from core.options import RenderOptions
-    from renderer.render import render
     from test_render_physics import constant_env
+
+    from core.options import RenderOptions
+    from renderer import gpu
+    from renderer.render import render
 
     img = checkerboard(2048)
     src = _textured_cube(tmp_path / "cube.glb", img)
