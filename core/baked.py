@@ -40,6 +40,12 @@ class BakedTexture:
             self._chains[space] = self._load(space)
         return self._chains[space]
 
+    @property
+    def image(self) -> np.ndarray:
+        """Level 0 as baked, in the first space it is read in (under the cap: the decoded
+        source image, as scene Textures have it)."""
+        return self.mips(self.spaces[0] if self.spaces else True)[0]
+
     def __repr__(self) -> str:
         return f"BakedTexture({self.name!r}, {self.size[1]}x{self.size[0]}, loaded {sorted(self._chains)})"
 
