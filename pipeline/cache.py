@@ -219,8 +219,8 @@ class Cache:
 
         `arrays` maps file names to what they hold: `x.npz` a dict of arrays, `x.npy` one array
         (loaded without a copy), `x.zst` a list of arrays whose bytes are concatenated and
-        zstd-compressed (texture mip chains; read back as the decompressed bytes: the reader
-        knows the shapes). The checksum covers the bytes on disk, compressed ones included."""
+        zstd-compressed as one frame (texture mip chains; read back still compressed, after
+        the checksum: the reader knows the shapes and decompresses the prefix it needs). The checksum covers the bytes on disk, compressed ones included."""
         final = self.entry_dir(kind, key)
         tmp = self._tmp_dir(f"{kind[:3]}-{key[:16]}")
         try:
@@ -398,7 +398,7 @@ def _encode(name: str, value) -> bytes:
         np.savez(buf, **value)
     elif name.endswith(".zst"):
         import zstandard
-        raw = b"".join(np.ascontiguousarray(a).data.cast("B") for a in value)
+        raw = b"".join(np.ascontiguousarray(a).tobytes() for a in value)
         return zstandard.ZstdCompressor(level=ZSTD_LEVEL).compress(raw)
     else:
         raise ValueError(f"cache files are .npy, .npz or .zst, not {name!r}")
@@ -407,8 +407,7 @@ def _encode(name: str, value) -> bytes:
 
 def _decode(name: str, data: bytearray):
     if name.endswith(".zst"):
-        import zstandard
-        return zstandard.ZstdDecompressor().decompress(data)  # the frame records its size
+        return data  # still compressed: the reader decompresses what it needs (bake._read_chain)
     if name.endswith(".npz"):
         with np.load(io.BytesIO(data), allow_pickle=False) as npz:
             return {k: npz[k] for k in npz.files}

@@ -211,14 +211,13 @@ def _upload_textures(gpu: GpuAsset, baked: BakedAsset, top: int) -> int:
             if not 0 <= ref.texture < len(baked.textures):
                 continue
             tex = baked.textures[ref.texture]
-            chain = tex.mips(key[1])
-            start = next((i for i, lv in enumerate(chain) if max(lv.shape[:2]) <= top), len(chain) - 1)
-            size = chain[start].shape[:2]
+            chain = tex.mips(key[1], top)
+            size = chain[0].shape[:2]
             have = gpu.texture_levels.get(key)
             if have is not None and have[0][0] >= size[0] and have[0][1] >= size[1]:
                 continue
-            gpu.textures[key] = _upload_texture(gpu.textures.get(key), tex, chain[start:], key[1])
-            nbytes = sum(lv.nbytes for lv in chain[start:])
+            gpu.textures[key] = _upload_texture(gpu.textures.get(key), tex, chain, key[1])
+            nbytes = sum(lv.nbytes for lv in chain)
             added += nbytes - (have[1] if have else 0)
             gpu.texture_levels[key] = (size, nbytes)
     gpu.nbytes += added

@@ -105,6 +105,12 @@ def test_bake_stores_capped_compressed_chains_and_renders_upload_by_need(tmp_pat
     np.testing.assert_array_equal(tex.mips(True)[0], baked.textures[0].mips(True)[0])
     _assert_rounded(tex.mips(False)[0], _box_reference(img, 4, False))
     pickle.loads(pickle.dumps(loaded.textures[0]))  # picklable (process pools)
+    # a small render decompresses only the levels it needs (stored smallest first)
+    fresh = load_baked(baked.key, tmp_path / "cache").textures[0]
+    small = fresh.mips(True, 64)
+    assert small[0].shape == (64, 64, 4) and fresh._chains[True][0].shape == (64, 64, 4)
+    np.testing.assert_array_equal(small[0], baked.textures[0].mips(True)[3])
+    assert fresh.mips(True)[0].shape == (512, 512, 4)  # sharper levels: read again, whole
 
     gpu.clear()
     opts = dict(tonemap="none", background="transparent", yaw=30.0, pitch=20.0)
