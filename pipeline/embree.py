@@ -38,6 +38,7 @@ _CHUNK_PACKETS = 256  # packets per thread task: enough work per task to amortis
 
 _lib = None
 _device = None
+_device_pid = 0
 _lock = threading.Lock()
 
 
@@ -72,9 +73,13 @@ def _library() -> ctypes.CDLL:
 
 
 def _get_device():
-    global _device
+    """One Embree device per process (a forked child gets its own: the parent's thread pool
+    does not survive a fork)."""
+    global _device, _device_pid
     with _lock:
-        if _device is None:
+        if _device is None or _device_pid != os.getpid():
+            _pools.clear()
+            _device_pid = os.getpid()
             lib = _library()
             _device = lib.rtcNewDevice(None)
             if not _device:
@@ -153,6 +158,7 @@ _pools: dict[int, ThreadPoolExecutor] = {}
 
 
 def _pool(workers: int) -> ThreadPoolExecutor:
+    _get_device()  # drops pools inherited through a fork
     with _lock:
         if workers not in _pools:
             _pools[workers] = ThreadPoolExecutor(workers, thread_name_prefix="embree")
