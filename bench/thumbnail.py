@@ -7,13 +7,17 @@ Per asset and size, each tool runs in processes of its own (GL contexts do not m
   bake, Mesa's shader cache), then the median of `--cold-repeat` runs.
 - warm: in one process, after a first thumbnail, the median time of the next `--repeat`
   thumbnails rendered into a uint8 RGB(A) array in memory ("+png": plus PNG encoding with the
-  same Pillow settings for every tool), and the median CPU time of the process (all threads,
+  same encoder, renderer.frame.encode_png, for every tool), and the median CPU time of the process (all threads,
   llvmpipe's included) per render: the work a thumbnail costs, much less disturbed than wall
   time when other jobs share the two cores.
 Peers: pyrender (EGL, one directional light from the camera plus ambient: punctual lights,
 no image-based lighting, 4x MSAA) and f3d's Python module (EGL, HDRI = the same panorama with
 `render.hdri.ambient` on and the skybox shown, FXAA, tone mapping). f3d reads no USD in its
 PyPI wheel, so peers get the Teapot as a .glb exported from our bake (same triangles).
+BigTextures8k (bench.big_textures: the Duck with three 8192^2 PNG textures in a 77 MB .glb) is
+the StainedGlassLamp-class case; for it the run also reports the baked texture bytes and the
+FLIP at 1024 px of our render against the same render with full-resolution textures.
+Ours loads the bake by key, as the service's workers do.
 """
 from __future__ import annotations
 
@@ -36,6 +40,7 @@ ASSETS = {
     "ClearCoatTest": "gltf-samples/ClearCoatTest/glTF/ClearCoatTest.gltf",
     "SheenCloth": "gltf-samples/SheenCloth/glTF/SheenCloth.gltf",
     "TransmissionRoughnessTest": "gltf-samples/TransmissionRoughnessTest/glTF/TransmissionRoughnessTest.gltf",
+    "BigTextures8k": None,  # generated: bench.big_textures
 }
 TOOLS = ("ours", "pyrender", "f3d")
 VIEW: dict[str, Any] = {"yaw": 30.0, "pitch": 20.0, "fov": 40.0}
@@ -56,6 +61,7 @@ def run(args: argparse.Namespace) -> int:
     import pipeline
     from pipeline.panorama import DEFAULT_ENVIRONMENT, load_panorama
 
+    from . import big_textures
     from .assets import ASSETS as assets_root
     work = Path(tempfile.mkdtemp(prefix="bench-thumbnail-"))
     cache = Path(args.cache) if args.cache else work / "cache"
@@ -65,11 +71,14 @@ def run(args: argparse.Namespace) -> int:
     tools = [t for t in args.tools.split(",") if t]
     results = []
     for name in args.assets.split(","):
-        src = assets_root / ASSETS[name]
+        rel = ASSETS[name]
+        src = big_textures.build(assets_root) if rel is None else assets_root / rel
         baked = pipeline.bake_asset(src, cache)  # ours renders from the cache, as the service does
+        if name == big_textures.NAME:
+            _texture_report(src, baked, cache, env_name)
         peer_file = str(src) if src.suffix in (".glb", ".gltf") else _export_glb(baked, work / f"{name}.glb")
         for size in sizes:
-            job = {"asset": str(src), "peer_file": peer_file, "size": size, "cache": str(cache),
+            job = {"asset": str(src), "key": baked.key, "peer_file": peer_file, "size": size, "cache": str(cache),
                    "env": env_name, "panorama": panorama, "bounds": baked.bounds.tolist(),
                    "out": str(work / f"{name}-{size}-{{tool}}.png")}
             row = {"asset": name, "size": size, "triangles": baked.triangle_count}
@@ -82,6 +91,37 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=1))
     return 0
+
+
+def _texture_report(src: Path, baked, cache: Path, env_name: str, px: int = 1024) -> None:
+    """Baked texture bytes, and FLIP at `px` against full-resolution textures (mips from the
+    source size, built in memory: no 8k bake written)."""
+    import flip_evaluator
+    import numpy as np
+
+    import pipeline
+    from core.options import RenderOptions
+    from pipeline.bake import build_baked
+    from renderer import render
+    from renderer.auto import environment_face_size
+    entry = cache / "assets" / baked.key
+    tex_bytes = sum(f.stat().st_size for f in entry.glob("texture.*"))
+    src_bytes = src.stat().st_size
+    full = build_baked(pipeline.load_scene(src), "full-resolution", {"thumbnail_size": 1 << 16})
+    errors = {}
+    for bg in ("env", "transparent"):
+        o = RenderOptions(width=px, height=px, background=bg, **VIEW)
+        env = pipeline.bake_environment(env_name, cache, face_size=environment_face_size(baked, o)[0])
+        a, b = render(baked, env, o), render(full, env, o)
+        err, mean, _ = flip_evaluator.evaluate(b.rgba8[..., :3] / np.float32(255),
+                                               a.rgba8[..., :3] / np.float32(255), "LDR",
+                                               applyMagma=False)
+        errors[bg] = mean
+        if bg == "transparent":  # the object's pixels only
+            errors["object"] = float(err[b.rgba8[..., 3] > 0].mean())
+    print(f"{src.name}: source {src_bytes / 1e6:.1f} MB, baked textures {tex_bytes / 1e6:.2f} MB "
+          f"(target <= 32 MB); FLIP at {px} px vs full-resolution textures: frame "
+          f"{errors['env']:.4f}, object pixels {errors['object']:.4f} (target <= 0.02)", flush=True)
 
 
 def _export_glb(baked, path: Path) -> str:
@@ -156,15 +196,10 @@ def _camera(job: dict):
 
 
 def _png(rgb) -> bytes:
-    import io
-
-    import numpy as np
-    from PIL import Image
+    from renderer.frame import encode_png
     if rgb.shape[2] == 4 and rgb[..., 3].min() == 255:
         rgb = rgb[..., :3]  # opaque: RGB, as Frame.encode writes it
-    buf = io.BytesIO()
-    Image.fromarray(np.ascontiguousarray(rgb)).save(buf, "PNG", compress_level=1)
-    return buf.getvalue()
+    return encode_png(rgb)
 
 
 def _ours(job: dict):
@@ -172,7 +207,7 @@ def _ours(job: dict):
     from core.options import RenderOptions
     from renderer import render
     from renderer.auto import environment_face_size
-    asset = pipeline.bake_asset(job["asset"], job["cache"])
+    asset = pipeline.load_baked(job["key"], job["cache"])
     options = RenderOptions(width=job["size"], height=job["size"], **VIEW)
     env = pipeline.bake_environment(job["env"], job["cache"],
                                     face_size=environment_face_size(asset, options)[0])

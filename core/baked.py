@@ -3,10 +3,62 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from functools import partial
+from typing import Callable
 
 import numpy as np
 
-from core.scene import Light, Material, SceneCamera, Texture
+from core.scene import Light, Material, Sampler, SceneCamera, Texture
+
+
+class BakedTexture:
+    """A texture as baked: a mip chain (RGBA8 levels, level 0 first, see core.mips) per
+    colour space the materials read it in (sRGB for colour slots, linear for data), capped at
+    the size the cache was baked for. `load(srgb, top)` yields the levels from the first no
+    larger than `top` texels (None: all) down to 1 x 1; it runs on first use of a space and
+    again only when a larger render needs sharper levels (from the cache: read, checksummed,
+    and only those levels decompressed)."""
+
+    def __init__(self, name: str, sampler: Sampler, source: str, size: tuple[int, int],
+                 spaces: tuple[bool, ...], load: Callable[[bool, int | None], list[np.ndarray]]):
+        self.name, self.sampler, self.source = name, sampler, source
+        self.size = (int(size[0]), int(size[1]))  # level 0 height, width
+        self.spaces = tuple(spaces)
+        self._load = load
+        self._chains: dict[bool, list[np.ndarray]] = {}  # space -> levels loaded (a chain's tail)
+
+    @classmethod
+    def from_texture(cls, tex: Texture, spaces=(True, False), cap: int | None = None) -> "BakedTexture":
+        """Mips of a decoded Texture, built on first use (hand-made assets, fresh bakes)."""
+        from .mips import capped_size
+        h, w = tex.image.shape[:2]
+        return cls(tex.name, tex.sampler, tex.source, capped_size(h, w, cap),
+                   spaces, partial(_chain_of, tex, cap))
+
+    def mips(self, srgb: bool, top: int | None = None) -> list[np.ndarray]:
+        """Levels from the first no larger than `top` texels (None: level 0) down to 1 x 1, in
+        the requested space, or in the baked one where only that exists."""
+        space = srgb if srgb in self.spaces or not self.spaces else self.spaces[0]
+        have = self._chains.get(space)
+        if have is None or max(have[0].shape[:2]) < min(top or 1 << 30, max(self.size)):
+            have = self._chains[space] = self._load(space, top)
+        first = next((i for i, lv in enumerate(have) if top is None or max(lv.shape[:2]) <= top),
+                     len(have) - 1)
+        return have[first:]
+
+    @property
+    def image(self) -> np.ndarray:
+        """Level 0 as baked, in the first space it is read in (under the cap: the decoded
+        source image, as scene Textures have it)."""
+        return self.mips(self.spaces[0] if self.spaces else True)[0]
+
+    def __repr__(self) -> str:
+        return f"BakedTexture({self.name!r}, {self.size[1]}x{self.size[0]}, loaded {sorted(self._chains)})"
+
+
+def _chain_of(tex: Texture, cap: int | None, srgb: bool, top: int | None = None) -> list[np.ndarray]:
+    from .mips import mip_chain
+    return mip_chain(tex.image, srgb, cap)
 
 
 @dataclass
@@ -36,7 +88,7 @@ class BakedAsset:
     source: str
     format: str
     meshes: list[BakedMesh]
-    textures: list[Texture]
+    textures: list[BakedTexture]     # plain Textures given here are wrapped (mips on first use)
     bounds: np.ndarray               # 2 x 3 world space
     lights: list[Light] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
@@ -44,6 +96,10 @@ class BakedAsset:
     variants: list[str] = field(default_factory=list)     # material variant names (glTF)
     cameras: list[SceneCamera] = field(default_factory=list)  # the asset's own cameras
     extent: np.ndarray | None = None  # 2 x 3 bounds incl. backdrops, when wider than `bounds`
+
+    def __post_init__(self):
+        self.textures = [t if isinstance(t, BakedTexture) else BakedTexture.from_texture(t)
+                         for t in self.textures]
 
     @property
     def triangle_count(self) -> int:

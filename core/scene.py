@@ -17,6 +17,12 @@ MaterialClass = Literal["opaque", "mask", "blend", "transmissive"]
 # Material texture slots holding colour (sampled through sRGB decoding); the rest are data.
 SRGB_SLOTS = frozenset({"base_color", "emissive", "specular_color", "sheen_color",
                         "diffuse_transmission_color"})
+
+
+def is_srgb(slot: str) -> bool:
+    """Whether a material slot (`base_color` or `base_color_texture`) holds sRGB colour."""
+    return slot.removesuffix("_texture") in SRGB_SLOTS
+
 AlphaMode = Literal["OPAQUE", "MASK", "BLEND"]
 
 # OpenGL / glTF sampler enums.

@@ -2,7 +2,8 @@
 
 An asset bake is: ingest -> one BakedMesh per (geometry, material) pair carrying every instance's
 world matrix -> interior vectors for transmissive geometry only -> a cache entry holding the
-arrays (meshes.npz, decoded textures in textures.npz) and a manifest with the full material
+arrays (meshes.npz; per texture and colour space a zstd-compressed mip chain capped for the
+largest thumbnail served, texture.<i>.<srgb|linear>.zst) and a manifest with the full material
 values, so rendering never needs the source files again.
 """
 from __future__ import annotations
@@ -14,16 +15,17 @@ import os
 import platform
 import time
 from datetime import datetime, timezone
-from functools import lru_cache
+from functools import lru_cache, partial
 from pathlib import Path
 from typing import Any, cast
 
 import numpy as np
 
-from core.baked import BakedAsset, BakedEnvironment, BakedMesh
+from core.baked import BakedAsset, BakedEnvironment, BakedMesh, BakedTexture
 from core.cubemap import DEFAULT_FACE_SIZE
 from core.errors import MissingFile, UnsupportedFormat
-from core.scene import Light, Material, Sampler, Scene, SceneCamera, Texture, TextureRef, extent
+from core.mips import level_shapes, texture_size_for
+from core.scene import Light, Material, Sampler, Scene, SceneCamera, TextureRef, extent, is_srgb
 
 from . import subdivision
 from .cache import BAKE_FORMAT_VERSION, Cache, Entry, NotInCache, SourceFiles
@@ -32,9 +34,14 @@ from .limits import Limits
 
 log = logging.getLogger(__name__)
 
-# interior_epsilon None: scale-aware (see interior.py); subdivision_levels None: by the cage's
-# coarseness, 0: draw cages as they are (see subdivision.py)
-ASSET_OPTIONS = {"interior_epsilon": None, "subdivision_levels": None}
+# Bake options (all part of the cache key):
+# - interior_epsilon: None = scale-aware (see interior.py);
+# - subdivision_levels: None = by the cage's coarseness, 0: draw cages as they are (see
+#   subdivision.py);
+# - thumbnail_size: the largest thumbnail (longer side, px) the cache is baked for; textures
+#   keep mips from texture_size_for(thumbnail_size) down (1024 px -> 2048^2 texels at most).
+#   A larger render still works, with textures no sharper than that.
+ASSET_OPTIONS = {"interior_epsilon": None, "subdivision_levels": None, "thumbnail_size": 1024}
 PREFILTERS = ("ggx", "paper")
 _MESH_ARRAYS = ("positions", "normals", "indices", "tangents", "uv0", "uv1", "colors", "interior")
 
@@ -45,31 +52,6 @@ def _cache(cache_dir) -> Cache:
 
 def _is_texture(name: str) -> bool:
     return name.startswith("texture.")
-
-
-class CachedTexture(Texture):
-    """A baked texture whose pixels are read from the cache (and checksummed) on first use:
-    a cache hit costs the geometry only, and bake runs that find everything cached read no
-    pixels at all. A corrupt file raises CorruptEntry then (the entry is dropped for rebaking)."""
-    _image: np.ndarray | None
-
-    def __init__(self, name: str, sampler: Sampler, source: str, entry: Entry, file: str):
-        self._entry, self._file = entry, file
-        super().__init__(name=name, image=None, sampler=sampler, source=source)  # type: ignore[arg-type]  # read on first use
-
-    @property
-    def image(self) -> np.ndarray:
-        if self._image is None:
-            self._image = self._entry.read(self._file)
-        return self._image
-
-    @image.setter
-    def image(self, value) -> None:
-        self._image = value
-
-    def __repr__(self) -> str:
-        state = "loaded" if self._image is not None else "not read yet"
-        return f"CachedTexture({self.name!r}, {self._entry.key[:12]}/{self._file}, {state})"
 
 
 # -- assets ------------------------------------------------------------------------------------
@@ -187,11 +169,28 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> Bak
         "environment": None if scene.environment is None else
         os.path.relpath(scene.environment, Path(scene.source).resolve().parent),
     }
+    cap = texture_size_for(opts["thumbnail_size"])
+    spaces = _texture_spaces(scene)
+    textures = [BakedTexture.from_texture(t, spaces[i], cap) for i, t in enumerate(scene.textures)]
     return BakedAsset(key=key, source=str(scene.source), format=scene.format, meshes=meshes,
-                      textures=list(scene.textures), bounds=np.asarray(scene.bounds, np.float64),
+                      textures=textures, bounds=np.asarray(scene.bounds, np.float64),
                       lights=list(scene.lights), warnings=list(scene.warnings), manifest=manifest,
                       variants=list(scene.variants), cameras=list(scene.cameras),
                       extent=extent(scene) if any(i.backdrop for i in scene.instances) else None)
+
+
+def _texture_spaces(scene: Scene) -> list[tuple[bool, ...]]:
+    """Per texture, the colour spaces materials read it in (True: sRGB); unused ones: none."""
+    used: list[set] = [set() for _ in scene.textures]
+    for material in scene.materials:
+        for slot, ref in material.texture_refs().items():
+            if 0 <= ref.texture < len(used):
+                used[ref.texture].add(is_srgb(slot))
+    return [tuple(sorted(u, reverse=True)) for u in used]
+
+
+def _texture_file(i: int, srgb: bool) -> str:
+    return f"texture.{i}.{'srgb' if srgb else 'linear'}.zst"
 
 
 def load_baked(key: str, cache_dir=None) -> BakedAsset:
@@ -224,8 +223,8 @@ def pack_asset(baked: BakedAsset, options: dict) -> tuple[dict, dict[str, dict[s
                           "arrays": present,
                           "variants": {k: material_index[id(v)] for k, v in m.variants.items()}})
     arrays: dict[str, Any] = {"meshes.npz": mesh_arrays}
-    if baked.textures:
-        arrays.update({f"texture.{i}.npy": t.image for i, t in enumerate(baked.textures)})
+    for i, t in enumerate(baked.textures):
+        arrays.update({_texture_file(i, srgb): t.mips(srgb)[::-1] for srgb in t.spaces})  # smallest first
     manifest = {
         **baked.manifest,
         "kind": "asset",
@@ -237,7 +236,8 @@ def pack_asset(baked: BakedAsset, options: dict) -> tuple[dict, dict[str, dict[s
         "meshes": mesh_meta,
         "materials": [_material_to_json(m) for m in materials],
         "textures": [{"name": t.name, "source": t.source, "sampler": dataclasses.asdict(t.sampler),
-                      "shape": list(t.image.shape)} for t in baked.textures],
+                      "size": list(t.size), "spaces": ["srgb" if s else "linear" for s in t.spaces]}
+                     for t in baked.textures],
         "lights": [_light_to_json(light) for light in baked.lights],
         "bounds": np.asarray(baked.bounds).tolist(),
         "warnings": baked.warnings,
@@ -259,8 +259,9 @@ def unpack_asset(entry: Entry) -> BakedAsset:
         variants = {k: materials[v] for k, v in meta.get("variants", {}).items()}
         meshes.append(BakedMesh(name=meta["name"], material=materials[meta["material"]],
                                 variants=variants, **fields))
-    textures: list[Texture] = [CachedTexture(t["name"], Sampler(**t["sampler"]), t["source"], entry, f"texture.{i}.npy")
-                               for i, t in enumerate(m["textures"])]
+    textures = [BakedTexture(t["name"], Sampler(**t["sampler"]), t["source"], tuple(t["size"]),
+                             tuple(s == "srgb" for s in t["spaces"]), partial(_read_chain, entry, i, t["size"]))
+                for i, t in enumerate(m["textures"])]
     return BakedAsset(key=entry.key, source=m["source"], format=m["source_format"], meshes=meshes,
                       textures=textures, bounds=np.asarray(m["bounds"], np.float64),
                       lights=[_light_from_json(d) for d in m["lights"]], warnings=list(m["warnings"]),
@@ -274,6 +275,32 @@ def _camera_from_json(d: dict) -> SceneCamera:
     if d.get("zfar") is None:
         d["zfar"] = math.inf
     return SceneCamera(**d)
+
+
+def _read_chain(entry: Entry, i: int, size, srgb: bool, top: int | None = None) -> list[np.ndarray]:
+    """A baked texture's levels from the first no larger than `top` down: the file is read and
+    checksummed whole (compressed bytes), but it holds the levels smallest first, so only the
+    prefix a render needs is decompressed (a 512 px render of a 2048 px chain: a quarter).
+    Level views share one buffer. CorruptEntry if it fails (the entry is dropped)."""
+    import zstandard
+    name = _texture_file(i, srgb)
+    data = entry.read(name)
+    shapes = level_shapes(*size)[::-1]  # smallest first, as stored
+    if zstandard.frame_content_size(data) != 4 * sum(h * w for h, w in shapes):
+        entry.invalid(name, f"holds {zstandard.frame_content_size(data)} bytes, expected RGBA8 mips of {size}")
+    wanted = [s for s in shapes if top is None or max(s) <= top] or shapes[:1]
+    nbytes = 4 * sum(h * w for h, w in wanted)
+    raw = bytearray()
+    with zstandard.ZstdDecompressor().stream_reader(data) as reader:
+        while len(raw) < nbytes and (chunk := reader.read(nbytes - len(raw))):
+            raw += chunk
+    if len(raw) != nbytes:
+        entry.invalid(name, "truncated compressed stream")
+    levels, offset = [], 0
+    for h, w in wanted:
+        levels.append(np.frombuffer(raw, np.uint8, h * w * 4, offset).reshape(h, w, 4))
+        offset += h * w * 4
+    return levels[::-1]  # level 0 (the largest wanted) first
 
 
 def _finite(x):

@@ -62,7 +62,10 @@ from core.errors import AssetError
 
 log = logging.getLogger(__name__)
 
-BAKE_FORMAT_VERSION = 3  # 2: glTF skins, morphs, instancing, variants, cameras baked; 3: Material lobes
+# 2: glTF skins, morphs, instancing, variants, cameras baked; 3: Material lobes;
+# 4: textures as capped, zstd-compressed mip chains (were full-size .npy)
+BAKE_FORMAT_VERSION = 4
+ZSTD_LEVEL = 9  # texture chains: written once at bake, read by every process (see README figures)
 KINDS = ("assets", "environments")
 MANIFEST = "manifest.json"
 _KEY = re.compile(r"[0-9a-f]{64}")
@@ -151,9 +154,14 @@ class Entry:
         try:
             return _verified(self.path, name, self.manifest["files"][name])
         except _Invalid as exc:
-            if self.cache is not None:
-                self.cache._corrupt(self.kind, self.key, str(exc))
-            raise CorruptEntry(self.path, f"{exc}; entry removed, bake the asset again") from None
+            self.invalid(name, str(exc))
+
+    def invalid(self, name: str, why: str):
+        """A file of this entry that checksummed but does not hold what the manifest says:
+        remove the entry and raise CorruptEntry."""
+        if self.cache is not None:
+            self.cache._corrupt(self.kind, self.key, why if why.startswith(name) else f"{name}: {why}")
+        raise CorruptEntry(self.path, f"{why}; entry removed, bake the asset again")
 
 
 class Cache:
@@ -212,7 +220,9 @@ class Cache:
         `replace`, as after a forced rebake, swap ours in).
 
         `arrays` maps file names to what they hold: `x.npz` a dict of arrays, `x.npy` one array
-        (large ones, e.g. decoded textures: loaded without a copy)."""
+        (loaded without a copy), `x.zst` a list of arrays whose bytes are concatenated and
+        zstd-compressed as one frame (texture mip chains; read back still compressed, after
+        the checksum: the reader knows the shapes and decompresses the prefix it needs). The checksum covers the bytes on disk, compressed ones included."""
         final = self.entry_dir(kind, key)
         tmp = self._tmp_dir(f"{kind[:3]}-{key[:16]}")
         try:
@@ -388,12 +398,18 @@ def _encode(name: str, value) -> bytes:
         np.save(buf, np.ascontiguousarray(value), allow_pickle=False)
     elif name.endswith(".npz"):
         np.savez(buf, **value)
+    elif name.endswith(".zst"):
+        import zstandard
+        raw = b"".join(np.ascontiguousarray(a).tobytes() for a in value)
+        return zstandard.ZstdCompressor(level=ZSTD_LEVEL).compress(raw)
     else:
-        raise ValueError(f"cache files are .npy or .npz, not {name!r}")
+        raise ValueError(f"cache files are .npy, .npz or .zst, not {name!r}")
     return buf.getvalue()
 
 
 def _decode(name: str, data: bytearray):
+    if name.endswith(".zst"):
+        return data  # still compressed: the reader decompresses what it needs (bake._read_chain)
     if name.endswith(".npz"):
         with np.load(io.BytesIO(data), allow_pickle=False) as npz:
             return {k: npz[k] for k in npz.files}

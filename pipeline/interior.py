@@ -1,7 +1,8 @@
 """Interior vectors for refractive meshes (paper §4.2.3.2): per vertex, vertex -> exit point.
 
 For each vertex a ray starts a small, scale-aware epsilon inside the surface and travels along
-the negated vertex normal; Embree finds the first triangle of the mesh's own geometry it hits.
+the negated vertex normal; Embree finds the first triangle of the mesh's own geometry it hits
+(pipeline.embree: the mesh shared in place, a fast-build BVH, packets traced on every core).
 We store the object-space vector from the vertex to that hit (not a bare distance) so the
 renderer can transform it by any world matrix, non-uniform scales included.
 
@@ -54,13 +55,14 @@ class InteriorResult:
 def interior_vectors(positions: np.ndarray, normals: np.ndarray, indices: np.ndarray,
                      epsilon: float | None = None) -> InteriorResult:
     """Object-space vectors from each vertex to where a ray along -normal leaves the mesh."""
-    from embreex import rtcore_scene
-    from embreex.mesh_construction import TriangleMesh
+    from .embree import TriangleScene
 
     p = np.ascontiguousarray(positions, dtype=np.float32)
     n = np.asarray(normals, dtype=np.float32)
-    tris = np.ascontiguousarray(indices, dtype=np.int32).reshape(-1, 3)
+    tris = np.ascontiguousarray(indices, dtype=np.uint32).reshape(-1, 3)
     count = len(p)
+    if len(tris) and int(tris.max()) >= count:  # Embree would read past the vertex buffer
+        raise ValueError(f"triangle index {int(tris.max())} out of range for {count} vertices")
     out = np.zeros((count, 3), np.float32)
     if count == 0:
         return InteriorResult(out, 0, 0, 0, 0.0, 0.0)
@@ -80,9 +82,7 @@ def interior_vectors(positions: np.ndarray, normals: np.ndarray, indices: np.nda
     degenerate = count - len(todo)
 
     start = time.perf_counter()
-    scene = rtcore_scene.EmbreeScene()
-    if len(tris):
-        TriangleMesh(scene, p[tris])  # a triangle soup builds faster in embreex than indices
+    scene = TriangleScene(p, tris) if len(tris) else None
     build = time.perf_counter() - start
 
     start = time.perf_counter()
@@ -95,8 +95,9 @@ def interior_vectors(positions: np.ndarray, normals: np.ndarray, indices: np.nda
             break
         d = direction[live]
         origin = p[live] + d * travelled[live, None]
-        query = scene.run(origin, d, output=1)
-        t, found = query["tfar"], query["primID"] >= 0
+        assert scene is not None  # len(tris) > 0
+        t = scene.closest(origin, d)
+        found = np.isfinite(t)
         rays += len(live)
         grazed = found & (t < epsilon) & (attempt < GRAZE_RETRIES)
         done = found & ~grazed

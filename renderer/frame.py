@@ -9,6 +9,8 @@ from __future__ import annotations
 import io
 import logging
 import os
+import struct
+import zlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -51,8 +53,10 @@ class Frame:
         key = fmt.lower().lstrip(".")
         if key not in _PIL_FORMATS:
             raise ValueError(f"unknown image format {fmt!r}: use png, jpeg or webp")
-        from PIL import Image
         opaque = bool(np.all(self.rgba8[..., 3] == 255))
+        if key == "png":
+            return encode_png(self.rgba8[..., :3] if opaque else self.rgba8)
+        from PIL import Image
         if _PIL_FORMATS[key] == "JPEG" or opaque:
             rgb = self.rgba8[..., :3]
             if not opaque:  # JPEG has no alpha: premultiply onto black
@@ -61,11 +65,9 @@ class Frame:
         else:
             img = Image.fromarray(self.rgba8, "RGBA")
         buf = io.BytesIO()
-        kwargs: dict = {}
-        if _PIL_FORMATS[key] == "PNG":
-            kwargs["compress_level"] = 1  # thumbnails: speed over the last few percent of size
-        else:
-            kwargs["quality"] = int(quality if quality is not None else 90)
+        kwargs: dict = {"quality": int(quality if quality is not None else 90)}
+        if _PIL_FORMATS[key] == "WEBP":
+            kwargs["method"] = 0  # thumbnails: 2-3x faster than the default 4, ~15% larger
         img.save(buf, _PIL_FORMATS[key], **kwargs)
         return buf.getvalue()
 
@@ -83,6 +85,27 @@ class Frame:
                 f.write(data)
         else:
             raise ValueError(f"{path}: unknown output extension (png, jpg, webp, npy, exr)")
+
+
+def encode_png(pixels: np.ndarray) -> bytes:
+    """H x W x 3 (RGB) or 4 (RGBA) uint8 as an 8-bit PNG, for thumbnails: every row with the
+    Sub filter (vectorised here; Pillow's adaptive filtering costs more than it saves at this
+    size) and deflated by ISA-L at level 1, ~5x faster than Pillow's compress_level=1 at 512 px
+    for a slightly smaller file (README: Encoding)."""
+    from isal import isal_zlib
+    h, w, c = pixels.shape
+    rows = np.ascontiguousarray(pixels, np.uint8).reshape(h, w * c)
+    filtered = np.empty((h, w * c + 1), np.uint8)
+    filtered[:, 0] = 1  # filter type Sub: each byte minus the same channel of the pixel left
+    filtered[:, 1:c + 1] = rows[:, :c]
+    np.subtract(rows[:, c:], rows[:, :-c], out=filtered[:, c + 1:])
+    header = struct.pack(">IIBBBBB", w, h, 8, {3: 2, 4: 6}[c], 0, 0, 0)
+    return b"".join((b"\x89PNG\r\n\x1a\n", _png_chunk(b"IHDR", header),
+                     _png_chunk(b"IDAT", isal_zlib.compress(filtered.reshape(-1).data, 1)), _png_chunk(b"IEND", b"")))
+
+
+def _png_chunk(tag: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(data, zlib.crc32(tag)))
 
 
 def write_exr(path: str, linear: np.ndarray) -> None:

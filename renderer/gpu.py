@@ -16,9 +16,9 @@ import moderngl
 import numpy as np
 
 from core import context
-from core.baked import BakedAsset, BakedEnvironment, BakedMesh
-from core.colour import srgb_encode, srgb_to_linear
-from core.scene import CLAMP_TO_EDGE, MIRRORED_REPEAT, REPEAT, SRGB_SLOTS, Light, Texture
+from core.baked import BakedAsset, BakedEnvironment, BakedMesh, BakedTexture
+from core.mips import texture_size_for
+from core.scene import CLAMP_TO_EDGE, MIRRORED_REPEAT, REPEAT, Light, is_srgb
 
 log = logging.getLogger(__name__)
 
@@ -82,6 +82,9 @@ class GpuAsset:
     lights: list[Light]
     bounds: np.ndarray
     nbytes: int
+    # Per texture: (level-0 height, width) uploaded and its bytes. A render needing sharper
+    # levels than a previous one uploaded re-specifies that texture in place (same GL object).
+    texture_levels: dict[tuple[int, bool], tuple[tuple[int, int], int]] = field(default_factory=dict)
 
     def release(self) -> None:
         for m in self.meshes:
@@ -142,11 +145,21 @@ def _cached(table: OrderedDict[str, _Gpu], key: str, upload: Callable[[], _Gpu],
     return gpu
 
 
-def asset(baked: BakedAsset) -> GpuAsset:
-    """The GPU copy of `baked`, uploaded on first use and then reused (LRU by bake key)."""
-    return _cached(_assets, baked.key, lambda: _upload_asset(baked), "asset_uploads",
-                   lambda: len(_assets) > MAX_ASSETS
-                   or sum(a.nbytes for a in _assets.values()) > MAX_ASSET_BYTES)
+def asset(baked: BakedAsset, pixels: int = 1024) -> GpuAsset:
+    """The GPU copy of `baked`, uploaded on first use and then reused (LRU by bake key), with
+    texture levels sharp enough for a render of `pixels` (its longer side) and no sharper
+    (core.mips.texture_size_for: up to twice its size, for atlases)."""
+    gpu = _cached(_assets, baked.key, lambda: _upload_asset(baked), "asset_uploads", _assets_over)
+    if _upload_textures(gpu, baked, texture_size_for(pixels)):
+        while len(_assets) > 1 and _assets_over():
+            _, old = _assets.popitem(last=False)
+            old.release()
+            stats["evictions"] += 1
+    return gpu
+
+
+def _assets_over() -> bool:
+    return len(_assets) > MAX_ASSETS or sum(a.nbytes for a in _assets.values()) > MAX_ASSET_BYTES
 
 
 def environment(baked: BakedEnvironment) -> GpuEnvironment:
@@ -183,16 +196,32 @@ def _upload_asset(baked: BakedAsset) -> GpuAsset:
         centers = transforms[:, :3, :3] @ centre + transforms[:, :3, 3]
         nbytes = sum(b.size for b in buffers.values()) + ibo.size
         meshes.append(GpuMesh(m, buffers, ibo, instances, centers, nbytes))
-    textures: dict[tuple[int, bool], moderngl.Texture] = {}
+    nbytes = sum(m.nbytes for m in meshes)
+    log.info("uploaded %s: %d meshes, %.1f MB", baked.key[:12], len(meshes), nbytes / 2**20)
+    return GpuAsset(baked.key, meshes, {}, list(baked.lights), np.asarray(baked.bounds), nbytes)
+
+
+def _upload_textures(gpu: GpuAsset, baked: BakedAsset, top: int) -> int:
+    """Upload every texture the materials use at levels from `top` texels down, where what
+    is on the GPU is coarser (or absent). Returns the bytes added."""
+    added = 0
     for m in baked.meshes:
         for slot, ref in m.material.texture_refs().items():
-            key = (ref.texture, slot.removesuffix("_texture") in SRGB_SLOTS)
-            if key not in textures and 0 <= ref.texture < len(baked.textures):
-                textures[key] = _upload_texture(ctx, baked.textures[ref.texture], key[1])
-    nbytes = sum(m.nbytes for m in meshes) + sum(t.width * t.height * 4 * 4 // 3 for t in textures.values())
-    log.info("uploaded %s: %d meshes, %d textures, %.1f MB", baked.key[:12], len(meshes),
-             len(textures), nbytes / 2**20)
-    return GpuAsset(baked.key, meshes, textures, list(baked.lights), np.asarray(baked.bounds), nbytes)
+            key = (ref.texture, is_srgb(slot))
+            if not 0 <= ref.texture < len(baked.textures):
+                continue
+            tex = baked.textures[ref.texture]
+            chain = tex.mips(key[1], top)
+            size = chain[0].shape[:2]
+            have = gpu.texture_levels.get(key)
+            if have is not None and have[0][0] >= size[0] and have[0][1] >= size[1]:
+                continue
+            gpu.textures[key] = _upload_texture(gpu.textures.get(key), tex, chain, key[1])
+            nbytes = sum(lv.nbytes for lv in chain)
+            added += nbytes - (have[1] if have else 0)
+            gpu.texture_levels[key] = (size, nbytes)
+    gpu.nbytes += added
+    return added
 
 
 def _instance_data(transforms: np.ndarray) -> np.ndarray:
@@ -207,19 +236,22 @@ def _instance_data(transforms: np.ndarray) -> np.ndarray:
         [model.transpose(0, 2, 1).reshape(-1, 16), normal.transpose(0, 2, 1).reshape(-1, 9)], axis=1))
 
 
-def _upload_texture(ctx: moderngl.Context, tex: Texture, srgb: bool) -> moderngl.Texture:
+def _upload_texture(gl_tex: moderngl.Texture | None, tex: BakedTexture, chain: list[np.ndarray],
+                    srgb: bool) -> moderngl.Texture:
+    """`chain` (RGBA8, level 0 first, as baked) into `gl_tex`, or into a new texture."""
     # Row 0 of the image is its top and glTF's v = 0, and GL's t = 0 is the first row
     # uploaded: uploading rows in order makes glTF UVs sample the right way up.
-    # Mips are built here in numpy (sRGB ones in linear light) and uploaded level by level:
-    # glGenerateMipmap on llvmpipe JIT-compiles a blit shader first (~60 ms of a cold start).
-    chain = mip_chain(np.ascontiguousarray(tex.image, np.uint8), srgb)
+    # The baked mips are uploaded level by level (glGenerateMipmap on llvmpipe JIT-compiles a
+    # blit shader first, ~60 ms of a cold start, and would redo the bake's work).
     h, w = chain[0].shape[:2]
-    gl_tex = ctx.texture((w, h), 4, chain[0], internal_format=GL_SRGB8_ALPHA8 if srgb else None)
+    fmt = GL_SRGB8_ALPHA8 if srgb else GL_RGBA8
+    if gl_tex is None:
+        gl_tex = context.get_context().texture((w, h), 4, None, internal_format=fmt if srgb else None)
     gl = _gl()
     gl_tex.use(0)
-    for level, img in enumerate(chain[1:], start=1):
-        gl.glTexImage2D(GL_TEXTURE_2D, level, GL_SRGB8_ALPHA8 if srgb else GL_RGBA8,
-                        img.shape[1], img.shape[0], 0, GL_RGBA, GL_UNSIGNED_BYTE, img.ctypes.data)
+    for level, img in enumerate(chain):
+        gl.glTexImage2D(GL_TEXTURE_2D, level, fmt, img.shape[1], img.shape[0], 0, GL_RGBA,
+                        GL_UNSIGNED_BYTE, np.ascontiguousarray(img).ctypes.data)
     gl.glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAX_LEVEL, len(chain) - 1)
     gl_tex.filter = (tex.sampler.min_filter, tex.sampler.mag_filter)
     # glTF wrap enums are GL's (REPEAT, CLAMP_TO_EDGE, MIRRORED_REPEAT); moderngl's repeat_x
@@ -227,29 +259,6 @@ def _upload_texture(ctx: moderngl.Context, tex: Texture, srgb: bool) -> moderngl
     for axis, mode in ((GL_TEXTURE_WRAP_S, tex.sampler.wrap_s), (GL_TEXTURE_WRAP_T, tex.sampler.wrap_t)):
         gl.glTexParameteri(GL_TEXTURE_2D, axis, mode if mode in WRAP_MODES else REPEAT)
     return gl_tex
-
-
-def mip_chain(img: np.ndarray, srgb: bool) -> list[np.ndarray]:
-    """2x2 box-filtered mip levels down to 1 x 1 (odd edges dropped), RGBA8; colour of sRGB
-    images is averaged in linear light, alpha always linearly."""
-    chain = [img]
-    if srgb:
-        cur: np.ndarray = np.empty(img.shape, np.float32)
-        cur[..., :3] = srgb_to_linear(img[..., :3])
-        cur[..., 3] = img[..., 3] / np.float32(255)
-    else:
-        cur = img.astype(np.float32) / 255
-    while cur.shape[0] > 1 or cur.shape[1] > 1:
-        h, w = cur.shape[:2]
-        if h > 1:
-            cur = 0.5 * (cur[0:h - 1:2] + cur[1:h:2])
-        if w > 1:
-            cur = 0.5 * (cur[:, 0:w - 1:2] + cur[:, 1:w:2])
-        out = cur.copy()
-        if srgb:
-            out[..., :3] = srgb_encode(out[..., :3])
-        chain.append(np.ascontiguousarray(np.clip(out * 255 + 0.5, 0, 255).astype(np.uint8)))
-    return chain
 
 
 def _upload_environment(baked: BakedEnvironment) -> GpuEnvironment:

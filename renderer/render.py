@@ -24,7 +24,7 @@ import numpy as np
 from core import context
 from core.baked import BakedAsset, BakedEnvironment
 from core.options import RenderOptions, apply_override, background_rgb
-from core.scene import SRGB_SLOTS, Material
+from core.scene import Material, is_srgb
 
 from . import gpu
 from .camera import Camera, request_camera
@@ -193,7 +193,7 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     t0 = time.perf_counter()
     ctx = context.get_context()
     uploads_before = dict(gpu.stats)
-    gasset = gpu.asset(asset)
+    gasset = gpu.asset(asset, max(options.width, options.height))
     genv = gpu.environment(env)
     t_upload = time.perf_counter()
 
@@ -309,7 +309,7 @@ def _material_state(item: DrawItem, p: Pass) -> _MaterialState:
         ref = getattr(m, f"{slot}_texture")
         if ref is None or _LOBE_OF_SLOT.get(slot, "base") not in lobes | {"base"}:
             continue
-        tex = p.asset.textures.get((ref.texture, slot in SRGB_SLOTS))
+        tex = p.asset.textures.get((ref.texture, is_srgb(slot)))
         if tex is None or not uv_sets.get(ref.uv_set, False):
             log.warning("%s: %s texture skipped (no image or no UV set %d)", mesh.name, slot, ref.uv_set)
             continue

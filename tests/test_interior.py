@@ -166,3 +166,73 @@ def test_hit_at_almost_zero_distance_is_skipped():
     r = interior_vectors(vertices, normals, faces)
     assert np.linalg.norm(r.vectors[0]) == pytest.approx(2.0, abs=0.01)
     assert r.rays > len(vertices)  # the grazed ray was continued
+
+
+def _embreex_reference(positions, normals, indices, epsilon):
+    """The pass as it was before pipeline.embree: embreex's own scene, one ray at a time.
+    Kept here to hold the new engine to the old results."""
+    from embreex import rtcore_scene
+    from embreex.mesh_construction import TriangleMesh
+
+    from pipeline.interior import GRAZE_RETRIES, _box_exit
+    p = np.ascontiguousarray(positions, np.float32)
+    n = np.asarray(normals, np.float32)
+    tris = np.ascontiguousarray(indices, np.int32).reshape(-1, 3)
+    length = np.linalg.norm(n, axis=1)
+    usable = np.isfinite(length) & (length > 1e-8)
+    direction = np.zeros_like(p)
+    direction[usable] = -n[usable] / length[usable, None]
+    todo = np.flatnonzero(usable)
+    scene = rtcore_scene.EmbreeScene()
+    TriangleMesh(scene, p[tris])
+    travelled = np.full(len(p), epsilon, np.float32)
+    hit = np.zeros(len(p), bool)
+    live = todo
+    for attempt in range(GRAZE_RETRIES + 1):
+        if len(live) == 0:
+            break
+        d = direction[live]
+        q = scene.run(p[live] + d * travelled[live, None], d, output=1)
+        t, found = q["tfar"], q["primID"] >= 0
+        grazed = found & (t < epsilon) & (attempt < GRAZE_RETRIES)
+        done = found & ~grazed
+        travelled[live[done]] += t[done]
+        hit[live[done]] = True
+        travelled[live[grazed]] += t[grazed] + epsilon
+        live = live[grazed]
+    missed = todo[~hit[todo]]
+    travelled[missed] = _box_exit(p[missed], direction[missed], p.min(0), p.max(0))
+    out = np.zeros_like(p)
+    out[todo] = direction[todo] * travelled[todo, None]
+    return out, len(missed)
+
+
+def _meshes(assets):
+    bunny = trimesh.load(assets / "mesh" / "bunny.ply", process=False)
+    torus = trimesh.creation.torus(1.0, 0.3, major_sections=250, minor_sections=200)  # 100k triangles
+    box = trimesh.creation.box(extents=(2.0, 2.0, 2.0))
+    box.unmerge_vertices()
+    cylinder = trimesh.creation.cylinder(radius=0.5, height=2.0, sections=48)
+    cylinder.update_faces(np.abs(cylinder.face_normals[:, 2]) < 0.5)  # open: caps removed
+    return {"bunny": (bunny.vertices, bunny.vertex_normals, bunny.faces),
+            "torus 100k": (torus.vertices, torus.vertex_normals, torus.faces),
+            "split box (grazing)": (box.vertices, np.repeat(box.face_normals, 3, axis=0), box.faces),
+            "open cylinder (misses)": (cylinder.vertices, cylinder.vertex_normals, cylinder.faces)}
+
+
+def test_vectors_equal_the_embreex_implementation(assets):
+    for name, (p, n, f) in _meshes(assets).items():
+        p, n = np.asarray(p, np.float32), np.asarray(n, np.float32)
+        r = interior_vectors(p, n, f)
+        diag = float(np.linalg.norm(np.ptp(p, axis=0)))
+        eps = max(1e-4 * diag, 16 * float(np.spacing(np.float32(np.abs(p).max()))), 1e-12)
+        ref, misses = _embreex_reference(p, n, f, eps)
+        assert r.misses == misses, name
+        np.testing.assert_allclose(r.vectors, ref, rtol=0, atol=1e-6 * diag, err_msg=name)
+    assert len(f) < 1000 and r.misses > 0  # the open cylinder really exercised the fallback
+
+
+def test_out_of_range_indices_are_refused():
+    with pytest.raises(ValueError, match="out of range"):
+        interior_vectors(np.zeros((3, 3), np.float32), np.ones((3, 3), np.float32),
+                         np.array([[0, 1, 3]], np.uint32))
