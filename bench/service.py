@@ -12,7 +12,11 @@ sooner: the client shares the CPU and is itself Python). Peers, measured in the 
   request at a time interleaved with ours, so the difference is HTTP, the worker pipe and the
   cache write (the warm-render throughput row is `workers` concurrent clients);
 - cold upload: the same work in-process (`load_scene` + `bake_asset` + first render),
-  interleaved with ours.
+  interleaved with ours;
+- under render load: cached thumbnails again, and the bare Starlette floor, while two clients
+  keep 1024 px glass renders running; then 64 px cache-miss renders while two clients keep
+  maximum-cost renders (2048 px glass, the longest budget) running, beside the same 64 px
+  renders on the idle server (the scheduler's cheap lane: they should barely notice).
 """
 from __future__ import annotations
 
@@ -162,6 +166,45 @@ def _distinct_glb(data: bytes, n: int) -> bytes:
     return header + struct.pack("<I4s", len(body), b"JSON") + body + rest
 
 
+class Background:
+    """`clients` threads asking for fresh (cache-miss) renders of `url` until stopped."""
+
+    def __init__(self, url: str, clients: int):
+        import threading
+        self.url, self.stop_flag, self.done = url, threading.Event(), 0
+        self.threads = [threading.Thread(target=self._loop, args=(i,), daemon=True) for i in range(clients)]
+        for t in self.threads:
+            t.start()
+
+    def _loop(self, i: int) -> None:
+        import httpx
+        n = 0
+        with httpx.Client(timeout=300) as c:
+            while not self.stop_flag.is_set():
+                n += 1
+                c.get(f"{self.url}&yaw={100 + i * 1000 + n * 0.37:.2f}")
+                self.done += 1
+
+    def stop(self) -> None:
+        self.stop_flag.set()
+        for t in self.threads:
+            t.join(300)
+
+
+def _cheap_renders(client, url: str, seconds: float, start: float) -> list[float]:
+    """Sequential fresh 64 px renders for `seconds` (at least 8): latencies in ms."""
+    out: list[float] = []
+    end = time.perf_counter() + seconds
+    i = 0
+    while time.perf_counter() < end or len(out) < 8:
+        i += 1
+        t0 = time.perf_counter()
+        r = client.get(f"{url}&yaw={start + 0.01 * i:.2f}")
+        out.append(1000 * (time.perf_counter() - t0))
+        assert r.status_code == 200, r.text
+    return out
+
+
 def _stats(values: list[float]) -> tuple[float, float]:
     values = sorted(values)
     return statistics.median(values), values[min(len(values) - 1, round(0.99 * (len(values) - 1)))]
@@ -261,6 +304,39 @@ def run(args: argparse.Namespace) -> int:
                      1000 / statistics.median(first_ms), 1, 0))
         rows.append(("peer: in-process ingest+bake+render", 1, *_stats(cold_ms),
                      1000 / statistics.median(cold_ms), 1, 0))
+
+        # 4. Under render load. Cached thumbnails (and the bare floor) while 1024 px glass
+        #    renders keep the workers busy; then cheap renders while maximum-cost ones run.
+        peer = subprocess.Popen([sys.executable, "-c", _PEER_APP, str(png), str(peer_port)],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        _wait_http(f"http://127.0.0.1:{peer_port}/image")
+        busy = Background(f"{base}/assets/{asset_id}/thumbnail?size=1024&transmission=1", 2)
+        loaded = {"cached thumbnail, 1024 px renders running": thumb,
+                  "peer: bare Starlette, renders running": f"http://127.0.0.1:{peer_port}/image?size=256"}
+        rounds = {label: [] for label in loaded}
+        for _ in range(ROUNDS):
+            for label, url in loaded.items():
+                p50, p99, _, bad1 = load(url, 1, args.duration / (2 * ROUNDS))
+                _, _, rps, bad2 = load(url, args.connections, args.duration / (2 * ROUNDS))
+                rounds[label].append((p50, p99, rps, bad1 + bad2))
+        busy.stop()
+        peer.terminate()
+        peer.wait()
+        peer = None
+        for label, runs in rounds.items():
+            med = [statistics.median(r[i] for r in runs) for i in range(3)]
+            rows.append((label, 1, *med, args.connections, sum(r[3] for r in runs)))
+        cheap = f"{base}/assets/{asset_id}/thumbnail?size=64"
+        idle_ms = _cheap_renders(client, cheap, args.duration / 2, 500)
+        heavy = Background(f"{base}/assets/{asset_id}/thumbnail?size=2048&transmission=1&ior=2.5"
+                           "&budget_ms=60000", 2)
+        time.sleep(1.0)  # both are queued or running
+        loaded_ms = _cheap_renders(client, cheap, args.duration, 600)
+        heavy.stop()
+        rows.append(("64 px render, 2 max-cost renders running", 1, *_stats(loaded_ms),
+                     1000 / statistics.median(loaded_ms), 1, 0))
+        rows.append(("peer: 64 px render, idle server", 1, *_stats(idle_ms),
+                     1000 / statistics.median(idle_ms), 1, 0))
         client.close()
     finally:
         if peer is not None:
@@ -311,9 +387,9 @@ class InProcess:
 def _print(rows, tool: str, args) -> None:
     print(f"asset-preview bench service  (load: {tool}, {os.cpu_count()} CPUs, "
           f"{args.workers} render workers, Duck.glb at {args.size} px)")
-    print(f"{'phase':38} {'p50 ms':>8} {'p99 ms':>8} {'req/s':>9}  (latency at 1 client, req/s at N clients)")
+    print(f"{'phase':44} {'p50 ms':>8} {'p99 ms':>8} {'req/s':>9}  (latency at 1 client, req/s at N clients)")
     for label, _, p50, p99, rps, conns, bad in rows:
-        print(f"{label:38} {p50:8.2f} {p99:8.2f} {rps:9.1f}  N={conns}" + (f"  ({bad} failed)" if bad else ""))
+        print(f"{label:44} {p50:8.2f} {p99:8.2f} {rps:9.1f}  N={conns}" + (f"  ({bad} failed)" if bad else ""))
     by = {r[0]: r for r in rows}
     cached, floor = by["cached thumbnail"], by["peer: bare Starlette, same bytes"]
     warm = by[f"warm render {args.size} px"]
@@ -321,6 +397,12 @@ def _print(rows, tool: str, args) -> None:
     print(f"cached vs bare Starlette: p50 x{cached[2] / floor[2]:.2f}, req/s x{cached[4] / floor[4]:.2f}")
     print(f"warm render over HTTP vs in-process: p50 x{warm[2] / inproc[2]:.2f} "
           f"(+{warm[2] - inproc[2]:.1f} ms for HTTP, worker pipe and cache write)")
+    if "cached thumbnail, 1024 px renders running" in by:
+        busy, bare = by["cached thumbnail, 1024 px renders running"], by["peer: bare Starlette, renders running"]
+        cheap, idle = by["64 px render, 2 max-cost renders running"], by["peer: 64 px render, idle server"]
+        print(f"renders running: cached p50 {busy[2]:.2f} ms / p99 {busy[3]:.2f} ms, {busy[4]:.0f} req/s "
+              f"(bare Starlette {bare[2]:.2f} / {bare[3]:.2f} ms, {bare[4]:.0f} req/s); "
+              f"64 px p99 {cheap[3]:.0f} ms under max-cost load vs {idle[3]:.0f} ms idle")
     print(f"targets: cached p50 <= 2 ms: {cached[2]:.2f} ms; cached >= 1000 req/s: {cached[4]:.0f}; "
           f"warm {args.size} px p50 <= 30 ms: {warm[2]:.1f} ms")
     if args.json:

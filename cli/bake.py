@@ -36,12 +36,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--prefilter", choices=("ggx", "paper"), default="ggx",
                         help="environment prefiltering: GGX importance sampling (default) or the "
                              "paper's plain Gaussian mip chain")
-    parser.add_argument("--face-size", type=int, default=os.environ.get("ASSET_PREVIEW_FACE_SIZE", "256"),
-                        metavar="PX", help="environment cube face size, a power of two (default 256)")
-    parser.add_argument("--workers", type=int, default=os.environ.get("ASSET_PREVIEW_WORKERS", "1"),
-                        metavar="N", help="bake in N processes (default 1: in this process)")
-    parser.add_argument("--executor", choices=("local", "ray"),
-                        default=os.environ.get("ASSET_PREVIEW_EXECUTOR", "local"),
+    parser.add_argument("--face-size", type=int, default=None, metavar="PX",
+                        help="environment cube face size, a power of two (default "
+                             "$ASSET_PREVIEW_FACE_SIZE, else 256)")
+    parser.add_argument("--workers", type=int, default=None, metavar="N",
+                        help="bake in N processes (default $ASSET_PREVIEW_BAKE_WORKERS, else 1: in "
+                             "this process)")
+    parser.add_argument("--executor", choices=("local", "ray"), default=None,
                         help="local processes (default), or Ray tasks on a cluster (--ray-address; "
                              "without one, a new local Ray with --workers CPUs, default all)")
     parser.add_argument("--ray-address", default=None, metavar="auto|HOST:PORT|ray://HOST:PORT",
@@ -58,7 +59,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from pipeline.cache import parse_size
+    from pipeline.limits import pipeline_settings
 
+    defaults = pipeline_settings()
+    for name in ("workers", "face_size", "executor"):
+        if getattr(args, name) is None:
+            setattr(args, name, getattr(defaults, "bake_workers" if name == "workers" else name))
     if not args.paths and not args.env:
         print("error: nothing to bake: give asset paths and/or --env", file=sys.stderr)
         return 2

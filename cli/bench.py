@@ -11,7 +11,8 @@ BENCHMARKS = {
     "bake": ("bench.bake", "interior rays, cold bake vs cache hit, environment prefilter"),
     "thumbnail": ("bench.thumbnail", "PBR+IBL thumbnails cold and warm beside pyrender and f3d"),
     "encode": ("bench.encode", "thumbnail encoding: PNG/WebP/JPEG time and size beside Pillow's settings"),
-    "service": ("bench.service", "HTTP service: cached thumbnails, warm renders, cold uploads"),
+    "service": ("bench.service", "HTTP service: cached thumbnails, warm renders, cold uploads, "
+                "cached and cheap renders under expensive load"),
     "scale": ("bench.scale", "bake a few hundred assets: 1 and 2 local workers vs Ray; 100k projection"),
     "refraction": ("bench.refraction", "refraction methods: time and error vs Mitsuba per scene"),
     "accuracy": ("bench.accuracy", "speed-vs-accuracy chart: every scene x method vs Mitsuba, Pareto front, auto"),

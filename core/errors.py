@@ -12,6 +12,10 @@ class AssetError(Exception):
         self.reason = reason
         super().__init__(f"{self.path}: {reason}")
 
+    def __reduce__(self):
+        # Crosses process boundaries (render workers, Ray) as its own class with both fields.
+        return (type(self), (self.path, self.reason))
+
 
 class UnsupportedFormat(AssetError):
     """The file type is not one we ingest."""

@@ -82,7 +82,8 @@ class CorruptEntry(NotInCache):
 
 
 def default_cache_dir() -> Path:
-    return Path(os.environ.get("ASSET_PREVIEW_CACHE") or ".cache")
+    from .limits import pipeline_settings
+    return Path(pipeline_settings().cache)
 
 
 def parse_size(text: str | int | None) -> int | None:
@@ -169,8 +170,10 @@ class Cache:
 
     def __init__(self, root: str | os.PathLike | None = None, max_bytes: int | str | None = None):
         self.root = Path(root) if root is not None else default_cache_dir()
-        env_cap = os.environ.get("ASSET_PREVIEW_CACHE_MAX_BYTES")
-        self.max_bytes = parse_size(max_bytes if max_bytes is not None else env_cap)
+        if max_bytes is None:
+            from .limits import pipeline_settings
+            max_bytes = pipeline_settings().cache_max_bytes
+        self.max_bytes = parse_size(max_bytes)
 
     def entry_dir(self, kind: str, key: str) -> Path:
         if kind not in KINDS:

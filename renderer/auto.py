@@ -27,11 +27,11 @@ from __future__ import annotations
 import logging
 import math
 import threading
-from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Any, Literal, cast
 
 import numpy as np
+from cachetools import LRUCache
 
 from core.baked import BakedAsset, BakedMesh
 from core.options import RenderOptions, apply_override
@@ -65,6 +65,13 @@ RT_FIXED_MS = 100.0
 RT_MS_PER_TRIANGLE = 0.01
 RT_MS_PER_FRAME_PIXEL = 0.01
 RT_MS_PER_PIXEL_BOUNCE = 0.04
+# Raster time model (the service's cost estimate for scheduling and its ceiling): fixed + per
+# frame pixel by method (MSAA 4x; wyman adds the back-face and refraction passes) + per
+# triangle. Measured warm on the Duck, 2 shared cores: 1024 px opaque 0.38 s, wyman 1.09 s;
+# 512 px 0.08 / 0.32 s; rounded up.
+RASTER_FIXED_MS = 10.0
+RASTER_MS_PER_PIXEL = {"opaque": 0.0004, "single": 0.0007, "wyman": 0.0011}
+RASTER_MS_PER_TRIANGLE = 0.001
 MAX_EXPLAINED_OBJECTS = 16    # more meshes than this are explained in groups (header size)
 SMOOTH_ROUGHNESS = 0.05      # environment: a material smoother than this needs full-size faces
 
@@ -133,7 +140,7 @@ class Plan:
 # --- facts ----------------------------------------------------------------------------------
 
 _topology_lock = threading.Lock()
-_topology: OrderedDict[int, tuple[np.ndarray, MeshShape]] = OrderedDict()
+_topology: LRUCache = LRUCache(64)  # id(positions) -> (positions, facts); the array checks the id
 
 
 def topology(positions: np.ndarray, indices: np.ndarray) -> tuple[int | None, int]:
@@ -186,7 +193,6 @@ def shape(mesh: BakedMesh) -> MeshShape:
     with _topology_lock:
         hit = _topology.get(key)
         if hit is not None and hit[0] is mesh.positions:
-            _topology.move_to_end(key)
             return hit[1]
     pos = np.asarray(mesh.positions, np.float64)
     tri = np.asarray(mesh.indices, np.int64).reshape(-1, 3)
@@ -222,8 +228,6 @@ def shape(mesh: BakedMesh) -> MeshShape:
                        round(thickness, 4))
     with _topology_lock:
         _topology[key] = (mesh.positions, result)
-        while len(_topology) > 64:
-            _topology.popitem(last=False)
     return result
 
 
@@ -288,6 +292,25 @@ def estimate_raytrace_ms(asset: BakedAsset, options: RenderOptions, coverage_px:
     return (RT_FIXED_MS + RT_MS_PER_TRIANGLE * asset.triangle_count
             + RT_MS_PER_FRAME_PIXEL * options.width * options.height
             + RT_MS_PER_PIXEL_BOUNCE * coverage_px * max(bounces, 1))
+
+
+def estimate_request_ms(triangles: int, width: int, height: int, method: str, transmissive: bool,
+                        budget_ms: float | None, bounces: int = RAYTRACE_BOUNCES) -> float:
+    """Upper estimate of one render's time from what is known before loading the asset
+    (its triangle count, whether anything transmits): the ray-trace model above with the
+    whole frame covered, or the raster model. `auto` with a budget ray traces only when its
+    estimate fits the budget, so its cost is at most the larger of raster and budget."""
+    pixels = width * height
+    raytrace = (RT_FIXED_MS + RT_MS_PER_TRIANGLE * triangles + RT_MS_PER_FRAME_PIXEL * pixels
+                + RT_MS_PER_PIXEL_BOUNCE * pixels * max(bounces, 1))
+    if method == "raytrace":
+        return raytrace
+    raster_method = method if method in RASTER_MS_PER_PIXEL else ("wyman" if transmissive else "opaque")
+    raster = (RASTER_FIXED_MS + RASTER_MS_PER_PIXEL[raster_method] * pixels
+              + RASTER_MS_PER_TRIANGLE * triangles)
+    if method == "auto" and budget_ms:
+        return max(raster, min(budget_ms, raytrace))
+    return raster
 
 
 def plan_request(asset: BakedAsset, options: RenderOptions, available: list[str]) -> Plan:

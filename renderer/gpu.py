@@ -7,8 +7,6 @@ asset (any camera, size or options) uploads nothing. `stats` counts uploads for 
 from __future__ import annotations
 
 import logging
-import os
-from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Callable, TypeVar
 
@@ -20,14 +18,46 @@ from core.baked import BakedAsset, BakedEnvironment, BakedMesh, BakedTexture
 from core.mips import texture_size_for
 from core.scene import CLAMP_TO_EDGE, MIRRORED_REPEAT, REPEAT, Light, is_srgb
 
+from .lru import ReleasingLRU
+
 log = logging.getLogger(__name__)
 
 GL_SRGB8_ALPHA8 = 0x8C43
 GL_TEXTURE_CUBE_MAP_SEAMLESS = 0x884F
 
-MAX_ASSETS = int(os.environ.get("ASSET_PREVIEW_GPU_ASSETS", 16))
-MAX_ASSET_BYTES = int(float(os.environ.get("ASSET_PREVIEW_GPU_MB", 768)) * 2**20)
-MAX_ENVIRONMENTS = int(os.environ.get("ASSET_PREVIEW_GPU_ENVIRONMENTS", 4))
+
+
+@dataclass
+class Budget:
+    """How much stays uploaded per context (core.config.RendererSettings; the service
+    sets its own with `set_budget`): meshes and textures in bytes, environments by count."""
+    asset_bytes: int
+    environments: int
+
+
+_budget: Budget | None = None
+
+
+def budget() -> Budget:
+    global _budget
+    if _budget is None:
+        from core.config import renderer_settings
+        s = renderer_settings()
+        _budget = Budget(int(s.gpu_bytes), s.gpu_environments)
+    return _budget
+
+
+def set_budget(asset_bytes: int, environments: int) -> None:
+    """A new budget; what is uploaded now is released."""
+    global _budget, _ctx_id
+    _budget = Budget(asset_bytes, environments)
+    clear()
+    _ctx_id = None
+
+
+def uploaded_bytes() -> int:
+    return sum(a.nbytes for a in _assets.values_all()) if _assets is not None else 0
+
 
 stats = {"asset_uploads": 0, "environment_uploads": 0, "evictions": 0}
 
@@ -107,41 +137,36 @@ class GpuEnvironment:
         self.lut.release()
 
 
-_assets: OrderedDict[str, GpuAsset] = OrderedDict()
-_environments: OrderedDict[str, GpuEnvironment] = OrderedDict()
+# Byte-weighed LRUs (renderer.lru) of the current context, made with it.
+_assets: ReleasingLRU | None = None
+_environments: ReleasingLRU | None = None
 _ctx_id: int | None = None
 
 
-def _check_context() -> moderngl.Context:
+def _tables() -> tuple[ReleasingLRU, ReleasingLRU]:
     """Caches belong to one context; a new context (forked child) starts them empty."""
-    global _ctx_id
+    global _ctx_id, _assets, _environments
     ctx = context.get_context()
-    if _ctx_id != id(ctx):
-        _assets.clear()
-        _environments.clear()
+    if _ctx_id != id(ctx) or _assets is None:
+        b = budget()
+        _assets = ReleasingLRU(b.asset_bytes, getsizeof=lambda a: max(1, a.nbytes))
+        _environments = ReleasingLRU(b.environments)
         _ctx_id = id(ctx)
         ctx.enable_direct(GL_TEXTURE_CUBE_MAP_SEAMLESS)
-    return ctx
+    assert _environments is not None
+    return _assets, _environments
 
 
 _Gpu = TypeVar("_Gpu", GpuAsset, GpuEnvironment)
 
 
-def _cached(table: OrderedDict[str, _Gpu], key: str, upload: Callable[[], _Gpu], stat: str,
-            over_budget: Callable[[], bool]) -> _Gpu:
-    """LRU lookup in `table`; on a miss, `upload()` and evict the oldest entries (never the
-    newest) while `over_budget()` says the table is too big."""
-    _check_context()
+def _cached(table: ReleasingLRU, key: str, upload: Callable[[], _Gpu], stat: str) -> _Gpu:
     gpu = table.get(key)
-    if gpu is not None:
-        table.move_to_end(key)
-        return gpu
-    gpu = table[key] = upload()
-    stats[stat] += 1
-    while len(table) > 1 and over_budget():
-        _, old = table.popitem(last=False)
-        old.release()
-        stats["evictions"] += 1
+    if gpu is None:
+        before = table.evictions
+        gpu = table[key] = upload()
+        stats[stat] += 1
+        stats["evictions"] += table.evictions - before
     return gpu
 
 
@@ -149,30 +174,25 @@ def asset(baked: BakedAsset, pixels: int = 1024) -> GpuAsset:
     """The GPU copy of `baked`, uploaded on first use and then reused (LRU by bake key), with
     texture levels sharp enough for a render of `pixels` (its longer side) and no sharper
     (core.mips.texture_size_for: up to twice its size, for atlases)."""
-    gpu = _cached(_assets, baked.key, lambda: _upload_asset(baked), "asset_uploads", _assets_over)
+    table = _tables()[0]
+    gpu = _cached(table, baked.key, lambda: _upload_asset(baked), "asset_uploads")
     if _upload_textures(gpu, baked, texture_size_for(pixels)):
-        while len(_assets) > 1 and _assets_over():
-            _, old = _assets.popitem(last=False)
-            old.release()
-            stats["evictions"] += 1
+        before = table.evictions
+        table.reweigh(baked.key)  # it grew: others go while the budget needs it
+        stats["evictions"] += table.evictions - before
     return gpu
-
-
-def _assets_over() -> bool:
-    return len(_assets) > MAX_ASSETS or sum(a.nbytes for a in _assets.values()) > MAX_ASSET_BYTES
 
 
 def environment(baked: BakedEnvironment) -> GpuEnvironment:
     """The GPU copy of `baked` (cube with its prefiltered mips, BRDF LUT, SH), LRU by key."""
-    return _cached(_environments, baked.key, lambda: _upload_environment(baked),
-                   "environment_uploads", lambda: len(_environments) > MAX_ENVIRONMENTS)
+    return _cached(_tables()[1], baked.key, lambda: _upload_environment(baked), "environment_uploads")
 
 
 def clear() -> None:
     """Release everything (tests; a service shrinking its memory)."""
     for cache in (_assets, _environments):
-        while cache:
-            cache.popitem()[1].release()
+        if cache is not None:
+            cache.clear()
 
 
 def _upload_asset(baked: BakedAsset) -> GpuAsset:

@@ -23,12 +23,12 @@ runs the passes or allocates them (`stats` counts both, for the tests).
 from __future__ import annotations
 
 import logging
-from collections import OrderedDict
 from dataclasses import dataclass
 
 import moderngl
 import numpy as np
 
+from .lru import ReleasingLRU
 from .render import FIRST_FREE_UNIT, DrawItem, Pass, register_method
 
 log = logging.getLogger(__name__)
@@ -65,7 +65,7 @@ class _Targets:
             r.release()
 
 
-_targets: OrderedDict[tuple, _Targets] = OrderedDict()
+_targets = ReleasingLRU(MAX_TARGETS)  # (kind, w, h) -> targets of the current context
 _targets_ctx: int | None = None
 
 
@@ -77,12 +77,12 @@ def allocated() -> list[tuple]:
 def _get_targets(ctx: moderngl.Context, kind: str, w: int, h: int) -> _Targets:
     """Back / front faces: RGBA32F world position + roughness, RGBA16F outward normal + coverage.
     Opaque copy: RGBA16F colour. Both with a depth texture; kept per size (small LRU)."""
-    global _targets_ctx
+    global _targets, _targets_ctx
     if _targets_ctx != id(ctx):
-        _targets.clear()
+        _targets = ReleasingLRU(MAX_TARGETS)  # the old context's objects went with it
         _targets_ctx = id(ctx)
     key = (kind, w, h)
-    t = _targets.pop(key, None)
+    t = _targets.get(key)
     if t is None:
         dtypes = ("f2",) if kind == "opaque" else ("f4", "f2")
         color = [ctx.texture((w, h), 4, dtype=dt) for dt in dtypes]
@@ -93,9 +93,7 @@ def _get_targets(ctx: moderngl.Context, kind: str, w: int, h: int) -> _Targets:
         depth.compare_func = ""  # read as values, not as a shadow comparison
         t = _Targets(ctx.framebuffer(color, depth), color, depth)
         stats[f"{kind}_allocations"] += 1
-    _targets[key] = t
-    while len(_targets) > MAX_TARGETS:
-        _targets.popitem(last=False)[1].release()
+        _targets[key] = t
     return t
 
 

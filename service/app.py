@@ -9,16 +9,27 @@ import logging
 from contextlib import asynccontextmanager
 
 from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from fastapi_offline import FastAPIOffline
 
 from core.errors import AssetError, UnsupportedFormat
 
-from .core import BadParameter, Conflict, NotFound, StillBaking, ThumbnailService, UploadTooLarge
+from .core import (
+    BadParameter,
+    Conflict,
+    NotFound,
+    QuotaExceeded,
+    StillBaking,
+    ThumbnailService,
+    UploadTooLarge,
+    public_message,
+)
 from .metrics import MetricsMiddleware
 from .routes import assets, environments, health, pages
+from .security import AccessMiddleware
 from .settings import Settings
-from .workers import JobAssetError, QueueFull, WorkerFailure
+from .workers import QueueFull, WorkerFailure
 
 log = logging.getLogger(__name__)
 
@@ -45,7 +56,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.include_router(router)
     _install_error_handlers(app)
     app.add_middleware(BodyLimit, limit=settings.max_upload_bytes)
-    # Added last = outermost, so it also times requests refused by BodyLimit.
+    # Outside BodyLimit: a request without its key is refused before its body is read.
+    app.add_middleware(AccessMiddleware, settings=settings)
+    # Added last = outermost, so it also times requests refused by the others.
     app.add_middleware(MetricsMiddleware)
     return app
 
@@ -54,15 +67,22 @@ def _install_error_handlers(app: FastAPI) -> None:
     def detail(status: int, message: str, headers: dict | None = None) -> JSONResponse:
         return JSONResponse({"detail": message}, status_code=status, headers=headers)
 
+    @app.exception_handler(RequestValidationError)
+    async def invalid_request(request: Request, exc: RequestValidationError):
+        # One line, like every other error (ErrorDetail), naming each bad field and why.
+        parts = [".".join(str(p) for p in e["loc"]) + ": " + e["msg"] for e in exc.errors()]
+        return detail(422, "; ".join(parts)[:2000] or "invalid request")
+
     @app.exception_handler(AssetError)
     async def asset_error(request: Request, exc: AssetError):
+        message = public_message(str(exc))  # never a server folder, whichever path raised it
         if isinstance(exc, UploadTooLarge):
-            return detail(413, str(exc))
-        return detail(415 if isinstance(exc, UnsupportedFormat) else 422, str(exc))
+            return detail(413, message)
+        return detail(415 if isinstance(exc, UnsupportedFormat) else 422, message)
 
-    @app.exception_handler(JobAssetError)
-    async def job_asset_error(request: Request, exc: JobAssetError):
-        return detail(415 if exc.kind == "UnsupportedFormat" else 422, str(exc))
+    @app.exception_handler(QuotaExceeded)
+    async def quota(request: Request, exc: QuotaExceeded):
+        return detail(413, str(exc))
 
     @app.exception_handler(NotFound)
     async def not_found(request: Request, exc: NotFound):
@@ -79,9 +99,9 @@ def _install_error_handlers(app: FastAPI) -> None:
         service = request.app.state.service
         headers = None
         if isinstance(exc, QueueFull):
-            service.metrics.rejected["queue_full"] += 1
+            service.metrics.rejected.labels("queue_full").inc()
             headers = {"Retry-After": str(service.settings.retry_after_seconds)}
-        return detail(exc.status, str(exc), headers)
+        return detail(exc.status, public_message(str(exc)), headers)
 
     @app.exception_handler(BadParameter)
     async def bad_parameter(request: Request, exc: BadParameter):
@@ -90,6 +110,12 @@ def _install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(Conflict)
     async def conflict(request: Request, exc: Conflict):
         return detail(409, str(exc))
+
+    @app.exception_handler(Exception)
+    async def unexpected(request: Request, exc: Exception):
+        # A bug, not the client's input: logged once with its traceback, answered without it.
+        log.error("%s %s failed: %s", request.method, request.url.path, exc, exc_info=exc)
+        return detail(500, f"internal error ({type(exc).__name__}); it has been logged")
 
 
 class BodyLimit:
@@ -132,7 +158,7 @@ class BodyLimit:
                 await self._refuse(scope, send)
 
     async def _refuse(self, scope, send):
-        scope["app"].state.service.metrics.rejected["too_large"] += 1
+        scope["app"].state.service.metrics.rejected.labels("too_large").inc()
         body = b'{"detail":"request body is larger than the upload limit of %d bytes"}' % self.limit
         await send({"type": "http.response.start", "status": 413,
                     "headers": [(b"content-type", b"application/json"), (b"connection", b"close"),
@@ -144,4 +170,10 @@ class _TooLarge(Exception):
     pass
 
 
-app = create_app()
+def __getattr__(name: str):
+    """`uvicorn service.app:app` builds the app (and reads the settings) when it asks for it,
+    not when this module is imported."""
+    if name == "app":
+        globals()["app"] = application = create_app()
+        return application
+    raise AttributeError(name)

@@ -16,13 +16,14 @@ actor killed and replaced (DeadlineExceeded, 504).
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import logging
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .workers import DeadlineExceeded, Pool, WorkerCrashed, WorkerState, answer
+from .workers import DeadlineExceeded, Pool, WorkerConfig, WorkerCrashed, WorkerState, answer
 
 log = logging.getLogger(__name__)
 
@@ -30,9 +31,9 @@ log = logging.getLogger(__name__)
 class RenderActor:
     """Runs in a Ray worker process: one GL context and warm state, jobs one at a time."""
 
-    def __init__(self, cache_dir: str, limits: dict, log_level: int):
-        logging.basicConfig(level=log_level, format="%(levelname)s actor %(process)d %(name)s: %(message)s")
-        self.state = WorkerState(cache_dir, limits)
+    def __init__(self, config: WorkerConfig):
+        logging.basicConfig(level=config.log_level, format="%(levelname)s actor %(process)d %(name)s: %(message)s")
+        self.state = WorkerState(config)
 
     def call(self, op: str, args: tuple) -> tuple[str, object]:
         return answer(self.state, op, args)
@@ -72,14 +73,15 @@ class ActorWorker:
 
 
 class RayWorkerPool(Pool):
-    def __init__(self, size: int, cache_dir: str, limits: dict | None = None,
-                 max_queue: int = 64, on_restart=None, address: str | None = None,
-                 num_gpus: float = 0.0, num_cpus: float = 1.0):
+    def __init__(self, size: int, config: WorkerConfig | str, max_queue: int = 64, on_restart=None,
+                 address: str | None = None, num_gpus: float = 0.0, num_cpus: float = 1.0, **order):
         from pipeline.executors import require_ray
         self._ray = require_ray()  # fails here, at startup, with how to install it
+        if isinstance(config, str):
+            config = WorkerConfig(cache_dir=config)
         # Absolute: actors on other nodes resolve it on the same shared mount.
-        super().__init__(size, Path(cache_dir).absolute(), limits, max_queue,
-                         on_restart, "ray-render-pool")
+        config = dataclasses.replace(config, cache_dir=str(Path(config.cache_dir).absolute()))
+        super().__init__(size, config, max_queue, on_restart, "ray-render-pool", **order)
         self.address = address
         self.num_gpus, self.num_cpus = num_gpus, num_cpus
         self.workers = [ActorWorker(i) for i in range(size)]
@@ -97,10 +99,9 @@ class RayWorkerPool(Pool):
         if env := task_env():
             options["runtime_env"] = env
         self._actor_class = ray.remote(RenderActor).options(**options)
-        self._idle = asyncio.Queue()
         for w in self.workers:
             self._spawn(w)
-            self._idle.put_nowait(w)
+        self._free = list(self.workers)
 
     async def warm_up(self, deadline: float = 120.0) -> None:
         """Ping every actor once (creates its GL context); readiness follows the first answer."""
@@ -120,8 +121,7 @@ class RayWorkerPool(Pool):
         disconnect()
 
     def _spawn(self, w: ActorWorker) -> None:
-        w.actor = self._actor_class.remote(self.cache_dir, self.limits,
-                                           logging.getLogger().getEffectiveLevel())
+        w.actor = self._actor_class.remote(self.config)
         w.where_ref, w.where, w.dead, w.answered = w.actor.where.remote(), {}, False, False
         log.info("render actor %d created", w.index)
 

@@ -66,7 +66,7 @@ async def seed(service) -> None:
     from core.errors import AssetError
 
     from .store import write_atomic
-    from .workers import JobAssetError, WorkerFailure
+    from .workers import WorkerFailure
 
     async def chunks(data: bytes):
         yield data
@@ -75,7 +75,7 @@ async def seed(service) -> None:
     for name, data, main in sample_uploads(folder):
         try:
             rec, created = await service.add_asset(name, chunks(data), main)
-            log.info("seeded %s as %s", name, rec["id"])
-        except (AssetError, JobAssetError, WorkerFailure) as exc:
+            log.info("seeded %s as %s", name, rec.id)
+        except (AssetError, WorkerFailure) as exc:
             log.warning("sample %s not seeded: %s", name, exc)
     write_atomic(service.store.root / "seeded", b"")

@@ -1,61 +1,73 @@
 """Service configuration: command-line flags, then ASSET_PREVIEW_* variables, then defaults.
 
-Defaults work with nothing set: cache in ./.cache, one render worker per core, no API key.
+One declaration per knob (pydantic-settings): `asset-preview serve --help`, the environment
+and README's table all come from the fields below. Defaults work with nothing set: cache in
+./.cache, one render worker per core, no API key (and then loopback only).
 """
 from __future__ import annotations
 
-import dataclasses
 import os
-from dataclasses import dataclass
 from pathlib import Path
 
-ENV_PREFIX = "ASSET_PREVIEW_"
+from pydantic import Field
+
+from core.config import FromEnv
 
 
-@dataclass(frozen=True)
-class Settings:
-    cache: Path = Path(".cache")
-    workers: int = 0                      # render worker processes; 0 = one per core
-    executor: str = "local"               # "local" worker processes, or "ray" actors on a cluster
-    ray_address: str = ""                 # cluster to join ("" = $RAY_ADDRESS, else a local one)
-    ray_gpus: float = 0.0                 # GPU share per render actor (0 on CPU-only clusters)
-    api_key: str = ""                     # when set, POST and DELETE need `Authorization: Bearer KEY`
-    max_upload_bytes: int = 256 * 2**20   # request body (413 beyond)
-    max_thumbnail_size: int = 2048        # width/height in pixels (422 beyond)
-    max_queue: int = 64                   # renders waiting or running (503 beyond)
-    render_seconds: float = 60.0          # deadline of one render (worker killed past it)
-    bake_seconds: float = 600.0           # deadline of one bake
-    ingest_seconds: float = 120.0         # deadline of reading an upload for its summary
-    bake_wait_seconds: float = 10.0       # thumbnail of a baking asset waits this long, then 202
-    retry_after_seconds: int = 5          # Retry-After on 202 and 503
-    cache_max_age: int = 86400            # Cache-Control max-age of thumbnails
-    memory_cache_bytes: int = 64 * 2**20  # hot thumbnails kept in the server process
-    max_thumbnail_bytes: int = 4 * 2**30  # thumbnails on disk; least recently made go first
-    default_env: str = "footprint_court"
-    seed: bool = True                     # seed the sample assets into an empty store
-    samples: Path | None = None           # folder to seed from; default ../shared/assets or service/samples
-    state: Path | None = None             # service records/uploads/thumbnails; default <cache>/service.
-                                          # Own per replica when replicas share one bake cache.
-
-    @classmethod
-    def from_env(cls, **overrides) -> "Settings":
-        """Defaults, overridden by ASSET_PREVIEW_<FIELD> variables, overridden by arguments
-        (arguments that are None are ignored, so argparse results can be passed as they are)."""
-        values = {}
-        for field in dataclasses.fields(cls):
-            raw = os.environ.get(ENV_PREFIX + field.name.upper())
-            if raw is not None:
-                values[field.name] = _parse(field, raw)
-        values.update({k: v for k, v in overrides.items() if v is not None})
-        for key in ("cache", "samples", "state"):
-            if values.get(key) not in (None, ""):
-                values[key] = Path(values[key])
-        return cls(**values)
+class Settings(FromEnv):
+    host: str = Field("127.0.0.1", description="address to listen on")
+    port: int = Field(8000, ge=0, le=65535, description="port to listen on")
+    cache: Path = Field(Path(".cache"), description="bake cache folder (shared by replicas)")
+    render_workers: int = Field(0, ge=0, description="render worker processes; 0 = one per core")
+    executor: str = Field("local", pattern="^(local|ray)$", description="local worker processes, or ray actors")
+    ray_address: str = Field("", description="Ray cluster to join (empty: $RAY_ADDRESS, else a local one)")
+    ray_gpus: float = Field(0.0, ge=0, description="GPU share per render actor")
+    # -- access ----------------------------------------------------------------------------
+    api_key: str = Field("", description="when set, every endpoint but /healthz /readyz /metrics needs "
+                                         "`Authorization: Bearer KEY`; several keys separated by commas")
+    public_read: bool = Field(False, description="with a key: GET and HEAD (thumbnails, listings, the page) "
+                                                 "need none; writes still do")
+    insecure_no_auth: bool = Field(False, description="allow binding a non-loopback address without a key")
+    allowed_hosts: str = Field("", description="names this service answers to in Host (every request "
+                               "but probes) and Origin (writes), comma-separated; loopback names and "
+                               "--host always; `*` any")
+    # -- request bounds --------------------------------------------------------------------
+    max_upload_bytes: int = Field(256 * 2**20, ge=1, description="request body (413 beyond)")
+    max_thumbnail_size: int = Field(2048, ge=1, description="width/height in pixels (422 beyond)")
+    max_render_cost_ms: float = Field(0.0, ge=0, description="estimated cost ceiling of one render "
+                                      "(422 beyond); 0 = the render deadline")
+    cheap_render_ms: float = Field(2000.0, gt=0, description="renders estimated under this are cheap: "
+                                   "one worker is kept for them")
+    client_share: float = Field(0.5, gt=0, le=1, description="share of the workers (expensive jobs) and "
+                                "of the queue one client (key or address) may hold")
+    max_queue: int = Field(64, ge=1, description="renders waiting or running (503 beyond)")
+    render_seconds: float = Field(60.0, gt=0, description="deadline of one render (worker killed past it)")
+    bake_seconds: float = Field(600.0, gt=0, description="deadline of one bake")
+    bake_wait_seconds: float = Field(10.0, ge=0, description="a thumbnail of a baking asset waits this long, then 202")
+    retry_after_seconds: int = Field(5, ge=1, description="Retry-After on 202 and 503")
+    # -- storage ---------------------------------------------------------------------------
+    cache_max_age: int = Field(86400, ge=0, description="Cache-Control max-age of thumbnails")
+    memory_cache_bytes: int = Field(64 * 2**20, ge=0, description="hot thumbnails kept in the server process")
+    max_thumbnail_bytes: int = Field(4 * 2**30, ge=1, description="thumbnails on disk; least recently used go first")
+    cache_max_bytes: str = Field("16G", description="bake cache on disk (binary units: 500M, 16G); least "
+                                 "recently used entries go first (the variable asset-bake reads too)")
+    quota_bytes: int = Field(0, ge=0, description="stored bytes per API key (413 beyond); 0 = no quota")
+    quota_assets: int = Field(0, ge=0, description="assets per API key (413 beyond); 0 = no quota")
+    # -- worker memory ---------------------------------------------------------------------
+    worker_cache_bytes: int = Field(512 * 2**20, ge=1, description="baked assets and environments a "
+                                    "render worker keeps in memory")
+    gpu_bytes: int = Field(512 * 2**20, ge=1, description="meshes and textures a render worker keeps uploaded")
+    # -- content ---------------------------------------------------------------------------
+    default_env: str = Field("footprint_court", description="environment of renders that name none")
+    seed: bool = Field(True, description="seed the sample assets into an empty store")
+    samples: Path | None = Field(None, description="folder to seed from; default ../shared/assets or service/samples")
+    state: Path | None = Field(None, description="records, uploads, thumbnails; default <cache>/service "
+                               "(own per replica when replicas share one bake cache)")
 
     @property
     def worker_count(self) -> int:
-        if self.workers > 0:
-            return self.workers
+        if self.render_workers > 0:
+            return self.render_workers
         try:  # the CPUs this process may use (a container's cpuset), not the host's count
             return max(1, len(os.sched_getaffinity(0)))
         except AttributeError:
@@ -66,15 +78,15 @@ class Settings:
         """Where the service keeps its own state, beside the pipeline's bake cache."""
         return Path(self.state) if self.state else Path(self.cache) / "service"
 
+    @property
+    def bake_cache_bytes(self) -> int | None:
+        from pipeline.cache import parse_size
+        return parse_size(self.cache_max_bytes)
 
-def _parse(field: dataclasses.Field, raw: str):
-    kind = field.type if isinstance(field.type, str) else field.type.__name__
-    if kind == "bool":
-        return raw.strip().lower() in ("1", "true", "yes", "on")
-    if kind == "int":
-        return int(float(raw))
-    if kind == "float":
-        return float(raw)
-    if kind in ("Path", "Path | None"):
-        return Path(raw)
-    return raw
+    @property
+    def api_keys(self) -> list[str]:
+        return [k.strip() for k in self.api_key.split(",") if k.strip()]
+
+    @property
+    def render_cost_ceiling_ms(self) -> float:
+        return self.max_render_cost_ms or self.render_seconds * 1000

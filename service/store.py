@@ -22,9 +22,12 @@ import re
 import shutil
 import time
 import uuid
-from collections import OrderedDict
 from pathlib import Path
-from typing import Any
+
+from cachetools import LRUCache
+from pydantic import BaseModel
+
+from .records import AssetRecord, EnvironmentRecord
 
 log = logging.getLogger(__name__)
 
@@ -54,8 +57,8 @@ def write_atomic(path: Path, data: bytes) -> None:
     os.replace(tmp, path)
 
 
-def write_json(path: Path, obj: Any) -> None:
-    write_atomic(path, json.dumps(obj, indent=1, sort_keys=True).encode())
+def write_record(path: Path, rec: BaseModel) -> None:
+    write_atomic(path, json.dumps(rec.model_dump(), indent=1, sort_keys=True).encode())
 
 
 class Store:
@@ -69,8 +72,8 @@ class Store:
         self.tmp_dir = self.root / "tmp"
         for d in (self.assets_dir, self.envs_dir, self.thumbs_dir, self.tmp_dir):
             d.mkdir(parents=True, exist_ok=True)
-        self.assets: dict[str, dict] = {}
-        self.environments: dict[str, dict] = {}
+        self.assets: dict[str, AssetRecord] = {}
+        self.environments: dict[str, EnvironmentRecord] = {}
         self._clean_tmp()
         self._load()
 
@@ -82,15 +85,17 @@ class Store:
             shutil.rmtree(p, ignore_errors=True) if p.is_dir() else p.unlink(missing_ok=True)
 
     def _load(self) -> None:
-        for kind, folder, table in (("asset", self.assets_dir, self.assets),
-                                    ("environment", self.envs_dir, self.environments)):
+        sources: tuple[tuple[str, Path, dict, type[BaseModel]], ...] = (
+            ("asset", self.assets_dir, self.assets, AssetRecord),
+            ("environment", self.envs_dir, self.environments, EnvironmentRecord))
+        for kind, folder, table, model in sources:
             for d in sorted(folder.iterdir()):
                 try:
-                    rec = json.loads((d / "record.json").read_text())
-                except (OSError, ValueError) as exc:
+                    rec = model.model_validate_json((d / "record.json").read_bytes())
+                except (OSError, ValueError) as exc:  # pydantic's ValidationError is a ValueError
                     log.warning("ignoring %s folder %s: unreadable record (%s)", kind, d, exc)
                     continue
-                table[rec["id"]] = rec
+                table[rec.id] = rec  # type: ignore[attr-defined]
         log.info("store %s: %d assets, %d environments", self.root, len(self.assets),
                  len(self.environments))
 
@@ -106,27 +111,27 @@ class Store:
     def asset_dir(self, asset_id: str) -> Path:
         return self.assets_dir / asset_id
 
-    def asset_path(self, rec: dict) -> Path:
-        return self.asset_dir(rec["id"]) / "src" / rec["root"]
+    def asset_path(self, rec: AssetRecord) -> Path:
+        return self.asset_dir(rec.id) / "src" / rec.root
 
-    def commit_asset(self, staged: Path, rec: dict) -> dict:
+    def commit_asset(self, staged: Path, rec: AssetRecord) -> AssetRecord:
         """Move a staged folder (holding `src/`) into place with its record. If the same id
         landed meanwhile (two identical uploads at once), the first one wins."""
-        write_json(staged / "record.json", rec)
-        target = self.asset_dir(rec["id"])
+        write_record(staged / "record.json", rec)
+        target = self.asset_dir(rec.id)
         try:
             os.rename(staged, target)
         except OSError:
             shutil.rmtree(staged, ignore_errors=True)
-            if rec["id"] in self.assets:
-                return self.assets[rec["id"]]
+            if rec.id in self.assets:
+                return self.assets[rec.id]
             raise
-        self.assets[rec["id"]] = rec
+        self.assets[rec.id] = rec
         return rec
 
-    def update_asset(self, asset_id: str, **fields) -> dict:
-        rec = dict(self.assets[asset_id], **fields, updated=time.time())
-        write_json(self.asset_dir(asset_id) / "record.json", rec)
+    def update_asset(self, asset_id: str, **fields) -> AssetRecord:
+        rec = self.assets[asset_id].model_copy(update=dict(fields, updated=time.time()))
+        write_record(self.asset_dir(asset_id) / "record.json", rec)
         self.assets[asset_id] = rec
         return rec
 
@@ -141,39 +146,42 @@ class Store:
 
     # -- environments -----------------------------------------------------------------------
 
-    def env_path(self, rec: dict) -> Path:
-        return self.envs_dir / rec["id"] / rec["file"]
+    def env_path(self, rec: EnvironmentRecord) -> Path:
+        return self.envs_dir / rec.id / rec.file
 
-    def commit_environment(self, staged: Path, rec: dict) -> dict:
-        write_json(staged / "record.json", rec)
+    def commit_environment(self, staged: Path, rec: EnvironmentRecord) -> EnvironmentRecord:
+        write_record(staged / "record.json", rec)
         try:
-            os.rename(staged, self.envs_dir / rec["id"])
+            os.rename(staged, self.envs_dir / rec.id)
         except OSError:
             shutil.rmtree(staged, ignore_errors=True)
-            if rec["id"] in self.environments:
-                return self.environments[rec["id"]]
+            if rec.id in self.environments:
+                return self.environments[rec.id]
             raise
-        self.environments[rec["id"]] = rec
+        self.environments[rec.id] = rec
         return rec
 
-    def find_environment(self, name_or_id: str) -> dict | None:
+    def find_environment(self, name_or_id: str) -> EnvironmentRecord | None:
         rec = self.environments.get(name_or_id)
         if rec is None:
-            rec = next((r for r in self.environments.values() if r["name"] == name_or_id), None)
+            rec = next((r for r in self.environments.values() if r.name == name_or_id), None)
         return rec
 
 
 class ThumbnailCache:
-    """Finished thumbnails: files on disk, the hottest also held in memory (bounded bytes).
+    """Finished thumbnails: files on disk (at most `disk_bytes`, least recently used removed
+    first), the hottest also held in memory (a byte-weighed LRU of `memory_bytes`).
     Each entry is (image bytes, strong ETag, render plan JSON). The ETag is derived from the
     image bytes, so it changes whenever they do. The plan is written before the image, so an
     image on disk always has its plan."""
 
-    def __init__(self, root: Path, memory_bytes: int):
+    def __init__(self, root: Path, memory_bytes: int, disk_bytes: int | None = None):
         self.root = Path(root)
         self.memory_bytes = memory_bytes
-        self._hot: OrderedDict[str, tuple[bytes, str, str]] = OrderedDict()
-        self._hot_size = 0
+        self.disk_bytes = disk_bytes
+        self._hot: LRUCache[str, tuple[bytes, str, str]] = LRUCache(maxsize=max(1, memory_bytes), getsizeof=lambda e: len(e[0]) or 1)
+        self._used: dict[str, float] = {}  # disk entry -> last use, for hits the disk never sees
+        self.written = 0  # bytes written since the last prune
 
     def path(self, asset_id: str, key: str, fmt: str) -> Path:
         return self.root / asset_id / f"{key}.{fmt}"
@@ -181,22 +189,26 @@ class ThumbnailCache:
     def get(self, asset_id: str, key: str, fmt: str) -> tuple[bytes, str, str] | None:
         mem_key = f"{asset_id}/{key}.{fmt}"
         hit = self._hot.get(mem_key)
-        if hit is not None:
-            self._hot.move_to_end(mem_key)
-            return hit
-        path = self.path(asset_id, key, fmt)
-        try:
-            data = path.read_bytes()
-            plan = path.with_suffix(".plan.json").read_text()
-        except FileNotFoundError:
-            return None
-        return self._remember(mem_key, data, plan)
+        if hit is None:
+            path = self.path(asset_id, key, fmt)
+            try:
+                data = path.read_bytes()
+                plan = path.with_suffix(".plan.json").read_text()
+            except FileNotFoundError:
+                return None
+            hit = self._remember(mem_key, data, plan)
+        self._used[mem_key] = time.time()
+        return hit
 
     def write(self, asset_id: str, key: str, fmt: str, data: bytes, plan: str) -> None:
-        """The disk half of `put` (blocking: the server runs it in a thread)."""
+        """The disk half of `put` (blocking: the server runs it in a thread). Prunes when the
+        bytes written since the last prune may have taken the folder over its budget."""
         path = self.path(asset_id, key, fmt)
         write_atomic(path.with_suffix(".plan.json"), plan.encode())
         write_atomic(path, data)
+        self.written += len(data) + len(plan)
+        if self.disk_bytes and self.written > 0.05 * self.disk_bytes:
+            self.prune()
 
     def put(self, asset_id: str, key: str, fmt: str, data: bytes, plan: str) -> tuple[bytes, str, str]:
         self.write(asset_id, key, fmt, data, plan)
@@ -206,16 +218,26 @@ class ThumbnailCache:
         """The memory half: call it from one thread only (the event loop's)."""
         return self._remember(f"{asset_id}/{key}.{fmt}", data, plan)
 
-    def prune(self, max_bytes: int) -> int:
-        """Delete the least recently written thumbnails until the folder holds at most 90% of
-        `max_bytes` (blocking: run it in a thread). Returns how many files went."""
+    def disk_usage(self) -> int:
+        return sum(p.stat().st_size for p in self.root.glob("*/*") if p.is_file())
+
+    def prune(self, max_bytes: int | None = None) -> int:
+        """Delete the least recently used thumbnails until the folder holds at most 90% of
+        `max_bytes` (default: the disk budget). Blocking: run it in a thread. Returns how
+        many files went."""
+        max_bytes = max_bytes or self.disk_bytes
+        self.written = 0
+        if not max_bytes:
+            return 0
         files = []
         for path in self.root.glob("*/*"):
             try:
                 st = path.stat()
             except FileNotFoundError:
                 continue
-            files.append((st.st_mtime, st.st_size, path))
+            image = path.name.replace(".plan.json", "")  # a plan goes with its image
+            used = self._used.get(f"{path.parent.name}/{image}", 0.0)
+            files.append((max(st.st_mtime, used), st.st_size, path))
         total = sum(size for _, size, _ in files)
         if total <= max_bytes:
             return 0
@@ -230,16 +252,12 @@ class ThumbnailCache:
 
     def forget(self, asset_id: str) -> None:
         for k in [k for k in self._hot if k.startswith(asset_id + "/")]:
-            self._hot_size -= len(self._hot.pop(k)[0])
+            self._hot.pop(k, None)
+        for k in [k for k in self._used if k.startswith(asset_id + "/")]:
+            self._used.pop(k, None)
 
     def _remember(self, mem_key: str, data: bytes, plan: str) -> tuple[bytes, str, str]:
         entry = (data, '"' + hashlib.sha256(data).hexdigest()[:32] + '"', plan)
         if len(data) <= self.memory_bytes // 4:
-            old = self._hot.pop(mem_key, None)
-            if old is not None:
-                self._hot_size -= len(old[0])
             self._hot[mem_key] = entry
-            self._hot_size += len(data)
-            while self._hot_size > self.memory_bytes:
-                self._hot_size -= len(self._hot.popitem(last=False)[1][0])
         return entry

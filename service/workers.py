@@ -16,7 +16,6 @@ import multiprocessing as mp
 import os
 import signal
 import time
-from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
@@ -42,12 +41,16 @@ class QueueFull(WorkerFailure):
     status = 503
 
 
-class JobAssetError(Exception):
-    """An AssetError raised in a worker, carried back with its class name."""
-
-    def __init__(self, kind: str, path: str, reason: str):
-        self.kind, self.path, self.reason = kind, path, reason
-        super().__init__(f"{path}: {reason}")
+@dataclass(frozen=True)
+class WorkerConfig:
+    """What a worker process (or Ray actor) is started with."""
+    cache_dir: str
+    default_env: str = "footprint_court"
+    cache_bytes: int = 512 * 2**20       # baked assets and environments kept in memory
+    gpu_bytes: int = 512 * 2**20         # meshes and textures kept uploaded
+    bake_cache_bytes: int | None = None  # the bake cache's cap (LRU eviction after each bake)
+    limits: dict = field(default_factory=dict)
+    log_level: int = logging.INFO
 
 
 # ---------------------------------------------------------------------------------------------
@@ -55,22 +58,30 @@ class JobAssetError(Exception):
 
 
 class WorkerState:
-    """What a worker keeps warm between jobs (the renderer keeps its own GPU-side LRU)."""
+    """What a worker keeps warm between jobs: baked assets and environments in one LRU weighed
+    in bytes (the renderer keeps its GPU copies in its own byte-bounded LRU)."""
 
-    def __init__(self, cache_dir: str, limits: dict):
-        self.cache_dir = cache_dir
-        self.limits_overrides = limits
-        self.assets: OrderedDict[str, object] = OrderedDict()
-        self.envs: OrderedDict[str, object] = OrderedDict()
+    def __init__(self, config: WorkerConfig):
+        from cachetools import LRUCache
+        self.config = config
+        self.loaded: LRUCache[tuple, object] = LRUCache(maxsize=config.cache_bytes, getsizeof=_weight)
+        import renderer.gpu as gpu
+        gpu.set_budget(asset_bytes=config.gpu_bytes, environments=4)
 
     def limits(self):
         from pipeline.limits import Limits
-        return Limits.from_env(**self.limits_overrides)
+        return Limits.from_env(**self.config.limits)
+
+    def cache(self):
+        from pipeline.cache import Cache
+        return Cache(self.config.cache_dir, max_bytes=self.config.bake_cache_bytes or 0)
 
     def ping(self) -> dict:
-        """Creates the GL context (the slow part of a first render) and says what we run."""
+        """Creates the GL context, bakes the default environment and compiles the shaders (by
+        drawing a packaged sample opaque and as glass), so a first request is not slower."""
         import renderer
         from core.context import get_context
+        t0 = time.perf_counter()
         ctx = get_context()
         info = {"pid": os.getpid(), "gl_renderer": ctx.info.get("GL_RENDERER", ""),
                 "renderer_version": str(getattr(renderer, "RENDERER_VERSION", "0"))}
@@ -79,18 +90,39 @@ class WorkerState:
             info["environments"] = list(list_bundled())
         except ImportError:
             log.warning("pipeline.environment is not available: no bundled environments")
+        self._warm()
+        info["warm_seconds"] = round(time.perf_counter() - t0, 3)
         return info
+
+    def _warm(self) -> None:
+        from pathlib import Path
+
+        import pipeline
+        import renderer
+        from core.options import MaterialOverride, RenderOptions
+        from renderer.auto import environment_face_size
+        sample = Path(__file__).resolve().parent / "samples" / "BoxTextured.glb"
+        try:
+            asset = pipeline.bake_asset(sample, self.cache())
+            # The environment a default-sized thumbnail needs (the face-size policy's answer).
+            env = self._env(self.config.default_env, environment_face_size(asset, RenderOptions())[0])
+            for override in (None, MaterialOverride(transmission=1.0, ior=1.5, roughness=0.0)):
+                renderer.render(asset, env, RenderOptions(width=16, height=16, override=override))
+        except Exception as exc:  # a worker that cannot warm up still serves what it can
+            log.warning("warm-up render failed: %s", exc)
 
     def inspect(self, path: str) -> dict:
         import pipeline
         scene = pipeline.load_scene(path, self.limits())
         return {"format": scene.format, "triangles": int(scene.triangle_count),
-                "materials": len(scene.materials), "warnings": list(scene.warnings)[:20]}
+                "materials": len(scene.materials), "warnings": list(scene.warnings)[:20],
+                "transmissive": any(m.transmission > 0 for m in scene.materials),
+                "files": [str(f) for f in scene.files]}
 
     def bake(self, path: str) -> dict:
         import pipeline
         t0 = time.perf_counter()
-        baked = pipeline.bake_asset(path, self.cache_dir)
+        baked = pipeline.bake_asset(path, self.cache(), limits=self.limits())
         return {"key": baked.key, "triangles": int(baked.triangle_count),
                 "seconds": time.perf_counter() - t0}
 
@@ -105,7 +137,7 @@ class WorkerState:
         import renderer
         from renderer.auto import environment_face_size
         t0 = time.perf_counter()
-        asset = self._cached(self.assets, key, 16, lambda: _load_baked(key, self.cache_dir))
+        asset = self._cached(("asset", key), lambda: _load_baked(key, self.cache()))
         env = self._env(env_source, environment_face_size(asset, options)[0])
         frame = renderer.render(asset, env, options)
         data = frame.encode(fmt)
@@ -114,34 +146,45 @@ class WorkerState:
 
     def _env(self, source: str, face_size: int):
         import pipeline
-        return self._cached(self.envs, f"{face_size}:{source}", 4, lambda: pipeline.bake_environment(
-            source, self.cache_dir, face_size=face_size))
+        return self._cached(("env", f"{face_size}:{source}"), lambda: pipeline.bake_environment(
+            source, self.cache(), face_size=face_size))
 
-    @staticmethod
-    def _cached(table: OrderedDict, key: str, size: int, make):
-        value = table.get(key)
+    def _cached(self, key: tuple, make):
+        value = self.loaded.get(key)
         if value is None:
             value = make()
-            table[key] = value
-            while len(table) > size:
-                table.popitem(last=False)
-        table.move_to_end(key)
+            if _weight(value) <= self.loaded.maxsize:  # one too big for the budget is not kept
+                self.loaded[key] = value
         return value
 
 
-def _load_baked(key: str, cache_dir: str):
+def _weight(value) -> int:
+    """Bytes a baked asset or environment holds (its textures counted at their full size,
+    whether read yet or not: they stay once a render has read them)."""
+    files = getattr(value, "manifest", {}).get("files")
+    if files:
+        return max(1, sum(int(meta.get("bytes", 0)) for meta in files.values()))
+    arrays = [getattr(value, "specular", None) or [], [getattr(value, "brdf_lut", None)]]
+    total = sum(a.nbytes for group in arrays for a in group if a is not None)
+    for m in getattr(value, "meshes", []):
+        total += sum(a.nbytes for a in (m.positions, m.normals, m.indices, m.tangents, m.uv0, m.uv1,
+                                        m.colors, m.interior) if a is not None)
+    return max(1, total)
+
+
+def _load_baked(key: str, cache):
     import pipeline
-    return pipeline.load_baked(key, cache_dir)
+    return pipeline.load_baked(key, cache)
 
 
 def answer(state: WorkerState, op: str, args: tuple) -> tuple[str, object]:
-    """Run one job in a worker (process or Ray actor): ("ok", value), ("asset_error",
-    (class name, path, reason)) or ("error", text); `unpack_reply` turns it back server-side."""
+    """Run one job in a worker (process or Ray actor): ("ok", value), ("asset_error", the
+    AssetError itself: it pickles as its own class) or ("error", text)."""
     from core.errors import AssetError
     try:
         return ("ok", getattr(state, op)(*args))
     except AssetError as exc:
-        return ("asset_error", (type(exc).__name__, exc.path, exc.reason))
+        return ("asset_error", exc)
     except MemoryError:
         return ("error", "out of memory")
     except Exception as exc:  # reported to the caller as a 500 with this text
@@ -154,14 +197,14 @@ def unpack_reply(op: str, status: str, value):
     if status == "ok":
         return value
     if status == "asset_error":
-        raise JobAssetError(*value)
+        raise value
     raise WorkerFailure(f"{op} failed in the render worker: {value}")
 
 
-def _worker_main(conn, cache_dir: str, limits: dict, log_level: int) -> None:
-    logging.basicConfig(level=log_level, format="%(levelname)s worker %(process)d %(name)s: %(message)s")
+def _worker_main(conn, config: WorkerConfig) -> None:
+    logging.basicConfig(level=config.log_level, format="%(levelname)s worker %(process)d %(name)s: %(message)s")
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the server stops us; Ctrl-C goes to it
-    state = WorkerState(cache_dir, limits)
+    state = WorkerState(config)
     while True:
         try:
             op, args = conn.recv()
@@ -198,21 +241,47 @@ class Worker:
         return bool(self.process and self.process.is_alive())
 
 
+@dataclass(eq=False)
+class _Job:
+    cost_ms: float
+    expensive: bool
+    client: str | None
+    seq: int
+    enqueued: float
+    future: asyncio.Future
+
+
 class Pool:
     """What the process pool and the Ray actor pool (service/ray_workers.py) share: the queue
-    bound, one job per worker at a time, busy bookkeeping, readiness and status. A subclass
-    creates `self.workers` and supplies start/stop/_replace and `_exchange`, which runs one job
-    on one worker and returns its (status, value) reply."""
+    bound, one job per worker at a time, the order jobs get workers in, busy bookkeeping,
+    readiness and status. A subclass creates `self.workers` and supplies start/stop/_replace
+    and `_exchange`, which runs one job on one worker and returns its (status, value) reply.
 
-    def __init__(self, size: int, cache_dir: str | os.PathLike, limits: dict | None,
-                 max_queue: int, on_restart, thread_prefix: str):
+    Order: a free worker goes to the waiting job with the lowest estimated cost, less
+    `AGING_MS_PER_S` for every second it has waited (so an expensive job is never starved).
+    Expensive jobs (over `cheap_ms`: big renders, bakes, uploads' ingest) hold at most all
+    workers but one, so a cheap render never waits behind them, and one client (API key or
+    address) holds at most its `client_share` of the workers with them and of the queue."""
+
+    AGING_MS_PER_S = 1000.0
+
+    def __init__(self, size: int, config: WorkerConfig, max_queue: int, on_restart, thread_prefix: str,
+                 cheap_ms: float = 2000.0, client_share: float = 1.0):
         self.size = size
-        self.cache_dir = str(cache_dir)
-        self.limits = dict(limits or {})
+        self.config = config
         self.max_queue = max_queue
         self.on_restart = on_restart or (lambda reason: None)
+        self.cheap_ms = cheap_ms
+        self.expensive_slots = max(1, size - 1)
+        self.client_slots = max(1, int(client_share * size))
+        self.client_queue = max(1, int(client_share * max_queue))
         self.workers: list = []
-        self._idle: asyncio.Queue | None = None
+        self._free: list = []
+        self._waiting: list[_Job] = []
+        self._expensive_running = 0
+        self._expensive_by: dict[str, int] = {}
+        self._queued_by: dict[str, int] = {}
+        self._seq = 0
         self._loop: asyncio.AbstractEventLoop | None = None
         self.pending = 0  # jobs counted against the queue bound (waiting or running)
         self.info: dict = {}
@@ -224,29 +293,90 @@ class Pool:
     def ready(self) -> bool:
         return any(w.answered and w.alive() for w in self.workers)
 
-    async def run(self, op: str, *args, deadline: float, queue: bool = True):
-        """Run `op(*args)` on a free worker within `deadline` seconds of starting it.
-        `queue=True` counts the job against the bound (renders); background work does not."""
-        assert self._idle is not None, "the pool is not started"
+    async def run(self, op: str, *args, deadline: float, queue: bool = True, cost_ms: float = 0.0,
+                  expensive: bool | None = None, client: str | None = None):
+        """Run `op(*args)` on a worker within `deadline` seconds of starting it. `queue=True`
+        counts the job against the bound (requests); background work does not. `cost_ms` is
+        the job's estimated cost; `client` who asked (None: the service itself)."""
         if queue:
             if self.pending >= self.max_queue:
                 raise QueueFull(f"render queue is full ({self.pending} waiting or running)")
+            if client is not None and self._queued_by.get(client, 0) >= self.client_queue:
+                raise QueueFull(f"you have {self.client_queue} renders waiting or running, your "
+                                "share of the queue; retry when one has finished")
             self.pending += 1
+            if client is not None:
+                self._queued_by[client] = self._queued_by.get(client, 0) + 1
         try:
-            w = await self._idle.get()
-            job = self._executor.submit(self._call, w, op, args, deadline)
-            # Back to the idle queue when the thread is done with the worker, not when this
+            job = _Job(cost_ms, cost_ms > self.cheap_ms if expensive is None else expensive, client,
+                       self._next_seq(), time.monotonic(), asyncio.get_running_loop().create_future())
+            w = await self._acquire(job)
+            future = self._executor.submit(self._call, w, op, args, deadline)
+            # Back to the free list when the thread is done with the worker, not when this
             # coroutine is (a cancelled request must not hand a busy worker to another).
-            job.add_done_callback(lambda _: self._release(w))
-            return await asyncio.wrap_future(job)
+            future.add_done_callback(lambda _: self._release_threadsafe(w, job))
+            return await asyncio.wrap_future(future)
         finally:
             if queue:
                 self.pending -= 1
+                if client is not None:
+                    self._queued_by[client] -= 1
+                    if not self._queued_by[client]:
+                        del self._queued_by[client]
 
-    def _release(self, w) -> None:
-        assert self._loop is not None and self._idle is not None  # started: a job ran
+    def _next_seq(self) -> int:
+        self._seq += 1
+        return self._seq
+
+    async def _acquire(self, job: _Job):
+        self._waiting.append(job)
+        self._dispatch()
         try:
-            self._loop.call_soon_threadsafe(self._idle.put_nowait, w)
+            return await job.future
+        except asyncio.CancelledError:
+            if job in self._waiting:
+                self._waiting.remove(job)
+            elif job.future.done() and not job.future.cancelled():
+                self._release(job.future.result(), job)  # handed a worker it will not use
+            raise
+
+    def _dispatch(self) -> None:
+        """Give free workers to the best eligible waiting jobs (event loop thread only)."""
+        while self._free and self._waiting:
+            now = time.monotonic()
+            eligible = [j for j in self._waiting if not j.future.done() and self._may_start(j)]
+            if not eligible:
+                return
+            job = min(eligible, key=lambda j: (j.cost_ms - self.AGING_MS_PER_S * (now - j.enqueued), j.seq))
+            self._waiting.remove(job)
+            w = self._free.pop(0)
+            if job.expensive:
+                self._expensive_running += 1
+                if job.client is not None:
+                    self._expensive_by[job.client] = self._expensive_by.get(job.client, 0) + 1
+            job.future.set_result(w)
+
+    def _may_start(self, job: _Job) -> bool:
+        if not job.expensive:
+            return True
+        if self._expensive_running >= self.expensive_slots:
+            return False
+        return job.client is None or self._expensive_by.get(job.client, 0) < self.client_slots
+
+    def _release(self, w, job: _Job) -> None:
+        if job.expensive:
+            self._expensive_running -= 1
+            if job.client is not None:
+                self._expensive_by[job.client] -= 1
+                if not self._expensive_by[job.client]:
+                    del self._expensive_by[job.client]
+        self._free.append(w)
+        self._dispatch()
+
+    def _release_threadsafe(self, w, job: _Job) -> None:
+        assert self._loop is not None  # started: a job ran
+        try:
+            self._loop.call_soon_threadsafe(self._release, w, job)
         except RuntimeError:  # the loop is closed: the server is stopping
             pass
 
@@ -271,9 +401,8 @@ class Pool:
 
 
 class WorkerPool(Pool):
-    def __init__(self, size: int, cache_dir: str, limits: dict | None = None,
-                 max_queue: int = 64, on_restart=None):
-        super().__init__(size, cache_dir, limits, max_queue, on_restart, "render-pool")
+    def __init__(self, size: int, config: WorkerConfig, max_queue: int = 64, on_restart=None, **order):
+        super().__init__(size, config, max_queue, on_restart, "render-pool", **order)
         self._ctx = mp.get_context("spawn")
         self.workers = [Worker(i) for i in range(size)]
         self._tasks: set[asyncio.Task] = set()
@@ -281,14 +410,13 @@ class WorkerPool(Pool):
     # -- life cycle -------------------------------------------------------------------------
 
     async def start(self) -> None:
-        self._idle = asyncio.Queue()
         self._loop = loop = asyncio.get_running_loop()
         await asyncio.gather(*(loop.run_in_executor(self._executor, self._spawn, w) for w in self.workers))
-        for w in self.workers:
-            self._idle.put_nowait(w)
+        self._free = list(self.workers)
 
     async def warm_up(self) -> None:
-        """Ping every worker once (creates its GL context); readiness follows the first answer."""
+        """Ping every worker once (GL context, default environment, shaders); readiness follows
+        the first answer. Each ping is a worker's first job, so requests wait for it."""
         await asyncio.gather(*(self._ping() for _ in self.workers))
 
     async def stop(self) -> None:
@@ -309,8 +437,7 @@ class WorkerPool(Pool):
     def _spawn(self, w: Worker) -> None:
         parent, child = self._ctx.Pipe()
         proc = self._ctx.Process(target=_worker_main, name=f"render-worker-{w.index}", daemon=True,
-                                 args=(child, self.cache_dir, self.limits,
-                                       logging.getLogger().getEffectiveLevel()))
+                                 args=(child, self.config))
         proc.start()
         child.close()
         w.process, w.conn, w.answered = proc, parent, False

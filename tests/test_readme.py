@@ -42,3 +42,15 @@ def test_readme_lists_the_render_options_from_the_schema():
     m = MARK.search(README.read_text())
     assert m, "README.md has no <!-- render-options --> block"
     assert m.group(1) == table(), "README's render options differ from the schema; use:\n" + table()
+
+
+def test_readme_lists_every_setting_from_its_declaration():
+    """The settings tables are `python -m cli.serve`'s output: every row as declared now."""
+    from cli.serve import settings_table
+    from core.config import RendererSettings
+    from pipeline.limits import Limits, PipelineSettings
+    text = README.read_text()
+    for model, flags in ((None, True), (Limits, False), (PipelineSettings, False), (RendererSettings, False)):
+        rows = (settings_table() if model is None else settings_table(model, flags)).splitlines()[2:]
+        missing = [r for r in rows if r not in text]
+        assert not missing, "README's settings differ from the declarations; run python -m cli.serve:\n" + "\n".join(missing)

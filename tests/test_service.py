@@ -23,7 +23,8 @@ UNPACKED_LIMIT = 64 * 2**20
 SERVER_ENV = {"ASSET_PREVIEW_MAX_ARCHIVE_FILES": "64", "ASSET_PREVIEW_MAX_QUEUE": str(MAX_QUEUE),
               "ASSET_PREVIEW_MAX_UNPACKED_BYTES": str(UNPACKED_LIMIT),
               "ASSET_PREVIEW_MAX_TRIANGLES": "10000",  # the bunny (16k) is over, the samples under
-              "ASSET_PREVIEW_MAX_TEXTURE_PIXELS": str(2048 * 2048)}
+              "ASSET_PREVIEW_MAX_TEXTURE_PIXELS": str(2048 * 2048),
+              "ASSET_PREVIEW_CLIENT_SHARE": "1"}  # every test client is 127.0.0.1: one client
 
 
 @pytest.fixture(scope="module")
@@ -425,6 +426,9 @@ def test_metrics_are_prometheus_text(server, samples):
                  "asset_preview_render_queue"):
         assert name in text
     assert _metric(server, 'asset_preview_render_seconds_count') >= 1
+    from prometheus_client.parser import text_string_to_metric_families
+    families = {f.name for f in text_string_to_metric_families(text)}  # parses: labels escaped
+    assert {"asset_preview_http_requests", "asset_preview_render_queue"} <= families
 
 
 def test_page_shows_thumbnails_of_stored_assets(server, samples):

@@ -84,11 +84,17 @@ def test_find_root_needs_a_single_candidate_or_main():
 def test_settings_flags_over_environment_over_defaults(monkeypatch):
     assert Settings.from_env().max_thumbnail_size == 2048
     monkeypatch.setenv("ASSET_PREVIEW_MAX_THUMBNAIL_SIZE", "1024")
-    monkeypatch.setenv("ASSET_PREVIEW_WORKERS", "3")
+    monkeypatch.setenv("ASSET_PREVIEW_RENDER_WORKERS", "3")
+    monkeypatch.setenv("ASSET_PREVIEW_BAKE_WORKERS", "5")
     monkeypatch.setenv("ASSET_PREVIEW_SEED", "false")
-    s = Settings.from_env(workers=None, cache="/tmp/x")
-    assert (s.max_thumbnail_size, s.workers, s.seed, str(s.cache)) == (1024, 3, False, "/tmp/x")
+    s = Settings.from_env(render_workers=None, cache="/tmp/x")
+    assert (s.max_thumbnail_size, s.render_workers, s.seed, str(s.cache)) == (1024, 3, False, "/tmp/x")
     assert Settings.from_env(max_thumbnail_size=512).max_thumbnail_size == 512
+    # Render workers of the service and bake processes of asset-bake are distinct knobs.
+    from pipeline.limits import PipelineSettings
+    assert PipelineSettings().bake_workers == 5
+    with pytest.raises(ValueError):  # a malformed value is refused, not silently defaulted
+        Settings.from_env(max_queue=0)
 
 
 def test_safe_names_and_thumbnail_cache(tmp_path):

@@ -9,17 +9,19 @@ from fastapi.responses import JSONResponse, Response
 from pydantic import ValidationError
 
 from ..core import NotFound, ThumbnailService
-from ..deps import get_service, require_key
+from ..deps import client_of, get_service
 from ..models import MEDIA_TYPES, AssetInfo, AssetList, Deleted, ErrorDetail, ThumbnailParams, render_options
+from ..records import AssetRecord
 
 router = APIRouter(prefix="/assets", tags=["assets"])
 Service = Annotated[ThumbnailService, Depends(get_service)]
-ERRORS: dict[int | str, dict[str, Any]] = {code: {"model": ErrorDetail} for code in (401, 404, 413, 415, 422, 500, 503, 504)}
+ERRORS: dict[int | str, dict[str, Any]] = {code: {"model": ErrorDetail}
+                                          for code in (401, 403, 404, 413, 415, 421, 422, 500, 503, 504)}
 
 
-def asset_info(rec: dict) -> AssetInfo:
-    fields = {k: rec[k] for k in AssetInfo.model_fields if rec.get(k) is not None}
-    return AssetInfo(**fields, thumbnail=f"/assets/{rec['id']}/thumbnail")
+def asset_info(rec: AssetRecord) -> AssetInfo:
+    fields = rec.model_dump(include=set(AssetInfo.model_fields))
+    return AssetInfo(**fields, thumbnail=f"/assets/{rec.id}/thumbnail")
 
 
 async def _chunks(file: UploadFile):
@@ -27,20 +29,20 @@ async def _chunks(file: UploadFile):
         yield chunk
 
 
-@router.post("", status_code=201, response_model=AssetInfo, dependencies=[Depends(require_key)],
+@router.post("", status_code=201, response_model=AssetInfo,
              responses={200: {"model": AssetInfo, "description": "the same bytes were uploaded before"},
                         **ERRORS})
-async def upload_asset(service: Service, file: UploadFile = File(..., description="the asset, or a .zip of it"),
+async def upload_asset(request: Request, service: Service, file: UploadFile = File(..., description="the asset, or a .zip of it"),
                        main: str | None = Form(None, description="file to ingest inside a .zip")):
     """Store an asset and bake it in the background. The id is the content hash: uploading the
     same bytes again answers 200 with the existing asset and bakes nothing."""
-    rec, created = await service.add_asset(file.filename or "", _chunks(file), main)
+    rec, created = await service.add_asset(file.filename or "", _chunks(file), main, client_of(request))
     return JSONResponse(asset_info(rec).model_dump(), status_code=201 if created else 200)
 
 
 @router.get("", response_model=AssetList)
 async def list_assets(service: Service):
-    recs = sorted(service.store.assets.values(), key=lambda r: r["created"])
+    recs = sorted(service.store.assets.values(), key=lambda r: r.created)
     return AssetList(assets=[asset_info(r) for r in recs])
 
 
@@ -52,7 +54,7 @@ async def get_asset(asset_id: str, service: Service):
     return asset_info(rec)
 
 
-@router.delete("/{asset_id}", response_model=Deleted, dependencies=[Depends(require_key)], responses=ERRORS)
+@router.delete("/{asset_id}", response_model=Deleted, responses=ERRORS)
 async def delete_asset(asset_id: str, service: Service):
     await service.delete_asset(asset_id)
     return Deleted(id=asset_id)
@@ -85,22 +87,22 @@ async def thumbnail(asset_id: str, request: Request, service: Service):
                                       exc.errors(include_url=False, include_context=False)]) from None
     if asset_id not in service.store.assets:
         raise NotFound(asset_id)
-    service.check_size(options)
+    options = service.admit(options)
     env_identity, env_source = service.resolve_environment(params.env)
     key = service.thumbnail_key(asset_id, options, env_identity)
     hit = service.cached(asset_id, key, params.format)
     outcome = "hit"
     if hit is None:
         outcome = "miss"
-        hit = await service.render(asset_id, options, params.format, key, env_source)
+        hit = await service.render(asset_id, options, params.format, key, env_source, client_of(request))
     data, etag, plan = hit
     headers = {"ETag": etag, "Cache-Control": f"public, max-age={service.settings.cache_max_age}",
                "X-Render-Plan": plan}
     if_none_match = request.headers.get("if-none-match")
     if if_none_match and _matches(if_none_match, etag):
-        service.metrics.thumbnails["not_modified"] += 1
+        service.metrics.thumbnails.labels("not_modified").inc()
         return Response(status_code=304, headers=headers)
-    service.metrics.thumbnails[outcome] += 1
+    service.metrics.thumbnails.labels(outcome).inc()
     return Response(data, media_type=MEDIA_TYPES[params.format], headers=headers)
 
 

@@ -8,6 +8,7 @@ from fastapi.responses import JSONResponse, PlainTextResponse
 
 from ..core import ThumbnailService
 from ..deps import get_service
+from ..metrics import CONTENT_TYPE
 from ..models import Health, Ready
 
 router = APIRouter(tags=["operations"])
@@ -32,5 +33,4 @@ async def readyz(service: Service):
 @router.get("/metrics", response_class=PlainTextResponse)
 async def metrics(service: Service):
     """Prometheus text format 0.0.4."""
-    return PlainTextResponse(service.metrics.render_text(),
-                             media_type="text/plain; version=0.0.4; charset=utf-8")
+    return PlainTextResponse(service.metrics.render_text(), media_type=CONTENT_TYPE)

@@ -58,11 +58,11 @@ document.getElementById("upload").onsubmit = async e => {{
 @router.get("/", response_class=HTMLResponse, include_in_schema=False)
 async def index(service: Annotated[ThumbnailService, Depends(get_service)]):
     cards = []
-    for rec in sorted(service.store.assets.values(), key=lambda r: r["created"]):
-        name = html.escape(rec["name"])
-        status = rec["status"]
-        note = html.escape(rec.get("reason") or "") if status == "failed" else f"{rec['triangles']:,} triangles"
-        img = "" if status == "failed" else f'<img alt="{name}" data-src="/assets/{rec["id"]}/thumbnail?size=256">'
+    for rec in sorted(service.store.assets.values(), key=lambda r: r.created):
+        name = html.escape(rec.name)
+        status = rec.status
+        note = html.escape(rec.reason or "") if status == "failed" else f"{rec.triangles:,} triangles"
+        img = "" if status == "failed" else f'<img alt="{name}" data-src="/assets/{rec.id}/thumbnail?size=256">'
         cards.append(f'<figure>{img}<figcaption><span>{name}<br><small>{note}</small></span>'
                      f'<span class="{status}">{status}</span></figcaption></figure>')
     return HTMLResponse(_PAGE.format(cards="".join(cards), count=len(cards)))
