@@ -10,8 +10,10 @@ in the archive, never a server folder.
 """
 from __future__ import annotations
 
+import lzma
 import stat
 import zipfile
+import zlib
 from pathlib import Path, PurePosixPath
 
 from core.errors import LimitExceeded, MalformedAsset, UnsafeReference
@@ -72,8 +74,8 @@ def _extract(zf: zipfile.ZipFile, dest: Path, name: str, max_bytes: int, max_fil
                     dst.write(chunk)
         except FileExistsError:
             raise MalformedAsset(name, f"archive holds {info.filename!r} twice") from None
-        except (zipfile.BadZipFile, zipfile.LargeZipFile, NotImplementedError, EOFError,
-                RuntimeError, ValueError) as exc:  # RuntimeError: a password is needed
+        except (zipfile.BadZipFile, zipfile.LargeZipFile, NotImplementedError, EOFError, RuntimeError,
+                ValueError, zlib.error, lzma.LZMAError) as exc:  # RuntimeError: a password is needed
             raise MalformedAsset(name, f"cannot inflate {info.filename!r} ({exc})") from None
         written.append(rel.as_posix())
     return written

@@ -123,3 +123,29 @@ def test_thumbnail_cache_prunes_oldest_first(tmp_path):
     assert left and "k9.png" in left and "k0.png" not in left
     assert sum(p.stat().st_size for p in tmp_path.rglob("*") if p.is_file()) <= 720
     assert cache.get("a" * 32, "k0", "png") is None
+
+
+def test_extract_of_corrupted_archives_raises_only_asset_errors(tmp_path):
+    """Random byte flips and truncations of a valid zip: refused as AssetError (-> 422) or
+    extracted inside the folder, never another exception (-> 500)."""
+    import random
+
+    from core.errors import AssetError
+    good = make_zip(io.BytesIO(), {"scene/a.gltf": b'{"asset": {"version": "2.0"}}' * 20,
+                                   "scene/tex/b.png": bytes(range(256)) * 8}).getvalue()
+    rng = random.Random(16)
+    for i in range(300):
+        data = bytearray(good)
+        for _ in range(rng.randint(1, 6)):
+            data[rng.randrange(len(data))] = rng.randrange(256)
+        if i % 5 == 0:
+            data = data[:rng.randrange(len(data))]
+        z = tmp_path / f"{i}.zip"
+        z.write_bytes(bytes(data))
+        out = tmp_path / f"out{i}"
+        try:
+            files = archive.extract(z, out, max_bytes=10_000, max_files=10, label="x.zip")
+        except AssetError as exc:
+            assert str(exc).startswith("x.zip: ") and str(tmp_path) not in str(exc), exc
+        else:
+            assert all((out / f).resolve().is_relative_to(out.resolve()) for f in files)
