@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from core.errors import AssetError, LimitExceeded, MalformedAsset, UnsupportedFormat
+from core.errors import AssetError, IngestTimeout, LimitExceeded, MalformedAsset, UnsupportedFormat
 from core.options import RenderOptions
 from pipeline.cache import Cache, NotInCache
 from pipeline.ingest import READERS
@@ -27,7 +27,7 @@ from .metrics import Metrics
 from .records import AssetRecord, EnvironmentRecord
 from .settings import Settings
 from .store import Store, ThumbnailCache, content_id, safe_name
-from .workers import WorkerConfig, WorkerFailure, WorkerPool
+from .workers import DeadlineExceeded, QueueFull, WorkerConfig, WorkerFailure, WorkerPool
 
 log = logging.getLogger(__name__)
 
@@ -202,6 +202,14 @@ class ThumbnailService:
                                               client=client)
             except AssetError as exc:
                 raise _public_error(exc, src, name) from None
+            except QueueFull:
+                raise
+            except WorkerFailure as exc:  # the upload crashed or hung the reader: its fault, not ours
+                log.error("upload %s: reading it failed in a worker: %s", name, public_message(str(exc)))
+                timeout = isinstance(exc, DeadlineExceeded)
+                raise (IngestTimeout if timeout else MalformedAsset)(name, (
+                    "reading it took longer than the worker deadline" if timeout else
+                    "the file could not be read (the reader failed on it)")) from None
             # Only what the asset references is kept (a zip's readme, previews, other scenes go).
             dropped = await asyncio.to_thread(archive.drop_unreferenced, src, summary.pop("files", []))
             stored = sum(f.stat().st_size for f in src.rglob("*") if f.is_file())
