@@ -246,6 +246,7 @@ class ThumbnailCache:
             if total <= 0.9 * max_bytes:
                 break
             path.unlink(missing_ok=True)  # a plan without its image is never read
+            self._used.pop(f"{path.parent.name}/{path.name.replace('.plan.json', '')}", None)
             total -= size
             removed += 1
         return removed
@@ -253,7 +254,7 @@ class ThumbnailCache:
     def forget(self, asset_id: str) -> None:
         for k in [k for k in self._hot if k.startswith(asset_id + "/")]:
             self._hot.pop(k, None)
-        for k in [k for k in self._used if k.startswith(asset_id + "/")]:
+        for k in [k for k in list(self._used) if k.startswith(asset_id + "/")]:  # prune runs in a thread
             self._used.pop(k, None)
 
     def _remember(self, mem_key: str, data: bytes, plan: str) -> tuple[bytes, str, str]:

@@ -138,6 +138,7 @@ class WorkerState:
         from renderer.auto import environment_face_size
         t0 = time.perf_counter()
         asset = self._cached(("asset", key), lambda: _load_baked(key, self.cache()))
+        _touch(self.cache(), key)  # in use: the bake cache's LRU must not see it as cold
         env = self._env(env_source, environment_face_size(asset, options)[0])
         frame = renderer.render(asset, env, options)
         data = frame.encode(fmt)
@@ -170,6 +171,13 @@ def _weight(value) -> int:
         total += sum(a.nbytes for a in (m.positions, m.normals, m.indices, m.tangents, m.uv0, m.uv1,
                                         m.colors, m.interior) if a is not None)
     return max(1, total)
+
+
+def _touch(cache, key: str) -> None:
+    try:
+        os.utime(cache.entry_dir("assets", key) / "manifest.json")
+    except (OSError, ValueError):
+        pass  # gone or read-only: the next load finds out
 
 
 def _load_baked(key: str, cache):
