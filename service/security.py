@@ -34,6 +34,8 @@ PAGE_CSP = ("default-src 'self'; img-src 'self' data: blob:; script-src 'self' '
 DATA_CSP = "default-src 'none'; frame-ancestors 'none'; sandbox"
 _COMMON = [(b"x-content-type-options", b"nosniff"), (b"x-frame-options", b"DENY"),
            (b"referrer-policy", b"no-referrer")]
+_PAGE_HEADERS = _COMMON + [(b"content-security-policy", PAGE_CSP.encode())]
+_DATA_HEADERS = _COMMON + [(b"content-security-policy", DATA_CSP.encode())]
 
 
 def fingerprint(key: str) -> str:
@@ -45,6 +47,8 @@ class AccessMiddleware:
     def __init__(self, app, settings: Settings):
         self.app = app
         self.keys = [k.encode() for k in settings.api_keys]
+        self._fingerprints = {k: "key:" + fingerprint(k.decode()) for k in self.keys}
+        self._hosts_seen: dict[bytes, bool] = {}  # Host header -> allowed (bounded)
         self.public_read = settings.public_read
         hosts = {h.strip().lower() for h in settings.allowed_hosts.split(",") if h.strip()}
         self.any_host = "*" in hosts or (settings.host in WILDCARDS and not hosts)
@@ -59,8 +63,9 @@ class AccessMiddleware:
         path, method = scope["path"], scope["method"]
         state = scope.setdefault("state", {})
         state["client"] = "addr:" + (scope.get("client") or ("local", 0))[0]
-        host = headers.get(b"host", b"").decode("latin-1").lower()
-        if path not in OPEN_PATHS and not self._host_ok(host):  # probes may use any address
+        raw_host = headers.get(b"host", b"")
+        host = raw_host.decode("latin-1").lower()
+        if path not in OPEN_PATHS and not self._host_ok_cached(raw_host, host):  # probes: any address
             return await _refuse(send, 421,
                                  f"Host {host[:64]!r} is not a name of this service; add it to "
                                  "allowed_hosts (ASSET_PREVIEW_ALLOWED_HOSTS)")
@@ -68,32 +73,43 @@ class AccessMiddleware:
         if origin is not None and method not in READ_METHODS and not self._origin_ok(origin, host):
             return await _refuse(send, 403, "cross-origin request refused: Origin is not this service")
         if self.keys and path not in OPEN_PATHS and not (self.public_read and method in READ_METHODS):
-            key = _bearer(headers.get(b"authorization", b""))
-            if key is None or not self._known(key):
+            who = self._known(_bearer(headers.get(b"authorization", b"")))
+            if who is None:
                 return await _refuse(send, 401, "missing or wrong API key: send `Authorization: Bearer KEY`",
                                      [(b"www-authenticate", b"Bearer")])
-            state["client"] = "key:" + fingerprint(key.decode("latin-1"))
+            state["client"] = who
         elif self.keys:
-            key = _bearer(headers.get(b"authorization", b""))
-            if key is not None and self._known(key):
-                state["client"] = "key:" + fingerprint(key.decode("latin-1"))
+            who = self._known(_bearer(headers.get(b"authorization", b"")))
+            if who is not None:
+                state["client"] = who
 
         async def secured(message):
             if message["type"] == "http.response.start":
-                hdrs = list(message.get("headers", []))
+                hdrs = message.get("headers", [])
                 html = any(k.lower() == b"content-type" and v.startswith(b"text/html") for k, v in hdrs)
-                hdrs += _COMMON + [(b"content-security-policy", (PAGE_CSP if html else DATA_CSP).encode())]
-                message = dict(message, headers=hdrs)
+                message = dict(message, headers=[*hdrs, *(_PAGE_HEADERS if html else _DATA_HEADERS)])
             await send(message)
 
         await self.app(scope, receive, secured)
 
-    def _known(self, key: bytes) -> bool:
-        # Every key is compared (compare_digest: time independent of where they differ).
-        found = False
+    def _known(self, key: bytes | None) -> str | None:
+        """The caller's identity for a valid key, else None. Every key is compared
+        (compare_digest: time independent of where they differ)."""
+        if key is None:
+            return None
+        found = None
         for k in self.keys:
-            found |= hmac.compare_digest(key, k)
+            if hmac.compare_digest(key, k):
+                found = self._fingerprints[k]
         return found
+
+    def _host_ok_cached(self, raw: bytes, host: str) -> bool:
+        ok = self._hosts_seen.get(raw)
+        if ok is None:
+            ok = self._host_ok(host)
+            if len(self._hosts_seen) < 256:  # a client sending random names cannot grow it
+                self._hosts_seen[raw] = ok
+        return ok
 
     def _host_ok(self, host: str) -> bool:
         if self.any_host:

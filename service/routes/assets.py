@@ -100,9 +100,9 @@ async def thumbnail(asset_id: str, request: Request, service: Service):
                "X-Render-Plan": plan}
     if_none_match = request.headers.get("if-none-match")
     if if_none_match and _matches(if_none_match, etag):
-        service.metrics.thumbnails.labels("not_modified").inc()
+        service.metrics.thumbnail("not_modified")
         return Response(status_code=304, headers=headers)
-    service.metrics.thumbnails.labels(outcome).inc()
+    service.metrics.thumbnail(outcome)
     return Response(data, media_type=MEDIA_TYPES[params.format], headers=headers)
 
 
