@@ -265,8 +265,9 @@ class Pool:
     readiness and status. A subclass creates `self.workers` and supplies start/stop/_replace
     and `_exchange`, which runs one job on one worker and returns its (status, value) reply.
 
-    Order: a free worker goes to the waiting job with the lowest estimated cost, less
-    `AGING_MS_PER_S` for every second it has waited (so an expensive job is never starved).
+    Order: a free worker goes to a waiting job of the client running fewest jobs (clients take
+    turns), and among those to the lowest estimated cost, less `AGING_MS_PER_S` for every
+    second it has waited (so an expensive job is never starved).
     Expensive jobs (over `cheap_ms`: big renders, bakes, uploads' ingest) hold at most all
     workers but one, so a cheap render never waits behind them, and one client (API key or
     address) holds at most its `client_share` of the workers with them and of the queue."""
@@ -289,6 +290,7 @@ class Pool:
         self._expensive_running = 0
         self._expensive_by: dict[str, int] = {}
         self._queued_by: dict[str, int] = {}
+        self._running_by: dict[str, int] = {}
         self._seq = 0
         self._loop: asyncio.AbstractEventLoop | None = None
         self.pending = 0  # jobs counted against the queue bound (waiting or running)
@@ -355,9 +357,14 @@ class Pool:
             eligible = [j for j in self._waiting if not j.future.done() and self._may_start(j)]
             if not eligible:
                 return
-            job = min(eligible, key=lambda j: (j.cost_ms - self.AGING_MS_PER_S * (now - j.enqueued), j.seq))
+            # Among the eligible: the client running fewest jobs first (clients take turns), then
+            # the lowest cost less its aging credit, then the oldest.
+            job = min(eligible, key=lambda j: (self._running_by.get(j.client, 0) if j.client else 0,
+                                               j.cost_ms - self.AGING_MS_PER_S * (now - j.enqueued), j.seq))
             self._waiting.remove(job)
             w = self._free.pop(0)
+            if job.client is not None:
+                self._running_by[job.client] = self._running_by.get(job.client, 0) + 1
             if job.expensive:
                 self._expensive_running += 1
                 if job.client is not None:
@@ -372,6 +379,10 @@ class Pool:
         return job.client is None or self._expensive_by.get(job.client, 0) < self.client_slots
 
     def _release(self, w, job: _Job) -> None:
+        if job.client is not None:
+            self._running_by[job.client] -= 1
+            if not self._running_by[job.client]:
+                del self._running_by[job.client]
         if job.expensive:
             self._expensive_running -= 1
             if job.client is not None:

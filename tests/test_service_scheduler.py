@@ -156,3 +156,19 @@ def test_a_cancelled_waiting_job_gives_nothing_away():
         await asyncio.gather(first, after)
         assert pool.pending == 0 and len(pool._free) == 1
     asyncio.run(main())
+
+
+def test_clients_take_turns_for_cheap_workers():
+    async def main():
+        pool = GatedPool(2, cheap_ms=1000)
+        await pool.start()
+        a = [_submit(pool, f"a{i}", 10, client="a") for i in range(4)]  # a floods cheap jobs
+        await _until(lambda: len(pool.started) == 2, "a0, a1")
+        b = _submit(pool, "b0", 50, client="b")  # asked later, costs more, but b runs nothing
+        pool.open("a0")
+        await _until(lambda: len(pool.started) == 3, "next")
+        assert pool.started[2] == "b0"
+        for name in ("a1", "a2", "a3", "b0"):
+            pool.open(name)
+        await asyncio.gather(*a, b)
+    asyncio.run(main())
