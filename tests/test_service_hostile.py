@@ -242,7 +242,10 @@ def test_delete_frees_bake_and_thumbnails(hostile, assets):
     asset_id = r.json()["id"]
     assert hostile.wait_status(asset_id)["status"] == "ready"
     assert hostile.client.get(f"/assets/{asset_id}/thumbnail", params={"size": 64}).status_code == 200
-    time.sleep(0.5)
+    thumbs = hostile.cache / "service/thumbs" / asset_id
+    end = time.monotonic() + 60  # the disk copy is written off the request path
+    while time.monotonic() < end and not list(thumbs.glob("*.png")):
+        time.sleep(0.05)
     record = json.loads((hostile.cache / "service/assets" / asset_id / "record.json").read_text())
     bake = hostile.cache / "assets" / record["bake_key"]
     pieces = [bake, hostile.cache / "service/thumbs" / asset_id, hostile.cache / "service/assets" / asset_id]
