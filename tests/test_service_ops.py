@@ -18,6 +18,8 @@ OPS_ENV = {"ASSET_PREVIEW_API_KEY": KEY, "ASSET_PREVIEW_BAKE_WAIT_SECONDS": "0",
            "ASSET_PREVIEW_RENDER_SECONDS": "8", "ASSET_PREVIEW_MAX_THUMBNAIL_SIZE": "4096",
            "ASSET_PREVIEW_MAX_RENDER_COST_MS": "1e9", "ASSET_PREVIEW_SAMPLES": str(SAMPLES)}
 AUTH = {"Authorization": f"Bearer {KEY}"}
+# Ray-traced glass at 2048 px, 32 bounces: over 30 s on an idle 2-core CPU, far past the deadline.
+BLOCKER = {"size": 2048, "method": "raytrace", "transmission": 1, "bounces": 32}
 
 
 @pytest.fixture(scope="module")
@@ -83,12 +85,12 @@ def test_api_key_guards_every_endpoint_but_probes(ops, assets):
 
 def test_thumbnail_of_a_baking_asset_answers_202(ops, assets):
     """The only worker is kept busy, so the new asset's bake must queue behind it. The blocker
-    is a 4096 px two-pass glass render (over 15 s on an idle 2-core CPU): it runs into the 8 s
-    render deadline whatever the load, which keeps the bake queued for that long."""
+    is a 2048 px ray-traced glass render at 32 bounces (over 30 s on an idle 2-core CPU): it runs
+    into the 8 s render deadline whatever the load, which keeps the bake queued for that long."""
     duck = next(r for r in seeded(ops) if r["name"] == "Duck.glb")["id"]
     blocker = threading.Thread(target=lambda: httpx.get(
         f"{ops.url}/assets/{duck}/thumbnail", timeout=120, headers=AUTH,
-        params={"size": 4096, "yaw": 1, "method": "wyman", "transmission": 1}))
+        params=BLOCKER | {"yaw": 1}))
     blocker.start()
     time.sleep(0.3)
     r_up = upload(ops, "torus.STL", (assets / "mesh/torus.STL").read_bytes(), headers=AUTH)
@@ -104,9 +106,7 @@ def test_thumbnail_of_a_baking_asset_answers_202(ops, assets):
 @pytest.mark.slow
 def test_render_past_its_deadline_is_stopped(ops):
     duck = next(r for r in seeded(ops) if r["name"] == "Duck.glb")["id"]
-    # Glass by two-pass refraction at 4096 px takes over 15 s on an idle 2-core CPU: past 8 s.
-    r = ops.client.get(f"/assets/{duck}/thumbnail", params={"size": 4096, "yaw": 7, "method": "wyman",
-                                                            "transmission": 1})
+    r = ops.client.get(f"/assets/{duck}/thumbnail", params=BLOCKER | {"yaw": 7})
     assert r.status_code == 504, r.text
     assert "deadline" in r.json()["detail"]
     r = ops.client.get(f"/assets/{duck}/thumbnail", params={"size": 64, "yaw": 7})
