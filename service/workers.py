@@ -160,16 +160,17 @@ class WorkerState:
 
 
 def _weight(value) -> int:
-    """Bytes a baked asset or environment holds (its textures counted at their full size,
-    whether read yet or not: they stay once a render has read them)."""
-    files = getattr(value, "manifest", {}).get("files")
-    if files:
-        return max(1, sum(int(meta.get("bytes", 0)) for meta in files.values()))
-    arrays = [getattr(value, "specular", None) or [], [getattr(value, "brdf_lut", None)]]
-    total = sum(a.nbytes for group in arrays for a in group if a is not None)
+    """Bytes a baked asset or environment may hold in memory: its arrays, and each texture's
+    whole mip chain in every colour space it is read in (decompressed on demand, so this is
+    the most it can grow to, whatever a render has read yet)."""
+    arrays = list(getattr(value, "specular", None) or []) + [getattr(value, "brdf_lut", None)]
+    total = sum(a.nbytes for a in arrays if a is not None)
     for m in getattr(value, "meshes", []):
         total += sum(a.nbytes for a in (m.positions, m.normals, m.indices, m.tangents, m.uv0, m.uv1,
                                         m.colors, m.interior) if a is not None)
+    for t in getattr(value, "textures", []):
+        h, w = getattr(t, "size", (0, 0))
+        total += h * w * 4 * 4 // 3 * max(1, len(getattr(t, "spaces", ()) or (True,)))
     return max(1, total)
 
 

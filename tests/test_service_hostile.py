@@ -366,7 +366,7 @@ def test_worker_memory_stays_bounded_over_20_heavy_assets(tmp_path):
             assert r.status_code == 201, r.text
             ids.append(r.json()["id"])
             assert srv.wait_status(ids[-1], timeout=300)["status"] == "ready"
-            t = srv.client.get(f"/assets/{ids[-1]}/thumbnail", params={"size": 128})
+            t = srv.client.get(f"/assets/{ids[-1]}/thumbnail", params={"size": 512})
             assert t.status_code == 200 and nontrivial(decode(t.content))
         peak = _rss(pid)
         assert peak <= warm + WORKER_CACHE + GPU_BUDGET + OVERHEAD, (warm / 2**20, peak / 2**20)
