@@ -196,7 +196,7 @@ class ThumbnailService:
             try:
                 # The worker's own bound (Limits.ingest_seconds) answers first with a clean 422;
                 # the job deadline only catches a worker that hangs past it.
-                summary = await self.pool.run("inspect", str(src / root),
+                summary = await self.pool.run("inspect", str(src / root), str(src),
                                               deadline=1.5 * self.limits.ingest_seconds + 10,
                                               cost_ms=self.settings.cheap_render_ms, expensive=True,
                                               client=client)
@@ -289,7 +289,8 @@ class ThumbnailService:
             t0 = time.perf_counter()
             try:
                 # Expensive: bakes never take every worker, so cheap renders keep flowing.
-                out = await self.pool.run("bake", str(path), deadline=self.settings.bake_seconds,
+                src = self.store.asset_dir(asset_id) / "src"  # the upload's root (a zip's whole tree)
+                out = await self.pool.run("bake", str(path), str(src), deadline=self.settings.bake_seconds,
                                           queue=False, cost_ms=self.settings.cheap_render_ms, expensive=True)
             except AssetError as exc:
                 src = self.store.asset_dir(asset_id) / "src"

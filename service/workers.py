@@ -111,18 +111,19 @@ class WorkerState:
         except Exception as exc:  # a worker that cannot warm up still serves what it can
             log.warning("warm-up render failed: %s", exc)
 
-    def inspect(self, path: str) -> dict:
+    def inspect(self, path: str, root: str | None = None) -> dict:
+        """`root`: the upload's folder (a zip's extraction): references may use all of it."""
         import pipeline
-        scene = pipeline.load_scene(path, self.limits())
+        scene = pipeline.load_scene(path, self.limits(), root=root)
         return {"format": scene.format, "triangles": int(scene.triangle_count),
                 "materials": len(scene.materials), "warnings": list(scene.warnings)[:20],
                 "transmissive": any(m.transmission > 0 for m in scene.materials),
                 "files": [str(f) for f in scene.files]}
 
-    def bake(self, path: str) -> dict:
+    def bake(self, path: str, root: str | None = None) -> dict:
         import pipeline
         t0 = time.perf_counter()
-        baked = pipeline.bake_asset(path, self.cache(), limits=self.limits())
+        baked = pipeline.bake_asset(path, self.cache(), limits=self.limits(), root=root)
         return {"key": baked.key, "triangles": int(baked.triangle_count),
                 "seconds": time.perf_counter() - t0}
 
