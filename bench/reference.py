@@ -9,7 +9,8 @@ the same linear panorama (bench.scenes.load_panorama) as an `envmap`. Mitsuba's 
 a world direction (x, y, z) to u = 0.5 + atan2(-x, z) / 2pi, v = acos(y) / pi, which is
 core.cubemap's convention, so no rotation is applied (checked by the mirror-sphere test).
 Materials: `dielectric` / `roughdielectric` (GGX, alpha = roughness^2) for glass,
-`conductor` (perfect mirror) for the mirror, `principled` for the other opaque spheres.
+`conductor` (perfect mirror) for the mirror, `roughplastic` (GGX, nonlinear=False) for the
+plastic spheres, `principled` for the other opaque spheres.
 
 The frosted sphere's committed reference used --spp 1024 (at 256 its noise alone is 0.04).
 Each scene writes <name>.exr (linear RGBA) and <name>.npy (float16 H x W x 4: linear RGB and
@@ -85,17 +86,25 @@ def _bsdf(mat) -> dict:
         return {"type": "dielectric", "int_ior": float(mat.ior), "ext_ior": 1.0}
     if mat.metallic >= 1 and mat.roughness == 0 and min(mat.base_color[:3]) >= 1:
         return {"type": "conductor", "material": "none"}
+    if mat.name.startswith("plastic"):
+        # glTF's dielectric: a GGX layer over a diffuse base that gets what the layer's
+        # directional albedo leaves (nonlinear=False: no extra saturation from internal bounces)
+        return {"type": "roughplastic", "distribution": "ggx", "alpha": float(mat.roughness) ** 2,
+                "int_ior": float(mat.ior), "ext_ior": 1.0, "diffuse_reflectance": rgb,
+                "nonlinear": False}
     return {"type": "principled", "base_color": rgb, "metallic": float(mat.metallic),
             "roughness": float(mat.roughness), "specular": 0.5}
 
 
-def render_reference(spec: scenes.SceneSpec, size: int, spp: int = 256) -> np.ndarray:
-    """Mitsuba path-traced linear H x W x 4 float32: RGB and object coverage."""
+def render_reference(spec: scenes.SceneSpec, size: int, spp: int = 256,
+                     panorama: np.ndarray | None = None) -> np.ndarray:
+    """Mitsuba path-traced linear H x W x 4 float32: RGB and object coverage. `panorama`
+    (linear H x W x 3) replaces the scene's environment, e.g. a constant one for a furnace."""
     import mitsuba as mi
 
     mi.set_variant("scalar_rgb")
     cam = spec_camera(spec, size, size)
-    pano = scenes.load_panorama(spec.env)
+    pano = scenes.load_panorama(spec.env) if panorama is None else panorama
     with tempfile.TemporaryDirectory() as tmp:
         ply = os.path.join(tmp, "mesh.ply")
         _write_ply(ply, *scenes.mesh_arrays(spec.mesh))

@@ -75,6 +75,10 @@ SCENES: dict[str, SceneSpec] = {s.name: s for s in [
     SceneSpec("dielectric_sphere", "sphere",
               Material(name="red_plastic", base_color=(0.7, 0.05, 0.05, 1.0), metallic=0.0,
                        roughness=0.3)),
+    # glTF's dielectric layering against Mitsuba's roughplastic (tests/test_layering.py)
+    *(SceneSpec(f"plastic_sphere_r{r}", "sphere",
+                Material(name=f"plastic_r{r}", base_color=(0.6, 0.2, 0.08, 1.0), metallic=0.0,
+                         roughness=r), pitch=20.0) for r in (0.2, 0.5, 0.8)),
 ]}
 
 # The speed-vs-accuracy chart's glass set (bench.accuracy): every mesh at every IOR, smooth and

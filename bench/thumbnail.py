@@ -55,6 +55,9 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--env", default=None, help="environment (default: the bundled default)")
     p.add_argument("--cache", default=None, help="bake cache (default: a temporary folder)")
     p.add_argument("--json", help="also write the results here")
+    p.add_argument("--multiscatter-cost", action="store_true",
+                   help="only time our warm thumbnail with and without energy compensation, "
+                        "interleaved in one process (no peers)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -69,6 +72,8 @@ def run(args: argparse.Namespace) -> int:
     panorama = str(load_panorama(env_name).files[0])
     sizes = [int(s) for s in args.sizes.split(",")]
     tools = [t for t in args.tools.split(",") if t]
+    if args.multiscatter_cost:
+        return _multiscatter_cost(args, cache, env_name, sizes)
     results = []
     for name in args.assets.split(","):
         rel = ASSETS[name]
@@ -122,6 +127,36 @@ def _texture_report(src: Path, baked, cache: Path, env_name: str, px: int = 1024
     print(f"{src.name}: source {src_bytes / 1e6:.1f} MB, baked textures {tex_bytes / 1e6:.2f} MB "
           f"(target <= 32 MB); FLIP at {px} px vs full-resolution textures: frame "
           f"{errors['env']:.4f}, object pixels {errors['object']:.4f} (target <= 0.02)", flush=True)
+
+
+def _multiscatter_cost(args, cache: Path, env_name: str, sizes: list[int]) -> int:
+    """Warm thumbnails with energy compensation (the default) and without, alternating frame by
+    frame in this process so that both see the same machine load; medians and their ratio."""
+    import dataclasses
+
+    import pipeline
+    from pipeline.environment import default_face_size
+    from renderer import render
+    from core.options import RenderOptions
+
+    from .scenes import ASSETS as assets_root
+    print(f"{'asset':>15} {'px':>4} {'multiscatter ms':>16} {'without ms':>11} {'ratio':>6}")
+    for name in args.assets.split(","):
+        asset = pipeline.bake_asset(assets_root / ASSETS[name], cache)
+        for size in sizes:
+            env = pipeline.bake_environment(env_name, cache, face_size=default_face_size(size))
+            on = RenderOptions(width=size, height=size, **VIEW)
+            off = dataclasses.replace(on, multiscatter=False)
+            times = {True: [], False: []}
+            render(asset, env, on), render(asset, env, off)  # compile both programs
+            for _ in range(args.repeat):
+                for o in (on, off):
+                    t = time.perf_counter()
+                    render(asset, env, o).rgba8
+                    times[o.multiscatter].append((time.perf_counter() - t) * 1e3)
+            a, b = statistics.median(times[True]), statistics.median(times[False])
+            print(f"{name:>15} {size:>4} {a:>16.2f} {b:>11.2f} {a / b:>6.3f}", flush=True)
+    return 0
 
 
 def _export_glb(baked, path: Path) -> str:

@@ -17,6 +17,7 @@ BENCHMARKS = {
     "refraction": ("bench.refraction", "refraction methods: time and error vs Mitsuba per scene"),
     "accuracy": ("bench.accuracy", "speed-vs-accuracy chart: every scene x method vs Mitsuba, Pareto front, auto"),
     "stability": ("bench.stability", "stability suite: every hard case x method, finite, TIR, error, verdict"),
+    "fidelity": ("bench.fidelity", "Khronos samples: ours and raytrace vs Blender Cycles (FLIP per model)"),
 }
 
 

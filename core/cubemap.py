@@ -26,6 +26,14 @@ _FACES = [
 ]
 
 
+def env_rotation_matrix(degrees: float) -> np.ndarray:
+    """World -> environment directions for an environment turned `degrees` about +Y
+    (right-handed: what was at +Z moves toward +X). Lookups apply it before sampling."""
+    t = math.radians(degrees)
+    c, s = math.cos(t), math.sin(t)
+    return np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])
+
+
 def equirect_uv(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unit directions (..., 3) -> panorama (u, v) in [0, 1]."""
     u = 0.5 + np.arctan2(-d[..., 0], d[..., 2]) / (2 * np.pi)

@@ -86,7 +86,16 @@ class RenderOptions:
     override: MaterialOverride | None = None
     msaa: int = Field(default=4, ge=0, le=16, description="samples per pixel (0 or 1: off)")
     lights: bool = Field(default=True, description="the asset's own KHR_lights_punctual lights")
-    multiscatter: bool = Field(default=False, description="multiple-scattering energy compensation for rough metals")
+    multiscatter: bool = Field(default=True, description=(
+        "multiple-scattering energy compensation of the GGX lobes (Fdez-Aguera 2019), as "
+        "reference viewers do; off: single scattering, rough metals darken"))
+    target: tuple[float, float, float] | None = Field(default=None, description=(
+        "look-at point x,y,z in world units (default: the bounds centre)"))
+    env_rotation: float = Field(default=0.0, ge=-3600, le=3600, description=(
+        "environment turn about +Y, degrees; positive turns what was at +Z toward +X"))
+    alpha: Literal["auto", "coverage"] = Field(default="auto", description=(
+        "auto: opaque over an environment or colour background, coverage when transparent; "
+        "coverage: the object's coverage whatever the background"))
     tir: Literal["paper", "reflect"] | None = Field(default=None, description=(
         "wyman: total internal reflection treatment (default: reflect)"))
     bounces: int = Field(default=8, ge=0, le=64, description="raytrace: path depth (0: the environment along each primary ray)")
@@ -120,6 +129,20 @@ class RenderOptions:
         if not m:
             raise ValueError(f"background {v!r}: use env, transparent or a colour #rrggbb")
         return "#" + m.group(1)
+
+    @field_validator("target", mode="before")
+    @classmethod
+    def _target(cls, v: Any) -> Any:
+        if isinstance(v, str):
+            try:
+                v = tuple(float(x) for x in v.split(","))
+            except ValueError:
+                v = ()
+            if len(v) != 3:
+                raise ValueError("target: expected three numbers x,y,z")
+        if v is not None and not all(math.isfinite(x) and abs(x) <= MAX_DISTANCE for x in v):
+            raise ValueError(f"target: coordinates must be finite and within {MAX_DISTANCE:g}")
+        return v
 
     @model_validator(mode="after")
     def _pixels(self) -> "RenderOptions":
@@ -207,6 +230,9 @@ def request_fields() -> dict[str, FieldInfo]:
             out.update(_override_fields())
         elif name in ("width", "height"):
             out[name] = _optional(info)
+        elif name == "target":  # "x,y,z" on both surfaces, parsed by RenderOptions
+            out[name] = FieldInfo.from_annotated_attribute(
+                str | None, Field(None, description=info.description))
         else:
             out[name] = info
     return out

@@ -1,6 +1,6 @@
 """The camera convention, shared by the raster renderer, the ray tracer and the reference.
 
-The camera looks at the centre of the world bounds. yaw 0, pitch 0 puts it on the +Z side
+The camera looks at `target` (default: the centre of the world bounds). yaw 0, pitch 0 puts it on the +Z side
 looking toward -Z with +Y up; positive yaw turns it toward +X about +Y; positive pitch raises
 it toward +Y. fov is vertical, in degrees; distance is in scene units from the bounds centre.
 Without a distance, the camera is placed so the bounding sphere fills the frame with a margin
@@ -70,11 +70,17 @@ class Camera:
 
 
 def frame_bounds(bounds: np.ndarray, width: int, height: int, yaw: float = 0.0,
-                 pitch: float = 0.0, fov: float = 40.0, distance: float | None = None) -> Camera:
-    """Camera for world `bounds` (2 x 3) following the convention above."""
+                 pitch: float = 0.0, fov: float = 40.0, distance: float | None = None,
+                 target=None) -> Camera:
+    """Camera for world `bounds` (2 x 3) following the convention above. A `target` away from
+    the bounds centre frames the sphere about it that holds the whole bounding sphere."""
     lo, hi = np.asarray(bounds, np.float64)
-    center = (lo + hi) / 2
     radius = max(float(np.linalg.norm(hi - lo)) / 2, 1e-6)
+    center = (lo + hi) / 2
+    if target is not None:
+        target = np.asarray(target, np.float64)
+        radius += float(np.linalg.norm(target - center))
+        center = target
     half_v = math.radians(fov) / 2
     half_h = math.atan(math.tan(half_v) * width / height)
     if distance is None:
@@ -97,7 +103,7 @@ def request_camera(asset, options) -> Camera:
     if options.camera is None:
         yaw, pitch = _not_edge_on(asset.bounds, options)
         cam = frame_bounds(asset.bounds, options.width, options.height, yaw, pitch,
-                           options.fov, options.distance)
+                           options.fov, options.distance, options.target)
         return _covering(cam, getattr(asset, "extent", None))
     cams = list(getattr(asset, "cameras", []))
     names = [c.name for c in cams]

@@ -11,7 +11,10 @@ in their current direction: with bounces=1 this is the single-refraction method,
 exact two-interface result that Wyman's method approximates.
 
 Materials (kd + kr + ks = 1, the paper's split): metallic m reflects m * EnvBRDF(F0 = base
-colour); the dielectric rest (1 - m) reflects F (exact Fresnel at the IOR), transmits
+colour), the split-sum albedo from the bake's LUT plus, with `multiscatter` (the default), the
+multiply scattered share (Fdez-Aguera 2019, as shaders/ibl.glsl); the dielectric rest (1 - m)
+reflects F (exact Fresnel at the IOR; on a rough surface seen from outside scaled by the
+lobe's directional albedo relative to a smooth one's, compensated alike), transmits
 (1 - F) * transmission * base colour times eta^2 (radiance scales with n^2 across an interface:
 it cancels on a way in and out, and matters for a camera inside the glass) and scatters the
 remainder diffusely. Diffuse and rough
@@ -20,7 +23,9 @@ a rough reflection or refraction keeps its mirror direction and, at escape, read
 prefiltered mip for the lobe width gathered along the path (as the raster path's split-sum
 does; refraction lobes are narrower by |1 - eta| / 2). Inside a volume, Beer-Lambert
 attenuation exp(-sigma t) with sigma = -ln(attenuation_color) / attenuation_distance.
-Material factors only: textures and normal maps are not sampled, and punctual lights are not
+Single-sided opaque materials are invisible from behind (rays pass through their back faces,
+as raster culling does); transmissive ones keep both sides (rays inside glass meet back
+faces). Material factors only: textures and normal maps are not sampled, and punctual lights are not
 used (the environment is the only light), so the method is exact for untextured glass and
 mirrors, which is what it is for.
 
@@ -46,7 +51,7 @@ from typing import Any
 import numpy as np
 
 from core.baked import BakedAsset, BakedEnvironment
-from core.cubemap import sample_cube
+from core.cubemap import env_rotation_matrix, sample_cube
 from core.options import RenderOptions, apply_override, background_rgb
 
 from .camera import Camera, request_camera
@@ -55,6 +60,7 @@ from .render import register_frame_method
 
 log = logging.getLogger(__name__)
 
+MAX_CULLED = 8         # back faces of single-sided materials a ray may pass through
 MIN_WEIGHT = 1e-3      # children below this throughput (max over RGB) are not traced
 EPSILON = 1e-4         # ray offset off a surface, relative to the scene's bounding radius
 CHUNK_PIXELS = 1 << 18  # supersampled pixels traced together: bounds memory at any size
@@ -75,6 +81,7 @@ class TraceScene:
     transmission: np.ndarray     # K
     ior: np.ndarray              # K
     sigma: np.ndarray            # K x 3 absorption coefficient per scene unit (0: none)
+    culled: np.ndarray           # K bool: single-sided and opaque (back faces let rays through)
     radius: float
 
 
@@ -87,7 +94,7 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
     for k, mesh in enumerate(asset.meshes):
         mat = apply_override(mesh.material, options.override)
         tables.append((mat.base_color[:3], mat.metallic, mat.roughness, mat.transmission,
-                       mat.ior, mat.absorption()))
+                       mat.ior, mat.absorption(), not mat.double_sided and mat.transmission <= 0))
         idx = mesh.indices.astype(np.int64)
         for m in mesh.transforms:
             m = np.asarray(m, np.float64)
@@ -114,14 +121,14 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
     if len(tri):
         TriangleMesh(scene, tri.astype(np.float32))
     lo, hi = np.asarray(asset.bounds, np.float64)
-    col = list(zip(*tables)) if tables else [[]] * 6
+    col = list(zip(*tables)) if tables else [[]] * 7
     return TraceScene(
         embree=scene, normals=nrm.astype(np.float32), geo_normals=ng.astype(np.float32),
         material=np.concatenate(mats) if mats else np.zeros(0, np.int32),
         base=np.asarray(col[0], np.float64).reshape(-1, 3),
         metallic=np.asarray(col[1], np.float64), roughness=np.asarray(col[2], np.float64),
         transmission=np.asarray(col[3], np.float64), ior=np.asarray(col[4], np.float64),
-        sigma=np.asarray(col[5], np.float64).reshape(-1, 3),
+        sigma=np.asarray(col[5], np.float64).reshape(-1, 3), culled=np.asarray(col[6], bool),
         radius=max(float(np.linalg.norm(hi - lo)) / 2, 1e-6))
 
 
@@ -140,6 +147,66 @@ def _intersect(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray):
     parts = list(_pool.map(lambda ab: ts.embree.run(o[ab[0]:ab[1]], d[ab[0]:ab[1]], output=1),
                            zip(cuts[:-1], cuts[1:])))
     return tuple(np.concatenate([p[k] for p in parts]) for k in ("primID", "u", "v", "tfar"))
+
+
+def _intersect_front(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray):
+    """_intersect, passing through the back faces of single-sided opaque materials."""
+    prim, u, v, t = _intersect(ts, origins, dirs)
+    if not ts.culled.any():
+        return prim, u, v, t
+    prim, u, v, t = prim.copy(), u.copy(), v.copy(), t.astype(np.float64)
+    eps = EPSILON * ts.radius
+    for _ in range(MAX_CULLED):
+        hit = np.flatnonzero(prim >= 0)
+        k = ts.material[prim[hit]]
+        back = np.einsum("ij,ij->i", dirs[hit], ts.geo_normals[prim[hit]]) > 0
+        sel = hit[ts.culled[k] & back]
+        if not len(sel):
+            break
+        start = t[sel] + eps
+        p2, u2, v2, t2 = _intersect(ts, origins[sel] + dirs[sel] * start[:, None], dirs[sel])
+        prim[sel], u[sel], v[sel] = p2, u2, v2
+        t[sel] = np.where(p2 >= 0, t2 + start, t2)
+    return prim, u, v, t
+
+
+class _Environment:
+    """The baked environment as the tracer reads it: prefiltered radiance along world
+    directions (turned by RenderOptions.env_rotation) and the split-sum LUT."""
+
+    def __init__(self, env: BakedEnvironment, rotation_degrees: float = 0.0):
+        self.baked = env
+        self.to_env = (None if rotation_degrees % 360.0 == 0.0
+                       else env_rotation_matrix(rotation_degrees))
+
+    def radiance(self, d: np.ndarray, roughness: np.ndarray) -> np.ndarray:
+        if self.to_env is not None:
+            d = d @ self.to_env.T
+        return _env(self.baked, d, roughness)
+
+    def split_sum(self, cos_v: np.ndarray, roughness: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(scale, bias) for F0, bilinear in the LUT (texel centres at (i + 0.5) / N)."""
+        lut = np.asarray(self.baked.brdf_lut, np.float64)
+        n_r, n_v = lut.shape[:2]
+        x = np.clip(cos_v * n_v - 0.5, 0, n_v - 1)
+        y = np.clip(roughness * n_r - 0.5, 0, n_r - 1)
+        x0, y0 = np.minimum(x.astype(int), n_v - 2), np.minimum(y.astype(int), n_r - 2)
+        fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+        top = lut[y0, x0] * (1 - fx) + lut[y0, x0 + 1] * fx
+        bottom = lut[y0 + 1, x0] * (1 - fx) + lut[y0 + 1, x0 + 1] * fx
+        ab = top * (1 - fy) + bottom * fy
+        return ab[:, 0], ab[:, 1]
+
+    def specular_albedo(self, f0: np.ndarray, cos_v: np.ndarray, roughness: np.ndarray,
+                        multiscatter: bool) -> np.ndarray:
+        """N x 3 directional albedo of the GGX lobe: FssEss (+ FmsEms), as shaders/ibl.glsl."""
+        a, b = self.split_sum(cos_v, roughness)
+        fss = f0 * a[:, None] + b[:, None]
+        if not multiscatter:
+            return fss
+        ems = (1.0 - (a + b))[:, None]
+        favg = f0 + (1.0 - f0) / 21.0
+        return fss + ems * fss * favg / np.maximum(1.0 - ems * favg, 1e-6)
 
 
 def _env(env: BakedEnvironment, d: np.ndarray, roughness: np.ndarray) -> np.ndarray:
@@ -174,18 +241,6 @@ def _lut_albedo(env: BakedEnvironment, cos_v: np.ndarray, roughness: np.ndarray)
     top = e[y0, x0] * (1 - fx) + e[y0, x1] * fx
     bottom = e[y1, x0] * (1 - fx) + e[y1, x1] * fx
     return np.where(roughness > 0, top * (1 - fy) + bottom * fy, 1.0)
-
-
-def _env_brdf(f0: np.ndarray, cos_v: np.ndarray, roughness: np.ndarray) -> np.ndarray:
-    """Split-sum scale/bias for F0 from Karis' analytic fit of the BRDF LUT (mobile UE4)."""
-    r = roughness[:, None]
-    c0 = np.array([-1.0, -0.0275, -0.572, 0.022])
-    c1 = np.array([1.0, 0.0425, 1.04, -0.04])
-    rr = r * c0 + c1
-    a004 = np.minimum(rr[:, 0] * rr[:, 0], np.exp2(-9.28 * cos_v)) * rr[:, 0] + rr[:, 1]
-    scale = a004 * -1.04 + rr[:, 2]
-    bias = a004 * 1.04 + rr[:, 3]
-    return f0 * scale[:, None] + bias[:, None]
 
 
 def _subpixel_rays(camera: Camera, pixels: np.ndarray, ss: int) -> tuple[np.ndarray, np.ndarray]:
@@ -243,6 +298,7 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     if supersample is None:
         supersample = default_supersample(camera.width, camera.height)
     ts = build_scene(asset, options)
+    sky = _Environment(env, options.env_rotation)
     t_build = time.perf_counter()
     npix = camera.width * camera.height
     passes = _dispersion_passes(ts, asset, options)
@@ -258,23 +314,24 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     first = np.zeros(npix, bool)
     for chunk in _chunks(np.arange(npix), 4 * CHUNK_PIXELS):
         d, _ = _subpixel_rays(camera, chunk, 1)
-        first[chunk] = _intersect(ts, np.broadcast_to(camera.position, d.shape), d)[0] >= 0
+        first[chunk] = _intersect_front(ts, np.broadcast_to(camera.position, d.shape), d)[0] >= 0
     near = _near(first.reshape(camera.height, camera.width)).reshape(-1)
     if show_env:
         for chunk in _chunks(np.flatnonzero(~near), 4 * CHUNK_PIXELS):
             d, _ = _subpixel_rays(camera, chunk, 1)
             for img in images:
-                img.add(_env(env, d, np.full(len(d), options.background_blur)), chunk)
+                img.add(sky.radiance(d, np.full(len(d), options.background_blur)), chunk)
     for chunk in _chunks(np.flatnonzero(near), CHUNK_PIXELS):
         dirs, pix = _subpixel_rays(camera, chunk, supersample)
         for scene, img in zip(passes, images):
-            _trace_paths(scene, env, options, camera.position, dirs, pix, 1.0 / supersample ** 2,
+            _trace_paths(scene, sky, options, camera.position, dirs, pix, 1.0 / supersample ** 2,
                          img, stats)
 
     rgb = image.rgb if len(images) == 1 else np.stack([img.rgb[:, c] for c, img in enumerate(images)], -1)
     rgb = rgb.reshape(camera.height, camera.width, 3)
-    alpha = (np.ones((camera.height, camera.width)) if show_env
-             else image.coverage.reshape(rgb.shape[:2]))
+    coverage = image.coverage.reshape(rgb.shape[:2])
+    stats["coverage"] = coverage.astype(np.float32)
+    alpha = np.ones((camera.height, camera.width)) if show_env else coverage
     linear = np.concatenate([rgb, alpha[..., None]], axis=-1).astype(np.float32)
     linear = np.nan_to_num(linear, nan=0.0, posinf=0.0, neginf=0.0)  # never write NaN pixels
     t1 = time.perf_counter()
@@ -300,7 +357,7 @@ def _chunks(indices: np.ndarray, size: int):
         yield indices[start:start + size]
 
 
-def _trace_paths(ts: TraceScene, env: BakedEnvironment, options: RenderOptions,
+def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
                  eye: np.ndarray, dirs: np.ndarray, pix: np.ndarray, sample_share: float,
                  image: _Image, stats: dict) -> None:
     """Trace camera rays `dirs` (pixel `pix`, each `sample_share` of its pixel) through every
@@ -315,18 +372,18 @@ def _trace_paths(ts: TraceScene, env: BakedEnvironment, options: RenderOptions,
     medium = np.ones(len(dirs))  # IOR around the ray (outside every object: air)
 
     if options.bounces <= 0:  # no surfaces: every camera ray reads the environment
-        hit = _intersect(ts, origins, dirs)[0] >= 0
+        hit = _intersect_front(ts, origins, dirs)[0] >= 0
         image.coverage += np.bincount(pix[hit], share[hit], minlength=image.npix)
-        add(_env(env, dirs, np.zeros(len(dirs))) * share[:, None], pix)
+        add(env.radiance(dirs, np.zeros(len(dirs))) * share[:, None], pix)
         return
     for depth in range(int(options.bounces) + 1):
         if len(dirs) == 0:
             break
         if depth == options.bounces:  # out of bounces: read the environment where they point
             # ... as if it left the medium it is in, without a Fresnel loss
-            add((weight * (share * medium ** 2)[:, None]) * _env(env, dirs, blur ** 0.25), pix)
+            add((weight * (share * medium ** 2)[:, None]) * env.radiance(dirs, blur ** 0.25), pix)
             break
-        prim, u, v, t = _intersect(ts, origins, dirs)
+        prim, u, v, t = _intersect_front(ts, origins, dirs)
         stats["rays"] += len(dirs)
         if depth < len(stats["bounces"]):
             stats["bounces"][depth] += len(dirs)
@@ -337,9 +394,9 @@ def _trace_paths(ts: TraceScene, env: BakedEnvironment, options: RenderOptions,
             image.coverage += np.bincount(pix[~miss], share[~miss], minlength=image.npix)
             if show_env:
                 bg = np.full(miss.sum(), options.background_blur)
-                add(_env(env, dirs[miss], bg) * share[miss, None], pix[miss])
+                add(env.radiance(dirs[miss], bg) * share[miss, None], pix[miss])
         else:
-            add((weight[miss] * share[miss, None]) * _env(env, dirs[miss], blur[miss] ** 0.25),
+            add((weight[miss] * share[miss, None]) * env.radiance(dirs[miss], blur[miss] ** 0.25),
                 pix[miss])
         hit = ~miss
         prim, u, v, t = prim[hit], u[hit, None], v[hit, None], t[hit]
@@ -366,7 +423,17 @@ def _trace_paths(ts: TraceScene, env: BakedEnvironment, options: RenderOptions,
         cos_i = -np.einsum("ij,ij->i", d, ns)
         eta = np.where(entering, 1.0 / ior, ior)
         fres = fresnel_dielectric(cos_i, eta)
-        refl_w = (metal[:, None] * _env_brdf(base, cos_i, rough_k)
+        ms = options.multiscatter
+        cos_c = np.clip(cos_i, 1e-4, 1.0)
+        rough_out = entering & (rough_k > 0)
+        if np.any(rough_out):  # the rough lobe's albedo relative to a smooth one's
+            sel = np.flatnonzero(rough_out)
+            f0 = (((ior[sel] - 1) / (ior[sel] + 1)) ** 2)[:, None]
+            e_rough = env.specular_albedo(f0, cos_c[sel], rough_k[sel], ms)[:, 0]
+            e_smooth = env.specular_albedo(f0, cos_c[sel], np.zeros(len(sel)), ms)[:, 0]
+            fres = fres.copy()
+            fres[sel] = np.clip(fres[sel] * e_rough / np.maximum(e_smooth, 1e-6), 0.0, 1.0)
+        refl_w = (metal[:, None] * env.specular_albedo(base, cos_c, rough_k, ms)
                   + ((1 - metal) * fres)[:, None]) * w
         tint = np.where(entering[:, None], base, 1.0)  # glTF tints transmission by base colour once
         # Radiance crossing an interface scales by (n_camera_side / n_far_side)^2 = eta^2: it
@@ -374,7 +441,7 @@ def _trace_paths(ts: TraceScene, env: BakedEnvironment, options: RenderOptions,
         # A rough interface's microfacets mask and shadow part of what crosses it, as they do
         # for reflection: the transmitted share keeps the GGX lobe's single-scattering albedo
         # E_ss (split-sum scale + bias at F0 = 1), as the raster refraction does.
-        e_ss = _lut_albedo(env, cos_i, rough_k)
+        e_ss = _lut_albedo(env.baked, cos_i, rough_k)
         trans_w = ((1 - metal) * (1 - fres) * trans * eta * eta * e_ss)[:, None] * tint * w
         diffuse_w = ((1 - metal) * (1 - fres) * (1 - trans))[:, None] * base * w
         # Lobe widths add as variances. A rough refraction bends directions by
@@ -385,7 +452,7 @@ def _trace_paths(ts: TraceScene, env: BakedEnvironment, options: RenderOptions,
         v_refr = v_in + (alpha * np.abs(1.0 - eta) / 2) ** 2
         if np.any(diffuse_w > 0):
             dsel = diffuse_w.max(axis=1) > 0
-            add(diffuse_w[dsel] * sh[dsel, None] * _env(env, ns[dsel], np.ones(dsel.sum())), px[dsel])
+            add(diffuse_w[dsel] * sh[dsel, None] * env.radiance(ns[dsel], np.ones(dsel.sum())), px[dsel])
         rdir = reflect(d, ns)
         tdir, tir = refract(d, ns, eta)
         stats["tir"] += int(np.sum(tir & (trans > 0)))
@@ -411,6 +478,9 @@ def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOpt
     t0 = time.perf_counter()
     linear, stats = trace(asset, env, options, camera, supersample)
     rgba8 = tonemap_srgb8(linear, options.tonemap, options.exposure, background_rgb(options.background))
+    if options.alpha == "coverage":  # alpha is what the object covers, whatever is behind it
+        linear[..., 3] = stats["coverage"]
+        rgba8[..., 3] = np.round(stats["coverage"] * 255).clip(0, 255).astype(np.uint8)
     t1 = time.perf_counter()
     plan = {"method": "raytrace", "bounces": int(options.bounces),
             "supersample": stats["supersample"],

@@ -23,6 +23,7 @@ import numpy as np
 
 from core import context
 from core.baked import BakedAsset, BakedEnvironment
+from core.cubemap import env_rotation_matrix
 from core.options import RenderOptions, apply_override, background_rgb
 from core.scene import Material, is_srgb
 
@@ -120,9 +121,12 @@ class Pass:
         self.env.lut.use(1)
         cull = (not item.material.double_sided) if cull is None else cull
         for mirrored, _, count in item.mesh.instances:
+            # A mirroring transform turns the winding clockwise (glTF 2.0, "Instantiation"):
+            # the front face follows it for culling and for gl_FrontFacing, which flips a
+            # double-sided material's normal.
+            self.ctx.front_face = "cw" if mirrored else "ccw"
             if cull:
                 self.ctx.enable(moderngl.CULL_FACE)
-                self.ctx.front_face = "cw" if mirrored else "ccw"
             else:
                 self.ctx.disable(moderngl.CULL_FACE)
             item.mesh.vao(prog, mirrored).render(moderngl.TRIANGLES, instances=count)
@@ -203,7 +207,7 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     lights = gasset.lights[:MAX_LIGHTS] if options.lights else []
     target = _target(ctx, w, h, options.msaa)
     pass_ = Pass(ctx, target.draw_fbo, camera, genv, gasset, options,
-                 _frame_defines(options, lights), _frame_uniforms(camera, genv, lights))
+                 _frame_defines(options, lights), _frame_uniforms(camera, genv, lights, options))
 
     target.draw_fbo.use()
     ctx.viewport = (0, 0, w, h)
@@ -382,16 +386,23 @@ def _mat3_bytes(m: np.ndarray) -> bytes:
     return np.ascontiguousarray(np.asarray(m, np.float32).T).tobytes()  # GLSL: column-major
 
 
+def _env_rotated(options: RenderOptions) -> bool:
+    return options.env_rotation % 360.0 != 0.0
+
+
 def _frame_defines(options: RenderOptions, lights) -> dict:
     d = {"LIGHT_COUNT": len(lights)}
     if options.multiscatter:
         d["MULTISCATTER"] = 1
     if options.material_debug:  # shaders/lobes.glsl: one lobe alone
         d["MATERIAL_DEBUG"] = MATERIAL_DEBUG_VIEWS[options.material_debug]
+    if _env_rotated(options):
+        d["ENV_ROTATED"] = 1
     return d
 
 
-def _frame_uniforms(camera: Camera, env: gpu.GpuEnvironment, lights) -> dict[str, bytes]:
+def _frame_uniforms(camera: Camera, env: gpu.GpuEnvironment, lights,
+                    options: RenderOptions) -> dict[str, bytes]:
     f4 = np.float32
     view_proj = camera.projection_matrix() @ camera.view_matrix()
     u = {
@@ -400,6 +411,8 @@ def _frame_uniforms(camera: Camera, env: gpu.GpuEnvironment, lights) -> dict[str
         "u_env_max_lod": f4(env.max_lod).tobytes(),
         "u_sh": env.sh.tobytes(),
     }
+    if _env_rotated(options):
+        u["u_env_rotation"] = _mat3_bytes(env_rotation_matrix(options.env_rotation))
     if lights:
         pos, direction, color, cone = [], [], [], []
         for light in lights:
@@ -495,9 +508,14 @@ def _finish(ctx, target: _Target, camera: Camera, env: gpu.GpuEnvironment,
     w, h = options.width, options.height
     bg = background_rgb(options.background)
     mode = 2 if options.background == "env" else 1 if bg is not None else 0
-    prog = context.program("screen_triangle.vert", "final.frag",
-                           {"TONEMAP": _TONEMAPS[options.tonemap], "BACKGROUND": mode,
-                            "SAMPLES": max(target.samples, 1)})
+    defines = {"TONEMAP": _TONEMAPS[options.tonemap], "BACKGROUND": mode,
+               "SAMPLES": max(target.samples, 1)}
+    if options.alpha == "coverage":
+        defines["COVERAGE_ALPHA"] = 1
+    rotated = mode == 2 and _env_rotated(options)
+    if rotated:
+        defines["ENV_ROTATED"] = 1
+    prog = context.program("screen_triangle.vert", "final.frag", defines)
     prog["u_frame"].value = 0  # type: ignore[union-attr]  # a uniform
     prog["u_height"].value = h  # type: ignore[union-attr]  # a uniform
     prog["u_exposure_scale"].value = exposure_scale(options.exposure)  # type: ignore[union-attr]  # a uniform
@@ -511,6 +529,8 @@ def _finish(ctx, target: _Target, camera: Camera, env: gpu.GpuEnvironment,
         prog["u_blur"].value = float(min(max(options.background_blur, 0.0), 1.0))  # type: ignore[union-attr]  # a uniform
         prog["u_env_max_lod"].value = env.max_lod  # type: ignore[union-attr]  # a uniform
         prog["u_env"].value = 1  # type: ignore[union-attr]  # a uniform
+        if rotated:
+            prog["u_env_rotation"].write(_mat3_bytes(env_rotation_matrix(options.env_rotation)))  # type: ignore[union-attr]  # a uniform
         env.cube.use(1)
     target.out_fbo.use()
     ctx.viewport = (0, 0, w, h)

@@ -58,6 +58,14 @@ vec3 display(vec3 c) {
     return mix(12.92 * c, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(vec3(0.0031308), c));
 }
 
+// COVERAGE_ALPHA: alpha is the object's coverage over any background (the colour still holds
+// the background behind it); otherwise only a transparent background has alpha < 1.
+#ifdef COVERAGE_ALPHA
+#define OUT_ALPHA a
+#else
+#define OUT_ALPHA 1.0
+#endif
+
 void main() {
     // Output row 0 is the image top (what numpy and image files expect), so the source row
     // and the view direction are flipped vertically.
@@ -78,13 +86,13 @@ void main() {
         vec3 d = u_camera_basis * vec3(vec2(v_ndc.x, -v_ndc.y) * u_tan_half_fov, 1.0);
         c += (1.0 - a) * env_radiance(normalize(d), u_blur);
     }
-    f_linear = vec4(c, 1.0);
-    f_display = vec4(display(c), 1.0);
+    f_linear = vec4(c, OUT_ALPHA);
+    f_display = vec4(display(c), OUT_ALPHA);
 #elif BACKGROUND == 1
     vec3 bg = u_background;
     vec3 bg_linear = mix(bg / 12.92, pow((bg + 0.055) / 1.055, vec3(2.4)), step(vec3(0.04045), bg));
-    f_linear = vec4(p.rgb + (1.0 - a) * bg_linear, 1.0);
-    f_display = vec4(display(p.rgb / max(a, 1e-6)) * a + bg * (1.0 - a), 1.0);
+    f_linear = vec4(p.rgb + (1.0 - a) * bg_linear, OUT_ALPHA);
+    f_display = vec4(display(p.rgb / max(a, 1e-6)) * a + bg * (1.0 - a), OUT_ALPHA);
 #else
     f_linear = vec4(p.rgb, a);
     f_display = vec4(display(p.rgb / max(a, 1e-6)), a);

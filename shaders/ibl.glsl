@@ -1,7 +1,9 @@
 // Image-based lighting: split-sum specular (prefiltered cube mip chosen from roughness, times
 // the BRDF LUT's scale and bias for F0, Karis 2013) and Lambert diffuse from the
-// environment's 9 spherical-harmonic coefficients. MULTISCATTER adds Fdez-Aguera's (2019)
-// energy compensation, which restores what single-scattering loses on rough surfaces.
+// environment's 9 spherical-harmonic coefficients. MULTISCATTER (on by default) adds
+// Fdez-Aguera's (2019) energy compensation, which restores what single scattering loses on
+// rough surfaces. Dielectrics layer as glTF writes it: the specular lobe over the diffuse
+// base, the base weighted by 1 - the lobe's directional albedo (energy-conserving).
 #ifndef IBL_GLSL
 #define IBL_GLSL
 #include "brdf.glsl"
@@ -19,14 +21,40 @@ float roughness_to_lod(float roughness) {
     return roughness * u_env_max_lod;
 }
 
+// ENV_ROTATED: the environment turned about +Y (RenderOptions.env_rotation); world
+// directions are turned back into the panorama's frame before every lookup.
+#ifdef ENV_ROTATED
+uniform mat3 u_env_rotation;  // world -> environment
+#define ENV_DIR(d) (u_env_rotation * (d))
+#else
+#define ENV_DIR(d) (d)
+#endif
+
 vec3 env_radiance(vec3 dir, float roughness) {
-    return textureLod(u_env, dir, roughness_to_lod(roughness)).rgb;
+    return textureLod(u_env, ENV_DIR(dir), roughness_to_lod(roughness)).rgb;
 }
 
 // Cosine-weighted mean radiance about n (irradiance / pi, as sh.glsl returns it): what a
 // white Lambertian surface reflects.
 vec3 env_diffuse(vec3 n) {
-    return max(sh_irradiance(u_sh, n), vec3(0.0));
+    return max(sh_irradiance(u_sh, ENV_DIR(n)), vec3(0.0));
+}
+
+// Directional albedo of the specular lobe for F0 and F90 (KHR_materials_specular) at N.V:
+// single scattering FssEss (the split-sum LUT) and, with MULTISCATTER, the multiply
+// scattered FmsEms (Fdez-Aguera 2019, eq. 10-12); 1 - FssEss - FmsEms is what reaches a
+// dielectric's diffuse base.
+void specular_albedo(vec3 f0, vec3 f90, float NdotV, float roughness, out vec3 FssEss,
+                     out vec3 FmsEms) {
+    vec2 ab = texture(u_brdf_lut, vec2(NdotV, roughness)).rg;
+    FssEss = f0 * ab.x + f90 * ab.y;
+#ifdef MULTISCATTER
+    float Ems = 1.0 - (ab.x + ab.y);
+    vec3 Favg = f0 + (1.0 - f0) / 21.0;
+    FmsEms = Ems * FssEss * Favg / (1.0 - Ems * Favg);
+#else
+    FmsEms = vec3(0.0);
+#endif
 }
 
 #ifdef MATERIAL_INFO_GLSL  // the lookups above also serve the background pass
@@ -49,20 +77,12 @@ vec3 specular_direction(MaterialInfo m, vec3 v) {
 vec3 ibl(MaterialInfo m, vec3 v) {
     vec3 n = m.n;
     float NdotV = clamp(dot(n, v), 1e-4, 1.0);
-    vec2 ab = texture(u_brdf_lut, vec2(NdotV, m.roughness)).rg;
-    vec3 FssEss = m.f0 * ab.x + m.f90 * ab.y;
+    vec3 FssEss, FmsEms;
+    specular_albedo(m.f0, m.f90, NdotV, m.roughness, FssEss, FmsEms);
     vec3 radiance = env_radiance(specular_direction(m, v), m.roughness);
     vec3 irradiance = env_diffuse(n);
-#ifdef MULTISCATTER
-    float Ess = ab.x + ab.y;
-    float Ems = 1.0 - Ess;
-    vec3 Favg = m.f0 + (1.0 - m.f0) / 21.0;
-    vec3 FmsEms = Ems * FssEss * Favg / (1.0 - Ems * Favg);
     vec3 kD = m.diffuse_color * (1.0 - FssEss - FmsEms);
     vec3 color = FssEss * radiance + (FmsEms + kD) * irradiance;
-#else
-    vec3 color = FssEss * radiance + m.diffuse_color * (1.0 - FssEss) * irradiance;
-#endif
     return color * m.occlusion;
 }
 

@@ -34,7 +34,9 @@ void main() {
     v_world = world.xyz;
     v_normal = in_normal_matrix * in_normal;
 #ifdef HAS_TANGENTS
-    v_tangent = vec4(mat3(in_model) * in_tangent.xyz, in_tangent.w);
+    // A mirroring transform reverses the handedness of the tangent frame.
+    v_tangent = vec4(mat3(in_model) * in_tangent.xyz,
+                     determinant(mat3(in_model)) < 0.0 ? -in_tangent.w : in_tangent.w);
 #endif
 #ifdef HAS_UV0
     v_uv0 = in_uv0;

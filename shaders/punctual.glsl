@@ -4,6 +4,7 @@
 #define PUNCTUAL_GLSL
 #include "brdf.glsl"
 #include "lobes.glsl"
+#include "ibl.glsl"
 #if LIGHT_COUNT > 0
 uniform vec4 u_light_position[LIGHT_COUNT];   // xyz world position, w: 0 directional, 1 point, 2 spot
 uniform vec4 u_light_direction[LIGHT_COUNT];  // xyz direction the light travels, w range (0 = infinite)
@@ -15,6 +16,12 @@ void punctual(MaterialInfo m, vec3 v, vec3 pos, inout Lobes lobes) {
     vec3 n = m.n;
     float alpha = m.roughness * m.roughness;
     float NdotV = clamp(dot(n, v), 1e-4, 1.0);
+    // The same layering as ibl(): the diffuse base gets what the specular lobe's directional
+    // albedo leaves, and the lobe is scaled by its multiple-scattering share (Turquin 2019).
+    vec3 FssEss, FmsEms;
+    specular_albedo(m.f0, m.f90, NdotV, m.roughness, FssEss, FmsEms);
+    vec3 diffuse = brdf_lambert(m.diffuse_color) * (1.0 - FssEss - FmsEms);
+    vec3 ms_scale = 1.0 + FmsEms / max(FssEss, vec3(1e-4));
     for (int i = 0; i < LIGHT_COUNT; ++i) {
         vec3 l;
         float atten = 1.0;
@@ -56,15 +63,15 @@ void punctual(MaterialInfo m, vec3 v, vec3 pos, inout Lobes lobes) {
 #endif
         if (NdotL <= 0.0) continue;
         float NdotH = clamp(dot(n, h), 0.0, 1.0);
-        vec3 F = F_schlick(m.f0, m.f90, VdotH);
 #ifdef MATERIAL_ANISOTROPY
         float a = max(alpha, 1e-3);
-        vec3 spec = F * brdf_anisotropic_dv(mix(a, 1.0, m.anisotropy * m.anisotropy), a, n,
-                                            m.anisotropy_t, m.anisotropy_b, v, l, h);
+        vec3 spec = F_schlick(m.f0, m.f90, VdotH)
+                  * brdf_anisotropic_dv(mix(a, 1.0, m.anisotropy * m.anisotropy), a, n,
+                                        m.anisotropy_t, m.anisotropy_b, v, l, h);
 #else
         vec3 spec = brdf_specular(m.f0, m.f90, max(alpha, 1e-3), NdotV, NdotL, NdotH, VdotH);
 #endif
-        lobes.base += (brdf_lambert(m.diffuse_color) * (1.0 - F) + spec) * radiance * NdotL;
+        lobes.base += (diffuse + spec * ms_scale) * radiance * NdotL;
 #ifdef MATERIAL_SHEEN
         lobes.sheen += brdf_sheen(m.sheen_color, m.sheen_roughness, NdotV, NdotL, NdotH)
                      * radiance * NdotL;

@@ -237,7 +237,7 @@ vec3 outside_radiance(vec3 origin, vec3 dir, float variance) {
     vec3 c;
     if (trace_opaque(origin, dir, u_trace_length, lobe_spread(variance), c)) return c;
 #endif
-    return textureLod(u_env, dir, roughness_to_lod(pow(variance, 0.25))).rgb;
+    return textureLod(u_env, ENV_DIR(dir), roughness_to_lod(pow(variance, 0.25))).rgb;
 }
 
 // Radiance refracted through the object for one IOR: into the front face at n, through the
@@ -320,7 +320,7 @@ vec3 transmitted(vec3 v, vec3 n, float ior, float roughness, float d_interior, o
     }
     if (!inside_hit) through = outside_radiance(origin, dir, variance);
     through = (1.0 - exit_F) * exit_loss * through
-            + exit_F * textureLod(u_env, exit_refl, roughness_to_lod(pow(variance_reflected, 0.25))).rgb;
+            + exit_F * textureLod(u_env, ENV_DIR(exit_refl), roughness_to_lod(pow(variance_reflected, 0.25))).rgb;
 #else
     through = outside_radiance(v_world, r1, variance);
 #endif
@@ -371,19 +371,21 @@ void main() {
     vec3 refracted = through * exp(-u_sigma * max(path, 0.0)) * m.base_color.rgb;
 
     float dielectric = 1.0 - m.metallic;
-    vec2 ab = texture(u_brdf_lut, vec2(cos_i, m.roughness)).rg;
+    vec3 FssEss, FmsEms;  // the metal lobe, energy-compensated as in ibl()
+    specular_albedo(m.base_color.rgb, vec3(1.0), cos_i, m.roughness, FssEss, FmsEms);
     vec3 Fv = vec3(F);
 #ifdef MATERIAL_IRIDESCENCE
     Fv = mix(Fv, m.iridescence_fresnel, m.iridescence);  // the film reflects, the rest enters
 #endif
-    vec3 ks = m.metallic * (m.base_color.rgb * ab.x + ab.y) + dielectric * Fv;
+    vec3 ks = m.metallic * FssEss + dielectric * Fv;
     vec3 kr = dielectric * (1.0 - Fv) * transmission * single_scatter_albedo(cos_i, m.roughness);
     vec3 kd = dielectric * (1.0 - Fv) * (1.0 - transmission);
     vec3 reflected = env_radiance(reflect(d, n), m.roughness);
     Lobes lobes = ibl_lobes(m, v);  // sheen and clearcoat over the glass, as on opaque
     // what the debug view shows: the throughput, share x tint x volume attenuation
     lobes.transmission = kr * exp(-u_sigma * max(path, 0.0)) * m.base_color.rgb;
-    lobes.base = (ks * reflected + kd * m.base_color.rgb * env_diffuse(n)) * m.occlusion
+    lobes.base = (ks * reflected + (m.metallic * FmsEms + kd * m.base_color.rgb) * env_diffuse(n))
+               * m.occlusion
                + kr * refracted;
 #if LIGHT_COUNT > 0
     float f0 = (u_ior - 1.0) / (u_ior + 1.0);

@@ -1,0 +1,95 @@
+"""Runs inside Blender (`blender -b --factory-startup --python-exit-code 3 -P THIS -- JOB.json`):
+imports one glTF with Blender's own importer and renders it with Cycles on the CPU under the
+camera and panorama bench.fidelity computed, into a linear float RGBA OpenEXR (film
+transparent: alpha is coverage, RGB premultiplied, as our `background=transparent` frame).
+
+JOB: {"gltf", "panorama" (linear .hdr, already re-indexed into Blender's equirect convention),
+"out", "size", "spp", "camera_matrix" (4 x 4 camera-to-world, Blender coordinates), "fov"
+(vertical degrees), "clip": [near, far]}. With {"query": "extensions", "out"} it writes the
+glTF extensions this Blender's importer handles (its own list) and renders nothing.
+This file imports only bpy and the standard library: it is not part of the package's import
+graph.
+"""
+import json
+import math
+import re
+import sys
+
+
+def _importer_extensions() -> list[str]:
+    """What the importer reads: the extensions it accepts as required (its own list) and
+    those it has a module for (blender/imp/gltf2_blender_KHR_*.py)."""
+    import inspect
+    import os
+
+    import io_scene_gltf2
+    from io_scene_gltf2.io.imp import gltf2_io_gltf
+    source = inspect.getsource(gltf2_io_gltf.glTFImporter.__init__)
+    names = set(re.findall(r"'(KHR_[A-Za-z_]+|EXT_[A-Za-z_]+)'", source))
+    imp = os.path.join(os.path.dirname(io_scene_gltf2.__file__), "blender", "imp")
+    for f in os.listdir(imp):
+        m = re.match(r"gltf2_blender_((?:KHR|EXT)_[A-Za-z_]+)\.py$", f)
+        if m:
+            names.add(m.group(1))
+    return sorted(names)
+
+
+def main(job: dict) -> None:
+    import bpy
+    from mathutils import Matrix
+
+    if job.get("query") == "extensions":
+        with open(job["out"], "w") as f:
+            json.dump({"blender": bpy.app.version_string, "extensions": _importer_extensions()}, f)
+        return
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    import numpy
+    if not hasattr(numpy, "bool"):  # Debian's Blender 3.4 importer + numpy >= 1.24 (bookworm)
+        numpy.bool = bool
+    bpy.ops.import_scene.gltf(filepath=job["gltf"])
+    scene = bpy.context.scene
+    # Every reference viewer compensates multiple scattering: so do we, by default.
+    for mat in bpy.data.materials:
+        if mat.node_tree is None:
+            continue
+        for node in mat.node_tree.nodes:
+            if node.type == "BSDF_PRINCIPLED":
+                node.distribution = "MULTI_GGX"
+    world = bpy.data.worlds.new("panorama")
+    world.use_nodes = True
+    nodes, links = world.node_tree.nodes, world.node_tree.links
+    env = nodes.new("ShaderNodeTexEnvironment")
+    env.image = bpy.data.images.load(job["panorama"])
+    links.new(env.outputs["Color"], nodes["Background"].inputs["Color"])
+    scene.world = world
+
+    cam_data = bpy.data.cameras.new("camera")
+    cam_data.sensor_fit = "VERTICAL"
+    cam_data.angle_y = math.radians(job["fov"])
+    cam_data.clip_start, cam_data.clip_end = job["clip"]
+    cam = bpy.data.objects.new("camera", cam_data)
+    scene.collection.objects.link(cam)
+    cam.matrix_world = Matrix(job["camera_matrix"])
+    scene.camera = cam
+
+    scene.render.engine = "CYCLES"
+    scene.cycles.device = "CPU"
+    scene.cycles.samples = int(job["spp"])
+    scene.cycles.use_denoising = False
+    scene.cycles.use_adaptive_sampling = False
+    scene.cycles.seed = 1
+    scene.render.resolution_x = scene.render.resolution_y = int(job["size"])
+    scene.render.resolution_percentage = 100
+    scene.render.film_transparent = True
+    scene.render.pixel_aspect_x = scene.render.pixel_aspect_y = 1
+    scene.render.filter_size = 0.5  # close to our box-filtered MSAA
+    scene.render.image_settings.file_format = "OPEN_EXR"
+    scene.render.image_settings.color_depth = "32"
+    scene.render.image_settings.color_mode = "RGBA"
+    scene.render.filepath = job["out"]
+    bpy.ops.render.render(write_still=True)
+
+
+if __name__ == "__main__":
+    with open(sys.argv[sys.argv.index("--") + 1]) as f:
+        main(json.load(f))
