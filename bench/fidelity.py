@@ -152,10 +152,10 @@ def _save_png(path: Path, linear: np.ndarray) -> None:
 def run(args: argparse.Namespace) -> int:
     import pipeline
     from core.errors import AssetError
+    from core.options import RenderOptions
     from pipeline.panorama import load_panorama
     from renderer.camera import request_camera
     from renderer.frame import write_exr
-    from core.options import RenderOptions
     from renderer.render import render
 
     from . import scenes

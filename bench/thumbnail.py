@@ -135,9 +135,9 @@ def _multiscatter_cost(args, cache: Path, env_name: str, sizes: list[int]) -> in
     import dataclasses
 
     import pipeline
+    from core.options import RenderOptions
     from pipeline.environment import default_face_size
     from renderer import render
-    from core.options import RenderOptions
 
     from .scenes import ASSETS as assets_root
     print(f"{'asset':>15} {'px':>4} {'multiscatter ms':>16} {'without ms':>11} {'ratio':>6}")
@@ -152,7 +152,7 @@ def _multiscatter_cost(args, cache: Path, env_name: str, sizes: list[int]) -> in
             for _ in range(args.repeat):
                 for o in (on, off):
                     t = time.perf_counter()
-                    render(asset, env, o).rgba8
+                    _ = render(asset, env, o).rgba8
                     times[o.multiscatter].append((time.perf_counter() - t) * 1e3)
             a, b = statistics.median(times[True]), statistics.median(times[False])
             print(f"{name:>15} {size:>4} {a:>16.2f} {b:>11.2f} {a / b:>6.3f}", flush=True)

@@ -66,7 +66,8 @@ def test_dielectric_layering_against_roughplastic(roughness, env):
     ref_fair[..., :3] = ref_black[..., :3] + (ref_whole[..., :3] - ref_black[..., :3]) * k
     errors = {}
     for method in ("opaque", "raytrace"):
-        o = RenderOptions(width=SIZE, height=SIZE, pitch=spec.pitch, method=method, tonemap="none")
+        o = RenderOptions(width=SIZE, height=SIZE, yaw=spec.yaw, pitch=spec.pitch, fov=spec.fov,
+                          method=method, tonemap="none")
         spec_only = render(scenes.baked_asset(black), env, o).linear
         whole = render(scenes.baked_asset(spec), env, o).linear
         errors[method] = (relative_mae(spec_only, ref_black), relative_mae(whole, ref_whole),

@@ -69,9 +69,10 @@ def test_options_cross_processes_as_themselves_and_replace_validates():
 CHANGED = {"width": 300, "height": 300, "yaw": 1.0, "pitch": 1.0, "fov": 50.0, "distance": 3.0,
            "method": "wyman", "tonemap": "aces", "exposure": 1.0, "background": "transparent",
            "background_blur": 0.5, "override": MaterialOverride(metallic=1.0), "msaa": 1,
-           "lights": False, "multiscatter": True, "tir": "paper", "bounces": 2,
+           "lights": False, "multiscatter": False, "tir": "paper", "bounces": 2,
            "debug": "tir", "budget_ms": 10.0, "variant": "red", "camera": "0",
-           "material_debug": "clearcoat"}
+           "material_debug": "clearcoat", "target": (0.0, 1.0, 0.0), "env_rotation": 90.0,
+           "alpha": "coverage"}
 
 
 def test_key_covers_every_field():
@@ -81,3 +82,20 @@ def test_key_covers_every_field():
     assert not missing, f"add a changed value for {missing}"
     for name, value in CHANGED.items():
         assert base.replace(**{name: value}).key_dict() != base.key_dict(), name
+
+
+def test_camera_and_light_controls_from_both_surfaces():
+    """target, env_rotation and alpha come from the schema on the command line and in a query;
+    energy compensation is on by default and `--no-multiscatter` turns it off."""
+    from core.options import add_arguments, from_arguments, from_request
+    o = from_request({"target": "0.5,1,-2", "env_rotation": "45", "alpha": "coverage"})
+    assert o.target == (0.5, 1.0, -2.0) and o.env_rotation == 45.0 and o.alpha == "coverage"
+    assert RenderOptions().multiscatter is True and RenderOptions().target is None
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    args = parser.parse_args(["--no-multiscatter", "--target", "1,2,3", "--env-rotation", "-30"])
+    o = from_arguments(args)
+    assert o.multiscatter is False and o.target == (1.0, 2.0, 3.0) and o.env_rotation == -30.0
+    for bad in ("1,2", "a,b,c", "1,2,nan", "1e13,0,0"):
+        with pytest.raises(ValueError):
+            from_request({"target": bad})

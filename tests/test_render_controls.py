@@ -7,17 +7,15 @@ import dataclasses
 
 import numpy as np
 import pytest
+from test_render_physics import gradient_radiance, interior, make_env, opts, sphere_asset, sphere_geometry
 
 import pipeline
 from core.baked import BakedAsset, BakedMesh
 from core.cubemap import env_rotation_matrix, sample_cube
+from core.options import RenderOptions
 from core.scene import Material
 from renderer.camera import request_camera
-from core.options import RenderOptions
 from renderer.render import render
-
-from test_render_physics import (gradient_radiance, interior, make_env, opts, sphere_asset,
-                                 sphere_geometry)
 
 NEGATIVE_SCALE = "gltf-samples/NegativeScaleTest/glTF-Binary/NegativeScaleTest.glb"
 
@@ -172,7 +170,7 @@ def test_mirrored_repeat_wrap_mirrors_the_texture():
     """glTF MIRRORED_REPEAT (33648): a quad whose u runs 0..2 over a left-dark / right-bright
     ramp shows the ramp and then its mirror image, so the frame is symmetric left to right;
     REPEAT shows the ramp twice."""
-    from core.scene import MIRRORED_REPEAT, REPEAT, NEAREST, Sampler, Texture, TextureRef
+    from core.scene import MIRRORED_REPEAT, NEAREST, REPEAT, Sampler, Texture, TextureRef
 
     ramp = np.zeros((4, 64, 4), np.uint8)
     ramp[..., :3] = np.linspace(10, 250, 64).astype(np.uint8)[None, :, None]
