@@ -135,27 +135,32 @@ def _multiscatter_cost(args, cache: Path, env_name: str, sizes: list[int]) -> in
     import dataclasses
 
     import pipeline
+    from core.cubemap import default_face_size
     from core.options import RenderOptions
-    from pipeline.environment import default_face_size
     from renderer import render
 
-    from .scenes import ASSETS as assets_root
-    print(f"{'asset':>15} {'px':>4} {'multiscatter ms':>16} {'without ms':>11} {'ratio':>6}")
+    from .assets import ASSETS as assets_root
+    print(f"{'asset':>15} {'px':>4} {'multiscatter ms':>16} {'without ms':>11} {'ratio':>6}"
+          f" {'cpu ms':>8} {'without':>8} {'ratio':>6}")
     for name in args.assets.split(","):
         asset = pipeline.bake_asset(assets_root / ASSETS[name], cache)
         for size in sizes:
             env = pipeline.bake_environment(env_name, cache, face_size=default_face_size(size))
             on = RenderOptions(width=size, height=size, **VIEW)
             off = dataclasses.replace(on, multiscatter=False)
-            times = {True: [], False: []}
+            wall: dict[bool, list[float]] = {True: [], False: []}
+            cpu: dict[bool, list[float]] = {True: [], False: []}
             render(asset, env, on), render(asset, env, off)  # compile both programs
             for _ in range(args.repeat):
                 for o in (on, off):
-                    t = time.perf_counter()
+                    c, t = _cpu(), time.perf_counter()
                     _ = render(asset, env, o).rgba8
-                    times[o.multiscatter].append((time.perf_counter() - t) * 1e3)
-            a, b = statistics.median(times[True]), statistics.median(times[False])
-            print(f"{name:>15} {size:>4} {a:>16.2f} {b:>11.2f} {a / b:>6.3f}", flush=True)
+                    wall[o.multiscatter].append((time.perf_counter() - t) * 1e3)
+                    cpu[o.multiscatter].append((_cpu() - c) * 1e3)
+            a, b = statistics.median(wall[True]), statistics.median(wall[False])
+            ca, cb = statistics.median(cpu[True]), statistics.median(cpu[False])
+            print(f"{name:>15} {size:>4} {a:>16.2f} {b:>11.2f} {a / b:>6.3f}"
+                  f" {ca:>8.2f} {cb:>8.2f} {ca / cb:>6.3f}", flush=True)
     return 0
 
 
