@@ -25,7 +25,8 @@ does; refraction lobes are narrower by |1 - eta| / 2). Inside a volume, Beer-Lam
 attenuation exp(-sigma t) with sigma = -ln(attenuation_color) / attenuation_distance.
 Single-sided opaque materials are invisible from behind (rays pass through their back faces,
 as raster culling does); transmissive ones keep both sides (rays inside glass meet back
-faces). Material factors only: textures and normal maps are not sampled, and punctual lights are not
+faces). Emissive surfaces add their factor x strength wherever a path meets them. Material factors
+only: textures and normal maps are not sampled, and punctual lights are not
 used (the environment is the only light), so the method is exact for untextured glass and
 mirrors, which is what it is for.
 
@@ -82,6 +83,7 @@ class TraceScene:
     ior: np.ndarray              # K
     sigma: np.ndarray            # K x 3 absorption coefficient per scene unit (0: none)
     culled: np.ndarray           # K bool: single-sided and opaque (back faces let rays through)
+    emission: np.ndarray         # K x 3 emissive factor x strength (linear radiance)
     radius: float
 
 
@@ -94,7 +96,8 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
     for k, mesh in enumerate(asset.meshes):
         mat = apply_override(mesh.material, options.override)
         tables.append((mat.base_color[:3], mat.metallic, mat.roughness, mat.transmission,
-                       mat.ior, mat.absorption(), not mat.double_sided and mat.transmission <= 0))
+                       mat.ior, mat.absorption(), not mat.double_sided and mat.transmission <= 0,
+                       np.asarray(mat.emissive, np.float64) * mat.emissive_strength))
         idx = mesh.indices.astype(np.int64)
         for m in mesh.transforms:
             m = np.asarray(m, np.float64)
@@ -121,7 +124,7 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
     if len(tri):
         TriangleMesh(scene, tri.astype(np.float32))
     lo, hi = np.asarray(asset.bounds, np.float64)
-    col = list(zip(*tables)) if tables else [[]] * 7
+    col = list(zip(*tables)) if tables else [[]] * 8
     return TraceScene(
         embree=scene, normals=nrm.astype(np.float32), geo_normals=ng.astype(np.float32),
         material=np.concatenate(mats) if mats else np.zeros(0, np.int32),
@@ -129,6 +132,7 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
         metallic=np.asarray(col[1], np.float64), roughness=np.asarray(col[2], np.float64),
         transmission=np.asarray(col[3], np.float64), ior=np.asarray(col[4], np.float64),
         sigma=np.asarray(col[5], np.float64).reshape(-1, 3), culled=np.asarray(col[6], bool),
+        emission=np.asarray(col[7], np.float64).reshape(-1, 3),
         radius=max(float(np.linalg.norm(hi - lo)) / 2, 1e-6))
 
 
@@ -420,6 +424,9 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
         if np.any(inside):
             w = w.copy()
             w[inside] *= np.exp(-ts.sigma[k[inside]] * t[inside, None])
+        glow = ts.emission[k].max(axis=1) > 0
+        if np.any(glow):
+            add(w[glow] * ts.emission[k[glow]] * sh[glow, None], px[glow])
         cos_i = -np.einsum("ij,ij->i", d, ns)
         eta = np.where(entering, 1.0 / ior, ior)
         fres = fresnel_dielectric(cos_i, eta)

@@ -199,3 +199,21 @@ def test_mirrored_repeat_wrap_mirrors_the_texture():
     assert np.abs(seg - seg[::-1]).max() < 0.05 * seg.max()   # symmetric about the middle
     rep = quad(REPEAT)[lo:hi + 1]
     assert np.abs(rep - rep[::-1]).mean() > 0.2 * rep.max()    # repeat is not
+
+
+def test_ray_tracer_shows_emission():
+    """An emissive sphere (factor x KHR_materials_emissive_strength) under a black sky: the ray
+    tracer's pixels on it are the emitted radiance, as the raster pass's (EmissiveStrengthTest
+    rendered black before)."""
+    black = make_env(lambda d: np.zeros(d.shape[:-1] + (3,)), size=16, key="black")
+    asset = sphere_asset(0.0, 0.5, (0.0, 0.0, 0.0, 1.0))
+    mesh = asset.meshes[0]
+    glowing = dataclasses.replace(mesh, material=dataclasses.replace(
+        mesh.material, emissive=(0.5, 1.0, 0.25), emissive_strength=2.0))
+    asset = dataclasses.replace(asset, key="glowing-sphere", meshes=[glowing])
+    o = opts(method="raytrace")
+    mask, n, d = sphere_geometry(o)
+    sel = interior(mask, n, d, 0.3)
+    for method in ("raytrace", "opaque"):
+        got = render(asset, black, dataclasses.replace(o, method=method)).linear[..., :3][sel]
+        assert np.abs(got - np.array([1.0, 2.0, 0.5])).max() < 0.01, method
