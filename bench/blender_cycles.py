@@ -45,7 +45,7 @@ def main(job: dict) -> None:
     bpy.ops.wm.read_factory_settings(use_empty=True)
     import numpy
     if not hasattr(numpy, "bool"):  # Debian's Blender 3.4 importer + numpy >= 1.24 (bookworm)
-        setattr(numpy, "bool", bool)
+        numpy.bool = bool  # type: ignore[misc,assignment]
     bpy.ops.import_scene.gltf(filepath=job["gltf"])
     scene = bpy.context.scene
     # Every reference viewer compensates multiple scattering: so do we, by default.
