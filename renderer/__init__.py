@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 # Bump on any change that alters pixels: the service keys cached thumbnails with it.
-RENDERER_VERSION = "2"
+RENDERER_VERSION = "3"  # 3: energy compensation by default, layering, mirrored transforms (issue 18)
 
 # Imported eagerly: the submodule `renderer.render` would otherwise shadow the function.
 from .frame import Frame  # noqa: E402
