@@ -170,7 +170,7 @@ def run(args: argparse.Namespace) -> int:
     work = Path(tempfile.mkdtemp(prefix="bench-fidelity-blender-"))
     env = pipeline.bake_environment(args.env, cache, face_size=256)
     options = RenderOptions(width=args.size, height=args.size, background="transparent",
-                            tonemap="aces", **VIEW)
+                            tonemap="aces", yaw=VIEW["yaw"], pitch=VIEW["pitch"], fov=VIEW["fov"])
 
     blender, supported, note = args.blender, set(), ""
     if not blender:
@@ -194,7 +194,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"# bench fidelity: {args.size} px, env {args.env}, yaw {VIEW['yaw']:g} pitch {VIEW['pitch']:g}; {note}")
 
     rows = []
-    jobs = [("calibration", scenes.write_glb(scenes.scene("mirror_sphere"), work / "mirror_sphere.glb"))]
+    jobs: list[tuple[str, Path | None]] = [
+        ("calibration", scenes.write_glb(scenes.scene("mirror_sphere"), work / "mirror_sphere.glb"))]
     jobs += model_files(names)
     for name, path in jobs:
         row = {"model": name, "ours_flip": "", "raytrace_flip": "", "ours_vs_raytrace": "",

@@ -232,7 +232,7 @@ def request_fields() -> dict[str, FieldInfo]:
             out[name] = _optional(info)
         elif name == "target":  # "x,y,z" on both surfaces, parsed by RenderOptions
             out[name] = FieldInfo.from_annotated_attribute(
-                str | None, Field(None, description=info.description))
+                str | None, Field(default=None, description=info.description))  # type: ignore[arg-type]  # a union is an annotation
         else:
             out[name] = info
     return out
