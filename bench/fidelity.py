@@ -182,10 +182,12 @@ def run(args: argparse.Namespace) -> int:
         write_exr(str(pano_path), np.dstack([blender_panorama(pano), np.ones(pano.shape[:2], np.float32)]))
         probe = work / "extensions.json"
         try:
-            subprocess.run([blender, "-b", "--factory-startup", "--python-exit-code", "3",
-                            "-P", str(ROOT / "bench" / "blender_cycles.py"), "--",
-                            str(_write(work / "probe.json", {"query": "extensions", "out": str(probe)}))],
-                           capture_output=True, timeout=120)
+            proc = subprocess.run([blender, "-b", "--factory-startup", "--python-exit-code", "3",
+                                   "-P", str(ROOT / "bench" / "blender_cycles.py"), "--",
+                                   str(_write(work / "probe.json", {"query": "extensions", "out": str(probe)}))],
+                                  capture_output=True, text=True, timeout=300)
+            if not probe.is_file():
+                raise ValueError((proc.stderr or proc.stdout).strip().splitlines()[-1:] or "no answer")
             info = json.loads(probe.read_text())
             supported = set(info["extensions"])
             note = f"Blender {info['blender']} Cycles, {args.spp} spp, importer handles {len(supported)} extensions"
