@@ -13,7 +13,7 @@ from bench.fidelity import blender_panorama, extensions_used, model_files
 
 def _bench(tmp_path, *extra) -> tuple[str, dict]:
     out = tmp_path / "out"
-    p = subprocess.run([sys.executable, "-m", "service.cli", "bench", "fidelity", "--size", "48",
+    p = subprocess.run([sys.executable, "-m", "cli.main", "bench", "fidelity", "--size", "48",
                         "--spp", "16", "--models", "Box", "--out", str(out),
                         "--cache", str(tmp_path / "cache"), *extra],
                        capture_output=True, text=True, timeout=900)

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from test_render_physics import constant_env, sphere_asset
+from test_render_physics import _LUT, constant_env, sphere_asset
 
 from core.baked import BakedAsset, BakedMesh
 from core.options import RenderOptions
@@ -89,7 +89,10 @@ def test_alpha_mask_and_blend():
 @pytest.mark.parametrize("albedo", [0.25, 0.75])
 def test_directional_light_on_a_rough_dielectric(albedo):
     """KHR_lights_punctual directional light of E lux straight at the camera-facing point
-    (N = V = L): radiance = E (albedo (1 - F0) / pi + F0 D G / 4) with D = 1/pi at roughness 1."""
+    (N = V = L): radiance = E (albedo (1 - E_spec) / pi + F0 D G / 4 x (1 + FmsEms / FssEss))
+    with D = 1/pi, G = 1 at roughness 1: the diffuse base gets what the specular lobe's
+    directional albedo E_spec = FssEss + FmsEms leaves (glTF's energy-conserving layering; the
+    split-sum LUT at N.V = 1, roughness 1), and the lobe carries its multiple scattering."""
     E = 2.0
     asset = sphere_asset(0.0, 1.0, (albedo, albedo, albedo, 1.0))
     lit = dataclasses.replace(asset, key=asset.key + "-lit",
@@ -97,6 +100,11 @@ def test_directional_light_on_a_rough_dielectric(albedo):
     f = render(lit, constant_env(0.0), opts())
     c = S // 2
     got = f.linear[c - 1:c + 2, c - 1:c + 2, :3].mean()
-    expected = E * (albedo * 0.96 / math.pi + 0.04 / (4 * math.pi))
+    a, b = _LUT[-1, -1]
+    fss = 0.04 * a + b
+    ems = 1 - (a + b)
+    favg = 0.04 + 0.96 / 21
+    fms = ems * fss * favg / (1 - ems * favg)
+    expected = E * (albedo * (1 - fss - fms) / math.pi + 0.04 / (4 * math.pi) * (1 + fms / fss))
     assert abs(got / expected - 1) < 0.01
     assert render(lit, constant_env(0.0), opts(lights=False)).linear[c, c, :3].max() == 0
