@@ -228,7 +228,7 @@ def run(args: argparse.Namespace) -> int:
         elif missing:
             row["note"] = "Blender's importer lacks " + ", ".join(missing) + ": not scored"
         else:
-            camera = request_camera(asset.bounds, options)
+            camera = request_camera(asset, options)
             job = {"gltf": str(path), "panorama": str(pano_path), "out": str(work / f"{name}.exr"),
                    "size": args.size, "spp": args.spp, "camera_matrix": blender_camera(camera),
                    "fov": camera.fov, "clip": [camera.near * 0.5, camera.far * 2]}

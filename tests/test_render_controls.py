@@ -50,7 +50,7 @@ def test_negative_scale_spheres_match_their_unmirrored_twins(assets, cache):
     env = pipeline.bake_environment("neutral", cache, face_size=128)
     o = RenderOptions(width=512, height=512, tonemap="none", method="opaque")
     frame = render(asset, env, o)
-    camera = request_camera(asset.bounds, o)
+    camera = request_camera(asset, o)
     spheres = [m for m in asset.meshes if m.name and len(m.transforms) == 2] or \
         [m for m in asset.meshes if len(m.transforms) == 2]
     assert len(spheres) == 3, [m.name for m in asset.meshes]
