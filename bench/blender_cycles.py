@@ -46,20 +46,13 @@ def main(job: dict) -> None:
     import numpy
     if not hasattr(numpy, "bool"):  # Debian's Blender 3.4 importer + numpy >= 1.24 (bookworm)
         numpy.bool = bool  # type: ignore[misc,assignment]
+    # A still, like ours: the importer is kept from creating and applying animations, so
+    # nodes, skins and morph weights keep the file's own values.
+    from io_scene_gltf2.blender.imp.gltf2_blender_animation import BlenderAnimation
+    BlenderAnimation.anim = staticmethod(lambda gltf, anim_idx: None)  # type: ignore[method-assign]
+    BlenderAnimation.restore_animation = staticmethod(lambda gltf, name: None)  # type: ignore[method-assign]
     bpy.ops.import_scene.gltf(filepath=job["gltf"])
     scene = bpy.context.scene
-    # A still, like ours: no animation; skins in the pose the importer built as rest (for
-    # glTF without a guessable bind pose, the nodes' own transforms).
-    for ob in bpy.data.objects:
-        ob.animation_data_clear()
-        if ob.type == "ARMATURE":
-            for pb in ob.pose.bones:
-                pb.location, pb.scale = (0.0, 0.0, 0.0), (1.0, 1.0, 1.0)
-                pb.rotation_mode = "QUATERNION"
-                pb.rotation_quaternion = (1.0, 0.0, 0.0, 0.0)
-    for key in bpy.data.shape_keys:  # morph weights: the mesh's defaults, not an animation's
-        key.animation_data_clear()
-    scene.frame_set(scene.frame_current)
     # Every reference viewer compensates multiple scattering: so do we, by default.
     for mat in bpy.data.materials:
         if mat.node_tree is None:
