@@ -39,6 +39,9 @@ class Frame:
     rgba8: np.ndarray    # H x W x 4 uint8: tone-mapped sRGB, straight alpha
     plan: dict = field(default_factory=dict)     # what ran and why
     timings: FrameTimings = field(default_factory=lambda: FrameTimings(0.0))
+    # alpha=coverage over a background: the colour already holds the background and alpha is
+    # only the object's mask (so a format without alpha keeps the colour as it is)
+    alpha_is_mask: bool = False
 
     @property
     def width(self) -> int:
@@ -59,7 +62,7 @@ class Frame:
         from PIL import Image
         if _PIL_FORMATS[key] == "JPEG" or opaque:
             rgb = self.rgba8[..., :3]
-            if not opaque:  # JPEG has no alpha: premultiply onto black
+            if not opaque and not self.alpha_is_mask:  # JPEG has no alpha: onto black
                 rgb = (rgb.astype(np.uint16) * self.rgba8[..., 3:4] // 255).astype(np.uint8)
             img = Image.fromarray(np.ascontiguousarray(rgb), "RGB")
         else:
@@ -106,6 +109,11 @@ def encode_png(pixels: np.ndarray) -> bytes:
 
 def _png_chunk(tag: bytes, data: bytes) -> bytes:
     return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(data, zlib.crc32(tag)))
+
+
+def alpha_is_mask(options) -> bool:
+    """RenderOptions alpha=coverage over an environment or colour: see Frame.alpha_is_mask."""
+    return options.alpha == "coverage" and options.background != "transparent"
 
 
 def write_exr(path: str, linear: np.ndarray) -> None:

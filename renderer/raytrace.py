@@ -480,7 +480,7 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
 def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
                     camera: Camera | None = None, supersample: int | None = None):
     """Render with the ray tracer: a renderer.frame.Frame (linear + tone-mapped sRGB)."""
-    from .frame import Frame, FrameTimings, tonemap_srgb8
+    from .frame import Frame, FrameTimings, alpha_is_mask, tonemap_srgb8
 
     t0 = time.perf_counter()
     linear, stats = trace(asset, env, options, camera, supersample)
@@ -496,7 +496,8 @@ def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOpt
     total = (t1 - t0) * 1e3
     timings = FrameTimings(total, {"build": stats["build_ms"], "trace": stats["trace_ms"],
                                    "tonemap": total - stats["build_ms"] - stats["trace_ms"]})
-    return Frame(linear=linear, rgba8=rgba8, plan=plan, timings=timings)
+    return Frame(linear=linear, rgba8=rgba8, plan=plan, timings=timings,
+                 alpha_is_mask=alpha_is_mask(options))
 
 
 register_frame_method("raytrace", render_raytrace)  # `--method raytrace` via renderer.render

@@ -29,7 +29,7 @@ from core.scene import Material, is_srgb
 
 from . import gpu
 from .camera import Camera, request_camera
-from .frame import Frame, FrameTimings, exposure_scale
+from .frame import Frame, FrameTimings, alpha_is_mask, exposure_scale
 
 log = logging.getLogger(__name__)
 
@@ -254,7 +254,7 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     timings = FrameTimings((t_end - t0) * 1e3, {"upload": (t_upload - t0) * 1e3,
                                                 "draw": (t_draw - t_upload) * 1e3,
                                                 "finish": (t_end - t_draw) * 1e3})
-    return Frame(linear, rgba8, plan, timings)
+    return Frame(linear, rgba8, plan, timings, alpha_is_mask=alpha_is_mask(options))
 
 
 def validate_options(o: RenderOptions) -> None:

@@ -237,3 +237,19 @@ def test_env_rotation_reaches_the_refraction_pass(method):
     err = np.abs(turned - base).mean()
     assert err < 0.01, err
     assert np.abs(env_only - base).mean() > 5 * err
+
+
+def test_coverage_alpha_jpeg_keeps_the_background():
+    """A format without alpha (JPEG) keeps the composited colour of an alpha=coverage frame
+    instead of putting it onto black, as it does for a transparent one."""
+    import io
+
+    from PIL import Image
+
+    env = make_env(gradient_radiance, size=32, key="gradient")
+    o = opts(method="opaque", alpha="coverage")
+    frame = render(sphere_asset(0.0, 0.5), env, o)
+    jpeg = np.asarray(Image.open(io.BytesIO(frame.encode("jpeg", quality=95))).convert("RGB"), float)
+    corner = frame.rgba8[:8, :8, :3].astype(float)
+    assert frame.rgba8[:8, :8, 3].max() == 0 and corner.mean() > 60
+    assert np.abs(jpeg[:8, :8] - corner).mean() < 4
