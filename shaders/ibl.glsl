@@ -44,7 +44,7 @@ vec3 env_diffuse(vec3 n) {
 // single scattering FssEss (the split-sum LUT) and, with MULTISCATTER, the multiply
 // scattered FmsEms (Fdez-Aguera 2019, eq. 10-12); 1 - FssEss - FmsEms is what reaches a
 // dielectric's diffuse base.
-void specular_albedo(vec3 f0, vec3 f90, float NdotV, float roughness, out vec3 FssEss,
+void specular_albedo(vec3 f0, float f90, float NdotV, float roughness, out vec3 FssEss,
                      out vec3 FmsEms) {
     vec2 ab = texture(u_brdf_lut, vec2(NdotV, roughness)).rg;
     FssEss = f0 * ab.x + f90 * ab.y;

@@ -372,7 +372,7 @@ void main() {
 
     float dielectric = 1.0 - m.metallic;
     vec3 FssEss, FmsEms;  // the metal lobe, energy-compensated as in ibl()
-    specular_albedo(m.base_color.rgb, vec3(1.0), cos_i, m.roughness, FssEss, FmsEms);
+    specular_albedo(m.base_color.rgb, 1.0, cos_i, m.roughness, FssEss, FmsEms);
     vec3 Fv = vec3(F);
 #ifdef MATERIAL_IRIDESCENCE
     Fv = mix(Fv, m.iridescence_fresnel, m.iridescence);  // the film reflects, the rest enters
