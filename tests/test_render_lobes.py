@@ -78,12 +78,16 @@ def test_sheen_on_black_furnace(sheen_roughness):
 @pytest.mark.parametrize("specular,tint", [(0.0, 1.0), (1.0, 1.0), (1.0, 100.0)])
 def test_specular_extremes_furnace(specular, tint):
     """Black dielectric: it reflects only its specular lobe, f0 A + f90 B with f0 = min(0.04
-    tint, 1) x specular and f90 = specular. Specular 0 is black; tint 100 clamps F0 to 1 and
-    reflects the whole single-scattering albedo, still never above 1."""
+    tint, 1) x specular and f90 = specular, plus the default multiple-scattering share
+    (Fdez-Aguera: Ems FssEss Favg / (1 - Ems Favg)). Specular 0 is black; tint 100 clamps F0
+    to 1 and reflects everything, still never above 1."""
     px, nv = furnace(lobe_sphere(base_color=(0.0, 0.0, 0.0, 1.0), roughness=0.3,
                                  specular=specular, specular_color=(tint,) * 3))
     f0 = min(0.04 * tint, 1.0) * specular
-    expected = f0 * lut(nv, 0.3, 0) + specular * lut(nv, 0.3, 1)
+    a, b = lut(nv, 0.3, 0), lut(nv, 0.3, 1)
+    fss = f0 * a + specular * b
+    ems, favg = 1 - (a + b), f0 + (1 - f0) / 21
+    expected = fss + ems * fss * favg / (1 - ems * favg)
     assert np.abs(px - expected[:, None]).mean() < 0.02
     assert px.max() <= 1.01
 
