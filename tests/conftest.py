@@ -39,3 +39,16 @@ def reference_env(tmp_path_factory):
 def scene_cache(tmp_path_factory):
     """One bake cache for the generated glass test scenes (bench/scenes.py)."""
     return tmp_path_factory.mktemp("scene_cache")
+
+
+@pytest.fixture(scope="session")
+def server(tmp_path_factory):
+    """One real `asset-preview serve` process (two workers, the limits in service_server.py)
+    for every test whose server settings are these: starting one costs seconds."""
+    from service_server import ARGS, SERVER_ENV, Server
+    srv = Server(tmp_path_factory.mktemp("svc") / "cache", *ARGS, env=SERVER_ENV)
+    try:
+        srv.wait_ready()
+        yield srv
+    finally:
+        srv.stop()

@@ -14,6 +14,17 @@ import httpx
 ROOT = Path(__file__).resolve().parents[1]
 
 
+# The shared service's limits (conftest.py `server`), which test_service.py probes.
+UPLOAD_LIMIT = 16 * 2**20
+MAX_QUEUE = 6
+UNPACKED_LIMIT = 64 * 2**20
+SERVER_ENV = {"ASSET_PREVIEW_MAX_ARCHIVE_FILES": "64", "ASSET_PREVIEW_MAX_QUEUE": str(MAX_QUEUE),
+              "ASSET_PREVIEW_MAX_UNPACKED_BYTES": str(UNPACKED_LIMIT),
+              "ASSET_PREVIEW_MAX_TRIANGLES": "10000",  # the bunny (16k) is over, the samples under
+              "ASSET_PREVIEW_MAX_TEXTURE_PIXELS": str(2048 * 2048),
+              "ASSET_PREVIEW_CLIENT_SHARE": "1"}  # every test client is 127.0.0.1: one client
+ARGS = ("--workers", "2", "--no-seed", "--max-upload-bytes", str(UPLOAD_LIMIT))
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

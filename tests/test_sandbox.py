@@ -104,22 +104,16 @@ def test_root_must_hold_the_asset_and_inspect_takes_it(library, tmp_path, capsys
         inspect_cmd.run(parser.parse_args([str(car)]))
 
 
-def test_uploaded_zip_refuses_a_reference_leaving_it(tmp_path):
-    """The service's root is the upload: a zipped car whose wheel lies outside the zip."""
+def test_uploaded_zip_refuses_a_reference_leaving_it(server):
+    """The service's root is the upload: a zipped car whose wheel lies outside the zip (on the
+    session's shared server: the refusal needs no settings of its own)."""
     import io
     import zipfile
-
-    from service_server import Server
 
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w") as zf:
         zf.writestr("car/car.usda", CAR)  # ../../parts is outside what the zip holds
-    srv = Server(tmp_path / "cache", "--workers", "1", "--no-seed")
-    try:
-        srv.wait_ready()
-        r = srv.client.post("/assets", files={"file": ("car.zip", buf.getvalue())}, timeout=120)
-    finally:
-        srv.stop()
+    r = server.client.post("/assets", files={"file": ("car.zip", buf.getvalue())}, timeout=120)
     assert r.status_code == 422, r.text
     assert "leaves the root" in r.json()["detail"] and "wheel.usda" in r.json()["detail"]
 

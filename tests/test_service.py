@@ -15,27 +15,9 @@ import httpx
 import numpy as np
 import pytest
 from PIL import Image
-from service_server import Server
+from service_server import MAX_QUEUE, UNPACKED_LIMIT, UPLOAD_LIMIT, Server
 
-UPLOAD_LIMIT = 16 * 2**20
-MAX_QUEUE = 6
-UNPACKED_LIMIT = 64 * 2**20
-SERVER_ENV = {"ASSET_PREVIEW_MAX_ARCHIVE_FILES": "64", "ASSET_PREVIEW_MAX_QUEUE": str(MAX_QUEUE),
-              "ASSET_PREVIEW_MAX_UNPACKED_BYTES": str(UNPACKED_LIMIT),
-              "ASSET_PREVIEW_MAX_TRIANGLES": "10000",  # the bunny (16k) is over, the samples under
-              "ASSET_PREVIEW_MAX_TEXTURE_PIXELS": str(2048 * 2048),
-              "ASSET_PREVIEW_CLIENT_SHARE": "1"}  # every test client is 127.0.0.1: one client
-
-
-@pytest.fixture(scope="module")
-def server(tmp_path_factory):
-    srv = Server(tmp_path_factory.mktemp("svc") / "cache", "--workers", "2", "--no-seed",
-                 "--max-upload-bytes", str(UPLOAD_LIMIT), env=SERVER_ENV)
-    try:
-        srv.wait_ready()
-        yield srv
-    finally:
-        srv.stop()
+# `server` (conftest.py): the session's shared service, SERVER_ENV in service_server.py.
 
 
 def zip_bytes(files: dict[str, bytes], links: dict[str, str] | None = None) -> bytes:

@@ -83,33 +83,42 @@ def test_api_key_guards_every_endpoint_but_probes(ops, assets):
     anon.close()
 
 
-def test_thumbnail_of_a_baking_asset_answers_202(ops, assets):
-    """The only worker is kept busy, so the new asset's bake must queue behind it. The blocker
-    is a 2048 px ray-traced glass render at 32 bounces (over 30 s on an idle 2-core CPU): it runs
-    into the 8 s render deadline whatever the load, which keeps the bake queued for that long."""
+@pytest.fixture(scope="module")
+def blocked(ops, assets):
+    """One blocker for the two tests below: a 2048 px ray-traced glass render at 32 bounces
+    (over 30 s on an idle 2-core CPU) runs into the 8 s render deadline whatever the load, and
+    while it holds the only worker a new asset's bake must queue behind it. Each blocker costs
+    the whole deadline, so both tests read this one's outcome."""
     duck = next(r for r in seeded(ops) if r["name"] == "Duck.glb")["id"]
-    blocker = threading.Thread(target=lambda: httpx.get(
+    out: dict[str, httpx.Response] = {}
+    blocker = threading.Thread(target=lambda: out.setdefault("blocker", httpx.get(
         f"{ops.url}/assets/{duck}/thumbnail", timeout=120, headers=AUTH,
-        params=BLOCKER | {"yaw": 1}))
+        params=BLOCKER | {"yaw": 1})))
     blocker.start()
     time.sleep(0.3)
     r_up = upload(ops, "torus.STL", (assets / "mesh/torus.STL").read_bytes(), headers=AUTH)
     asset_id = r_up.json()["id"]
-    r = ops.client.get(f"/assets/{asset_id}/thumbnail", params={"size": 64})
+    out["while_baking"] = ops.client.get(f"/assets/{asset_id}/thumbnail", params={"size": 64})
+    blocker.join(60)
+    return duck, asset_id, out
+
+
+def test_thumbnail_of_a_baking_asset_answers_202(ops, blocked):
+    _, asset_id, out = blocked
+    r = out["while_baking"]
     assert r.status_code == 202, r.text
     assert int(r.headers["retry-after"]) > 0 and "baking" in r.json()["detail"]
-    blocker.join(60)
     assert ops.wait_status(asset_id)["status"] == "ready"
     assert ops.client.get(f"/assets/{asset_id}/thumbnail", params={"size": 64}).status_code == 200
 
 
 @pytest.mark.slow
-def test_render_past_its_deadline_is_stopped(ops):
-    duck = next(r for r in seeded(ops) if r["name"] == "Duck.glb")["id"]
-    r = ops.client.get(f"/assets/{duck}/thumbnail", params=BLOCKER | {"yaw": 7})
+def test_render_past_its_deadline_is_stopped(ops, blocked):
+    duck, _, out = blocked
+    r = out["blocker"]
     assert r.status_code == 504, r.text
     assert "deadline" in r.json()["detail"]
-    r = ops.client.get(f"/assets/{duck}/thumbnail", params={"size": 64, "yaw": 7})
+    r = ops.client.get(f"/assets/{duck}/thumbnail", params={"size": 64, "yaw": 1})
     assert r.status_code == 200
     restarts = [line for line in ops.client.get("/metrics").text.splitlines()
                 if line.startswith('asset_preview_worker_restarts_total{reason="deadline"}')]
