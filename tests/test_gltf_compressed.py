@@ -26,8 +26,16 @@ from renderer import render
 SAMPLES = Path(__file__).resolve().parents[1].parent / "shared" / "assets" / "gltf-samples"
 DRACO = sorted(SAMPLES.glob("*/glTF-Draco/*.gltf"))
 # Every variant folder (Draco, Quantized, Embedded, Binary) beside a primary glTF/ one.
-VARIANTS = sorted(p for p in [*SAMPLES.glob("*/glTF-*/*.gltf"), *SAMPLES.glob("*/glTF-*/*.glb")]
-                  if (p.parent.parent / "glTF" / (p.stem + ".gltf")).exists())
+ALL_VARIANTS = sorted(p for p in [*SAMPLES.glob("*/glTF-*/*.gltf"), *SAMPLES.glob("*/glTF-*/*.glb")]
+                      if (p.parent.parent / "glTF" / (p.stem + ".gltf")).exists())
+# The material test models differ from each other only in their materials, which a .glb holds
+# as its .gltf does: their GLB twins re-test one container reader at a render each. Every other
+# variant stays (each codec, and GLBs of skins, morphs, instancing, negative scale); every
+# variant still loads in test_gltf_features.py::test_every_sample_loads.
+MATERIAL_ONLY = {"AnisotropyRotationTest", "AttenuationTest", "ClearCoatTest", "EmissiveStrengthTest",
+                 "SpecularTest", "TextureSettingsTest", "TransmissionRoughnessTest"}
+VARIANTS = [p for p in ALL_VARIANTS
+            if not (p.parent.name == "glTF-Binary" and p.parent.parent.name in MATERIAL_ONLY)]
 SIZE = 128
 MEAN_FLIP = 0.05
 
