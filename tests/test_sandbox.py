@@ -118,33 +118,22 @@ def test_uploaded_zip_refuses_a_reference_leaving_it(server):
     assert "leaves the root" in r.json()["detail"] and "wheel.usda" in r.json()["detail"]
 
 
-def test_uploaded_zip_shares_parts_anywhere_inside_it(tmp_path):
+def test_uploaded_zip_shares_parts_anywhere_inside_it(server):
     """The service's root is the whole zip: a car in kit/cars/ may use the kit's parts/ (a
-    library as uploaded), the part is kept when unreferenced members are dropped, and it bakes."""
+    library as uploaded), the part is kept when unreferenced members are dropped, and it bakes
+    (on the session's shared server)."""
     import io
-    import time
     import zipfile
-
-    from service_server import Server
 
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w") as zf:
         zf.writestr("kit/cars/car.usda", CAR)  # ../../parts/wheel.usda from kit/cars/ is parts/
         zf.writestr("parts/wheel.usda", WHEEL)
         zf.writestr("README.txt", "not referenced: dropped")
-    srv = Server(tmp_path / "cache", "--workers", "1", "--no-seed")
-    try:
-        srv.wait_ready()
-        r = srv.client.post("/assets", files={"file": ("kit.zip", buf.getvalue())},
-                            data={"main": "kit/cars/car.usda"}, timeout=120)
-        assert r.status_code == 201, r.text
-        asset = r.json()
-        assert asset["triangles"] == 2
-        for _ in range(600):  # the bake runs in the background; wait on its status, not a clock
-            asset = srv.client.get(f"/assets/{asset['id']}").json()
-            if asset["status"] != "baking":
-                break
-            time.sleep(0.1)
-        assert asset["status"] == "ready", asset
-    finally:
-        srv.stop()
+    r = server.client.post("/assets", files={"file": ("kit.zip", buf.getvalue())},
+                           data={"main": "kit/cars/car.usda"}, timeout=120)
+    assert r.status_code == 201, r.text
+    asset = r.json()
+    assert asset["triangles"] == 2
+    asset = server.wait_status(asset["id"])  # the bake runs in the background
+    assert asset["status"] == "ready", asset
