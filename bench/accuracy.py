@@ -9,7 +9,8 @@ cheap scenes, up to MAX_ROUNDS so that each gets ~ROUND_MS of runs. The peer, Mi
 in the same run (`--peer-spp`, off in --quick and without Mitsuba).
 
 Methods: `opaque` (opaque scenes), `single`, `wyman/tir=paper`, `wyman/tir=reflect`,
-`raytrace-N` (N = 1, 2, 4, 8 bounces; opaque scenes 1), `auto` (no time budget), `auto+budget`
+`raytrace-N` (N = 1, 2, 4, 8 bounces; opaque scenes 1), `raytrace-N/split=sample` (N = 4, 8:
+one Fresnel child per interface below the first, RenderOptions.fresnel_split), `auto` (no time budget), `auto+budget`
 (auto with `--budget-ms`, only where auto would ray trace) and, on scenes with a rough
 material, `auto/prefilter=paper` (the environment prefiltered the paper's way instead of GGX).
 
@@ -42,6 +43,7 @@ SCENES = ([f"glass_{m}_ior{i}" for m in GLASS_MESHES for i in IORS]
              "glass_sphere_ior1.5_pisa", "mirror_sphere_pisa"])
 QUICK_SCENES = ("glass_sphere_ior1.5", "glass_torus_ior1.5", "steel_sphere")
 RAYTRACE_BOUNCES = (1, 2, 4, 8)
+SAMPLED_BOUNCES = (4, 8)  # raytrace with fresnel_split=sample (transmissive scenes)
 FACE = 256          # environment faces for every method: the background matches the reference
 BUDGET_MS = 20000.0  # auto+budget: a generous offline budget at the chart's size
 COLUMNS = ["scene", "method", "size", "time_ms", "flip", "rel_mse", "flip_frame",
@@ -93,7 +95,8 @@ def methods_for(spec) -> list[str]:
     rough = mat.roughness > 0
     if mat.material_class == "transmissive":
         out = ["single", "wyman/tir=paper", "wyman/tir=reflect",
-               *(f"raytrace-{b}" for b in RAYTRACE_BOUNCES), "auto"]
+               *(f"raytrace-{b}" for b in RAYTRACE_BOUNCES),
+               *(f"raytrace-{b}/split=sample" for b in SAMPLED_BOUNCES), "auto"]
     else:
         out = ["opaque", "raytrace-1", "auto"]
     return out + (["auto/prefilter=paper"] if rough else [])
@@ -102,7 +105,9 @@ def methods_for(spec) -> list[str]:
 def options_for(method: str, base, budget_ms: float = BUDGET_MS):
     """(RenderOptions, prefilter) for a method name of the chart (also bench.stability's)."""
     if method.startswith("raytrace-"):
-        return replace(base, method="raytrace", bounces=int(method.split("-")[1])), "ggx"
+        depth, _, split = method.partition("/split=")
+        return replace(base, method="raytrace", bounces=int(depth.split("-")[1]),
+                       fresnel_split=split or "both"), "ggx"
     if method.startswith("wyman/tir="):
         return replace(base, method="wyman", tir=method.split("=")[1]), "ggx"
     if method == "auto/prefilter=paper":

@@ -99,6 +99,11 @@ class RenderOptions:
     tir: Literal["paper", "reflect"] | None = Field(default=None, description=(
         "wyman: total internal reflection treatment (default: reflect)"))
     bounces: int = Field(default=8, ge=0, le=64, description="raytrace: path depth (0: the environment along each primary ray)")
+    fresnel_split: Literal["both", "sample"] = Field(default="both", description=(
+        "raytrace: at each interface trace both the reflected and the refracted ray (both: "
+        "no noise) or, past the first surface a camera ray meets, one of them chosen with "
+        "probability proportional to its throughput and reweighted (sample: unbiased, about "
+        "half the rays, some noise)"))
     debug: Literal["backface_normals", "tir", "exit_distance"] | None = Field(default=None, description="wyman debug view")
     variant: str | None = Field(default=None, min_length=1, max_length=256, description=(
         "glTF KHR_materials_variants: bind the material variant of this name (inspect lists them)"))

@@ -69,7 +69,7 @@ def test_options_cross_processes_as_themselves_and_replace_validates():
 CHANGED = {"width": 300, "height": 300, "yaw": 1.0, "pitch": 1.0, "fov": 50.0, "distance": 3.0,
            "method": "wyman", "tonemap": "aces", "exposure": 1.0, "background": "transparent",
            "background_blur": 0.5, "override": MaterialOverride(metallic=1.0), "msaa": 1,
-           "lights": False, "multiscatter": False, "tir": "paper", "bounces": 2,
+           "lights": False, "multiscatter": False, "tir": "paper", "bounces": 2, "fresnel_split": "sample",
            "debug": "tir", "budget_ms": 10.0, "variant": "red", "camera": "0",
            "material_debug": "clearcoat", "target": (0.0, 1.0, 0.0), "env_rotation": 90.0,
            "alpha": "coverage"}
