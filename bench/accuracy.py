@@ -5,8 +5,9 @@ px, time it (warm median of `--repeat` runs; ray tracing: median of `--rt-repeat
 seconds long) and measure the error of the linear frame against the committed Mitsuba
 reference (bench.metrics: mean HDR-FLIP and relative MSE, over the object's pixels and over
 the whole frame). Raster methods are timed round-robin, at least `--repeat` rounds and, for
-cheap scenes, up to MAX_ROUNDS so that each gets ~ROUND_MS of runs. The peer, Mitsuba 3 itself at a few samples per pixel, is timed and measured
-in the same run (`--peer-spp`, off in --quick and without Mitsuba).
+cheap scenes, up to MAX_ROUNDS so that each gets ~ROUND_MS of runs. The peer, Mitsuba 3 itself at a few samples per pixel, is timed (median of
+`--rt-repeat` runs, as the ray tracer) and measured in the same run (`--peer-spp`, off in
+--quick and without Mitsuba).
 
 Methods: `opaque` (opaque scenes), `single`, `wyman/tir=paper`, `wyman/tir=reflect`,
 `raytrace-N` (N = 1, 2, 4, 8 bounces; opaque scenes 1), `raytrace-N/split=sample` (N = 4, 8:
@@ -183,18 +184,17 @@ def measure(names: list[str], size: int, repeat: int, rt_repeat: int, cache: Pat
             rows.append(row)
             _print(row)
         for spp in peer_spp:
-            rows.append(_peer(spec, size, spp, ref))
+            rows.append(_peer(spec, size, spp, ref, rt_repeat))
             _print(rows[-1])
     return rows
 
 
-def _peer(spec, size: int, spp: int, ref) -> dict:
-    from .metrics import errors
+def _peer(spec, size: int, spp: int, ref, repeat: int = 1) -> dict:
+    """Mitsuba at `spp`, timed as the ray tracer is: median of `repeat` cold runs."""
+    from .metrics import errors, median_ms
     from .reference import render_reference
 
-    t0 = time.perf_counter()
-    img = render_reference(spec, size, spp)
-    ms = (time.perf_counter() - t0) * 1e3
+    ms, img = median_ms(lambda: render_reference(spec, size, spp), repeat, warm=False)
     return {"scene": spec.name, "method": f"mitsuba-{spp}spp", "size": size, "time_ms": ms,
             **errors(img, ref)}
 

@@ -425,11 +425,11 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
         base, metal = ts.base[k], ts.metallic[k]
         rough_k, trans, ior = ts.roughness[k], ts.transmission[k], ts.ior[k]
         # Beer-Lambert over the segment just travelled inside the volume.
-        inside = ~entering & (trans > 0)
+        inside = ~entering & (trans > 0) if ts.sigma.any() else np.zeros(0, bool)
         if np.any(inside):
             w = w.copy()
             w[inside] *= np.exp(-ts.sigma[k[inside]] * t[inside, None])
-        glow = ts.emission[k].max(axis=1) > 0
+        glow = ts.emission[k].max(axis=1) > 0 if ts.emission.any() else np.zeros(0, bool)
         if np.any(glow):
             add(w[glow] * ts.emission[k[glow]] * sh[glow, None], px[glow])
         cos_i = -np.einsum("ij,ij->i", d, ns)
@@ -445,15 +445,18 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
             e_smooth = env.specular_albedo(f0, cos_c[sel], np.zeros(len(sel)), ms)[:, 0]
             fres = fres.copy()
             fres[sel] = np.clip(fres[sel] * e_rough / np.maximum(e_smooth, 1e-6), 0.0, 1.0)
-        refl_w = (metal[:, None] * env.specular_albedo(base, cos_c, rough_k, ms)
-                  + ((1 - metal) * fres)[:, None]) * w
+        refl_w = ((1 - metal) * fres)[:, None] * w
+        if np.any(metal > 0):  # the metallic share's lobe albedo (a LUT read: only for metals)
+            sel = np.flatnonzero(metal > 0)
+            refl_w[sel] += (metal[sel, None] * env.specular_albedo(
+                base[sel], cos_c[sel], rough_k[sel], ms)) * w[sel]
         tint = np.where(entering[:, None], base, 1.0)  # glTF tints transmission by base colour once
         # Radiance crossing an interface scales by (n_camera_side / n_far_side)^2 = eta^2: it
         # cancels on a path in and out again and matters when the camera is inside the glass.
         # A rough interface's microfacets mask and shadow part of what crosses it, as they do
         # for reflection: the transmitted share keeps the GGX lobe's single-scattering albedo
         # E_ss (split-sum scale + bias at F0 = 1), as the raster refraction does.
-        e_ss = _lut_albedo(env.baked, cos_i, rough_k)
+        e_ss = _lut_albedo(env.baked, cos_i, rough_k) if np.any(rough_k > 0) else 1.0
         trans_w = ((1 - metal) * (1 - fres) * trans * eta * eta * e_ss)[:, None] * tint * w
         diffuse_w = ((1 - metal) * (1 - fres) * (1 - trans))[:, None] * base * w
         # Lobe widths add as variances. A rough refraction bends directions by
