@@ -8,7 +8,8 @@ child is traced on while its weight is above `MIN_WEIGHT`, so the image has no n
 `fresnel_split="sample"` the tree is pruned past the first surface a camera ray meets: one
 child goes on, reflected with probability P proportional to what it carries (max over RGB)
 and weighted 1 / P, refracted otherwise and weighted 1 / (1 - P): unbiased, about half the
-rays at 8 bounces, noise averaged by the supersampling (a fixed seed: the same frame each time).
+rays at 8 bounces, noise averaged by the supersampling (choices stratified over a pixel's
+rays and hashed from pixel and bounce: the same frame each time).
 Rays that escape read the environment cubemap (env.specular[0], or the mip for the roughness
 they have gathered). Rays still alive after `options.bounces` surfaces read the environment
 in their current direction: with bounces=1 this is the single-refraction method, with 2 the
@@ -314,7 +315,6 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     image = images[0]
     stats: dict[str, Any] = {"rays": npix, "bounces": [], "tir": 0}
     show_env = options.background == "env"
-    rng = np.random.default_rng(0)  # fresnel_split="sample": the same frame every time
 
     # Adaptive anti-aliasing: one centre ray finds the object; pixels on or next to it get
     # ss x ss rays (the refracted environment is minified there), the open background keeps
@@ -334,7 +334,7 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
         dirs, pix = _subpixel_rays(camera, chunk, supersample)
         for scene, img in zip(passes, images):
             _trace_paths(scene, sky, options, camera.position, dirs, pix, 1.0 / supersample ** 2,
-                         img, stats, rng)
+                         img, stats)
 
     rgb = image.rgb if len(images) == 1 else np.stack([img.rgb[:, c] for c, img in enumerate(images)], -1)
     rgb = rgb.reshape(camera.height, camera.width, 3)
@@ -366,9 +366,21 @@ def _chunks(indices: np.ndarray, size: int):
         yield indices[start:start + size]
 
 
+def _pixel_shift(pix: np.ndarray, depth: int) -> np.ndarray:
+    """A uniform number in [0, 1) per (pixel, bounce), the same every frame (splitmix64)."""
+    with np.errstate(over="ignore"):
+        h = pix.astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15) + np.uint64(depth + 1) * np.uint64(0xBF58476D1CE4E5B9)
+        h ^= h >> np.uint64(30)
+        h *= np.uint64(0xBF58476D1CE4E5B9)
+        h ^= h >> np.uint64(27)
+        h *= np.uint64(0x94D049BB133111EB)
+        h ^= h >> np.uint64(31)
+    return (h >> np.uint64(11)).astype(np.float64) / float(1 << 53)
+
+
 def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
                  eye: np.ndarray, dirs: np.ndarray, pix: np.ndarray, sample_share: float,
-                 image: _Image, stats: dict, rng: np.random.Generator) -> None:
+                 image: _Image, stats: dict) -> None:
     """Trace camera rays `dirs` (pixel `pix`, each `sample_share` of its pixel) through every
     bounce, adding what reaches the environment into `image`."""
     eps = EPSILON * ts.radius
@@ -379,6 +391,11 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
     share = np.full(len(dirs), sample_share)  # its part of the pixel
     blur = np.zeros(len(dirs))  # sum of squared GGX alphas of the lobes along the path
     medium = np.ones(len(dirs))  # IOR around the ray (outside every object: air)
+    # fresnel_split="sample": sub-ray j of a pixel's S draws (j + 0.5) / S + shift (mod 1), the
+    # shift a hash of pixel and bounce: each draw uniform and independent of the previous
+    # bounce's, and the pixel's S choices stratified (exactly F of them reflect, not about F).
+    n_sub = max(1, round(1.0 / sample_share))
+    sub = np.arange(len(dirs)) % n_sub  # rays come pixel by pixel, S a pixel
 
     if options.bounces <= 0:  # no surfaces: every camera ray reads the environment
         hit = _intersect_front(ts, origins, dirs)[0] >= 0
@@ -411,6 +428,7 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
         prim, u, v, t = prim[hit], u[hit, None], v[hit, None], t[hit]
         d = dirs[hit].astype(np.float64)
         w, px, v_in, sh, n_in = weight[hit], pix[hit], blur[hit], share[hit], medium[hit]
+        sb = sub[hit]
         p = origins[hit] + d * t[:, None]
         corner = ts.normals[prim].astype(np.float64)
         ns = (1 - u - v) * corner[:, 0] + u * corner[:, 1] + v * corner[:, 2]
@@ -479,7 +497,7 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
             p_r = np.where(keep_r, refl_w.max(axis=1) * n_in ** 2, 0.0)
             p_t = np.where(keep_t, trans_w.max(axis=1) * n_t ** 2, 0.0)
             p_r = p_r / np.maximum(p_r + p_t, 1e-30)
-            take_r = rng.random(len(p_r)) < p_r
+            take_r = ((sb + 0.5) / n_sub + _pixel_shift(px, depth)) % 1.0 < p_r
             keep_r, keep_t = keep_r & take_r, keep_t & ~take_r
             refl_w = refl_w / np.maximum(p_r, 1e-30)[:, None]
             trans_w = trans_w / np.maximum(1.0 - p_r, 1e-30)[:, None]
@@ -491,6 +509,7 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
         blur = np.concatenate([v_refl[keep_r], v_refr[keep_t]])
         share = np.concatenate([sh[keep_r], sh[keep_t]])
         medium = np.concatenate([n_in[keep_r], n_t[keep_t]])
+        sub = np.concatenate([sb[keep_r], sb[keep_t]])
 
 
 def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,

@@ -112,7 +112,7 @@ def test_sampled_fresnel_split_conserves_energy(name, scene_cache):
 
 def test_sampled_fresnel_split_is_cheaper_and_close(reference_env, scene_cache):
     """One child per interface below the first: far fewer rays, deterministic, and near the
-    reference (noise, not bias: [0.064] against [0.032] with both children, at the reference's
+    reference (noise, not bias: [0.057] against [0.032] with both children, at the reference's
     size where 2 x 2 rays a pixel average the noise little)."""
     ref = load_reference("glass_torus_ior1.5")
     both = render("glass_torus_ior1.5", reference_env, scene_cache)
@@ -120,7 +120,8 @@ def test_sampled_fresnel_split_is_cheaper_and_close(reference_env, scene_cache):
     again = render("glass_torus_ior1.5", reference_env, scene_cache, fresnel_split="sample")
     np.testing.assert_array_equal(sampled.linear, again.linear)
     assert sampled.plan["rays"] < 0.7 * both.plan["rays"], (sampled.plan["rays"], both.plan["rays"])
-    assert relative_mae(sampled.linear, ref) < 0.08
+    err = relative_mae(sampled.linear, ref)
+    assert err < 0.08, err
 
 
 def test_beer_lambert_attenuation(scene_cache):
