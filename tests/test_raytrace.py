@@ -112,8 +112,8 @@ def test_sampled_fresnel_split_conserves_energy(name, scene_cache):
 
 def test_sampled_fresnel_split_is_cheaper_and_close(reference_env, scene_cache):
     """One child per interface below the first: far fewer rays, deterministic, and near the
-    reference (noise, not bias: [0.057] against [0.032] with both children, at the reference's
-    size where 2 x 2 rays a pixel average the noise little)."""
+    reference (noise, not bias: [0.057] against [0.032] with both children, 4 x 4 rays a pixel
+    at the reference's 128 px)."""
     ref = load_reference("glass_torus_ior1.5")
     both = render("glass_torus_ior1.5", reference_env, scene_cache)
     sampled = render("glass_torus_ior1.5", reference_env, scene_cache, fresnel_split="sample")
