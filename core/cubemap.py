@@ -24,6 +24,7 @@ _FACES = [
     (2, +1, (0, +1), (1, -1)),  # +Z: sc = +x, tc = -y
     (2, -1, (0, -1), (1, -1)),  # -Z: sc = -x, tc = -y
 ]
+_S_AXIS, _S_SIGN, _T_AXIS, _T_SIGN = (np.array([f[i][j] for f in _FACES]) for i in (2, 3) for j in (0, 1))
 
 
 def env_rotation_matrix(degrees: float) -> np.ndarray:
@@ -85,13 +86,10 @@ def direction_to_face(d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
     major = np.argmax(a, axis=-1)
     m = np.take_along_axis(d, major[..., None], axis=-1)[..., 0]
     face = major * 2 + (m < 0)
-    s = np.empty(d.shape[:-1])
-    t = np.empty(d.shape[:-1])
     ma = np.abs(m)
-    for f, (_, _, (sa, ss), (ta, ts)) in enumerate(_FACES):
-        sel = face == f
-        s[sel] = ss * d[..., sa][sel] / ma[sel]
-        t[sel] = ts * d[..., ta][sel] / ma[sel]
+    # Per face: the axis and sign of s and of t, gathered per direction (no loop over faces).
+    s = (_S_SIGN[face] * np.take_along_axis(d, _S_AXIS[face][..., None], axis=-1)[..., 0]) / ma
+    t = (_T_SIGN[face] * np.take_along_axis(d, _T_AXIS[face][..., None], axis=-1)[..., 0]) / ma
     return face, (s + 1) / 2, (t + 1) / 2
 
 
@@ -107,10 +105,11 @@ def sample_cube(faces: np.ndarray, d: np.ndarray) -> np.ndarray:
     y1 = np.minimum(y0 + 1, size - 1)
     fx = (x - x0)[..., None]
     fy = (y - y0)[..., None]
-    f = faces.astype(np.float32, copy=False)
-    top = f[face, y0, x0] * (1 - fx) + f[face, y0, x1] * fx
-    bottom = f[face, y1, x0] * (1 - fx) + f[face, y1, x1] * fx
-    return top * (1 - fy) + bottom * fy
+    f = faces.astype(np.float32, copy=False).reshape(6 * size * size, -1)
+    row0, row1 = (face * size + y0) * size, (face * size + y1) * size  # flat texel indices
+    top = f[row0 + x0] * (1 - fx) + f[row0 + x1] * fx
+    bottom = f[row1 + x0] * (1 - fx) + f[row1 + x1] * fx
+    return (top * (1 - fy) + bottom * fy).reshape(*d.shape[:-1], *faces.shape[3:])
 
 
 # --- sizes of baked environment cubemaps ----------------------------------------------------
