@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 # (major axis, sign, sc axis & sign, tc axis & sign) per face, from the OpenGL spec's table.
-_FACES = [
+_FACES: list[tuple[int, int, tuple[int, int], tuple[int, int]]] = [
     (0, +1, (2, -1), (1, -1)),  # +X: sc = -z, tc = -y
     (0, -1, (2, +1), (1, -1)),  # -X: sc = +z, tc = -y
     (1, +1, (0, +1), (2, +1)),  # +Y: sc = +x, tc = +z
@@ -24,7 +24,8 @@ _FACES = [
     (2, +1, (0, +1), (1, -1)),  # +Z: sc = +x, tc = -y
     (2, -1, (0, -1), (1, -1)),  # -Z: sc = -x, tc = -y
 ]
-_S_AXIS, _S_SIGN, _T_AXIS, _T_SIGN = (np.array([f[i][j] for f in _FACES]) for i in (2, 3) for j in (0, 1))
+_S_AXIS, _S_SIGN, _T_AXIS, _T_SIGN = (np.array([(f[2], f[3])[i][j] for f in _FACES])
+                                      for i in (0, 1) for j in (0, 1))
 
 
 def env_rotation_matrix(degrees: float) -> np.ndarray:
