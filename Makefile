@@ -1,8 +1,9 @@
-# Two commands: `make run` and `make test`. Both create .venv when missing.
+# Two commands: `make run [PORT=N]` and `make test`. Both create .venv when missing.
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
+PORT ?= $(or $(ASSET_PREVIEW_PORT),8000)
 
 .PHONY: run test lint install check-egl clean
 
@@ -23,7 +24,7 @@ check-egl: $(STAMP)
 	  exit 1; }
 
 run: check-egl
-	$(VENV)/bin/asset-preview serve --host 127.0.0.1 --port 8000
+	$(VENV)/bin/asset-preview serve --host 127.0.0.1 --port $(PORT)
 
 # ruff (pyflakes, pycodestyle, bugbear, import order) and mypy, configured in pyproject.toml
 lint: $(STAMP)

@@ -160,8 +160,8 @@ def measure(names: list[str], size: int, repeat: int, rt_repeat: int, cache: Pat
         asset = scenes.baked_asset(spec, cache)
         envs = {p: pipeline.bake_environment(spec.env, cache, face_size=FACE, prefilter=p)
                 for p in ("ggx", "paper")}
-        base = RenderOptions(width=size, height=size, yaw=spec.yaw, pitch=spec.pitch,
-                             fov=spec.fov, distance=spec.distance)
+        base = RenderOptions(background="env", width=size, height=size, yaw=spec.yaw, pitch=spec.pitch,
+                             fov=spec.fov, distance=spec.camera_distance(size, size))
         methods = [m for m in methods_for(spec)
                    if m.split("/")[0].split("-")[0] in (*available, "raytrace", "auto")]
         from renderer.auto import plan_request

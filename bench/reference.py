@@ -59,7 +59,7 @@ def spec_camera(spec: scenes.SceneSpec, width: int, height: int):
     pos, _, _ = scenes.mesh_arrays(spec.mesh)
     lo, hi = transformed_bounds(pos, spec.matrix)
     return frame_bounds(np.stack([lo, hi]), width, height, spec.yaw, spec.pitch, spec.fov,
-                        spec.distance)
+                        spec.camera_distance(width, height))
 
 
 def _write_ply(path: str, pos: np.ndarray, nrm: np.ndarray, idx: np.ndarray) -> None:

@@ -72,8 +72,8 @@ def run(args: argparse.Namespace) -> int:
         spec = scenes.scene(name)
         asset = scenes.baked_asset(spec, cache)
         env = pipeline.bake_environment(spec.env, cache, face_size=FACE)
-        opts = RenderOptions(width=size, height=size, yaw=spec.yaw, pitch=spec.pitch,
-                             fov=spec.fov, distance=spec.distance)
+        opts = RenderOptions(background="env", width=size, height=size, yaw=spec.yaw, pitch=spec.pitch,
+                             fov=spec.fov, distance=spec.camera_distance(size, size))
         t0 = time.perf_counter()
         ref = render_reference(spec, size, args.spp)
         ref_ms = (time.perf_counter() - t0) * 1e3

@@ -29,7 +29,8 @@ log = logging.getLogger(__name__)
 class SceneSpec:
     """One test scene: a mesh with a material under a panorama, seen from a camera.
 
-    The camera follows renderer.camera.frame_bounds (auto-framed on the world bounds)."""
+    The camera follows renderer.camera.frame_bounds at `camera_distance` (the bounding-sphere
+    framing the committed references were made with)."""
     name: str
     mesh: str                       # "sphere" | "cube" | "bunny" | "torus"
     material: Material = field(default_factory=Material)
@@ -43,6 +44,15 @@ class SceneSpec:
     @property
     def matrix(self) -> np.ndarray:
         return np.diag([*self.scale, 1.0])
+
+    def camera_distance(self, width: int, height: int) -> float:
+        """`distance`, else the bounding sphere's framing (renderer.camera.sphere_distance)."""
+        if self.distance is not None:
+            return self.distance
+        from core.scene import transformed_bounds
+        from renderer.camera import sphere_distance
+        lo, hi = transformed_bounds(mesh_arrays(self.mesh)[0], self.matrix)
+        return sphere_distance(np.stack([lo, hi]), width, height, self.fov)
 
 
 def glass(ior: float, roughness: float = 0.0, **kw) -> Material:

@@ -125,8 +125,8 @@ def run_case(case: str, cache: Path, quick: bool = False) -> tuple[list[dict], d
                  "nonfinite_px": 0, "tir_fallback": "", "flip": math.nan, "rel_mse": math.nan,
                  "verdict": "failed", "reason": f"bake rejected: {exc}"} for m in METHODS], images
     env = pipeline.bake_environment(spec.env, cache, face_size=FACE)
-    base = RenderOptions(width=SIZE, height=SIZE, yaw=spec.yaw, pitch=spec.pitch, fov=spec.fov,
-                         distance=spec.distance)
+    base = RenderOptions(background="env", width=SIZE, height=SIZE, yaw=spec.yaw, pitch=spec.pitch, fov=spec.fov,
+                         distance=spec.camera_distance(SIZE, SIZE))
     for method in METHODS:
         opts = _options(method, base, quick)
         t0 = time.perf_counter()

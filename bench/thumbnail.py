@@ -1,5 +1,12 @@
 """`asset-preview bench thumbnail`: our thumbnail beside pyrender and f3d, same run, same camera.
 
+Ours twice: `ours` is the default look (the generated studio light, gradient backdrop, ground
+contact shadow) and `ours-old` the look
+before it (footprint_court panorama as light and background, no shadow). `ours` also renders
+a `--turntable`-frame turntable in the warm process (one upload, one bake; WebP encoding
+included), reported per frame beside the single thumbnail, and `--repeat` interleaved pairs of
+frames with the shadow on and off at one camera: the shadow's cost, wall and CPU.
+
 Per asset and size, each tool runs in processes of its own (GL contexts do not mix):
 - cold: wall time of a new process from start to a PNG on disk (interpreter, imports, GL
   context, shader compile, loading the asset: ours from the bake cache, peers from the file,
@@ -42,8 +49,15 @@ ASSETS = {
     "TransmissionRoughnessTest": "gltf-samples/TransmissionRoughnessTest/glTF/TransmissionRoughnessTest.gltf",
     "BigTextures8k": None,  # generated: bench.big_textures
 }
-TOOLS = ("ours", "pyrender", "f3d")
-VIEW: dict[str, Any] = {"yaw": 30.0, "pitch": 20.0, "fov": 40.0}
+TOOLS = ("ours", "ours-old", "pyrender", "f3d")
+OLD_ENV = "footprint_court"  # the default light before the studio
+
+
+def _view() -> dict[str, Any]:
+    """The default view (core.options.RenderOptions), for every tool."""
+    from core.options import RenderOptions
+    d = RenderOptions()
+    return {"yaw": d.yaw, "pitch": d.pitch, "fov": d.fov}
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -52,6 +66,7 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tools", default=",".join(TOOLS))
     p.add_argument("--repeat", type=int, default=15, help="warm thumbnails timed per case")
     p.add_argument("--cold-repeat", type=int, default=3, help="cold processes timed per case")
+    p.add_argument("--turntable", type=int, default=24, help="frames of the warm turntable (0: none)")
     p.add_argument("--env", default=None, help="environment (default: the bundled default)")
     p.add_argument("--cache", default=None, help="bake cache (default: a temporary folder)")
     p.add_argument("--json", help="also write the results here")
@@ -62,14 +77,18 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     import pipeline
-    from pipeline.panorama import DEFAULT_ENVIRONMENT, load_panorama
+    from pipeline.panorama import DEFAULT_ENVIRONMENT, load_panorama, write_rgbe
 
     from . import big_textures
     from .assets import ASSETS as assets_root
     work = Path(tempfile.mkdtemp(prefix="bench-thumbnail-"))
     cache = Path(args.cache) if args.cache else work / "cache"
     env_name = args.env or DEFAULT_ENVIRONMENT
-    panorama = str(load_panorama(env_name).files[0])
+    pano = load_panorama(env_name)
+    panorama = str(pano.files[0])
+    if pano.files[0].suffix == ".py":  # generated in code (the studio): f3d reads an .hdr
+        panorama = str(work / f"{pano.name}.hdr")
+        write_rgbe(panorama, pano.pixels)
     sizes = [int(s) for s in args.sizes.split(",")]
     tools = [t for t in args.tools.split(",") if t]
     if args.multiscatter_cost:
@@ -85,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
         for size in sizes:
             job = {"asset": str(src), "key": baked.key, "peer_file": peer_file, "size": size, "cache": str(cache),
                    "env": env_name, "panorama": panorama, "bounds": baked.bounds.tolist(),
-                   "out": str(work / f"{name}-{size}-{{tool}}.png")}
+                   "out": str(work / f"{name}-{size}-{{tool}}.png"), "turntable": args.turntable}
             row = {"asset": name, "size": size, "triangles": baked.triangle_count}
             for tool in tools:
                 row[tool] = _measure(tool, job, args.repeat, args.cold_repeat)
@@ -200,21 +219,36 @@ def _measure(tool: str, job: dict, repeat: int, cold_repeat: int) -> dict:
         worker("cold")
         cold.append(time.perf_counter() - t)
     warm = json.loads(worker("warm", str(repeat)).strip().splitlines()[-1])
-    return {"cold_s": statistics.median(cold), "warm_ms": statistics.median(warm["render"]),
-            "warm_png_ms": statistics.median(warm["render_png"]), "warm_cpu_ms": warm["cpu_ms"]}
+    out = {"cold_s": statistics.median(cold), "warm_ms": statistics.median(warm["render"]),
+           "warm_png_ms": statistics.median(warm["render_png"]), "warm_cpu_ms": warm["cpu_ms"]}
+    for k in ("shadow_ms", "shadow_cpu_ms", "noshadow_ms", "noshadow_cpu_ms", "turntable_frame_ms",
+              "turntable_encode_ms", "turntable_frames"):
+        if k in warm:
+            out[k] = warm[k]
+    return out
 
 
 def _print_row(row: dict, tools: list[str]) -> None:
     parts = [f"{row['asset']:>15} {row['size']:>4}px"]
     for t in tools:
         r = row[t]
+        extra = ""
+        if "shadow_ms" in r:
+            extra += (f", shadow +{r['shadow_ms']:.1f} ms wall = {r['shadow_ms'] / r['noshadow_ms']:.0%}, "
+                      f"+{r['shadow_cpu_ms']:.1f} ms cpu = {r['shadow_cpu_ms'] / r['noshadow_cpu_ms']:.0%}"
+                      " of the frame without it")
+        if "turntable_frame_ms" in r:
+            n, frame, enc = r["turntable_frames"], r["turntable_frame_ms"], r["turntable_encode_ms"]
+            extra += (f", turntable of {n}: {frame:.1f} ms/frame render + {enc:.1f} webp "
+                      f"(a warm thumbnail: {r['warm_ms']:.1f} + png), {n * (frame + enc) / 1e3:.2f} s "
+                      f"in all vs {n * r['cold_s']:.1f} s for {n} `render` commands")
         parts.append(f"{t}: cold {r['cold_s']:.2f} s, warm {r['warm_ms']:.1f} ms "
-                     f"(+png {r['warm_png_ms']:.1f}, cpu {r['warm_cpu_ms']:.1f})")
+                     f"(+png {r['warm_png_ms']:.1f}, cpu {r['warm_cpu_ms']:.1f}){extra}")
     print(" | ".join(parts), flush=True)
 
 
 def _print_summary(results: list[dict], tools: list[str]) -> None:
-    peers = [t for t in tools if t != "ours"]
+    peers = [t for t in tools if t != "ours"]  # ours-old included: the default look's cost
     if "ours" not in tools or not peers:
         return
     print("\nratios, ours / peer (below 1: we are faster)")
@@ -235,7 +269,7 @@ def _camera(job: dict):
     import numpy as np
 
     from renderer.camera import frame_bounds
-    return frame_bounds(np.array(job["bounds"]), job["size"], job["size"], **VIEW)
+    return frame_bounds(np.array(job["bounds"]), job["size"], job["size"], **_view())
 
 
 def _png(rgb) -> bytes:
@@ -245,16 +279,72 @@ def _png(rgb) -> bytes:
     return encode_png(rgb)
 
 
-def _ours(job: dict):
+def _ours(job: dict, old: bool = False):
     import pipeline
     from core.options import RenderOptions
-    from renderer import render
     from renderer.auto import environment_face_size
     asset = pipeline.load_baked(job["key"], job["cache"])
-    options = RenderOptions(width=job["size"], height=job["size"], **VIEW)
-    env = pipeline.bake_environment(job["env"], job["cache"],
+    look: dict[str, Any] = {"background": "env", "shadow": 0.0} if old else {}
+    options = RenderOptions(width=job["size"], height=job["size"], **_view(), **look)
+    env = pipeline.bake_environment(OLD_ENV if old else job["env"], job["cache"],
                                     face_size=environment_face_size(asset, options)[0])
-    return lambda: render(asset, env, options).rgba8
+
+    return _OursShot(asset, env, options)
+
+
+class _OursShot:
+    """One thumbnail per call, plus the turntable and shadow measurements of the same set-up."""
+    def __init__(self, asset, env, options):
+        self.asset, self.env, self.options = asset, env, options
+
+    def __call__(self):
+        from renderer import render
+        return render(self.asset, self.env, self.options).rgba8
+
+    def turntable(self, n: int) -> tuple[float, float]:
+        return _turntable(self.asset, self.env, self.options, n)
+
+    def shadow_cost(self, n: int) -> dict:
+        return _shadow_cost(self.asset, self.env, self.options, n)
+
+
+def _shadow_cost(asset, env, options, n: int) -> dict:
+    """What the ground shadow adds to a frame: n interleaved pairs with the shadow on and off
+    at one camera (the shadow otherwise also widens the framing), medians of wall and CPU."""
+    import dataclasses
+
+    from renderer import render
+    distance = render(asset, env, options).plan["view"]["distance"]
+    on = dataclasses.replace(options, distance=distance)
+    off = dataclasses.replace(on, shadow=0.0)
+    wall: dict[str, list[float]] = {"on": [], "off": []}
+    cpu: dict[str, list[float]] = {"on": [], "off": []}
+    for _ in range(n):
+        for k, o in (("on", on), ("off", off)):
+            c, t = _cpu(), time.perf_counter()
+            render(asset, env, o)
+            wall[k].append((time.perf_counter() - t) * 1e3)
+            cpu[k].append((_cpu() - c) * 1e3)
+    med = {f"{m}_{k}": statistics.median(v[k]) for m, v in (("wall", wall), ("cpu", cpu)) for k in v}
+    return {"shadow_ms": med["wall_on"] - med["wall_off"], "shadow_cpu_ms": med["cpu_on"] - med["cpu_off"],
+            "noshadow_ms": med["wall_off"], "noshadow_cpu_ms": med["cpu_off"]}
+
+
+def _turntable(asset, env, options, n: int) -> tuple[float, float]:
+    """Wall ms per frame of an n-frame turntable: rendering, and WebP encoding (medians of 3)."""
+    import dataclasses
+
+    from renderer.sequence import encode_animation, render_turntable
+    opts = dataclasses.replace(options, turntable=n)
+    draw, encode = [], []
+    for _ in range(3):
+        t = time.perf_counter()
+        frames = render_turntable(asset, env, opts)
+        t1 = time.perf_counter()
+        encode_animation(frames, "webp")
+        draw.append((t1 - t) * 1e3 / n)
+        encode.append((time.perf_counter() - t1) * 1e3 / n)
+    return statistics.median(draw), statistics.median(encode)
 
 
 def _pyrender(job: dict):
@@ -293,7 +383,8 @@ def _f3d(job: dict):
 
 
 def _worker(tool: str, job: dict, mode: str, repeat: int) -> None:
-    shot = {"ours": _ours, "pyrender": _pyrender, "f3d": _f3d}[tool](job)
+    make = {"ours": _ours, "ours-old": lambda j: _ours(j, old=True), "pyrender": _pyrender, "f3d": _f3d}
+    shot = make[tool](job)
     if mode == "cold":
         Path(job["out"].format(tool=tool)).write_bytes(_png(shot()))
         return
@@ -309,7 +400,13 @@ def _worker(tool: str, job: dict, mode: str, repeat: int) -> None:
         t2 = time.perf_counter()
         render_ms.append((t1 - t) * 1e3)
         png_ms.append((t2 - t) * 1e3)
-    print(json.dumps({"render": render_ms, "render_png": png_ms, "cpu_ms": statistics.median(cpu_ms)}))
+    out = {"render": render_ms, "render_png": png_ms, "cpu_ms": statistics.median(cpu_ms)}
+    if tool == "ours":
+        out.update(shot.shadow_cost(repeat))
+        if job.get("turntable"):
+            out["turntable_frame_ms"], out["turntable_encode_ms"] = shot.turntable(job["turntable"])
+            out["turntable_frames"] = job["turntable"]
+    print(json.dumps(out))
 
 
 def _cpu() -> float:

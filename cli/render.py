@@ -11,14 +11,17 @@ from pydantic import ValidationError
 
 log = logging.getLogger(__name__)
 
-_IMAGE_EXT = (".png", ".jpg", ".jpeg", ".webp", ".npy", ".exr")
+_IMAGE_EXT = (".png", ".jpg", ".jpeg", ".webp", ".gif", ".npy", ".exr")
 
 
 def configure(p: argparse.ArgumentParser) -> None:
     from core.options import add_arguments
     p.add_argument("path", help="asset file (.gltf .glb .usd .usda .usdc .usdz .obj .ply .stl)")
-    p.add_argument("--out", required=True, help="image file: .png .jpg .webp (tone-mapped) or .npy .exr (linear)")
-    p.add_argument("--env", default=None, help="bundled environment name or panorama file (default: footprint_court)")
+    from pipeline.panorama import DEFAULT_ENVIRONMENT
+    p.add_argument("--out", required=True, help="image file: .png .jpg .webp (tone-mapped) or .npy "
+                   ".exr (linear); with --turntable an animated .webp or .gif")
+    p.add_argument("--env", default=None, help="bundled environment name or panorama file "
+                   f"(default: {DEFAULT_ENVIRONMENT}, generated in code)")
     p.add_argument("--quality", type=int, default=None, help="JPEG / WebP quality")
     p.add_argument("--linear", help="also write the linear frame (.exr or .npy)")
     p.add_argument("--cache", default=None, help="cache directory (default $ASSET_PREVIEW_CACHE or ./.cache)")
@@ -41,6 +44,7 @@ def run(args: argparse.Namespace) -> int:
             return _fail(f"{path}: unknown output extension (use {' '.join(_IMAGE_EXT)})")
     if args.linear and os.path.splitext(args.linear)[1].lower() not in (".npy", ".exr"):
         return _fail(f"{args.linear}: --linear takes .npy or .exr")
+    out_ext = os.path.splitext(args.out)[1].lower()
     import pipeline
     from core.options import describe_error, from_arguments
     from pipeline.panorama import DEFAULT_ENVIRONMENT
@@ -54,15 +58,30 @@ def run(args: argparse.Namespace) -> int:
         return _fail(describe_error(exc))
     except ValueError as exc:
         return _fail(str(exc))
+    if options.turntable and out_ext not in (".webp", ".gif"):
+        return _fail(f"{args.out}: --turntable writes an animated .webp or .gif")
+    if out_ext == ".gif" and not options.turntable:
+        return _fail(f"{args.out}: .gif is for --turntable; use .png .jpg or .webp")
     asset = pipeline.bake_asset(args.path, args.cache, root=args.root)
     face, env_why = environment_face_size(asset, options)
     env_source = args.env or _dome(asset, args.path) or DEFAULT_ENVIRONMENT
     env = pipeline.bake_environment(env_source, args.cache, face_size=face)
+    from renderer.sequence import encode_animation, render_turntable, render_views
     try:
-        frame = render(asset, env, options)
+        if options.turntable:  # N frames from this one bake and one upload
+            frames = render_turntable(asset, env, options)
+            frame = frames[0]
+        elif options.views:
+            frame = render_views(asset, env, options)
+        else:
+            frame = render(asset, env, options)
     except (UnsupportedMethod, ValueError) as exc:
         return _fail(str(exc))
-    frame.save(args.out, quality=args.quality)
+    if options.turntable:
+        with open(args.out, "wb") as f:
+            f.write(encode_animation(frames, out_ext[1:], args.quality))
+    else:
+        frame.save(args.out, quality=args.quality)
     if args.linear:
         frame.save(args.linear)
     if args.explain:

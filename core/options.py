@@ -69,9 +69,10 @@ class MaterialOverride:
 class RenderOptions:
     width: int = Field(default=256, ge=1, le=MAX_SIDE, description="image width in pixels")
     height: int = Field(default=256, ge=1, le=MAX_SIDE, description="image height in pixels")
-    yaw: float = Field(default=30.0, ge=-3600, le=3600, description=(
+    # The default view is three-quarter from above, so a box shows three faces (renderer/camera.py).
+    yaw: float = Field(default=35.0, ge=-3600, le=3600, description=(
         "camera turn about +Y, degrees; 0 looks from +Z, positive turns toward +X"))
-    pitch: float = Field(default=15.0, ge=-90, le=90, description="camera elevation, degrees; positive looks down from above")
+    pitch: float = Field(default=25.0, ge=-90, le=90, description="camera elevation, degrees; positive looks down from above")
     fov: float = Field(default=40.0, ge=1, le=170, description="vertical field of view, degrees")
     distance: float | None = Field(default=None, gt=0, le=MAX_DISTANCE, description=(
         "camera distance from the bounds centre in scene units (default: fit the object)"))
@@ -80,9 +81,15 @@ class RenderOptions:
         "refraction; raytrace is the slow, accurate method"))
     tonemap: Tonemap = Field(default="neutral", description="tone mapping: Khronos PBR Neutral, ACES or none")
     exposure: float = Field(default=0.0, ge=-16, le=16, description="stops (EV): radiance is scaled by 2**exposure")
-    background: str = Field(default="env", description="env | transparent | sRGB colour #RRGGBB")
+    background: str = Field(default="gradient", description=(
+        "gradient (a light studio grey) | env (the environment's panorama) | transparent | sRGB colour #RRGGBB"))
     background_blur: float = Field(default=0.0, ge=0, le=1, description=(
         "roughness of the prefiltered environment mip shown behind the asset, 0..1"))
+    shadow: float = Field(default=0.8, ge=0, le=1, description=(
+        "ground contact shadow under the object, 0..1 (0: none; never with background env)"))
+    turntable: int = Field(default=0, ge=0, le=120, description=(
+        "frames of an animated image turning about +Y (.webp / .gif); 0: one still image"))
+    views: bool = Field(default=False, description="a labelled 2 x 2 sheet: front, side, top, three-quarter")
     override: MaterialOverride | None = None
     msaa: int = Field(default=4, ge=0, le=16, description="samples per pixel (0 or 1: off)")
     lights: bool = Field(default=True, description="the asset's own KHR_lights_punctual lights")
@@ -128,11 +135,11 @@ class RenderOptions:
         if not isinstance(v, str):
             return v
         s = v.strip().lower()
-        if s in ("env", "transparent"):
+        if s in ("gradient", "env", "transparent"):
             return s
         m = _HEX.match(s)
         if not m:
-            raise ValueError(f"background {v!r}: use env, transparent or a colour #rrggbb")
+            raise ValueError(f"background {v!r}: use gradient, env, transparent or a colour #rrggbb")
         return "#" + m.group(1)
 
     @field_validator("target", mode="before")
@@ -153,6 +160,8 @@ class RenderOptions:
     def _pixels(self) -> "RenderOptions":
         if self.width * self.height > MAX_PIXELS:
             raise ValueError(f"image size {self.width}x{self.height} is over {MAX_PIXELS} pixels")
+        if self.turntable and self.views:
+            raise ValueError("turntable and views cannot be combined")
         if self.override is not None and self.override.is_empty():
             object.__setattr__(self, "override", None)  # one spelling of "no override"
         return self
@@ -192,8 +201,8 @@ def apply_override(mat: "Material", ov: MaterialOverride | None) -> "Material":
 
 
 def background_rgb(spec: str) -> tuple[float, float, float] | None:
-    """A validated `background`: `env` / `transparent` -> None; `#rrggbb` -> sRGB in 0..1."""
-    if spec in ("env", "transparent"):
+    """A validated `background`: `gradient` / `env` / `transparent` -> None; `#rrggbb` -> sRGB in 0..1."""
+    if spec in ("gradient", "env", "transparent"):
         return None
     s = spec.lstrip("#")
     return tuple(int(s[i:i + 2], 16) / 255 for i in (0, 2, 4))  # type: ignore[return-value]

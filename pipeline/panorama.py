@@ -1,5 +1,6 @@
 """Equirectangular panoramas: loading (.jpg/.png sRGB, .hdr Radiance RGBE, .exr), the bundled
-sample environments, and synthetic HDR panoramas for tests and the reference renderer.
+sample environments, the generated `studio` (pipeline/studio.py, the default), and synthetic HDR
+panoramas for tests and the reference renderer.
 
 Pixels are H x W x 3 float32 linear radiance, row 0 at the top, in the equirect convention of
 `core.cubemap` (centre column looks toward +Z, top row straight up).
@@ -23,7 +24,7 @@ from .limits import Limits
 log = logging.getLogger(__name__)
 
 DATA_DIR = Path(__file__).resolve().parent / "data" / "env"
-DEFAULT_ENVIRONMENT = "footprint_court"
+DEFAULT_ENVIRONMENT = "studio"  # generated in code, pipeline/studio.py
 LDR_SUFFIXES = (".jpg", ".jpeg", ".png")
 HDR_SUFFIXES = (".hdr", ".pic", ".exr")
 
@@ -36,15 +37,20 @@ class Panorama:
 
 
 def list_bundled() -> list[str]:
-    """Names of the panoramas shipped in pipeline/data/env (usable as `load_panorama(name)`)."""
-    return sorted(p.stem for p in DATA_DIR.glob("*.jpg"))
+    """Names usable as `load_panorama(name)`: the generated `studio` first, then the panoramas
+    shipped in pipeline/data/env."""
+    from .studio import NAME
+    return [NAME] + sorted(p.stem for p in DATA_DIR.glob("*.jpg"))
 
 
 def load_panorama(source: str | Path, limits: Limits | None = None) -> Panorama:
-    """Read a panorama file, or a bundled one by bare name (`footprint_court`, see
+    """Read a panorama file, or a bundled one by bare name (`studio`, `footprint_court`, see
     `list_bundled`). Raises an `AssetError` subclass naming the file on bad input."""
+    from . import studio
     limits = limits or Limits.from_env()
     path = resolve_panorama(source)
+    if path == studio.SOURCE:
+        return Panorama(name=studio.NAME, pixels=studio.studio_panorama().copy(), files=[path])
     suffix = path.suffix.lower()
     if suffix not in LDR_SUFFIXES + HDR_SUFFIXES:
         raise UnsupportedFormat(path, f"not a panorama format ({', '.join(LDR_SUFFIXES + HDR_SUFFIXES)})")
@@ -76,7 +82,11 @@ def load_panorama(source: str | Path, limits: Limits | None = None) -> Panorama:
 
 
 def resolve_panorama(source: str | Path) -> Path:
-    """The file a panorama source names: an existing path, else a bundled name's JPEG."""
+    """The file a panorama source names: an existing path, else a bundled name's JPEG; the
+    name `studio` resolves to the module that generates it (its hash keys the bake)."""
+    from . import studio
+    if source == studio.NAME:
+        return studio.SOURCE
     path = Path(source)
     if path.is_file():
         return path

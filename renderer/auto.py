@@ -37,7 +37,7 @@ from core.baked import BakedAsset, BakedMesh
 from core.options import RenderOptions, apply_override
 from core.scene import Material
 
-from .camera import Camera, request_camera
+from .camera import Camera
 
 log = logging.getLogger(__name__)
 
@@ -315,8 +315,9 @@ def estimate_request_ms(triangles: int, width: int, height: int, method: str, tr
 
 def plan_request(asset: BakedAsset, options: RenderOptions, available: list[str]) -> Plan:
     """Decide every mesh's method for `options` (method "auto") and whether to ray trace."""
+    from .render import asset_camera
 
-    camera = request_camera(asset, options)
+    camera = asset_camera(asset, options)[0]  # the camera the frame will have
     decisions, failing, coverage = [], [], 0.0
     for mesh in asset.meshes:
         mat = apply_override(mesh.material, options.override)

@@ -3,8 +3,11 @@
 The camera looks at `target` (default: the centre of the world bounds). yaw 0, pitch 0 puts it on the +Z side
 looking toward -Z with +Y up; positive yaw turns it toward +X about +Y; positive pitch raises
 it toward +Y. fov is vertical, in degrees; distance is in scene units from the bounds centre.
-Without a distance, the camera is placed so the bounding sphere fills the frame with a margin
-at any aspect ratio.
+Without a distance, the camera keeps that direction and is moved (back and sideways) until the
+object's points (its support points, `support_points`, else the eight corners of the bounds),
+projected, fill FILL of the frame on the tighter axis and are centred on both: the object fills
+the frame at any aspect ratio and from any angle. The
+default angle (three-quarter, from above) is declared once, in core.options.RenderOptions.
 """
 from __future__ import annotations
 
@@ -14,7 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-MARGIN = 1.08  # bounding-sphere radius is scaled by this when auto-framing
+FILL = 0.85    # auto-framing: the projected object spans this fraction of the frame
+MARGIN = 1.08  # sphere_distance: the bounding-sphere radius is scaled by this
 
 
 @dataclass(frozen=True)
@@ -71,9 +75,10 @@ class Camera:
 
 def frame_bounds(bounds: np.ndarray, width: int, height: int, yaw: float = 0.0,
                  pitch: float = 0.0, fov: float = 40.0, distance: float | None = None,
-                 target=None) -> Camera:
-    """Camera for world `bounds` (2 x 3) following the convention above. A `target` away from
-    the bounds centre frames the sphere about it that holds the whole bounding sphere."""
+                 target=None, points: np.ndarray | None = None) -> Camera:
+    """Camera for world `bounds` (2 x 3) following the convention above; auto-framing fits
+    `points` (K x 3, inside the bounds) when given, else the bounds' corners. A `target` away
+    from the bounds centre frames the sphere about it that holds the whole bounding sphere."""
     lo, hi = np.asarray(bounds, np.float64)
     radius = max(float(np.linalg.norm(hi - lo)) / 2, 1e-6)
     center = (lo + hi) / 2
@@ -81,19 +86,31 @@ def frame_bounds(bounds: np.ndarray, width: int, height: int, yaw: float = 0.0,
         target = np.asarray(target, np.float64)
         radius += float(np.linalg.norm(target - center))
         center = target
-    half_v = math.radians(fov) / 2
-    half_h = math.atan(math.tan(half_v) * width / height)
-    if distance is None:
-        distance = radius * MARGIN / math.sin(min(half_v, half_h))
-    distance = max(float(distance), 1e-6)
+        if distance is None:
+            half_v = math.radians(fov) / 2
+            half_h = math.atan(math.tan(half_v) * width / height)
+            distance = radius * MARGIN / math.sin(min(half_v, half_h))
     yaw_r = math.radians(yaw)
     pitch_r = math.radians(max(-89.9, min(89.9, pitch)))  # avoid a degenerate up vector
     offset = np.array([math.sin(yaw_r) * math.cos(pitch_r), math.sin(pitch_r),
                        math.cos(yaw_r) * math.cos(pitch_r)])
+    if distance is None:
+        if points is None:
+            points = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                               for z in (lo[2], hi[2])])
+        position = _fit_position(np.asarray(points, np.float64), -offset, width, height, fov)
+        distance = float(np.dot(center - position, -offset))
+        target = position - offset * distance
+        if not distance > radius * 1.05:  # a point, or a very wide fov: frame the sphere
+            distance = sphere_distance(bounds, width, height, fov)
+            position, target = center + distance * offset, center
+    else:
+        distance = max(float(distance), 1e-6)
+        position, target = center + distance * offset, center
     near = max(distance - radius * 1.05, radius * 1e-3, distance * 1e-4)
     # Far from a small object, distance +- radius rounds to one value: keep far beyond near.
     far = max(distance + radius * 1.05, near * (1 + 1e-6))
-    return Camera(position=center + distance * offset, target=center, up=np.array([0.0, 1.0, 0.0]),
+    return Camera(position=position, target=target, up=np.array([0.0, 1.0, 0.0]),
                   fov=fov, width=width, height=height, near=near, far=far)
 
 
@@ -184,3 +201,48 @@ def scene_camera(cam, bounds: np.ndarray, width: int, height: int) -> Camera:
         far = min(far, zfar)
     return Camera(position=position, target=position + forward * max(depth, radius), up=up,
                   fov=min(max(fov, 0.01), 179.0), width=width, height=height, near=near, far=far)
+def _fit_position(corners: np.ndarray, forward: np.ndarray, width: int, height: int,
+                  fov: float) -> np.ndarray:
+    """Where a camera looking along `forward` sees the points fill FILL of the frame,
+    centred. Per axis, a point p stays inside the frustum side planes when
+    |(p - c).right| <= t (p - c).forward; the tightest corners fix the camera's sideways
+    offset and its depth, and the tighter axis's depth wins (the other is then centred)."""
+    up0 = np.array([0.0, 1.0, 0.0])
+    right = np.cross(forward, up0)
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    depth = corners @ forward
+    t_v = math.tan(math.radians(fov) / 2) * FILL
+    t_h = t_v * width / height
+    sideways, depths = [], []
+    for axis, t in ((right, t_h), (up, t_v)):
+        a = corners @ axis
+        hi_side, lo_side = np.max(a - t * depth), np.max(-a - t * depth)
+        sideways.append((hi_side - lo_side) / 2)
+        depths.append(-(hi_side + lo_side) / (2 * t))
+    return sideways[0] * right + sideways[1] * up + min(depths) * forward
+
+
+def support_points(points: np.ndarray, directions: int = 256) -> np.ndarray:
+    """The points farthest along `directions` evenly spread unit vectors (a Fibonacci
+    sphere): a few hundred points whose projection bounds the object's almost as tightly as
+    all of them, at any view."""
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    if len(points) <= directions:
+        return points
+    i = np.arange(directions) + 0.5
+    z = 1 - 2 * i / directions
+    phi = math.pi * (1 + 5 ** 0.5) * i
+    r = np.sqrt(1 - z * z)
+    d = np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+    return points[np.unique(np.argmax(points @ d.T, axis=0))]
+
+
+def sphere_distance(bounds: np.ndarray, width: int, height: int, fov: float = 40.0) -> float:
+    """The distance at which the bounding sphere fills the frame with MARGIN (the framing the
+    committed reference images were made with: bench.scenes passes it explicitly)."""
+    lo, hi = np.asarray(bounds, np.float64)
+    radius = max(float(np.linalg.norm(hi - lo)) / 2, 1e-6)
+    half_v = math.radians(fov) / 2
+    half_h = math.atan(math.tan(half_v) * width / height)
+    return radius * MARGIN / math.sin(min(half_v, half_h))

@@ -176,9 +176,10 @@ def _aces_hill(c: np.ndarray) -> np.ndarray:
 
 
 def tonemap_srgb8(linear: np.ndarray, method: str = "neutral", exposure: float = 0.0,
-                  background: tuple[float, float, float] | None = None) -> np.ndarray:
+                  background=None) -> np.ndarray:
     """Premultiplied linear RGBA -> straight-alpha sRGB uint8, optionally composited over an
-    sRGB `background` colour (0..1) in display space, as the GPU pass does."""
+    sRGB `background` colour (0..1; or an H x 1 x 3 column of them, the gradient) in display
+    space, as the GPU pass does."""
     a = linear[..., 3:4]
     rgb = linear[..., :3] / np.maximum(a, 1e-6)
     out = srgb_encode(tonemap(rgb, method, exposure))

@@ -60,9 +60,9 @@ from core.baked import BakedAsset, BakedEnvironment
 from core.cubemap import env_rotation_matrix, sample_cube
 from core.options import RenderOptions, apply_override, background_rgb
 
-from .camera import Camera, request_camera
+from .camera import Camera
 from .optics import fresnel_dielectric, reflect, refract
-from .render import register_frame_method
+from .render import asset_camera, register_frame_method
 
 log = logging.getLogger(__name__)
 
@@ -303,7 +303,7 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     """Linear H x W x 4 float32 (premultiplied RGB, alpha = coverage) and statistics."""
     t0 = time.perf_counter()
     if camera is None:
-        camera = request_camera(asset, options)
+        camera = asset_camera(asset, options)[0]  # framed as the raster methods frame it
     if supersample is None:
         supersample = default_supersample(camera.width, camera.height)
     ts = build_scene(asset, options)
@@ -519,12 +519,19 @@ def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOpt
 
     t0 = time.perf_counter()
     linear, stats = trace(asset, env, options, camera, supersample)
-    rgba8 = tonemap_srgb8(linear, options.tonemap, options.exposure, background_rgb(options.background))
+    background = background_rgb(options.background)
+    if options.background == "gradient":  # as shaders/final.frag: sRGB top to bottom, per row
+        from .render import GRADIENT
+        t = 1.0 - (np.arange(options.height) + 0.5) / options.height
+        background = (t[:, None, None] * np.asarray(GRADIENT[0])
+                      + (1 - t[:, None, None]) * np.asarray(GRADIENT[1])).astype(np.float32)
+    rgba8 = tonemap_srgb8(linear, options.tonemap, options.exposure, background)
     if options.alpha == "coverage":  # alpha is what the object covers, whatever is behind it
         linear[..., 3] = stats["coverage"]
         rgba8[..., 3] = np.round(stats["coverage"] * 255).clip(0, 255).astype(np.uint8)
     t1 = time.perf_counter()
     plan = {"method": "raytrace", "bounces": int(options.bounces),
+            "shadow": "none: the ray tracer draws no ground shadow",
             "supersample": stats["supersample"],
             "rays": stats["rays"], "rays_per_bounce": stats["bounces"],
             "tir_events": stats["tir"]}

@@ -16,7 +16,7 @@ import math
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, cast
 
 import moderngl
 import numpy as np
@@ -27,13 +27,14 @@ from core.cubemap import env_rotation_matrix
 from core.options import RenderOptions, apply_override, background_rgb
 from core.scene import Material, is_srgb
 
-from . import gpu
-from .camera import Camera, request_camera
+from . import gpu, shadow
+from .camera import Camera
 from .frame import Frame, FrameTimings, alpha_is_mask, exposure_scale
 
 log = logging.getLogger(__name__)
 
 MAX_LIGHTS = 8
+GRADIENT = ((0.95, 0.95, 0.95), (0.80, 0.80, 0.81))  # background "gradient": sRGB top, bottom
 _TONEMAPS = {"none": 0, "neutral": 1, "aces": 2}
 _SLOTS = ("base_color", "metallic_roughness", "normal", "occlusion", "emissive",
           "specular", "specular_color", "clearcoat", "clearcoat_roughness", "clearcoat_normal",
@@ -202,7 +203,7 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     t_upload = time.perf_counter()
 
     w, h = options.width, options.height
-    camera = request_camera(asset, options)
+    camera, shadowed, shadow_why = asset_camera(asset, options)
     items = _plan_items(gasset, options, auto)
     lights = gasset.lights[:MAX_LIGHTS] if options.lights else []
     target = _target(ctx, w, h, options.msaa)
@@ -236,7 +237,11 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     ctx.disable(moderngl.BLEND)
     t_draw = time.perf_counter()
 
-    linear, rgba8 = _finish(ctx, target, camera, genv, options)
+    t_shadow = time.perf_counter()
+    ground = (shadow.ground_shadow(ctx, asset.key, gasset.meshes, asset.bounds, options.shadow)
+              if shadowed else None)
+    t_draw_end = time.perf_counter()
+    linear, rgba8 = _finish(ctx, target, camera, genv, options, ground)
     t_end = time.perf_counter()
     plan = {
         "method": options.method,
@@ -245,6 +250,9 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
         "lights": len(lights),
         "environment": env.name,
         "background": options.background,
+        "shadow": shadow_why if shadowed else f"none: {shadow_why}",
+        "view": {"yaw": options.yaw, "pitch": options.pitch,
+                 "distance": round(float(np.linalg.norm(camera.position - camera.target)), 6)},
         "tonemap": options.tonemap,
         "msaa": target.samples,
         "uploaded": {k: gpu.stats[k] - uploads_before[k] for k in ("asset_uploads", "environment_uploads")},
@@ -253,8 +261,54 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
         plan["auto"] = auto.explain()
     timings = FrameTimings((t_end - t0) * 1e3, {"upload": (t_upload - t0) * 1e3,
                                                 "draw": (t_draw - t_upload) * 1e3,
-                                                "finish": (t_end - t_draw) * 1e3})
+                                                "shadow": (t_draw_end - t_shadow) * 1e3,
+                                                "finish": (t_end - t_draw_end) * 1e3})
     return Frame(linear, rgba8, plan, timings, alpha_is_mask=alpha_is_mask(options))
+
+
+def frame_camera(bounds: np.ndarray, options: RenderOptions,
+                 points: np.ndarray | None = None) -> tuple[Camera, bool, str]:
+    """The camera of a frame of an object with these `bounds` (framed on its `points`, see
+    renderer.camera), whether it gets a ground shadow, and why. With a shadow and no set
+    distance the framing includes the shadow's core on the ground."""
+    args = (options.width, options.height, options.yaw, options.pitch, options.fov)
+    camera = frame_bounds(bounds, *args, options.distance, points=points)
+    shadowed, why = shadow.decide(bounds, camera.position, options.shadow, options.background)
+    if shadowed and options.distance is None:
+        ground = shadow.framed_bounds(bounds)
+        if points is not None:  # the object, and its outline pushed out on the ground
+            points = np.concatenate([points, shadow.ground_outline(bounds, points)])
+        camera = frame_bounds(ground, *args, points=points)
+    return camera, shadowed, why
+
+
+def asset_camera(asset: BakedAsset, options: RenderOptions) -> tuple[Camera, bool, str]:
+    """frame_camera for a baked asset, framed on its support points (computed once per asset)."""
+    return frame_camera(asset.bounds, options, framing_points(asset))
+
+
+_framing_points: dict[str, np.ndarray] = {}
+
+
+def framing_points(asset: BakedAsset) -> np.ndarray | None:
+    """World-space support points of every instance of every mesh (renderer.camera)."""
+    pts = _framing_points.get(asset.key)
+    if pts is None:
+        from .camera import support_points
+        parts = []
+        for m in asset.meshes:
+            if len(m.positions) == 0:
+                continue
+            local = support_points(m.positions)
+            for t in np.asarray(m.transforms, np.float64):
+                parts.append(local @ t[:3, :3].T + t[:3, 3])
+        if not parts:
+            return None
+        pts = support_points(np.concatenate(parts))
+        if len(_framing_points) > 64:
+            _framing_points.clear()
+        _framing_points[asset.key] = pts
+    return pts
 
 
 def validate_options(o: RenderOptions) -> None:
@@ -502,35 +556,50 @@ def _make_target(ctx, w, h, samples) -> _Target:
                    [out_fbo, draw_fbo, display, linear, depth, frame_tex])
 
 
+_BACKGROUND_MODES = {"transparent": 0, "env": 2, "gradient": 3}
+
+
 def _finish(ctx, target: _Target, camera: Camera, env: gpu.GpuEnvironment,
-            options: RenderOptions) -> tuple[np.ndarray, np.ndarray]:
-    """One pass: resolve, background, tone map; then one readback of each output."""
+            options: RenderOptions, ground: "shadow.GroundShadow | None" = None
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """One pass: resolve, background, shadow, tone map; then one readback of each output."""
     w, h = options.width, options.height
     bg = background_rgb(options.background)
-    mode = 2 if options.background == "env" else 1 if bg is not None else 0
+    mode = _BACKGROUND_MODES.get(options.background, 1)
     defines = {"TONEMAP": _TONEMAPS[options.tonemap], "BACKGROUND": mode,
-               "SAMPLES": max(target.samples, 1)}
+               "SAMPLES": max(target.samples, 1), "SHADOW": int(ground is not None)}
     if options.alpha == "coverage":
         defines["COVERAGE_ALPHA"] = 1
     rotated = mode == 2 and _env_rotated(options)
     if rotated:
         defines["ENV_ROTATED"] = 1
     prog = context.program("screen_triangle.vert", "final.frag", defines)
-    prog["u_frame"].value = 0  # type: ignore[union-attr]  # a uniform
-    prog["u_height"].value = h  # type: ignore[union-attr]  # a uniform
-    prog["u_exposure_scale"].value = exposure_scale(options.exposure)  # type: ignore[union-attr]  # a uniform
-    if mode == 1:
-        prog["u_background"].value = bg  # type: ignore[union-attr]  # a uniform
-    elif mode == 2:
-        r, u, f = camera.basis()
+    u = cast(dict, prog)  # uniforms by name (moderngl's stubs type members as a union)
+    u["u_frame"].value = 0
+    u["u_height"].value = h
+    u["u_exposure_scale"].value = exposure_scale(options.exposure)
+    if mode == 2 or ground is not None:
+        r, up, f = camera.basis()
         th = math.tan(math.radians(camera.fov) / 2)
-        prog["u_camera_basis"].write(np.ascontiguousarray(np.stack([r, u, f]), np.float32).tobytes())  # type: ignore[union-attr]  # a uniform
-        prog["u_tan_half_fov"].value = (th * camera.aspect, th)  # type: ignore[union-attr]  # a uniform
-        prog["u_blur"].value = float(min(max(options.background_blur, 0.0), 1.0))  # type: ignore[union-attr]  # a uniform
-        prog["u_env_max_lod"].value = env.max_lod  # type: ignore[union-attr]  # a uniform
-        prog["u_env"].value = 1  # type: ignore[union-attr]  # a uniform
+        u["u_camera_basis"].write(np.ascontiguousarray(np.stack([r, up, f]), np.float32).tobytes())
+        u["u_tan_half_fov"].value = (th * camera.aspect, th)
+    if ground is not None:
+        u["u_camera_position"].value = tuple(map(float, camera.position))
+        u["u_ground"].value = ground.ground
+        u["u_shadow_rect"].value = ground.rect
+        u["u_shadow_strength"].value = float(ground.strength)
+        u["u_shadow"].value = 2
+        ground.texture.use(2)
+    if mode == 1:
+        u["u_background"].value = bg
+    elif mode == 3:
+        u["u_gradient_top"].value, u["u_gradient_bottom"].value = GRADIENT
+    elif mode == 2:
+        u["u_blur"].value = float(min(max(options.background_blur, 0.0), 1.0))
+        u["u_env_max_lod"].value = env.max_lod
+        u["u_env"].value = 1
         if rotated:
-            prog["u_env_rotation"].write(_mat3_bytes(env_rotation_matrix(options.env_rotation)))  # type: ignore[union-attr]  # a uniform
+            u["u_env_rotation"].write(_mat3_bytes(env_rotation_matrix(options.env_rotation)))
         env.cube.use(1)
     target.out_fbo.use()
     ctx.viewport = (0, 0, w, h)

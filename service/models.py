@@ -8,8 +8,8 @@ from pydantic import BaseModel, ConfigDict, Field, create_model
 from core.options import RenderOptions, from_request, request_fields
 
 AssetStatus = Literal["baking", "ready", "failed"]
-ImageFormat = Literal["png", "jpeg", "webp"]
-MEDIA_TYPES = {"png": "image/png", "jpeg": "image/jpeg", "webp": "image/webp"}
+ImageFormat = Literal["png", "jpeg", "webp", "gif"]
+MEDIA_TYPES = {"png": "image/png", "jpeg": "image/jpeg", "webp": "image/webp", "gif": "image/gif"}
 
 
 class ErrorDetail(BaseModel):
@@ -91,4 +91,10 @@ ThumbnailParams = _thumbnail_params()
 
 def render_options(params: BaseModel) -> RenderOptions:
     """The RenderOptions of validated thumbnail parameters (ValueError when they conflict)."""
-    return from_request(params.model_dump(exclude={"format", "env"}))
+    fmt = params.model_dump(include={"format"})["format"]
+    options = from_request(params.model_dump(exclude={"format", "env"}))
+    if options.turntable and fmt not in ("webp", "gif"):
+        raise ValueError("turntable needs format webp or gif (an animated image)")
+    if fmt == "gif" and not options.turntable:
+        raise ValueError("format gif is for turntables; use png, jpeg or webp")
+    return options

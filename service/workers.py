@@ -141,8 +141,17 @@ class WorkerState:
         asset = self._cached(("asset", key), lambda: _load_baked(key, self.cache()))
         _touch(self.cache(), key)  # in use: the bake cache's LRU must not see it as cold
         env = self._env(env_source, environment_face_size(asset, options)[0])
-        frame = renderer.render(asset, env, options)
-        data = frame.encode(fmt)
+        if options.turntable:  # N frames from one upload and one bake, one animated image
+            from renderer.sequence import encode_animation, render_turntable
+            frames = render_turntable(asset, env, options)
+            frame, data = frames[0], encode_animation(frames, fmt)
+        else:
+            if options.views:
+                from renderer.sequence import render_views
+                frame = render_views(asset, env, options)
+            else:
+                frame = renderer.render(asset, env, options)
+            data = frame.encode(fmt)
         plan = dict(getattr(frame, "plan", {}) or {})
         return {"image": data, "plan": plan, "seconds": time.perf_counter() - t0}
 

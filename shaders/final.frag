@@ -3,6 +3,8 @@
 // the asset, and turns linear radiance into display pixels (exposure, tone mapping, sRGB).
 // Doing the background here, once per pixel instead of per sample, and resolving here
 // instead of with a blit, is what makes MSAA affordable on a CPU rasteriser.
+// BACKGROUND: 0 transparent, 1 colour, 2 environment, 3 the studio gradient. SHADOW 1: the
+// ground contact shadow (renderer/shadow.py) darkens the background, never the object.
 // Outputs: 0 = display RGBA8 (straight alpha), 1 = linear RGBA float (premultiplied).
 // renderer/frame.py holds the same tone-mapping arithmetic in numpy.
 #include "ibl.glsl"
@@ -18,6 +20,13 @@ uniform vec3 u_background;      // BACKGROUND 1: sRGB colour
 uniform mat3 u_camera_basis;    // BACKGROUND 2: columns right, up, forward (world)
 uniform vec2 u_tan_half_fov;    //   x horizontal, y vertical
 uniform float u_blur;           //   roughness of the environment mip shown
+uniform vec3 u_gradient_top;    // BACKGROUND 3: sRGB colours at the top and bottom rows
+uniform vec3 u_gradient_bottom;
+uniform sampler2D u_shadow;     // SHADOW 1: blurred top-down shade map
+uniform vec4 u_shadow_rect;     //   x0, z0, width, depth it covers on the ground
+uniform float u_ground;         //   world y of the ground
+uniform float u_shadow_strength;
+uniform vec3 u_camera_position;
 in vec2 v_ndc;
 layout(location = 0) out vec4 f_display;
 layout(location = 1) out vec4 f_linear;
@@ -47,6 +56,11 @@ vec3 aces_hill(vec3 c) {  // Stephen Hill's RRT+ODT fit, 1/0.6 bias as the glTF 
     return ACES_OUT * c;
 }
 
+vec3 srgb_encode(vec3 c) {
+    c = clamp(c, 0.0, 1.0);
+    return mix(12.92 * c, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(vec3(0.0031308), c));
+}
+
 vec3 display(vec3 c) {
     c = max(c, vec3(0.0)) * u_exposure_scale;
 #if TONEMAP == 1
@@ -54,8 +68,28 @@ vec3 display(vec3 c) {
 #elif TONEMAP == 2
     c = aces_hill(c);
 #endif
-    c = clamp(c, 0.0, 1.0);
-    return mix(12.92 * c, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(vec3(0.0031308), c));
+    return srgb_encode(c);
+}
+
+vec3 view_direction() {  // world direction through this pixel (rows flipped, see main)
+    return u_camera_basis * vec3(vec2(v_ndc.x, -v_ndc.y) * u_tan_half_fov, 1.0);
+}
+
+float ground_shade() {  // 0..1: how much the contact shadow darkens this background pixel
+#if SHADOW
+    vec3 d = view_direction();
+    if (d.y >= 0.0) return 0.0;
+    vec3 p = u_camera_position + d * ((u_ground - u_camera_position.y) / d.y);
+    vec2 uv = (p.xz - u_shadow_rect.xy) / u_shadow_rect.zw;
+    if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return 0.0;
+    return u_shadow_strength * min(1.0, 1.5 * textureLod(u_shadow, uv, 0.0).r);  // 1.5: darker core
+#else
+    return 0.0;
+#endif
+}
+
+vec3 srgb_to_linear(vec3 c) {
+    return mix(c / 12.92, pow((c + 0.055) / 1.055, vec3(2.4)), step(vec3(0.04045), c));
 }
 
 // COVERAGE_ALPHA: alpha is the object's coverage over any background (the colour still holds
@@ -83,18 +117,25 @@ void main() {
 #if BACKGROUND == 2
     vec3 c = p.rgb;
     if (a < 1.0) {  // covered pixels skip the environment lookup
-        vec3 d = u_camera_basis * vec3(vec2(v_ndc.x, -v_ndc.y) * u_tan_half_fov, 1.0);
-        c += (1.0 - a) * env_radiance(normalize(d), u_blur);
+        c += (1.0 - a) * env_radiance(normalize(view_direction()), u_blur);
     }
     f_linear = vec4(c, OUT_ALPHA);
     f_display = vec4(display(c), OUT_ALPHA);
-#elif BACKGROUND == 1
+#elif BACKGROUND == 1 || BACKGROUND == 3
+#if BACKGROUND == 1
     vec3 bg = u_background;
-    vec3 bg_linear = mix(bg / 12.92, pow((bg + 0.055) / 1.055, vec3(2.4)), step(vec3(0.04045), bg));
-    f_linear = vec4(p.rgb + (1.0 - a) * bg_linear, OUT_ALPHA);
-    f_display = vec4(display(p.rgb / max(a, 1e-6)) * a + bg * (1.0 - a), OUT_ALPHA);
 #else
-    f_linear = vec4(p.rgb, a);
-    f_display = vec4(display(p.rgb / max(a, 1e-6)), a);
+    vec3 bg = mix(u_gradient_bottom, u_gradient_top, 0.5 - 0.5 * v_ndc.y);  // v_ndc.y: -1 at the top row
+#endif
+    vec3 bg_linear = srgb_to_linear(bg) * (a < 1.0 ? 1.0 - ground_shade() : 1.0);
+    f_linear = vec4(p.rgb + (1.0 - a) * bg_linear, OUT_ALPHA);
+    // The background shows the colour asked for (not tone-mapped), darkened by the shadow.
+    f_display = vec4(display(p.rgb / max(a, 1e-6)) * a + srgb_encode(bg_linear) * (1.0 - a), OUT_ALPHA);
+#else
+    // Transparent: the shadow is black with its own alpha, under the object.
+    float s = a < 1.0 ? ground_shade() : 0.0;
+    float alpha = a + (1.0 - a) * s;
+    f_linear = vec4(p.rgb, alpha);
+    f_display = vec4(display(p.rgb / max(a, 1e-6)) * a / max(alpha, 1e-6), alpha);
 #endif
 }

@@ -16,8 +16,8 @@ RASTER = ["auto", "opaque", "single", "wyman", "raytrace"]
 def plan(name: str, size: int = 64, available=RASTER, **opts):
     spec = scenes.scene(name)
     asset = scenes.baked_asset(spec)  # in memory: no GL, no bake
-    o = RenderOptions(width=size, height=size, yaw=spec.yaw, pitch=spec.pitch, fov=spec.fov,
-                      distance=spec.distance, **opts)
+    o = RenderOptions(background="env", width=size, height=size, yaw=spec.yaw, pitch=spec.pitch, fov=spec.fov,
+                      distance=spec.camera_distance(size, size), **opts)
     return auto.plan_request(asset, o, available)
 
 
@@ -130,7 +130,8 @@ def test_facts_follow_the_camera():
                             frame_bounds(asset.bounds, 128, 128, distance=100.0))
     inside = auto.object_facts(asset.meshes[0], spec.material,
                                frame_bounds(asset.bounds, 128, 128, distance=0.2))
-    assert 55 < near.screen_px < 75 and far.screen_px < 5 and inside.camera_inside
+    # the projected bounds fill 0.9 of the frame (renderer.camera.FILL): the sphere ~0.9 / sqrt(2)
+    assert 75 < near.screen_px < 100 and far.screen_px < 5 and inside.camera_inside
     assert not near.camera_inside and near.genus == 0 and near.convexity > 0.99
 
 
@@ -161,7 +162,7 @@ def test_render_carries_the_plan(cache):
     spec = scenes.scene("glass_torus_ior1.5")
     asset = scenes.baked_asset(spec, cache)
     env = pipeline.bake_environment(spec.env, cache, face_size=32)
-    o = RenderOptions(width=32, height=32, yaw=spec.yaw, pitch=spec.pitch)
+    o = RenderOptions(background="env", width=32, height=32, yaw=spec.yaw, pitch=spec.pitch)
     frame = render(asset, env, o)
     assert frame.plan["objects"][0]["method"] == "wyman"
     assert frame.plan["objects"][0]["why"].endswith("tir=paper")  # reached the pass

@@ -79,10 +79,10 @@ def court_paper(court):
 # loading ------------------------------------------------------------------------------------
 
 def test_bundled_panoramas_load_as_linear(assets):
-    names = env.list_bundled()
-    assert len(names) == 10 and env.DEFAULT_ENVIRONMENT in names
-    assert sorted(p.stem for p in (assets / "env").glob("*.jpg")) == names
-    pano = env.load_panorama(env.DEFAULT_ENVIRONMENT)
+    names = env.list_bundled()  # the generated studio (the default), then the ten panoramas
+    assert len(names) == 11 and names[0] == env.DEFAULT_ENVIRONMENT == "studio"
+    assert sorted(p.stem for p in (assets / "env").glob("*.jpg")) == names[1:]
+    pano = env.load_panorama("footprint_court")
     assert pano.pixels.shape == (512, 1024, 3) and pano.pixels.dtype == np.float32
     assert pano.files[0].name == "footprint_court.jpg" and pano.name == "footprint_court"
     # by path too, and sRGB decoded to linear (mid-grey 128 -> 0.2158)

@@ -25,7 +25,7 @@ def render(name, reference_env, scene_cache, size=None, **opts):
     if size is None:
         size = load_reference(name).shape[0]
     options = RenderOptions(width=size, height=size, yaw=spec.yaw, pitch=spec.pitch,
-                            fov=spec.fov, distance=spec.distance, **opts)
+                            fov=spec.fov, distance=spec.camera_distance(size, size), **{"background": "env", **opts})
     frame = render_raytrace(scenes.baked_asset(spec, scene_cache), reference_env, options)
     assert np.isfinite(frame.linear).all(), name
     assert frame.linear.min() >= 0, name
@@ -131,7 +131,7 @@ def test_beer_lambert_attenuation(scene_cache):
     spec = replace(spec, material=replace(spec.material, attenuation_color=colour,
                                           attenuation_distance=dist))
     reference_env = uniform_env()
-    opts = RenderOptions(yaw=0.0, pitch=0.0, width=33, height=33)
+    opts = RenderOptions(background="env", yaw=0.0, pitch=0.0, width=33, height=33)
     clear = render_raytrace(scenes.baked_asset(scenes.scene("glass_sphere_ior1.5")), reference_env, opts)
     tinted = render_raytrace(scenes.baked_asset(spec), reference_env, opts)
     ratio = tinted.linear[16, 16, :3] / clear.linear[16, 16, :3]
@@ -146,7 +146,7 @@ def test_beer_lambert_attenuation(scene_cache):
 def test_material_override_turns_a_mirror_into_glass(reference_env, scene_cache):
     spec = scenes.scene("mirror_sphere")
     asset = scenes.baked_asset(spec, scene_cache)
-    opts = RenderOptions(yaw=0.0, pitch=0.0, width=64, height=64, override=MaterialOverride(
+    opts = RenderOptions(background="env", yaw=0.0, pitch=0.0, width=64, height=64, override=MaterialOverride(
         metallic=0.0, transmission=1.0, ior=1.5, roughness=0.0, base_color=(1, 1, 1)))
     glass = render_raytrace(asset, reference_env, opts)
     ref = render_raytrace(scenes.baked_asset(scenes.scene("glass_sphere_ior1.5"), scene_cache), reference_env,
@@ -190,8 +190,8 @@ def test_degenerate_geometry_stays_finite(reference_env):
     mesh.normals = mesh.normals.copy()
     mesh.normals[::7] = 0.0
     mesh.indices = np.concatenate([mesh.indices, np.array([[0, 0, 1], [2, 2, 2]], np.uint32)])
-    for opts in (RenderOptions(yaw=0.0, pitch=0.0, width=40, height=40),
-                 RenderOptions(yaw=0.0, pitch=0.0, width=40, height=40, distance=0.3, bounces=16)):
+    for opts in (RenderOptions(background="env", yaw=0.0, pitch=0.0, width=40, height=40),
+                 RenderOptions(background="env", yaw=0.0, pitch=0.0, width=40, height=40, distance=0.3, bounces=16)):
         frame = render_raytrace(asset, reference_env, opts)
         assert np.isfinite(frame.linear).all() and np.isfinite(frame.rgba8).all()
         assert math.isfinite(frame.timings.total_ms)
@@ -219,7 +219,7 @@ def test_chunked_tracing_gives_the_same_image(reference_env, monkeypatch):
     import renderer.raytrace as rt
 
     asset = scenes.baked_asset(scenes.scene("glass_torus_ior1.5"))
-    opts = RenderOptions(width=40, height=40, yaw=20, pitch=30)
+    opts = RenderOptions(background="env", width=40, height=40, yaw=20, pitch=30)
     whole = render_raytrace(asset, reference_env, opts)
     monkeypatch.setattr(rt, "CHUNK_PIXELS", 37)
     chunked = render_raytrace(asset, reference_env, opts)
@@ -234,7 +234,7 @@ def test_furnace_seen_from_inside_the_glass_is_n_squared(ior):
     spec = scenes.scene("glass_sphere_ior1.5")
     spec = replace(spec, material=replace(spec.material, ior=ior))
     frame = render_raytrace(scenes.baked_asset(spec), uniform_env(),
-                            RenderOptions(yaw=0.0, pitch=0.0, width=24, height=24, distance=0.4))
+                            RenderOptions(background="env", yaw=0.0, pitch=0.0, width=24, height=24, distance=0.4))
     np.testing.assert_allclose(frame.linear[..., :3], ior * ior, rtol=0.01)
 
 

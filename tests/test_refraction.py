@@ -31,8 +31,8 @@ def draw(name, reference_env, scene_cache, method, size=None, spec=None, **opts)
         size = load_reference(name).shape[0]
     frame = render(scenes.baked_asset(spec, scene_cache), reference_env,
                    RenderOptions(width=size, height=size, yaw=spec.yaw, pitch=spec.pitch,
-                                 fov=spec.fov, distance=spec.distance, method=method,
-                                 **opts))
+                                 fov=spec.fov, distance=spec.camera_distance(size, size), method=method,
+                                 **{"background": "env", **opts}))
     assert np.isfinite(frame.linear).all(), (name, method)
     assert frame.linear.min() >= 0, (name, method)
     return frame
@@ -102,7 +102,9 @@ def test_ior_one_sphere_is_invisible(method, reference_env, scene_cache):
     glass = draw(spec.name, reference_env, scene_cache, method, size=128).linear
     asset = scenes.baked_asset(spec, scene_cache)
     empty = replace(asset, key="empty:" + asset.key, meshes=[])
-    background = render(empty, reference_env, RenderOptions(yaw=0.0, pitch=0.0, width=128, height=128, method=method)).linear
+    background = render(empty, reference_env, RenderOptions(
+        background="env", yaw=spec.yaw, pitch=spec.pitch, width=128, height=128, method=method,
+        distance=spec.camera_distance(128, 128))).linear
     mask = load_reference(spec.name)[..., 3] > 0
     diff = np.abs(glass[..., :3] - background[..., :3])
     assert diff[mask].sum() / background[..., :3][mask].sum() < 0.005  # [0.0014]
@@ -256,7 +258,7 @@ def test_refracted_rays_see_the_assets_opaque_parts(method, reference_env):
     core = BakedMesh("core", pos, nrm, idx, red, np.diag([0.35, 0.35, 0.35, 1.0])[None])
     asset = BakedAsset("test:glass_with_core", "test", "generated", [glass, core], [],
                        np.array([[-1.0] * 3, [1.0] * 3]))
-    frame = render(asset, reference_env, RenderOptions(yaw=0.0, pitch=0.0, width=64, height=64, method=method))
+    frame = render(asset, reference_env, RenderOptions(background="env", yaw=0.0, pitch=0.0, width=64, height=64, method=method))
     assert np.isfinite(frame.linear).all()
     c = frame.linear[32, 32, :3]
     assert c[0] > 4 * c[1] and c[0] > 4 * c[2], c    # the core, magnified by the glass

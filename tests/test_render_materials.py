@@ -35,8 +35,9 @@ def quad_asset(key: str, material: Material) -> BakedAsset:
 
 
 def opts(**kw) -> RenderOptions:
-    return RenderOptions(**{"width": S, "height": S, "yaw": 0.0, "pitch": 0.0, "tonemap": "none",
-                            "background": "transparent", **kw})
+    # Seen straight on (yaw 0, pitch 0), no ground shadow: the tests read pixels at known places.
+    return RenderOptions(**{"width": S, "height": S, "tonemap": "none", "background": "transparent",
+                            "yaw": 0.0, "pitch": 0.0, "shadow": 0.0, **kw})
 
 
 def unlit(**kw) -> Material:

@@ -19,7 +19,7 @@ from core.options import MaterialOverride, RenderOptions
 from core.scene import Material
 from renderer import gpu
 from renderer.camera import frame_bounds
-from renderer.render import UnsupportedMethod, render
+from renderer.render import UnsupportedMethod, asset_camera, render
 
 SIZE = 128
 
@@ -112,8 +112,7 @@ def sphere_asset(metallic: float, roughness: float, base=(1.0, 1.0, 1.0, 1.0)) -
 
 def sphere_geometry(options: RenderOptions, radius: float = 1.0):
     """Analytic sphere hits per pixel: (mask, unit normal, view ray directions)."""
-    cam = frame_bounds(np.array([[-1.0, -1, -1], [1, 1, 1]]), options.width, options.height,
-                       options.yaw, options.pitch, options.fov, options.distance)
+    cam = asset_camera(sphere_asset(0.0, 0.0), options)[0]  # the render's camera
     d = cam.ray_directions()
     o = cam.position
     b = d @ o
@@ -129,7 +128,8 @@ def interior(mask: np.ndarray, n: np.ndarray, d: np.ndarray, min_cos: float) -> 
 
 
 def opts(**kw) -> RenderOptions:
-    return RenderOptions(**{"width": SIZE, "height": SIZE, "yaw": 0.0, "pitch": 0.0, "tonemap": "none", **kw})
+    return RenderOptions(**{"width": SIZE, "height": SIZE, "yaw": 0.0, "pitch": 0.0, "tonemap": "none",
+                            "background": "env", **kw})
 
 
 # --- tests ----------------------------------------------------------------------------------

@@ -370,8 +370,10 @@ def test_environments_bundled_and_uploaded(server, samples):
     assert r.json()["name"] == "sunset" and r.json()["source"] == "uploaded"
     assert "sunset" in {e["name"] for e in server.client.get("/environments").json()["environments"]}
     duck = samples["Duck.glb"]["id"]
-    a = server.client.get(f"/assets/{duck}/thumbnail", params={"size": 64, "env": "sunset"})
-    b = server.client.get(f"/assets/{duck}/thumbnail", params={"size": 64, "env": "pisa"})
+    a = server.client.get(f"/assets/{duck}/thumbnail", params={"size": 64, "env": "sunset",
+                                                               "background": "env"})
+    b = server.client.get(f"/assets/{duck}/thumbnail", params={"size": 64, "env": "pisa",
+                                                               "background": "env"})
     assert a.status_code == 200 and b.status_code == 200 and a.headers["etag"] != b.headers["etag"]
     bg = decode(a.content)[:4, :4, :3].mean(axis=(0, 1))
     assert bg[0] > bg[2] or bg[2] > bg[0]  # the panorama shows behind the asset
@@ -413,11 +415,19 @@ def test_metrics_are_prometheus_text(server, samples):
     assert {"asset_preview_http_requests", "asset_preview_render_queue"} <= families
 
 
-def test_page_shows_thumbnails_of_stored_assets(server, samples):
-    page = server.client.get("/").text
-    assert "<form" in page and 'type="file"' in page
-    for rec in samples.values():
-        assert f"/assets/{rec['id']}/thumbnail" in page and rec["name"] in page
+def test_page_and_its_files_work_offline(server, samples):
+    """The page draws its cards from GET /assets in the browser (tests/test_page.py drives it);
+    here: it is served with its script and style, the defaults inlined, and nothing external."""
+    page = server.client.get("/")
+    assert page.status_code == 200 and "<form" in page.text and 'type="file"' in page.text
+    assert '"yaw": 35.0' in page.text  # the defaults come from RenderOptions
+    for name, kind in (("page.js", "javascript"), ("page.css", "css")):
+        r = server.client.get(f"/static/{name}")
+        assert r.status_code == 200 and kind in r.headers["content-type"]
+        assert "http://" not in r.text and "https://" not in r.text  # no CDN
+    assert "http://" not in page.text and "https://" not in page.text
+    assert server.client.get("/static/../app.py").status_code == 404
+    assert server.client.get("/static/nothing.js").status_code == 404
 
 
 def _metric(server: Server, series: str) -> float:

@@ -8,7 +8,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response
 from pydantic import ValidationError
 
-from ..core import NotFound, ThumbnailService
+from ..core import BadParameter, NotFound, ThumbnailService
 from ..deps import client_of, get_service
 from ..models import MEDIA_TYPES, AssetInfo, AssetList, Deleted, ErrorDetail, ThumbnailParams, render_options
 from ..records import AssetRecord
@@ -85,6 +85,8 @@ async def thumbnail(asset_id: str, request: Request, service: Service):
     except ValidationError as exc:
         raise RequestValidationError([dict(e, loc=("query", *e["loc"])) for e in
                                       exc.errors(include_url=False, include_context=False)]) from None
+    except ValueError as exc:  # parameters that are valid alone but not together (format, turntable)
+        raise BadParameter(str(exc)) from None
     if asset_id not in service.store.assets:
         raise NotFound(asset_id)
     options = service.admit(options)

@@ -1,0 +1,274 @@
+// The asset page: live cards (polling GET /assets), uploads with progress, and a detail view
+// with render controls, drag-to-turn from a turntable, the render plan in words, download and
+// delete. Plain browser APIs only: it works offline.
+"use strict";
+const DEFAULTS = JSON.parse(document.getElementById("defaults").textContent);
+const $ = id => document.getElementById(id);
+const cards = new Map();      // asset id -> {el, rec}
+let current = null;           // asset record shown in the detail view
+let frames = null;            // turntable ImageBitmaps of the detail view, with their yaws
+let stillUrl = null;
+const POLL_MS = 1500, TURNTABLE_FRAMES = 24;
+
+function authHeaders() {
+  const key = $("key").value || localStorage.getItem("apiKey") || "";
+  return key ? {Authorization: "Bearer " + key} : {};
+}
+$("key").value = localStorage.getItem("apiKey") || "";
+$("key").onchange = () => localStorage.setItem("apiKey", $("key").value);
+
+async function errorText(r) {
+  try { const body = await r.json(); return `error ${r.status}: ${typeof body.detail === "string" ? body.detail : JSON.stringify(body.detail)}`; }
+  catch { return `error ${r.status} ${r.statusText}`; }
+}
+
+// --- cards ------------------------------------------------------------------------------------
+function card(rec) {
+  let c = cards.get(rec.id);
+  if (!c) {
+    const el = document.createElement("figure");
+    el.className = "card";
+    el.dataset.id = rec.id;
+    el.innerHTML = `<div class="placeholder">baking…</div><figcaption><span><span class="name"></span><br><small class="note"></small></span><span class="status"></span></figcaption>`;
+    el.onclick = () => openDetail(cards.get(rec.id).rec);
+    $("grid").appendChild(el);
+    c = {el, rec: null};
+    cards.set(rec.id, c);
+  }
+  const old = c.rec;
+  c.rec = rec;
+  const el = c.el;
+  el.dataset.status = rec.status;
+  el.querySelector(".name").textContent = rec.name;
+  el.querySelector(".note").textContent = rec.status === "failed" ? (rec.reason || "failed") : `${rec.triangles.toLocaleString()} triangles`;
+  const status = el.querySelector(".status");
+  status.textContent = rec.status;
+  status.className = "status status-" + rec.status;
+  if (rec.status === "ready" && (!old || old.status !== "ready")) {
+    const img = document.createElement("img");
+    img.alt = rec.name;
+    let tries = 0;
+    img.onerror = () => { if (tries++ < 20) setTimeout(() => img.src = `${rec.thumbnail}?size=256&t=${tries}`, 2000); };
+    img.src = `${rec.thumbnail}?size=256`;
+    el.querySelector(".placeholder, img").replaceWith(img);
+  } else if (rec.status === "failed") {
+    el.querySelector(".placeholder, img").textContent = "failed";
+  }
+}
+
+async function poll() {
+  try {
+    const r = await fetch("/assets", {cache: "no-store"});
+    if (!r.ok) throw new Error(await errorText(r));
+    const {assets} = await r.json();
+    const seen = new Set(assets.map(a => a.id));
+    assets.forEach(card);
+    for (const [id, c] of cards) if (!seen.has(id)) { c.el.remove(); cards.delete(id); }
+    $("count").textContent = assets.length;
+  } catch (e) {
+    $("msg").textContent = "cannot list assets: " + e.message;
+  }
+}
+setInterval(poll, POLL_MS);
+poll();
+
+// --- upload -----------------------------------------------------------------------------------
+$("upload").onsubmit = e => {
+  e.preventDefault();
+  const file = $("file").files[0];
+  if (!file) return;
+  const xhr = new XMLHttpRequest(), bar = $("progress"), msg = $("msg");
+  xhr.open("POST", "/assets");
+  for (const [k, v] of Object.entries(authHeaders())) xhr.setRequestHeader(k, v);
+  xhr.upload.onprogress = ev => { if (ev.lengthComputable) bar.value = ev.loaded / ev.total; msg.textContent = `uploading ${Math.round(100 * bar.value)}%`; };
+  xhr.onload = () => {
+    bar.hidden = true;
+    let body = null;
+    try { body = JSON.parse(xhr.responseText); } catch { /* not JSON: reported below */ }
+    if (xhr.status === 200 || xhr.status === 201) {
+      msg.textContent = `${body.name}: ${xhr.status === 201 ? "uploaded, " + body.status : "already here"}`;
+      card(body);
+      $("upload").reset();
+    } else {
+      const detail = body && body.detail ? (typeof body.detail === "string" ? body.detail : JSON.stringify(body.detail)) : xhr.statusText;
+      msg.textContent = `error ${xhr.status}: ${detail}`;
+    }
+  };
+  xhr.onerror = () => { bar.hidden = true; msg.textContent = "error: the upload did not reach the server (network)"; };
+  xhr.ontimeout = () => { bar.hidden = true; msg.textContent = "error: the upload timed out"; };
+  bar.hidden = false; bar.value = 0; msg.textContent = "uploading 0%";
+  xhr.send(new FormData($("upload")));
+};
+
+// --- detail view ------------------------------------------------------------------------------
+const controls = ["env", "yaw", "pitch", "method", "size", "background", "shadow"];
+
+async function loadEnvironments() {
+  const sel = $("c-env");
+  if (sel.options.length) return;
+  try {
+    const r = await fetch("/environments");
+    const {environments} = await r.json();
+    for (const e of environments) sel.add(new Option(e.name, e.name, e.default, e.default));
+  } catch (e) { $("d-error").textContent = "cannot list environments: " + e.message; }
+}
+
+function query(extra = {}) {
+  const p = new URLSearchParams();
+  for (const name of controls) p.set(name, $("c-" + name).value);
+  for (const [k, v] of Object.entries(extra)) p.set(k, v);
+  return p;
+}
+
+async function openDetail(rec) {
+  current = rec;
+  frames = null;
+  $("d-name").textContent = rec.name;
+  $("d-info").textContent = `${rec.format} · ${rec.triangles.toLocaleString()} triangles · ${rec.materials} materials · ${rec.status}`;
+  $("d-error").textContent = rec.status === "failed" ? "bake failed: " + (rec.reason || "") : "";
+  $("d-plan").textContent = "";
+  await loadEnvironments();
+  for (const [name, value] of Object.entries(DEFAULTS)) if ($("c-" + name) && name !== "size") $("c-" + name).value = value;
+  showOutputs();
+  if (!$("detail").open) $("detail").showModal();
+  if (rec.status !== "failed") { await renderStill(); loadTurntable(); }
+}
+
+function showOutputs() {
+  $("o-yaw").textContent = $("c-yaw").value + "°";
+  $("o-pitch").textContent = $("c-pitch").value + "°";
+  $("o-shadow").textContent = $("c-shadow").value;
+}
+
+async function fetchImage(params) {
+  // 202: still baking; try again after Retry-After.
+  for (let tries = 0; tries < 60; tries++) {
+    const r = await fetch(`/assets/${current.id}/thumbnail?${params}`);
+    if (r.status === 202) {
+      $("d-plan").textContent = "baking… the image follows when the bake is done";
+      await new Promise(res => setTimeout(res, 1000 * (+r.headers.get("Retry-After") || 2)));
+      continue;
+    }
+    if (!r.ok) throw new Error(await errorText(r));
+    return r;
+  }
+  throw new Error("still baking after a minute");
+}
+
+async function renderStill() {
+  const rec = current, params = query();
+  $("d-error").textContent = "";
+  $("canvas").dataset.state = "loading";
+  try {
+    const r = await fetchImage(params);
+    const blob = await r.blob();
+    if (rec !== current) return;
+    draw(await createImageBitmap(blob));
+    $("d-plan").textContent = planInWords(r.headers.get("X-Render-Plan"));
+    if (stillUrl) URL.revokeObjectURL(stillUrl);
+    stillUrl = URL.createObjectURL(blob);
+    $("d-download").href = stillUrl;
+    $("d-download").download = `${rec.name.replace(/\.[^.]*$/, "")}-yaw${params.get("yaw")}.png`;
+    $("canvas").dataset.state = "ready";
+  } catch (e) {
+    $("d-error").textContent = e.message;
+    $("canvas").dataset.state = "error";
+  }
+}
+
+function draw(bitmap) {
+  const c = $("canvas"), g = c.getContext("2d");
+  c.width = bitmap.width; c.height = bitmap.height;
+  g.clearRect(0, 0, c.width, c.height);
+  g.drawImage(bitmap, 0, 0);
+}
+
+async function loadTurntable() {
+  // One animated WebP (one request, one upload of the asset on the server), decoded frame by
+  // frame with the browser's ImageDecoder; without it, dragging re-renders at the new yaw.
+  if (!("ImageDecoder" in window)) { $("hint").textContent = "drag to turn (re-renders)"; return; }
+  const rec = current;
+  const size = Math.min(+$("c-size").value, 512);
+  const params = query({turntable: TURNTABLE_FRAMES, format: "webp", size, yaw: $("c-yaw").value});
+  try {
+    const r = await fetchImage(params);
+    const decoder = new ImageDecoder({data: r.body, type: "image/webp"});
+    await decoder.completed;  // all bytes in: the frame count is final
+    const n = decoder.tracks.selectedTrack.frameCount;
+    const list = [];
+    for (let i = 0; i < n; i++) list.push(await createImageBitmap((await decoder.decode({frameIndex: i})).image));
+    if (rec !== current) return;
+    frames = {bitmaps: list, yaw0: +$("c-yaw").value};
+    $("hint").textContent = `drag to turn (${n} frames)`;
+    $("canvas").dataset.frames = n;
+  } catch (e) { $("hint").textContent = "drag to turn (re-renders): " + e.message; }
+}
+
+let drag = null;
+$("canvas").onpointerdown = e => { drag = {x: e.clientX, frame: 0}; $("canvas").setPointerCapture(e.pointerId); };
+$("canvas").onpointermove = e => {
+  if (!drag) return;
+  const dx = e.clientX - drag.x, w = $("canvas").clientWidth;
+  if (frames) {
+    const n = frames.bitmaps.length;
+    drag.frame = ((Math.round(-dx / w * n) % n) + n) % n;
+    draw(frames.bitmaps[drag.frame]);
+    $("canvas").dataset.frame = drag.frame;
+  }
+  drag.degrees = -dx / w * 360;
+};
+$("canvas").onpointerup = () => {
+  if (!drag) return;
+  const turned = frames ? drag.frame * 360 / frames.bitmaps.length : (drag.degrees || 0);
+  drag = null;
+  if (!turned) return;
+  let yaw = ((+$("c-yaw").value + turned + 180) % 360 + 360) % 360 - 180;
+  $("c-yaw").value = Math.round(yaw / 5) * 5;
+  showOutputs();
+  renderStill();
+};
+
+$("controls").oninput = showOutputs;
+$("controls").onchange = e => {
+  if (e.target.id === "c-yaw") { renderStill(); return; }
+  renderStill();
+  loadTurntable();
+};
+$("controls").onsubmit = e => e.preventDefault();
+$("d-close").onclick = () => $("detail").close();
+$("d-delete").onclick = async () => {
+  const rec = current;
+  if (!confirm(`Delete ${rec.name}?`)) return;
+  let r = await fetch(`/assets/${rec.id}`, {method: "DELETE", headers: authHeaders()});
+  if (r.status === 401) {  // the key field is under this dialog: ask for it here
+    const key = prompt("This server needs its API key to delete:");
+    if (key) {
+      $("key").value = key;
+      localStorage.setItem("apiKey", key);
+      r = await fetch(`/assets/${rec.id}`, {method: "DELETE", headers: authHeaders()});
+    }
+  }
+  if (!r.ok) { $("d-error").textContent = await errorText(r); return; }
+  $("detail").close();
+  const c = cards.get(rec.id);
+  if (c) { c.el.remove(); cards.delete(rec.id); }
+  $("msg").textContent = `${rec.name} deleted`;
+  poll();
+};
+
+// --- the render plan (X-Render-Plan) in words ------------------------------------------------
+function planInWords(header) {
+  if (!header) return "";
+  let p;
+  try { p = JSON.parse(header); } catch { return header; }
+  const lines = [];
+  const objs = (p.auto && p.auto.objects) || p.objects || [];
+  lines.push(`Method ${p.method}${p.auto && p.auto.request ? ": " + p.auto.request : ""}.`);
+  objs.slice(0, 4).forEach(o => lines.push(`${o.mesh}${o.count > 1 ? ` and ${o.count - 1} more` : ""}: ${o.method} (${o.why}).`));
+  if (objs.length > 4) lines.push(`…and ${objs.length - 4} more objects.`);
+  if (p.environment) lines.push(`Lit by ${p.environment}; background ${p.background}; tone map ${p.tonemap}.`);
+  if (p.shadow) lines.push(`Ground shadow: ${p.shadow}.`);
+  if (p.view) lines.push(`Seen from yaw ${p.view.yaw}°, pitch ${p.view.pitch}°${p.msaa ? `, ${p.msaa}x MSAA` : ""}.`);
+  if (p.lights) lines.push(`${p.lights} light${p.lights > 1 ? "s" : ""} from the asset.`);
+  return lines.join("\n");
+}
