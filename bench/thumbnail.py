@@ -373,7 +373,7 @@ def _f3d(job: dict):
     eng.scene.add(job["peer_file"])
     cam = _camera(job)
     c = eng.window.camera
-    c.position, c.focal_point, c.view_up = (tuple(map(float, v)) for v in (cam.position, cam.target, cam.up))
+    c.position, c.focal_point, c.view_up = (tuple(map(float, v)) for v in (cam.position, cam.target, cam.up))  # type: ignore[assignment]  # f3d: 3-tuples
     c.view_angle = cam.fov
 
     def shot():

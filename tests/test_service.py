@@ -134,6 +134,19 @@ def test_time_budget_lets_auto_ray_trace_where_raster_fails(server, assets):
     assert plans[60000]["frame_method"] == "raytrace", plans[60000]
 
 
+def test_turntable_and_views_over_http(server, samples):
+    duck = samples["Duck.glb"]["id"]
+    r = server.client.get(f"/assets/{duck}/thumbnail", params={"size": 48, "turntable": 4, "format": "gif"})
+    assert r.status_code == 200 and r.headers["content-type"] == "image/gif"
+    im = Image.open(io.BytesIO(r.content))
+    assert im.n_frames == 4 and im.size == (48, 48)
+    assert json.loads(r.headers["x-render-plan"])["turntable"]["frames"] == 4
+    r = server.client.get(f"/assets/{duck}/thumbnail", params={"size": 48, "turntable": 4})
+    assert r.status_code == 422 and "webp or gif" in r.json()["detail"]
+    r = server.client.get(f"/assets/{duck}/thumbnail", params={"size": 64, "views": "true"})
+    assert r.status_code == 200 and json.loads(r.headers["x-render-plan"])["views"][0] == "front"
+
+
 def test_etag_304_and_cache_hits_skip_workers(server, samples):
     url = f"/assets/{samples['Duck.glb']['id']}/thumbnail"
     params = {"size": 80, "yaw": 10}
