@@ -315,7 +315,7 @@ def estimate_request_ms(triangles: int, width: int, height: int, method: str, tr
 
 def plan_request(asset: BakedAsset, options: RenderOptions, available: list[str]) -> Plan:
     """Decide every mesh's method for `options` (method "auto") and whether to ray trace."""
-    from .render import asset_camera
+    from .framing import asset_camera
 
     camera = asset_camera(asset, options)[0]  # the camera the frame will have
     decisions, failing, coverage = [], [], 0.0

@@ -61,8 +61,9 @@ from core.cubemap import env_rotation_matrix, sample_cube
 from core.options import RenderOptions, apply_override, background_rgb
 
 from .camera import Camera
+from .framing import asset_camera
 from .optics import fresnel_dielectric, reflect, refract
-from .render import asset_camera, register_frame_method
+from .render import register_frame_method
 
 log = logging.getLogger(__name__)
 

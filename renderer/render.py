@@ -30,6 +30,7 @@ from core.scene import Material, is_srgb
 from . import gpu, shadow
 from .camera import Camera
 from .frame import Frame, FrameTimings, alpha_is_mask, exposure_scale
+from .framing import asset_camera
 
 log = logging.getLogger(__name__)
 
@@ -264,51 +265,6 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
                                                 "shadow": (t_draw_end - t_shadow) * 1e3,
                                                 "finish": (t_end - t_draw_end) * 1e3})
     return Frame(linear, rgba8, plan, timings, alpha_is_mask=alpha_is_mask(options))
-
-
-def frame_camera(bounds: np.ndarray, options: RenderOptions,
-                 points: np.ndarray | None = None) -> tuple[Camera, bool, str]:
-    """The camera of a frame of an object with these `bounds` (framed on its `points`, see
-    renderer.camera), whether it gets a ground shadow, and why. With a shadow and no set
-    distance the framing includes the shadow's core on the ground."""
-    args = (options.width, options.height, options.yaw, options.pitch, options.fov)
-    camera = frame_bounds(bounds, *args, options.distance, points=points)
-    shadowed, why = shadow.decide(bounds, camera.position, options.shadow, options.background)
-    if shadowed and options.distance is None:
-        ground = shadow.framed_bounds(bounds)
-        if points is not None:  # the object, and its outline pushed out on the ground
-            points = np.concatenate([points, shadow.ground_outline(bounds, points)])
-        camera = frame_bounds(ground, *args, points=points)
-    return camera, shadowed, why
-
-
-def asset_camera(asset: BakedAsset, options: RenderOptions) -> tuple[Camera, bool, str]:
-    """frame_camera for a baked asset, framed on its support points (computed once per asset)."""
-    return frame_camera(asset.bounds, options, framing_points(asset))
-
-
-_framing_points: dict[str, np.ndarray] = {}
-
-
-def framing_points(asset: BakedAsset) -> np.ndarray | None:
-    """World-space support points of every instance of every mesh (renderer.camera)."""
-    pts = _framing_points.get(asset.key)
-    if pts is None:
-        from .camera import support_points
-        parts = []
-        for m in asset.meshes:
-            if len(m.positions) == 0:
-                continue
-            local = support_points(m.positions)
-            for t in np.asarray(m.transforms, np.float64):
-                parts.append(local @ t[:3, :3].T + t[:3, 3])
-        if not parts:
-            return None
-        pts = support_points(np.concatenate(parts))
-        if len(_framing_points) > 64:
-            _framing_points.clear()
-        _framing_points[asset.key] = pts
-    return pts
 
 
 def validate_options(o: RenderOptions) -> None:

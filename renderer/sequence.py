@@ -17,7 +17,8 @@ from core.options import RenderOptions
 
 from . import gpu
 from .frame import Frame, FrameTimings
-from .render import asset_camera, render
+from .framing import asset_camera
+from .render import render
 
 ANIMATED_FORMATS = ("webp", "gif")
 FRAME_MS = 80  # per turntable frame: 24 frames turn once in about two seconds

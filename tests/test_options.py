@@ -72,7 +72,7 @@ CHANGED = {"width": 300, "height": 300, "yaw": 1.0, "pitch": 1.0, "fov": 50.0, "
            "lights": False, "multiscatter": False, "tir": "paper", "bounces": 2, "fresnel_split": "sample",
            "debug": "tir", "budget_ms": 10.0, "variant": "red", "camera": "0",
            "material_debug": "clearcoat", "target": (0.0, 1.0, 0.0), "env_rotation": 90.0,
-           "alpha": "coverage"}
+           "alpha": "coverage", "shadow": 0.2, "turntable": 12, "views": True}
 
 
 def test_key_covers_every_field():

@@ -19,7 +19,8 @@ from core.options import MaterialOverride, RenderOptions
 from core.scene import Material
 from renderer import gpu
 from renderer.camera import frame_bounds
-from renderer.render import UnsupportedMethod, asset_camera, render
+from renderer.framing import asset_camera
+from renderer.render import UnsupportedMethod, render
 
 SIZE = 128
 

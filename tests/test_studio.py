@@ -17,7 +17,8 @@ from core.scene import Material
 from pipeline import studio
 from renderer import gpu
 from renderer.camera import FILL
-from renderer.render import asset_camera, render
+from renderer.framing import asset_camera
+from renderer.render import render
 from renderer.sequence import encode_animation, render_turntable, render_views, turntable_angles
 
 S = 96
