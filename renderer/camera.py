@@ -11,7 +11,6 @@ default angle (three-quarter, from above) is declared once, in core.options.Rend
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -112,65 +111,6 @@ def frame_bounds(bounds: np.ndarray, width: int, height: int, yaw: float = 0.0,
     far = max(distance + radius * 1.05, near * (1 + 1e-6))
     return Camera(position=position, target=target, up=np.array([0.0, 1.0, 0.0]),
                   fov=fov, width=width, height=height, near=near, far=far)
-
-
-def request_camera(asset, options) -> Camera:
-    """The camera of a render request: the asset's own camera when `options.camera` names one
-    (index or name), else auto-framed from yaw/pitch/fov/distance. NotInAsset if unknown."""
-    if options.camera is None:
-        yaw, pitch = _not_edge_on(asset.bounds, options)
-        cam = frame_bounds(asset.bounds, options.width, options.height, yaw, pitch,
-                           options.fov, options.distance, options.target)
-        return _covering(cam, getattr(asset, "extent", None))
-    cams = list(getattr(asset, "cameras", []))
-    names = [c.name for c in cams]
-    spec = options.camera
-    if spec.isdigit() and int(spec) < len(cams):
-        cam = cams[int(spec)]
-    elif spec in names:
-        cam = cams[names.index(spec)]
-    else:
-        from core.errors import NotInAsset
-        raise NotInAsset(getattr(asset, "source", "asset"), f"no camera {spec!r}; it has "
-                         f"{', '.join(f'{i} {n!r}' for i, n in enumerate(names)) or 'none'}")
-    return _covering(scene_camera(cam, asset.bounds, options.width, options.height),
-                     getattr(asset, "extent", None))
-
-
-FLAT = 0.12     # an extent under this share of the largest makes an asset flat (a card, a floor tile)
-GRAZING = 20.0  # degrees: a default view closer than this to a flat asset's plane is raised
-
-
-def _not_edge_on(bounds: np.ndarray, options) -> tuple[float, float]:
-    """The default yaw/pitch, turned so a flat asset (a floor plane, a card) is not seen
-    edge-on: the view is raised to 45 degrees off its plane. Angles a request sets are kept."""
-    from core.options import RenderOptions
-    yaw, pitch = options.yaw, options.pitch
-    defaults = RenderOptions()
-    if (yaw, pitch) != (defaults.yaw, defaults.pitch) or options.distance is not None:
-        return yaw, pitch
-    size = np.ptp(np.asarray(bounds, np.float64), axis=0)
-    axis = int(np.argmin(size))
-    if size.max() <= 0 or size[axis] > FLAT * size.max():
-        return yaw, pitch
-    y, p = math.radians(yaw), math.radians(pitch)
-    view = np.array([math.sin(y) * math.cos(p), math.sin(p), math.cos(y) * math.cos(p)])
-    if math.degrees(math.asin(min(abs(view[axis]), 1.0))) >= GRAZING:
-        return yaw, pitch
-    if axis == 1:
-        return yaw, 45.0
-    return (45.0 if axis == 0 else yaw), pitch  # a card facing X: turn toward it
-
-
-def _covering(cam: Camera, extent) -> Camera:
-    """`cam` with its far plane pushed out to the backdrop geometry framing left out."""
-    if extent is None:
-        return cam
-    lo, hi = np.asarray(extent, np.float64)
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
-                        for z in (lo[2], hi[2])])
-    far = float(np.linalg.norm(corners - cam.position, axis=1).max()) * 1.01
-    return dataclasses.replace(cam, far=max(cam.far, far)) if far > cam.far else cam
 
 
 def scene_camera(cam, bounds: np.ndarray, width: int, height: int) -> Camera:

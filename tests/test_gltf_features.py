@@ -24,7 +24,7 @@ from core.scene import CLAMP_TO_EDGE, MIRRORED_REPEAT, NEAREST, REPEAT
 from pipeline.ingest import load_scene
 from pipeline.panorama import DEFAULT_ENVIRONMENT
 from renderer import render
-from renderer.camera import request_camera
+from renderer.framing import request_camera
 
 SAMPLES = Path(__file__).resolve().parents[1].parent / "shared" / "assets" / "gltf-samples"
 ALL_SAMPLES = sorted([*SAMPLES.glob("*/*/*.gltf"), *SAMPLES.glob("*/*/*.glb")])

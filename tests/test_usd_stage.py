@@ -13,7 +13,7 @@ import pipeline
 from core.errors import NotInAsset
 from core.options import RenderOptions
 from pipeline.bake import build_baked
-from renderer.camera import request_camera
+from renderer.framing import request_camera
 
 USD_SUFFIXES = {".usd", ".usda", ".usdc", ".usdz"}
 
@@ -385,7 +385,7 @@ def test_render_through_the_usd_camera_and_dome(tmp_path, capsys):
         return np.load(out)
 
     covered = shot("--background", "transparent")[..., 3] > 0.5
-    img = shot()
+    img = shot("--background", "env")  # the dome shown behind (the default backdrop is a gradient)
     # a 2-unit box 10 units away under a 32 degree fov: about 0.35 of the height, centred
     rows = np.nonzero(covered.any(1))[0]
     assert 0.25 < (rows.max() - rows.min() + 1) / 64 < 0.45
