@@ -293,7 +293,7 @@ def test_gltf_transform_round_trips_rotation_and_scale():
 def _render(path, tmp_path):
     asset = pipeline.bake_asset(path, tmp_path / "cache")
     opts = RenderOptions(width=64, height=64, yaw=0, pitch=0, tonemap="none",
-                         background="transparent", msaa=0)
+                         background="transparent", msaa=0, shadow=0)  # alpha: the object only
     return render(asset, constant_env(1.0), opts).linear
 
 
