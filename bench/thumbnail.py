@@ -134,7 +134,7 @@ def _texture_report(src: Path, baked, cache: Path, env_name: str, px: int = 1024
     full = build_baked(pipeline.load_scene(src), "full-resolution", {"thumbnail_size": 1 << 16})
     errors = {}
     for bg in ("env", "transparent"):
-        o = RenderOptions(width=px, height=px, background=bg, **VIEW)
+        o = RenderOptions(width=px, height=px, background=bg, **_view())
         env = pipeline.bake_environment(env_name, cache, face_size=environment_face_size(baked, o)[0])
         a, b = render(baked, env, o), render(full, env, o)
         err, mean, _ = flip_evaluator.evaluate(b.rgba8[..., :3] / np.float32(255),

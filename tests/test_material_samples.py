@@ -14,9 +14,8 @@ import pipeline
 from core.baked import BakedAsset
 from core.cubemap import default_face_size
 from core.options import RenderOptions
-from pipeline.panorama import DEFAULT_ENVIRONMENT
 from renderer import render
-from renderer.camera import frame_bounds
+from renderer.framing import request_camera
 
 SIZE = 256
 SAMPLES = ("ClearCoatTest", "SheenCloth", "SpecularTest", "TransmissionRoughnessTest",
@@ -30,7 +29,8 @@ def cache(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def env(cache):
-    return pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(SIZE))
+    # footprint_court, not the studio default: the measurements read its detail in reflections
+    return pipeline.bake_environment("footprint_court", cache, face_size=default_face_size(SIZE))
 
 
 @pytest.fixture(scope="module")
@@ -43,14 +43,13 @@ def sample(assets, cache):
 def opts(**kw) -> RenderOptions:
     """Face-on (the test boards are laid out in the XY plane), linear output."""
     return RenderOptions(**{"width": SIZE, "height": SIZE, "tonemap": "none", "yaw": 0.0,
-                            "pitch": 0.0, **kw})
+                            "pitch": 0.0, "background": "env", **kw})
 
 
 def windows(asset: BakedAsset, options: RenderOptions, select) -> list[tuple[int, slice, slice]]:
     """(mesh index, rows, cols) of the central half of each selected mesh's projected bounds
     (its first instance), for meshes where `select(mesh)` holds."""
-    cam = frame_bounds(asset.bounds, options.width, options.height, options.yaw, options.pitch,
-                       options.fov, options.distance)
+    cam = request_camera(asset, options)  # the render's own camera
     vp = cam.projection_matrix() @ cam.view_matrix()
     out = []
     for i, m in enumerate(asset.meshes):
@@ -216,7 +215,8 @@ def test_attenuation_deepens_with_thickness(sample, env, method):
 def test_material_golden(name, sample, env, update_goldens):
     import flip_evaluator as flip
 
-    frame = render(sample(name), env, RenderOptions(width=SIZE, height=SIZE, yaw=0.0, pitch=0.0))
+    frame = render(sample(name), env, RenderOptions(width=SIZE, height=SIZE, yaw=0.0, pitch=0.0,
+                                                    background="env"))
     assert np.isfinite(frame.linear).all() and frame.linear[..., :3].min() >= 0
     golden = GOLDENS / f"gltf-samples_{name}.png"
     if update_goldens:
