@@ -36,8 +36,9 @@ def _start_browser():
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
+    # A key for writes; reads (the page, listings, thumbnails) open, as a shared library runs.
     srv = Server(tmp_path_factory.mktemp("page") / "cache", "--workers", "1", "--no-seed",
-                 "--api-key", KEY)
+                 "--api-key", KEY, "--public-read")
     try:
         srv.wait_ready()
         yield srv

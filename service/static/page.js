@@ -47,18 +47,28 @@ function card(rec) {
   if (rec.status === "ready" && (!old || old.status !== "ready")) {
     const img = document.createElement("img");
     img.alt = rec.name;
-    let tries = 0;
-    img.onerror = () => { if (tries++ < 20) setTimeout(() => img.src = `${rec.thumbnail}?size=256&t=${tries}`, 2000); };
-    img.src = `${rec.thumbnail}?size=256`;
     el.querySelector(".placeholder, img").replaceWith(img);
+    loadThumbnail(img, `${rec.thumbnail}?size=256`);
   } else if (rec.status === "failed") {
     el.querySelector(".placeholder, img").textContent = "failed";
   }
 }
 
+// Fetched (not <img src>) so the API key goes along when the server wants one for reads too.
+async function loadThumbnail(img, url) {
+  for (let tries = 0; tries < 20; tries++) {
+    try {
+      const r = await fetch(url, {headers: authHeaders()});
+      if (r.ok) { img.src = URL.createObjectURL(await r.blob()); return; }
+      if (r.status !== 202) { img.alt = await errorText(r); return; }
+    } catch { /* network: try again */ }
+    await new Promise(res => setTimeout(res, 2000));
+  }
+}
+
 async function poll() {
   try {
-    const r = await fetch("/assets", {cache: "no-store"});
+    const r = await fetch("/assets", {cache: "no-store", headers: authHeaders()});
     if (!r.ok) throw new Error(await errorText(r));
     const {assets} = await r.json();
     const seen = new Set(assets.map(a => a.id));
@@ -107,7 +117,7 @@ async function loadEnvironments() {
   const sel = $("c-env");
   if (sel.options.length) return;
   try {
-    const r = await fetch("/environments");
+    const r = await fetch("/environments", {headers: authHeaders()});
     const {environments} = await r.json();
     for (const e of environments) sel.add(new Option(e.name, e.name, e.default, e.default));
   } catch (e) { $("d-error").textContent = "cannot list environments: " + e.message; }
@@ -143,7 +153,7 @@ function showOutputs() {
 async function fetchImage(params) {
   // 202: still baking; try again after Retry-After.
   for (let tries = 0; tries < 60; tries++) {
-    const r = await fetch(`/assets/${current.id}/thumbnail?${params}`);
+    const r = await fetch(`/assets/${current.id}/thumbnail?${params}`, {headers: authHeaders()});
     if (r.status === 202) {
       $("d-plan").textContent = "baking… the image follows when the bake is done";
       await new Promise(res => setTimeout(res, 1000 * (+r.headers.get("Retry-After") || 2)));
