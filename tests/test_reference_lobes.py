@@ -31,7 +31,8 @@ def ours(spec: scenes.SceneSpec, env, method: str, tmp) -> np.ndarray:
     # the background in too: the reference's edge pixels mix it in (its beauty pass shows it)
     return render(asset, env, RenderOptions(width=SIZE, height=SIZE, method=method, tonemap="none",
                                             yaw=spec.yaw, pitch=spec.pitch, fov=spec.fov,
-                                            distance=spec.distance)).linear
+                                            distance=spec.camera_distance(SIZE, SIZE),
+                                            background="env")).linear
 
 
 # (roughness, IOR) -> thresholds for raytrace and wyman, ~25% above what was measured at
