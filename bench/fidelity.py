@@ -154,8 +154,8 @@ def run(args: argparse.Namespace) -> int:
     from core.errors import AssetError
     from core.options import RenderOptions
     from pipeline.panorama import load_panorama
-    from renderer.camera import request_camera
     from renderer.frame import write_exr
+    from renderer.framing import request_camera
     from renderer.render import render
 
     from . import scenes

@@ -168,7 +168,7 @@ def _multiscatter_cost(args, cache: Path, env_name: str, sizes: list[int]) -> in
         asset = pipeline.bake_asset(assets_root / rel, cache)
         for size in sizes:
             env = pipeline.bake_environment(env_name, cache, face_size=default_face_size(size))
-            on = RenderOptions(width=size, height=size, **VIEW)
+            on = RenderOptions(width=size, height=size, **_view())
             off = dataclasses.replace(on, multiscatter=False)
             wall: dict[bool, list[float]] = {True: [], False: []}
             cpu: dict[bool, list[float]] = {True: [], False: []}

@@ -22,9 +22,9 @@ def frame_camera(bounds: np.ndarray, options: RenderOptions,
     renderer.camera), whether it gets a ground shadow, and why. With a shadow and no set
     distance the framing includes the shadow's core on the ground."""
     args = (options.width, options.height, options.yaw, options.pitch, options.fov)
-    camera = frame_bounds(bounds, *args, options.distance, points=points)
+    camera = frame_bounds(bounds, *args, options.distance, options.target, points=points)
     shadowed, why = shadow.decide(bounds, camera.position, options.shadow, options.background)
-    if shadowed and options.distance is None:
+    if shadowed and options.distance is None and options.target is None:
         ground = shadow.framed_bounds(bounds)
         if points is not None:  # the object, and its outline pushed out on the ground
             points = np.concatenate([points, shadow.ground_outline(bounds, points)])

@@ -16,7 +16,7 @@ from core.baked import BakedAsset, BakedEnvironment
 from core.options import RenderOptions
 
 from . import gpu
-from .frame import Frame, FrameTimings
+from .frame import Frame, FrameTimings, alpha_is_mask
 from .framing import asset_camera
 from .render import render
 
@@ -102,4 +102,5 @@ def render_views(asset: BakedAsset, env: BakedEnvironment, options: RenderOption
         rgba8[y:y + h, x:x + w] = np.asarray(im)
     plan = dict(cells[-1][1].plan)
     plan["views"] = [label for label, _ in cells]
-    return Frame(linear, rgba8, plan, FrameTimings((time.perf_counter() - t0) * 1e3))
+    return Frame(linear, rgba8, plan, FrameTimings((time.perf_counter() - t0) * 1e3),
+                 alpha_is_mask=alpha_is_mask(options))

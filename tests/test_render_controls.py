@@ -14,7 +14,7 @@ from core.baked import BakedAsset, BakedMesh
 from core.cubemap import env_rotation_matrix, sample_cube
 from core.options import RenderOptions
 from core.scene import Material
-from renderer.camera import request_camera
+from renderer.framing import request_camera
 from renderer.render import render
 
 NEGATIVE_SCALE = "gltf-samples/NegativeScaleTest/glTF-Binary/NegativeScaleTest.glb"
