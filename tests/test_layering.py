@@ -67,6 +67,7 @@ def test_dielectric_layering_against_roughplastic(roughness, env):
     errors = {}
     for method in ("opaque", "raytrace"):
         o = RenderOptions(width=SIZE, height=SIZE, yaw=spec.yaw, pitch=spec.pitch, fov=spec.fov,
+                          distance=spec.camera_distance(SIZE, SIZE), background="env",
                           method=method, tonemap="none")
         spec_only = render(scenes.baked_asset(black), env, o).linear
         whole = render(scenes.baked_asset(spec), env, o).linear

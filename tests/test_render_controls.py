@@ -48,7 +48,7 @@ def test_negative_scale_spheres_match_their_unmirrored_twins(assets, cache):
     dark blue one black, differences of 30-60%."""
     asset = pipeline.bake_asset(assets / NEGATIVE_SCALE, cache)
     env = pipeline.bake_environment("neutral", cache, face_size=128)
-    o = RenderOptions(width=512, height=512, tonemap="none", method="opaque")
+    o = RenderOptions(width=512, height=512, tonemap="none", method="opaque", background="env")
     frame = render(asset, env, o)
     camera = request_camera(asset, o)
     spheres = [m for m in asset.meshes if m.name and len(m.transforms) == 2] or \

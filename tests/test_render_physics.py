@@ -130,7 +130,7 @@ def interior(mask: np.ndarray, n: np.ndarray, d: np.ndarray, min_cos: float) -> 
 
 def opts(**kw) -> RenderOptions:
     return RenderOptions(**{"width": SIZE, "height": SIZE, "yaw": 0.0, "pitch": 0.0, "tonemap": "none",
-                            "background": "env", **kw})
+                            "background": "env", "shadow": 0.0, **kw})
 
 
 # --- tests ----------------------------------------------------------------------------------
