@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import math
 import re
 import types
@@ -234,10 +235,12 @@ def _fields(cls) -> dict[str, FieldInfo]:
     return dict(cls.__pydantic_fields__)
 
 
-def request_fields() -> dict[str, FieldInfo]:
+@functools.cache
+def request_fields() -> Mapping[str, FieldInfo]:
     """RenderOptions flattened for a query string or a command line: `size` for width and
     height, and the MaterialOverride fields in place of `override`. Width and height default
-    to None there (meaning: `size`)."""
+    to None there (meaning: `size`). Built once (every HTTP thumbnail request checks against
+    it), read-only."""
     out: dict[str, FieldInfo] = {"size": SIZE_FIELD}
     for name, info in _fields(RenderOptions).items():
         if name == "override":
@@ -249,7 +252,7 @@ def request_fields() -> dict[str, FieldInfo]:
                 str | None, Field(default=None, description=info.description))  # type: ignore[arg-type]  # a union is an annotation
         else:
             out[name] = info
-    return out
+    return types.MappingProxyType(out)
 
 
 def _override_fields() -> dict[str, FieldInfo]:
@@ -275,7 +278,8 @@ def from_request(values: Mapping[str, Any]) -> RenderOptions:
     if size is not None:
         given.setdefault("width", size)
         given.setdefault("height", size)
-    ov = {k: given.pop(k) for k in list(given) if k in _fields(MaterialOverride)}
+    override_names = _fields(MaterialOverride).keys()
+    ov = {k: given.pop(k) for k in list(given) if k in override_names}
     if ov:
         given["override"] = MaterialOverride(**ov)
     return RenderOptions(**given)

@@ -62,6 +62,17 @@ def face_labels(frame, asset: BakedAsset) -> np.ndarray:
 
 # --- studio light ---------------------------------------------------------------------------
 
+def unit_sphere_hits(sphere: BakedAsset, options: RenderOptions):
+    """Per pixel of the default camera: view direction, ray-sphere discriminant (> 0: the ray
+    hits the unit sphere) and the normal where it does."""
+    cam = asset_camera(sphere, options)[0]
+    d = cam.ray_directions()
+    o = cam.position
+    b = d @ o
+    disc = b * b - (o @ o - 1)
+    return d, disc, o + (-b - np.sqrt(np.maximum(disc, 0)))[..., None] * d
+
+
 def test_white_lambert_sphere_is_near_white_in_the_middle(studio_env):
     """Default environment and tone map: the middle of a white diffuse sphere (N.V > 0.97)
     shows sRGB within 10% of white, neutral grey, and not clipped flat."""
@@ -69,12 +80,7 @@ def test_white_lambert_sphere_is_near_white_in_the_middle(studio_env):
     options = RenderOptions(width=S, height=S)
     sphere = sphere_asset(0.0, 1.0)
     frame = render(sphere, studio_env, options)
-    cam = asset_camera(sphere, options)[0]
-    d = cam.ray_directions()
-    o = cam.position
-    b = d @ o
-    disc = b * b - (o @ o - 1)
-    n = o + (-b - np.sqrt(np.maximum(disc, 0)))[..., None] * d
+    d, disc, n = unit_sphere_hits(sphere, options)
     middle = (disc > 0) & (np.einsum("...i,...i", n, -d) > 0.97)
     assert middle.sum() > 20
     rgb = frame.rgba8[..., :3][middle].astype(float) / 255
@@ -89,12 +95,7 @@ def test_mirror_sphere_shows_the_studio_lights(studio_env):
     options = RenderOptions(width=S, height=S, tonemap="none", background="env")
     sphere = sphere_asset(1.0, 0.0)
     frame = render(sphere, studio_env, options)
-    cam = asset_camera(sphere, options)[0]
-    d = cam.ray_directions()
-    o = cam.position
-    b = d @ o
-    disc = b * b - (o @ o - 1)
-    n = o + (-b - np.sqrt(np.maximum(disc, 0)))[..., None] * d
+    d, disc, n = unit_sphere_hits(sphere, options)
     inside = (disc > 0) & (np.einsum("...i,...i", n, -d) > 0.3)
     r = d - 2 * np.einsum("...i,...i", d, n)[..., None] * n
     expected = studio.radiance(r)[inside]
