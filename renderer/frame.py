@@ -20,6 +20,11 @@ from core.colour import srgb_encode
 log = logging.getLogger(__name__)
 
 _PIL_FORMATS = {"png": "PNG", "jpeg": "JPEG", "jpg": "JPEG", "webp": "WEBP"}
+# WebP for thumbnails (stills and turntables): method 0 is libwebp's fastest effort (2-3x faster
+# than the default 4, ~15% larger). Lossy alpha at 70 quantises the alpha plane before its
+# lossless coding: at 512 px an RGBA Duck encodes in 6.8 ms instead of 11.8 at half the bytes,
+# alpha within 10/255 (mean 1.2/255) of the frame's; lossy colour is WebP's contract already.
+WEBP_SETTINGS = {"method": 0, "alpha_quality": 70}
 
 
 @dataclass(frozen=True)
@@ -70,7 +75,7 @@ class Frame:
         buf = io.BytesIO()
         kwargs: dict = {"quality": int(quality if quality is not None else 90)}
         if _PIL_FORMATS[key] == "WEBP":
-            kwargs["method"] = 0  # thumbnails: 2-3x faster than the default 4, ~15% larger
+            kwargs.update(WEBP_SETTINGS)
         img.save(buf, _PIL_FORMATS[key], **kwargs)
         return buf.getvalue()
 

@@ -52,3 +52,16 @@ def test_jpeg_and_webp_decode_to_close_pixels():
         img = Image.open(io.BytesIO(_frame(px).encode(fmt)))
         assert img.format == fmt.upper() and img.size == (64, 64)
         assert np.abs(np.asarray(img.convert("RGB"), np.int16) - px[..., :3]).mean() < 3
+
+
+def test_webp_keeps_alpha_close():
+    """WebP's lossy alpha (WEBP_SETTINGS) keeps a soft edge and a shadow ramp within 10/255,
+    and fully transparent and fully opaque pixels exactly."""
+    y, x = np.mgrid[:96, :96]
+    alpha = np.clip((x - 16) * 4, 0, 255)  # transparent, a ramp, opaque
+    px = np.stack([x * 2, y * 2, np.full_like(x, 128), alpha], -1).astype(np.uint8)
+    img = Image.open(io.BytesIO(_frame(px).encode("webp")))
+    assert img.mode == "RGBA"
+    a = np.asarray(img, np.int16)[..., 3]
+    assert np.abs(a - alpha).max() <= 10
+    assert np.all(a[alpha == 0] == 0) and np.all(a[alpha == 255] == 255)
