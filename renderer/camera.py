@@ -175,7 +175,9 @@ def support_points(points: np.ndarray, directions: int = 256) -> np.ndarray:
     phi = math.pi * (1 + 5 ** 0.5) * i
     r = np.sqrt(1 - z * z)
     d = np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
-    return points[np.unique(np.argmax(points @ d.T, axis=0))]
+    keep = np.zeros(len(points), bool)  # each extreme point once, in order (np.unique's
+    keep[np.argmax(points @ d.T, axis=0)] = True  # result, without its 16 ms numpy.ma import)
+    return points[keep]
 
 
 def sphere_distance(bounds: np.ndarray, width: int, height: int, fov: float = 40.0) -> float:
