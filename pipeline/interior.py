@@ -96,11 +96,15 @@ def interior_vectors(positions: np.ndarray, normals: np.ndarray, indices: np.nda
     live = todo
     # Rays by vertex: a slice (a view, no gather) when every vertex casts, the usual case.
     sel: slice | np.ndarray = slice(None) if len(todo) == count else todo
+
+    def cols(a: np.ndarray) -> np.ndarray:  # np.take: ~5x faster than a[:, sel] for an array
+        return a[..., sel] if isinstance(sel, slice) else np.take(a, sel, axis=-1)
+
     for attempt in range(GRAZE_RETRIES + 1):
         if len(live) == 0 or scene is None:
             break
-        d = direction[:, sel]
-        t = scene.closest(pt[:, sel] + d * travelled[sel], d)
+        d = cols(direction)
+        t = scene.closest(cols(pt) + d * cols(travelled), d)
         rays += len(live)
         found = np.isfinite(t)
         grazed = found & (t < epsilon) & (attempt < GRAZE_RETRIES)
