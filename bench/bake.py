@@ -1,6 +1,6 @@
 """Bake speed: interior rays, cold bake vs cache hit, environment prefiltering; peers beside us.
 
-Three tables, medians of --repeat runs (after one warm-up) measured in this run:
+Four tables, medians of --repeat runs (after one warm-up) measured in this run:
 - interior: our whole pass (Embree BVH build + rays + graze/miss handling) on every mesh of each
   sample asset and of the glass test meshes, treated as transmissive; the BVH build alone, rays/s
   over the whole pass (wall time of the call: setup, build, rays, fallbacks) and over tracing
@@ -10,6 +10,9 @@ Three tables, medians of --repeat runs (after one warm-up) measured in this run:
   trimesh's Embree ray intersector (`intersects_location`, first hit) and embreex's own scene
   (TriangleMesh + EmbreeScene.run: the pass before pipeline.embree). Meshes: every sample asset,
   the glass test meshes, the shared bunny.ply and a 100k-triangle torus. Target >= 2 M rays/s.
+- interior-parts: what bounds that pass on the bunny and the 100k torus: process CPU of the BVH
+  build, of tracing the rays on one thread, and of the whole pass; the whole pass's rays per
+  CPU-second, twice that being the most two idle cores could give.
 - asset: ingest (load_scene), a cold bake (`force=True`: ingest + interior + cache write), and a
   cache hit (`bake_asset` on the unchanged file: hash sources, read and verify the entry);
   peer: re-ingesting, what a hit saves. Target: hit <= 20 ms.
@@ -44,7 +47,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="environments to bake (default: every bundled one)")
     parser.add_argument("--repeat", type=int, default=5, help="timed runs per figure")
     parser.add_argument("--face-size", type=int, default=256)
-    parser.add_argument("--tables", default="interior,asset,environment",
+    parser.add_argument("--tables", default="interior,interior-parts,asset,environment",
                         help="which tables to run (comma-separated; default: all)")
 
 
@@ -70,16 +73,23 @@ def _interior_meshes(assets: Path):
         out.append((path.name, [(m.positions, m.normals, m.indices) for m in scene.meshes]))
     for kind in ("sphere", "bunny", "torus"):
         out.append((f"glass {kind}", [mesh_arrays(kind)]))
-    bunny = cast(trimesh.Trimesh, trimesh.load(assets / "mesh" / "bunny.ply", process=False))
-    for label, m in (("bunny.ply", bunny),
-                     ("torus 100k", trimesh.creation.torus(1.0, 0.3, major_sections=250, minor_sections=200))):
-        out.append((label, [(np.asarray(m.vertices, np.float32), np.asarray(m.vertex_normals, np.float32),
-                             np.asarray(m.faces, np.uint32))]))
+    out.extend((label, [mesh]) for label, mesh in _target_meshes(assets))
     big = trimesh.creation.icosphere(subdivisions=7)
     out.append(("icosphere 7 (big)", [(big.vertices.astype(np.float32),
                                        big.vertex_normals.astype(np.float32),
                                        big.faces.astype(np.uint32))]))
     return out
+
+
+def _target_meshes(assets: Path):
+    """The two meshes of the target: the shared bunny.ply and a 100k-triangle torus."""
+    import trimesh
+
+    bunny = cast(trimesh.Trimesh, trimesh.load(assets / "mesh" / "bunny.ply", process=False))
+    torus = trimesh.creation.torus(1.0, 0.3, major_sections=250, minor_sections=200)
+    return [(label, (np.asarray(m.vertices, np.float32), np.asarray(m.vertex_normals, np.float32),
+                     np.asarray(m.faces, np.uint32)))
+            for label, m in (("bunny.ply", bunny), ("torus 100k", torus))]
 
 
 def _trimesh_pass(meshes) -> None:
@@ -149,6 +159,40 @@ def interior_table(assets: Path, repeat: int) -> list[float]:
     return rates
 
 
+def interior_parts_table(assets: Path, repeat: int) -> None:
+    """What bounds the interior pass: process CPU (all threads) of the BVH build, of tracing the
+    first rays on one thread, and of the whole pass, for the bunny and the 100k torus."""
+    from pipeline.embree import TriangleScene
+    from pipeline.interior import interior_vectors
+
+    def cpu_ms(fn) -> float:
+        fn()
+        times = []
+        for _ in range(max(1, repeat)):
+            c = _cpu_s()
+            fn()
+            times.append(1000 * (_cpu_s() - c))
+        return statistics.median(times)
+
+    print(f"\ninterior pass by part (process CPU ms, all threads; medians of {repeat})")
+    print(f"{'mesh':14} {'triangles':>9} {'rays':>7} {'build':>7} {'us/tri':>6} {'trace 1T':>8} {'us/ray':>6} "
+          f"{'whole':>7} {'M rays/cpu-s':>12} {'2-core ceiling':>14}")
+    for label, (p, n, f) in _target_meshes(assets):
+        result = interior_vectors(p, n, f)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            d = -n / np.linalg.norm(n, axis=1, keepdims=True)
+        ok = np.isfinite(d).all(axis=1)  # the pass's rays: usable normals
+        eps = 1e-4 * float(np.linalg.norm(np.ptp(p, axis=0)))
+        o, d = np.ascontiguousarray((p[ok] + d[ok] * eps).T), np.ascontiguousarray(d[ok].T)
+        scene = TriangleScene(p, f)
+        build = cpu_ms(lambda: TriangleScene(p, f))
+        trace = cpu_ms(lambda: scene.closest(o, d, threads=1))
+        whole = cpu_ms(lambda: interior_vectors(p, n, f))
+        rate = result.rays / whole / 1e3
+        print(f"{label:14} {len(f):9d} {result.rays:7d} {build:7.1f} {1000 * build / len(f):6.3f} {trace:8.1f} "
+              f"{1000 * trace / result.rays:6.3f} {whole:7.1f} {rate:12.2f} {2 * rate:14.2f}", flush=True)
+
+
 def asset_table(assets: Path, repeat: int, cache: Path) -> list[float]:
     from core.errors import AssetError
     from pipeline.bake import bake_or_load_asset
@@ -208,6 +252,8 @@ def run(args: argparse.Namespace) -> int:
     with tempfile.TemporaryDirectory(prefix="bench-bake-") as tmp:
         if "interior" in tables:
             rates = interior_table(args.assets, args.repeat)
+        if "interior-parts" in tables:
+            interior_parts_table(args.assets, args.repeat)
         if "asset" in tables:
             hits = asset_table(args.assets, args.repeat, Path(tmp))
         if "environment" in tables:
