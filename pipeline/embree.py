@@ -175,7 +175,8 @@ def _tracer():
     Why not a ctypes call per packet from each thread: every call (16 rays, ~6 µs) gives up and
     takes back the GIL, and the threads' hand-offs serialise them: two threads traced the 100k
     torus no faster than one (18 ms), this loop on two threads in 10 ms. Compiled on first use
-    (~0.3 s a process): numba cannot cache code that calls a library by address."""
+    (~0.5 s once a process with numba's import): numba cannot cache code calling a library by
+    address."""
     global _rtc_intersect16, _trace_packets
     with _lock:
         if _trace_packets is None:
