@@ -5,10 +5,18 @@
 // instead of with a blit, is what makes MSAA affordable on a CPU rasteriser.
 // BACKGROUND: 0 transparent, 1 colour, 2 environment, 3 the studio gradient. SHADOW 1: the
 // ground contact shadow (renderer/shadow.py) darkens the background, never the object.
+// OBJECT 0: a region of the frame the object does not reach (renderer.render draws the pass
+// in scissored regions, each with only the work its pixels need): no MSAA fetch, coverage 0.
 // Outputs: 0 = display RGBA8 (straight alpha), 1 = linear RGBA float (premultiplied).
 // renderer/frame.py holds the same tone-mapping arithmetic in numpy.
 #include "ibl.glsl"
 
+#ifndef OBJECT
+#define OBJECT 1
+#endif
+#ifndef SUPERSAMPLE
+#define SUPERSAMPLE 1
+#endif
 #if SAMPLES > 1
 uniform sampler2DMS u_frame;
 #else
@@ -104,7 +112,14 @@ void main() {
     // Output row 0 is the image top (what numpy and image files expect), so the source row
     // and the view direction are flipped vertically.
     ivec2 xy = ivec2(gl_FragCoord.x, u_height - 1 - int(gl_FragCoord.y));
-#if SAMPLES > 1
+#if !OBJECT
+    vec4 p = vec4(0.0);
+#elif SUPERSAMPLE > 1  // renderer.render.render_supersampled: a box over K x K texels
+    vec4 p = vec4(0.0);
+    for (int j = 0; j < SUPERSAMPLE; ++j)
+        for (int i = 0; i < SUPERSAMPLE; ++i) p += texelFetch(u_frame, xy * SUPERSAMPLE + ivec2(i, j), 0);
+    p /= float(SUPERSAMPLE * SUPERSAMPLE);
+#elif SAMPLES > 1
     vec4 p = vec4(0.0);
     for (int i = 0; i < SAMPLES; ++i) p += texelFetch(u_frame, xy, i);
     p /= float(SAMPLES);
