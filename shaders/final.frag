@@ -145,12 +145,20 @@ void main() {
     vec3 bg_linear = srgb_to_linear(bg) * (a < 1.0 ? 1.0 - ground_shade() : 1.0);
     f_linear = vec4(p.rgb + (1.0 - a) * bg_linear, OUT_ALPHA);
     // The background shows the colour asked for (not tone-mapped), darkened by the shadow.
+#if OBJECT
     f_display = vec4(display(p.rgb / max(a, 1e-6)) * a + srgb_encode(bg_linear) * (1.0 - a), OUT_ALPHA);
+#else  // a = 0: the same value, without tone mapping a black that is then weighted by 0
+    f_display = vec4(srgb_encode(bg_linear), OUT_ALPHA);
+#endif
 #else
     // Transparent: the shadow is black with its own alpha, under the object.
     float s = a < 1.0 ? ground_shade() : 0.0;
     float alpha = a + (1.0 - a) * s;
     f_linear = vec4(p.rgb, alpha);
+#if OBJECT
     f_display = vec4(display(p.rgb / max(a, 1e-6)) * a / max(alpha, 1e-6), alpha);
+#else
+    f_display = vec4(vec3(0.0), alpha);
+#endif
 #endif
 }
