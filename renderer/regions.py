@@ -111,6 +111,14 @@ def _clip(poly: list, nx: float, ny: float, c: float) -> list:
     return out
 
 
+def bounding_rect(polygon: np.ndarray, w: int, h: int) -> Rect:
+    """The pixels holding a polygon (K x 2, y from the top), within the frame."""
+    x0, y0 = (max(int(np.floor(v)), 0) for v in polygon.min(axis=0))
+    x1 = min(int(np.ceil(polygon[:, 0].max())) + 1, w)
+    y1 = min(int(np.ceil(polygon[:, 1].max())) + 1, h)
+    return (x0, y0, max(x1 - x0, 0), max(y1 - y0, 0))
+
+
 def screen_rect(camera: Camera, points: np.ndarray, w: int, h: int, pad: int = 2) -> Rect:
     """Pixels (grown by `pad`) holding the projection of every point, hence of their convex
     hull; the whole frame when a point lies at or behind the camera's plane."""

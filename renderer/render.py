@@ -232,9 +232,11 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     target = _target(ctx, w, h, options.msaa, supersample)
     pass_ = Pass(ctx, target.draw_fbo, camera, genv, gasset, options,
                  _frame_defines(options, lights), _frame_uniforms(camera, genv, lights, options))
+    polygon = regions.object_polygon(camera, regions.hull_points(asset), w, h)
 
     target.draw_fbo.use()
     ctx.viewport = (0, 0, w * supersample, h * supersample)
+    # Cleared whole: llvmpipe clears a scissored part of an MSAA target by drawing, slower.
     target.draw_fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
     ctx.disable(moderngl.BLEND)
     ctx.enable(moderngl.DEPTH_TEST)
@@ -264,7 +266,7 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     ground = (shadow.ground_shadow(ctx, asset.key, gasset.meshes, asset.bounds, options.shadow)
               if shadowed else None)
     t_draw_end = time.perf_counter()
-    linear, rgba8 = _finish(ctx, target, camera, genv, options, ground, regions.hull_points(asset))
+    linear, rgba8 = _finish(ctx, target, camera, genv, options, ground, polygon)
     t_end = time.perf_counter()
     plan = {
         "method": options.method,
@@ -543,11 +545,11 @@ _BACKGROUND_MODES = {"transparent": 0, "env": 2, "gradient": 3}
 
 def _finish(ctx, target: _Target, camera: Camera, env: gpu.GpuEnvironment,
             options: RenderOptions, ground: "shadow.GroundShadow | None" = None,
-            hull: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+            polygon: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The final pass (resolve, background, shadow, tone map), then one readback of each
     output. Drawn as up to four programs over the regions that need them (renderer.regions):
-    the object's work inside the silhouette bound of its convex `hull` (marked in the depth
-    buffer, so the early depth test skips whole blocks), the shadow's inside its rectangle
+    the object's work inside its silhouette bound `polygon` (regions.object_polygon; marked
+    in the depth buffer, so the early depth test skips whole blocks), the shadow's inside its rectangle
     (scissor). The pixels are those of one full-screen pass doing everything."""
     w, h = options.width, options.height
     full = (0, 0, w, h)
@@ -557,7 +559,6 @@ def _finish(ctx, target: _Target, camera: Camera, env: gpu.GpuEnvironment,
         y = ground.ground
         shade = regions.screen_rect(camera, np.array(
             [[x0, y, z0], [x0 + dx, y, z0], [x0, y, z0 + dz], [x0 + dx, y, z0 + dz]]), w, h)
-    polygon = regions.object_polygon(camera, hull, w, h)
     fbo = target.out_fbo
     fbo.use()
     ctx.viewport = full
@@ -568,6 +569,7 @@ def _finish(ctx, target: _Target, camera: Camera, env: gpu.GpuEnvironment,
     # Fragments of the full-screen triangle lie at depth 1: the object's program passes
     # where the bound wrote 0, the background's elsewhere.
     kinds = [(True, ">"), (False, "<=")] if polygon is not None else [(True, "")]
+    reach = regions.bounding_rect(polygon, w, h) if polygon is not None and len(polygon) else None
     for has_object, depth_func in kinds:
         if depth_func:
             ctx.enable(moderngl.DEPTH_TEST)
@@ -577,7 +579,9 @@ def _finish(ctx, target: _Target, camera: Camera, env: gpu.GpuEnvironment,
         parts = [(True, shade)] if shade is not None else []
         parts += [(False, r) for r in (regions.subtract(full, shade) if shade is not None else [full])]
         for has_shadow, rect in parts:
-            if rect[2] <= 0 or rect[3] <= 0:
+            if has_object and depth_func:  # the bound's rectangle: no blocks to reject beyond it
+                rect = regions.intersect(rect, reach) if reach is not None else None
+            if rect is None or rect[2] <= 0 or rect[3] <= 0:
                 continue
             prog = _final_program(target, camera, env, options, has_object,
                                   ground if has_shadow else None)
