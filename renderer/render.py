@@ -579,13 +579,14 @@ def _finish(ctx, target: _Target, camera: Camera, env: gpu.GpuEnvironment,
         parts = [(True, shade)] if shade is not None else []
         parts += [(False, r) for r in (regions.subtract(full, shade) if shade is not None else [full])]
         for has_shadow, rect in parts:
+            part: regions.Rect | None = rect
             if has_object and depth_func:  # the bound's rectangle: no blocks to reject beyond it
-                rect = regions.intersect(rect, reach) if reach is not None else None
-            if rect is None or rect[2] <= 0 or rect[3] <= 0:
+                part = regions.intersect(rect, reach) if reach is not None else None
+            if part is None or part[2] <= 0 or part[3] <= 0:
                 continue
             prog = _final_program(target, camera, env, options, has_object,
                                   ground if has_shadow else None)
-            ctx.scissor = rect  # the output's GL rows are image rows from the top (final.frag)
+            ctx.scissor = part  # the output's GL rows are image rows from the top (final.frag)
             context.fullscreen_vao(prog).render(moderngl.TRIANGLES, vertices=3)
     ctx.scissor = None
     ctx.disable(moderngl.DEPTH_TEST)
