@@ -554,8 +554,10 @@ def _finish(ctx, target: _Target, camera: Camera, env: gpu.GpuEnvironment,
     w, h = options.width, options.height
     full = (0, 0, w, h)
     shade: regions.Rect | None = None
-    if ground is not None:
-        x0, z0, dx, dz = ground.rect
+    if ground is not None and ground.reach is None:
+        ground = None  # a map of zeros: no pixel would be shaded
+    if ground is not None and ground.reach is not None:
+        x0, z0, dx, dz = ground.reach
         y = ground.ground
         shade = regions.screen_rect(camera, np.array(
             [[x0, y, z0], [x0 + dx, y, z0], [x0, y, z0 + dz], [x0 + dx, y, z0 + dz]]), w, h)
