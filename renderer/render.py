@@ -233,6 +233,8 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     pass_ = Pass(ctx, target.draw_fbo, camera, genv, gasset, options,
                  _frame_defines(options, lights), _frame_uniforms(camera, genv, lights, options))
     polygon = regions.object_polygon(camera, regions.hull_points(asset), w, h)
+    if polygon is not None:  # before the geometry: llvmpipe draws it while Python goes on
+        _mark_object(ctx, target.out_fbo, polygon, w, h)
 
     target.draw_fbo.use()
     ctx.viewport = (0, 0, w * supersample, h * supersample)
@@ -502,6 +504,7 @@ class _Target:
     frame_tex: moderngl.Texture          # its colour, read by the final pass
     out_fbo: moderngl.Framebuffer        # final pass: display RGBA8 + linear RGBA32F
     resources: list
+    rows: tuple | None = None            # the gradient per row: (linear, display) 1 x h textures
 
 
 _targets: dict[tuple, _Target] = {}
@@ -564,8 +567,11 @@ def _finish(ctx, target: _Target, camera: Camera, env: gpu.GpuEnvironment,
     fbo = target.out_fbo
     fbo.use()
     ctx.viewport = full
-    if polygon is not None:
-        _mark_object(ctx, fbo, polygon, w, h)
+    rows = options.background == "gradient"
+    if rows:
+        _gradient_rows(ctx, target, camera, env, options)
+        fbo.use()
+        ctx.viewport = full
     target.frame_tex.use(0)
     fbo.depth_mask = False
     # Fragments of the full-screen triangle lie at depth 1: the object's program passes
@@ -587,7 +593,7 @@ def _finish(ctx, target: _Target, camera: Camera, env: gpu.GpuEnvironment,
             if part is None or part[2] <= 0 or part[3] <= 0:
                 continue
             prog = _final_program(target, camera, env, options, has_object,
-                                  ground if has_shadow else None)
+                                  ground if has_shadow else None, rows)
             ctx.scissor = part  # the output's GL rows are image rows from the top (final.frag)
             context.fullscreen_vao(prog).render(moderngl.TRIANGLES, vertices=3)
     ctx.scissor = None
@@ -602,43 +608,64 @@ def _finish(ctx, target: _Target, camera: Camera, env: gpu.GpuEnvironment,
     return linear, rgba8
 
 
-_mask_buffers: dict[int, moderngl.Buffer] = {}
+_mask_draw: dict[int, tuple[moderngl.Buffer, moderngl.VertexArray]] = {}
+MAX_POLYGON = 64  # vertices: 4 frame corners cut by 16 half-planes leave at most 20
 
 
 def _mark_object(ctx, fbo: moderngl.Framebuffer, polygon: np.ndarray, w: int, h: int) -> None:
-    """Depth 0 inside the silhouette bound, 1 elsewhere (colour untouched)."""
+    """Depth 0 inside the silhouette bound, 1 elsewhere (colour untouched): the final pass
+    (_finish) tests against it."""
+    fbo.use()
+    ctx.viewport = (0, 0, w, h)
     fbo.color_mask = ((False,) * 4,) * 2  # type: ignore[assignment]  # one per attachment
     fbo.clear(depth=1.0)
-    if len(polygon) < 3:  # the object is out of view
-        fbo.color_mask = ((True,) * 4,) * 2  # type: ignore[assignment]
-        return
-    prog = context.program("region_mask.vert", "region_mask.frag", {})
-    cast(dict, prog)["u_size"].value = (float(w), float(h))
-    data = np.ascontiguousarray(polygon, np.float32).tobytes()
-    buf = _mask_buffers.get(id(ctx))
-    if buf is None or buf.size < len(data):
-        if buf is not None:
-            buf.release()
-        buf = _mask_buffers[id(ctx)] = ctx.buffer(reserve=max(len(data), 1 << 14))
-    buf.write(data)
-    ctx.enable(moderngl.DEPTH_TEST)
-    ctx.depth_func = "1"  # always passes: the bound is all that is drawn
-    vao = ctx.vertex_array(prog, [(buf, "2f", "in_pixel")])
-    vao.render(moderngl.TRIANGLE_FAN, vertices=len(polygon))
-    vao.release()
+    if 3 <= len(polygon) <= MAX_POLYGON:  # fewer: the object is out of view
+        prog = context.program("region_mask.vert", "region_mask.frag", {})
+        cast(dict, prog)["u_size"].value = (float(w), float(h))
+        if id(ctx) not in _mask_draw:
+            buf = ctx.buffer(reserve=MAX_POLYGON * 8)
+            _mask_draw.clear()
+            _mask_draw[id(ctx)] = (buf, ctx.vertex_array(prog, [(buf, "2f", "in_pixel")]))
+        buf, vao = _mask_draw[id(ctx)]
+        buf.write(np.ascontiguousarray(polygon, np.float32).tobytes())
+        ctx.enable(moderngl.DEPTH_TEST)
+        ctx.depth_func = "1"  # always passes: the bound is all that is drawn
+        vao.render(moderngl.TRIANGLE_FAN, vertices=len(polygon))
+        ctx.depth_func = "<"
+        ctx.disable(moderngl.DEPTH_TEST)
     fbo.color_mask = ((True,) * 4,) * 2  # type: ignore[assignment]
+
+
+def _gradient_rows(ctx, target: _Target, camera: Camera, env: gpu.GpuEnvironment,
+                   options: RenderOptions) -> None:
+    """The gradient's linear and display value per row, once per target: the background
+    program drawn into a 1-pixel-wide target under the frame's viewport, so each row holds
+    what the program computes anywhere on that row."""
+    if target.rows is not None:
+        return
+    h = options.height
+    linear = ctx.texture((1, h), 4, dtype="f4")
+    display = ctx.texture((1, h), 4, dtype="f1")
+    fbo = ctx.framebuffer([display, linear])
+    fbo.use()
+    ctx.viewport = (0, 0, options.width, h)  # the frame's: v_ndc is interpolated as there
+    ctx.disable(moderngl.DEPTH_TEST)
+    prog = _final_program(target, camera, env, options, False, None, False)
+    context.fullscreen_vao(prog).render(moderngl.TRIANGLES, vertices=3)
+    target.rows = (linear, display)
+    target.resources += [fbo, linear, display]
 
 
 def _final_program(target: _Target, camera: Camera, env: gpu.GpuEnvironment,
                    options: RenderOptions, has_object: bool,
-                   ground: "shadow.GroundShadow | None") -> moderngl.Program:
+                   ground: "shadow.GroundShadow | None", rows: bool = False) -> moderngl.Program:
     """final.frag for one kind of region, its uniforms set."""
     h = options.height
     bg = background_rgb(options.background)
     mode = _BACKGROUND_MODES.get(options.background, 1)
     defines = {"TONEMAP": _TONEMAPS[options.tonemap], "BACKGROUND": mode,
                "SAMPLES": max(target.samples, 1), "SHADOW": int(ground is not None),
-               "OBJECT": int(has_object), "SUPERSAMPLE": target.supersample}
+               "OBJECT": int(has_object), "SUPERSAMPLE": target.supersample, "ROWS": int(rows)}
     if options.alpha == "coverage":
         defines["COVERAGE_ALPHA"] = 1
     rotated = mode == 2 and _env_rotated(options)
@@ -655,6 +682,11 @@ def _final_program(target: _Target, camera: Camera, env: gpu.GpuEnvironment,
             cast(dict, prog)[name].write(data)
     put("u_frame", 0)
     put("u_height", h)
+    if rows and target.rows is not None:
+        put("u_rows_linear", 3)
+        put("u_rows_display", 4)
+        target.rows[0].use(3)
+        target.rows[1].use(4)
     put("u_exposure_scale", exposure_scale(options.exposure))
     if mode == 2 or ground is not None:
         r, up, f = camera.basis()

@@ -17,6 +17,16 @@
 #ifndef SUPERSAMPLE
 #define SUPERSAMPLE 1
 #endif
+// ROWS 1 (BACKGROUND 3): the gradient's value per row, linear and display, read from a column
+// that this same program drew without ROWS (renderer.render._gradient_rows): the gradient
+// depends on the row alone, and reading it costs less than the sRGB arithmetic.
+#ifndef ROWS
+#define ROWS 0
+#endif
+#if ROWS
+uniform sampler2D u_rows_linear;
+uniform sampler2D u_rows_display;
+#endif
 #if SAMPLES > 1
 uniform sampler2DMS u_frame;
 #else
@@ -137,12 +147,23 @@ void main() {
     f_linear = vec4(c, OUT_ALPHA);
     f_display = vec4(display(c), OUT_ALPHA);
 #elif BACKGROUND == 1 || BACKGROUND == 3
+#if ROWS
+    ivec2 row = ivec2(0, gl_FragCoord.y);
+#if !OBJECT && !SHADOW
+    f_linear = vec4(texelFetch(u_rows_linear, row, 0).rgb, OUT_ALPHA);
+    f_display = vec4(texelFetch(u_rows_display, row, 0).rgb, OUT_ALPHA);
+    return;
+#endif
+    vec3 bg_linear = texelFetch(u_rows_linear, row, 0).rgb;
+#else
 #if BACKGROUND == 1
     vec3 bg = u_background;
 #else
     vec3 bg = mix(u_gradient_bottom, u_gradient_top, 0.5 - 0.5 * v_ndc.y);  // v_ndc.y: -1 at the top row
 #endif
-    vec3 bg_linear = srgb_to_linear(bg) * (a < 1.0 ? 1.0 - ground_shade() : 1.0);
+    vec3 bg_linear = srgb_to_linear(bg);
+#endif
+    bg_linear *= (a < 1.0 ? 1.0 - ground_shade() : 1.0);
     f_linear = vec4(p.rgb + (1.0 - a) * bg_linear, OUT_ALPHA);
     // The background shows the colour asked for (not tone-mapped), darkened by the shadow.
 #if OBJECT
