@@ -16,7 +16,8 @@ from renderer.framing import request_camera
 
 SAMPLES = ["gltf/Duck.glb", "gltf-samples/SheenCloth/glTF/SheenCloth.gltf",
            "gltf-samples/SimpleInstancing/glTF/SimpleInstancing.gltf",
-           "gltf-samples/NegativeScaleTest/glTF-Binary/NegativeScaleTest.glb"]
+           "gltf-samples/NegativeScaleTest/glTF-Binary/NegativeScaleTest.glb",
+           "gltf-samples/AttenuationTest/glTF/AttenuationTest.gltf"]  # refraction (wyman)
 LOOKS = [{}, {"background": "transparent"}, {"background": "env"}, {"alpha": "coverage"},
          {"distance": 0.5, "background": "#203040"},  # close: the camera may be inside the hull
          {"yaw": 200.0, "pitch": -10.0, "shadow": 0.0}]
