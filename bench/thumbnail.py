@@ -12,8 +12,9 @@ Per asset and size, each tool runs in processes of its own (GL contexts do not m
   context, shader compile, loading the asset: ours from the bake cache, peers from the file,
   render, PNG). One unmeasured run first per tool fills every disk cache (ours, f3d's HDRI
   bake, Mesa's shader cache), then the median of `--cold-repeat` runs.
-- warm: in one process, after a first thumbnail, the median time of the next `--repeat`
-  thumbnails rendered into a uint8 RGB(A) array in memory ("+png": plus PNG encoding with the
+- warm: in one process per tool, after a first thumbnail, the median time of the next
+  `--repeat` thumbnails rendered into a uint8 RGB(A) array in memory, every tool's processes
+  asked for one thumbnail at a time in turn (so all see the same machine load) ("+png": plus PNG encoding with the
   same encoder, renderer.frame.encode_png, for every tool), and the median CPU time of the process (all threads,
   llvmpipe's included) per render: the work a thumbnail costs, much less disturbed than wall
   time when other jobs share the two cores.
@@ -108,8 +109,7 @@ def run(args: argparse.Namespace) -> int:
                    "env": env_name, "panorama": panorama, "bounds": baked.bounds.tolist(),
                    "out": str(work / f"{name}-{size}-{{tool}}.png"), "turntable": args.turntable}
             row = {"asset": name, "size": size, "triangles": baked.triangle_count}
-            for tool in tools:
-                row[tool] = _measure(tool, job, args.repeat, args.cold_repeat)
+            row.update(_measure(tools, job, args.repeat, args.cold_repeat))
             if "ours" in tools:
                 row["aa_flip"] = _aa_report(name, baked, cache, env_name, size)
             results.append(row)
@@ -230,30 +230,60 @@ def _export_glb(baked, path: Path) -> str:
     return str(path)
 
 
-def _measure(tool: str, job: dict, repeat: int, cold_repeat: int) -> dict:
-    cmd = [sys.executable, "-m", "bench.thumbnail", tool, json.dumps(job)]
+def _measure(tools: list[str], job: dict, repeat: int, cold_repeat: int) -> dict[str, dict]:
+    """Cold runs per tool, then the warm thumbnails of every tool interleaved: one worker
+    process per tool, kept, asked for one thumbnail at a time in turn (the order rotating),
+    so that every tool's medians see the same machine load."""
     env = {**os.environ, "PYOPENGL_PLATFORM": "egl"}
     cwd = Path(__file__).resolve().parents[1]
 
-    def worker(*extra) -> str:
-        p = subprocess.run(cmd + list(extra), env=env, cwd=cwd, capture_output=True, text=True)
+    def cmd(tool: str) -> list[str]:
+        return [sys.executable, "-m", "bench.thumbnail", tool, json.dumps(job)]
+
+    def worker(tool: str, *extra) -> str:
+        p = subprocess.run(cmd(tool) + list(extra), env=env, cwd=cwd, capture_output=True, text=True)
         if p.returncode:
             raise RuntimeError(f"{tool} worker failed:\n{p.stderr[-2000:]}")
         return p.stdout
 
-    worker("cold")  # fill the disk caches
-    cold = []
-    for _ in range(cold_repeat):
-        t = time.perf_counter()
-        worker("cold")
-        cold.append(time.perf_counter() - t)
-    warm = json.loads(worker("warm", str(repeat)).strip().splitlines()[-1])
-    out = {"cold_s": statistics.median(cold), "warm_ms": statistics.median(warm["render"]),
-           "warm_png_ms": statistics.median(warm["render_png"]), "warm_cpu_ms": warm["cpu_ms"]}
-    for k in ("shadow_ms", "shadow_cpu_ms", "noshadow_ms", "noshadow_cpu_ms", "turntable_frame_ms",
-              "turntable_encode_ms", "turntable_frames"):
-        if k in warm:
-            out[k] = warm[k]
+    out: dict[str, dict] = {}
+    for tool in tools:
+        worker(tool, "cold")  # fill the disk caches
+        cold = []
+        for _ in range(cold_repeat):
+            t = time.perf_counter()
+            worker(tool, "cold")
+            cold.append(time.perf_counter() - t)
+        out[tool] = {"cold_s": statistics.median(cold)}
+    procs = {t: subprocess.Popen(cmd(t) + ["serve"], env=env, cwd=cwd, stdin=subprocess.PIPE,
+                                 stdout=subprocess.PIPE, text=True) for t in tools}
+
+    def ask(tool: str, line: str) -> dict:
+        p = procs[tool]
+        assert p.stdin is not None and p.stdout is not None
+        p.stdin.write(line + "\n")
+        p.stdin.flush()
+        reply = p.stdout.readline()
+        if not reply:
+            raise RuntimeError(f"{tool} worker stopped (see its stderr above)")
+        return json.loads(reply)
+    try:
+        for name in tools:
+            ask(name, "ready")  # set up and the first thumbnail drawn
+        shots: dict[str, list[dict]] = {name: [] for name in tools}
+        for i in range(repeat):
+            for name in tools[i % len(tools):] + tools[:i % len(tools)]:
+                shots[name].append(ask(name, "shot"))
+        for name in tools:
+            med = {k: statistics.median(shot[k] for shot in shots[name]) for k in ("render", "render_png", "cpu_ms")}
+            out[name].update(warm_ms=med["render"], warm_png_ms=med["render_png"], warm_cpu_ms=med["cpu_ms"])
+            if name == "ours":
+                out[name].update(ask(name, f"extra {repeat}"))
+    finally:
+        for p in procs.values():
+            if p.stdin is not None:
+                p.stdin.close()
+            p.wait(timeout=120)
     return out
 
 
@@ -411,31 +441,34 @@ def _f3d(job: dict):
     return shot
 
 
-def _worker(tool: str, job: dict, mode: str, repeat: int) -> None:
+def _worker(tool: str, job: dict, mode: str) -> None:
+    """`cold`: one thumbnail to a PNG. `serve`: set up, then answer lines from stdin, one
+    JSON line each: `ready` (after a first thumbnail), `shot` (one timed thumbnail: render,
+    render + PNG, CPU), `extra N` (ours: the shadow's cost and the turntable)."""
     make = {"ours": _ours, "ours-old": lambda j: _ours(j, old=True), "pyrender": _pyrender, "f3d": _f3d}
     shot = make[tool](job)
     if mode == "cold":
         Path(job["out"].format(tool=tool)).write_bytes(_png(shot()))
         return
-    shot()
-    render_ms, png_ms, cpu_ms = [], [], []
-    for _ in range(repeat):
-        c = _cpu()
-        t = time.perf_counter()
-        img = shot()
-        t1 = time.perf_counter()
-        cpu_ms.append((_cpu() - c) * 1e3)
-        _png(img)
-        t2 = time.perf_counter()
-        render_ms.append((t1 - t) * 1e3)
-        png_ms.append((t2 - t) * 1e3)
-    out = {"render": render_ms, "render_png": png_ms, "cpu_ms": statistics.median(cpu_ms)}
-    if tool == "ours":
-        out.update(shot.shadow_cost(repeat))
-        if job.get("turntable"):
-            out["turntable_frame_ms"], out["turntable_encode_ms"] = shot.turntable(job["turntable"])
-            out["turntable_frames"] = job["turntable"]
-    print(json.dumps(out))
+    for line in sys.stdin:
+        cmd, *arg = line.split()
+        out: dict = {}
+        if cmd == "ready":
+            shot()
+        elif cmd == "shot":
+            c = _cpu()
+            t = time.perf_counter()
+            img = shot()
+            t1 = time.perf_counter()
+            out["cpu_ms"] = (_cpu() - c) * 1e3
+            _png(img)
+            out["render"], out["render_png"] = (t1 - t) * 1e3, (time.perf_counter() - t) * 1e3
+        elif cmd == "extra" and tool == "ours":
+            out.update(shot.shadow_cost(int(arg[0])))
+            if job.get("turntable"):
+                out["turntable_frame_ms"], out["turntable_encode_ms"] = shot.turntable(job["turntable"])
+                out["turntable_frames"] = job["turntable"]
+        print(json.dumps(out), flush=True)
 
 
 def _cpu() -> float:
@@ -447,4 +480,4 @@ def _cpu() -> float:
 
 
 if __name__ == "__main__":
-    _worker(sys.argv[1], json.loads(sys.argv[2]), sys.argv[3], int(sys.argv[4]) if len(sys.argv) > 4 else 0)
+    _worker(sys.argv[1], json.loads(sys.argv[2]), sys.argv[3])

@@ -1,8 +1,9 @@
 """`render(asset, env, options) -> Frame`: one offscreen frame of a baked asset.
 
 Passes: opaque and mask meshes, transmissive meshes by their method, blend meshes back to
-front, all into one MSAA float framebuffer; then one final pass (resolve + background +
-tone mapping, shaders/final.frag) into RGBA8 and float targets, and one readback of each.
+front, all into one MSAA float framebuffer; then the final pass (resolve + background +
+shadow + tone mapping, shaders/final.frag) into RGBA8 and float targets, drawn per region
+with only the work each region's pixels need (renderer.regions), and one readback of each.
 
 Methods plug in per object: `register_method(name, fn)` adds a raster method (the refraction
 module adds `single` and `wyman`), `register_frame_method(name, fn)` a whole-frame one
