@@ -574,6 +574,7 @@ def _finish(ctx, target: _Target, camera: Camera, env: gpu.GpuEnvironment,
         fbo.use()
         ctx.viewport = full
     target.frame_tex.use(0)
+    uniforms = _final_uniforms(target, camera, env, options, ground, rows)
     fbo.depth_mask = False
     # Fragments of the full-screen triangle lie at depth 1: the object's program passes
     # where the bound wrote 0, the background's elsewhere.
@@ -593,8 +594,7 @@ def _finish(ctx, target: _Target, camera: Camera, env: gpu.GpuEnvironment,
                 part = regions.intersect(rect, reach) if reach is not None else None
             if part is None or part[2] <= 0 or part[3] <= 0:
                 continue
-            prog = _final_program(target, camera, env, options, has_object,
-                                  ground if has_shadow else None, rows)
+            prog = _final_program(target, options, has_object, has_shadow, rows, uniforms)
             ctx.scissor = part  # the output's GL rows are image rows from the top (final.frag)
             context.fullscreen_vao(prog).render(moderngl.TRIANGLES, vertices=3)
     ctx.scissor = None
@@ -651,66 +651,63 @@ def _gradient_rows(ctx, target: _Target, camera: Camera, env: gpu.GpuEnvironment
     fbo.use()
     ctx.viewport = (0, 0, options.width, h)  # the frame's: v_ndc is interpolated as there
     ctx.disable(moderngl.DEPTH_TEST)
-    prog = _final_program(target, camera, env, options, False, None, False)
+    uniforms = _final_uniforms(target, camera, env, options, None, False)
+    prog = _final_program(target, options, False, False, False, uniforms)
     context.fullscreen_vao(prog).render(moderngl.TRIANGLES, vertices=3)
     target.rows = (linear, display)
     target.resources += [fbo, linear, display]
 
 
-def _final_program(target: _Target, camera: Camera, env: gpu.GpuEnvironment,
-                   options: RenderOptions, has_object: bool,
-                   ground: "shadow.GroundShadow | None", rows: bool = False) -> moderngl.Program:
-    """final.frag for one kind of region, its uniforms set."""
-    h = options.height
-    bg = background_rgb(options.background)
+def _final_uniforms(target: _Target, camera: Camera, env: gpu.GpuEnvironment,
+                    options: RenderOptions, ground: "shadow.GroundShadow | None",
+                    rows: bool) -> dict:
+    """Every uniform any region's final.frag reads, once per frame (each program takes the
+    ones it has), and the textures bound to their units."""
+    mode = _BACKGROUND_MODES.get(options.background, 1)
+    u: dict = {"u_frame": 0, "u_height": options.height,
+               "u_exposure_scale": exposure_scale(options.exposure)}
+    if rows and target.rows is not None:
+        u.update(u_rows_linear=3, u_rows_display=4)
+        target.rows[0].use(3)
+        target.rows[1].use(4)
+    if mode == 2 or ground is not None:
+        th = math.tan(math.radians(camera.fov) / 2)
+        u["u_camera_basis"] = np.ascontiguousarray(np.stack(camera.basis()), np.float32).tobytes()
+        u["u_tan_half_fov"] = (th * camera.aspect, th)
+    if ground is not None:
+        u.update(u_camera_position=tuple(map(float, camera.position)), u_ground=ground.ground,
+                 u_shadow_rect=ground.rect, u_shadow_strength=float(ground.strength), u_shadow=2)
+        ground.texture.use(2)
+    if mode == 1:
+        u["u_background"] = background_rgb(options.background)
+    elif mode == 3:
+        u["u_gradient_top"], u["u_gradient_bottom"] = GRADIENT
+    elif mode == 2:
+        u.update(u_blur=float(min(max(options.background_blur, 0.0), 1.0)),
+                 u_env_max_lod=env.max_lod, u_env=1)
+        if _env_rotated(options):
+            u["u_env_rotation"] = _mat3_bytes(env_rotation_matrix(options.env_rotation))
+        env.cube.use(1)
+    return u
+
+
+def _final_program(target: _Target, options: RenderOptions, has_object: bool, has_shadow: bool,
+                   rows: bool, uniforms: dict) -> moderngl.Program:
+    """final.frag for one kind of region, with the frame's `uniforms` it reads set."""
     mode = _BACKGROUND_MODES.get(options.background, 1)
     defines = {"TONEMAP": _TONEMAPS[options.tonemap], "BACKGROUND": mode,
-               "SAMPLES": max(target.samples, 1), "SHADOW": int(ground is not None),
+               "SAMPLES": max(target.samples, 1), "SHADOW": int(has_shadow),
                "OBJECT": int(has_object), "SUPERSAMPLE": target.supersample, "ROWS": int(rows)}
     if options.alpha == "coverage":
         defines["COVERAGE_ALPHA"] = 1
-    rotated = mode == 2 and _env_rotated(options)
-    if rotated:
+    if mode == 2 and _env_rotated(options):
         defines["ENV_ROTATED"] = 1
     prog = context.program("screen_triangle.vert", "final.frag", defines)
-
-    def put(name: str, value) -> None:  # a region's program may lack some uniforms
-        if name in prog:
-            cast(dict, prog)[name].value = value
-
-    def write(name: str, data: bytes) -> None:
-        if name in prog:
-            cast(dict, prog)[name].write(data)
-    put("u_frame", 0)
-    put("u_height", h)
-    if rows and target.rows is not None:
-        put("u_rows_linear", 3)
-        put("u_rows_display", 4)
-        target.rows[0].use(3)
-        target.rows[1].use(4)
-    put("u_exposure_scale", exposure_scale(options.exposure))
-    if mode == 2 or ground is not None:
-        r, up, f = camera.basis()
-        th = math.tan(math.radians(camera.fov) / 2)
-        write("u_camera_basis", np.ascontiguousarray(np.stack([r, up, f]), np.float32).tobytes())
-        put("u_tan_half_fov", (th * camera.aspect, th))
-    if ground is not None:
-        put("u_camera_position", tuple(map(float, camera.position)))
-        put("u_ground", ground.ground)
-        put("u_shadow_rect", ground.rect)
-        put("u_shadow_strength", float(ground.strength))
-        put("u_shadow", 2)
-        ground.texture.use(2)
-    if mode == 1:
-        put("u_background", bg)
-    elif mode == 3:
-        put("u_gradient_top", GRADIENT[0])
-        put("u_gradient_bottom", GRADIENT[1])
-    elif mode == 2:
-        put("u_blur", float(min(max(options.background_blur, 0.0), 1.0)))
-        put("u_env_max_lod", env.max_lod)
-        put("u_env", 1)
-        if rotated:
-            write("u_env_rotation", _mat3_bytes(env_rotation_matrix(options.env_rotation)))
-        env.cube.use(1)
+    members = cast(dict, prog)
+    for name, value in uniforms.items():
+        if name in prog:  # a region's program may lack some
+            if isinstance(value, bytes):
+                members[name].write(value)
+            else:
+                members[name].value = value
     return prog
