@@ -263,10 +263,12 @@ def _measure(tools: list[str], job: dict, repeat: int, cold_repeat: int) -> dict
         assert p.stdin is not None and p.stdout is not None
         p.stdin.write(line + "\n")
         p.stdin.flush()
-        reply = p.stdout.readline()
-        if not reply:
-            raise RuntimeError(f"{tool} worker stopped (see its stderr above)")
-        return json.loads(reply)
+        while True:  # a peer's library may print its own lines to stdout
+            reply = p.stdout.readline()
+            if not reply:
+                raise RuntimeError(f"{tool} worker stopped (see its stderr above)")
+            if reply.startswith(_REPLY):
+                return json.loads(reply[len(_REPLY):])
     try:
         for name in tools:
             ask(name, "ready")  # set up and the first thumbnail drawn
@@ -468,7 +470,10 @@ def _worker(tool: str, job: dict, mode: str) -> None:
             if job.get("turntable"):
                 out["turntable_frame_ms"], out["turntable_encode_ms"] = shot.turntable(job["turntable"])
                 out["turntable_frames"] = job["turntable"]
-        print(json.dumps(out), flush=True)
+        print(_REPLY + json.dumps(out), flush=True)
+
+
+_REPLY = "@reply "  # marks the serve worker's answers among whatever else reaches stdout
 
 
 def _cpu() -> float:
