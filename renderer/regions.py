@@ -20,7 +20,9 @@ from .camera import Camera
 
 Rect = tuple[int, int, int, int]  # x, y, width, height in pixels; y down from the image top
 
-MAX_HULL_INPUT = 4_000_000  # vertices; past this the object is assumed to cover the frame
+MAX_HULL_MESH = 50_000      # vertices: a bigger mesh is bounded by its box's corners instead
+                            # (qhull's time and the hull's size grow with it; cold renders pay)
+MAX_HULL_POINTS = 200_000   # all instances' points: past this, every instance by its box
 PAD = 1.5                   # pixels the silhouette bound grows by (a pixel is touched if any
                             # of its samples is covered: half a pixel, plus rounding room)
 _hulls: OrderedDict = OrderedDict()  # asset key -> world points of the convex hull
@@ -35,20 +37,27 @@ def hull_points(asset: BakedAsset) -> np.ndarray | None:
         _hulls.move_to_end(asset.key)
         return _hulls[asset.key]
     pts = None
-    parts, total = [], 0
+    locals_ = []
     for m in asset.meshes:
         if len(m.positions) == 0:
             continue
-        local = _hull(np.asarray(m.positions, np.float64))
-        for t in np.asarray(m.transforms, np.float64):
-            parts.append(local @ t[:3, :3].T + t[:3, 3])
-            total += len(local)
-    if parts and total <= MAX_HULL_INPUT:
+        p = np.asarray(m.positions, np.float64)
+        locals_.append((_hull(p) if len(p) <= MAX_HULL_MESH else _box(p), np.asarray(m.transforms, np.float64)))
+    if sum(len(h) * len(t) for h, t in locals_) > MAX_HULL_POINTS:
+        locals_ = [(_box(h), t) for h, t in locals_]
+    parts = [h @ t[:3, :3].T + t[:3, 3] for h, ts in locals_ for t in ts]
+    if parts and sum(len(x) for x in parts) <= MAX_HULL_POINTS:
         pts = _hull(np.concatenate(parts))
     _hulls[asset.key] = pts
     while len(_hulls) > MAX_HULLS:
         _hulls.popitem(last=False)
     return pts
+
+
+def _box(points: np.ndarray) -> np.ndarray:
+    """The eight corners of the points' bounding box (a looser hull, as cheap as can be)."""
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    return np.array([[(lo, hi)[i >> k & 1][k] for k in range(3)] for i in range(8)])
 
 
 def _hull(points: np.ndarray) -> np.ndarray:

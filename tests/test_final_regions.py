@@ -89,3 +89,18 @@ def test_rect_subtraction_tiles_the_rest():
     assert (cover == 1).all()
     assert regions.subtract(a, (20, 20, 2, 2)) == [a]
     assert regions.intersect(a, (20, 20, 2, 2)) is None
+
+
+def test_big_meshes_are_bounded_by_their_boxes(assets, cache, monkeypatch):
+    """Past MAX_HULL_MESH vertices a mesh is bounded by its box's corners (qhull's cost and
+    the hull's size grow with the mesh): still every covered pixel inside, same pixels."""
+    from collections import OrderedDict
+    asset = pipeline.bake_asset(assets / "gltf/Duck.glb", cache)
+    env = pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(96))
+    o = RenderOptions(width=96, height=96)
+    exact = render(asset, env, o)
+    monkeypatch.setattr(regions, "MAX_HULL_MESH", 10)
+    monkeypatch.setattr(regions, "_hulls", OrderedDict())
+    assert len(regions.hull_points(asset)) == 8
+    boxed = render(asset, env, o)
+    assert np.array_equal(exact.rgba8, boxed.rgba8) and np.array_equal(exact.linear, boxed.linear)
