@@ -12,8 +12,9 @@ Per asset and size, each tool runs in processes of its own (GL contexts do not m
   context, shader compile, loading the asset: ours from the bake cache, peers from the file,
   render, PNG). One unmeasured run first per tool fills every disk cache (ours, f3d's HDRI
   bake, Mesa's shader cache), then the median of `--cold-repeat` runs.
-- warm: in one process, after a first thumbnail, the median time of the next `--repeat`
-  thumbnails rendered into a uint8 RGB(A) array in memory ("+png": plus PNG encoding with the
+- warm: in one process per tool, after a first thumbnail, the median time of the next
+  `--repeat` thumbnails rendered into a uint8 RGB(A) array in memory, every tool's processes
+  asked for one thumbnail at a time in turn (so all see the same machine load) ("+png": plus PNG encoding with the
   same encoder, renderer.frame.encode_png, for every tool), and the median CPU time of the process (all threads,
   llvmpipe's included) per render: the work a thumbnail costs, much less disturbed than wall
   time when other jobs share the two cores.
@@ -24,7 +25,9 @@ PyPI wheel, so peers get the Teapot as a .glb exported from our bake (same trian
 BigTextures8k (bench.big_textures: the Duck with three 8192^2 PNG textures in a 77 MB .glb) is
 the StainedGlassLamp-class case; for it the run also reports the baked texture bytes and the
 FLIP at 1024 px of our render against the same render with full-resolution textures.
-Ours loads the bake by key, as the service's workers do.
+Ours loads the bake by key, as the service's workers do. Per asset and size the run also
+reports our anti-aliasing: FLIP of the default frame against a 16x supersampled render of our
+own (4 x 4 shaded samples per pixel), beside the frame without MSAA.
 """
 from __future__ import annotations
 
@@ -106,8 +109,9 @@ def run(args: argparse.Namespace) -> int:
                    "env": env_name, "panorama": panorama, "bounds": baked.bounds.tolist(),
                    "out": str(work / f"{name}-{size}-{{tool}}.png"), "turntable": args.turntable}
             row = {"asset": name, "size": size, "triangles": baked.triangle_count}
-            for tool in tools:
-                row[tool] = _measure(tool, job, args.repeat, args.cold_repeat)
+            row.update(_measure(tools, job, args.repeat, args.cold_repeat))
+            if "ours" in tools:
+                row["aa_flip"] = _aa_report(name, baked, cache, env_name, size)
             results.append(row)
             _print_row(row, tools)
     _print_summary(results, tools)
@@ -146,6 +150,31 @@ def _texture_report(src: Path, baked, cache: Path, env_name: str, px: int = 1024
     print(f"{src.name}: source {src_bytes / 1e6:.1f} MB, baked textures {tex_bytes / 1e6:.2f} MB "
           f"(target <= 32 MB); FLIP at {px} px vs full-resolution textures: frame "
           f"{errors['env']:.4f}, object pixels {errors['object']:.4f} (target <= 0.02)", flush=True)
+
+
+def _aa_report(name: str, baked, cache: Path, env_name: str, size: int) -> dict:
+    """Anti-aliasing of our default frame: FLIP (LDR) against a 16x supersampled render of
+    our own (renderer.render.render_supersampled), beside the same frame without MSAA."""
+    import dataclasses
+
+    import flip_evaluator
+    import numpy as np
+
+    import pipeline
+    from core.options import RenderOptions
+    from renderer import render
+    from renderer.auto import environment_face_size
+    from renderer.render import render_supersampled
+    o = RenderOptions(width=size, height=size, **_view())
+    env = pipeline.bake_environment(env_name, cache, face_size=environment_face_size(baked, o)[0])
+    ref = render_supersampled(baked, env, o, 4).rgba8[..., :3] / np.float32(255)
+    out = {}
+    for label, msaa in (("default", o.msaa), ("no_aa", 0)):
+        img = render(baked, env, dataclasses.replace(o, msaa=msaa)).rgba8[..., :3] / np.float32(255)
+        out[label] = float(flip_evaluator.evaluate(ref, img, "LDR", applyMagma=False)[1])
+    print(f"{name:>15} {size:>4}px anti-aliasing, FLIP vs 16x supersampled: default ({o.msaa}x MSAA) "
+          f"{out['default']:.4f}, without anti-aliasing {out['no_aa']:.4f}", flush=True)
+    return out
 
 
 def _multiscatter_cost(args, cache: Path, env_name: str, sizes: list[int]) -> int:
@@ -201,30 +230,62 @@ def _export_glb(baked, path: Path) -> str:
     return str(path)
 
 
-def _measure(tool: str, job: dict, repeat: int, cold_repeat: int) -> dict:
-    cmd = [sys.executable, "-m", "bench.thumbnail", tool, json.dumps(job)]
+def _measure(tools: list[str], job: dict, repeat: int, cold_repeat: int) -> dict[str, dict]:
+    """Cold runs per tool, then the warm thumbnails of every tool interleaved: one worker
+    process per tool, kept, asked for one thumbnail at a time in turn (the order rotating),
+    so that every tool's medians see the same machine load."""
     env = {**os.environ, "PYOPENGL_PLATFORM": "egl"}
     cwd = Path(__file__).resolve().parents[1]
 
-    def worker(*extra) -> str:
-        p = subprocess.run(cmd + list(extra), env=env, cwd=cwd, capture_output=True, text=True)
+    def cmd(tool: str) -> list[str]:
+        return [sys.executable, "-m", "bench.thumbnail", tool, json.dumps(job)]
+
+    def worker(tool: str, *extra) -> str:
+        p = subprocess.run(cmd(tool) + list(extra), env=env, cwd=cwd, capture_output=True, text=True)
         if p.returncode:
             raise RuntimeError(f"{tool} worker failed:\n{p.stderr[-2000:]}")
         return p.stdout
 
-    worker("cold")  # fill the disk caches
-    cold = []
-    for _ in range(cold_repeat):
-        t = time.perf_counter()
-        worker("cold")
-        cold.append(time.perf_counter() - t)
-    warm = json.loads(worker("warm", str(repeat)).strip().splitlines()[-1])
-    out = {"cold_s": statistics.median(cold), "warm_ms": statistics.median(warm["render"]),
-           "warm_png_ms": statistics.median(warm["render_png"]), "warm_cpu_ms": warm["cpu_ms"]}
-    for k in ("shadow_ms", "shadow_cpu_ms", "noshadow_ms", "noshadow_cpu_ms", "turntable_frame_ms",
-              "turntable_encode_ms", "turntable_frames"):
-        if k in warm:
-            out[k] = warm[k]
+    out: dict[str, dict] = {}
+    for tool in tools:
+        worker(tool, "cold")  # fill the disk caches
+        cold = []
+        for _ in range(cold_repeat):
+            t = time.perf_counter()
+            worker(tool, "cold")
+            cold.append(time.perf_counter() - t)
+        out[tool] = {"cold_s": statistics.median(cold)}
+    procs = {t: subprocess.Popen(cmd(t) + ["serve"], env=env, cwd=cwd, stdin=subprocess.PIPE,
+                                 stdout=subprocess.PIPE, text=True) for t in tools}
+
+    def ask(tool: str, line: str) -> dict:
+        p = procs[tool]
+        assert p.stdin is not None and p.stdout is not None
+        p.stdin.write(line + "\n")
+        p.stdin.flush()
+        while True:  # a peer's library may print its own lines to stdout
+            reply = p.stdout.readline()
+            if not reply:
+                raise RuntimeError(f"{tool} worker stopped (see its stderr above)")
+            if reply.startswith(_REPLY):
+                return json.loads(reply[len(_REPLY):])
+    try:
+        for name in tools:
+            ask(name, "ready")  # set up and the first thumbnail drawn
+        shots: dict[str, list[dict]] = {name: [] for name in tools}
+        for i in range(repeat):
+            for name in tools[i % len(tools):] + tools[:i % len(tools)]:
+                shots[name].append(ask(name, "shot"))
+        for name in tools:
+            med = {k: statistics.median(shot[k] for shot in shots[name]) for k in ("render", "render_png", "cpu_ms")}
+            out[name].update(warm_ms=med["render"], warm_png_ms=med["render_png"], warm_cpu_ms=med["cpu_ms"])
+            if name == "ours":
+                out[name].update(ask(name, f"extra {repeat}"))
+    finally:
+        for p in procs.values():
+            if p.stdin is not None:
+                p.stdin.close()
+            p.wait(timeout=120)
     return out
 
 
@@ -382,31 +443,37 @@ def _f3d(job: dict):
     return shot
 
 
-def _worker(tool: str, job: dict, mode: str, repeat: int) -> None:
+def _worker(tool: str, job: dict, mode: str) -> None:
+    """`cold`: one thumbnail to a PNG. `serve`: set up, then answer lines from stdin, one
+    JSON line each: `ready` (after a first thumbnail), `shot` (one timed thumbnail: render,
+    render + PNG, CPU), `extra N` (ours: the shadow's cost and the turntable)."""
     make = {"ours": _ours, "ours-old": lambda j: _ours(j, old=True), "pyrender": _pyrender, "f3d": _f3d}
     shot = make[tool](job)
     if mode == "cold":
         Path(job["out"].format(tool=tool)).write_bytes(_png(shot()))
         return
-    shot()
-    render_ms, png_ms, cpu_ms = [], [], []
-    for _ in range(repeat):
-        c = _cpu()
-        t = time.perf_counter()
-        img = shot()
-        t1 = time.perf_counter()
-        cpu_ms.append((_cpu() - c) * 1e3)
-        _png(img)
-        t2 = time.perf_counter()
-        render_ms.append((t1 - t) * 1e3)
-        png_ms.append((t2 - t) * 1e3)
-    out = {"render": render_ms, "render_png": png_ms, "cpu_ms": statistics.median(cpu_ms)}
-    if tool == "ours":
-        out.update(shot.shadow_cost(repeat))
-        if job.get("turntable"):
-            out["turntable_frame_ms"], out["turntable_encode_ms"] = shot.turntable(job["turntable"])
-            out["turntable_frames"] = job["turntable"]
-    print(json.dumps(out))
+    for line in sys.stdin:
+        cmd, *arg = line.split()
+        out: dict = {}
+        if cmd == "ready":
+            shot()
+        elif cmd == "shot":
+            c = _cpu()
+            t = time.perf_counter()
+            img = shot()
+            t1 = time.perf_counter()
+            out["cpu_ms"] = (_cpu() - c) * 1e3
+            _png(img)
+            out["render"], out["render_png"] = (t1 - t) * 1e3, (time.perf_counter() - t) * 1e3
+        elif cmd == "extra" and tool == "ours":
+            out.update(shot.shadow_cost(int(arg[0])))
+            if job.get("turntable"):
+                out["turntable_frame_ms"], out["turntable_encode_ms"] = shot.turntable(job["turntable"])
+                out["turntable_frames"] = job["turntable"]
+        print(_REPLY + json.dumps(out), flush=True)
+
+
+_REPLY = "@reply "  # marks the serve worker's answers among whatever else reaches stdout
 
 
 def _cpu() -> float:
@@ -418,4 +485,4 @@ def _cpu() -> float:
 
 
 if __name__ == "__main__":
-    _worker(sys.argv[1], json.loads(sys.argv[2]), sys.argv[3], int(sys.argv[4]) if len(sys.argv) > 4 else 0)
+    _worker(sys.argv[1], json.loads(sys.argv[2]), sys.argv[3])

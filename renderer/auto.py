@@ -317,7 +317,7 @@ def plan_request(asset: BakedAsset, options: RenderOptions, available: list[str]
     """Decide every mesh's method for `options` (method "auto") and whether to ray trace."""
     from .framing import asset_camera
 
-    camera = asset_camera(asset, options)[0]  # the camera the frame will have
+    camera = None  # the camera the frame will have: only transmissive objects need it
     decisions, failing, coverage = [], [], 0.0
     for mesh in asset.meshes:
         mat = apply_override(mesh.material, options.override)
@@ -326,6 +326,8 @@ def plan_request(asset: BakedAsset, options: RenderOptions, available: list[str]
             decisions.append(Decision(mesh.name, "opaque", f"{cls}: PBR + IBL raster only, "
                                       "no interior bake or refraction pass"))
             continue
+        if camera is None:
+            camera = asset_camera(asset, options)[0]
         f = object_facts(mesh, mat, camera)
         method, why = choose_raster(f, available)
         decisions.append(Decision(mesh.name, method, why, f))

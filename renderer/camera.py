@@ -35,32 +35,50 @@ class Camera:
     def aspect(self) -> float:
         return self.width / self.height
 
+    # basis and matrices are computed once per camera (a frame asks for them a dozen times)
+    # and handed out read-only
+
+    def _kept(self, name: str, make):
+        value = self.__dict__.get(name)
+        if value is None:
+            value = make()
+            for a in (value if isinstance(value, tuple) else (value,)):
+                a.setflags(write=False)
+            object.__setattr__(self, name, value)  # frozen: a cache, not a field
+        return value
+
     def basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(right, up, forward) unit vectors in world space."""
-        f = self.target - self.position
-        f = f / np.linalg.norm(f)
-        r = np.cross(f, self.up)
-        r = r / np.linalg.norm(r)
-        return r, np.cross(r, f), f
+        def make():
+            f = self.target - self.position
+            f = f / np.linalg.norm(f)
+            r = np.cross(f, self.up)
+            r = r / np.linalg.norm(r)
+            return r, np.cross(r, f), f
+        return self._kept("_basis", make)
 
     def view_matrix(self) -> np.ndarray:
-        r, u, f = self.basis()
-        m = np.eye(4)
-        m[0, :3], m[1, :3], m[2, :3] = r, u, -f
-        m[:3, 3] = -m[:3, :3] @ self.position
-        return m
+        def make():
+            r, u, f = self.basis()
+            m = np.eye(4)
+            m[0, :3], m[1, :3], m[2, :3] = r, u, -f
+            m[:3, 3] = -m[:3, :3] @ self.position
+            return m
+        return self._kept("_view", make)
 
     def projection_matrix(self) -> np.ndarray:
         """OpenGL perspective projection (depth -1..1 in NDC)."""
-        t = 1.0 / math.tan(math.radians(self.fov) / 2)
-        n, f = self.near, self.far
-        m = np.zeros((4, 4))
-        m[0, 0] = t / self.aspect
-        m[1, 1] = t
-        m[2, 2] = (f + n) / (n - f)
-        m[2, 3] = 2 * f * n / (n - f)
-        m[3, 2] = -1.0
-        return m
+        def make():
+            t = 1.0 / math.tan(math.radians(self.fov) / 2)
+            n, f = self.near, self.far
+            m = np.zeros((4, 4))
+            m[0, 0] = t / self.aspect
+            m[1, 1] = t
+            m[2, 2] = (f + n) / (n - f)
+            m[2, 3] = 2 * f * n / (n - f)
+            m[3, 2] = -1.0
+            return m
+        return self._kept("_projection", make)
 
     def ray_directions(self) -> np.ndarray:
         """Unit world directions through pixel centres, H x W x 3, row 0 at the image top."""

@@ -1,8 +1,9 @@
 """`render(asset, env, options) -> Frame`: one offscreen frame of a baked asset.
 
 Passes: opaque and mask meshes, transmissive meshes by their method, blend meshes back to
-front, all into one MSAA float framebuffer; then one final pass (resolve + background +
-tone mapping, shaders/final.frag) into RGBA8 and float targets, and one readback of each.
+front, all into one MSAA float framebuffer; then the final pass (resolve + background +
+shadow + tone mapping, shaders/final.frag) into RGBA8 and float targets, drawn per region
+with only the work each region's pixels need (renderer.regions), and one readback of each.
 
 Methods plug in per object: `register_method(name, fn)` adds a raster method (the refraction
 module adds `single` and `wyman`), `register_frame_method(name, fn)` a whole-frame one
@@ -27,7 +28,7 @@ from core.cubemap import env_rotation_matrix
 from core.options import RenderOptions, apply_override, background_rgb
 from core.scene import Material, is_srgb
 
-from . import gpu, shadow
+from . import gpu, regions, shadow
 from .camera import Camera
 from .frame import Frame, FrameTimings, alpha_is_mask, exposure_scale
 from .framing import asset_camera
@@ -191,15 +192,37 @@ def render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions) -> 
         return _render(asset, env, options, auto)
 
 
+def render_supersampled(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
+                        factor: int = 4) -> Frame:
+    """The raster frame with `factor` x `factor` samples per pixel, each shaded (no MSAA),
+    averaged by the final pass before tone mapping as MSAA samples are: the anti-aliasing
+    reference that the default frame's edges are measured against (bench thumbnail,
+    tests/test_antialiasing.py). Slow: factor**2 times the shading work."""
+    validate_options(options)
+    asset = asset.with_variant(options.variant)
+    if options.method in _FRAME_METHODS:
+        raise UnsupportedMethod(f"method {options.method!r} draws no raster frame to supersample")
+    auto = None
+    if options.method == "auto":
+        from .auto import plan_request
+        auto = plan_request(asset, options, available_methods())
+        if auto.frame_method:
+            raise UnsupportedMethod(f"auto chose {auto.frame_method}: no raster frame to supersample")
+        if auto.tir:
+            options = dataclasses.replace(options, tir=auto.tir)
+    with _lock:
+        return _render(asset, env, dataclasses.replace(options, msaa=0), auto, int(factor))
+
+
 _lock = threading.RLock()
 
 
 def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
-            auto=None) -> Frame:
+            auto=None, supersample: int = 1) -> Frame:
     t0 = time.perf_counter()
     ctx = context.get_context()
     uploads_before = dict(gpu.stats)
-    gasset = gpu.asset(asset, max(options.width, options.height))
+    gasset = gpu.asset(asset, max(options.width, options.height) * supersample)
     genv = gpu.environment(env)
     t_upload = time.perf_counter()
 
@@ -207,12 +230,16 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     camera, shadowed, shadow_why = asset_camera(asset, options)
     items = _plan_items(gasset, options, auto)
     lights = gasset.lights[:MAX_LIGHTS] if options.lights else []
-    target = _target(ctx, w, h, options.msaa)
+    target = _target(ctx, w, h, options.msaa, supersample)
     pass_ = Pass(ctx, target.draw_fbo, camera, genv, gasset, options,
                  _frame_defines(options, lights), _frame_uniforms(camera, genv, lights, options))
+    polygon = regions.object_polygon(camera, regions.hull_points(asset), w, h)
+    if polygon is not None:  # before the geometry: llvmpipe draws it while Python goes on
+        _mark_object(ctx, target.out_fbo, polygon, w, h)
 
     target.draw_fbo.use()
-    ctx.viewport = (0, 0, w, h)
+    ctx.viewport = (0, 0, w * supersample, h * supersample)
+    # Cleared whole: llvmpipe clears a scissored part of an MSAA target by drawing, slower.
     target.draw_fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
     ctx.disable(moderngl.BLEND)
     ctx.enable(moderngl.DEPTH_TEST)
@@ -242,7 +269,7 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     ground = (shadow.ground_shadow(ctx, asset.key, gasset.meshes, asset.bounds, options.shadow)
               if shadowed else None)
     t_draw_end = time.perf_counter()
-    linear, rgba8 = _finish(ctx, target, camera, genv, options, ground)
+    linear, rgba8 = _finish(ctx, target, camera, genv, options, ground, polygon)
     t_end = time.perf_counter()
     plan = {
         "method": options.method,
@@ -256,6 +283,7 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
                  "distance": round(float(np.linalg.norm(camera.position - camera.target)), 6)},
         "tonemap": options.tonemap,
         "msaa": target.samples,
+        **({"supersample": supersample} if supersample > 1 else {}),
         "uploaded": {k: gpu.stats[k] - uploads_before[k] for k in ("asset_uploads", "environment_uploads")},
     }
     if auto is not None:
@@ -472,10 +500,12 @@ def _draw_blend(p: Pass, items: list[DrawItem]) -> None:
 @dataclass
 class _Target:
     samples: int
+    supersample: int                     # draw_fbo is this many times the output on each axis
     draw_fbo: moderngl.Framebuffer       # geometry: MSAA colour (premultiplied linear) + depth
     frame_tex: moderngl.Texture          # its colour, read by the final pass
     out_fbo: moderngl.Framebuffer        # final pass: display RGBA8 + linear RGBA32F
     resources: list
+    rows: tuple | None = None            # the gradient per row: (linear, display) 1 x h textures
 
 
 _targets: dict[tuple, _Target] = {}
@@ -483,16 +513,16 @@ _targets_ctx: int | None = None
 MAX_TARGETS = 4
 
 
-def _target(ctx: moderngl.Context, w: int, h: int, msaa: int) -> _Target:
+def _target(ctx: moderngl.Context, w: int, h: int, msaa: int, supersample: int = 1) -> _Target:
     global _targets_ctx
     if _targets_ctx != id(ctx):
         _targets.clear()
         _targets_ctx = id(ctx)
     samples = 0 if msaa <= 1 else min(int(msaa), ctx.max_samples)
-    key = (w, h, samples)
+    key = (w, h, samples, supersample)
     t = _targets.pop(key, None)
     if t is None:
-        t = _make_target(ctx, w, h, samples)
+        t = _make_target(ctx, w, h, samples, supersample)
     _targets[key] = t
     while len(_targets) > MAX_TARGETS:
         for r in _targets.pop(next(iter(_targets))).resources:
@@ -500,70 +530,184 @@ def _target(ctx: moderngl.Context, w: int, h: int, msaa: int) -> _Target:
     return t
 
 
-def _make_target(ctx, w, h, samples) -> _Target:
+def _make_target(ctx, w, h, samples, supersample=1) -> _Target:
     # RGBA16F samples: half the memory traffic of 32F on a CPU rasteriser; 11-bit mantissa.
-    frame_tex = ctx.texture((w, h), 4, samples=samples, dtype="f2")
-    depth = ctx.depth_renderbuffer((w, h), samples=samples)
+    size = (w * supersample, h * supersample)
+    frame_tex = ctx.texture(size, 4, samples=samples, dtype="f2")
+    depth = ctx.depth_renderbuffer(size, samples=samples)
     draw_fbo = ctx.framebuffer([frame_tex], depth)
     display = ctx.texture((w, h), 4, dtype="f1")
     linear = ctx.texture((w, h), 4, dtype="f4")
-    out_fbo = ctx.framebuffer([display, linear])
-    return _Target(samples, draw_fbo, frame_tex, out_fbo,
-                   [out_fbo, draw_fbo, display, linear, depth, frame_tex])
+    mask = ctx.depth_renderbuffer((w, h))  # the final pass's regions (renderer.regions)
+    out_fbo = ctx.framebuffer([display, linear], mask)
+    return _Target(samples, supersample, draw_fbo, frame_tex, out_fbo,
+                   [out_fbo, draw_fbo, display, linear, mask, depth, frame_tex])
 
 
 _BACKGROUND_MODES = {"transparent": 0, "env": 2, "gradient": 3}
 
 
 def _finish(ctx, target: _Target, camera: Camera, env: gpu.GpuEnvironment,
-            options: RenderOptions, ground: "shadow.GroundShadow | None" = None
-            ) -> tuple[np.ndarray, np.ndarray]:
-    """One pass: resolve, background, shadow, tone map; then one readback of each output."""
+            options: RenderOptions, ground: "shadow.GroundShadow | None" = None,
+            polygon: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The final pass (resolve, background, shadow, tone map), then one readback of each
+    output. Drawn as up to four programs over the regions that need them (renderer.regions):
+    the object's work inside its silhouette bound `polygon` (regions.object_polygon; marked
+    in the depth buffer, so the early depth test skips whole blocks), the shadow's inside its rectangle
+    (scissor). The pixels are those of one full-screen pass doing everything."""
     w, h = options.width, options.height
-    bg = background_rgb(options.background)
-    mode = _BACKGROUND_MODES.get(options.background, 1)
-    defines = {"TONEMAP": _TONEMAPS[options.tonemap], "BACKGROUND": mode,
-               "SAMPLES": max(target.samples, 1), "SHADOW": int(ground is not None)}
-    if options.alpha == "coverage":
-        defines["COVERAGE_ALPHA"] = 1
-    rotated = mode == 2 and _env_rotated(options)
-    if rotated:
-        defines["ENV_ROTATED"] = 1
-    prog = context.program("screen_triangle.vert", "final.frag", defines)
-    u = cast(dict, prog)  # uniforms by name (moderngl's stubs type members as a union)
-    u["u_frame"].value = 0
-    u["u_height"].value = h
-    u["u_exposure_scale"].value = exposure_scale(options.exposure)
-    if mode == 2 or ground is not None:
-        r, up, f = camera.basis()
-        th = math.tan(math.radians(camera.fov) / 2)
-        u["u_camera_basis"].write(np.ascontiguousarray(np.stack([r, up, f]), np.float32).tobytes())
-        u["u_tan_half_fov"].value = (th * camera.aspect, th)
-    if ground is not None:
-        u["u_camera_position"].value = tuple(map(float, camera.position))
-        u["u_ground"].value = ground.ground
-        u["u_shadow_rect"].value = ground.rect
-        u["u_shadow_strength"].value = float(ground.strength)
-        u["u_shadow"].value = 2
-        ground.texture.use(2)
-    if mode == 1:
-        u["u_background"].value = bg
-    elif mode == 3:
-        u["u_gradient_top"].value, u["u_gradient_bottom"].value = GRADIENT
-    elif mode == 2:
-        u["u_blur"].value = float(min(max(options.background_blur, 0.0), 1.0))
-        u["u_env_max_lod"].value = env.max_lod
-        u["u_env"].value = 1
-        if rotated:
-            u["u_env_rotation"].write(_mat3_bytes(env_rotation_matrix(options.env_rotation)))
-        env.cube.use(1)
-    target.out_fbo.use()
-    ctx.viewport = (0, 0, w, h)
+    full = (0, 0, w, h)
+    shade: regions.Rect | None = None
+    if ground is not None and ground.reach is None:
+        ground = None  # a map of zeros: no pixel would be shaded
+    if ground is not None and ground.reach is not None:
+        x0, z0, dx, dz = ground.reach
+        y = ground.ground
+        shade = regions.screen_rect(camera, np.array(
+            [[x0, y, z0], [x0 + dx, y, z0], [x0, y, z0 + dz], [x0 + dx, y, z0 + dz]]), w, h)
+    fbo = target.out_fbo
+    fbo.use()
+    ctx.viewport = full
+    rows = options.background == "gradient"
+    if rows:
+        _gradient_rows(ctx, target, camera, env, options)
+        fbo.use()
+        ctx.viewport = full
     target.frame_tex.use(0)
-    context.fullscreen_vao(prog).render(moderngl.TRIANGLES, vertices=3)
+    uniforms = _final_uniforms(target, camera, env, options, ground, rows)
+    fbo.depth_mask = False
+    # Fragments of the full-screen triangle lie at depth 1: the object's program passes
+    # where the bound wrote 0, the background's elsewhere.
+    kinds = [(True, ">"), (False, "<=")] if polygon is not None else [(True, "")]
+    reach = regions.bounding_rect(polygon, w, h) if polygon is not None and len(polygon) else None
+    for has_object, depth_func in kinds:
+        if depth_func:
+            ctx.enable(moderngl.DEPTH_TEST)
+            ctx.depth_func = depth_func
+        else:
+            ctx.disable(moderngl.DEPTH_TEST)
+        parts = [(True, shade)] if shade is not None else []
+        parts += [(False, r) for r in (regions.subtract(full, shade) if shade is not None else [full])]
+        for has_shadow, rect in parts:
+            part: regions.Rect | None = rect
+            if has_object and depth_func:  # the bound's rectangle: no blocks to reject beyond it
+                part = regions.intersect(rect, reach) if reach is not None else None
+            if part is None or part[2] <= 0 or part[3] <= 0:
+                continue
+            prog = _final_program(target, options, has_object, has_shadow, rows, uniforms)
+            ctx.scissor = part  # the output's GL rows are image rows from the top (final.frag)
+            context.fullscreen_vao(prog).render(moderngl.TRIANGLES, vertices=3)
+    ctx.scissor = None
+    ctx.disable(moderngl.DEPTH_TEST)
+    ctx.depth_func = "<"
+    fbo.depth_mask = True
     # final.frag writes rows top-first, so reading straight into numpy needs no flip or copy.
     linear = np.empty((h, w, 4), np.float32)
     rgba8 = np.empty((h, w, 4), np.uint8)
-    target.out_fbo.read_into(linear, components=4, attachment=1, dtype="f4")
-    target.out_fbo.read_into(rgba8, components=4, attachment=0)
+    fbo.read_into(linear, components=4, attachment=1, dtype="f4")
+    fbo.read_into(rgba8, components=4, attachment=0)
     return linear, rgba8
+
+
+_mask_draw: dict[int, tuple[moderngl.Buffer, moderngl.VertexArray]] = {}
+MAX_POLYGON = 64  # vertices: 4 frame corners cut by 16 half-planes leave at most 20
+
+
+def _mark_object(ctx, fbo: moderngl.Framebuffer, polygon: np.ndarray, w: int, h: int) -> None:
+    """Depth 0 inside the silhouette bound, 1 elsewhere (colour untouched): the final pass
+    (_finish) tests against it."""
+    fbo.use()
+    ctx.viewport = (0, 0, w, h)
+    fbo.color_mask = ((False,) * 4,) * 2  # type: ignore[assignment]  # one per attachment
+    fbo.clear(depth=1.0)
+    if 3 <= len(polygon) <= MAX_POLYGON:  # fewer: the object is out of view
+        prog = context.program("region_mask.vert", "region_mask.frag", {})
+        cast(dict, prog)["u_size"].value = (float(w), float(h))
+        if id(ctx) not in _mask_draw:
+            buf = ctx.buffer(reserve=MAX_POLYGON * 8)
+            _mask_draw.clear()
+            _mask_draw[id(ctx)] = (buf, ctx.vertex_array(prog, [(buf, "2f", "in_pixel")]))
+        buf, vao = _mask_draw[id(ctx)]
+        buf.write(np.ascontiguousarray(polygon, np.float32).tobytes())
+        ctx.enable(moderngl.DEPTH_TEST)
+        ctx.depth_func = "1"  # always passes: the bound is all that is drawn
+        vao.render(moderngl.TRIANGLE_FAN, vertices=len(polygon))
+        ctx.depth_func = "<"
+        ctx.disable(moderngl.DEPTH_TEST)
+    fbo.color_mask = ((True,) * 4,) * 2  # type: ignore[assignment]
+
+
+def _gradient_rows(ctx, target: _Target, camera: Camera, env: gpu.GpuEnvironment,
+                   options: RenderOptions) -> None:
+    """The gradient's linear and display value per row, once per target: the background
+    program drawn into a 1-pixel-wide target under the frame's viewport, so each row holds
+    what the program computes anywhere on that row."""
+    if target.rows is not None:
+        return
+    h = options.height
+    linear = ctx.texture((1, h), 4, dtype="f4")
+    display = ctx.texture((1, h), 4, dtype="f1")
+    fbo = ctx.framebuffer([display, linear])
+    fbo.use()
+    ctx.viewport = (0, 0, options.width, h)  # the frame's: v_ndc is interpolated as there
+    ctx.disable(moderngl.DEPTH_TEST)
+    uniforms = _final_uniforms(target, camera, env, options, None, False)
+    prog = _final_program(target, options, False, False, False, uniforms)
+    context.fullscreen_vao(prog).render(moderngl.TRIANGLES, vertices=3)
+    target.rows = (linear, display)
+    target.resources += [fbo, linear, display]
+
+
+def _final_uniforms(target: _Target, camera: Camera, env: gpu.GpuEnvironment,
+                    options: RenderOptions, ground: "shadow.GroundShadow | None",
+                    rows: bool) -> dict:
+    """Every uniform any region's final.frag reads, once per frame (each program takes the
+    ones it has), and the textures bound to their units."""
+    mode = _BACKGROUND_MODES.get(options.background, 1)
+    u: dict = {"u_frame": 0, "u_height": options.height,
+               "u_exposure_scale": exposure_scale(options.exposure)}
+    if rows and target.rows is not None:
+        u.update(u_rows_linear=3, u_rows_display=4)
+        target.rows[0].use(3)
+        target.rows[1].use(4)
+    if mode == 2 or ground is not None:
+        th = math.tan(math.radians(camera.fov) / 2)
+        u["u_camera_basis"] = np.ascontiguousarray(np.stack(camera.basis()), np.float32).tobytes()
+        u["u_tan_half_fov"] = (th * camera.aspect, th)
+    if ground is not None:
+        u.update(u_camera_position=tuple(map(float, camera.position)), u_ground=ground.ground,
+                 u_shadow_rect=ground.rect, u_shadow_strength=float(ground.strength), u_shadow=2)
+        ground.texture.use(2)
+    if mode == 1:
+        u["u_background"] = background_rgb(options.background)
+    elif mode == 3:
+        u["u_gradient_top"], u["u_gradient_bottom"] = GRADIENT
+    elif mode == 2:
+        u.update(u_blur=float(min(max(options.background_blur, 0.0), 1.0)),
+                 u_env_max_lod=env.max_lod, u_env=1)
+        if _env_rotated(options):
+            u["u_env_rotation"] = _mat3_bytes(env_rotation_matrix(options.env_rotation))
+        env.cube.use(1)
+    return u
+
+
+def _final_program(target: _Target, options: RenderOptions, has_object: bool, has_shadow: bool,
+                   rows: bool, uniforms: dict) -> moderngl.Program:
+    """final.frag for one kind of region, with the frame's `uniforms` it reads set."""
+    mode = _BACKGROUND_MODES.get(options.background, 1)
+    defines = {"TONEMAP": _TONEMAPS[options.tonemap], "BACKGROUND": mode,
+               "SAMPLES": max(target.samples, 1), "SHADOW": int(has_shadow),
+               "OBJECT": int(has_object), "SUPERSAMPLE": target.supersample, "ROWS": int(rows)}
+    if options.alpha == "coverage":
+        defines["COVERAGE_ALPHA"] = 1
+    if mode == 2 and _env_rotated(options):
+        defines["ENV_ROTATED"] = 1
+    prog = context.program("screen_triangle.vert", "final.frag", defines)
+    members = cast(dict, prog)
+    for name, value in uniforms.items():
+        if name in prog:  # a region's program may lack some
+            if isinstance(value, bytes):
+                members[name].write(value)
+            else:
+                members[name].value = value
+    return prog

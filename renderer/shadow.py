@@ -33,6 +33,9 @@ class GroundShadow:
     ground: float                      # world y
     rect: tuple[float, float, float, float]  # x0, z0, width, depth of the map on the ground
     strength: float
+    # the part of `rect` where the map can shade at all (its nonzero texels, grown by the
+    # bilinear footprint): outside it the final pass would compute no shade
+    reach: tuple[float, float, float, float] | None = None
 
 
 def decide(bounds: np.ndarray, camera_position: np.ndarray, strength: float,
@@ -144,5 +147,19 @@ def _render_map(ctx: moderngl.Context, meshes, bounds: np.ndarray, scratch) -> G
         src.use(0)
         b["u_step"].value = step
         vao.render(moderngl.TRIANGLES, vertices=3)
+    rect = (centre[0] - half, centre[2] - half, 2 * half, 2 * half)
+    texels = np.frombuffer(out_fbo.read(components=1, dtype="f2"), np.float16).reshape(MAP_SIZE, MAP_SIZE)
     out_fbo.release()
-    return GroundShadow(out, float(lo[1]), (centre[0] - half, centre[2] - half, 2 * half, 2 * half), 1.0)
+    return GroundShadow(out, float(lo[1]), rect, 1.0, _reach(texels, rect))
+
+
+def _reach(texels: np.ndarray, rect) -> tuple[float, float, float, float] | None:
+    """The ground rectangle outside which bilinear lookups of the map read only zeros
+    (rows are z, columns x); None when it shades nowhere."""
+    rows, cols = np.nonzero(texels > 0)
+    if len(rows) == 0:
+        return None
+    step_x, step_z = rect[2] / MAP_SIZE, rect[3] / MAP_SIZE
+    x0, x1 = max(int(cols.min()) - 1, 0), min(int(cols.max()) + 2, MAP_SIZE)
+    z0, z1 = max(int(rows.min()) - 1, 0), min(int(rows.max()) + 2, MAP_SIZE)
+    return (rect[0] + x0 * step_x, rect[1] + z0 * step_z, (x1 - x0) * step_x, (z1 - z0) * step_z)

@@ -5,10 +5,28 @@
 // instead of with a blit, is what makes MSAA affordable on a CPU rasteriser.
 // BACKGROUND: 0 transparent, 1 colour, 2 environment, 3 the studio gradient. SHADOW 1: the
 // ground contact shadow (renderer/shadow.py) darkens the background, never the object.
+// OBJECT 0: a region of the frame the object does not reach (renderer.render draws the pass
+// in scissored regions, each with only the work its pixels need): no MSAA fetch, coverage 0.
 // Outputs: 0 = display RGBA8 (straight alpha), 1 = linear RGBA float (premultiplied).
 // renderer/frame.py holds the same tone-mapping arithmetic in numpy.
 #include "ibl.glsl"
 
+#ifndef OBJECT
+#define OBJECT 1
+#endif
+#ifndef SUPERSAMPLE
+#define SUPERSAMPLE 1
+#endif
+// ROWS 1 (BACKGROUND 3): the gradient's value per row, linear and display, read from a column
+// that this same program drew without ROWS (renderer.render._gradient_rows): the gradient
+// depends on the row alone, and reading it costs less than the sRGB arithmetic.
+#ifndef ROWS
+#define ROWS 0
+#endif
+#if ROWS
+uniform sampler2D u_rows_linear;
+uniform sampler2D u_rows_display;
+#endif
 #if SAMPLES > 1
 uniform sampler2DMS u_frame;
 #else
@@ -104,7 +122,14 @@ void main() {
     // Output row 0 is the image top (what numpy and image files expect), so the source row
     // and the view direction are flipped vertically.
     ivec2 xy = ivec2(gl_FragCoord.x, u_height - 1 - int(gl_FragCoord.y));
-#if SAMPLES > 1
+#if !OBJECT
+    vec4 p = vec4(0.0);
+#elif SUPERSAMPLE > 1  // renderer.render.render_supersampled: a box over K x K texels
+    vec4 p = vec4(0.0);
+    for (int j = 0; j < SUPERSAMPLE; ++j)
+        for (int i = 0; i < SUPERSAMPLE; ++i) p += texelFetch(u_frame, xy * SUPERSAMPLE + ivec2(i, j), 0);
+    p /= float(SUPERSAMPLE * SUPERSAMPLE);
+#elif SAMPLES > 1
     vec4 p = vec4(0.0);
     for (int i = 0; i < SAMPLES; ++i) p += texelFetch(u_frame, xy, i);
     p /= float(SAMPLES);
@@ -122,20 +147,39 @@ void main() {
     f_linear = vec4(c, OUT_ALPHA);
     f_display = vec4(display(c), OUT_ALPHA);
 #elif BACKGROUND == 1 || BACKGROUND == 3
+#if ROWS
+    ivec2 row = ivec2(0, gl_FragCoord.y);
+#if !OBJECT && !SHADOW
+    f_linear = vec4(texelFetch(u_rows_linear, row, 0).rgb, OUT_ALPHA);
+    f_display = vec4(texelFetch(u_rows_display, row, 0).rgb, OUT_ALPHA);
+    return;
+#endif
+    vec3 bg_linear = texelFetch(u_rows_linear, row, 0).rgb;
+#else
 #if BACKGROUND == 1
     vec3 bg = u_background;
 #else
     vec3 bg = mix(u_gradient_bottom, u_gradient_top, 0.5 - 0.5 * v_ndc.y);  // v_ndc.y: -1 at the top row
 #endif
-    vec3 bg_linear = srgb_to_linear(bg) * (a < 1.0 ? 1.0 - ground_shade() : 1.0);
+    vec3 bg_linear = srgb_to_linear(bg);
+#endif
+    bg_linear *= (a < 1.0 ? 1.0 - ground_shade() : 1.0);
     f_linear = vec4(p.rgb + (1.0 - a) * bg_linear, OUT_ALPHA);
     // The background shows the colour asked for (not tone-mapped), darkened by the shadow.
+#if OBJECT
     f_display = vec4(display(p.rgb / max(a, 1e-6)) * a + srgb_encode(bg_linear) * (1.0 - a), OUT_ALPHA);
+#else  // a = 0: the same value, without tone mapping a black that is then weighted by 0
+    f_display = vec4(srgb_encode(bg_linear), OUT_ALPHA);
+#endif
 #else
     // Transparent: the shadow is black with its own alpha, under the object.
     float s = a < 1.0 ? ground_shade() : 0.0;
     float alpha = a + (1.0 - a) * s;
     f_linear = vec4(p.rgb, alpha);
+#if OBJECT
     f_display = vec4(display(p.rgb / max(a, 1e-6)) * a / max(alpha, 1e-6), alpha);
+#else
+    f_display = vec4(vec3(0.0), alpha);
+#endif
 #endif
 }

@@ -1,0 +1,106 @@
+"""The final pass drawn in regions (renderer.regions) writes exactly the pixels of one
+full-screen pass doing all the work, and its regions hold every pixel the object reaches."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import pipeline
+from core.cubemap import default_face_size
+from core.options import RenderOptions
+from pipeline.panorama import DEFAULT_ENVIRONMENT
+from renderer import regions, render
+from renderer.framing import request_camera
+
+SAMPLES = ["gltf/Duck.glb", "gltf-samples/SheenCloth/glTF/SheenCloth.gltf",
+           "gltf-samples/SimpleInstancing/glTF/SimpleInstancing.gltf",
+           "gltf-samples/NegativeScaleTest/glTF-Binary/NegativeScaleTest.glb",
+           "gltf-samples/AttenuationTest/glTF/AttenuationTest.gltf"]  # refraction (wyman)
+LOOKS = [{}, {"background": "transparent"}, {"background": "env"}, {"alpha": "coverage"},
+         {"distance": 0.5, "background": "#203040"},  # close: the camera may be inside the hull
+         {"yaw": 200.0, "pitch": -10.0, "shadow": 0.0}]
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    return tmp_path_factory.mktemp("regions")
+
+
+def _one_pass(monkeypatch):
+    """The final pass as a single full-screen draw with every piece of work in it."""
+    monkeypatch.setattr(regions, "object_polygon", lambda *a: None)
+    monkeypatch.setattr(regions, "screen_rect", lambda camera, points, w, h, pad=2: (0, 0, w, h))
+
+
+@pytest.mark.parametrize("rel", SAMPLES)
+def test_regions_write_the_pixels_of_one_full_screen_pass(assets, cache, rel, monkeypatch):
+    asset = pipeline.bake_asset(assets / rel, cache)
+    env = pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(96))
+    base = RenderOptions(width=96, height=80)
+    for look in LOOKS:
+        o = dataclasses.replace(base, **look)
+        split = render(asset, env, o)
+        with monkeypatch.context() as m:
+            _one_pass(m)
+            whole = render(asset, env, o)
+        assert np.array_equal(split.rgba8, whole.rgba8), (rel, look)
+        assert np.array_equal(split.linear, whole.linear), (rel, look)
+
+
+def test_object_polygon_holds_every_covered_pixel(assets, cache):
+    """Every pixel with any coverage lies inside the silhouette bound, which is much
+    smaller than the frame for the Duck (the work it saves)."""
+    asset = pipeline.bake_asset(assets / "gltf/Duck.glb", cache)
+    env = pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(128))
+    o = RenderOptions(width=128, height=128, background="transparent", shadow=0.0)
+    frame = render(asset, env, o)
+    poly = regions.object_polygon(request_camera(asset, o), regions.hull_points(asset), 128, 128)
+    assert poly is not None and len(poly) >= 3
+    from matplotlib.path import Path as PolyPath
+    ys, xs = np.nonzero(frame.linear[..., 3] > 0)
+    inside = PolyPath(poly).contains_points(np.c_[xs + 0.5, ys + 0.5])
+    assert inside.all(), f"{(~inside).sum()} covered pixels outside the bound"
+    x, y = poly[:, 0], poly[:, 1]
+    area = 0.5 * abs(np.dot(x, np.roll(y, 1)) - np.dot(y, np.roll(x, 1)))
+    assert area < 0.6 * 128 * 128
+
+
+def test_polygon_is_none_when_the_camera_is_among_the_points():
+    from renderer.camera import Camera
+    cam = Camera(np.zeros(3), np.array([0.0, 0.0, -1.0]), np.array([0.0, 1.0, 0.0]), 40.0,
+                 64, 64, 0.01, 100.0)
+    hull = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+    assert regions.object_polygon(cam, hull, 64, 64) is None
+    assert regions.screen_rect(cam, hull, 64, 64) == (0, 0, 64, 64)
+    ahead = hull + [0.0, 0.0, -10.0]
+    poly = regions.object_polygon(cam, ahead, 64, 64)
+    assert poly is not None and 3 <= len(poly) <= 20
+    assert (poly[:, 0].min() > 0) and (poly[:, 0].max() < 64)
+
+
+def test_rect_subtraction_tiles_the_rest():
+    a, b = (0, 0, 10, 8), (3, 2, 4, 3)
+    parts = regions.subtract(a, b)
+    cover = np.zeros((8, 10), int)
+    for x, y, w, h in parts + [b]:
+        cover[y:y + h, x:x + w] += 1
+    assert (cover == 1).all()
+    assert regions.subtract(a, (20, 20, 2, 2)) == [a]
+    assert regions.intersect(a, (20, 20, 2, 2)) is None
+
+
+def test_big_meshes_are_bounded_by_their_boxes(assets, cache, monkeypatch):
+    """Past MAX_HULL_MESH vertices a mesh is bounded by its box's corners (qhull's cost and
+    the hull's size grow with the mesh): still every covered pixel inside, same pixels."""
+    from collections import OrderedDict
+    asset = pipeline.bake_asset(assets / "gltf/Duck.glb", cache)
+    env = pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(96))
+    o = RenderOptions(width=96, height=96)
+    exact = render(asset, env, o)
+    monkeypatch.setattr(regions, "MAX_HULL_MESH", 10)
+    monkeypatch.setattr(regions, "_hulls", OrderedDict())
+    assert len(regions.hull_points(asset)) == 8
+    boxed = render(asset, env, o)
+    assert np.array_equal(exact.rgba8, boxed.rgba8) and np.array_equal(exact.linear, boxed.linear)
