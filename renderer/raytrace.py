@@ -76,11 +76,11 @@ from core.baked import BakedAsset, BakedEnvironment
 from core.cubemap import env_rotation_matrix, sample_cube
 from core.options import RenderOptions, apply_override, background_rgb
 
+from . import trace_kernel
 from .camera import Camera
 from .framing import asset_camera
 from .optics import fresnel_dielectric, reflect, refract, sample_rough_dielectric
 from .render import register_frame_method
-from . import trace_kernel
 
 log = logging.getLogger(__name__)
 

@@ -60,7 +60,7 @@ def test_matches_mitsuba_reference(name, limit, reference_env, scene_cache):
     ("glass_torus_ior1.5", 0.05),       # [0.032] genus 1
     ("glass_torus_ior2.4", 0.05),       # [0.035]
     ("glass_bunny_ior1.5", 0.13),       # [0.088] open mesh, sub-pixel detail at 128 px
-    ("frosted_sphere_ior1.5_r0.3", 0.16),  # [0.113] rough lobes as prefiltered mips, not traced
+    ("frosted_sphere_ior1.5_r0.3", 0.16),  # [0.128] sampled rough lobes, 16 rays a pixel (noise)
 ])
 def test_hard_cases_finite_and_error_recorded(name, limit, reference_env, scene_cache):
     frame = render(name, reference_env, scene_cache)
@@ -270,17 +270,21 @@ def test_compiled_kernel_matches_its_numpy_twin(name, opts, reference_env, scene
 def test_traced_rough_lobes_converge_to_mitsuba(reference_env, scene_cache):
     """Frosted glass (roughness 0.3, Mitsuba's roughdielectric GGX at 1024 spp): sampled
     lobes get closer to the reference with more rays, well below the prefiltered mips'
-    floor, and unbiased: the object's mean radiance matches."""
+    floor, and unbiased: the object's mean radiance matches [+0.5% at 16 bounces; +1.2% at 8,
+    where the paths still inside read the sky without the exit's Fresnel loss]."""
     name = "frosted_sphere_ior1.5_r0.3"
     ref = load_reference(name)
-    mask = ref[..., 3] > 0
     pre = render(name, reference_env, scene_cache, rough_lobes="prefilter").linear
     s4 = render(name, reference_env, scene_cache).linear
-    s8 = render(name, reference_env, scene_cache, supersample=8, fresnel_split="roulette").linear
+    s8 = render(name, reference_env, scene_cache, supersample=8, fresnel_split="roulette",
+                bounces=16).linear
     again = render(name, reference_env, scene_cache).linear
     np.testing.assert_array_equal(s4, again)  # deterministic: seeds hashed from pixel and bounce
     e_pre, e4, e8 = (relative_mae(x, ref) for x in (pre, s4, s8))
-    assert e8 < 0.85 * e4 < 0.85 * e_pre and e8 < 0.08, (e_pre, e4, e8)  # [0.112, 0.083, 0.058]
+    # [0.110, 0.128, 0.065]: at 16 rays a pixel the noise's mean absolute error exceeds the
+    # prefilter's bias (FLIP ranks them the other way: 0.089 vs 0.139); 64 rays beat both
+    assert e8 < 0.7 * e_pre and e8 < 0.7 * e4 and e8 < 0.08, (e_pre, e4, e8)
+    mask = ref[..., 3] > 0.999  # pixels the object covers whole
     bias = s8[..., :3][mask].mean() / ref[..., :3][mask].mean() - 1
     assert abs(bias) < 0.01, bias
 
