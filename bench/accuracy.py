@@ -12,9 +12,9 @@ cheap scenes, up to MAX_ROUNDS so that each gets ~ROUND_MS of runs. The peer, Mi
 Methods: `opaque` (opaque scenes), `single`, `wyman/tir=paper`, `wyman/tir=reflect`,
 `raytrace-N` (N = 1, 2, 4, 8 bounces; opaque scenes 1), `raytrace-N/split=sample` (N = 4, 8:
 one Fresnel child per interface below the first, RenderOptions.fresnel_split),
-`raytrace-8/split=roulette[/ss=K]` (both children, the weak ones by Russian roulette, K x K
+`raytrace-12/split=roulette[/ss=K]` (both children, the weak ones by Russian roulette, K x K
 rays a pixel; K = 2, 3, default, 6), on rough scenes `raytrace-8/lobes=prefilter/ss=2` (rough
-lobes as prefiltered mips, RenderOptions.rough_lobes) and `raytrace-8/split=roulette/ss=8`,
+lobes as prefiltered mips, RenderOptions.rough_lobes) and `raytrace-12/split=roulette/ss=8`,
 `auto` (no time budget), `auto+budget`
 (auto with `--budget-ms`, only where auto would ray trace) and, on scenes with a rough
 material, `auto/prefilter=paper` (the environment prefiltered the paper's way instead of GGX).
@@ -53,9 +53,9 @@ RAYTRACE_BOUNCES = (1, 2, 4, 8)
 SAMPLED_BOUNCES = (4, 8)  # raytrace with fresnel_split=sample (transmissive scenes)
 # Russian-roulette splitting at 2 x 2 ... 6 x 6 rays a pixel (transmissive scenes); rough
 # ones add the prefiltered lobes at 2 x 2 (cheap) and 8 x 8 sampled lobes (converged).
-ROULETTE_METHODS = ("raytrace-8/split=roulette/ss=2", "raytrace-8/split=roulette/ss=3",
-                    "raytrace-8/split=roulette", "raytrace-8/split=roulette/ss=6")
-ROUGH_METHODS = ("raytrace-8/lobes=prefilter/ss=2", "raytrace-8/split=roulette/ss=8")
+ROULETTE_METHODS = ("raytrace-12/split=roulette/ss=2", "raytrace-12/split=roulette/ss=3",
+                    "raytrace-12/split=roulette", "raytrace-12/split=roulette/ss=6")
+ROUGH_METHODS = ("raytrace-8/lobes=prefilter/ss=2", "raytrace-12/split=roulette/ss=8")
 FACE = 256          # environment faces for every method: the background matches the reference
 BUDGET_MS = 20000.0  # auto+budget: a generous offline budget at the chart's size
 COLUMNS = ["scene", "method", "size", "time_ms", "flip", "rel_mse", "flip_frame",

@@ -76,7 +76,6 @@ from core.baked import BakedAsset, BakedEnvironment
 from core.cubemap import env_rotation_matrix, sample_cube
 from core.options import RenderOptions, apply_override, background_rgb
 
-from . import trace_kernel
 from .camera import Camera
 from .framing import asset_camera
 from .optics import fresnel_dielectric, reflect, refract, sample_rough_dielectric
@@ -94,8 +93,13 @@ _pool: ThreadPoolExecutor | None = None
 KERNEL = True          # shade hits with the compiled trace_kernel (False: the numpy twin)
 
 
-def _use_kernel() -> bool:
-    return KERNEL
+def _kernel():
+    """renderer.trace_kernel, or None with KERNEL off. Imported on first use: numba's import
+    and the cached machine code cost ~0.6 s, which a process that never ray traces skips."""
+    if not KERNEL:
+        return None
+    from . import trace_kernel
+    return trace_kernel
 
 
 @dataclass
@@ -262,8 +266,8 @@ def _env(env: BakedEnvironment, d: np.ndarray, roughness: np.ndarray) -> np.ndar
 
 def _cube(faces: np.ndarray, d: np.ndarray) -> np.ndarray:
     """core.cubemap.sample_cube as float64, compiled where the kernel is on."""
-    if KERNEL and faces.ndim == 4 and faces.shape[3] == 3 and faces.dtype == np.float32:
-        k = trace_kernel
+    k = _kernel()
+    if k is not None and faces.ndim == 4 and faces.shape[3] == 3 and faces.dtype == np.float32:
         return k.sample_cube(faces, np.ascontiguousarray(d, np.float64), k._S_AXIS, k._S_SIGN,
                              k._T_AXIS, k._T_SIGN)
     return sample_cube(faces, d).astype(np.float64)
@@ -523,14 +527,15 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
             if show_env:
                 bg = np.full(miss.sum(), options.background_blur)
                 add(env.radiance(dirs[miss], bg) * share[miss, None], slot[miss])
-        if _use_kernel():
-            out = trace_kernel.shade(
+        kernel = _kernel()
+        if kernel is not None:
+            out = kernel.shade(
                 np.ascontiguousarray(origins), dirs, prim, u, v, t, weight, pix, sub, slot, blur,
                 share, medium, ts.normals, ts.geo_normals, ts.material, ts.base, ts.metallic,
                 ts.roughness, ts.transmission, ts.ior, ts.sigma, ts.emission,
                 np.asarray(env.baked.brdf_lut, np.float64), depth, n_sub, eps,
                 options.rough_lobes == "sample", options.fresnel_split == "sample",
-                options.multiscatter, MIN_WEIGHT, trace_kernel._SOBOL_DIM1,
+                options.multiscatter, MIN_WEIGHT, kernel._SOBOL_DIM1,
                 ROULETTE if options.fresnel_split == "roulette" else 0.0)
             m_dir, m_w, m_blur, m_slot, direct, glow, diffuse, dnorm, matte, tir = out[9:]
             if depth > 0 and len(m_slot):
