@@ -442,7 +442,6 @@ def _pixel_shift(pix: np.ndarray, depth: int) -> np.ndarray:
     return (h >> np.uint64(11)).astype(np.float64) / float(1 << 53)
 
 
-_M32 = np.uint32(0xFFFFFFFF)
 
 
 def _reverse_bits(x: np.ndarray) -> np.ndarray:
