@@ -442,8 +442,6 @@ def _pixel_shift(pix: np.ndarray, depth: int) -> np.ndarray:
     return (h >> np.uint64(11)).astype(np.float64) / float(1 << 53)
 
 
-
-
 def _reverse_bits(x: np.ndarray) -> np.ndarray:
     """Bit reversal of uint32 values."""
     for shift, mask in ((1, 0x55555555), (2, 0x33333333), (4, 0x0F0F0F0F), (8, 0x00FF00FF)):
