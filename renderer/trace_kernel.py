@@ -384,3 +384,25 @@ def sample_cube(faces, d, s_axis, s_sign, t_axis, t_sign):
             bottom = faces[face, y1, x0, c] * (1 - fx) + faces[face, y1, x1, c] * fx
             out[i, c] = top * (1 - fy) + bottom * fy
     return out
+
+
+def warm() -> None:
+    """Compile (or load from numba's cache) every signature the tracer calls, on empty
+    arrays: `python -m renderer.trace_kernel`, run by `make install` and `make test` so that
+    no timed render or server deadline pays the first compile (~5 s)."""
+    f64, f32, i64 = np.float64, np.float32, np.int64
+    e3, e = np.zeros((0, 3)), np.zeros(0)
+    for t_type in (f32, f64):  # Embree's distances, or float64 after culled back faces
+        shade(e3, e3, np.zeros(0, np.int32), np.zeros(0, f32), np.zeros(0, f32),
+              np.zeros(0, t_type), e3, np.zeros(0, i64), np.zeros(0, i64), np.zeros(0, i64),
+              e, e, e, np.zeros((0, 3, 3), f32), np.zeros((0, 3), f32), np.zeros(0, np.int32),
+              e3, e, e, e, e, e3, e3, np.zeros((2, 2, 2)), 0, 1, 1e-4, True, False, True,
+              1e-3, _SOBOL_DIM1, 0.0)
+    sample_cube(np.zeros((6, 2, 2, 3), f32), e3, _S_AXIS, _S_SIGN, _T_AXIS, _T_SIGN)
+
+
+if __name__ == "__main__":
+    import time
+    t0 = time.perf_counter()
+    warm()
+    print(f"renderer.trace_kernel compiled or loaded in {time.perf_counter() - t0:.1f} s")
