@@ -329,4 +329,5 @@ def test_supersample_and_adaptive_options(reference_env, scene_cache):
     assert two.plan["rays"] < adaptive.plan["rays"] < four.plan["rays"] + two.plan["rays"]
     ref = load_reference("glass_sphere_ior1.5")
     small = ref.reshape(64, 4, 64, 4, 4).mean(axis=(1, 3))
-    assert relative_mae(adaptive.linear, small) < relative_mae(two.linear, small) + 0.005
+    # [2 x 2: 0.074, adaptive 0.035, 4 x 4: 0.022]
+    assert relative_mae(adaptive.linear, small) < 0.6 * relative_mae(two.linear, small)
