@@ -12,6 +12,7 @@ $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e '.[test,reference]'
+	$(PY) -m renderer.trace_kernel
 	@touch $(STAMP)
 
 install: $(STAMP)
@@ -32,6 +33,7 @@ lint: $(STAMP)
 	$(VENV)/bin/mypy
 
 test: check-egl lint
+	$(PY) -m renderer.trace_kernel
 	$(PY) -m pytest -q
 
 clean:

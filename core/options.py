@@ -107,11 +107,24 @@ class RenderOptions:
     tir: Literal["paper", "reflect"] | None = Field(default=None, description=(
         "wyman: total internal reflection treatment (default: reflect)"))
     bounces: int = Field(default=8, ge=0, le=64, description="raytrace: path depth (0: the environment along each primary ray)")
-    fresnel_split: Literal["both", "sample"] = Field(default="both", description=(
+    fresnel_split: Literal["both", "sample", "roulette"] = Field(default="both", description=(
         "raytrace: at each interface trace both the reflected and the refracted ray (both: "
         "no noise) or, past the first surface a camera ray meets, one of them chosen with "
         "probability proportional to its throughput and reweighted (sample: unbiased, about "
-        "half the rays, some noise)"))
+        "half the rays, some noise) or both but a child carrying under 10% by Russian "
+        "roulette (roulette: unbiased, noise only in the weak paths)"))
+    rough_lobes: Literal["sample", "prefilter"] = Field(default="sample", description=(
+        "raytrace: rough glass reflects and refracts about GGX microfacet normals sampled per "
+        "ray (sample: converges to the rough dielectric, some noise) or keeps the mirror "
+        "direction and reads the prefiltered environment for the lobe width (prefilter: no "
+        "noise, biased)"))
+    supersample: int | None = Field(default=None, ge=1, le=16, description=(
+        "raytrace: rays per pixel side on and around the object (default: 4 below 256 px, "
+        "3 below 384, else 2)"))
+    aa_threshold: float = Field(default=0.0, ge=0, le=1, description=(
+        "raytrace: adaptive anti-aliasing: with supersample above 2, pixels near the object "
+        "get 2 x 2 rays first and the full grid only where those differ in coverage or in "
+        "tone-mapped luminance L/(1+L) by more than this (0: the full grid everywhere)"))
     debug: Literal["backface_normals", "tir", "exit_distance"] | None = Field(default=None, description="wyman debug view")
     variant: str | None = Field(default=None, min_length=1, max_length=256, description=(
         "glTF KHR_materials_variants: bind the material variant of this name (inspect lists them)"))

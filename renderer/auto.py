@@ -287,22 +287,30 @@ def choose_raster(f: ObjectFacts, available: list[str]) -> tuple[str, str]:
     return "opaque", "no refraction method installed: transmission ignored"
 
 
+def rays_factor(supersample: int | None) -> float:
+    """The per-bounce term's scale for an explicit RenderOptions.supersample: the model was
+    fitted to the default grids, counted as 2 x 2 rays a pixel."""
+    return 1.0 if supersample is None else max(supersample, 2) ** 2 / 4.0
+
+
 def estimate_raytrace_ms(asset: BakedAsset, options: RenderOptions, coverage_px: float,
                          bounces: int) -> float:
     return (RT_FIXED_MS + RT_MS_PER_TRIANGLE * asset.triangle_count
             + RT_MS_PER_FRAME_PIXEL * options.width * options.height
-            + RT_MS_PER_PIXEL_BOUNCE * coverage_px * max(bounces, 1))
+            + RT_MS_PER_PIXEL_BOUNCE * coverage_px * max(bounces, 1)
+            * rays_factor(options.supersample))
 
 
 def estimate_request_ms(triangles: int, width: int, height: int, method: str, transmissive: bool,
-                        budget_ms: float | None, bounces: int = RAYTRACE_BOUNCES) -> float:
+                        budget_ms: float | None, bounces: int = RAYTRACE_BOUNCES,
+                        supersample: int | None = None) -> float:
     """Upper estimate of one render's time from what is known before loading the asset
     (its triangle count, whether anything transmits): the ray-trace model above with the
     whole frame covered, or the raster model. `auto` with a budget ray traces only when its
     estimate fits the budget, so its cost is at most the larger of raster and budget."""
     pixels = width * height
     raytrace = (RT_FIXED_MS + RT_MS_PER_TRIANGLE * triangles + RT_MS_PER_FRAME_PIXEL * pixels
-                + RT_MS_PER_PIXEL_BOUNCE * pixels * max(bounces, 1))
+                + RT_MS_PER_PIXEL_BOUNCE * pixels * max(bounces, 1) * rays_factor(supersample))
     if method == "raytrace":
         return raytrace
     raster_method = method if method in RASTER_MS_PER_PIXEL else ("wyman" if transmissive else "opaque")

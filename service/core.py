@@ -416,7 +416,8 @@ class ThumbnailService:
         transmissive = bool(ov and ov.transmission) or ((ov is None or ov.transmission is None)
                                                         and rec.transmissive)
         return estimate_request_ms(rec.triangles, options.width, options.height, options.method,
-                                   transmissive, options.budget_ms, options.bounces)
+                                   transmissive, options.budget_ms, options.bounces,
+                                   options.supersample)
 
     def check_cost(self, rec: AssetRecord, options: RenderOptions) -> float:
         cost = self.estimate_ms(rec, options)

@@ -91,3 +91,20 @@ def test_quick_chart_writes_csv_and_png(quick):
     img = Image.open(out / "speed_accuracy.png")
     assert img.size[0] > 800 and img.size[1] > 400
     assert np.asarray(img.convert("L")).std() > 10  # drawn, not blank
+
+
+def test_peer_table_names_dominating_settings(capsys):
+    """Per Mitsuba point: the fastest raytrace row at least as accurate in less time, 'none'
+    where no row is, and a peer that is its own reference (FLIP ~0) left out of the count."""
+    from bench.accuracy import peer_table
+    rows = [{"scene": "s", "method": m, "time_ms": t, "flip": e} for m, t, e in [
+        ("raytrace-8", 100.0, 0.05), ("raytrace-12/split=roulette/ss=2", 40.0, 0.09),
+        ("mitsuba-4spp", 50.0, 0.10), ("mitsuba-16spp", 120.0, 0.06),
+        ("mitsuba-64spp", 300.0, 0.03), ("mitsuba-256spp", 900.0, 0.0008)]]
+    peer_table(rows)
+    out = capsys.readouterr().out
+    lines = {ln.split("|")[2].strip(): ln for ln in out.splitlines() if ln.startswith("| s |")}
+    assert "raytrace-12/split=roulette/ss=2 | 40 / 0.0900" in lines["4spp"]
+    assert "| raytrace-8 | 100 / 0.0500 |" in lines["16spp"]
+    assert "none" in lines["64spp"] and "256spp" not in lines
+    assert "dominated by a raytrace setting: 2/3" in out and "s 256spp" in out

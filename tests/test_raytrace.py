@@ -60,7 +60,7 @@ def test_matches_mitsuba_reference(name, limit, reference_env, scene_cache):
     ("glass_torus_ior1.5", 0.05),       # [0.032] genus 1
     ("glass_torus_ior2.4", 0.05),       # [0.035]
     ("glass_bunny_ior1.5", 0.13),       # [0.088] open mesh, sub-pixel detail at 128 px
-    ("frosted_sphere_ior1.5_r0.3", 0.16),  # [0.113] rough lobes as prefiltered mips, not traced
+    ("frosted_sphere_ior1.5_r0.3", 0.16),  # [0.128] sampled rough lobes, 16 rays a pixel (noise)
 ])
 def test_hard_cases_finite_and_error_recorded(name, limit, reference_env, scene_cache):
     frame = render(name, reference_env, scene_cache)
@@ -243,3 +243,91 @@ def test_camera_inside_matches_mitsuba(reference_env, scene_cache):
     err = relative_mae(render("case_camera_inside", reference_env, scene_cache).linear,
                        load_reference("case_camera_inside"))
     assert err < 0.03, err  # [0.017]; 0.56 without the eta^2 radiance factor
+
+
+# --- issue 17: the compiled kernel, traced rough lobes, roulette splitting -----------------
+
+@pytest.mark.parametrize("name,opts", [
+    ("glass_sphere_ior1.5", {}),
+    ("glass_torus_ior2.4", {"fresnel_split": "sample"}),
+    ("frosted_sphere_ior1.5_r0.3", {}),
+    ("frosted_sphere_ior1.5_r0.3", {"rough_lobes": "prefilter"}),
+    ("steel_sphere", {}),
+    ("rough_metal_sphere", {}),
+    ("dielectric_sphere", {}),
+])
+def test_compiled_kernel_matches_its_numpy_twin(name, opts, reference_env, scene_cache, monkeypatch):
+    """renderer.trace_kernel against the numpy shading it replaced (kept as _shade_numpy):
+    the same rays and the same frame up to float rounding [max 1.2e-5 measured]."""
+    from renderer import raytrace
+    fast = render(name, reference_env, scene_cache, size=48, **opts)
+    monkeypatch.setattr(raytrace, "KERNEL", False)
+    slow = render(name, reference_env, scene_cache, size=48, **opts)
+    assert fast.plan["rays"] == slow.plan["rays"] and fast.plan["tir_events"] == slow.plan["tir_events"]
+    np.testing.assert_allclose(fast.linear, slow.linear, atol=1e-4)
+
+
+def test_traced_rough_lobes_converge_to_mitsuba(reference_env, scene_cache):
+    """Frosted glass (roughness 0.3, Mitsuba's roughdielectric GGX at 1024 spp): sampled
+    lobes get closer to the reference with more rays, well below the prefiltered mips'
+    floor, and unbiased: the object's mean radiance matches [+0.5% at 16 bounces; +1.2% at 8,
+    where the paths still inside read the sky without the exit's Fresnel loss]."""
+    name = "frosted_sphere_ior1.5_r0.3"
+    ref = load_reference(name)
+    pre = render(name, reference_env, scene_cache, rough_lobes="prefilter").linear
+    s4 = render(name, reference_env, scene_cache).linear
+    s8 = render(name, reference_env, scene_cache, supersample=8, fresnel_split="roulette",
+                bounces=16).linear
+    again = render(name, reference_env, scene_cache).linear
+    np.testing.assert_array_equal(s4, again)  # deterministic: seeds hashed from pixel and bounce
+    e_pre, e4, e8 = (relative_mae(x, ref) for x in (pre, s4, s8))
+    # [0.110, 0.128, 0.065]: at 16 rays a pixel the noise's mean absolute error exceeds the
+    # prefilter's bias (FLIP ranks them the other way: 0.089 vs 0.139); 64 rays beat both
+    assert e8 < 0.7 * e_pre and e8 < 0.7 * e4 and e8 < 0.08, (e_pre, e4, e8)
+    mask = ref[..., 3] > 0.999  # pixels the object covers whole
+    bias = s8[..., :3][mask].mean() / ref[..., :3][mask].mean() - 1
+    assert abs(bias) < 0.01, bias
+
+
+def test_roulette_split_is_unbiased_and_cheaper(reference_env, scene_cache):
+    """fresnel_split=roulette: under a white sky the mean stays 1 (each faint child that goes
+    on carries 1 / its survival probability); against Mitsuba it is within a little of the
+    full tree with far fewer rays."""
+    white = render("glass_torus_ior1.5", uniform_env(), scene_cache, size=48, fresnel_split="roulette")
+    rgb = white.linear[..., :3]
+    assert abs(rgb.mean() - 1.0) < 0.005 and np.abs(rgb - 1.0).max() < 0.25, (rgb.mean(), rgb.min(), rgb.max())
+    ref = load_reference("glass_torus_ior1.5")
+    both = render("glass_torus_ior1.5", reference_env, scene_cache)
+    rr = render("glass_torus_ior1.5", reference_env, scene_cache, fresnel_split="roulette")
+    assert rr.plan["rays"] < 0.8 * both.plan["rays"], (rr.plan["rays"], both.plan["rays"])
+    e_both, e_rr = relative_mae(both.linear, ref), relative_mae(rr.linear, ref)
+    assert e_rr < e_both + 0.01, (e_rr, e_both)
+
+
+def test_rough_glass_furnace_loses_only_what_microfacets_mask():
+    """Sampled rough glass under a white sky: single-scattering microfacets lose a little
+    energy (masked light is not traced further, as Mitsuba's roughdielectric), never gain."""
+    spec = scenes.scene("frosted_sphere_ior1.5_r0.3")
+    frame = render_raytrace(scenes.baked_asset(spec), uniform_env(),
+                            RenderOptions(background="env", width=48, height=48,
+                                          distance=spec.camera_distance(48, 48), supersample=4))
+    rgb = frame.linear[..., :3]
+    centre = rgb[18:30, 18:30]
+    assert 0.95 < centre.mean() <= 1.0 + 1e-3, centre.mean()
+    assert rgb.max() <= 1.0 + 1e-3, rgb.max()
+
+
+def test_supersample_and_adaptive_options(reference_env, scene_cache):
+    """supersample sets the grid (rays scale with its square); aa_threshold refines only the
+    pixels whose 2 x 2 samples disagree, so it traces fewer rays than the full grid."""
+    two = render("glass_sphere_ior1.5", reference_env, scene_cache, size=64, supersample=2)
+    four = render("glass_sphere_ior1.5", reference_env, scene_cache, size=64, supersample=4)
+    adaptive = render("glass_sphere_ior1.5", reference_env, scene_cache, size=64, supersample=4,
+                      aa_threshold=0.05)
+    assert two.plan["supersample"] == 2 and four.plan["supersample"] == 4
+    assert 3.0 < four.plan["rays"] / two.plan["rays"] < 4.5
+    assert two.plan["rays"] < adaptive.plan["rays"] < four.plan["rays"] + two.plan["rays"]
+    ref = load_reference("glass_sphere_ior1.5")
+    small = ref.reshape(64, 4, 64, 4, 4).mean(axis=(1, 3))
+    # [2 x 2: 0.074, adaptive 0.035, 4 x 4: 0.022]
+    assert relative_mae(adaptive.linear, small) < 0.6 * relative_mae(two.linear, small)
