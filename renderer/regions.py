@@ -20,6 +20,8 @@ from .camera import Camera
 
 Rect = tuple[int, int, int, int]  # x, y, width, height in pixels; y down from the image top
 
+DIRECT_POINTS = 4096        # fewer points are bounded as they are: qhull would save <0.3 ms a
+                            # frame and its scipy import costs a cold render ~250 ms
 MAX_HULL_MESH = 50_000      # vertices: a bigger mesh is bounded by its box's corners instead
                             # (qhull's time and the hull's size grow with it; cold renders pay)
 MAX_HULL_POINTS = 200_000   # all instances' points: past this, every instance by its box
@@ -30,9 +32,10 @@ MAX_HULLS = 64
 
 
 def hull_points(asset: BakedAsset) -> np.ndarray | None:
-    """World-space vertices of the convex hull of every instance of every mesh (backdrops
-    included: the bound holds every drawn surface), kept per asset; None when there is no
-    hull to take (no vertices, degenerate, or too many vertices to be worth it)."""
+    """World-space points whose convex hull holds every instance of every mesh (backdrops
+    included: the bound holds every drawn surface): the vertices of that hull, or all the
+    points when they are few; kept per asset. None when there is no hull to take (no
+    vertices, degenerate, or too many vertices to be worth it)."""
     if asset.key in _hulls:
         _hulls.move_to_end(asset.key)
         return _hulls[asset.key]
@@ -42,12 +45,14 @@ def hull_points(asset: BakedAsset) -> np.ndarray | None:
         if len(m.positions) == 0:
             continue
         p = np.asarray(m.positions, np.float64)
-        locals_.append((_hull(p) if len(p) <= MAX_HULL_MESH else _box(p), np.asarray(m.transforms, np.float64)))
+        local = p if len(p) <= DIRECT_POINTS else _hull(p) if len(p) <= MAX_HULL_MESH else _box(p)
+        locals_.append((local, np.asarray(m.transforms, np.float64)))
     if sum(len(h) * len(t) for h, t in locals_) > MAX_HULL_POINTS:
         locals_ = [(_box(h), t) for h, t in locals_]
     parts = [h @ t[:3, :3].T + t[:3, 3] for h, ts in locals_ for t in ts]
     if parts and sum(len(x) for x in parts) <= MAX_HULL_POINTS:
-        pts = _hull(np.concatenate(parts))
+        pts = np.concatenate(parts)
+        pts = pts if len(pts) <= DIRECT_POINTS else _hull(pts)
     _hulls[asset.key] = pts
     while len(_hulls) > MAX_HULLS:
         _hulls.popitem(last=False)

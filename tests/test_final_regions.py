@@ -91,6 +91,26 @@ def test_rect_subtraction_tiles_the_rest():
     assert regions.intersect(a, (20, 20, 2, 2)) is None
 
 
+def test_small_meshes_are_bounded_by_their_points_without_scipy(assets, cache, monkeypatch):
+    """Up to DIRECT_POINTS the points bound the object as they are: no qhull (nor scipy's
+    import, a quarter second of a cold render) and the same pixels as the hull's bound."""
+    import sys
+    from collections import OrderedDict
+    asset = pipeline.bake_asset(assets / "gltf/Duck.glb", cache)
+    env = pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(96))
+    o = RenderOptions(width=96, height=96)
+    monkeypatch.setattr(regions, "_hulls", OrderedDict())
+    monkeypatch.setitem(sys.modules, "scipy.spatial", None)  # importing it now fails
+    direct = render(asset, env, o)
+    assert len(regions.hull_points(asset)) == sum(len(m.positions) for m in asset.meshes)
+    monkeypatch.undo()
+    monkeypatch.setattr(regions, "DIRECT_POINTS", 4)
+    monkeypatch.setattr(regions, "_hulls", OrderedDict())
+    hulled = render(asset, env, o)
+    assert len(regions.hull_points(asset)) < len(asset.meshes[0].positions)
+    assert np.array_equal(direct.rgba8, hulled.rgba8) and np.array_equal(direct.linear, hulled.linear)
+
+
 def test_big_meshes_are_bounded_by_their_boxes(assets, cache, monkeypatch):
     """Past MAX_HULL_MESH vertices a mesh is bounded by its box's corners (qhull's cost and
     the hull's size grow with the mesh): still every covered pixel inside, same pixels."""
@@ -100,6 +120,7 @@ def test_big_meshes_are_bounded_by_their_boxes(assets, cache, monkeypatch):
     o = RenderOptions(width=96, height=96)
     exact = render(asset, env, o)
     monkeypatch.setattr(regions, "MAX_HULL_MESH", 10)
+    monkeypatch.setattr(regions, "DIRECT_POINTS", 4)
     monkeypatch.setattr(regions, "_hulls", OrderedDict())
     assert len(regions.hull_points(asset)) == 8
     boxed = render(asset, env, o)
