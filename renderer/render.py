@@ -180,16 +180,24 @@ def render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions) -> 
     asset = asset.with_variant(options.variant)  # KHR_materials_variants: its own GPU key
     if options.method in _FRAME_METHODS:
         return _FRAME_METHODS[options.method](asset, env, options)
-    auto = None
-    if options.method == "auto":  # renderer.auto decides per object, or ray traces the frame
-        from .auto import plan_request, run_frame_method
-        auto = plan_request(asset, options, available_methods())
-        if auto.frame_method:
-            return run_frame_method(auto, _FRAME_METHODS[auto.frame_method], asset, env, options)
-        if auto.tir:
-            options = dataclasses.replace(options, tir=auto.tir)
+    auto, raster_options = _plan_auto(asset, options)
+    if auto is not None and auto.frame_method:
+        from .auto import run_frame_method
+        return run_frame_method(auto, _FRAME_METHODS[auto.frame_method], asset, env, options)
     with _lock:  # one GL context per process: one frame at a time
-        return _render(asset, env, options, auto)
+        return _render(asset, env, raster_options, auto)
+
+
+def _plan_auto(asset: BakedAsset, options: RenderOptions):
+    """For method "auto", renderer.auto's plan (per object, or a frame method) and the options
+    the raster frame is drawn with (the plan's TIR mode); (None, options) otherwise."""
+    if options.method != "auto":
+        return None, options
+    from .auto import plan_request
+    auto = plan_request(asset, options, available_methods())
+    if auto.tir and not auto.frame_method:
+        options = dataclasses.replace(options, tir=auto.tir)
+    return auto, options
 
 
 def render_supersampled(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
@@ -202,14 +210,9 @@ def render_supersampled(asset: BakedAsset, env: BakedEnvironment, options: Rende
     asset = asset.with_variant(options.variant)
     if options.method in _FRAME_METHODS:
         raise UnsupportedMethod(f"method {options.method!r} draws no raster frame to supersample")
-    auto = None
-    if options.method == "auto":
-        from .auto import plan_request
-        auto = plan_request(asset, options, available_methods())
-        if auto.frame_method:
-            raise UnsupportedMethod(f"auto chose {auto.frame_method}: no raster frame to supersample")
-        if auto.tir:
-            options = dataclasses.replace(options, tir=auto.tir)
+    auto, options = _plan_auto(asset, options)
+    if auto is not None and auto.frame_method:
+        raise UnsupportedMethod(f"auto chose {auto.frame_method}: no raster frame to supersample")
     with _lock:
         return _render(asset, env, dataclasses.replace(options, msaa=0), auto, int(factor))
 
@@ -560,7 +563,7 @@ def _finish(ctx, target: _Target, camera: Camera, env: gpu.GpuEnvironment,
     shade: regions.Rect | None = None
     if ground is not None and ground.reach is None:
         ground = None  # a map of zeros: no pixel would be shaded
-    if ground is not None and ground.reach is not None:
+    if ground is not None and ground.reach is not None:  # (the second test narrows the type)
         x0, z0, dx, dz = ground.reach
         y = ground.ground
         shade = regions.screen_rect(camera, np.array(
