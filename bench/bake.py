@@ -160,10 +160,12 @@ def interior_table(assets: Path, repeat: int) -> list[float]:
 
 
 def interior_parts_table(assets: Path, repeat: int) -> None:
-    """What bounds the interior pass: process CPU (all threads) of the BVH build, of tracing the
-    first rays on one thread, and of the whole pass, for the bunny and the 100k torus."""
+    """What bounds the interior pass: process CPU (all threads) of pairing the triangles into
+    quads, of the BVH build over them, of tracing the first rays on one thread, and of the whole
+    pass, for the bunny and the 100k torus."""
     from pipeline.embree import TriangleScene
     from pipeline.interior import interior_vectors
+    from pipeline.quad_pairs import pair_quads
 
     def cpu_ms(fn) -> float:
         fn()
@@ -175,8 +177,8 @@ def interior_parts_table(assets: Path, repeat: int) -> None:
         return statistics.median(times)
 
     print(f"\ninterior pass by part (process CPU ms, all threads; medians of {repeat})")
-    print(f"{'mesh':14} {'triangles':>9} {'rays':>7} {'build':>7} {'us/tri':>6} {'trace 1T':>8} {'us/ray':>6} "
-          f"{'whole':>7} {'M rays/cpu-s':>12} {'2-core ceiling':>14}")
+    print(f"{'mesh':14} {'triangles':>9} {'quads':>7} {'rays':>7} {'pairing':>7} {'build':>7} {'us/tri':>6} "
+          f"{'trace 1T':>8} {'us/ray':>6} {'whole':>7} {'M rays/cpu-s':>12} {'2-core ceiling':>14}")
     for label, (p, n, f) in _target_meshes(assets):
         result = interior_vectors(p, n, f)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -184,13 +186,16 @@ def interior_parts_table(assets: Path, repeat: int) -> None:
         ok = np.isfinite(d).all(axis=1)  # the pass's rays: usable normals
         eps = 1e-4 * float(np.linalg.norm(np.ptp(p, axis=0)))
         o, d = np.ascontiguousarray((p[ok] + d[ok] * eps).T), np.ascontiguousarray(d[ok].T)
-        scene = TriangleScene(p, f)
-        build = cpu_ms(lambda: TriangleScene(p, f))
+        quads = pair_quads(f)
+        scene = TriangleScene(p, quads)
+        pairing = cpu_ms(lambda: pair_quads(f))
+        build = cpu_ms(lambda: TriangleScene(p, quads))
         trace = cpu_ms(lambda: scene.closest(o, d, threads=1))
         whole = cpu_ms(lambda: interior_vectors(p, n, f))
         rate = result.rays / whole / 1e3
-        print(f"{label:14} {len(f):9d} {result.rays:7d} {build:7.1f} {1000 * build / len(f):6.3f} {trace:8.1f} "
-              f"{1000 * trace / result.rays:6.3f} {whole:7.1f} {rate:12.2f} {2 * rate:14.2f}", flush=True)
+        print(f"{label:14} {len(f):9d} {len(quads):7d} {result.rays:7d} {pairing:7.1f} {build:7.1f} "
+              f"{1000 * build / len(f):6.3f} {trace:8.1f} {1000 * trace / result.rays:6.3f} {whole:7.1f} "
+              f"{rate:12.2f} {2 * rate:14.2f}", flush=True)
 
 
 def asset_table(assets: Path, repeat: int, cache: Path) -> list[float]:

@@ -6,14 +6,19 @@ build), while the pass casts about one ray per two triangles. Here the scene rea
 arrays in place (shared buffers) and rays go in 16-wide packets (rtcIntersect16), a compiled
 loop (numba, no GIL) per span of packets, spans over a thread pool, so both cores trace.
 
-Same hits as embreex: the scene is ROBUST (as embreex's: without it rays grazing along an edge
-slip through) and its BVH is embreex's, BVH8 over 4-wide triangle leaves built by the SAH builder
-at medium quality. The hits depend on that BVH, not only on the triangles: a ray running along a
-face plane (a split cube's corners, the flat panels of CesiumMilkTruck) is kept or lost by the
-box tests. Measured against the embreex pass on every sample mesh: the low-quality (Morton)
-build, 4-6x faster, loses every split-cube corner ray and moves 140 truck vertices; the compact
-flag (index leaves) and a BVH4 move truck vertices too. So the SAH build stays, and is most of
-the pass on large meshes (see README, bench bake). Results: the closest hit's distance, or inf.
+The hits are embreex's, up to float rounding: the scene is ROBUST (as embreex's: without it
+rays grazing an edge slip through: 1449 of the 100k torus's 50000) and
+its BVH is built by the SAH builder at medium quality, BVH8. Over quads (pipeline.quad_pairs:
+the mesh's own triangles, two to a quad) that build takes half the time of embreex's triangle
+build, and the build is most of the pass on a large mesh (see README, bench bake). What
+changes is only what float rounding already decides: a ray running within a face's plane (the
+flat panels of CesiumMilkTruck) is kept or lost by a last-bit difference, and on the truck
+every vertex the quads move is one that a one-ulp nudge of the positions moves in embreex's
+triangle pass too (tests/test_interior.py). Rejected by the same measurement: the Morton
+builder (3-5x faster to build, slower to trace) loses every corner ray of an axis-aligned split
+cube; the two-level (low quality) scene loses them too; non-robust leaves lose thousands of
+rays; compact (index) leaves and a BVH4 build no faster. Results: the closest hit's distance,
+or inf.
 """
 from __future__ import annotations
 
@@ -25,9 +30,9 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-RTC_GEOMETRY_TYPE_TRIANGLE = 0
+RTC_GEOMETRY_TYPE_QUAD = 1
 RTC_BUFFER_TYPE_INDEX, RTC_BUFFER_TYPE_VERTEX = 0, 1
-RTC_FORMAT_UINT3, RTC_FORMAT_FLOAT3 = 0x5003, 0x9003
+RTC_FORMAT_UINT4, RTC_FORMAT_FLOAT3 = 0x5004, 0x9003
 RTC_SCENE_FLAG_ROBUST = 1 << 2
 RTC_BUILD_QUALITY_MEDIUM = 1
 RTC_INVALID_GEOMETRY_ID = 0xFFFFFFFF
@@ -94,23 +99,26 @@ def _get_device():
 
 
 class TriangleScene:
-    """A committed Embree scene over one triangle mesh; `closest(origins, directions)`."""
+    """A committed Embree scene over one triangle mesh, given as the quads that
+    pipeline.quad_pairs.pair_quads makes of its triangles; `closest(origins, directions)`."""
 
-    def __init__(self, positions: np.ndarray, triangles: np.ndarray):
+    def __init__(self, positions: np.ndarray, quads: np.ndarray):
         lib, dev = _library(), _get_device()
         # Embree reads vertices with 16-byte loads: one padding vertex past the end.
         self._vertices = np.zeros((len(positions) + 1, 3), np.float32)
         self._vertices[:-1] = positions
-        self._indices = np.ascontiguousarray(triangles, np.uint32).reshape(-1, 3)
+        # Quads: the same surface as the triangles in half the primitives for the SAH build,
+        # which is most of the interior pass on a big mesh.
+        self._indices = np.ascontiguousarray(quads, np.uint32).reshape(-1, 4)
         self._scene = lib.rtcNewScene(dev)
         lib.rtcSetSceneFlags(self._scene, RTC_SCENE_FLAG_ROBUST)
         lib.rtcSetSceneBuildQuality(self._scene, RTC_BUILD_QUALITY_MEDIUM)
         if len(self._indices):
-            geom = lib.rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_TRIANGLE)
+            geom = lib.rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_QUAD)
             lib.rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
                                            self._vertices.ctypes.data, 0, 12, len(positions))
-            lib.rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
-                                           self._indices.ctypes.data, 0, 12, len(self._indices))
+            lib.rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT4,
+                                           self._indices.ctypes.data, 0, 16, len(self._indices))
             lib.rtcCommitGeometry(geom)
             lib.rtcAttachGeometry(self._scene, geom)
             lib.rtcReleaseGeometry(geom)
@@ -196,6 +204,11 @@ def _tracer():
 
 
 _pools: dict[int, ThreadPoolExecutor] = {}
+
+
+def background() -> ThreadPoolExecutor:
+    """The pool's threads, for compiled work that overlaps the caller's (no GIL held)."""
+    return _pool(os.cpu_count() or 1)
 
 
 def _pool(workers: int) -> ThreadPoolExecutor:
