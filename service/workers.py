@@ -78,7 +78,8 @@ class WorkerState:
 
     def ping(self) -> dict:
         """Creates the GL context, bakes the default environment and compiles the shaders (by
-        drawing a packaged sample opaque and as glass), so a first request is not slower."""
+        drawing a packaged sample opaque, as glass and ray traced), so a first request is not
+        slower."""
         import renderer
         from core.context import get_context
         t0 = time.perf_counter()
@@ -108,6 +109,8 @@ class WorkerState:
             env = self._env(self.config.default_env, environment_face_size(asset, RenderOptions())[0])
             for override in (None, MaterialOverride(transmission=1.0, ior=1.5, roughness=0.0)):
                 renderer.render(asset, env, RenderOptions(width=16, height=16, override=override))
+            # and the ray tracer's compiled kernel, loaded from numba's cache (~0.5 s)
+            renderer.render(asset, env, RenderOptions(width=16, height=16, method="raytrace"))
         except Exception as exc:  # a worker that cannot warm up still serves what it can
             log.warning("warm-up render failed: %s", exc)
 
