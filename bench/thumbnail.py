@@ -254,7 +254,7 @@ def _measure(tools: list[str], job: dict, repeat: int, cold_repeat: int) -> dict
             t = time.perf_counter()
             worker(tool, "cold")
             cold.append(time.perf_counter() - t)
-        out[tool] = {"cold_s": statistics.median(cold)}
+        out[tool] = {"cold_s": statistics.median(cold) if cold else None}  # --cold-repeat 0: none
     procs = {t: subprocess.Popen(cmd(t) + ["serve"], env=env, cwd=cwd, stdin=subprocess.PIPE,
                                  stdout=subprocess.PIPE, text=True) for t in tools}
 
@@ -301,9 +301,11 @@ def _print_row(row: dict, tools: list[str]) -> None:
         if "turntable_frame_ms" in r:
             n, frame, enc = r["turntable_frames"], r["turntable_frame_ms"], r["turntable_encode_ms"]
             extra += (f", turntable of {n}: {frame:.1f} ms/frame render + {enc:.1f} webp "
-                      f"(a warm thumbnail: {r['warm_ms']:.1f} + png), {n * (frame + enc) / 1e3:.2f} s "
-                      f"in all vs {n * r['cold_s']:.1f} s for {n} `render` commands")
-        parts.append(f"{t}: cold {r['cold_s']:.2f} s, warm {r['warm_ms']:.1f} ms "
+                      f"(a warm thumbnail: {r['warm_ms']:.1f} + png), {n * (frame + enc) / 1e3:.2f} s in all")
+            if r["cold_s"] is not None:
+                extra += f" vs {n * r['cold_s']:.1f} s for {n} `render` commands"
+        cold = "-" if r["cold_s"] is None else f"{r['cold_s']:.2f} s"
+        parts.append(f"{t}: cold {cold}, warm {r['warm_ms']:.1f} ms "
                      f"(+png {r['warm_png_ms']:.1f}, cpu {r['warm_cpu_ms']:.1f}){extra}")
     print(" | ".join(parts), flush=True)
 
@@ -320,7 +322,8 @@ def _print_summary(results: list[dict], tools: list[str]) -> None:
         for p in peers:
             cells.append(f"{r['ours']['warm_ms'] / r[p]['warm_ms']:>14.2f}")
             cells.append(f"{r['ours']['warm_cpu_ms'] / r[p]['warm_cpu_ms']:>14.2f}")
-            cells.append(f"{r['ours']['cold_s'] / r[p]['cold_s']:>14.2f}")
+            cold = (r["ours"]["cold_s"], r[p]["cold_s"])
+            cells.append(f"{cold[0] / cold[1]:>14.2f}" if None not in cold else f"{'-':>14}")
         print(f"{r['asset']:>15} {r['size']:>4} " + " ".join(cells))
 
 

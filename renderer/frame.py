@@ -12,6 +12,7 @@ import os
 import struct
 import zlib
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
@@ -38,15 +39,27 @@ class FrameTimings:
         return {**{k + "_ms": v for k, v in self.stages_ms.items()}, "total_ms": self.total_ms}
 
 
-@dataclass
 class Frame:
-    linear: np.ndarray   # H x W x 4 float32: linear radiance (premultiplied by alpha), alpha
-    rgba8: np.ndarray    # H x W x 4 uint8: tone-mapped sRGB, straight alpha
-    plan: dict = field(default_factory=dict)     # what ran and why
-    timings: FrameTimings = field(default_factory=lambda: FrameTimings(0.0))
-    # alpha=coverage over a background: the colour already holds the background and alpha is
-    # only the object's mask (so a format without alpha keeps the colour as it is)
-    alpha_is_mask: bool = False
+    """One rendered image. `linear` may be given as a function that reads it when first asked
+    for (renderer.render: a thumbnail never needs it, so its final pass does not draw it)."""
+
+    def __init__(self, linear: np.ndarray | Callable[[], np.ndarray], rgba8: np.ndarray,
+                 plan: dict | None = None, timings: FrameTimings | None = None,
+                 alpha_is_mask: bool = False):
+        self._linear = linear
+        self.rgba8 = rgba8  # H x W x 4 uint8: tone-mapped sRGB, straight alpha
+        self.plan = {} if plan is None else plan      # what ran and why
+        self.timings = FrameTimings(0.0) if timings is None else timings
+        # alpha=coverage over a background: the colour already holds the background and alpha
+        # is only the object's mask (so a format without alpha keeps the colour as it is)
+        self.alpha_is_mask = alpha_is_mask
+
+    @property
+    def linear(self) -> np.ndarray:
+        """H x W x 4 float32: linear radiance (premultiplied by alpha), alpha."""
+        if not isinstance(self._linear, np.ndarray):
+            self._linear = self._linear()
+        return self._linear
 
     @property
     def width(self) -> int:

@@ -2,8 +2,11 @@
 
 Passes: opaque and mask meshes, transmissive meshes by their method, blend meshes back to
 front, all into one MSAA float framebuffer; then the final pass (resolve + background +
-shadow + tone mapping, shaders/final.frag) into RGBA8 and float targets, drawn per region
-with only the work each region's pixels need (renderer.regions), and one readback of each.
+shadow + tone mapping, shaders/final.frag) into RGBA8, drawn per region with only the work
+each region's pixels need (renderer.regions), and its readback. The linear float image is
+drawn by the same pass and read only when the frame's `linear` is first asked for (a
+thumbnail never asks): before the next frame draws over the target if the frame is still
+referenced then.
 
 Methods plug in per object: `register_method(name, fn)` adds a raster method (the refraction
 module adds `single` and `wyman`), `register_frame_method(name, fn)` a whole-frame one
@@ -16,6 +19,7 @@ import logging
 import math
 import threading
 import time
+import weakref
 from dataclasses import dataclass, field
 from typing import Callable, cast
 
@@ -224,6 +228,7 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
             auto=None, supersample: int = 1) -> Frame:
     t0 = time.perf_counter()
     ctx = context.get_context()
+    _read_pending()
     uploads_before = dict(gpu.stats)
     gasset = gpu.asset(asset, max(options.width, options.height) * supersample)
     genv = gpu.environment(env)
@@ -234,11 +239,12 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     items = _plan_items(gasset, options, auto)
     lights = gasset.lights[:MAX_LIGHTS] if options.lights else []
     target = _target(ctx, w, h, options.msaa, supersample)
+    target.frames += 1
     pass_ = Pass(ctx, target.draw_fbo, camera, genv, gasset, options,
                  _frame_defines(options, lights), _frame_uniforms(camera, genv, lights, options))
     polygon = regions.object_polygon(camera, regions.hull_points(asset), w, h)
     if polygon is not None:  # before the geometry: llvmpipe draws it while Python goes on
-        _mark_object(ctx, target.out_fbo, polygon, w, h)
+        _mark_object(ctx, target.display_fbo, polygon, w, h)
 
     target.draw_fbo.use()
     ctx.viewport = (0, 0, w * supersample, h * supersample)
@@ -272,7 +278,10 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     ground = (shadow.ground_shadow(ctx, asset.key, gasset.meshes, asset.bounds, options.shadow)
               if shadowed else None)
     t_draw_end = time.perf_counter()
-    linear, rgba8 = _finish(ctx, target, camera, genv, options, ground, polygon)
+    final = _final_pass(target, camera, genv, options, ground, polygon)
+    rgba8 = final.draw(ctx, DISPLAY)
+    linear = _LinearOnDemand(ctx, final)
+    _pending.append(weakref.ref(linear))
     t_end = time.perf_counter()
     plan = {
         "method": options.method,
@@ -506,9 +515,11 @@ class _Target:
     supersample: int                     # draw_fbo is this many times the output on each axis
     draw_fbo: moderngl.Framebuffer       # geometry: MSAA colour (premultiplied linear) + depth
     frame_tex: moderngl.Texture          # its colour, read by the final pass
-    out_fbo: moderngl.Framebuffer        # final pass: display RGBA8 + linear RGBA32F
+    display_fbo: moderngl.Framebuffer    # final pass: display RGBA8 (+ the regions' mask)
+    linear_fbo: moderngl.Framebuffer     # the same pass's linear RGBA32F, drawn on demand
     resources: list
     rows: tuple | None = None            # the gradient per row: (linear, display) 1 x h textures
+    frames: int = 0                      # frames drawn into it (the last one's can be read)
 
 
 _targets: dict[tuple, _Target] = {}
@@ -542,22 +553,77 @@ def _make_target(ctx, w, h, samples, supersample=1) -> _Target:
     display = ctx.texture((w, h), 4, dtype="f1")
     linear = ctx.texture((w, h), 4, dtype="f4")
     mask = ctx.depth_renderbuffer((w, h))  # the final pass's regions (renderer.regions)
-    out_fbo = ctx.framebuffer([display, linear], mask)
-    return _Target(samples, supersample, draw_fbo, frame_tex, out_fbo,
-                   [out_fbo, draw_fbo, display, linear, mask, depth, frame_tex])
+    display_fbo = ctx.framebuffer([display], mask)
+    linear_fbo = ctx.framebuffer([linear], mask)
+    return _Target(samples, supersample, draw_fbo, frame_tex, display_fbo, linear_fbo,
+                   [display_fbo, linear_fbo, draw_fbo, display, linear, mask, depth, frame_tex])
 
 
 _BACKGROUND_MODES = {"transparent": 0, "env": 2, "gradient": 3}
+DISPLAY, LINEAR = 1, 2  # final.frag's OUTPUT
 
 
-def _finish(ctx, target: _Target, camera: Camera, env: gpu.GpuEnvironment,
-            options: RenderOptions, ground: "shadow.GroundShadow | None" = None,
-            polygon: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """The final pass (resolve, background, shadow, tone map), then one readback of each
-    output. Drawn as up to four programs over the regions that need them (renderer.regions):
-    the object's work inside its silhouette bound `polygon` (regions.object_polygon; marked
-    in the depth buffer, so the early depth test skips whole blocks), the shadow's inside its rectangle
-    (scissor). The pixels are those of one full-screen pass doing everything."""
+@dataclass
+class _FinalPass:
+    """One frame's final pass (resolve, background, shadow, tone map) as drawn: up to four
+    programs over the regions that need them (renderer.regions): the object's work inside
+    its silhouette bound (marked in the mask's depth by _mark_object, so the early depth test
+    skips whole blocks), the shadow's inside its rectangle (scissor). The pixels are those of
+    one full-screen pass doing everything. Drawn once for the display image and, when it is
+    asked for, again for the linear one (while the frame is still the target's last)."""
+    target: _Target
+    camera: Camera
+    env: gpu.GpuEnvironment
+    options: RenderOptions
+    ground: "shadow.GroundShadow | None"
+    draws: list  # (has_object, depth_func, has_shadow, scissor rect)
+    frame: int = 0  # target.frames when drawn
+
+    def draw(self, ctx, output: int) -> np.ndarray:
+        """Draw the pass's `output` (DISPLAY or LINEAR) and read it back."""
+        w, h = self.options.width, self.options.height
+        fbo = self.target.display_fbo if output == DISPLAY else self.target.linear_fbo
+        self.draw_into(ctx, fbo, output)
+        # final.frag writes rows top-first, so reading straight into numpy needs no flip or copy.
+        if output == DISPLAY:
+            out = np.empty((h, w, 4), np.uint8)
+            fbo.read_into(out, components=4)
+        else:
+            out = np.empty((h, w, 4), np.float32)
+            fbo.read_into(out, components=4, dtype="f4")
+        return out
+
+    def draw_into(self, ctx, fbo: moderngl.Framebuffer, output: int) -> None:
+        """The regions' programs for `output` drawn into `fbo` (whose depth is the mask)."""
+        target, options = self.target, self.options
+        rows = options.background == "gradient"
+        if rows:
+            _gradient_rows(ctx, target, self.camera, self.env, options)
+        fbo.use()
+        ctx.viewport = (0, 0, options.width, options.height)
+        target.frame_tex.use(0)
+        uniforms = _final_uniforms(target, self.camera, self.env, options, self.ground, rows)
+        fbo.depth_mask = False
+        for has_object, depth_func, has_shadow, part in self.draws:
+            if depth_func:
+                ctx.enable(moderngl.DEPTH_TEST)
+                ctx.depth_func = depth_func
+            else:
+                ctx.disable(moderngl.DEPTH_TEST)
+            prog = _final_program(target, options, has_object, has_shadow, rows, uniforms, output)
+            ctx.scissor = part  # the output's GL rows are image rows from the top (final.frag)
+            context.fullscreen_vao(prog).render(moderngl.TRIANGLES, vertices=3)
+        ctx.scissor = None
+        ctx.disable(moderngl.DEPTH_TEST)
+        ctx.depth_func = "<"
+        fbo.depth_mask = True
+
+
+def _final_pass(target: _Target, camera: Camera, env: gpu.GpuEnvironment, options: RenderOptions,
+                ground: "shadow.GroundShadow | None" = None,
+                polygon: np.ndarray | None = None) -> _FinalPass:
+    """The regions of the final pass and the programs each needs; `polygon` is the object's
+    silhouette bound (regions.object_polygon)."""
     w, h = options.width, options.height
     full = (0, 0, w, h)
     shade: regions.Rect | None = None
@@ -568,48 +634,55 @@ def _finish(ctx, target: _Target, camera: Camera, env: gpu.GpuEnvironment,
         y = ground.ground
         shade = regions.screen_rect(camera, np.array(
             [[x0, y, z0], [x0 + dx, y, z0], [x0, y, z0 + dz], [x0 + dx, y, z0 + dz]]), w, h)
-    fbo = target.out_fbo
-    fbo.use()
-    ctx.viewport = full
-    rows = options.background == "gradient"
-    if rows:
-        _gradient_rows(ctx, target, camera, env, options)
-        fbo.use()
-        ctx.viewport = full
-    target.frame_tex.use(0)
-    uniforms = _final_uniforms(target, camera, env, options, ground, rows)
-    fbo.depth_mask = False
     # Fragments of the full-screen triangle lie at depth 1: the object's program passes
     # where the bound wrote 0, the background's elsewhere.
     kinds = [(True, ">"), (False, "<=")] if polygon is not None else [(True, "")]
     reach = regions.bounding_rect(polygon, w, h) if polygon is not None and len(polygon) else None
+    draws = []
     for has_object, depth_func in kinds:
-        if depth_func:
-            ctx.enable(moderngl.DEPTH_TEST)
-            ctx.depth_func = depth_func
-        else:
-            ctx.disable(moderngl.DEPTH_TEST)
         parts = [(True, shade)] if shade is not None else []
         parts += [(False, r) for r in (regions.subtract(full, shade) if shade is not None else [full])]
         for has_shadow, rect in parts:
             part: regions.Rect | None = rect
             if has_object and depth_func:  # the bound's rectangle: no blocks to reject beyond it
                 part = regions.intersect(rect, reach) if reach is not None else None
-            if part is None or part[2] <= 0 or part[3] <= 0:
-                continue
-            prog = _final_program(target, options, has_object, has_shadow, rows, uniforms)
-            ctx.scissor = part  # the output's GL rows are image rows from the top (final.frag)
-            context.fullscreen_vao(prog).render(moderngl.TRIANGLES, vertices=3)
-    ctx.scissor = None
-    ctx.disable(moderngl.DEPTH_TEST)
-    ctx.depth_func = "<"
-    fbo.depth_mask = True
-    # final.frag writes rows top-first, so reading straight into numpy needs no flip or copy.
-    linear = np.empty((h, w, 4), np.float32)
-    rgba8 = np.empty((h, w, 4), np.uint8)
-    fbo.read_into(linear, components=4, attachment=1, dtype="f4")
-    fbo.read_into(rgba8, components=4, attachment=0)
-    return linear, rgba8
+            if part is not None and part[2] > 0 and part[3] > 0:
+                draws.append((has_object, depth_func, has_shadow, part))
+    return _FinalPass(target, camera, env, options, ground, draws, target.frames)
+
+
+class _LinearOnDemand:
+    """A frame's linear image, drawn by its final pass and read when first asked for. A later
+    frame draws over the target, so each render first reads the linear image of every earlier
+    frame still referenced (`_pending`); unreferenced ones are never drawn."""
+
+    def __init__(self, ctx: moderngl.Context, final: _FinalPass):
+        self.ctx, self.final = ctx, final
+        self.linear: np.ndarray | None = None
+
+    def drawable(self) -> bool:
+        """The frame is still its target's last, in this process's context (not a fork's)."""
+        return self.final.frame == self.final.target.frames and context.get_context() is self.ctx
+
+    def __call__(self) -> np.ndarray:
+        with _lock:
+            if self.linear is None:
+                if not self.drawable():
+                    raise RuntimeError("the frame's linear image is gone: its GL context ended")
+                self.linear = self.final.draw(self.ctx, LINEAR)
+            return self.linear
+
+
+_pending: list[weakref.ref[_LinearOnDemand]] = []
+
+
+def _read_pending() -> None:
+    """Read the linear images still owed before a new frame draws over their targets."""
+    for ref in _pending:
+        src = ref()
+        if src is not None and src.drawable():
+            src()
+    _pending.clear()
 
 
 _mask_draw: dict[int, tuple[moderngl.Buffer, moderngl.VertexArray]] = {}
@@ -618,10 +691,10 @@ MAX_POLYGON = 64  # vertices: 4 frame corners cut by 16 half-planes leave at mos
 
 def _mark_object(ctx, fbo: moderngl.Framebuffer, polygon: np.ndarray, w: int, h: int) -> None:
     """Depth 0 inside the silhouette bound, 1 elsewhere (colour untouched): the final pass
-    (_finish) tests against it."""
+    (_FinalPass) tests against it."""
     fbo.use()
     ctx.viewport = (0, 0, w, h)
-    fbo.color_mask = ((False,) * 4,) * 2  # type: ignore[assignment]  # one per attachment
+    fbo.color_mask = (False,) * 4  # type: ignore[assignment]  # stubs: a tuple per attachment
     fbo.clear(depth=1.0)
     if 3 <= len(polygon) <= MAX_POLYGON:  # fewer: the object is out of view
         prog = context.program("region_mask.vert", "region_mask.frag", {})
@@ -637,7 +710,7 @@ def _mark_object(ctx, fbo: moderngl.Framebuffer, polygon: np.ndarray, w: int, h:
         vao.render(moderngl.TRIANGLE_FAN, vertices=len(polygon))
         ctx.depth_func = "<"
         ctx.disable(moderngl.DEPTH_TEST)
-    fbo.color_mask = ((True,) * 4,) * 2  # type: ignore[assignment]
+    fbo.color_mask = (True,) * 4  # type: ignore[assignment]
 
 
 def _gradient_rows(ctx, target: _Target, camera: Camera, env: gpu.GpuEnvironment,
@@ -655,7 +728,7 @@ def _gradient_rows(ctx, target: _Target, camera: Camera, env: gpu.GpuEnvironment
     ctx.viewport = (0, 0, options.width, h)  # the frame's: v_ndc is interpolated as there
     ctx.disable(moderngl.DEPTH_TEST)
     uniforms = _final_uniforms(target, camera, env, options, None, False)
-    prog = _final_program(target, options, False, False, False, uniforms)
+    prog = _final_program(target, options, False, False, False, uniforms, DISPLAY | LINEAR)
     context.fullscreen_vao(prog).render(moderngl.TRIANGLES, vertices=3)
     target.rows = (linear, display)
     target.resources += [fbo, linear, display]
@@ -695,12 +768,14 @@ def _final_uniforms(target: _Target, camera: Camera, env: gpu.GpuEnvironment,
 
 
 def _final_program(target: _Target, options: RenderOptions, has_object: bool, has_shadow: bool,
-                   rows: bool, uniforms: dict) -> moderngl.Program:
-    """final.frag for one kind of region, with the frame's `uniforms` it reads set."""
+                   rows: bool, uniforms: dict, output: int) -> moderngl.Program:
+    """final.frag for one kind of region and `output` (DISPLAY, LINEAR or both), with the
+    frame's `uniforms` it reads set."""
     mode = _BACKGROUND_MODES.get(options.background, 1)
     defines = {"TONEMAP": _TONEMAPS[options.tonemap], "BACKGROUND": mode,
                "SAMPLES": max(target.samples, 1), "SHADOW": int(has_shadow),
-               "OBJECT": int(has_object), "SUPERSAMPLE": target.supersample, "ROWS": int(rows)}
+               "OBJECT": int(has_object), "SUPERSAMPLE": target.supersample, "ROWS": int(rows),
+               "OUTPUT": output}
     if options.alpha == "coverage":
         defines["COVERAGE_ALPHA"] = 1
     if mode == 2 and _env_rotated(options):

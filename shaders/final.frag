@@ -7,7 +7,9 @@
 // ground contact shadow (renderer/shadow.py) darkens the background, never the object.
 // OBJECT 0: a region of the frame the object does not reach (renderer.render draws the pass
 // in scissored regions, each with only the work its pixels need): no MSAA fetch, coverage 0.
-// Outputs: 0 = display RGBA8 (straight alpha), 1 = linear RGBA float (premultiplied).
+// Outputs: display RGBA8 (straight alpha) and linear RGBA float (premultiplied). OUTPUT 1:
+// display alone, 2: linear alone (each at location 0: a thumbnail draws no linear image and
+// the linear pass no tone mapping), 3: both (locations 0 and 1).
 // renderer/frame.py holds the same tone-mapping arithmetic in numpy.
 #include "ibl.glsl"
 
@@ -46,8 +48,19 @@ uniform float u_ground;         //   world y of the ground
 uniform float u_shadow_strength;
 uniform vec3 u_camera_position;
 in vec2 v_ndc;
+#ifndef OUTPUT
+#define OUTPUT 3
+#endif
+#if OUTPUT == 1
+layout(location = 0) out vec4 f_display;
+vec4 f_linear;   // not an output: the compiler drops what only it needs
+#elif OUTPUT == 2
+layout(location = 0) out vec4 f_linear;
+vec4 f_display;
+#else
 layout(location = 0) out vec4 f_display;
 layout(location = 1) out vec4 f_linear;
+#endif
 
 vec3 pbr_neutral(vec3 c) {  // Khronos PBR Neutral
     const float start = 0.8 - 0.04;
