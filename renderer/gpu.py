@@ -10,7 +10,7 @@ import logging
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Callable, TypeVar
+from typing import Any, Callable, TypeVar
 
 import moderngl
 import numpy as np
@@ -85,6 +85,7 @@ class GpuMesh:
     nbytes: int
     vaos: dict[tuple, moderngl.VertexArray] = field(default_factory=dict)
     states: dict = field(default_factory=dict)  # renderer's per-material state, by override
+    edges: Any = None  # renderer.edges.Adjacency, built on the first edge-smoothed frame
 
     def vao(self, prog: moderngl.Program, mirrored: bool) -> moderngl.VertexArray:
         key = (prog.glo, mirrored)

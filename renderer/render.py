@@ -32,7 +32,7 @@ from core.cubemap import env_rotation_matrix
 from core.options import RenderOptions, apply_override, background_rgb
 from core.scene import Material, is_srgb
 
-from . import gpu, regions, shadow
+from . import edges, gpu, regions, shadow
 from .camera import Camera
 from .frame import Frame, FrameTimings, alpha_is_mask, exposure_scale
 from .framing import asset_camera
@@ -238,7 +238,8 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     camera, shadowed, shadow_why = asset_camera(asset, options)
     items = _plan_items(gasset, options, auto)
     lights = gasset.lights[:MAX_LIGHTS] if options.lights else []
-    target = _target(ctx, w, h, options.msaa, supersample)
+    edge_aa = _edge_antialiasing(asset, options, supersample)
+    target = _target(ctx, w, h, 0 if edge_aa else options.msaa, supersample, edge_aa)
     target.frames += 1
     pass_ = Pass(ctx, target.draw_fbo, camera, genv, gasset, options,
                  _frame_defines(options, lights), _frame_uniforms(camera, genv, lights, options))
@@ -272,6 +273,9 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     ctx.disable(moderngl.CULL_FACE)
     ctx.disable(moderngl.DEPTH_TEST)
     ctx.disable(moderngl.BLEND)
+    if target.edge_fbo is not None and target.depth_tex is not None:
+        edges.draw(ctx, target.edge_fbo, target.depth_tex, _edge_segments(items, camera),
+                   camera.projection_matrix() @ camera.view_matrix(), w, h)
     t_draw = time.perf_counter()
 
     t_shadow = time.perf_counter()
@@ -294,6 +298,7 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
         "view": {"yaw": options.yaw, "pitch": options.pitch,
                  "distance": round(float(np.linalg.norm(camera.position - camera.target)), 6)},
         "tonemap": options.tonemap,
+        "antialias": "edges" if edge_aa else "msaa" if target.samples else "none",
         "msaa": target.samples,
         **({"supersample": supersample} if supersample > 1 else {}),
         "uploaded": {k: gpu.stats[k] - uploads_before[k] for k in ("asset_uploads", "environment_uploads")},
@@ -305,6 +310,22 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
                                                 "shadow": (t_draw_end - t_shadow) * 1e3,
                                                 "finish": (t_end - t_draw_end) * 1e3})
     return Frame(linear, rgba8, plan, timings, alpha_is_mask=alpha_is_mask(options))
+
+
+def _edge_antialiasing(asset: BakedAsset, options: RenderOptions, supersample: int) -> bool:
+    """Whether the frame is smoothed by renderer.edges rather than by MSAA samples."""
+    return (options.antialias == "edges" and options.msaa > 1 and supersample == 1
+            and asset.triangle_count <= edges.MAX_TRIANGLES)
+
+
+def _edge_segments(items: list[DrawItem], camera: Camera) -> np.ndarray:
+    """World endpoints of every drawn mesh's edges to smooth (renderer.edges) from `camera`."""
+    parts = []
+    for it in items:
+        if it.mesh.edges is None:  # built once per upload
+            it.mesh.edges = edges.adjacency(it.mesh.baked.positions, it.mesh.baked.indices)
+        parts.append(edges.segments(it.mesh.edges, it.mesh.baked.transforms, camera.position))
+    return np.concatenate(parts) if parts else np.zeros((0, 2, 3))
 
 
 def validate_options(o: RenderOptions) -> None:
@@ -520,6 +541,9 @@ class _Target:
     resources: list
     rows: tuple | None = None            # the gradient per row: (linear, display) 1 x h textures
     frames: int = 0                      # frames drawn into it (the last one's can be read)
+    depth_tex: moderngl.Texture | None = None   # edge anti-aliasing (renderer.edges): the
+    edge_tex: moderngl.Texture | None = None    # geometry's depth as a texture, and the
+    edge_fbo: moderngl.Framebuffer | None = None  # target its edge lines are drawn into
 
 
 _targets: dict[tuple, _Target] = {}
@@ -527,16 +551,17 @@ _targets_ctx: int | None = None
 MAX_TARGETS = 4
 
 
-def _target(ctx: moderngl.Context, w: int, h: int, msaa: int, supersample: int = 1) -> _Target:
+def _target(ctx: moderngl.Context, w: int, h: int, msaa: int, supersample: int = 1,
+            edge_aa: bool = False) -> _Target:
     global _targets_ctx
     if _targets_ctx != id(ctx):
         _targets.clear()
         _targets_ctx = id(ctx)
     samples = 0 if msaa <= 1 else min(int(msaa), ctx.max_samples)
-    key = (w, h, samples, supersample)
+    key = (w, h, samples, supersample, edge_aa)
     t = _targets.pop(key, None)
     if t is None:
-        t = _make_target(ctx, w, h, samples, supersample)
+        t = _make_target(ctx, w, h, samples, supersample, edge_aa)
     _targets[key] = t
     while len(_targets) > MAX_TARGETS:
         for r in _targets.pop(next(iter(_targets))).resources:
@@ -544,19 +569,28 @@ def _target(ctx: moderngl.Context, w: int, h: int, msaa: int, supersample: int =
     return t
 
 
-def _make_target(ctx, w, h, samples, supersample=1) -> _Target:
+def _make_target(ctx, w, h, samples, supersample=1, edge_aa=False) -> _Target:
     # RGBA16F samples: half the memory traffic of 32F on a CPU rasteriser; 11-bit mantissa.
     size = (w * supersample, h * supersample)
     frame_tex = ctx.texture(size, 4, samples=samples, dtype="f2")
-    depth = ctx.depth_renderbuffer(size, samples=samples)
+    depth_tex = edge_tex = edge_fbo = None
+    if edge_aa:  # the edge lines read the depth (renderer.edges)
+        depth = depth_tex = ctx.depth_texture(size)
+        depth_tex.compare_func = ""  # read as values, not as a shadow comparison
+        edge_tex = ctx.texture((w, h), 2, dtype="f2")
+        edge_fbo = ctx.framebuffer([edge_tex])
+    else:
+        depth = ctx.depth_renderbuffer(size, samples=samples)
     draw_fbo = ctx.framebuffer([frame_tex], depth)
     display = ctx.texture((w, h), 4, dtype="f1")
     linear = ctx.texture((w, h), 4, dtype="f4")
     mask = ctx.depth_renderbuffer((w, h))  # the final pass's regions (renderer.regions)
     display_fbo = ctx.framebuffer([display], mask)
     linear_fbo = ctx.framebuffer([linear], mask)
+    extra = [edge_fbo, edge_tex] if edge_fbo is not None else []
     return _Target(samples, supersample, draw_fbo, frame_tex, display_fbo, linear_fbo,
-                   [display_fbo, linear_fbo, draw_fbo, display, linear, mask, depth, frame_tex])
+                   [display_fbo, linear_fbo, draw_fbo, display, linear, mask, depth, frame_tex, *extra],
+                   depth_tex=depth_tex, edge_tex=edge_tex, edge_fbo=edge_fbo)
 
 
 _BACKGROUND_MODES = {"transparent": 0, "env": 2, "gradient": 3}
@@ -742,6 +776,9 @@ def _final_uniforms(target: _Target, camera: Camera, env: gpu.GpuEnvironment,
     mode = _BACKGROUND_MODES.get(options.background, 1)
     u: dict = {"u_frame": 0, "u_height": options.height,
                "u_exposure_scale": exposure_scale(options.exposure)}
+    if target.edge_tex is not None:
+        u["u_edge"] = 5
+        target.edge_tex.use(5)
     if rows and target.rows is not None:
         u.update(u_rows_linear=3, u_rows_display=4)
         target.rows[0].use(3)
@@ -778,6 +815,8 @@ def _final_program(target: _Target, options: RenderOptions, has_object: bool, ha
                "OUTPUT": output}
     if options.alpha == "coverage":
         defines["COVERAGE_ALPHA"] = 1
+    if target.edge_tex is not None and has_object:
+        defines["EDGE"] = 1
     if mode == 2 and _env_rotated(options):
         defines["ENV_ROTATED"] = 1
     prog = context.program("screen_triangle.vert", "final.frag", defines)

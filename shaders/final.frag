@@ -34,6 +34,9 @@ uniform sampler2DMS u_frame;
 #else
 uniform sampler2D u_frame;
 #endif
+#ifdef EDGE
+uniform sampler2D u_edge;       // per pixel: step to the neighbour across an edge x its weight
+#endif
 uniform int u_height;
 uniform float u_exposure_scale; // 2^EV
 uniform vec3 u_background;      // BACKGROUND 1: sRGB colour
@@ -146,6 +149,10 @@ void main() {
     vec4 p = vec4(0.0);
     for (int i = 0; i < SAMPLES; ++i) p += texelFetch(u_frame, xy, i);
     p /= float(SAMPLES);
+#elif defined(EDGE)  // renderer.edges: mixed with the neighbour across an edge crossing it
+    vec4 p = texelFetch(u_frame, xy, 0);
+    vec2 e = texelFetch(u_edge, xy, 0).xy;
+    p = mix(p, texelFetch(u_frame, xy + ivec2(sign(e)), 0), abs(e.x) + abs(e.y));
 #else
     vec4 p = texelFetch(u_frame, xy, 0);
 #endif

@@ -1,0 +1,123 @@
+"""Edge anti-aliasing: the frame is shaded once per pixel, and each pixel that a silhouette or
+crease edge crosses is blended with its neighbour across the edge by the share of the pixel
+that lies beyond it (geometric post-process anti-aliasing, Persson 2011).
+
+On a CPU rasteriser 4x MSAA costs a third of a thumbnail whatever the shader (llvmpipe's
+per-sample coverage, depth and colour work), while the edges that need smoothing are a few
+hundred segments. Here they are found per frame from each mesh's edge adjacency (built once
+per upload): an edge between a face turned toward the camera and one turned away (the
+silhouette), or a boundary edge. (Creases are left alone: across a crease the neighbour pixel
+often shows neither face, as on a slab thinner than a pixel, and blending it adds a seam.)
+Each edge is drawn as a strip two pixels wide (shaders/edge.frag) into a two-channel target:
+per pixel, the step to the neighbour across the edge times the share of the pixel that lies
+beyond the edge (0 off the edges); the final pass (shaders/final.frag, EDGE) mixes the two
+pixels by it. A pixel is left alone where the edge is behind the depth buffer on both sides
+of it, so hidden edges blend nothing.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import cast
+
+import moderngl
+import numpy as np
+
+from core import context
+
+MAX_TRIANGLES = 500_000  # a frame with more: MSAA instead (adjacency and per-frame edge cost)
+
+
+@dataclass
+class Adjacency:
+    """A mesh's edges over its welded positions (vertices split for UVs or normals share one)."""
+    points: np.ndarray   # P x 3 welded positions
+    edges: np.ndarray    # E x 2 point indices
+    faces: np.ndarray    # E x 2 face indices (second -1: a boundary edge)
+    corner: np.ndarray   # F x 3: a point of each face
+    normal: np.ndarray   # F x 3: each face's normal (unnormalised, by winding)
+
+
+def adjacency(positions: np.ndarray, indices: np.ndarray) -> Adjacency:
+    points, inverse = np.unique(np.asarray(positions, np.float64), axis=0, return_inverse=True)
+    tri = inverse.reshape(-1)[np.asarray(indices, np.int64).reshape(-1, 3)]
+    nf = len(tri)
+    pairs = np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1)
+    face = np.tile(np.arange(nf), 3)
+    order = np.lexsort((pairs[:, 1], pairs[:, 0]))
+    pairs, face = pairs[order], face[order]
+    edges, first, count = np.unique(pairs, axis=0, return_index=True, return_counts=True)
+    # An edge of three or more faces (non-manifold) keeps its first two.
+    faces = np.stack([face[first], np.where(count >= 2, face[np.minimum(first + 1, len(face) - 1)], -1)], 1)
+    p0, p1, p2 = points[tri[:, 0]], points[tri[:, 1]], points[tri[:, 2]]
+    keep = edges[:, 0] != edges[:, 1]  # not the edge of a face with two welded corners
+    return Adjacency(points, edges[keep], faces[keep], p0, np.cross(p1 - p0, p2 - p0))
+
+
+def segments(adj: Adjacency, transforms: np.ndarray, eye: np.ndarray) -> np.ndarray:
+    """World endpoints (N x 2 x 3) of the edges to smooth, over every instance seen from `eye`:
+    silhouettes (one face turned toward the eye, the other away) and boundary edges of a face
+    turned toward it."""
+    out = []
+    a, b = adj.faces[:, 0], adj.faces[:, 1]
+    boundary = b < 0
+    for m in np.asarray(transforms, np.float64):
+        local_eye = np.linalg.solve(m, np.r_[eye, 1.0])[:3]  # the facing test in mesh space
+        toward = np.einsum("ij,ij->i", adj.normal, local_eye - adj.corner) > 0
+        ta, tb = toward[a], toward[np.maximum(b, 0)]
+        chosen = np.where(boundary, ta, ta != tb)
+        ends = adj.points[adj.edges[chosen]]
+        out.append(ends @ m[:3, :3].T + m[:3, 3])
+    return np.concatenate(out) if out else np.zeros((0, 2, 3))
+
+
+_lines: dict[int, tuple[moderngl.Buffer, moderngl.VertexArray]] = {}
+
+
+def _strips(ndc: np.ndarray, w: int, h: int) -> np.ndarray:
+    """Two triangles per edge (N x 2 x 3 NDC ends) covering every pixel whose centre lies within
+    a pixel of it across its minor axis (the pixels it can cover part of), each vertex with
+    both ends in window pixels: 6N x 7 float32."""
+    pixels = (ndc[..., :2] * 0.5 + 0.5) * (w, h)
+    d = np.abs(pixels[:, 1] - pixels[:, 0])
+    across = np.where((d[:, 0] >= d[:, 1])[:, None], (0.0, 2.0 / h), (2.0 / w, 0.0))  # 1 px, NDC
+    a, b = ndc[:, 0], ndc[:, 1]
+    off = np.c_[across, np.zeros(len(ndc))]
+    corners = np.stack([a - off, a + off, b + off, a - off, b + off, b - off], axis=1)
+    line = np.repeat(pixels.reshape(-1, 1, 4), 6, axis=1)
+    return np.concatenate([corners, line], axis=2).astype(np.float32).reshape(-1, 7)
+
+
+def draw(ctx: moderngl.Context, fbo: moderngl.Framebuffer, depth: moderngl.Texture,
+         world: np.ndarray, view_proj: np.ndarray, w: int, h: int) -> None:
+    """Clear `fbo` (the edge target) and draw the edges `world` (N x 2 x 3) into it, tested
+    against the frame's `depth` texture."""
+    fbo.use()
+    ctx.viewport = (0, 0, w, h)
+    fbo.clear(0.0, 0.0, 0.0, 0.0)
+    if not len(world):
+        return
+    hom = np.c_[world.reshape(-1, 3), np.ones(2 * len(world))] @ np.asarray(view_proj, np.float64).T
+    hom = hom.reshape(-1, 2, 4)
+    # An edge reaching behind the camera's plane has no screen line: it is left unsmoothed.
+    hom = hom[(hom[..., 3] > 1e-9 * max(float(np.abs(hom[..., 3]).max()), 1e-300)).all(axis=1)]
+    if not len(hom):
+        return
+    ndc = hom[..., :3] / hom[..., 3:4]
+    verts = _strips(ndc, w, h)
+    data = np.ascontiguousarray(verts).tobytes()
+    prog = context.program("edge.vert", "edge.frag", {})
+    buf, vao = _lines.get(id(ctx), (None, None))
+    if buf is None or vao is None or buf.size < len(data):
+        if buf is not None and vao is not None:
+            vao.release()
+            buf.release()
+        _lines.clear()
+        buf = ctx.buffer(reserve=max(len(data) * 2, 1 << 16))
+        vao = ctx.vertex_array(prog, [(buf, "3f 4f", "in_ndc", "in_line")])
+        _lines[id(ctx)] = (buf, vao)
+    buf.write(data)
+    members = cast(dict, prog)
+    members["u_depth"].value = 0
+    members["u_size"].value = (w, h)
+    depth.use(0)
+    vao.render(moderngl.TRIANGLES, vertices=len(verts))

@@ -1,0 +1,136 @@
+"""Edge anti-aliasing (renderer.edges): which edges a view smooths, and what the smoothing
+does to a frame: only pixels on an edge change, hidden edges change nothing, and frames it
+cannot serve fall back to MSAA. Its quality against 16x supersampling is measured in
+tests/test_antialiasing.py."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from gltf_builder import CUBE_INDICES, CUBE_POSITIONS, Builder
+
+import pipeline
+from core.cubemap import default_face_size
+from core.options import RenderOptions
+from pipeline.panorama import DEFAULT_ENVIRONMENT
+from renderer import edges, render
+
+# The cube as an exporter writes it for flat shading: every face with vertices of its own.
+SPLIT_POSITIONS = CUBE_POSITIONS[CUBE_INDICES.reshape(-1)]
+SPLIT_INDICES = np.arange(len(SPLIT_POSITIONS), dtype=np.uint32).reshape(-1, 3)
+
+
+def _keys(world: np.ndarray) -> set:
+    return {tuple(sorted(map(tuple, np.round(seg, 6).tolist()))) for seg in world}
+
+
+def test_adjacency_welds_split_vertices():
+    adj = edges.adjacency(SPLIT_POSITIONS, SPLIT_INDICES)
+    assert len(adj.points) == 8
+    assert len(adj.edges) == 18  # 12 cube edges and 6 face diagonals
+    assert (adj.faces[:, 1] >= 0).all()  # closed: no boundary
+
+
+def test_a_view_smooths_its_silhouette():
+    adj = edges.adjacency(SPLIT_POSITIONS, SPLIT_INDICES)
+    world = edges.segments(adj, np.eye(4)[None], np.array([5.0, 4.0, 3.0]))
+    assert len(world) == 6  # the six-sided outline
+    for corner in ([1.0, 1.0, 1.0], [-1.0, -1.0, -1.0]):  # nearest and farthest: inside it
+        assert not any(np.any(np.all(np.isclose(s, corner), axis=1)) for s in world)
+    # in front, a face-on view: the square outline alone
+    assert len(edges.segments(adj, np.eye(4)[None], np.array([0.0, 0.0, 5.0]))) == 4
+
+
+def test_instances_are_smoothed_where_they_stand_mirrored_or_not():
+    adj = edges.adjacency(SPLIT_POSITIONS, SPLIT_INDICES)
+    eye = np.array([5.0, 4.0, 3.0])
+    move = np.eye(4)
+    move[:3, 3] = (10.0, 0.0, 0.0)
+    mirror = np.diag([-1.0, 1.0, 1.0, 1.0])
+    base = edges.segments(adj, np.eye(4)[None], eye)
+    moved = edges.segments(adj, move[None], eye + move[:3, 3])
+    assert _keys(moved) == _keys(base + move[:3, 3])
+    mirrored = edges.segments(adj, mirror[None], eye * (-1.0, 1.0, 1.0))
+    assert _keys(mirrored) == _keys(base * (-1.0, 1.0, 1.0))
+    assert len(edges.segments(adj, np.stack([np.eye(4), move]), eye)) > len(base)
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    return tmp_path_factory.mktemp("edges")
+
+
+def _cubes(tmp_path_factory, hidden: bool):
+    """A dark cube, and (hidden) a small one straight behind it from the +Z camera."""
+    b = Builder()
+    dark = b.material(pbrMetallicRoughness={"baseColorFactor": [0.02, 0.02, 0.02, 1.0],
+                                            "metallicFactor": 0.0, "roughnessFactor": 0.9})
+    b.node(b.mesh(CUBE_POSITIONS, CUBE_INDICES, material=dark), rotation=[0.0, 0.2588, 0.0, 0.9659])
+    if hidden:
+        b.node(b.mesh(CUBE_POSITIONS * 0.3, CUBE_INDICES, material=dark), translation=[0.0, 0.0, -3.0])
+    return b.write(tmp_path_factory.mktemp("cubes") / f"cubes{int(hidden)}.glb")
+
+
+VIEW = {"yaw": 0.0, "pitch": 10.0, "distance": 6.0, "target": (0.0, 0.0, 0.0), "shadow": 0.0,
+        "background": "#ffffff"}
+
+
+def _frames(asset, env, **look):
+    o = RenderOptions(width=96, height=96, **{**VIEW, **look})
+    return render(asset, env, o), render(asset, env, dataclasses.replace(o, msaa=0))
+
+
+def test_only_pixels_on_an_edge_change(cache, tmp_path_factory):
+    asset = pipeline.bake_asset(_cubes(tmp_path_factory, False), cache)
+    env = pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(96))
+    smooth, none = _frames(asset, env)
+    assert smooth.plan["antialias"] == "edges" and none.plan["antialias"] == "none"
+    a, b = smooth.rgba8[..., :3].astype(int), none.rgba8[..., :3].astype(int)
+    changed = np.abs(a - b).max(axis=-1) > 0
+    assert changed.sum() > 40, "the cube's outline was not smoothed"
+    # Each pixel is mixed with one 4-neighbour: it moves toward that neighbour's value, by at
+    # most the difference between the two (flat faces and the background stay as they were).
+    pad = np.pad(b, ((1, 1), (1, 1), (0, 0)), mode="edge")
+    near = [pad[1 + dy:97 + dy, 1 + dx:97 + dx] for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1))]
+    reach = np.max([np.abs(n - b).max(axis=-1) for n in near], axis=0)
+    moved = np.abs(a - b).max(axis=-1)
+    assert (moved <= reach + 1).all(), (moved - reach).max()
+    assert (moved[reach == 0] == 0).all()
+    # smoothed outline pixels lie between the cube's grey and the white background
+    lum = a.mean(axis=-1)
+    assert ((lum[changed] > 40) & (lum[changed] < 230)).sum() > 20
+
+
+def test_coverage_alpha_on_a_transparent_background(cache, tmp_path_factory):
+    asset = pipeline.bake_asset(_cubes(tmp_path_factory, False), cache)
+    env = pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(96))
+    smooth, none = _frames(asset, env, background="transparent")
+    assert set(np.unique(none.rgba8[..., 3])) <= {0, 255}
+    partial = (smooth.rgba8[..., 3] > 0) & (smooth.rgba8[..., 3] < 255)
+    assert partial.sum() > 40
+    alpha = smooth.linear[..., 3]
+    assert ((alpha > 0.01) & (alpha < 0.99)).sum() > 40  # the linear image's coverage too
+
+
+def test_hidden_edges_change_nothing(cache, tmp_path_factory):
+    env = pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(96))
+    alone = pipeline.bake_asset(_cubes(tmp_path_factory, False), cache)
+    behind = pipeline.bake_asset(_cubes(tmp_path_factory, True), cache)
+    a, _ = _frames(alone, env)
+    b, none = _frames(behind, env)
+    assert np.array_equal(_frames(alone, env)[1].rgba8, none.rgba8)  # nothing of it shows
+    assert np.array_equal(a.rgba8, b.rgba8)
+
+
+def test_msaa_when_asked_for_or_when_the_frame_is_too_big(cache, assets, monkeypatch):
+    asset = pipeline.bake_asset(assets / "gltf/Duck.glb", cache)
+    env = pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(64))
+    o = RenderOptions(width=64, height=64)
+    assert render(asset, env, o).plan["antialias"] == "edges"
+    msaa = render(asset, env, dataclasses.replace(o, antialias="msaa"))
+    assert msaa.plan["antialias"] == "msaa" and msaa.plan["msaa"] == 4
+    monkeypatch.setattr(edges, "MAX_TRIANGLES", asset.triangle_count - 1)
+    big = render(asset, env, o)
+    assert big.plan["antialias"] == "msaa"
+    assert np.array_equal(big.rgba8, msaa.rgba8)
