@@ -33,8 +33,8 @@ class Adjacency:
     points: np.ndarray   # P x 3 welded positions
     edges: np.ndarray    # E x 2 point indices
     faces: np.ndarray    # E x 2 face indices (second -1: a boundary edge)
-    corner: np.ndarray   # F x 3: a point of each face
     normal: np.ndarray   # F x 3: each face's normal (unnormalised, by winding)
+    offset: np.ndarray   # F: normal . a corner (a face is turned toward e where normal . e > offset)
 
 
 def adjacency(positions: np.ndarray, indices: np.ndarray) -> Adjacency:
@@ -50,7 +50,8 @@ def adjacency(positions: np.ndarray, indices: np.ndarray) -> Adjacency:
     faces = np.stack([face[first], np.where(count >= 2, face[np.minimum(first + 1, len(face) - 1)], -1)], 1)
     p0, p1, p2 = points[tri[:, 0]], points[tri[:, 1]], points[tri[:, 2]]
     keep = edges[:, 0] != edges[:, 1]  # not the edge of a face with two welded corners
-    return Adjacency(points, edges[keep], faces[keep], p0, np.cross(p1 - p0, p2 - p0))
+    normal = np.cross(p1 - p0, p2 - p0)
+    return Adjacency(points, edges[keep], faces[keep], normal, np.einsum("ij,ij->i", normal, p0))
 
 
 def segments(adj: Adjacency, transforms: np.ndarray, eye: np.ndarray) -> np.ndarray:
@@ -60,9 +61,10 @@ def segments(adj: Adjacency, transforms: np.ndarray, eye: np.ndarray) -> np.ndar
     out = []
     a, b = adj.faces[:, 0], adj.faces[:, 1]
     boundary = b < 0
+    eye4 = np.append(np.asarray(eye, np.float64), 1.0)
     for m in np.asarray(transforms, np.float64):
-        local_eye = np.linalg.solve(m, np.r_[eye, 1.0])[:3]  # the facing test in mesh space
-        toward = np.einsum("ij,ij->i", adj.normal, local_eye - adj.corner) > 0
+        local_eye = np.linalg.solve(m, eye4)[:3]  # the facing test in mesh space
+        toward = adj.normal @ local_eye > adj.offset
         ta, tb = toward[a], toward[np.maximum(b, 0)]
         chosen = np.where(boundary, ta, ta != tb)
         ends = adj.points[adj.edges[chosen]]
@@ -79,12 +81,15 @@ def _strips(ndc: np.ndarray, w: int, h: int) -> np.ndarray:
     both ends in window pixels: 6N x 7 float32."""
     pixels = (ndc[..., :2] * 0.5 + 0.5) * (w, h)
     d = np.abs(pixels[:, 1] - pixels[:, 0])
-    across = np.where((d[:, 0] >= d[:, 1])[:, None], (0.0, 2.0 / h), (2.0 / w, 0.0))  # 1 px, NDC
+    off = np.zeros((len(ndc), 3))  # 1 pixel across the minor axis, in NDC
+    horizontal = d[:, 0] >= d[:, 1]
+    off[horizontal, 1] = 2.0 / h
+    off[~horizontal, 0] = 2.0 / w
     a, b = ndc[:, 0], ndc[:, 1]
-    off = np.c_[across, np.zeros(len(ndc))]
-    corners = np.stack([a - off, a + off, b + off, a - off, b + off, b - off], axis=1)
-    line = np.repeat(pixels.reshape(-1, 1, 4), 6, axis=1)
-    return np.concatenate([corners, line], axis=2).astype(np.float32).reshape(-1, 7)
+    out = np.empty((len(ndc), 6, 7), np.float32)
+    out[:, :, :3] = np.stack([a - off, a + off, b + off, a - off, b + off, b - off], axis=1)
+    out[:, :, 3:] = pixels.reshape(-1, 1, 4)
+    return out.reshape(-1, 7)
 
 
 def draw(ctx: moderngl.Context, fbo: moderngl.Framebuffer, depth: moderngl.Texture,
@@ -96,8 +101,8 @@ def draw(ctx: moderngl.Context, fbo: moderngl.Framebuffer, depth: moderngl.Textu
     fbo.clear(0.0, 0.0, 0.0, 0.0)
     if not len(world):
         return
-    hom = np.c_[world.reshape(-1, 3), np.ones(2 * len(world))] @ np.asarray(view_proj, np.float64).T
-    hom = hom.reshape(-1, 2, 4)
+    vp = np.asarray(view_proj, np.float64)
+    hom = world @ vp[:, :3].T + vp[:, 3]  # N x 2 x 4 clip coordinates
     # An edge reaching behind the camera's plane has no screen line: it is left unsmoothed.
     hom = hom[(hom[..., 3] > 1e-9 * max(float(np.abs(hom[..., 3]).max()), 1e-300)).all(axis=1)]
     if not len(hom):
