@@ -406,7 +406,7 @@ def _turntable(asset, env, options, n: int) -> tuple[float, float]:
     draw, encode = [], []
     for _ in range(3):
         t = time.perf_counter()
-        frames = render_turntable(asset, env, opts)
+        frames = render_turntable(asset, env, opts, keep_linear=False)  # as the service does
         t1 = time.perf_counter()
         encode_animation(frames, "webp")
         draw.append((t1 - t) * 1e3 / n)

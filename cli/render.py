@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
     from renderer.sequence import encode_animation, render_turntable, render_views
     try:
         if options.turntable:  # N frames from this one bake and one upload
-            frames = render_turntable(asset, env, options)
+            frames = render_turntable(asset, env, options, keep_linear=bool(args.linear))
             frame = frames[0]
         elif options.views:
             frame = render_views(asset, env, options)

@@ -1,7 +1,8 @@
 """`render(asset, env, options) -> Frame`: one offscreen frame of a baked asset.
 
 Passes: opaque and mask meshes, transmissive meshes by their method, blend meshes back to
-front, all into one MSAA float framebuffer; then the final pass (resolve + background +
+front, all into one float framebuffer (one sample per pixel, then the edges smoothed by
+renderer.edges; or MSAA, antialias=msaa); then the final pass (resolve + background +
 shadow + tone mapping, shaders/final.frag) into RGBA8, drawn per region with only the work
 each region's pixels need (renderer.regions), and its readback. The linear float image is
 drawn by the same pass and read only when the frame's `linear` is first asked for (a
@@ -534,7 +535,7 @@ def _draw_blend(p: Pass, items: list[DrawItem]) -> None:
 class _Target:
     samples: int
     supersample: int                     # draw_fbo is this many times the output on each axis
-    draw_fbo: moderngl.Framebuffer       # geometry: MSAA colour (premultiplied linear) + depth
+    draw_fbo: moderngl.Framebuffer       # geometry: colour (premultiplied linear, MSAA or not) + depth
     frame_tex: moderngl.Texture          # its colour, read by the final pass
     display_fbo: moderngl.Framebuffer    # final pass: display RGBA8 (+ the regions' mask)
     linear_fbo: moderngl.Framebuffer     # the same pass's linear RGBA32F, drawn on demand

@@ -46,18 +46,28 @@ def turntable_distance(asset: BakedAsset, options: RenderOptions) -> float:
     return far
 
 
-def render_turntable(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions) -> list[Frame]:
-    """options.turntable frames around +Y (at least one)."""
+def render_turntable(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
+                     keep_linear: bool = True) -> list[Frame]:
+    """options.turntable frames around +Y (at least one). With keep_linear False the frames
+    hold their display pixels only (an animation's encoder reads no more): a kept frame's
+    linear image costs a pass of its own before the next frame (renderer.render)."""
     distance = turntable_distance(asset, options)
     uploads = dict(gpu.stats)
     frames = []
     for yaw in turntable_angles(options):
-        frames.append(render(asset, env, dataclasses.replace(
-            options, yaw=yaw, distance=distance, turntable=0, views=False)))
+        frame = render(asset, env, dataclasses.replace(
+            options, yaw=yaw, distance=distance, turntable=0, views=False))
+        if not keep_linear:  # the frame's pending linear image goes with it, never drawn
+            frame = Frame(_no_linear, frame.rgba8, frame.plan, frame.timings, frame.alpha_is_mask)
+        frames.append(frame)
     frames[0].plan["turntable"] = {
         "frames": len(frames), "distance": distance, "frame_ms": FRAME_MS,
         "uploaded": {k: gpu.stats[k] - uploads[k] for k in ("asset_uploads", "environment_uploads")}}
     return frames
+
+
+def _no_linear():
+    raise RuntimeError("a turntable rendered with keep_linear=False keeps display pixels only")
 
 
 def encode_animation(frames: list[Frame], fmt: str = "webp", quality: int | None = None) -> bytes:

@@ -146,7 +146,7 @@ class WorkerState:
         env = self._env(env_source, environment_face_size(asset, options)[0])
         if options.turntable:  # N frames from one upload and one bake, one animated image
             from renderer.sequence import encode_animation, render_turntable
-            frames = render_turntable(asset, env, options)
+            frames = render_turntable(asset, env, options, keep_linear=False)  # encoded only
             frame, data = frames[0], encode_animation(frames, fmt)
         else:
             if options.views:

@@ -73,6 +73,23 @@ def test_thumbnail_draws_no_linear_image(duck, monkeypatch):
     assert drawn[3:] == [R.DISPLAY, R.LINEAR, R.DISPLAY]  # read once
 
 
+def test_turntable_without_linear_draws_none(duck, monkeypatch):
+    from renderer.sequence import encode_animation, render_turntable
+    asset, env = duck
+    o = RenderOptions(width=48, height=40, turntable=4)
+    drawn = _outputs_drawn(monkeypatch)
+    frames = render_turntable(asset, env, o, keep_linear=False)
+    render(asset, env, RenderOptions(width=48, height=40))
+    assert drawn == [R.DISPLAY] * 5
+    assert encode_animation(frames, "webp")[:4] == b"RIFF"
+    with pytest.raises(RuntimeError, match="display pixels only"):
+        _ = frames[0].linear
+    kept = render_turntable(asset, env, o)  # the default keeps them: read before each next frame
+    assert drawn[5:] == [R.DISPLAY, R.LINEAR] * 3 + [R.DISPLAY]
+    assert kept[-1].linear[..., 3].max() == 1.0 and drawn[-1] == R.LINEAR  # the last on demand
+    assert all(f.linear[..., 3].max() == 1.0 for f in kept)
+
+
 def test_linear_on_demand_equals_the_pass_that_draws_both(duck, monkeypatch):
     """The display-only and linear-only programs write what the one program writing both
     outputs (final.frag OUTPUT 3, as the gradient's rows use) writes."""
