@@ -170,7 +170,7 @@ def measure(names: list[str], size: int, repeat: int, rt_repeat: int, cache: Pat
     from renderer.render import available_methods, render
 
     from . import scenes
-    from .metrics import errors, median_ms, reference_at
+    from .metrics import errors, median_ms, reference_at, with_linear
 
     available = available_methods()
     rows = []
@@ -189,7 +189,8 @@ def measure(names: list[str], size: int, repeat: int, rt_repeat: int, cache: Pat
         from renderer.auto import plan_request
         if plan_request(asset, replace(base, budget_ms=budget_ms), available).frame_method:
             methods.append("auto+budget")
-        jobs = {m: (lambda o=options_for(m, base, budget_ms): render(asset, envs[o[1]], o[0]))
+        # the linear image is what is measured: drawn inside the timing (renderer.render)
+        jobs = {m: (lambda o=options_for(m, base, budget_ms): with_linear(render(asset, envs[o[1]], o[0])))
                 for m in methods}
         raster = [m for m in methods if not (m.startswith("raytrace") or m == "auto+budget")]
         timed = _interleaved({m: jobs[m] for m in raster}, repeat)

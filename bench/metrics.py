@@ -86,6 +86,13 @@ def front_gap(point: tuple[float, float], front: list[tuple[float, float]]) -> f
                default=0.0)
 
 
+def with_linear(frame):
+    """`frame` with its linear image read: renderer.render draws it only when asked for, so a
+    timed render whose linear image is the measured product reads it inside the timing."""
+    _ = frame.linear
+    return frame
+
+
 def median_ms(fn, repeat: int, warm: bool = True):
     """(median wall ms over `repeat` calls, last result); `warm` runs `fn` once untimed first
     (thread pools, shader compiles, uploads)."""

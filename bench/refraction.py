@@ -46,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
     from renderer.render import available_methods, render
 
     from . import scenes
-    from .metrics import median_ms
+    from .metrics import median_ms, with_linear
     from .reference import relative_mae, render_reference
 
     try:
@@ -85,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"{name:28s} {size:5d} {method:16s} {ms:10.1f} {err:8.4f}", flush=True)
 
         for method in raster:
-            ms, frame = median_ms(lambda: render(asset, env, replace(opts, method=method)),
+            ms, frame = median_ms(lambda: with_linear(render(asset, env, replace(opts, method=method))),
                                    args.repeat)
             row(method, ms, frame.linear)
         for b in RAYTRACE_BOUNCES:

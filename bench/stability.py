@@ -110,7 +110,7 @@ def run_case(case: str, cache: Path, quick: bool = False) -> tuple[list[dict], d
     from renderer.render import render
 
     from . import scenes
-    from .metrics import errors, reference_at
+    from .metrics import errors, reference_at, with_linear
 
     scene_name, ref_name = CASES[case]
     spec = scenes.scene(scene_name)
@@ -130,7 +130,7 @@ def run_case(case: str, cache: Path, quick: bool = False) -> tuple[list[dict], d
     for method in METHODS:
         opts = _options(method, base, quick)
         t0 = time.perf_counter()
-        frame = render(asset, env, opts)
+        frame = with_linear(render(asset, env, opts))  # the linear image is what is measured
         ms = (time.perf_counter() - t0) * 1e3
         bad = ~np.isfinite(frame.linear).all(axis=-1)
         tir = _tir_fraction(asset, env, opts, frame, mask)
