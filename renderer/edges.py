@@ -51,7 +51,7 @@ def adjacency(positions: np.ndarray, indices: np.ndarray) -> Adjacency:
     key = lo * len(points) + hi  # one int64 per edge
     order = np.argsort(key, kind="stable")
     key, face = key[order], np.tile(np.arange(len(tri)), 3)[order]
-    first = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+    first = np.flatnonzero(np.r_[len(key) > 0, key[1:] != key[:-1]])  # (none without faces)
     count = np.diff(np.r_[first, len(key)])
     # An edge of three or more faces (non-manifold) keeps its first two.
     faces = np.stack([face[first], np.where(count >= 2, face[np.minimum(first + 1, len(face) - 1)], -1)], 1)
@@ -71,7 +71,10 @@ def segments(adj: Adjacency, transforms: np.ndarray, eye: np.ndarray) -> np.ndar
     boundary = b < 0
     eye4 = np.append(np.asarray(eye, np.float64), 1.0)
     for m in np.asarray(transforms, np.float64):
-        local_eye = np.linalg.solve(m, eye4)[:3]  # the facing test in mesh space
+        try:
+            local_eye = np.linalg.solve(m, eye4)[:3]  # the facing test in mesh space
+        except np.linalg.LinAlgError:  # a flattened instance (scale 0): nothing to smooth
+            continue
         toward = adj.normal @ local_eye > adj.offset
         ta, tb = toward[a], toward[np.maximum(b, 0)]
         chosen = np.where(boundary, ta, ta != tb)

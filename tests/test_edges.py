@@ -32,6 +32,16 @@ def test_adjacency_welds_split_vertices():
     assert (adj.faces[:, 1] >= 0).all()  # closed: no boundary
 
 
+def test_a_mesh_without_faces_has_no_edges():
+    for positions, indices in ((np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint32)),
+                               (np.zeros((3, 3), np.float32), np.zeros(0, np.uint32))):
+        adj = edges.adjacency(positions, indices)
+        assert len(adj.edges) == 0
+        assert edges.segments(adj, np.eye(4)[None], np.ones(3)).shape == (0, 2, 3)
+    one = edges.adjacency(np.eye(3, dtype=np.float32), np.array([[0, 1, 2]]))
+    assert len(edges.segments(one, np.eye(4)[None], np.ones(3))) == 3  # its boundary, facing
+
+
 def test_a_view_smooths_its_silhouette():
     adj = edges.adjacency(SPLIT_POSITIONS, SPLIT_INDICES)
     world = edges.segments(adj, np.eye(4)[None], np.array([5.0, 4.0, 3.0]))
@@ -54,6 +64,8 @@ def test_instances_are_smoothed_where_they_stand_mirrored_or_not():
     mirrored = edges.segments(adj, mirror[None], eye * (-1.0, 1.0, 1.0))
     assert _keys(mirrored) == _keys(base * (-1.0, 1.0, 1.0))
     assert len(edges.segments(adj, np.stack([np.eye(4), move]), eye)) > len(base)
+    flat = np.diag([1.0, 0.0, 1.0, 1.0])  # a scale-0 instance hides its mesh: no edges, no error
+    assert _keys(edges.segments(adj, np.stack([flat, np.eye(4)]), eye)) == _keys(base)
 
 
 @pytest.fixture(scope="module")
