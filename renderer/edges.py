@@ -86,6 +86,30 @@ def segments(adj: Adjacency, transforms: np.ndarray, eye: np.ndarray) -> np.ndar
 _lines: dict[int, tuple[moderngl.Buffer, moderngl.VertexArray]] = {}
 
 
+GUARD = 1.5  # edges are clipped to this many half-frames about the centre (a guard band)
+
+
+def _clip(hom: np.ndarray) -> np.ndarray:
+    """Edges in clip coordinates (N x 2 x 4) cut to the view volume widened by GUARD on x and
+    y (Liang-Barsky, all edges at once), so that every end has a finite, modest NDC position;
+    edges wholly outside are dropped."""
+    a, d = hom[:, 0], hom[:, 1] - hom[:, 0]
+    t0, t1 = np.zeros(len(hom)), np.ones(len(hom))
+    for axis, k in ((0, GUARD), (1, GUARD), (2, 1.0)):
+        for sign in (1.0, -1.0):  # inside where k w - sign * coordinate >= 0
+            da = k * a[:, 3] - sign * a[:, axis]
+            dd = k * d[:, 3] - sign * d[:, axis]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = -da / dd
+            t0 = np.where(dd > 0, np.maximum(t0, t), t0)
+            t1 = np.where(dd < 0, np.minimum(t1, t), t1)
+            t1 = np.where((dd == 0) & (da < 0), -1.0, t1)  # parallel and outside
+    keep = t0 < t1
+    a, b, d, t0, t1 = a[keep], hom[keep, 1], d[keep], t0[keep, None], t1[keep, None]
+    out = np.stack([np.where(t0 > 0, a + t0 * d, a), np.where(t1 < 1, a + t1 * d, b)], axis=1)
+    return out[(out[..., 3] > 0).all(axis=1)]
+
+
 def _strips(ndc: np.ndarray, w: int, h: int) -> np.ndarray:
     """Two triangles per edge (N x 2 x 3 NDC ends) covering every pixel whose centre lies within
     a pixel of it across its minor axis (the pixels it can cover part of), each vertex with
@@ -113,9 +137,7 @@ def draw(ctx: moderngl.Context, fbo: moderngl.Framebuffer, depth: moderngl.Textu
     if not len(world):
         return
     vp = np.asarray(view_proj, np.float64)
-    hom = world @ vp[:, :3].T + vp[:, 3]  # N x 2 x 4 clip coordinates
-    # An edge reaching behind the camera's plane has no screen line: it is left unsmoothed.
-    hom = hom[(hom[..., 3] > 1e-9 * max(float(np.abs(hom[..., 3]).max()), 1e-300)).all(axis=1)]
+    hom = _clip(world @ vp[:, :3].T + vp[:, 3])
     if not len(hom):
         return
     ndc = hom[..., :3] / hom[..., 3:4]

@@ -68,6 +68,23 @@ def test_instances_are_smoothed_where_they_stand_mirrored_or_not():
     assert _keys(edges.segments(adj, np.stack([flat, np.eye(4)]), eye)) == _keys(base)
 
 
+def test_edges_are_clipped_to_the_view():
+    """An edge through the near plane keeps its part in front; one off to the side is cut at
+    the guard band; one behind the camera or wholly outside is dropped."""
+    def clip(*ends):
+        return edges._clip(np.array([ends], np.float64))
+    inside = clip([0.2, 0.1, 0.5, 1.0], [0.4, -0.3, 0.2, 1.0])
+    assert np.allclose(inside, [[[0.2, 0.1, 0.5, 1.0], [0.4, -0.3, 0.2, 1.0]]])
+    through_near = clip([0.0, 0.0, 0.0, 1.0], [0.0, 0.0, -3.0, -1.0])  # the far end behind
+    assert len(through_near) == 1
+    ndc = through_near[0, :, :3] / through_near[0, :, 3:]
+    assert np.all(np.abs(ndc) <= 1.0 + 1e-9)
+    wide = clip([0.0, 0.0, 0.0, 1.0], [1e6, 0.0, 0.0, 1.0])[0]
+    assert np.isclose(wide[1, 0] / wide[1, 3], edges.GUARD)
+    assert len(clip([0.0, 0.0, 2.0, -1.0], [1.0, 0.0, 2.0, -1.0])) == 0  # behind
+    assert len(clip([5.0, 0.0, 0.0, 1.0], [6.0, 1.0, 0.0, 1.0])) == 0  # off to the side
+
+
 @pytest.fixture(scope="module")
 def cache(tmp_path_factory):
     return tmp_path_factory.mktemp("edges")
