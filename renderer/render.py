@@ -245,8 +245,8 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     pass_ = Pass(ctx, target.draw_fbo, camera, genv, gasset, options,
                  _frame_defines(options, lights), _frame_uniforms(camera, genv, lights, options))
     polygon = regions.object_polygon(camera, regions.hull_points(asset), w, h)
-    if polygon is not None:  # before the geometry: llvmpipe draws it while Python goes on
-        _mark_object(ctx, target.display_fbo, polygon, w, h)
+    if polygon is not None and not edge_aa:  # before the geometry: llvmpipe draws it while
+        _mark_object(ctx, target.display_fbo, polygon, w, h)  # Python goes on
 
     target.draw_fbo.use()
     ctx.viewport = (0, 0, w * supersample, h * supersample)
@@ -669,21 +669,39 @@ def _final_pass(target: _Target, camera: Camera, env: gpu.GpuEnvironment, option
         y = ground.ground
         shade = regions.screen_rect(camera, np.array(
             [[x0, y, z0], [x0 + dx, y, z0], [x0, y, z0 + dz], [x0 + dx, y, z0 + dz]]), w, h)
+    reach = regions.bounding_rect(polygon, w, h) if polygon is not None and len(polygon) else None
+    if reach is not None and (reach[2] <= 0 or reach[3] <= 0):
+        reach = None
+    draws = []
+    if polygon is not None and target.edge_fbo is not None:
+        # An edge-smoothed frame: the object's program over the bound's rectangle, the
+        # background's elsewhere, by scissor alone (with one sample per pixel the object's
+        # program costs less than marking the bound would spare).
+        inside = [reach] if reach is not None else []
+        outside = regions.subtract(full, reach) if reach is not None else [full]
+        for has_object, rects in ((True, inside), (False, outside)):
+            for rect in rects:
+                draws += [(has_object, "", has_shadow, part) for has_shadow, part in _split(rect, shade)]
+        return _FinalPass(target, camera, env, options, ground, draws, target.frames)
     # Fragments of the full-screen triangle lie at depth 1: the object's program passes
     # where the bound wrote 0, the background's elsewhere.
     kinds = [(True, ">"), (False, "<=")] if polygon is not None else [(True, "")]
-    reach = regions.bounding_rect(polygon, w, h) if polygon is not None and len(polygon) else None
-    draws = []
     for has_object, depth_func in kinds:
-        parts = [(True, shade)] if shade is not None else []
-        parts += [(False, r) for r in (regions.subtract(full, shade) if shade is not None else [full])]
-        for has_shadow, rect in parts:
+        for has_shadow, rect in _split(full, shade):
             part: regions.Rect | None = rect
             if has_object and depth_func:  # the bound's rectangle: no blocks to reject beyond it
                 part = regions.intersect(rect, reach) if reach is not None else None
             if part is not None and part[2] > 0 and part[3] > 0:
                 draws.append((has_object, depth_func, has_shadow, part))
     return _FinalPass(target, camera, env, options, ground, draws, target.frames)
+
+
+def _split(rect: regions.Rect, shade: regions.Rect | None) -> list[tuple[bool, regions.Rect]]:
+    """`rect` as (has_shadow, part)s: its part in the shadow's rectangle `shade`, the rest."""
+    if shade is None:
+        return [(False, rect)]
+    cut = regions.intersect(rect, shade)
+    return ([(True, cut)] if cut is not None else []) + [(False, r) for r in regions.subtract(rect, shade)]
 
 
 class _LinearOnDemand:
