@@ -111,6 +111,22 @@ def object_polygon(camera: Camera, hull: np.ndarray | None, w: int, h: int) -> n
     return np.array(poly)
 
 
+def object_rect(camera: Camera, hull: np.ndarray | None, w: int, h: int) -> Rect | None:
+    """The rectangle of pixels any surface of the object can touch (the projected hull's
+    bounds grown by PAD, as object_polygon's bounding rectangle), None when the object may
+    reach anywhere; width or height 0 when it is out of view."""
+    if hull is None:
+        return None
+    px = _project(camera, hull, w, h)
+    if px is None:
+        return None
+    x0 = min(max(int(np.floor(px[:, 0].min() - PAD)), 0), w)
+    y0 = min(max(int(np.floor(px[:, 1].min() - PAD)), 0), h)
+    x1 = min(int(np.ceil(px[:, 0].max() + PAD)) + 1, w)
+    y1 = min(int(np.ceil(px[:, 1].max() + PAD)) + 1, h)
+    return (x0, y0, max(x1 - x0, 0), max(y1 - y0, 0))
+
+
 def _clip(poly: list, nx: float, ny: float, c: float) -> list:
     """Sutherland-Hodgman: the part of convex `poly` where nx * x + ny * y <= c."""
     out = []

@@ -244,9 +244,15 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     target.frames += 1
     pass_ = Pass(ctx, target.draw_fbo, camera, genv, gasset, options,
                  _frame_defines(options, lights), _frame_uniforms(camera, genv, lights, options))
-    polygon = regions.object_polygon(camera, regions.hull_points(asset), w, h)
-    if polygon is not None and not edge_aa:  # before the geometry: llvmpipe draws it while
-        _mark_object(ctx, target.display_fbo, polygon, w, h)  # Python goes on
+    # The object's bound for the final pass's regions: a rectangle for an edge-smoothed frame,
+    # else a polygon marked before the geometry (llvmpipe draws it while Python goes on).
+    polygon = rect = None
+    if edge_aa:
+        rect = regions.object_rect(camera, regions.hull_points(asset), w, h)
+    else:
+        polygon = regions.object_polygon(camera, regions.hull_points(asset), w, h)
+        if polygon is not None:
+            _mark_object(ctx, target.display_fbo, polygon, w, h)
 
     target.draw_fbo.use()
     ctx.viewport = (0, 0, w * supersample, h * supersample)
@@ -283,7 +289,7 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     ground = (shadow.ground_shadow(ctx, asset.key, gasset.meshes, asset.bounds, options.shadow)
               if shadowed else None)
     t_draw_end = time.perf_counter()
-    final = _final_pass(target, camera, genv, options, ground, polygon)
+    final = _final_pass(target, camera, genv, options, ground, polygon, rect)
     rgba8 = final.draw(ctx, DISPLAY)
     linear = _LinearOnDemand(ctx, final)
     _pending.append(weakref.ref(linear))
@@ -656,9 +662,10 @@ class _FinalPass:
 
 def _final_pass(target: _Target, camera: Camera, env: gpu.GpuEnvironment, options: RenderOptions,
                 ground: "shadow.GroundShadow | None" = None,
-                polygon: np.ndarray | None = None) -> _FinalPass:
-    """The regions of the final pass and the programs each needs; `polygon` is the object's
-    silhouette bound (regions.object_polygon)."""
+                polygon: np.ndarray | None = None, rect: regions.Rect | None = None) -> _FinalPass:
+    """The regions of the final pass and the programs each needs, by the object's bound:
+    `polygon` (regions.object_polygon, marked by _mark_object) or `rect` (regions.object_rect,
+    an edge-smoothed frame's); with neither, the object's program everywhere."""
     w, h = options.width, options.height
     full = (0, 0, w, h)
     shade: regions.Rect | None = None
@@ -669,28 +676,27 @@ def _final_pass(target: _Target, camera: Camera, env: gpu.GpuEnvironment, option
         y = ground.ground
         shade = regions.screen_rect(camera, np.array(
             [[x0, y, z0], [x0 + dx, y, z0], [x0, y, z0 + dz], [x0 + dx, y, z0 + dz]]), w, h)
-    reach = regions.bounding_rect(polygon, w, h) if polygon is not None and len(polygon) else None
-    if reach is not None and (reach[2] <= 0 or reach[3] <= 0):
-        reach = None
     draws = []
-    if polygon is not None and target.edge_fbo is not None:
-        # An edge-smoothed frame: the object's program over the bound's rectangle, the
-        # background's elsewhere, by scissor alone (with one sample per pixel the object's
-        # program costs less than marking the bound would spare).
+    if rect is not None:
+        # By scissor alone: the object's program over the rectangle, the background's
+        # elsewhere (with one sample per pixel the object's program costs less than marking
+        # a tighter bound would spare).
+        reach = rect if rect[2] > 0 and rect[3] > 0 else None
         inside = [reach] if reach is not None else []
         outside = regions.subtract(full, reach) if reach is not None else [full]
-        for has_object, rects in ((True, inside), (False, outside)):
-            for rect in rects:
-                draws += [(has_object, "", has_shadow, part) for has_shadow, part in _split(rect, shade)]
+        for has_object, boxes in ((True, inside), (False, outside)):
+            for box in boxes:
+                draws += [(has_object, "", has_shadow, part) for has_shadow, part in _split(box, shade)]
         return _FinalPass(target, camera, env, options, ground, draws, target.frames)
     # Fragments of the full-screen triangle lie at depth 1: the object's program passes
     # where the bound wrote 0, the background's elsewhere.
+    reach = regions.bounding_rect(polygon, w, h) if polygon is not None and len(polygon) else None
     kinds = [(True, ">"), (False, "<=")] if polygon is not None else [(True, "")]
     for has_object, depth_func in kinds:
-        for has_shadow, rect in _split(full, shade):
-            part: regions.Rect | None = rect
+        for has_shadow, box in _split(full, shade):
+            part: regions.Rect | None = box
             if has_object and depth_func:  # the bound's rectangle: no blocks to reject beyond it
-                part = regions.intersect(rect, reach) if reach is not None else None
+                part = regions.intersect(box, reach) if reach is not None else None
             if part is not None and part[2] > 0 and part[3] > 0:
                 draws.append((has_object, depth_func, has_shadow, part))
     return _FinalPass(target, camera, env, options, ground, draws, target.frames)

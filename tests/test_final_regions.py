@@ -31,6 +31,7 @@ def cache(tmp_path_factory):
 def _one_pass(monkeypatch):
     """The final pass as a single full-screen draw with every piece of work in it."""
     monkeypatch.setattr(regions, "object_polygon", lambda *a: None)
+    monkeypatch.setattr(regions, "object_rect", lambda *a: None)
     monkeypatch.setattr(regions, "screen_rect", lambda camera, points, w, h, pad=2: (0, 0, w, h))
 
 
@@ -67,12 +68,30 @@ def test_object_polygon_holds_every_covered_pixel(assets, cache):
     assert area < 0.6 * 128 * 128
 
 
+@pytest.mark.parametrize("rel", SAMPLES[:3])
+def test_object_rect_holds_every_covered_pixel(assets, cache, rel):
+    """The edge-smoothed frame's bound (a rectangle) holds every pixel with any coverage,
+    smoothed edges included, and is the polygon's bounding rectangle."""
+    asset = pipeline.bake_asset(assets / rel, cache)
+    env = pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(128))
+    o = RenderOptions(width=128, height=112, background="transparent", shadow=0.0)
+    frame = render(asset, env, o)
+    assert frame.plan["antialias"] == "edges"
+    camera = request_camera(asset, o)
+    x, y, w, h = regions.object_rect(camera, regions.hull_points(asset), 128, 112)
+    ys, xs = np.nonzero(frame.linear[..., 3] > 0)
+    assert len(xs) and xs.min() >= x and xs.max() < x + w and ys.min() >= y and ys.max() < y + h
+    poly = regions.object_polygon(camera, regions.hull_points(asset), 128, 112)
+    assert (x, y, w, h) == regions.bounding_rect(poly, 128, 112)
+
+
 def test_polygon_is_none_when_the_camera_is_among_the_points():
     from renderer.camera import Camera
     cam = Camera(np.zeros(3), np.array([0.0, 0.0, -1.0]), np.array([0.0, 1.0, 0.0]), 40.0,
                  64, 64, 0.01, 100.0)
     hull = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
     assert regions.object_polygon(cam, hull, 64, 64) is None
+    assert regions.object_rect(cam, hull, 64, 64) is None
     assert regions.screen_rect(cam, hull, 64, 64) == (0, 0, 64, 64)
     ahead = hull + [0.0, 0.0, -10.0]
     poly = regions.object_polygon(cam, ahead, 64, 64)
