@@ -93,7 +93,7 @@ class RenderOptions:
     views: bool = Field(default=False, description="a labelled 2 x 2 sheet: front, side, top, three-quarter")
     override: MaterialOverride | None = None
     antialias: Literal["edges", "msaa"] = Field(default="edges", description=(
-        "edges: one shaded sample per pixel; each pixel a silhouette or crease edge crosses is "
+        "edges: one shaded sample per pixel; each pixel a silhouette or boundary edge crosses is "
         "blended with its neighbour across it by the edge's position (on a par with 4x MSAA at "
         "a fraction of its cost on a CPU rasteriser); msaa: `msaa` samples per pixel"))
     msaa: int = Field(default=4, ge=0, le=16, description=(
