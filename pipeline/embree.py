@@ -206,11 +206,6 @@ def _tracer():
 _pools: dict[int, ThreadPoolExecutor] = {}
 
 
-def background() -> ThreadPoolExecutor:
-    """The pool's threads, for compiled work that overlaps the caller's (no GIL held)."""
-    return _pool(os.cpu_count() or 1)
-
-
 def _pool(workers: int) -> ThreadPoolExecutor:
     _get_device()  # drops pools inherited through a fork
     with _lock:

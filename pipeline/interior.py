@@ -31,7 +31,6 @@ log = logging.getLogger(__name__)
 
 EPSILON_SCALE = 1e-4    # ray start offset, as a fraction of the mesh's bounding-box diagonal
 GRAZE_RETRIES = 3       # times a ray is continued past a hit at ~0 distance
-PAIR_AHEAD = 4096       # triangles: below, handing the pairing to a thread costs more than it overlaps
 
 
 @dataclass
@@ -40,7 +39,7 @@ class InteriorResult:
     rays: int                # rays cast, continuations included
     misses: int              # vertices that got the bounding-box fallback
     degenerate: int          # vertices with an unusable normal (zero vector stored)
-    build_seconds: float     # quad pairing and Embree BVH build (the ray set-up overlaps it)
+    build_seconds: float     # quad pairing and Embree BVH build
     trace_seconds: float     # ray casting, continuations included
 
     @property
@@ -57,7 +56,7 @@ class InteriorResult:
 def interior_vectors(positions: np.ndarray, normals: np.ndarray, indices: np.ndarray,
                      epsilon: float | None = None) -> InteriorResult:
     """Object-space vectors from each vertex to where a ray along -normal leaves the mesh."""
-    from .embree import TriangleScene, background
+    from .embree import TriangleScene
     from .quad_pairs import pair_quads
 
     p = np.ascontiguousarray(positions, dtype=np.float32)
@@ -67,10 +66,6 @@ def interior_vectors(positions: np.ndarray, normals: np.ndarray, indices: np.nda
         raise ValueError(f"triangle index {int(tris.max())} out of range for {count} vertices")
     if count == 0:
         return InteriorResult(np.zeros((0, 3), np.float32), 0, 0, 0, 0.0, 0.0)
-    # The triangles are paired into Embree quads (half the primitives to build), on a large
-    # mesh on another core while this one sets up the rays (compiled, it holds no GIL).
-    start = time.perf_counter()
-    pairing = background().submit(pair_quads, tris) if len(tris) >= PAIR_AHEAD else None
 
     # The rays are set up as (3, N) component rows, the packets' layout: numpy's reductions
     # and arithmetic over (N, 3) rows run many times slower (~1.4 ms against 0.01 ms for the
@@ -92,9 +87,10 @@ def interior_vectors(positions: np.ndarray, normals: np.ndarray, indices: np.nda
     todo = np.flatnonzero(usable)
     degenerate = count - len(todo)
 
-    quads = pairing.result() if pairing is not None else pair_quads(tris)
-    scene = TriangleScene(p, quads) if len(tris) else None
-    build = time.perf_counter() - start  # pairing and BVH build, the ray set-up overlapped
+    start = time.perf_counter()
+    # The triangles as Embree quads: half the primitives for the BVH build (pipeline.quad_pairs).
+    scene = TriangleScene(p, pair_quads(tris)) if len(tris) else None
+    build = time.perf_counter() - start
 
     start = time.perf_counter()
     travelled = np.full(count, epsilon, np.float32)  # distance from the vertex, per ray
