@@ -89,27 +89,34 @@ def encode_animation(frames: list[Frame], fmt: str = "webp", quality: int | None
 
 def render_views(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions) -> Frame:
     """A 2 x 2 sheet of front, side, top and three-quarter views, each labelled, the size of
-    one frame of `options` (each view is a quarter of it)."""
+    one frame of `options` (each view is a quarter of it). Its linear image, which a sheet
+    served as PNG or WebP never needs, is made only when asked for: the views are drawn again
+    (the same pixels) and their linear images placed as the display ones are."""
     from PIL import Image, ImageDraw
 
     t0 = time.perf_counter()
     w, h = max(options.width // 2, 1), max(options.height // 2, 1)
-    cells = []
-    for label, yaw, pitch in VIEWS:
-        o = dataclasses.replace(options, width=w, height=h, views=False, turntable=0,
-                                yaw=options.yaw if yaw is None else yaw,
-                                pitch=options.pitch if pitch is None else pitch)
-        cells.append((label, render(asset, env, o)))
-    linear = np.zeros((2 * h, 2 * w, 4), np.float32)
+    views = [(label, dataclasses.replace(options, width=w, height=h, views=False, turntable=0,
+                                         yaw=options.yaw if yaw is None else yaw,
+                                         pitch=options.pitch if pitch is None else pitch))
+             for label, yaw, pitch in VIEWS]
     rgba8 = np.zeros((2 * h, 2 * w, 4), np.uint8)
-    for i, (label, f) in enumerate(cells):
+    plan: dict = {}
+    for i, (label, o) in enumerate(views):
+        f = render(asset, env, o)  # not kept: a kept frame has its linear image read (render)
         y, x = (i // 2) * h, (i % 2) * w
-        linear[y:y + h, x:x + w] = f.linear
         im = Image.fromarray(f.rgba8, "RGBA")
-        draw = ImageDraw.Draw(im)
-        draw.text((6, 4), label, fill=(40, 40, 40, 255))
+        ImageDraw.Draw(im).text((6, 4), label, fill=(40, 40, 40, 255))
         rgba8[y:y + h, x:x + w] = np.asarray(im)
-    plan = dict(cells[-1][1].plan)
-    plan["views"] = [label for label, _ in cells]
+        plan = dict(f.plan)
+    plan["views"] = [label for label, _ in views]
+
+    def linear() -> np.ndarray:
+        out = np.zeros((2 * h, 2 * w, 4), np.float32)
+        for i, (_, o) in enumerate(views):
+            y, x = (i // 2) * h, (i % 2) * w
+            out[y:y + h, x:x + w] = render(asset, env, o).linear
+        return out
+
     return Frame(linear, rgba8, plan, FrameTimings((time.perf_counter() - t0) * 1e3),
                  alpha_is_mask=alpha_is_mask(options))

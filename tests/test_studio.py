@@ -209,6 +209,10 @@ def test_views_sheet(studio_env):
     front, top = labels[:48, :48], labels[48:, :48]
     assert set(np.unique(front[front >= 0])) == {4}  # +Z face only (mesh order x+, x-, y+, y-, z+, z-)
     assert set(np.unique(top[top >= 0])) == {2}
+    # its linear image, made on demand, is the four views' own, placed as the display ones
+    side = render(cube, studio_env, RenderOptions(width=48, height=48, shadow=0, yaw=90.0, pitch=0.0))
+    np.testing.assert_array_equal(sheet.linear[:48, 48:], side.linear)
+    assert np.isfinite(sheet.linear).all() and sheet.linear[..., 3].max() > 0
 
 
 def test_cli_turntable_one_bake(assets, tmp_path):
