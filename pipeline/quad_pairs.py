@@ -46,9 +46,9 @@ def _write_pair(tris, quads, q, t, e, s, f):
 
 
 @njit(cache=True, nogil=True)
-def _pair(tris):
+def _pair(tris, nverts):
     count = tris.shape[0]
-    partner = np.full(count, -1, np.int64)
+    partner = np.full(count, -1, np.int32)  # 32-bit lists: half the memory traffic
     # 1. neighbours in the index buffer
     t = 0
     while t + 1 < count:
@@ -60,11 +60,7 @@ def _pair(tris):
             t += 1
     # 2. the rest through the triangles around each vertex (a counting sort: one array of
     # lists): a partner of t's edge x -> y holds y -> x, so it is listed at y with x after y.
-    nverts = 0
-    for t in range(count):
-        for e in range(3):
-            nverts = max(nverts, np.int64(tris[t, e]) + 1)
-    start = np.zeros(nverts + 1, np.int64)
+    start = np.zeros(nverts + 1, np.int32)
     for t in range(count):
         if partner[t] < 0:
             for e in range(3):
@@ -72,7 +68,7 @@ def _pair(tris):
     for v in range(nverts):
         start[v + 1] += start[v]
     fill = start[:-1].copy()
-    owner = np.empty(start[nverts], np.int64)
+    owner = np.empty(start[nverts], np.int32)
     after = np.empty(start[nverts], np.uint32)  # the vertex following this one in the owner
     for t in range(count):
         if partner[t] < 0:
@@ -111,7 +107,9 @@ def _pair(tris):
 def pair_quads(triangles: np.ndarray) -> np.ndarray:
     """(n, 3) triangle indices -> (m, 4) uint32 Embree quads holding the same triangles."""
     tris = np.ascontiguousarray(triangles, np.uint32).reshape(-1, 3)
-    return _pair(tris)
+    if len(tris) >= 2**31:
+        raise ValueError(f"{len(tris)} triangles: more than the pairing's 32-bit lists hold")
+    return _pair(tris, int(tris.max()) + 1 if len(tris) else 0)
 
 
 def _compile() -> None:
