@@ -82,6 +82,8 @@ def _pair(tris, nverts):
             continue
         for e in range(3):
             x, y = tris[t, e], tris[t, (e + 1) % 3]
+            if x == y:  # a collapsed edge pairs nothing (as in _shared_edge)
+                continue
             for k in range(start[y], start[y + 1]):
                 s = owner[k]
                 if after[k] == x and s != t and partner[s] < 0:

@@ -32,8 +32,9 @@ def _meshes(assets):
     soup.unmerge_vertices()
     rng = np.random.default_rng(3)
     shuffled = torus.faces[rng.permutation(len(torus.faces))]
-    # a fin: three triangles on one edge (non-manifold), a degenerate one, a duplicate
-    odd = np.array([[0, 1, 2], [1, 0, 3], [1, 0, 4], [5, 5, 6], [0, 1, 2], [2, 1, 7]])
+    # a fin: three triangles on one edge (non-manifold), degenerate ones sharing a collapsed
+    # edge, a duplicate
+    odd = np.array([[0, 1, 2], [1, 0, 3], [1, 0, 4], [5, 5, 6], [0, 1, 2], [2, 1, 7], [5, 5, 8]])
     return {"bunny": bunny.faces, "torus": torus.faces, "shuffled torus": shuffled,
             "triangle soup": soup.faces, "odd": odd}
 
