@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e '.[test,reference]'
 	$(PY) -m renderer.trace_kernel
-	$(PY) -m pipeline.quad_pairs
+	$(PY) -m pipeline.interior
 	@touch $(STAMP)
 
 install: $(STAMP)
@@ -35,7 +35,7 @@ lint: $(STAMP)
 
 test: check-egl lint
 	$(PY) -m renderer.trace_kernel
-	$(PY) -m pipeline.quad_pairs
+	$(PY) -m pipeline.interior
 	$(PY) -m pytest -q
 
 clean:

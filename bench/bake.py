@@ -182,15 +182,14 @@ def interior_parts_table(assets: Path, repeat: int) -> None:
     for label, (p, n, f) in _target_meshes(assets):
         result = interior_vectors(p, n, f)
         with np.errstate(divide="ignore", invalid="ignore"):
-            d = -n / np.linalg.norm(n, axis=1, keepdims=True)
-        ok = np.isfinite(d).all(axis=1)  # the pass's rays: usable normals
-        eps = 1e-4 * float(np.linalg.norm(np.ptp(p, axis=0)))
-        o, d = np.ascontiguousarray((p[ok] + d[ok] * eps).T), np.ascontiguousarray(d[ok].T)
+            d = (-n / np.linalg.norm(n, axis=1, keepdims=True)).astype(np.float32)
+        rays = np.flatnonzero(np.isfinite(d).all(axis=1))  # the pass's rays: usable normals
+        offsets = np.full(len(p), 1e-4 * float(np.linalg.norm(np.ptp(p, axis=0))), np.float32)
         quads = pair_quads(f)
         scene = TriangleScene(p, quads)
         pairing = cpu_ms(lambda: pair_quads(f))
         build = cpu_ms(lambda: TriangleScene(p, quads))
-        trace = cpu_ms(lambda: scene.closest(o, d, threads=1))
+        trace = cpu_ms(lambda: scene.closest(p, d, offsets, rays, threads=1))
         whole = cpu_ms(lambda: interior_vectors(p, n, f))
         rate = result.rays / whole / 1e3
         print(f"{label:14} {len(f):9d} {len(quads):7d} {result.rays:7d} {pairing:7.1f} {build:7.1f} "

@@ -26,6 +26,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 log = logging.getLogger(__name__)
 
@@ -67,23 +68,12 @@ def interior_vectors(positions: np.ndarray, normals: np.ndarray, indices: np.nda
     if count == 0:
         return InteriorResult(np.zeros((0, 3), np.float32), 0, 0, 0, 0.0, 0.0)
 
-    # The rays are set up as (3, N) component rows, the packets' layout: numpy's reductions
-    # and arithmetic over (N, 3) rows run many times slower (~1.4 ms against 0.01 ms for the
-    # bounds of 50k vertices), which was as much time as the tracing.
-    pt = np.ascontiguousarray(p.T)
-    nt = np.ascontiguousarray(np.asarray(normals, dtype=np.float32).T)
-    lo, hi = pt.min(axis=1), pt.max(axis=1)
+    lo, hi, direction, usable = _ray_setup(p, np.ascontiguousarray(normals, dtype=np.float32))
     diagonal = float(np.linalg.norm(hi - lo))
     if epsilon is None:
         # Scale-aware, and never below float32 resolution at the mesh's coordinates.
         ulp = float(np.spacing(np.float32(max(-lo.min(), hi.max()))))
         epsilon = max(EPSILON_SCALE * diagonal, 16 * ulp, 1e-12)
-
-    length = np.sqrt(nt[0] * nt[0] + nt[1] * nt[1] + nt[2] * nt[2])
-    usable = np.isfinite(length) & (length > 1e-8)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        direction = -nt / length
-    direction[:, ~usable] = 0.0
     todo = np.flatnonzero(usable)
     degenerate = count - len(todo)
 
@@ -97,30 +87,23 @@ def interior_vectors(positions: np.ndarray, normals: np.ndarray, indices: np.nda
     hit = np.zeros(count, bool)
     rays = 0
     live = todo
-    # Rays by vertex: a slice (a view, no gather) when every vertex casts, the usual case.
-    sel: slice | np.ndarray = slice(None) if len(todo) == count else todo
-
-    def cols(a: np.ndarray) -> np.ndarray:  # np.take: ~5x faster than a[:, sel] for an array
-        return a[..., sel] if isinstance(sel, slice) else np.take(a, sel, axis=-1)
-
     for attempt in range(GRAZE_RETRIES + 1):
         if len(live) == 0 or scene is None:
             break
-        d = cols(direction)
-        t = scene.closest(cols(pt) + d * cols(travelled), d)
+        t = scene.closest(p, direction, travelled, live)  # rays from p + travelled * direction
         rays += len(live)
         found = np.isfinite(t)
         grazed = found & (t < epsilon) & (attempt < GRAZE_RETRIES)
         # a hit moves the ray's end to it; a grazed one continues from epsilon past it
-        travelled[sel] += np.where(grazed, t + epsilon, np.where(found, t, 0.0))
-        hit[sel] |= found & ~grazed
-        live = sel = live[grazed]
+        travelled[live] += np.where(grazed, t + epsilon, np.where(found, t, 0.0))
+        hit[live] |= found & ~grazed
+        live = live[grazed]
     trace = time.perf_counter() - start
 
     missed = np.flatnonzero(usable & ~hit)
     if len(missed):
-        travelled[missed] = _box_exit(pt[:, missed].T, direction[:, missed].T, lo, hi)
-    out = np.ascontiguousarray((direction * travelled).T)  # unusable normals: zero direction
+        travelled[missed] = _box_exit(p[missed], direction[missed], lo, hi)
+    out = direction * travelled[:, None]  # unusable normals: zero direction
     out[~np.isfinite(out)] = 0.0  # belt and braces: never store inf/NaN
     result = InteriorResult(out, rays, len(missed), degenerate, build, trace)
     log.debug("interior: %d vertices, %d rays, %d misses, %.2f M rays/s", count, rays,
@@ -138,3 +121,39 @@ def _box_exit(origin: np.ndarray, direction: np.ndarray, lo: np.ndarray, hi: np.
             far = np.where(d > 0, (hi[axis] - o) / d, np.where(d < 0, (lo[axis] - o) / d, np.inf))
             exit_t = np.minimum(exit_t, far)
     return np.clip(np.where(np.isfinite(exit_t), exit_t, 0.0), 0.0, None).astype(np.float32)
+
+
+@njit(cache=True, nogil=True)
+def _ray_setup(p, normals):
+    """The mesh's bounds, and per vertex the ray direction (the unit negated normal) and
+    whether the normal is usable (finite, not zero; else the direction is zero). One compiled
+    pass over the (N, 3) rows: numpy's reductions over such rows, or the (3, N) copies that
+    avoid them, cost about as much as a small mesh's tracing."""
+    lo, hi = p[0].copy(), p[0].copy()
+    direction = np.zeros(p.shape, np.float32)
+    usable = np.zeros(len(p), np.bool_)
+    shortest = np.float32(1e-8)
+    for k in range(len(p)):
+        for axis in range(3):
+            lo[axis] = min(lo[axis], p[k, axis])
+            hi[axis] = max(hi[axis], p[k, axis])
+        x, y, z = normals[k, 0], normals[k, 1], normals[k, 2]
+        length = np.sqrt(x * x + y * y + z * z)
+        if np.isfinite(length) and length > shortest:
+            usable[k] = True
+            direction[k, 0], direction[k, 1], direction[k, 2] = -x / length, -y / length, -z / length
+    return lo, hi, direction, usable
+
+
+def _compile() -> None:
+    """Compile (or load from numba's cache) the pass's kernels on a tiny mesh: `python -m
+    pipeline.interior`, run by `make install` and the Docker build, so a bake worker never
+    compiles them (the packet loop, which numba cannot cache, takes ~0.5 s in each process)."""
+    t0 = time.perf_counter()
+    corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], np.float32)
+    interior_vectors(corners, corners - 0.25, np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]))
+    print(f"pipeline.interior kernels compiled or loaded in {time.perf_counter() - t0:.1f} s")
+
+
+if __name__ == "__main__":
+    _compile()

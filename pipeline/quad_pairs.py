@@ -15,8 +15,6 @@ better one only saves more build.
 """
 from __future__ import annotations
 
-import time
-
 import numpy as np
 from numba import njit
 
@@ -112,15 +110,3 @@ def pair_quads(triangles: np.ndarray) -> np.ndarray:
     if len(tris) >= 2**31:
         raise ValueError(f"{len(tris)} triangles: more than the pairing's 32-bit lists hold")
     return _pair(tris, int(tris.max()) + 1 if len(tris) else 0)
-
-
-def _compile() -> None:
-    """Compile (or load from numba's cache) on a tiny mesh: `python -m pipeline.quad_pairs`,
-    run by `make install` and the Docker build, so a bake worker never compiles."""
-    t0 = time.perf_counter()
-    pair_quads(np.array([[0, 1, 2], [2, 1, 3], [4, 5, 6]], np.uint32))
-    print(f"pipeline.quad_pairs compiled or loaded in {time.perf_counter() - t0:.1f} s")
-
-
-if __name__ == "__main__":
-    _compile()
