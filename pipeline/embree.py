@@ -224,6 +224,12 @@ def _tracer():
 _pools: dict[int, ThreadPoolExecutor] = {}
 
 
+def spare_thread() -> ThreadPoolExecutor | None:
+    """The pass's pool thread for other work before the trace (pipeline.quad_pairs), or None
+    on one core."""
+    return _pool(1) if (os.cpu_count() or 1) > 1 else None
+
+
 def _pool(workers: int) -> ThreadPoolExecutor:
     _get_device()  # drops pools inherited through a fork
     with _lock:

@@ -57,7 +57,7 @@ class InteriorResult:
 def interior_vectors(positions: np.ndarray, normals: np.ndarray, indices: np.ndarray,
                      epsilon: float | None = None) -> InteriorResult:
     """Object-space vectors from each vertex to where a ray along -normal leaves the mesh."""
-    from .embree import TriangleScene
+    from .embree import TriangleScene, spare_thread
     from .quad_pairs import pair_quads
 
     p = np.ascontiguousarray(positions, dtype=np.float32)
@@ -79,7 +79,7 @@ def interior_vectors(positions: np.ndarray, normals: np.ndarray, indices: np.nda
 
     start = time.perf_counter()
     # The triangles as Embree quads: half the primitives for the BVH build (pipeline.quad_pairs).
-    scene = TriangleScene(p, pair_quads(tris)) if len(tris) else None
+    scene = TriangleScene(p, pair_quads(tris, spare_thread())) if len(tris) else None
     build = time.perf_counter() - start
 
     start = time.perf_counter()

