@@ -2,11 +2,13 @@
 primitives where the mesh allows."""
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 import pytest
 import trimesh
 
-from pipeline.quad_pairs import pair_quads
+from pipeline.quad_pairs import SPLIT_AT, pair_quads
 
 
 def _halves(quads: np.ndarray) -> np.ndarray:
@@ -39,11 +41,18 @@ def _meshes(assets):
             "triangle soup": soup.faces, "odd": odd}
 
 
-def test_quads_hold_exactly_the_triangles(assets):
+@pytest.mark.parametrize("split", [False, True])
+def test_quads_hold_exactly_the_triangles(assets, split):
+    pool = ThreadPoolExecutor(1) if split else None  # split: large meshes paired in two halves
     for name, faces in _meshes(assets).items():
-        quads = pair_quads(faces)
+        quads = pair_quads(faces, pool)
         assert quads.dtype == np.uint32 and quads.shape[1] == 4, name
         np.testing.assert_array_equal(_canonical(_halves(quads)), _canonical(faces), err_msg=name)
+    if pool:
+        pool.shutdown()
+        bunny = _meshes(assets)["bunny"]
+        assert len(bunny) >= SPLIT_AT  # the split really ran, at a small cost in pairs
+        assert len(pair_quads(bunny)) < len(pair_quads(bunny, ThreadPoolExecutor(1))) < 0.6 * len(bunny)
 
 
 @pytest.mark.parametrize("name, least", [("torus", 1.0), ("shuffled torus", 0.85), ("bunny", 0.85),
