@@ -92,19 +92,13 @@ def interior_vectors(positions: np.ndarray, normals: np.ndarray, indices: np.nda
             break
         t = scene.closest(p, direction, travelled, live)  # rays from p + travelled * direction
         rays += len(live)
-        found = np.isfinite(t)
-        grazed = found & (t < epsilon) & (attempt < GRAZE_RETRIES)
-        # a hit moves the ray's end to it; a grazed one continues from epsilon past it
-        travelled[live] += np.where(grazed, t + epsilon, np.where(found, t, 0.0))
-        hit[live] |= found & ~grazed
-        live = live[grazed]
+        live = _advance(travelled, hit, live, t, np.float32(epsilon), attempt < GRAZE_RETRIES)
     trace = time.perf_counter() - start
 
     missed = np.flatnonzero(usable & ~hit)
     if len(missed):
         travelled[missed] = _box_exit(p[missed], direction[missed], lo, hi)
-    out = direction * travelled[:, None]  # unusable normals: zero direction
-    out[~np.isfinite(out)] = 0.0  # belt and braces: never store inf/NaN
+    out = _vectors(direction, travelled)
     result = InteriorResult(out, rays, len(missed), degenerate, build, trace)
     log.debug("interior: %d vertices, %d rays, %d misses, %.2f M rays/s", count, rays,
               len(missed), result.rays_per_second / 1e6)
@@ -143,6 +137,40 @@ def _ray_setup(p, normals):
             usable[k] = True
             direction[k, 0], direction[k, 1], direction[k, 2] = -x / length, -y / length, -z / length
     return lo, hi, direction, usable
+
+
+@njit(cache=True, nogil=True)
+def _advance(travelled, hit, live, t, epsilon, retry):
+    """Each live ray's end moved to its hit (t: the distances from the ray origins, inf for a
+    miss). A hit closer than epsilon grazed a neighbour at the start: with `retry` that ray
+    continues from epsilon past it, and it is returned among the rays to cast again. In
+    float32 throughout, as the rays are (epsilon a float32)."""
+    again = np.empty(len(live), np.int64)
+    count = 0
+    for k in range(len(live)):
+        v, d = live[k], t[k]
+        if not np.isfinite(d):
+            continue
+        if retry and d < epsilon:
+            travelled[v] += d + epsilon
+            again[count] = v
+            count += 1
+        else:
+            travelled[v] += d
+            hit[v] = True
+    return again[:count]
+
+
+@njit(cache=True, nogil=True)
+def _vectors(direction, travelled):
+    """Vertex -> exit point: direction times distance (zero where the normal was unusable),
+    and never inf or NaN."""
+    out = np.empty_like(direction)
+    for k in range(len(direction)):
+        for axis in range(3):
+            x = direction[k, axis] * travelled[k]
+            out[k, axis] = x if np.isfinite(x) else np.float32(0.0)
+    return out
 
 
 def _compile() -> None:
