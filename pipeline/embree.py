@@ -47,7 +47,7 @@ _RAY_FIELDS = ("org_x", "org_y", "org_z", "tnear", "dir_x", "dir_y", "dir_z", "t
 _TFAR, _MASK = _RAY_FIELDS.index("tfar"), _RAY_FIELDS.index("mask")
 _GEOM_ID = len(_RAY_FIELDS) + 6
 _ROWS = len(_RAY_FIELDS) + 9  # one spare row for either hit layout
-_SPAN = 128  # packets per thread task (2048 rays, ~0.7 ms): amortises the hand-off
+_SPAN = 64  # packets per thread task (1024 rays, ~0.35 ms): amortises the hand-off
 
 _lib = None
 _device = None
