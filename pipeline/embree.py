@@ -49,6 +49,7 @@ _GEOM_ID = len(_RAY_FIELDS) + 6
 _ROWS = len(_RAY_FIELDS) + 9  # one spare row for either hit layout
 _SPAN = 64  # packets per thread task (1024 rays, ~0.35 ms): amortises the hand-off
 
+_CORES = os.cpu_count() or 1  # (a file read each call)
 _lib = None
 _device = None
 _device_pid = 0
@@ -139,7 +140,7 @@ class TriangleScene:
         is spread over the cores too: through numpy it was ~0.2 ms of the bunny's ~2 ms trace."""
         n = len(select)
         packets = -(-n // PACKET)
-        buf = _aligned_words(packets * _ROWS * PACKET).reshape(packets, _ROWS, PACKET)
+        buf = _aligned_words(packets * _ROWS * PACKET, zeroed=False).reshape(packets, _ROWS, PACKET)
         f = buf.view(np.float32)
         # Lane masks: -1 traces the lane. The last packet's unused lanes are switched off.
         valid = _aligned_words(2 * PACKET).reshape(2, PACKET)
@@ -156,7 +157,7 @@ class TriangleScene:
         # A few spans per thread, taken in turn by this thread and workers-1 pool threads (the
         # compiled loops hold no GIL, so they trace in parallel); several spans each balance a
         # core that another process slows.
-        workers = min(threads or os.cpu_count() or 1, -(-packets // _SPAN))
+        workers = min(threads or _CORES, -(-packets // _SPAN))
         spans = iter([range(a, min(a + _SPAN, packets)) for a in range(0, packets, _SPAN)])
 
         def work() -> None:
@@ -177,18 +178,23 @@ class TriangleScene:
 
 @njit(cache=True, nogil=True)
 def _fill(f, u, points, directions, offsets, select, first, stop):
-    """Packets first..stop-1 of the buffer (f and u: its float and word views) from the rays
-    select[first * PACKET:]; tnear, time, id and flags stay 0 from the allocation."""
-    for k in range(first * PACKET, min(stop * PACKET, len(select))):
-        packet, lane, v = k // PACKET, k % PACKET, select[k]
-        for axis in range(3):
-            d = directions[v, axis]
-            f[packet, axis, lane] = points[v, axis] + d * offsets[v]
-            f[packet, 4 + axis, lane] = d
-        f[packet, _TFAR, lane] = np.inf
-        u[packet, _MASK, lane] = 0xFFFFFFFF
-        for row in range(_GEOM_ID, _ROWS):
-            u[packet, row, lane] = RTC_INVALID_GEOMETRY_ID
+    """Every field of packets first..stop-1 of the buffer (f and u: its float and word views,
+    uninitialised) from the rays select[first * PACKET:]; lanes past the last ray are zeros."""
+    for packet in range(first, stop):
+        u[packet] = 0
+        for lane in range(PACKET):
+            k = packet * PACKET + lane
+            if k >= len(select):
+                continue
+            v = select[k]
+            for axis in range(3):
+                d = directions[v, axis]
+                f[packet, axis, lane] = points[v, axis] + d * offsets[v]
+                f[packet, 4 + axis, lane] = d
+            f[packet, _TFAR, lane] = np.inf
+            u[packet, _MASK, lane] = 0xFFFFFFFF
+            for row in range(_GEOM_ID, _ROWS):
+                u[packet, row, lane] = RTC_INVALID_GEOMETRY_ID
 
 
 _rtc_intersect16 = None  # rtcIntersect16 as a ctypes function the compiled loop can call
@@ -227,7 +233,7 @@ _pools: dict[int, ThreadPoolExecutor] = {}
 def spare_thread() -> ThreadPoolExecutor | None:
     """The pass's pool thread for other work before the trace (pipeline.quad_pairs), or None
     on one core."""
-    return _pool(1) if (os.cpu_count() or 1) > 1 else None
+    return _pool(1) if _CORES > 1 else None
 
 
 def _pool(workers: int) -> ThreadPoolExecutor:
@@ -238,8 +244,8 @@ def _pool(workers: int) -> ThreadPoolExecutor:
         return _pools[workers]
 
 
-def _aligned_words(count: int) -> np.ndarray:
+def _aligned_words(count: int, zeroed: bool = True) -> np.ndarray:
     """uint32 array of `count` words starting on a 64-byte boundary (packets need it)."""
-    raw = np.zeros(count + 16, np.uint32)  # tnear, time, id, flags: 0
+    raw = (np.zeros if zeroed else np.empty)(count + 16, np.uint32)
     skip = (-raw.ctypes.data % 64) // 4
     return raw[skip:skip + count]
