@@ -60,15 +60,18 @@ def interior_vectors(positions: np.ndarray, normals: np.ndarray, indices: np.nda
     from .embree import TriangleScene, spare_thread
     from .quad_pairs import pair_quads
 
-    p = np.ascontiguousarray(positions, dtype=np.float32)
+    p = np.ascontiguousarray(positions, dtype=np.float32).reshape(-1, 3)
+    nrm = np.ascontiguousarray(normals, dtype=np.float32).reshape(-1, 3)
     tris = np.ascontiguousarray(indices, dtype=np.uint32).reshape(-1, 3)
     count = len(p)
+    if len(nrm) != count:  # the compiled loops index both by vertex
+        raise ValueError(f"{len(nrm)} normals for {count} vertices")
     if len(tris) and int(tris.max()) >= count:  # Embree would read past the vertex buffer
         raise ValueError(f"triangle index {int(tris.max())} out of range for {count} vertices")
     if count == 0:
         return InteriorResult(np.zeros((0, 3), np.float32), 0, 0, 0, 0.0, 0.0)
 
-    lo, hi, direction, usable = _ray_setup(p, np.ascontiguousarray(normals, dtype=np.float32))
+    lo, hi, direction, usable = _ray_setup(p, nrm)
     diagonal = float(np.linalg.norm(hi - lo))
     if epsilon is None:
         # Scale-aware, and never below float32 resolution at the mesh's coordinates.

@@ -262,3 +262,6 @@ def test_out_of_range_indices_are_refused():
     with pytest.raises(ValueError, match="out of range"):
         interior_vectors(np.zeros((3, 3), np.float32), np.ones((3, 3), np.float32),
                          np.array([[0, 1, 3]], np.uint32))
+    with pytest.raises(ValueError, match="2 normals for 3 vertices"):
+        interior_vectors(np.zeros((3, 3), np.float32), np.ones((2, 3), np.float32),
+                         np.array([[0, 1, 2]], np.uint32))
