@@ -258,7 +258,7 @@ def test_quads_move_only_what_float_rounding_decides(assets):
     assert unstable_total > 100 and moved_total < unstable_total / 4  # the case is really there
 
 
-def test_out_of_range_indices_are_refused():
+def test_out_of_range_indices_and_short_normals_are_refused():
     with pytest.raises(ValueError, match="out of range"):
         interior_vectors(np.zeros((3, 3), np.float32), np.ones((3, 3), np.float32),
                          np.array([[0, 1, 3]], np.uint32))
