@@ -108,16 +108,21 @@ def interior_vectors(positions: np.ndarray, normals: np.ndarray, indices: np.nda
     return result
 
 
-def _box_exit(origin: np.ndarray, direction: np.ndarray, lo: np.ndarray, hi: np.ndarray):
-    """Distance along each ray (rows of (m, 3)) to where it leaves the box [lo, hi] (origins
-    inside or on it)."""
-    exit_t = np.full(len(origin), np.inf, np.float32)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        for axis in range(3):  # per axis: a min over (m, 3) rows is slow in numpy
-            o, d = origin[:, axis], direction[:, axis]
-            far = np.where(d > 0, (hi[axis] - o) / d, np.where(d < 0, (lo[axis] - o) / d, np.inf))
-            exit_t = np.minimum(exit_t, far)
-    return np.clip(np.where(np.isfinite(exit_t), exit_t, 0.0), 0.0, None).astype(np.float32)
+@njit(cache=True, nogil=True)
+def _box_exit(origin, direction, lo, hi):
+    """Distance along each ray (rows of (m, 3) float32) to where it leaves the box [lo, hi]
+    (origins inside or on it; 0 where none is found)."""
+    out = np.empty(len(origin), np.float32)
+    for k in range(len(origin)):
+        t = np.float32(np.inf)
+        for axis in range(3):
+            d = direction[k, axis]
+            if d > 0:
+                t = min(t, (hi[axis] - origin[k, axis]) / d)
+            elif d < 0:
+                t = min(t, (lo[axis] - origin[k, axis]) / d)
+        out[k] = max(t, np.float32(0.0)) if np.isfinite(t) else np.float32(0.0)
+    return out
 
 
 @njit(cache=True, nogil=True)
