@@ -75,6 +75,9 @@ class BakedMesh:
     uv1: np.ndarray | None = None
     colors: np.ndarray | None = None
     interior: np.ndarray | None = None  # N x 3 float32 object-space vertex->exit vectors, or None
+    # welded edges (core.adjacency.welded_edges), baked for assets within its MAX_TRIANGLES:
+    edges: np.ndarray | None = None       # E x 2 uint32 vertex indices
+    edge_faces: np.ndarray | None = None  # E x 2 int32 face indices (second -1: boundary)
     variants: dict[str, Material] = field(default_factory=dict)  # KHR_materials_variants
 
     @property

@@ -1,7 +1,8 @@
 """Bake assets and environments into the cache, and load them back without their sources.
 
 An asset bake is: ingest -> one BakedMesh per (geometry, material) pair carrying every instance's
-world matrix -> interior vectors for transmissive geometry only -> a cache entry holding the
+world matrix -> interior vectors for transmissive geometry only -> welded edges for edge
+anti-aliasing (core.adjacency, assets within its triangle cap) -> a cache entry holding the
 arrays (meshes.npz; per texture and colour space a zstd-compressed mip chain capped for the
 largest thumbnail served, texture.<i>.<srgb|linear>.zst) and a manifest with the full material
 values, so rendering never needs the source files again.
@@ -21,6 +22,7 @@ from typing import Any, cast
 
 import numpy as np
 
+from core.adjacency import MAX_TRIANGLES, welded_edges
 from core.baked import BakedAsset, BakedEnvironment, BakedMesh, BakedTexture
 from core.cubemap import DEFAULT_FACE_SIZE
 from core.errors import MissingFile, UnsupportedFormat
@@ -43,7 +45,8 @@ log = logging.getLogger(__name__)
 #   A larger render still works, with textures no sharper than that.
 ASSET_OPTIONS = {"interior_epsilon": None, "subdivision_levels": None, "thumbnail_size": 1024}
 PREFILTERS = ("ggx", "paper")
-_MESH_ARRAYS = ("positions", "normals", "indices", "tangents", "uv0", "uv1", "colors", "interior")
+_MESH_ARRAYS = ("positions", "normals", "indices", "tangents", "uv0", "uv1", "colors", "interior",
+                "edges", "edge_faces")
 
 
 def _cache(cache_dir) -> Cache:
@@ -122,7 +125,8 @@ def _inputs_inside(manifest: dict, path: Path, root) -> bool:
 
 
 def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> BakedAsset:
-    """Group a Scene's instances into BakedMeshes and compute interior vectors where needed."""
+    """Group a Scene's instances into BakedMeshes, compute interior vectors where needed and
+    the welded edges that edge anti-aliasing reads (renderer.edges) for assets it serves."""
     opts = {**ASSET_OPTIONS, **(options or {})}
     start = time.perf_counter()
     refined = subdivision.refine_scene(scene, min(Limits.from_env().max_triangles,
@@ -157,10 +161,19 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> Bak
             name=mesh.name, positions=mesh.positions, normals=mesh.normals, indices=mesh.indices,
             material=material, transforms=np.stack(transforms), tangents=mesh.tangents,
             uv0=mesh.uv0, uv1=mesh.uv1, colors=mesh.colors, interior=interior, variants=variants))
+    start = time.perf_counter()
+    if sum(len(m.indices) * len(m.transforms) for m in meshes) <= MAX_TRIANGLES:
+        welded: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # by geometry: one per mesh
+        for mesh, (mi, _, _) in zip(meshes, groups):
+            if mi not in welded:
+                welded[mi] = welded_edges(mesh.positions, mesh.indices)
+            mesh.edges, mesh.edge_faces = welded[mi]
+    adjacency_s = time.perf_counter() - start
     interior_s = stats["build_s"] + stats["trace_s"]
     stats["rays_per_s"] = round(stats["rays"] / interior_s) if interior_s > 0 else 0
     manifest = {
-        "timings": {"interior_s": round(interior_s, 6), "subdivide_s": round(subdivide_s, 6)},
+        "timings": {"interior_s": round(interior_s, 6), "subdivide_s": round(subdivide_s, 6),
+                    "adjacency_s": round(adjacency_s, 6)},
         "stats": {"meshes": len(meshes), "instances": len(scene.instances), "refined": refined,
                   "vertices": int(sum(len(m.positions) for m in meshes)),
                   "triangles": int(sum(len(m.indices) * len(m.transforms) for m in meshes)),

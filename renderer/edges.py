@@ -4,9 +4,9 @@ that lies beyond it (geometric post-process anti-aliasing, Persson 2011).
 
 On a CPU rasteriser 4x MSAA costs a third of a thumbnail whatever the shader (llvmpipe's
 per-sample coverage, depth and colour work), while the edges that need smoothing are a few
-hundred segments. Here they are found per frame from each mesh's edge adjacency (built once
-per upload): an edge between a face turned toward the camera and one turned away (the
-silhouette), or a boundary edge. (Creases are left alone: across a crease the neighbour pixel
+hundred segments. Here they are found per frame from each mesh's welded edges (core.adjacency,
+baked with the mesh; each face's plane set up once per upload): an edge between a face turned
+toward the camera and one turned away (the silhouette), or a boundary edge. (Creases are left alone: across a crease the neighbour pixel
 often shows neither face, as on a slab thinner than a pixel, and blending it adds a seam.)
 Each edge is drawn as a strip two pixels wide (shaders/edge.frag) into a two-channel target:
 per pixel, the step to the neighbour across the edge times the share of the pixel that lies
@@ -23,43 +23,37 @@ import moderngl
 import numpy as np
 
 from core import context
-
-# A frame with more triangles gets MSAA instead: the adjacency is built on its first frame
-# (~0.7 ms per 1000 triangles here: the Teapot's 40k, 28 ms) and the facing test runs per frame.
-MAX_TRIANGLES = 200_000
+from core.adjacency import MAX_TRIANGLES as MAX_TRIANGLES  # the frames this serves (else MSAA)
+from core.adjacency import welded_edges
+from core.baked import BakedMesh
 
 
 @dataclass
 class Adjacency:
-    """A mesh's edges over its welded positions (vertices split for UVs or normals share one)."""
-    points: np.ndarray   # P x 3 welded positions
-    edges: np.ndarray    # E x 2 point indices
+    """A mesh's welded edges (core.adjacency) and the facing test of its faces."""
+    points: np.ndarray   # N x 3 positions (float64)
+    edges: np.ndarray    # E x 2 vertex indices (one vertex per welded point)
     faces: np.ndarray    # E x 2 face indices (second -1: a boundary edge)
     normal: np.ndarray   # F x 3: each face's normal (unnormalised, by winding)
     offset: np.ndarray   # F: normal . a corner (a face is turned toward e where normal . e > offset)
 
 
-def adjacency(positions: np.ndarray, indices: np.ndarray) -> Adjacency:
-    raw = np.ascontiguousarray(positions).reshape(-1, 3)
-    # Welded by exact value: each position's bytes as one key (a 1-D sort, not a row sort).
-    keys = raw.view(np.dtype((np.void, raw.dtype.itemsize * 3))).reshape(-1)
-    _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
-    points = raw[first].astype(np.float64)
-    tri = inverse.reshape(-1)[np.asarray(indices, np.int64).reshape(-1, 3)]
-    ends = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
-    lo, hi = ends.min(axis=1), ends.max(axis=1)
-    key = lo * len(points) + hi  # one int64 per edge
-    order = np.argsort(key, kind="stable")
-    key, face = key[order], np.tile(np.arange(len(tri)), 3)[order]
-    first = np.flatnonzero(np.r_[len(key) > 0, key[1:] != key[:-1]])  # (none without faces)
-    count = np.diff(np.r_[first, len(key)])
-    # An edge of three or more faces (non-manifold) keeps its first two.
-    faces = np.stack([face[first], np.where(count >= 2, face[np.minimum(first + 1, len(face) - 1)], -1)], 1)
-    edges = np.stack([lo[order][first], hi[order][first]], 1)
-    keep = edges[:, 0] != edges[:, 1]  # not the edge of a face with two welded corners
+def adjacency(positions: np.ndarray, indices: np.ndarray,
+              welded: tuple[np.ndarray, np.ndarray] | None = None) -> Adjacency:
+    """`welded`: the mesh's (edges, faces) as baked (BakedMesh.edges, .edge_faces); None:
+    computed now (~0.7 ms per 1000 triangles)."""
+    edges, faces = welded if welded is not None else welded_edges(positions, indices)
+    points = np.asarray(positions, np.float64).reshape(-1, 3)
+    tri = np.asarray(indices, np.int64).reshape(-1, 3)
     p0, p1, p2 = points[tri[:, 0]], points[tri[:, 1]], points[tri[:, 2]]
     normal = np.cross(p1 - p0, p2 - p0)
-    return Adjacency(points, edges[keep], faces[keep], normal, np.einsum("ij,ij->i", normal, p0))
+    return Adjacency(points, edges, faces, normal, np.einsum("ij,ij->i", normal, p0))
+
+
+def of_mesh(mesh: BakedMesh) -> Adjacency:
+    """A baked mesh's adjacency: its baked edges where the bake stored them."""
+    welded = None if mesh.edges is None or mesh.edge_faces is None else (mesh.edges, mesh.edge_faces)
+    return adjacency(mesh.positions, mesh.indices, welded)
 
 
 def segments(adj: Adjacency, transforms: np.ndarray, eye: np.ndarray) -> np.ndarray:

@@ -85,7 +85,7 @@ class GpuMesh:
     nbytes: int
     vaos: dict[tuple, moderngl.VertexArray] = field(default_factory=dict)
     states: dict = field(default_factory=dict)  # renderer's per-material state, by override
-    edges: Any = None  # renderer.edges.Adjacency, built on the first edge-smoothed frame
+    edges: Any = None  # renderer.edges.Adjacency, set up on the first edge-smoothed frame
 
     def vao(self, prog: moderngl.Program, mirrored: bool) -> moderngl.VertexArray:
         key = (prog.glo, mirrored)

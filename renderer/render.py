@@ -329,8 +329,8 @@ def _edge_segments(items: list[DrawItem], camera: Camera) -> np.ndarray:
     """World endpoints of every drawn mesh's edges to smooth (renderer.edges) from `camera`."""
     parts = []
     for it in items:
-        if it.mesh.edges is None:  # built once per upload
-            it.mesh.edges = edges.adjacency(it.mesh.baked.positions, it.mesh.baked.indices)
+        if it.mesh.edges is None:  # once per upload, from the baked edges where there are some
+            it.mesh.edges = edges.of_mesh(it.mesh.baked)
         parts.append(edges.segments(it.mesh.edges, it.mesh.baked.transforms, camera.position))
     return np.concatenate(parts) if parts else np.zeros((0, 2, 3))
 

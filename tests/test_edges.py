@@ -27,7 +27,7 @@ def _keys(world: np.ndarray) -> set:
 
 def test_adjacency_welds_split_vertices():
     adj = edges.adjacency(SPLIT_POSITIONS, SPLIT_INDICES)
-    assert len(adj.points) == 8
+    assert len(np.unique(adj.edges)) == 8  # one vertex named for each corner
     assert len(adj.edges) == 18  # 12 cube edges and 6 face diagonals
     assert (adj.faces[:, 1] >= 0).all()  # closed: no boundary
 
