@@ -11,6 +11,7 @@ import pytest
 from gltf_builder import CUBE_INDICES, CUBE_POSITIONS, Builder
 
 import pipeline
+from core.adjacency import welded_edges
 from core.cubemap import default_face_size
 from core.options import RenderOptions
 from pipeline.panorama import DEFAULT_ENVIRONMENT
@@ -163,3 +164,87 @@ def test_msaa_when_asked_for_or_when_the_frame_is_too_big(cache, assets, monkeyp
     big = render(asset, env, o)
     assert big.plan["antialias"] == "msaa"
     assert np.array_equal(big.rgba8, msaa.rgba8)
+
+
+# -- the welded edges baked with each mesh (core.adjacency) ----------------------------------
+
+def _reference_edges(positions, indices):
+    """What welded_edges says, by its definition, one Python dict at a time: points by their
+    bytes, each edge's faces in the order corner pairs 01 (all faces), then 12, then 20."""
+    keys = [p.tobytes() for p in np.asarray(positions)]  # welded by exact value: bytes
+    point: dict = {}
+    for k in keys:
+        point.setdefault(k, len(point))
+    pid = [point[k] for k in keys]
+    first: dict = {}
+    for v, p in enumerate(pid):
+        first.setdefault(p, v)
+    rank = {point[k]: r for r, k in enumerate(sorted(point))}  # the points in their bytes' order
+    tri = np.asarray(indices).reshape(-1, 3)
+    found: dict = {}
+    for a, b in ((0, 1), (1, 2), (2, 0)):
+        for f, t in enumerate(tri.tolist()):
+            ends = sorted((pid[t[a]], pid[t[b]]), key=lambda p: rank[p])
+            if ends[0] != ends[1]:
+                found.setdefault(tuple(ends), []).append(f)
+    out = sorted(found.items(), key=lambda kv: (rank[kv[0][0]], rank[kv[0][1]]))
+    return (np.array([[first[a], first[b]] for (a, b), _ in out], np.uint32).reshape(-1, 2),
+            np.array([[fs[0], fs[1] if len(fs) > 1 else -1] for _, fs in out], np.int32).reshape(-1, 2))
+
+
+def test_welded_edges_by_their_definition(assets):
+    """Non-manifold edges keep their first two faces, collapsed edges are dropped, points are
+    welded by value; and on a real mesh, the same as the definition edge for edge."""
+    pos = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [1, 0, 0]], np.float32)
+    tri = np.array([[0, 1, 2], [1, 0, 3], [0, 5, 4], [0, 1, 1], [2, 2, 2]], np.uint32)
+    e, f = welded_edges(pos, tri)
+    ref = _reference_edges(pos, tri)
+    np.testing.assert_array_equal(e, ref[0])
+    np.testing.assert_array_equal(f, ref[1])
+    shared = np.flatnonzero((np.sort(pos[e], axis=1) == np.sort(pos[[0, 1]], axis=0)).all(axis=(1, 2)))
+    assert len(shared) == 1 and f[shared[0]].tolist() == [0, 1]  # four faces on it: the first two
+    assert len(e) == 7  # 01 12 20, 03 31, 14 40: the collapsed 11 and the point 2 2 2 add none
+    duck = pipeline.load_scene(assets / "gltf/Duck.glb").meshes[0]
+    e, f = welded_edges(duck.positions, duck.indices)
+    ref = _reference_edges(duck.positions, duck.indices)
+    np.testing.assert_array_equal(e, ref[0])
+    np.testing.assert_array_equal(f, ref[1])
+
+
+@pytest.mark.parametrize("name", ["usd/Teapot/Teapot.usd", "gltf/CesiumMilkTruck.glb", "gltf/Duck.glb"])
+def test_baked_edges_are_those_a_render_would_build(name, assets, tmp_path):
+    baked = pipeline.bake_asset(assets / name, tmp_path)
+    again = pipeline.load_baked(baked.key, tmp_path)  # the cache round trip
+    assert again.manifest["timings"]["adjacency_s"] >= 0
+    for mesh in again.meshes:
+        assert mesh.edges is not None and mesh.edge_faces is not None
+        assert mesh.edges.dtype == np.uint32 and mesh.edge_faces.dtype == np.int32
+        built = edges.adjacency(mesh.positions, mesh.indices)
+        used = edges.of_mesh(mesh)
+        for field in ("points", "edges", "faces", "normal", "offset"):
+            np.testing.assert_array_equal(getattr(used, field), getattr(built, field))
+
+
+def test_a_render_reads_the_baked_edges_and_matches_one_without(cache, assets, tmp_path, monkeypatch):
+    """From a cache entry with edges the render computes none, and its pixels are those of a
+    render from an entry baked without them (over the cap), which computes them."""
+    from pipeline import bake
+    from renderer import gpu
+    env = pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(96))
+    with_edges = pipeline.load_baked(pipeline.bake_asset(assets / "gltf/Duck.glb", tmp_path / "a").key,
+                                     tmp_path / "a")
+    monkeypatch.setattr(bake, "MAX_TRIANGLES", 100)
+    without = pipeline.load_baked(pipeline.bake_asset(assets / "gltf/Duck.glb", tmp_path / "b").key,
+                                  tmp_path / "b")
+    monkeypatch.undo()
+    assert all(m.edges is None and m.edge_faces is None for m in without.meshes)
+    o = RenderOptions(width=96, height=96)
+    gpu.clear()  # the same key: each must be uploaded from its own entry
+    with monkeypatch.context() as m:
+        m.setattr(edges, "welded_edges", None)  # computing them would fail
+        a = render(with_edges, env, o)
+    gpu.clear()
+    b = render(without, env, o)
+    gpu.clear()
+    assert a.plan["antialias"] == b.plan["antialias"] == "edges"
+    assert np.array_equal(a.rgba8, b.rgba8)
