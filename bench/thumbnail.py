@@ -11,7 +11,11 @@ Per asset and size, each tool runs in processes of its own (GL contexts do not m
 - cold: wall time of a new process from start to a PNG on disk (interpreter, imports, GL
   context, shader compile, loading the asset: ours from the bake cache, peers from the file,
   render, PNG). One unmeasured run first per tool fills every disk cache (ours, f3d's HDRI
-  bake, Mesa's shader cache), then the median of `--cold-repeat` runs.
+  bake, Mesa's shader cache), then the median of `--cold-repeat` runs (every tool's in turn),
+  wall and CPU (the process's, all threads), and in-process: from the tool's set-up (loading
+  the asset, its libraries' lazy imports) to the PNG, wall and CPU, without the interpreter's
+  start and the first imports, where most of the noise lies; for ours also that frame's
+  stages (renderer FrameTimings: upload, draw with the edges' set-up, ...).
 - warm: in one process per tool, after a first thumbnail, the median time of the next
   `--repeat` thumbnails rendered into a uint8 RGB(A) array in memory, every tool's processes
   asked for one thumbnail at a time in turn (so all see the same machine load) ("+png": plus PNG encoding with the
@@ -25,6 +29,10 @@ PyPI wheel, so peers get the Teapot as a .glb exported from our bake (same trian
 BigTextures8k (bench.big_textures: the Duck with three 8192^2 PNG textures in a 77 MB .glb) is
 the StainedGlassLamp-class case; for it the run also reports the baked texture bytes and the
 FLIP at 1024 px of our render against the same render with full-resolution textures.
+TeapotFine is the Teapot baked one subdivision level finer (158k triangles, near the edge
+anti-aliasing cap). `--tools ours,ours-unbaked` adds ours from the same entry with its baked
+welded edges dropped, so the first frame builds them (core.adjacency) as before the bake
+stored them: the cold path's before/after in one run.
 Ours loads the bake by key, as the service's workers do. Per asset and size the run also
 reports our anti-aliasing: FLIP of the default frame (edge anti-aliasing) against a 16x
 supersampled render of our own (4 x 4 shaded samples per pixel), beside the frame with 4x MSAA
@@ -35,6 +43,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -52,8 +61,10 @@ ASSETS = {
     "SheenCloth": "gltf-samples/SheenCloth/glTF/SheenCloth.gltf",
     "TransmissionRoughnessTest": "gltf-samples/TransmissionRoughnessTest/glTF/TransmissionRoughnessTest.gltf",
     "BigTextures8k": None,  # generated: bench.big_textures
+    "TeapotFine": "usd/Teapot/Teapot.usd",  # baked one subdivision level finer: 158k triangles
 }
-TOOLS = ("ours", "ours-old", "pyrender", "f3d")
+BAKE_OPTIONS = {"TeapotFine": {"subdivision_levels": 3}}
+TOOLS = ("ours", "ours-old", "pyrender", "f3d")  # and on request ours-unbaked (below)
 OLD_ENV = "footprint_court"  # the default light before the studio
 
 
@@ -101,9 +112,11 @@ def run(args: argparse.Namespace) -> int:
     for name in args.assets.split(","):
         rel = ASSETS[name]
         src = big_textures.build(assets_root) if rel is None else assets_root / rel
-        baked = pipeline.bake_asset(src, cache)  # ours renders from the cache, as the service does
+        baked = pipeline.bake_asset(src, cache, **BAKE_OPTIONS.get(name, {}))  # ours renders from the cache, as the service does
         if name == big_textures.NAME:
             _texture_report(src, baked, cache, env_name)
+        if any(t.startswith("ours") for t in tools):
+            _edges_report(name, baked)
         peer_file = str(src) if src.suffix in (".glb", ".gltf") else _export_glb(baked, work / f"{name}.glb")
         for size in sizes:
             job = {"asset": str(src), "key": baked.key, "peer_file": peer_file, "size": size, "cache": str(cache),
@@ -151,6 +164,43 @@ def _texture_report(src: Path, baked, cache: Path, env_name: str, px: int = 1024
     print(f"{src.name}: source {src_bytes / 1e6:.1f} MB, baked textures {tex_bytes / 1e6:.2f} MB "
           f"(target <= 32 MB); FLIP at {px} px vs full-resolution textures: frame "
           f"{errors['env']:.4f}, object pixels {errors['object']:.4f} (target <= 0.02)", flush=True)
+
+
+def _edges_report(name: str, baked, repeat: int = 7) -> None:
+    """The welded edges of edge anti-aliasing: what their set-up costs a first frame from the
+    bake (its faces' planes) and built there (core.adjacency, before the bake stored them),
+    CPU medians in this process; what reading and checksumming their bytes adds to a load,
+    and their bake time and bytes."""
+    import dataclasses
+    import hashlib
+    import io
+
+    import numpy as np
+
+    from renderer import edges
+
+    def cpu_ms(fn) -> float:
+        runs = []
+        for _ in range(repeat):
+            c = time.process_time()
+            fn()
+            runs.append((time.process_time() - c) * 1e3)
+        return statistics.median(runs)
+    built = [dataclasses.replace(m, edges=None, edge_faces=None) for m in baked.meshes]
+    arrays = {f"{i}.{k}": getattr(m, k) for i, m in enumerate(baked.meshes)
+              for k in ("edges", "edge_faces") if getattr(m, k) is not None}
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    data = buf.getvalue()
+
+    def load() -> None:
+        hashlib.sha256(data).hexdigest()
+        with np.load(io.BytesIO(data)) as npz:
+            [npz[k] for k in npz.files]
+    print(f"{name:>15} edges per upload: {cpu_ms(lambda: [edges.of_mesh(m) for m in baked.meshes]):.1f} ms "
+          f"from the bake vs {cpu_ms(lambda: [edges.of_mesh(m) for m in built]):.1f} ms built (CPU, medians "
+          f"of {repeat}); their {len(data) / 1024:.0f} KB in the entry: +{cpu_ms(load):.1f} ms to a load, "
+          f"{1e3 * baked.manifest['timings']['adjacency_s']:.1f} ms at bake", flush=True)
 
 
 def _aa_report(name: str, baked, cache: Path, env_name: str, size: int) -> dict:
@@ -249,15 +299,22 @@ def _measure(tools: list[str], job: dict, repeat: int, cold_repeat: int) -> dict
             raise RuntimeError(f"{tool} worker failed:\n{p.stderr[-2000:]}")
         return p.stdout
 
-    out: dict[str, dict] = {}
     for tool in tools:
         worker(tool, "cold")  # fill the disk caches
-        cold = []
-        for _ in range(cold_repeat):
-            t = time.perf_counter()
-            worker(tool, "cold")
-            cold.append(time.perf_counter() - t)
-        out[tool] = {"cold_s": statistics.median(cold) if cold else None}  # --cold-repeat 0: none
+    colds: dict[str, list[dict]] = {tool: [] for tool in tools}
+    for i in range(cold_repeat):  # tools in turn, the order rotating, as for warm thumbnails
+        for tool in tools[i % len(tools):] + tools[:i % len(tools)]:
+            t, c = time.perf_counter(), _cpu(resource.RUSAGE_CHILDREN)
+            reply = next(line for line in worker(tool, "cold").splitlines() if line.startswith(_REPLY))
+            colds[tool].append({"cold_s": time.perf_counter() - t,
+                                "cold_cpu_s": _cpu(resource.RUSAGE_CHILDREN) - c,
+                                **json.loads(reply[len(_REPLY):])})
+    out: dict[str, dict] = {tool: {k: statistics.median(run[k] for run in runs) if runs else None
+                                   for k in ("cold_s", "cold_cpu_s", "first_ms", "first_cpu_ms")}
+                            for tool, runs in colds.items()}  # --cold-repeat 0: none
+    for tool, runs in colds.items():  # ours: the stages of the cold process's one frame
+        out[tool].update({k: statistics.median(run[k] for run in runs)
+                          for k in (runs[0] if runs else {}) if k.startswith("frame_")})
     procs = {t: subprocess.Popen(cmd(t) + ["serve"], env=env, cwd=cwd, stdin=subprocess.PIPE,
                                  stdout=subprocess.PIPE, text=True) for t in tools}
 
@@ -307,7 +364,13 @@ def _print_row(row: dict, tools: list[str]) -> None:
                       f"(a warm thumbnail: {r['warm_ms']:.1f} + png), {n * (frame + enc) / 1e3:.2f} s in all")
             if r["cold_s"] is not None:
                 extra += f" vs {n * r['cold_s']:.1f} s for {n} `render` commands"
-        cold = "-" if r["cold_s"] is None else f"{r['cold_s']:.2f} s"
+        cold = "-" if r["cold_s"] is None else (f"{r['cold_s']:.2f} s (cpu {r['cold_cpu_s']:.2f}; "
+                                                f"in-process {r['first_ms']:.0f} ms, cpu {r['first_cpu_ms']:.0f}")
+        if "frame_total_ms" in r:
+            stages = ", ".join(f"{k[6:-3]} {v:.1f}" for k, v in r.items()
+                               if k.startswith("frame_") and k != "frame_total_ms")
+            cold += f"; its frame {r['frame_total_ms']:.0f} ms: {stages}"
+        cold += ")" if r["cold_s"] is not None else ""
         parts.append(f"{t}: cold {cold}, warm {r['warm_ms']:.1f} ms "
                      f"(+png {r['warm_png_ms']:.1f}, cpu {r['warm_cpu_ms']:.1f}){extra}")
     print(" | ".join(parts), flush=True)
@@ -346,11 +409,13 @@ def _png(rgb) -> bytes:
     return encode_png(rgb)
 
 
-def _ours(job: dict, old: bool = False):
+def _ours(job: dict, old: bool = False, unbaked: bool = False):
     import pipeline
     from core.options import RenderOptions
     from renderer.auto import environment_face_size
     asset = pipeline.load_baked(job["key"], job["cache"])
+    for mesh in asset.meshes if unbaked else ():  # edges built at upload, as before they were baked
+        mesh.edges = mesh.edge_faces = None
     look: dict[str, Any] = {"background": "env", "shadow": 0.0} if old else {}
     options = RenderOptions(width=job["size"], height=job["size"], **_view(), **look)
     env = pipeline.bake_environment(OLD_ENV if old else job["env"], job["cache"],
@@ -366,7 +431,9 @@ class _OursShot:
 
     def __call__(self):
         from renderer import render
-        return render(self.asset, self.env, self.options).rgba8
+        frame = render(self.asset, self.env, self.options)
+        self.timings = frame.timings.as_dict()  # the cold worker reports its one frame's stages
+        return frame.rgba8
 
     def turntable(self, n: int) -> tuple[float, float]:
         return _turntable(self.asset, self.env, self.options, n)
@@ -453,10 +520,16 @@ def _worker(tool: str, job: dict, mode: str) -> None:
     """`cold`: one thumbnail to a PNG. `serve`: set up, then answer lines from stdin, one
     JSON line each: `ready` (after a first thumbnail), `shot` (one timed thumbnail: render,
     render + PNG, CPU), `extra N` (ours: the shadow's cost and the turntable)."""
-    make = {"ours": _ours, "ours-old": lambda j: _ours(j, old=True), "pyrender": _pyrender, "f3d": _f3d}
+    make = {"ours": _ours, "ours-old": lambda j: _ours(j, old=True),
+            "ours-unbaked": lambda j: _ours(j, unbaked=True), "pyrender": _pyrender, "f3d": _f3d}
+    c, t = _cpu(), time.perf_counter()
     shot = make[tool](job)
     if mode == "cold":
         Path(job["out"].format(tool=tool)).write_bytes(_png(shot()))
+        print(_REPLY + json.dumps({"first_ms": (time.perf_counter() - t) * 1e3,
+                                   "first_cpu_ms": (_cpu() - c) * 1e3,
+                                   **{f"frame_{k}": v for k, v in getattr(shot, "timings", {}).items()}}),
+              flush=True)
         return
     for line in sys.stdin:
         cmd, *arg = line.split()
@@ -482,11 +555,11 @@ def _worker(tool: str, job: dict, mode: str) -> None:
 _REPLY = "@reply "  # marks the serve worker's answers among whatever else reaches stdout
 
 
-def _cpu() -> float:
+def _cpu(who: int = resource.RUSAGE_SELF) -> float:
     """CPU seconds of this process, all threads (llvmpipe's included): the work a thumbnail
-    costs, less disturbed than wall time by other jobs on a shared machine."""
-    import resource
-    r = resource.getrusage(resource.RUSAGE_SELF)
+    costs, less disturbed than wall time by other jobs on a shared machine (RUSAGE_CHILDREN:
+    of the worker processes that have ended)."""
+    r = resource.getrusage(who)
     return r.ru_utime + r.ru_stime
 
 
