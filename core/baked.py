@@ -99,6 +99,9 @@ class BakedAsset:
     variants: list[str] = field(default_factory=list)     # material variant names (glTF)
     cameras: list[SceneCamera] = field(default_factory=list)  # the asset's own cameras
     extent: np.ndarray | None = None  # 2 x 3 bounds incl. backdrops, when wider than `bounds`
+    # K x 3 world points whose convex hull holds every surface (core.hull), baked; 0 x 3: no
+    # bound; None: computed on first render. A copy with other geometry must drop it.
+    hull: np.ndarray | None = None
 
     def __post_init__(self):
         self.textures = [t if isinstance(t, BakedTexture) else BakedTexture.from_texture(t)

@@ -2,10 +2,11 @@
 
 An asset bake is: ingest -> one BakedMesh per (geometry, material) pair carrying every instance's
 world matrix -> interior vectors for transmissive geometry only -> welded edges for edge
-anti-aliasing (core.adjacency, assets within its triangle cap) -> a cache entry holding the
-arrays (meshes.npz; per texture and colour space a zstd-compressed mip chain capped for the
-largest thumbnail served, texture.<i>.<srgb|linear>.zst) and a manifest with the full material
-values, so rendering never needs the source files again.
+anti-aliasing (core.adjacency, assets within its triangle cap) and the points whose convex hull
+bounds every surface (core.hull) -> a cache entry holding the arrays (meshes.npz, hull.npy;
+per texture and colour space a zstd-compressed mip chain capped for the largest thumbnail
+served, texture.<i>.<srgb|linear>.zst) and a manifest with the full material values, so
+rendering never needs the source files again.
 """
 from __future__ import annotations
 
@@ -26,6 +27,7 @@ from core.adjacency import MAX_TRIANGLES, welded_edges
 from core.baked import BakedAsset, BakedEnvironment, BakedMesh, BakedTexture
 from core.cubemap import DEFAULT_FACE_SIZE
 from core.errors import MissingFile, UnsupportedFormat
+from core.hull import hull_points
 from core.mips import level_shapes, texture_size_for
 from core.scene import Light, Material, Sampler, Scene, SceneCamera, TextureRef, extent, is_srgb
 
@@ -126,7 +128,8 @@ def _inputs_inside(manifest: dict, path: Path, root) -> bool:
 
 def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> BakedAsset:
     """Group a Scene's instances into BakedMeshes, compute interior vectors where needed and
-    the welded edges that edge anti-aliasing reads (renderer.edges) for assets it serves."""
+    the welded edges that edge anti-aliasing reads (renderer.edges) for assets it serves, and
+    the points bounding the final pass's regions (core.hull)."""
     opts = {**ASSET_OPTIONS, **(options or {})}
     start = time.perf_counter()
     refined = subdivision.refine_scene(scene, min(Limits.from_env().max_triangles,
@@ -169,11 +172,14 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> Bak
                 welded[mi] = welded_edges(mesh.positions, mesh.indices)
             mesh.edges, mesh.edge_faces = welded[mi]
     adjacency_s = time.perf_counter() - start
+    start = time.perf_counter()
+    hull = hull_points(meshes)
+    hull_s = time.perf_counter() - start
     interior_s = stats["build_s"] + stats["trace_s"]
     stats["rays_per_s"] = round(stats["rays"] / interior_s) if interior_s > 0 else 0
     manifest = {
         "timings": {"interior_s": round(interior_s, 6), "subdivide_s": round(subdivide_s, 6),
-                    "adjacency_s": round(adjacency_s, 6)},
+                    "adjacency_s": round(adjacency_s, 6), "hull_s": round(hull_s, 6)},
         "stats": {"meshes": len(meshes), "instances": len(scene.instances), "refined": refined,
                   "vertices": int(sum(len(m.positions) for m in meshes)),
                   "triangles": int(sum(len(m.indices) * len(m.transforms) for m in meshes)),
@@ -189,7 +195,8 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> Bak
                       textures=textures, bounds=np.asarray(scene.bounds, np.float64),
                       lights=list(scene.lights), warnings=list(scene.warnings), manifest=manifest,
                       variants=list(scene.variants), cameras=list(scene.cameras),
-                      extent=extent(scene) if any(i.backdrop for i in scene.instances) else None)
+                      extent=extent(scene) if any(i.backdrop for i in scene.instances) else None,
+                      hull=np.zeros((0, 3)) if hull is None else hull)
 
 
 def _texture_spaces(scene: Scene) -> list[tuple[bool, ...]]:
@@ -236,6 +243,8 @@ def pack_asset(baked: BakedAsset, options: dict) -> tuple[dict, dict[str, dict[s
                           "arrays": present,
                           "variants": {k: material_index[id(v)] for k, v in m.variants.items()}})
     arrays: dict[str, Any] = {"meshes.npz": mesh_arrays}
+    if baked.hull is not None:
+        arrays["hull.npy"] = np.asarray(baked.hull, np.float64)
     for i, t in enumerate(baked.textures):
         arrays.update({_texture_file(i, srgb): t.mips(srgb)[::-1] for srgb in t.spaces})  # smallest first
     manifest = {
@@ -280,7 +289,8 @@ def unpack_asset(entry: Entry) -> BakedAsset:
                       lights=[_light_from_json(d) for d in m["lights"]], warnings=list(m["warnings"]),
                       manifest=m, variants=list(m.get("variants", [])),
                       extent=None if m.get("extent") is None else np.asarray(m["extent"], np.float64),
-                      cameras=[_camera_from_json(d) for d in m.get("cameras", [])])
+                      cameras=[_camera_from_json(d) for d in m.get("cameras", [])],
+                      hull=cast("np.ndarray | None", entry.arrays.get("hull.npy")))
 
 
 def _camera_from_json(d: dict) -> SceneCamera:

@@ -4,9 +4,9 @@ pass (renderer.render) does each kind of work only there.
 On a CPU rasteriser every branch of a shader costs on every pixel, so the final pass is drawn
 as several programs, each over the pixels that need it: the MSAA resolve and tone mapping
 inside the object's silhouette bound (`object_polygon`: the projected convex hull of every
-vertex, grown by more than a pixel), the ground shadow inside the projection of its map
-(`screen_rect`). Both are conservative: outside them the work would have produced exactly
-what the cheaper program writes.
+vertex, core.hull, baked with the asset; grown by more than a pixel), the ground shadow inside
+the projection of its map (`screen_rect`). Both are conservative: outside them the work would
+have produced exactly what the cheaper program writes.
 """
 from __future__ import annotations
 
@@ -14,17 +14,13 @@ from collections import OrderedDict
 
 import numpy as np
 
+from core import hull
 from core.baked import BakedAsset
 
 from .camera import Camera
 
 Rect = tuple[int, int, int, int]  # x, y, width, height in pixels; y down from the image top
 
-DIRECT_POINTS = 4096        # fewer points are bounded as they are: qhull would save <0.3 ms a
-                            # frame and its scipy import costs a cold render ~250 ms
-MAX_HULL_MESH = 50_000      # vertices: a bigger mesh is bounded by its box's corners instead
-                            # (qhull's time and the hull's size grow with it; cold renders pay)
-MAX_HULL_POINTS = 200_000   # all instances' points: past this, every instance by its box
 PAD = 1.5                   # pixels the silhouette bound grows by (a pixel is touched if any
                             # of its samples is covered: half a pixel, plus rounding room)
 _hulls: OrderedDict = OrderedDict()  # asset key -> world points of the convex hull
@@ -32,48 +28,17 @@ MAX_HULLS = 64
 
 
 def hull_points(asset: BakedAsset) -> np.ndarray | None:
-    """World-space points whose convex hull holds every instance of every mesh (backdrops
-    included: the bound holds every drawn surface): the vertices of that hull, or all the
-    points when they are few; kept per asset. None when there is no hull to take (no
-    vertices, degenerate, or too many vertices to be worth it)."""
+    """World-space points whose convex hull holds every drawn surface (core.hull): as baked
+    (BakedAsset.hull), else computed and kept per asset. None: no bound."""
+    if asset.hull is not None:
+        return asset.hull if len(asset.hull) else None
     if asset.key in _hulls:
         _hulls.move_to_end(asset.key)
         return _hulls[asset.key]
-    pts = None
-    locals_ = []
-    for m in asset.meshes:
-        if len(m.positions) == 0:
-            continue
-        p = np.asarray(m.positions, np.float64)
-        local = p if len(p) <= DIRECT_POINTS else _hull(p) if len(p) <= MAX_HULL_MESH else _box(p)
-        locals_.append((local, np.asarray(m.transforms, np.float64)))
-    if sum(len(h) * len(t) for h, t in locals_) > MAX_HULL_POINTS:
-        locals_ = [(_box(h), t) for h, t in locals_]
-    parts = [h @ t[:3, :3].T + t[:3, 3] for h, ts in locals_ for t in ts]
-    if parts and sum(len(x) for x in parts) <= MAX_HULL_POINTS:
-        pts = np.concatenate(parts)
-        pts = pts if len(pts) <= DIRECT_POINTS else _hull(pts)
-    _hulls[asset.key] = pts
+    pts = _hulls[asset.key] = hull.hull_points(asset.meshes)
     while len(_hulls) > MAX_HULLS:
         _hulls.popitem(last=False)
     return pts
-
-
-def _box(points: np.ndarray) -> np.ndarray:
-    """The eight corners of the points' bounding box (a looser hull, as cheap as can be)."""
-    lo, hi = points.min(axis=0), points.max(axis=0)
-    return np.array([[(lo, hi)[i >> k & 1][k] for k in range(3)] for i in range(8)])
-
-
-def _hull(points: np.ndarray) -> np.ndarray:
-    """The points on the convex hull (all of them when qhull finds none: flat or tiny)."""
-    from scipy.spatial import ConvexHull, QhullError
-    if len(points) <= 8:
-        return points
-    try:
-        return points[ConvexHull(points).vertices]
-    except (QhullError, ValueError):  # coplanar or degenerate: every point is kept
-        return points
 
 
 def _project(camera: Camera, points: np.ndarray, w: int, h: int) -> np.ndarray | None:
