@@ -78,6 +78,7 @@ class BakedMesh:
     # welded edges (core.adjacency.welded_edges), baked for assets within its MAX_TRIANGLES:
     edges: np.ndarray | None = None       # E x 2 uint32 vertex indices
     edge_faces: np.ndarray | None = None  # E x 2 int32 face indices (second -1: boundary)
+    support: np.ndarray | None = None     # S x 3 float64 support points (core.hull), baked
     variants: dict[str, Material] = field(default_factory=dict)  # KHR_materials_variants
 
     @property

@@ -2,11 +2,11 @@
 
 An asset bake is: ingest -> one BakedMesh per (geometry, material) pair carrying every instance's
 world matrix -> interior vectors for transmissive geometry only -> welded edges for edge
-anti-aliasing (core.adjacency, assets within its triangle cap) and the points whose convex hull
-bounds every surface (core.hull) -> a cache entry holding the arrays (meshes.npz, hull.npy;
-per texture and colour space a zstd-compressed mip chain capped for the largest thumbnail
-served, texture.<i>.<srgb|linear>.zst) and a manifest with the full material values, so
-rendering never needs the source files again.
+anti-aliasing (core.adjacency, assets within its triangle cap), the support points the camera
+frames and the points whose convex hull bounds every surface (core.hull) -> a cache entry
+holding the arrays (meshes.npz, hull.npy; per texture and colour space a zstd-compressed mip
+chain capped for the largest thumbnail served, texture.<i>.<srgb|linear>.zst) and a manifest
+with the full material values, so rendering never needs the source files again.
 """
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ from core.adjacency import MAX_TRIANGLES, welded_edges
 from core.baked import BakedAsset, BakedEnvironment, BakedMesh, BakedTexture
 from core.cubemap import DEFAULT_FACE_SIZE
 from core.errors import MissingFile, UnsupportedFormat
-from core.hull import hull_points
+from core.hull import hull_points, support_points
 from core.mips import level_shapes, texture_size_for
 from core.scene import Light, Material, Sampler, Scene, SceneCamera, TextureRef, extent, is_srgb
 
@@ -48,7 +48,7 @@ log = logging.getLogger(__name__)
 ASSET_OPTIONS = {"interior_epsilon": None, "subdivision_levels": None, "thumbnail_size": 1024}
 PREFILTERS = ("ggx", "paper")
 _MESH_ARRAYS = ("positions", "normals", "indices", "tangents", "uv0", "uv1", "colors", "interior",
-                "edges", "edge_faces")
+                "edges", "edge_faces", "support")
 
 
 def _cache(cache_dir) -> Cache:
@@ -129,7 +129,7 @@ def _inputs_inside(manifest: dict, path: Path, root) -> bool:
 def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> BakedAsset:
     """Group a Scene's instances into BakedMeshes, compute interior vectors where needed and
     the welded edges that edge anti-aliasing reads (renderer.edges) for assets it serves, and
-    the points bounding the final pass's regions (core.hull)."""
+    the points on the hull that the framing and the final pass's regions read (core.hull)."""
     opts = {**ASSET_OPTIONS, **(options or {})}
     start = time.perf_counter()
     refined = subdivision.refine_scene(scene, min(Limits.from_env().max_triangles,
@@ -173,13 +173,19 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> Bak
             mesh.edges, mesh.edge_faces = welded[mi]
     adjacency_s = time.perf_counter() - start
     start = time.perf_counter()
+    support: dict[int, np.ndarray] = {}
+    for mesh, (mi, _, _) in zip(meshes, groups):
+        mesh.support = support.setdefault(mi, support_points(mesh.positions))
+    support_s = time.perf_counter() - start
+    start = time.perf_counter()
     hull = hull_points(meshes)
     hull_s = time.perf_counter() - start
     interior_s = stats["build_s"] + stats["trace_s"]
     stats["rays_per_s"] = round(stats["rays"] / interior_s) if interior_s > 0 else 0
     manifest = {
         "timings": {"interior_s": round(interior_s, 6), "subdivide_s": round(subdivide_s, 6),
-                    "adjacency_s": round(adjacency_s, 6), "hull_s": round(hull_s, 6)},
+                    "adjacency_s": round(adjacency_s, 6), "hull_s": round(hull_s, 6),
+                    "support_s": round(support_s, 6)},
         "stats": {"meshes": len(meshes), "instances": len(scene.instances), "refined": refined,
                   "vertices": int(sum(len(m.positions) for m in meshes)),
                   "triangles": int(sum(len(m.indices) * len(m.transforms) for m in meshes)),

@@ -64,7 +64,7 @@ log = logging.getLogger(__name__)
 
 # 2: glTF skins, morphs, instancing, variants, cameras baked; 3: Material lobes;
 # 4: textures as capped, zstd-compressed mip chains (were full-size .npy); 5: meshes' welded
-# edges for edge anti-aliasing (core.adjacency), the asset's hull points (core.hull)
+# edges for edge anti-aliasing (core.adjacency), support and hull points (core.hull)
 BAKE_FORMAT_VERSION = 5
 ZSTD_LEVEL = 9  # texture chains: written once at bake, read by every process (see README figures)
 KINDS = ("assets", "environments")

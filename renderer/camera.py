@@ -4,7 +4,7 @@ The camera looks at `target` (default: the centre of the world bounds). yaw 0, p
 looking toward -Z with +Y up; positive yaw turns it toward +X about +Y; positive pitch raises
 it toward +Y. fov is vertical, in degrees; distance is in scene units from the bounds centre.
 Without a distance, the camera keeps that direction and is moved (back and sideways) until the
-object's points (its support points, `support_points`, else the eight corners of the bounds),
+object's points (its support points, `core.hull.support_points`, else the eight corners of the bounds),
 projected, fill FILL of the frame on the tighter axis and are centred on both: the object fills
 the frame at any aspect ratio and from any angle. The
 default angle (three-quarter, from above) is declared once, in core.options.RenderOptions.
@@ -179,23 +179,6 @@ def _fit_position(corners: np.ndarray, forward: np.ndarray, width: int, height: 
         sideways.append((hi_side - lo_side) / 2)
         depths.append(-(hi_side + lo_side) / (2 * t))
     return sideways[0] * right + sideways[1] * up + min(depths) * forward
-
-
-def support_points(points: np.ndarray, directions: int = 256) -> np.ndarray:
-    """The points farthest along `directions` evenly spread unit vectors (a Fibonacci
-    sphere): a few hundred points whose projection bounds the object's almost as tightly as
-    all of them, at any view."""
-    points = np.asarray(points, np.float64).reshape(-1, 3)
-    if len(points) <= directions:
-        return points
-    i = np.arange(directions) + 0.5
-    z = 1 - 2 * i / directions
-    phi = math.pi * (1 + 5 ** 0.5) * i
-    r = np.sqrt(1 - z * z)
-    d = np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
-    keep = np.zeros(len(points), bool)  # each extreme point once, in order (np.unique's
-    keep[np.argmax(points @ d.T, axis=0)] = True  # result, without its 16 ms numpy.ma import)
-    return points[keep]
 
 
 def sphere_distance(bounds: np.ndarray, width: int, height: int, fov: float = 40.0) -> float:

@@ -10,10 +10,11 @@ import math
 import numpy as np
 
 from core.baked import BakedAsset
+from core.hull import support_points
 from core.options import RenderOptions
 
 from . import shadow
-from .camera import Camera, frame_bounds, scene_camera, support_points
+from .camera import Camera, frame_bounds, scene_camera
 
 
 def frame_camera(bounds: np.ndarray, options: RenderOptions,
@@ -67,14 +68,14 @@ _framing_points: dict[str, np.ndarray] = {}
 
 
 def framing_points(asset: BakedAsset) -> np.ndarray | None:
-    """World-space support points of every instance of every mesh (renderer.camera)."""
+    """World-space support points (core.hull) of every instance of every mesh."""
     pts = _framing_points.get(asset.key)
     if pts is None:
         parts = []
         for m in asset.meshes:
             if len(m.positions) == 0:
                 continue
-            local = support_points(m.positions)
+            local = support_points(m.positions) if m.support is None else m.support  # baked
             for t in np.asarray(m.transforms, np.float64):
                 parts.append(local @ t[:3, :3].T + t[:3, 3])
         lo, hi = np.asarray(asset.bounds, np.float64)

@@ -12,7 +12,7 @@ from core import hull
 from core.cubemap import default_face_size
 from core.options import RenderOptions
 from pipeline.panorama import DEFAULT_ENVIRONMENT
-from renderer import regions, render
+from renderer import framing, regions, render
 from renderer.framing import request_camera
 
 SAMPLES = ["gltf/Duck.glb", "gltf-samples/SheenCloth/glTF/SheenCloth.gltf",
@@ -112,8 +112,10 @@ def test_rect_subtraction_tiles_the_rest():
 
 
 def _unbaked(asset):
-    """The asset without its baked hull points: the renderer computes them (core.hull)."""
-    return dataclasses.replace(asset, key=asset.key + "#unbaked-hull", hull=None)
+    """The asset without its baked hull and support points (and edges): the renderer computes
+    them (core.hull, core.adjacency)."""
+    meshes = [dataclasses.replace(m, support=None, edges=None, edge_faces=None) for m in asset.meshes]
+    return dataclasses.replace(asset, key=asset.key + "#unbaked", hull=None, meshes=meshes)
 
 
 def test_small_meshes_are_bounded_by_their_points_without_scipy(assets, cache, monkeypatch):
@@ -153,21 +155,33 @@ def test_big_meshes_are_bounded_by_their_boxes(assets, cache, monkeypatch):
 
 
 @pytest.mark.parametrize("name", ["usd/Teapot/Teapot.usd", "mesh/bunny.ply", "gltf/CesiumMilkTruck.glb"])
-def test_baked_hull_points_are_those_a_render_would_take(name, assets, cache):
-    """The bake stores the hull points (core.hull) a render would compute, read back from the
-    cache; a render from them draws the pixels of one that computes them."""
+def test_baked_hull_and_support_points_are_those_a_render_would_take(name, assets, cache, monkeypatch):
+    """The bake stores the hull points and each mesh's support points (core.hull) a render
+    would compute, read back from the cache; a render from them has the camera and draws the
+    pixels of one that computes them."""
     baked = pipeline.bake_asset(assets / name, cache)
     again = pipeline.load_baked(baked.key, cache)
     assert again.hull is not None and len(again.hull) >= 4
     np.testing.assert_array_equal(again.hull, hull.hull_points(again.meshes))
+    for m in again.meshes:
+        assert m.support is not None and 4 <= len(m.support) <= max(256, len(m.positions))
+        np.testing.assert_array_equal(m.support, hull.support_points(m.positions))
     env = pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(96))
+    sizes: list[int] = []  # the framing takes the baked points, not every vertex
+    monkeypatch.setattr(framing, "_framing_points", {})
+    monkeypatch.setattr(framing, "support_points", lambda p: sizes.append(len(p)) or hull.support_points(p))
+    request_camera(again, RenderOptions(width=96, height=96))
+    assert sizes and max(sizes) <= sum(len(m.support) * len(m.transforms) for m in again.meshes)
+    monkeypatch.undo()
     for o in (RenderOptions(width=96, height=96), RenderOptions(width=96, height=96, antialias="msaa")):
-        assert np.array_equal(render(again, env, o).rgba8, render(_unbaked(again), env, o).rgba8)
+        a, b = render(again, env, o), render(_unbaked(again), env, o)
+        assert a.plan["view"] == b.plan["view"]
+        assert np.array_equal(a.rgba8, b.rgba8)
 
 
 def test_a_cold_render_from_the_cache_does_not_import_scipy(assets, cache):
     """The Teapot's 30900 vertices are bounded by qhull at bake; a new process rendering it
-    from the cache never imports scipy (0.25-0.45 s of a cold thumbnail)."""
+    from the cache never imports scipy.spatial (0.25-0.45 s of a cold thumbnail)."""
     import subprocess
     import sys
     key = pipeline.bake_asset(assets / "usd/Teapot/Teapot.usd", cache).key
