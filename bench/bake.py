@@ -16,7 +16,8 @@ Four tables, medians of --repeat runs (after one warm-up) measured in this run:
 - asset: ingest (load_scene), a cold bake (`force=True`: ingest + interior + cache write), and a
   cache hit (`bake_asset` on the unchanged file: hash sources, read and verify the entry);
   peer: re-ingesting, what a hit saves. Target: hit <= 20 ms. Also what the welded edges
-  for edge anti-aliasing (core.adjacency) and the final pass's hull points (core.hull) add:
+  for edge anti-aliasing (core.adjacency), the final pass's hull points and the framing's
+  support points (core.hull) add:
   their bake time (the last cold bake's) and bytes, beside the whole entry's bytes.
 - environment: per bundled 1024 x 512 panorama, a cold bake to 256-px faces (decode + cube +
   GGX mip chain + SH + BRDF LUT + cache write), the prefilter alone, and a hit; peer: the paper's
@@ -206,7 +207,8 @@ def asset_table(assets: Path, repeat: int, cache: Path) -> list[float]:
 
     print(f"\nasset bake (target: hit <= {TARGET_HIT_MS:.0f} ms; medians of {repeat})")
     print(f"{'asset':34} {'ingest ms':>9} {'cold ms':>8} {'hit ms':>7} {'hit/ingest':>10} "
-          f"{'edges ms':>8} {'edges KB':>8} {'hull ms':>7} {'hull KB':>7} {'entry KB':>8}")
+          f"{'edges ms':>8} {'edges KB':>8} {'hull ms':>7} {'hull KB':>7} {'supp ms':>7} {'supp KB':>7} "
+          f"{'entry KB':>8}")
     hits = []
     for path in sample_files(assets):
         try:
@@ -221,12 +223,15 @@ def asset_table(assets: Path, repeat: int, cache: Path) -> list[float]:
         hits.append(hit)
         # what the welded edges and the hull points add to the bake and the entry
         edge_bytes = sum(a.nbytes for m in baked.meshes for a in (m.edges, m.edge_faces) if a is not None)
+        support_bytes = sum(m.support.nbytes for m in baked.meshes if m.support is not None)
         files = baked.manifest["files"]
         entry_bytes = sum(f["bytes"] for f in files.values())
         print(f"{path.name[:34]:34} {1000 * ingest:9.1f} {1000 * cold:8.1f} {1000 * hit:7.2f} "
               f"{hit / ingest:10.3f} {1000 * baked.manifest['timings']['adjacency_s']:8.1f} "
               f"{edge_bytes / 1024:8.0f} {1000 * baked.manifest['timings']['hull_s']:7.1f} "
-              f"{files.get('hull.npy', {}).get('bytes', 0) / 1024:7.1f} {entry_bytes / 1024:8.0f}")
+              f"{files.get('hull.npy', {}).get('bytes', 0) / 1024:7.1f} "
+              f"{1000 * baked.manifest['timings']['support_s']:7.1f} {support_bytes / 1024:7.1f} "
+              f"{entry_bytes / 1024:8.0f}")
     return hits
 
 

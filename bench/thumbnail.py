@@ -31,9 +31,9 @@ the StainedGlassLamp-class case; for it the run also reports the baked texture b
 FLIP at 1024 px of our render against the same render with full-resolution textures.
 TeapotFine is the Teapot baked one subdivision level finer (158k triangles, near the edge
 anti-aliasing cap). `--tools ours,ours-unbaked` adds ours from the same entry with its baked
-welded edges and hull points dropped, so the first frame computes them (core.adjacency,
-core.hull: qhull and its scipy import) as before the bake stored them: the cold path's
-before/after in one run.
+welded edges, hull and support points dropped, so the first frame computes them
+(core.adjacency; core.hull: qhull with its scipy import, support points over every vertex) as
+before the bake stored them: the cold path's before/after in one run.
 Ours loads the bake by key, as the service's workers do. Per asset and size the run also
 reports our anti-aliasing: FLIP of the default frame (edge anti-aliasing) against a 16x
 supersampled render of our own (4 x 4 shaded samples per pixel), beside the frame with 4x MSAA
@@ -415,10 +415,10 @@ def _ours(job: dict, old: bool = False, unbaked: bool = False):
     from core.options import RenderOptions
     from renderer.auto import environment_face_size
     asset = pipeline.load_baked(job["key"], job["cache"])
-    if unbaked:  # edges and hull computed by the first frame, as before the bake stored them
-        asset.hull = None
+    if unbaked:  # edges, hull and support points computed by the first frame, as before the
+        asset.hull = None  # bake stored them
         for mesh in asset.meshes:
-            mesh.edges = mesh.edge_faces = None
+            mesh.edges = mesh.edge_faces = mesh.support = None
     look: dict[str, Any] = {"background": "env", "shadow": 0.0} if old else {}
     options = RenderOptions(width=job["size"], height=job["size"], **_view(), **look)
     env = pipeline.bake_environment(OLD_ENV if old else job["env"], job["cache"],
