@@ -173,9 +173,11 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> Bak
             mesh.edges, mesh.edge_faces = welded[mi]
     adjacency_s = time.perf_counter() - start
     start = time.perf_counter()
-    support: dict[int, np.ndarray] = {}
+    support: dict[int, np.ndarray] = {}  # by geometry, as the edges
     for mesh, (mi, _, _) in zip(meshes, groups):
-        mesh.support = support.setdefault(mi, support_points(mesh.positions))
+        if mi not in support:
+            support[mi] = support_points(mesh.positions)
+        mesh.support = support[mi]
     support_s = time.perf_counter() - start
     start = time.perf_counter()
     hull = hull_points(meshes)
