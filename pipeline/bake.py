@@ -33,7 +33,6 @@ from core.scene import Light, Material, Sampler, Scene, SceneCamera, TextureRef,
 
 from . import subdivision
 from .cache import BAKE_FORMAT_VERSION, Cache, Entry, NotInCache, SourceFiles
-from .interior import interior_vectors
 from .limits import Limits
 
 log = logging.getLogger(__name__)
@@ -148,6 +147,8 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> Bak
         interior = None
         if any(m.material_class == "transmissive" for m in (material, *variants.values())):
             if mi not in interiors:
+                from .interior import interior_vectors  # here: numba's import (0.25 s) is
+                # for bakes of glass, not for every process that loads a bake
                 result = interior_vectors(mesh.positions, mesh.normals, mesh.indices,
                                           epsilon=opts["interior_epsilon"])
                 interiors[mi] = result.vectors

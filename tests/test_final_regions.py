@@ -179,9 +179,10 @@ def test_baked_hull_and_support_points_are_those_a_render_would_take(name, asset
         assert np.array_equal(a.rgba8, b.rgba8)
 
 
-def test_a_cold_render_from_the_cache_does_not_import_scipy(assets, cache):
+def test_a_cold_render_from_the_cache_imports_neither_scipy_nor_numba(assets, cache):
     """The Teapot's 30900 vertices are bounded by qhull at bake; a new process rendering it
-    from the cache never imports scipy.spatial (0.25-0.45 s of a cold thumbnail)."""
+    from the cache never imports scipy.spatial (0.25-0.45 s of a cold thumbnail), nor numba
+    (0.25 s: the interior pass's kernels are for bakes)."""
     import subprocess
     import sys
     key = pipeline.bake_asset(assets / "usd/Teapot/Teapot.usd", cache).key
@@ -190,7 +191,7 @@ def test_a_cold_render_from_the_cache_does_not_import_scipy(assets, cache):
             f"a = pipeline.load_baked({key!r}, {str(cache)!r}); "
             f"e = pipeline.bake_environment(DEFAULT_ENVIRONMENT, {str(cache)!r}, face_size=default_face_size(96)); "
             f"f = render(a, e, RenderOptions(width=96, height=96)); "
-            f"print(f.plan['antialias'], sorted(m for m in sys.modules if m.startswith('scipy.spatial')))")
+            f"print(f.plan['antialias'], sorted(m for m in sys.modules if m.startswith(('scipy.spatial', 'numba'))))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.split()[-2:] == ["edges", "[]"], out.stdout
