@@ -146,13 +146,13 @@ class TriangleScene:
         valid = _aligned_words(2 * PACKET).reshape(2, PACKET)
         valid[0] = 0xFFFFFFFF
         valid[1, :n - (packets - 1) * PACKET] = 0xFFFFFFFF
-        trace_packets, scene, stride = _tracer(), self._scene, buf.strides[0]
+        intersect16, scene, stride = _intersect16_function(), self._scene, buf.strides[0]
         base, every, last = buf.ctypes.data, valid[0].ctypes.data, valid[1].ctypes.data
         sel = np.ascontiguousarray(select, np.int64)
 
         def trace(span: range) -> None:
             _fill(f, buf, points, directions, offsets, sel, span.start, span.stop)
-            trace_packets(every, last, scene, base, stride, span.start, span.stop, packets)
+            _trace_packets(intersect16, every, last, scene, base, stride, span.start, span.stop, packets)
 
         # A few spans per thread, taken in turn by this thread and workers-1 pool threads (the
         # compiled loops hold no GIL, so they trace in parallel); several spans each balance a
@@ -197,34 +197,32 @@ def _fill(f, u, points, directions, offsets, select, first, stop):
                 u[packet, row, lane] = RTC_INVALID_GEOMETRY_ID
 
 
-_rtc_intersect16 = None  # rtcIntersect16 as a ctypes function the compiled loop can call
-_trace_packets = None
-
-
-def _tracer():
-    """The packet loop, compiled (numba) to call rtcIntersect16 without the GIL.
+@njit(cache=True, nogil=True)
+def _trace_packets(intersect16, every, last, scene, base, stride, first, stop, packets):
+    """Packets first..stop-1 traced by rtcIntersect16 (a ctypes function, passed in), without
+    the GIL; the last packet has its own lane mask.
 
     Why not a ctypes call per packet from each thread: every call (16 rays, ~6 µs) gives up and
     takes back the GIL, and the threads' hand-offs serialise them: two threads traced the 100k
-    torus no faster than one (18 ms), this loop on two threads in 10 ms. Compiled on first use
-    (~0.5 s once a process with numba's import): numba cannot cache code calling a library by
-    address."""
-    global _rtc_intersect16, _trace_packets
-    with _lock:
-        if _trace_packets is None:
-            import numba
+    torus no faster than one (18 ms), this loop on two threads in 10 ms. The function comes as
+    an argument, not as a global, so that numba can cache the loop (an address compiled in
+    cannot be: that cost ~0.5 s in each process)."""
+    for k in range(first, stop):
+        intersect16(every if k < packets - 1 else last, scene, base + k * stride, 0)
 
+
+_intersect16 = None
+
+
+def _intersect16_function():
+    """rtcIntersect16 as a ctypes function that compiled code can call."""
+    global _intersect16
+    with _lock:
+        if _intersect16 is None:
             vp = ctypes.c_void_p
             proto = ctypes.CFUNCTYPE(None, vp, vp, vp, vp)
-            _rtc_intersect16 = proto(ctypes.cast(_library().rtcIntersect16, vp).value)
-
-            @numba.njit(nogil=True)
-            def trace_packets(every, last, scene, base, stride, first, stop, packets):
-                for k in range(first, stop):  # the last packet has its own lane mask
-                    _rtc_intersect16(every if k < packets - 1 else last, scene, base + k * stride, 0)
-
-            _trace_packets = trace_packets
-    return _trace_packets
+            _intersect16 = proto(ctypes.cast(_library().rtcIntersect16, vp).value)
+    return _intersect16
 
 
 _pools: dict[int, ThreadPoolExecutor] = {}

@@ -184,7 +184,7 @@ def _vectors(direction, travelled):
 def _compile() -> None:
     """Compile (or load from numba's cache) the pass's kernels on a tiny mesh: `python -m
     pipeline.interior`, run by `make install` and the Docker build, so a bake worker never
-    compiles them (the packet loop, which numba cannot cache, takes ~0.5 s in each process)."""
+    compiles them."""
     t0 = time.perf_counter()
     corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], np.float32)
     interior_vectors(corners, corners - 0.25, np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]))
