@@ -49,7 +49,7 @@ _GEOM_ID = len(_RAY_FIELDS) + 6
 _ROWS = len(_RAY_FIELDS) + 9  # one spare row for either hit layout
 _SPAN = 64  # packets per thread task (1024 rays, ~0.35 ms): amortises the hand-off
 
-_CORES = os.cpu_count() or 1  # (a file read each call)
+_CORES = os.cpu_count() or 1  # read once: os.cpu_count() reads a file on each call
 _lib = None
 _device = None
 _device_pid = 0
