@@ -12,8 +12,8 @@ $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e '.[test,reference]'
-	$(PY) -m renderer.trace_kernel
-	$(PY) -m pipeline.interior
+	$(PY) -m renderer.methods.trace_kernel
+	$(PY) -m pipeline.interior.vectors
 	@touch $(STAMP)
 
 install: $(STAMP)
@@ -34,8 +34,8 @@ lint: $(STAMP)
 	$(VENV)/bin/mypy
 
 test: check-egl lint
-	$(PY) -m renderer.trace_kernel
-	$(PY) -m pipeline.interior
+	$(PY) -m renderer.methods.trace_kernel
+	$(PY) -m pipeline.interior.vectors
 	$(PY) -m pytest -q
 
 clean:

@@ -166,11 +166,10 @@ def run(args: argparse.Namespace) -> int:
 def measure(names: list[str], size: int, repeat: int, rt_repeat: int, cache: Path,
             peer_spp: list[int], budget_ms: float = BUDGET_MS) -> list[dict]:
     import pipeline
+    from bench import scenes
+    from bench.metrics import errors, median_ms, reference_at, with_linear
     from core.options import RenderOptions
-    from renderer.render import available_methods, render
-
-    from . import scenes
-    from .metrics import errors, median_ms, reference_at, with_linear
+    from renderer.raster.render import available_methods, render
 
     available = available_methods()
     rows = []
@@ -186,10 +185,10 @@ def measure(names: list[str], size: int, repeat: int, rt_repeat: int, cache: Pat
                              fov=spec.fov, distance=spec.camera_distance(size, size))
         methods = [m for m in methods_for(spec)
                    if m.split("/")[0].split("-")[0] in (*available, "raytrace", "auto")]
-        from renderer.auto import plan_request
+        from renderer.methods.auto import plan_request
         if plan_request(asset, replace(base, budget_ms=budget_ms), available).frame_method:
             methods.append("auto+budget")
-        # the linear image is what is measured: drawn inside the timing (renderer.render)
+        # the linear image is what is measured: drawn inside the timing (renderer.raster.render)
         jobs = {m: (lambda o=options_for(m, base, budget_ms): with_linear(render(asset, envs[o[1]], o[0])))
                 for m in methods}
         raster = [m for m in methods if not (m.startswith("raytrace") or m == "auto+budget")]
@@ -214,8 +213,8 @@ def measure(names: list[str], size: int, repeat: int, rt_repeat: int, cache: Pat
 
 def _peer(spec, size: int, spp: int, ref, repeat: int = 1) -> dict:
     """Mitsuba at `spp`, timed as the ray tracer is: median of `repeat` cold runs."""
-    from .metrics import errors, median_ms
-    from .reference import render_reference
+    from bench.metrics import errors, median_ms
+    from bench.reference import render_reference
 
     ms, img = median_ms(lambda: render_reference(spec, size, spp), repeat, warm=False)
     return {"scene": spec.name, "method": f"mitsuba-{spp}spp", "size": size, "time_ms": ms,
@@ -244,7 +243,7 @@ def is_auto(method: str) -> bool:
 
 def mark_fronts(rows: list[dict]) -> None:
     """on_front per scene among the non-auto methods; auto rows get on_front and front_gap."""
-    from .metrics import dominated, front_gap, pareto_front
+    from bench.metrics import dominated, front_gap, pareto_front
 
     for name in dict.fromkeys(r["scene"] for r in rows):
         rs = [r for r in rows if r["scene"] == name]
@@ -344,7 +343,7 @@ def chart(rows: list[dict], path: Path, size: int) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .metrics import pareto_front
+    from bench.metrics import pareto_front
 
     methods = list(dict.fromkeys(r["method"] for r in rows))
     cmap = plt.get_cmap("tab20")

@@ -8,7 +8,7 @@ Four tables, medians of --repeat runs (after one warm-up) measured in this run:
   other jobs share the cores). Rays are those cast, graze continuations included (the peers cast
   only the first ray per vertex). Peers on the same rays, BVH build included:
   trimesh's Embree ray intersector (`intersects_location`, first hit) and embreex's own scene
-  (TriangleMesh + EmbreeScene.run: the pass before pipeline.embree). Meshes: every sample asset,
+  (TriangleMesh + EmbreeScene.run: the pass before pipeline.interior.embree). Meshes: every sample asset,
   the glass test meshes, the shared bunny.ply and a 100k-triangle torus. Target >= 2 M rays/s.
 - interior-parts: what bounds that pass on the bunny and the 100k torus: process CPU of the BVH
   build, of tracing the rays on one thread, and of the whole pass; the whole pass's rays per
@@ -123,7 +123,7 @@ def _cpu_s() -> float:
 
 
 def interior_table(assets: Path, repeat: int) -> list[float]:
-    from pipeline.interior import interior_vectors
+    from pipeline.interior.vectors import interior_vectors
 
     print(f"\ninterior (target >= {TARGET_RAYS / 1e6:.0f} M rays/s; medians of {repeat})")
     print(f"{'mesh':26} {'rays':>8} {'ours ms':>8} {'build ms':>8} {'M rays/s':>9} {'trace-only':>10} "
@@ -166,9 +166,9 @@ def interior_parts_table(assets: Path, repeat: int) -> None:
     """What bounds the interior pass: process CPU (all threads) of pairing the triangles into
     quads, of the BVH build over them, of tracing the first rays on one thread, and of the whole
     pass, for the bunny and the 100k torus."""
-    from pipeline.embree import TriangleScene
-    from pipeline.interior import interior_vectors
-    from pipeline.quad_pairs import pair_quads
+    from pipeline.interior.embree import TriangleScene
+    from pipeline.interior.pairing import pair_quads
+    from pipeline.interior.vectors import interior_vectors
 
     def cpu_ms(fn) -> float:
         fn()
@@ -237,8 +237,8 @@ def asset_table(assets: Path, repeat: int, cache: Path) -> list[float]:
 
 def environment_table(envs: list[str], repeat: int, face_size: int, cache: Path) -> list[float]:
     from pipeline.bake import bake_or_load_environment
-    from pipeline.environment import prefilter
-    from pipeline.panorama import load_panorama
+    from pipeline.environment.panorama import load_panorama
+    from pipeline.environment.prefilter import prefilter
 
     print(f"\nenvironment bake, {face_size}-px faces (target: cold bake <= {TARGET_ENV_MS:.0f} ms; "
           f"medians of {repeat})")
@@ -263,7 +263,7 @@ def environment_table(envs: list[str], repeat: int, face_size: int, cache: Path)
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipeline.panorama import list_bundled
+    from pipeline.environment.panorama import list_bundled
 
     envs = args.env or list_bundled()
     tables = set(args.tables.split(","))

@@ -29,11 +29,10 @@ def run(args: argparse.Namespace) -> int:
     from PIL import Image
 
     import pipeline
+    from bench.assets import ASSETS
     from core.cubemap import default_face_size
     from core.options import RenderOptions
-    from renderer.render import render
-
-    from .assets import ASSETS
+    from renderer.raster.render import render
     cache = args.cache or tempfile.mkdtemp(prefix="bench-encode-")
     asset = pipeline.bake_asset(ASSETS / "gltf" / "Duck.glb", cache)
 

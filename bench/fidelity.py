@@ -2,7 +2,7 @@
 
 Each model under ../shared/assets/gltf-samples/ (its .glb, else its .gltf) is rendered from a
 fixed three-quarter camera (yaw 35, pitch 25, fov 40, auto-framed on the world bounds:
-renderer.camera) under one panorama, by us (`--method auto`, the default thumbnail), by our ray
+renderer.view.camera) under one panorama, by us (`--method auto`, the default thumbnail), by our ray
 tracer (`--method raytrace`) and, as the reference, by Blender Cycles (Debian's `blender`
 package, headless, through Blender's own glTF importer; bench/blender_cycles.py) with the same
 camera and panorama. All three are linear, over a transparent film (RGB premultiplied, alpha =
@@ -151,14 +151,13 @@ def _save_png(path: Path, linear: np.ndarray) -> None:
 
 def run(args: argparse.Namespace) -> int:
     import pipeline
+    from bench import scenes
     from core.errors import AssetError
     from core.options import RenderOptions
-    from pipeline.panorama import load_panorama
+    from pipeline.environment.panorama import load_panorama
     from renderer.frame import write_exr
-    from renderer.framing import request_camera
-    from renderer.render import render
-
-    from . import scenes
+    from renderer.raster.render import render
+    from renderer.view.framing import request_camera
 
     if args.quick:
         args.size, args.spp = 64, 16

@@ -24,7 +24,7 @@ REL_MSE_EPS = 1e-2
 def reference_at(name: str, size: int) -> np.ndarray:
     """The committed reference for scene `name` at `size` px: a larger one whose size is a
     multiple is box-filtered down (exact: Mitsuba's pixel filter is a box)."""
-    from .reference import load_reference
+    from bench.reference import load_reference
 
     ref = load_reference(name)
     h = ref.shape[0]
@@ -87,7 +87,7 @@ def front_gap(point: tuple[float, float], front: list[tuple[float, float]]) -> f
 
 
 def with_linear(frame):
-    """`frame` with its linear image read: renderer.render draws it only when asked for, so a
+    """`frame` with its linear image read: renderer.raster.render draws it only when asked for, so a
     timed render whose linear image is the measured product reads it inside the timing."""
     _ = frame.linear
     return frame

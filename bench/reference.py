@@ -4,7 +4,7 @@
 
 Mitsuba's `scalar_rgb` variant (its LLVM variants crash on this machine) path-traces the
 same triangles (written as PLY with their vertex normals), under the same camera
-(renderer.camera.frame_bounds -> a `perspective` sensor, fov_axis y, box pixel filter) and
+(renderer.view.camera.frame_bounds -> a `perspective` sensor, fov_axis y, box pixel filter) and
 the same linear panorama (bench.scenes.load_panorama) as an `envmap`. Mitsuba's envmap maps
 a world direction (x, y, z) to u = 0.5 + atan2(-x, z) / 2pi, v = acos(y) / pi, which is
 core.cubemap's convention, so no rotation is applied (checked by the mirror-sphere test).
@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import scenes
+from bench import scenes
 
 log = logging.getLogger(__name__)
 
@@ -52,9 +52,9 @@ DEFAULT_SET = {
 
 
 def spec_camera(spec: scenes.SceneSpec, width: int, height: int):
-    """The camera every method and the reference use for a scene (renderer.camera convention)."""
+    """The camera every method and the reference use for a scene (renderer.view.camera convention)."""
     from core.scene import transformed_bounds
-    from renderer.camera import frame_bounds
+    from renderer.view.camera import frame_bounds
 
     pos, _, _ = scenes.mesh_arrays(spec.mesh)
     lo, hi = transformed_bounds(pos, spec.matrix)

@@ -1,7 +1,7 @@
 """`asset-preview bench refraction`: render time and error against Mitsuba per scene and method.
 
 For each scene (bench.scenes) and size: the refraction methods registered with
-renderer.render (`single`, `wyman` when built), our ray tracer at 1, 2 and 8 bounces (1 is
+renderer.raster.render (`single`, `wyman` when built), our ray tracer at 1, 2 and 8 bounces (1 is
 the single-refraction result, 2 the exact two-interface one that Wyman approximates), and the
 peer, Mitsuba 3 (scalar_rgb path tracer), measured in the same run: its reference at
 `--spp` and an equal-effort run at `--peer-spp`. Times are warm medians of `--repeat` runs
@@ -41,13 +41,12 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     import pipeline
+    from bench import scenes
+    from bench.metrics import median_ms, with_linear
+    from bench.reference import relative_mae, render_reference
     from core.options import RenderOptions
-    from renderer.raytrace import render_raytrace
-    from renderer.render import available_methods, render
-
-    from . import scenes
-    from .metrics import median_ms, with_linear
-    from .reference import relative_mae, render_reference
+    from renderer.methods.raytrace import render_raytrace
+    from renderer.raster.render import available_methods, render
 
     try:
         import mitsuba  # noqa: F401  (the peer and the reference)

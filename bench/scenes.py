@@ -17,9 +17,8 @@ from typing import Any
 
 import numpy as np
 
+from bench.shapes import mesh_arrays
 from core.scene import Material
-
-from .shapes import mesh_arrays
 
 log = logging.getLogger(__name__)
 
@@ -29,7 +28,7 @@ log = logging.getLogger(__name__)
 class SceneSpec:
     """One test scene: a mesh with a material under a panorama, seen from a camera.
 
-    The camera follows renderer.camera.frame_bounds at `camera_distance` (the bounding-sphere
+    The camera follows renderer.view.camera.frame_bounds at `camera_distance` (the bounding-sphere
     framing the committed references were made with)."""
     name: str
     mesh: str                       # "sphere" | "cube" | "bunny" | "torus"
@@ -46,11 +45,11 @@ class SceneSpec:
         return np.diag([*self.scale, 1.0])
 
     def camera_distance(self, width: int, height: int) -> float:
-        """`distance`, else the bounding sphere's framing (renderer.camera.sphere_distance)."""
+        """`distance`, else the bounding sphere's framing (renderer.view.camera.sphere_distance)."""
         if self.distance is not None:
             return self.distance
         from core.scene import transformed_bounds
-        from renderer.camera import sphere_distance
+        from renderer.view.camera import sphere_distance
         lo, hi = transformed_bounds(mesh_arrays(self.mesh)[0], self.matrix)
         return sphere_distance(np.stack([lo, hi]), width, height, self.fov)
 
@@ -214,7 +213,7 @@ def baked_asset(spec: SceneSpec, cache_dir: str | Path | None = None):
 
 def load_panorama(name: str) -> np.ndarray:
     """Linear float32 H x W x 3 panorama of a scene's environment, exactly what the bake reads."""
-    from pipeline.panorama import load_panorama as _load
+    from pipeline.environment.panorama import load_panorama as _load
 
     return np.asarray(_load(name).pixels, dtype=np.float32)[..., :3]
 

@@ -8,7 +8,7 @@ sooner: the client shares the CPU and is itself Python). Peers, measured in the 
 - cached: a bare Starlette app on the same uvicorn returning the same image bytes from
   memory: the floor of this HTTP stack, so the ratio is what our routing, validation, cache
   lookup and metrics cost;
-- warm render: the same render called in-process (`renderer.render` + encode, warm), one
+- warm render: the same render called in-process (`renderer.raster.render` + encode, warm), one
   request at a time interleaved with ours, so the difference is HTTP, the worker pipe and the
   cache write (the warm-render throughput row is `workers` concurrent clients);
 - cold upload: the same work in-process (`load_scene` + `bake_asset` + first render),
@@ -107,7 +107,7 @@ class Load:
         self.tool = "wrk" if tool == "wrk" or (tool == "auto" and shutil.which("wrk")) else "httpx"
         if tool == "wrk" and not shutil.which("wrk"):
             raise SystemExit("wrk is not installed (apt-get install -y wrk)")
-        self._script = None
+        self._script: str | None = None
 
     def __call__(self, url: str, connections: int, duration: float, vary: bool = False):
         if self.tool == "wrk":
@@ -119,7 +119,7 @@ class Load:
             fd, self._script = tempfile.mkstemp(suffix=".lua")
             os.write(fd, _WRK_SCRIPT.encode())
             os.close(fd)
-        script = self._script
+        script: str = self._script
         if vary:
             fd, script = tempfile.mkstemp(suffix=".lua")
             os.write(fd, b"vary = true\n" + _WRK_SCRIPT.encode())

@@ -13,7 +13,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from .assets import ASSETS
+from bench.assets import ASSETS
 
 log = logging.getLogger(__name__)
 

@@ -85,7 +85,7 @@ def configure(p: argparse.ArgumentParser) -> None:
 def _options(method: str, base, quick: bool):
     """The chart's options for a method name (bench.accuracy.options_for), with this suite's
     budget; --quick ray traces 4 bounces."""
-    from .accuracy import options_for
+    from bench.accuracy import options_for
 
     opts = options_for(method, base, BUDGET_MS)[0]
     return replace(opts, bounces=4) if quick and opts.method == "raytrace" else opts
@@ -93,7 +93,7 @@ def _options(method: str, base, quick: bool):
 
 def _tir_fraction(asset, env, opts, frame, mask) -> float | None:
     """Share of the object's pixels the `tir` debug view marks (wyman only)."""
-    from renderer.render import render
+    from renderer.raster.render import render
 
     if opts.method != "wyman" or not mask.any():
         return None
@@ -105,12 +105,11 @@ def _tir_fraction(asset, env, opts, frame, mask) -> float | None:
 def run_case(case: str, cache: Path, quick: bool = False) -> tuple[list[dict], dict]:
     """Rows for one case, and {column: linear image} for the contact sheet."""
     import pipeline
+    from bench import scenes
+    from bench.metrics import errors, reference_at, with_linear
     from core.errors import AssetError
     from core.options import RenderOptions
-    from renderer.render import render
-
-    from . import scenes
-    from .metrics import errors, reference_at, with_linear
+    from renderer.raster.render import render
 
     scene_name, ref_name = CASES[case]
     spec = scenes.scene(scene_name)

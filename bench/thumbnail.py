@@ -93,10 +93,9 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     import pipeline
-    from pipeline.panorama import DEFAULT_ENVIRONMENT, load_panorama, write_rgbe
-
-    from . import big_textures
-    from .assets import ASSETS as assets_root
+    from bench import big_textures
+    from bench.assets import ASSETS as assets_root
+    from pipeline.environment.panorama import DEFAULT_ENVIRONMENT, load_panorama, write_rgbe
     work = Path(tempfile.mkdtemp(prefix="bench-thumbnail-"))
     cache = Path(args.cache) if args.cache else work / "cache"
     env_name = args.env or DEFAULT_ENVIRONMENT
@@ -146,7 +145,7 @@ def _texture_report(src: Path, baked, cache: Path, env_name: str, px: int = 1024
     from core.options import RenderOptions
     from pipeline.bake import build_baked
     from renderer import render
-    from renderer.auto import environment_face_size
+    from renderer.methods.auto import environment_face_size
     entry = cache / "assets" / baked.key
     tex_bytes = sum(f.stat().st_size for f in entry.glob("texture.*"))
     src_bytes = src.stat().st_size
@@ -178,7 +177,7 @@ def _edges_report(name: str, baked, repeat: int = 7) -> None:
 
     import numpy as np
 
-    from renderer import edges
+    from renderer.raster import edges
 
     def cpu_ms(fn) -> float:
         runs = []
@@ -206,7 +205,7 @@ def _edges_report(name: str, baked, repeat: int = 7) -> None:
 
 def _aa_report(name: str, baked, cache: Path, env_name: str, size: int) -> dict:
     """Anti-aliasing of our default frame: FLIP (LDR) against a 16x supersampled render of
-    our own (renderer.render.render_supersampled), beside the same frame with 4x MSAA and
+    our own (renderer.raster.render.render_supersampled), beside the same frame with 4x MSAA and
     without anti-aliasing."""
     import dataclasses
 
@@ -216,8 +215,8 @@ def _aa_report(name: str, baked, cache: Path, env_name: str, size: int) -> dict:
     import pipeline
     from core.options import RenderOptions
     from renderer import render
-    from renderer.auto import environment_face_size
-    from renderer.render import render_supersampled
+    from renderer.methods.auto import environment_face_size
+    from renderer.raster.render import render_supersampled
     o = RenderOptions(width=size, height=size, **_view())
     env = pipeline.bake_environment(env_name, cache, face_size=environment_face_size(baked, o)[0])
     ref = render_supersampled(baked, env, o, 4).rgba8[..., :3] / np.float32(255)
@@ -237,11 +236,10 @@ def _multiscatter_cost(args, cache: Path, env_name: str, sizes: list[int]) -> in
     import dataclasses
 
     import pipeline
+    from bench.assets import ASSETS as assets_root
     from core.cubemap import default_face_size
     from core.options import RenderOptions
     from renderer import render
-
-    from .assets import ASSETS as assets_root
     print(f"{'asset':>15} {'px':>4} {'multiscatter ms':>16} {'without ms':>11} {'ratio':>6}"
           f" {'cpu ms':>8} {'without':>8} {'ratio':>6}")
     for name in args.assets.split(","):
@@ -399,7 +397,7 @@ def _print_summary(results: list[dict], tools: list[str]) -> None:
 def _camera(job: dict):
     import numpy as np
 
-    from renderer.camera import frame_bounds
+    from renderer.view.camera import frame_bounds
     return frame_bounds(np.array(job["bounds"]), job["size"], job["size"], **_view())
 
 
@@ -413,7 +411,7 @@ def _png(rgb) -> bytes:
 def _ours(job: dict, old: bool = False, unbaked: bool = False):
     import pipeline
     from core.options import RenderOptions
-    from renderer.auto import environment_face_size
+    from renderer.methods.auto import environment_face_size
     asset = pipeline.load_baked(job["key"], job["cache"])
     if unbaked:  # edges, hull and support points computed by the first frame, as before the
         asset.hull = None  # bake stored them

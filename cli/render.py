@@ -17,7 +17,7 @@ _IMAGE_EXT = (".png", ".jpg", ".jpeg", ".webp", ".gif", ".npy", ".exr")
 def configure(p: argparse.ArgumentParser) -> None:
     from core.options import add_arguments
     p.add_argument("path", help="asset file (.gltf .glb .usd .usda .usdc .usdz .obj .ply .stl)")
-    from pipeline.panorama import DEFAULT_ENVIRONMENT
+    from pipeline.environment.panorama import DEFAULT_ENVIRONMENT
     p.add_argument("--out", required=True, help="image file: .png .jpg .webp (tone-mapped) or .npy "
                    ".exr (linear); with --turntable an animated .webp or .gif")
     p.add_argument("--env", default=None, help="bundled environment name or panorama file "
@@ -29,7 +29,7 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="folder the asset's references may read from (default: the asset's folder)")
     p.add_argument("--json", action="store_true", help="print the plan and timings as JSON")
     p.add_argument("--explain", action="store_true", help="print the method chosen for each "
-                   "object and why (auto's decisions, renderer/auto.py)")
+                   "object and why (auto's decisions, renderer/methods/auto.py)")
     add_arguments(p)
 
 
@@ -47,9 +47,9 @@ def run(args: argparse.Namespace) -> int:
     out_ext = os.path.splitext(args.out)[1].lower()
     import pipeline
     from core.options import describe_error, from_arguments
-    from pipeline.panorama import DEFAULT_ENVIRONMENT
-    from renderer.auto import environment_face_size
-    from renderer.render import UnsupportedMethod, render, validate_options
+    from pipeline.environment.panorama import DEFAULT_ENVIRONMENT
+    from renderer.methods.auto import environment_face_size
+    from renderer.raster.render import UnsupportedMethod, render, validate_options
 
     try:
         options = from_arguments(args)

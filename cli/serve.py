@@ -53,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
 
     import uvicorn
 
-    from service.app import create_app
+    from service.http.app import create_app
 
     logging.getLogger().setLevel(args.log_level.upper())
     from pydantic import ValidationError

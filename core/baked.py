@@ -30,7 +30,7 @@ class BakedTexture:
     @classmethod
     def from_texture(cls, tex: Texture, spaces=(True, False), cap: int | None = None) -> "BakedTexture":
         """Mips of a decoded Texture, built on first use (hand-made assets, fresh bakes)."""
-        from .mips import capped_size
+        from core.mips import capped_size
         h, w = tex.image.shape[:2]
         return cls(tex.name, tex.sampler, tex.source, capped_size(h, w, cap),
                    spaces, partial(_chain_of, tex, cap))
@@ -57,7 +57,7 @@ class BakedTexture:
 
 
 def _chain_of(tex: Texture, cap: int | None, srgb: bool, top: int | None = None) -> list[np.ndarray]:
-    from .mips import mip_chain
+    from core.mips import mip_chain
     return mip_chain(tex.image, srgb, cap)
 
 
@@ -118,7 +118,7 @@ class BakedAsset:
         if name is None:
             return self
         if name not in self.variants:
-            from .errors import NotInAsset
+            from core.errors import NotInAsset
             raise NotInAsset(self.source, f"no material variant {name!r}; it has "
                              f"{', '.join(map(repr, self.variants)) or 'none'}")
         meshes = [dataclasses.replace(m, material=m.variants.get(name, m.material))

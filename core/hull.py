@@ -1,10 +1,10 @@
 """Points on an asset's convex hull, baked (pipeline.bake) so that a first frame does not take
 them from every vertex; computed at render time for assets made in memory:
 - `hull_points`: points whose convex hull holds every drawn surface, the final pass's bound on
-  the pixels the object can reach (renderer.regions); qhull's scipy import alone costs a cold
+  the pixels the object can reach (renderer.view.regions); qhull's scipy import alone costs a cold
   render 0.25-0.45 s;
 - `support_points`: a mesh's points farthest along a few hundred directions, what the default
-  camera frames (renderer.framing); over every vertex they cost the Teapot's first frame 0.26 s.
+  camera frames (renderer.view.framing); over every vertex they cost the Teapot's first frame 0.26 s.
 """
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .baked import BakedMesh
+from core.baked import BakedMesh
 
 DIRECT_POINTS = 4096        # fewer points are bounded as they are: qhull would save <0.3 ms a
                             # frame (the points are projected per frame)

@@ -2,7 +2,7 @@
 
 `RenderOptions` (with `MaterialOverride`) is the single schema of a render: each field's type,
 range, default and help live here and nowhere else. The command line (`add_arguments` /
-`from_arguments`) and the HTTP query model (service.models.ThumbnailParams, its OpenAPI
+`from_arguments`) and the HTTP query model (service.http.models.ThumbnailParams, its OpenAPI
 description included) are derived from `request_fields()`, the flat view of these two classes
 that both surfaces share, and a request crosses the process boundary as a `RenderOptions`.
 Adding a render parameter means adding one field here, plus its implementation.
@@ -70,7 +70,7 @@ class MaterialOverride:
 class RenderOptions:
     width: int = Field(default=256, ge=1, le=MAX_SIDE, description="image width in pixels")
     height: int = Field(default=256, ge=1, le=MAX_SIDE, description="image height in pixels")
-    # The default view is three-quarter from above, so a box shows three faces (renderer/camera.py).
+    # The default view is three-quarter from above, so a box shows three faces (renderer/view/camera.py).
     yaw: float = Field(default=35.0, ge=-3600, le=3600, description=(
         "camera turn about +Y, degrees; 0 looks from +Z, positive turns toward +X"))
     pitch: float = Field(default=25.0, ge=-90, le=90, description="camera elevation, degrees; positive looks down from above")

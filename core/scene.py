@@ -95,8 +95,8 @@ class Material:
     attenuation_color: tuple[float, float, float] = (1.0, 1.0, 1.0)
     attenuation_distance: float = math.inf
     # KHR_materials_specular / _clearcoat / _sheen / _iridescence / _anisotropy (glTF defaults,
-    # which mean "absent": a material that uses none compiles none, renderer.render defines);
-    # glTF fills them in pipeline/gltf_materials.py, MaterialX surfaces in pipeline/materialx.py.
+    # which mean "absent": a material that uses none compiles none, renderer.raster.render defines);
+    # glTF fills them in pipeline/gltf/materials.py, MaterialX surfaces in pipeline/usd/materialx.py.
     specular: float = 1.0
     specular_texture: TextureRef | None = None  # A channel
     specular_color: tuple[float, float, float] = (1.0, 1.0, 1.0)

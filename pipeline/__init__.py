@@ -14,23 +14,23 @@ __all__ = ["AssetError", "Scene", "load_scene", "bake_asset", "bake_environment"
 def load_scene(path, limits=None, root=None) -> Scene:
     """Read any supported asset file into a `Scene` (raises an `AssetError` on bad input);
     the files it references must lie inside `root` (default: its folder)."""
-    from .ingest import load_scene as _load
+    from pipeline.ingest import load_scene as _load
     return _load(path, limits, root)
 
 
 def bake_asset(path, cache_dir=None, **options):
     """Ingest and bake `path` into the cache (or load it from there): a `BakedAsset`."""
-    from .bake import bake_asset as _bake
+    from pipeline.bake import bake_asset as _bake
     return _bake(path, cache_dir, **options)
 
 
 def bake_environment(source, cache_dir=None, face_size=DEFAULT_FACE_SIZE, prefilter="ggx"):
     """Bake a panorama (file or bundled name) into a `BakedEnvironment` (cached)."""
-    from .bake import bake_environment as _bake
+    from pipeline.bake import bake_environment as _bake
     return _bake(source, cache_dir, face_size=face_size, prefilter=prefilter)
 
 
 def load_baked(key, cache_dir=None):
     """Load a baked asset by cache key alone, without its source file."""
-    from .bake import load_baked as _load
+    from pipeline.bake import load_baked as _load
     return _load(key, cache_dir)

@@ -30,10 +30,9 @@ from core.errors import MissingFile, UnsupportedFormat
 from core.hull import hull_points, support_points
 from core.mips import level_shapes, texture_size_for
 from core.scene import Light, Material, Sampler, Scene, SceneCamera, TextureRef, extent, is_srgb
-
-from . import subdivision
-from .cache import BAKE_FORMAT_VERSION, Cache, Entry, NotInCache, SourceFiles
-from .limits import Limits
+from pipeline.cache import BAKE_FORMAT_VERSION, Cache, Entry, NotInCache, SourceFiles
+from pipeline.limits import Limits
+from pipeline.usd import subdivision
 
 log = logging.getLogger(__name__)
 
@@ -71,7 +70,7 @@ def bake_asset(path, cache_dir=None, *, force: bool = False, limits: Limits | No
 def bake_or_load_asset(path, cache_dir=None, *, force: bool = False, limits: Limits | None = None,
                        root=None, **options) -> tuple[BakedAsset, bool]:
     """As `bake_asset`, also saying whether it came from the cache (True) or was baked."""
-    from .ingest import load_scene
+    from pipeline.ingest import load_scene
 
     unknown = set(options) - set(ASSET_OPTIONS)
     if unknown:
@@ -116,7 +115,7 @@ def bake_or_load_asset(path, cache_dir=None, *, force: bool = False, limits: Lim
 def _inputs_inside(manifest: dict, path: Path, root) -> bool:
     """Whether every input a cached bake read lies inside this call's root: a bake made with
     a wider --root is not handed to a narrower call (it bakes again, and is refused)."""
-    from .paths import sandbox_root
+    from pipeline.paths import sandbox_root
     top = sandbox_root(path, root)
     for item in manifest.get("inputs", [])[1:]:
         real = (path.parent / item["path"]).resolve()
@@ -127,7 +126,7 @@ def _inputs_inside(manifest: dict, path: Path, root) -> bool:
 
 def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> BakedAsset:
     """Group a Scene's instances into BakedMeshes, compute interior vectors where needed and
-    the welded edges that edge anti-aliasing reads (renderer.edges) for assets it serves, and
+    the welded edges that edge anti-aliasing reads (renderer.raster.edges) for assets it serves, and
     the points on the hull that the framing and the final pass's regions read (core.hull)."""
     opts = {**ASSET_OPTIONS, **(options or {})}
     start = time.perf_counter()
@@ -147,7 +146,7 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> Bak
         interior = None
         if any(m.material_class == "transmissive" for m in (material, *variants.values())):
             if mi not in interiors:
-                from .interior import interior_vectors  # here: numba's import (0.25 s) is
+                from pipeline.interior.vectors import interior_vectors  # here: numba's import (0.25 s) is
                 # for bakes of glass, not for every process that loads a bake
                 result = interior_vectors(mesh.positions, mesh.normals, mesh.indices,
                                           epsilon=opts["interior_epsilon"])
@@ -398,11 +397,11 @@ def bake_environment(source, cache_dir=None, face_size: int = DEFAULT_FACE_SIZE,
 def bake_or_load_environment(source, cache_dir=None, face_size: int = DEFAULT_FACE_SIZE, prefilter: str = "ggx",
                              force: bool = False, limits: Limits | None = None
                              ) -> tuple[BakedEnvironment, bool]:
-    from .panorama import load_panorama, resolve_panorama
+    from pipeline.environment.panorama import load_panorama, resolve_panorama
 
     if prefilter not in PREFILTERS:
         raise ValueError(f"prefilter must be one of {PREFILTERS}, not {prefilter!r}")
-    from . import environment
+    from pipeline.environment import prefilter as environment
 
     environment.check_face_size(face_size)  # before the key: default_levels needs a valid one
     cache = _cache(cache_dir)

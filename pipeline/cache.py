@@ -83,7 +83,7 @@ class CorruptEntry(NotInCache):
 
 
 def default_cache_dir() -> Path:
-    from .limits import pipeline_settings
+    from pipeline.limits import pipeline_settings
     return Path(pipeline_settings().cache)
 
 
@@ -172,7 +172,7 @@ class Cache:
     def __init__(self, root: str | os.PathLike | None = None, max_bytes: int | str | None = None):
         self.root = Path(root) if root is not None else default_cache_dir()
         if max_bytes is None:
-            from .limits import pipeline_settings
+            from pipeline.limits import pipeline_settings
             max_bytes = pipeline_settings().cache_max_bytes
         self.max_bytes = parse_size(max_bytes)
 

@@ -101,7 +101,7 @@ def disconnect() -> None:
 
 def _bake_task(kind: str, source: str, cwd: str, common: dict) -> dict:
     """One bake job in a Ray worker, in the driver's working directory when this node has it."""
-    from .bake import bake_one
+    from pipeline.bake import bake_one
 
     if os.path.isdir(cwd):
         os.chdir(cwd)
@@ -128,7 +128,7 @@ def run_ray(jobs: list[tuple[str, str]], common: dict, report, *, address: str |
     ray = require_ray()
     connect(address)
     common = dict(common)
-    from .cache import default_cache_dir
+    from pipeline.cache import default_cache_dir
     # Absolute, so that a worker that cannot chdir (another mount layout) fails loudly on
     # the path instead of writing a private cache of its own.
     common["cache"] = str(Path(common.get("cache") or default_cache_dir()).absolute())

@@ -12,8 +12,7 @@ from PIL import Image
 
 from core.errors import LimitExceeded, MalformedAsset
 from core.scene import Sampler, Texture
-
-from .limits import Limits
+from pipeline.limits import Limits
 
 log = logging.getLogger(__name__)
 

@@ -1,6 +1,6 @@
 """`load_scene`: one entry for every format, and one finishing step they all share.
 
-Format readers (ingest_gltf, ingest_usd, ingest_mesh) turn a file into a Scene; `finish`
+Format readers (pipeline.gltf.reader, pipeline.usd.stage, pipeline.mesh) turn a file into a Scene; `finish`
 then holds every format to the same rules: finite positions, indices inside the vertex
 count, degenerate triangles dropped (counted in a warning), normals and tangents computed
 where missing, empty meshes removed, and an empty scene refused.
@@ -13,7 +13,6 @@ by Limits.max_file_bytes instead, so its running time is bounded too.
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import logging
 import os
 import stat
@@ -24,16 +23,29 @@ import numpy as np
 
 from core.errors import AssetError, EmptyScene, LimitExceeded, MalformedAsset, MissingFile, UnsupportedFormat
 from core.scene import Mesh, Scene
-
-from . import deadline
-from .framing import mark_backdrops
-from .limits import Limits
+from pipeline import deadline
+from pipeline.framing import mark_backdrops
+from pipeline.limits import Limits
+from pipeline.normals import compute_tangents, smooth_normals
 
 log = logging.getLogger(__name__)
 
 READERS = {".gltf": "gltf", ".glb": "gltf",
            ".usd": "usd", ".usda": "usd", ".usdc": "usd", ".usdz": "usd",
            ".obj": "mesh", ".ply": "mesh", ".stl": "mesh"}
+
+
+def _reader(kind: str):
+    """The format's reader module, imported on first use: usd-core and trimesh are heavy, and
+    most processes read one format."""
+    if kind == "gltf":
+        from pipeline.gltf import reader as gltf
+        return gltf
+    if kind == "usd":
+        from pipeline.usd import stage as usd
+        return usd
+    from pipeline import mesh
+    return mesh
 
 
 def load_scene(path, limits: Limits | None = None, root=None) -> Scene:
@@ -59,12 +71,7 @@ def load_scene(path, limits: Limits | None = None, root=None) -> Scene:
     if size > limits.max_file_bytes:
         raise LimitExceeded(path, f"file is {size} bytes, over the limit of "
                                   f"{limits.max_file_bytes} (ASSET_PREVIEW_MAX_FILE_BYTES)")
-    try:
-        reader = importlib.import_module(f"{__package__}.ingest_{kind}")
-    except ModuleNotFoundError as exc:
-        if exc.name != f"{__package__}.ingest_{kind}":
-            raise
-        raise UnsupportedFormat(path, f"no {kind} reader in this build") from None
+    reader = _reader(kind)
     start = time.perf_counter()
     with deadline.within(limits.ingest_seconds, str(path)):
         try:
@@ -212,58 +219,6 @@ def _unit_normals(mesh: Mesh) -> np.ndarray:
     if bad.any():
         out[bad] = smooth_normals(mesh.positions, mesh.indices)[bad]
     return np.ascontiguousarray(out, np.float32)
-
-
-def smooth_normals(positions: np.ndarray, indices: np.ndarray) -> np.ndarray:
-    """Area-weighted vertex normals (unused vertices get +Y)."""
-    p = positions.astype(np.float64)
-    face = np.cross(p[indices[:, 1]] - p[indices[:, 0]], p[indices[:, 2]] - p[indices[:, 0]])
-    acc = _scatter(indices, face, len(p))
-    return _normalise(acc, fallback=np.array([0.0, 1.0, 0.0])).astype(np.float32)
-
-
-def compute_tangents(positions: np.ndarray, normals: np.ndarray, uv: np.ndarray,
-                     indices: np.ndarray) -> np.ndarray:
-    """Per-vertex tangents (N x 4) from UV gradients, accumulated per vertex (Lengyel).
-
-    UVs are glTF's (v down from the image top) while a normal map's green channel points up
-    the image, so the bitangent is taken along -v: w = +1 when cross(N, T) points up the
-    image. Shaders use B = cross(N, T.xyz) * T.w, as glTF specifies.
-    """
-    p, t = positions.astype(np.float64), uv.astype(np.float64)
-    i0, i1, i2 = indices[:, 0], indices[:, 1], indices[:, 2]
-    e1, e2 = p[i1] - p[i0], p[i2] - p[i0]
-    d1, d2 = t[i1] - t[i0], t[i2] - t[i0]
-    d1[:, 1] *= -1.0  # v up the image
-    d2[:, 1] *= -1.0
-    det = d1[:, 0] * d2[:, 1] - d2[:, 0] * d1[:, 1]
-    inv = np.where(np.abs(det) > 1e-20, 1.0 / np.where(det == 0, 1.0, det), 0.0)[:, None]
-    sdir = (e1 * d2[:, 1:2] - e2 * d1[:, 1:2]) * inv
-    tdir = (e2 * d1[:, 0:1] - e1 * d2[:, 0:1]) * inv
-    n = normals.astype(np.float64)
-    s = _scatter(indices, sdir, len(p))
-    b = _scatter(indices, tdir, len(p))
-    s -= n * np.einsum("ij,ij->i", n, s)[:, None]  # Gram-Schmidt against the normal
-    # Where UVs give no direction, any unit vector perpendicular to the normal will do.
-    helper = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-    fallback = np.cross(n, helper)
-    s = np.where((np.linalg.norm(s, axis=1) > 1e-12)[:, None], s, fallback)
-    s = _normalise(s, fallback=np.array([1.0, 0.0, 0.0]))
-    w = np.where(np.einsum("ij,ij->i", np.cross(n, s), b) < 0.0, -1.0, 1.0)
-    return np.concatenate([s, w[:, None]], axis=1).astype(np.float32)
-
-
-def _scatter(indices: np.ndarray, per_face: np.ndarray, n: int) -> np.ndarray:
-    """Sum a per-face vector onto each of the face's three vertices."""
-    corners = indices.reshape(-1)
-    values = np.repeat(per_face, 3, axis=0)
-    return np.stack([np.bincount(corners, values[:, k], minlength=n) for k in range(3)], axis=1)
-
-
-def _normalise(v: np.ndarray, fallback: np.ndarray) -> np.ndarray:
-    length = np.linalg.norm(v, axis=1, keepdims=True)
-    ok = length[:, 0] > 1e-20
-    return np.where(ok[:, None], v / np.where(ok[:, None], length, 1.0), fallback)
 
 
 def _drop_empty(scene: Scene) -> None:

@@ -4,8 +4,8 @@ from __future__ import annotations
 # Bump on any change that alters pixels: the service keys cached thumbnails with it.
 RENDERER_VERSION = "3"  # 3: energy compensation by default, layering, mirrored transforms (issue 18)
 
-# Imported eagerly: the submodule `renderer.render` would otherwise shadow the function.
-from .frame import Frame  # noqa: E402
-from .render import render  # noqa: E402
+# Imported eagerly: the submodule `renderer.raster.render` would otherwise shadow the function.
+from renderer.frame import Frame  # noqa: E402
+from renderer.raster.render import render  # noqa: E402
 
 __all__ = ["render", "Frame", "RENDERER_VERSION"]

@@ -2,7 +2,7 @@
 frames around +Y, written as an animated WebP or GIF) and a labelled sheet of views.
 
 The asset and the environment are uploaded on the first frame and stay on the GPU
-(renderer.gpu keeps them), so frame k costs a draw and a readback, not a bake or an upload.
+(renderer.raster.gpu keeps them), so frame k costs a draw and a readback, not a bake or an upload.
 """
 from __future__ import annotations
 
@@ -14,11 +14,10 @@ import numpy as np
 
 from core.baked import BakedAsset, BakedEnvironment
 from core.options import RenderOptions
-
-from . import gpu
-from .frame import WEBP_SETTINGS, Frame, FrameTimings, alpha_is_mask
-from .framing import asset_camera
-from .render import render
+from renderer.frame import WEBP_SETTINGS, Frame, FrameTimings, alpha_is_mask
+from renderer.raster import gpu
+from renderer.raster.render import render
+from renderer.view.framing import asset_camera
 
 ANIMATED_FORMATS = ("webp", "gif")
 FRAME_MS = 80  # per turntable frame: 24 frames turn once in about two seconds
@@ -50,7 +49,7 @@ def render_turntable(asset: BakedAsset, env: BakedEnvironment, options: RenderOp
                      keep_linear: bool = True) -> list[Frame]:
     """options.turntable frames around +Y (at least one). With keep_linear False the frames
     hold their display pixels only (an animation's encoder reads no more): a kept frame's
-    linear image costs a pass of its own before the next frame (renderer.render)."""
+    linear image costs a pass of its own before the next frame (renderer.raster.render)."""
     distance = turntable_distance(asset, options)
     uploads = dict(gpu.stats)
     frames = []

@@ -64,9 +64,8 @@ def _zip(folder: Path, names: list[str]) -> bytes:
 async def seed(service) -> None:
     """Upload every sample (each failure logged, not fatal), then mark the store seeded."""
     from core.errors import AssetError
-
-    from .store import write_atomic
-    from .workers import WorkerFailure
+    from service.store import write_atomic
+    from service.workers.pool import WorkerFailure
 
     async def chunks(data: bytes):
         yield data

@@ -59,7 +59,7 @@ class Settings(FromEnv):
     gpu_bytes: int = Field(512 * 2**20, ge=1, description="meshes and textures a render worker keeps uploaded")
     # -- content ---------------------------------------------------------------------------
     default_env: str = Field("studio", description="environment of renders that name none (studio: "
-                             "generated in code, pipeline/studio.py)")
+                             "generated in code, pipeline/environment/studio.py)")
     seed: bool = Field(True, description="seed the sample assets into an empty store")
     samples: Path | None = Field(None, description="folder to seed from; default ../shared/assets or service/samples")
     state: Path | None = Field(None, description="records, uploads, thumbnails; default <cache>/service "

@@ -27,7 +27,7 @@ from pathlib import Path
 from cachetools import LRUCache
 from pydantic import BaseModel
 
-from .records import AssetRecord, EnvironmentRecord
+from service.records import AssetRecord, EnvironmentRecord
 
 log = logging.getLogger(__name__)
 

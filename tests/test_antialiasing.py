@@ -1,5 +1,5 @@
 """Anti-aliasing of the default frame, measured: FLIP (LDR, on the display image) against a
-16x supersampled render of our own (renderer.render.render_supersampled: 4 x 4 shaded samples
+16x supersampled render of our own (renderer.raster.render.render_supersampled: 4 x 4 shaded samples
 per pixel, averaged before tone mapping as MSAA samples are). The default must stay at least
 as good as 4x MSAA and clearly better than no anti-aliasing, on the Duck and on a
 high-contrast edge scene (a dark cube over white). bench thumbnail reports the same figure
@@ -15,9 +15,9 @@ from gltf_builder import CUBE_INDICES, CUBE_POSITIONS, Builder
 import pipeline
 from core.cubemap import default_face_size
 from core.options import RenderOptions
-from pipeline.panorama import DEFAULT_ENVIRONMENT
+from pipeline.environment.panorama import DEFAULT_ENVIRONMENT
 from renderer import render
-from renderer.render import render_supersampled
+from renderer.raster.render import render_supersampled
 
 SIZE = 128
 # Measured at 128 px (4x MSAA / none): Duck 0.0092 / 0.0200, edge cube 0.0060 / 0.0198.
@@ -66,6 +66,6 @@ def test_default_antialiasing_against_16x_supersampling(assets, cache, tmp_path_
 def test_supersampled_reference_refuses_a_ray_traced_frame(assets, cache):
     asset = pipeline.bake_asset(assets / "gltf/Duck.glb", cache)
     env = pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(32))
-    from renderer.render import UnsupportedMethod
+    from renderer.raster.render import UnsupportedMethod
     with pytest.raises(UnsupportedMethod):
         render_supersampled(asset, env, RenderOptions(width=32, height=32, method="raytrace"))

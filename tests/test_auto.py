@@ -8,7 +8,7 @@ import pytest
 
 from bench import scenes
 from core.options import MaterialOverride, RenderOptions
-from renderer import auto
+from renderer.methods import auto
 
 RASTER = ["auto", "opaque", "single", "wyman", "raytrace"]
 
@@ -124,13 +124,13 @@ def test_topology():
 def test_facts_follow_the_camera():
     spec = scenes.scene("glass_sphere_ior1.5")
     asset = scenes.baked_asset(spec)
-    from renderer.camera import frame_bounds
+    from renderer.view.camera import frame_bounds
     near = auto.object_facts(asset.meshes[0], spec.material, frame_bounds(asset.bounds, 128, 128))
     far = auto.object_facts(asset.meshes[0], spec.material,
                             frame_bounds(asset.bounds, 128, 128, distance=100.0))
     inside = auto.object_facts(asset.meshes[0], spec.material,
                                frame_bounds(asset.bounds, 128, 128, distance=0.2))
-    # the projected bounds fill 0.9 of the frame (renderer.camera.FILL): the sphere ~0.9 / sqrt(2)
+    # the projected bounds fill 0.9 of the frame (renderer.view.camera.FILL): the sphere ~0.9 / sqrt(2)
     assert 75 < near.screen_px < 100 and far.screen_px < 5 and inside.camera_inside
     assert not near.camera_inside and near.genus == 0 and near.convexity > 0.99
 
@@ -154,10 +154,10 @@ def cache(tmp_path_factory):
 
 
 def test_render_carries_the_plan(cache):
-    """Through renderer.render: the decisions land in Frame.plan["auto"] (the service's
+    """Through renderer.raster.render: the decisions land in Frame.plan["auto"] (the service's
     X-Render-Plan header), per object, and a budget makes the frame ray traced."""
     import pipeline
-    from renderer.render import render
+    from renderer.raster.render import render
 
     spec = scenes.scene("glass_torus_ior1.5")
     asset = scenes.baked_asset(spec, cache)

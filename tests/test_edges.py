@@ -1,4 +1,4 @@
-"""Edge anti-aliasing (renderer.edges): which edges a view smooths, and what the smoothing
+"""Edge anti-aliasing (renderer.raster.edges): which edges a view smooths, and what the smoothing
 does to a frame: only pixels on an edge change, hidden edges change nothing, and frames it
 cannot serve fall back to MSAA. Its quality against 16x supersampling is measured in
 tests/test_antialiasing.py."""
@@ -14,8 +14,9 @@ import pipeline
 from core.adjacency import welded_edges
 from core.cubemap import default_face_size
 from core.options import RenderOptions
-from pipeline.panorama import DEFAULT_ENVIRONMENT
-from renderer import edges, render
+from pipeline.environment.panorama import DEFAULT_ENVIRONMENT
+from renderer import render
+from renderer.raster import edges
 
 # The cube as an exporter writes it for flat shading: every face with vertices of its own.
 SPLIT_POSITIONS = CUBE_POSITIONS[CUBE_INDICES.reshape(-1)]
@@ -229,7 +230,7 @@ def test_a_render_reads_the_baked_edges_and_matches_one_without(cache, assets, t
     """From a cache entry with edges the render computes none, and its pixels are those of a
     render from an entry baked without them (over the cap), which computes them."""
     from pipeline import bake
-    from renderer import gpu
+    from renderer.raster import gpu
     env = pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(96))
     with_edges = pipeline.load_baked(pipeline.bake_asset(assets / "gltf/Duck.glb", tmp_path / "a").key,
                                      tmp_path / "a")

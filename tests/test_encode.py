@@ -32,7 +32,7 @@ def test_png_of_a_rendered_frame_is_bit_exact_and_compressed():
     from test_render_physics import constant_env, sphere_asset
 
     from core.options import RenderOptions
-    from renderer.render import render
+    from renderer.raster.render import render
     f = render(sphere_asset(0.0, 0.5), constant_env(1.0),
                RenderOptions(width=96, height=96, background="transparent"))
     data = f.encode("png")

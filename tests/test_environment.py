@@ -9,9 +9,9 @@ import pytest
 from core import cubemap
 from core.colour import srgb_to_linear
 from core.errors import AssetError, IngestTimeout, LimitExceeded, MalformedAsset, MissingFile, UnsupportedFormat
-from pipeline import environment as env
+from pipeline.environment import prefilter as env
+from pipeline.environment.panorama import write_rgbe
 from pipeline.limits import Limits
-from pipeline.panorama import write_rgbe
 
 log = logging.getLogger(__name__)
 
@@ -343,7 +343,7 @@ def test_sh_irradiance_matches_cosine_convolution(court):
 
 def test_glsl_sh_irradiance_equals_numpy(court):
     import shaders
-    from core import context as gl
+    from gl import context as gl
     ctx = gl.get_context()
     src = ("#version 430\n" + shaders.load("sh.glsl") + """
         uniform vec3 u_sh[9];

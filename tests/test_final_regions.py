@@ -1,4 +1,4 @@
-"""The final pass drawn in regions (renderer.regions) writes exactly the pixels of one
+"""The final pass drawn in regions (renderer.view.regions) writes exactly the pixels of one
 full-screen pass doing all the work, and its regions hold every pixel the object reaches."""
 from __future__ import annotations
 
@@ -11,9 +11,10 @@ import pipeline
 from core import hull
 from core.cubemap import default_face_size
 from core.options import RenderOptions
-from pipeline.panorama import DEFAULT_ENVIRONMENT
-from renderer import framing, regions, render
-from renderer.framing import request_camera
+from pipeline.environment.panorama import DEFAULT_ENVIRONMENT
+from renderer import render
+from renderer.view import framing, regions
+from renderer.view.framing import request_camera
 
 SAMPLES = ["gltf/Duck.glb", "gltf-samples/SheenCloth/glTF/SheenCloth.gltf",
            "gltf-samples/SimpleInstancing/glTF/SimpleInstancing.gltf",
@@ -87,7 +88,7 @@ def test_object_rect_holds_every_covered_pixel(assets, cache, rel):
 
 
 def test_polygon_is_none_when_the_camera_is_among_the_points():
-    from renderer.camera import Camera
+    from renderer.view.camera import Camera
     cam = Camera(np.zeros(3), np.array([0.0, 0.0, -1.0]), np.array([0.0, 1.0, 0.0]), 40.0,
                  64, 64, 0.01, 100.0)
     hull = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
@@ -187,7 +188,7 @@ def test_a_cold_render_from_the_cache_imports_neither_scipy_nor_numba(assets, ca
     import sys
     key = pipeline.bake_asset(assets / "usd/Teapot/Teapot.usd", cache).key
     code = (f"import sys, pipeline; from core.options import RenderOptions; from renderer import render; "
-            f"from pipeline.panorama import DEFAULT_ENVIRONMENT; from core.cubemap import default_face_size; "
+            f"from pipeline.environment.panorama import DEFAULT_ENVIRONMENT; from core.cubemap import default_face_size; "
             f"a = pipeline.load_baked({key!r}, {str(cache)!r}); "
             f"e = pipeline.bake_environment(DEFAULT_ENVIRONMENT, {str(cache)!r}, face_size=default_face_size(96)); "
             f"f = render(a, e, RenderOptions(width=96, height=96)); "

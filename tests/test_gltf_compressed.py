@@ -19,8 +19,8 @@ from bench.compressed import ktx2_variant, meshopt_variant
 from core.cubemap import default_face_size
 from core.errors import AssetError, LimitExceeded, MalformedAsset
 from core.options import RenderOptions
+from pipeline.environment.panorama import DEFAULT_ENVIRONMENT
 from pipeline.ingest import load_scene
-from pipeline.panorama import DEFAULT_ENVIRONMENT
 from renderer import render
 
 SAMPLES = Path(__file__).resolve().parents[1].parent / "shared" / "assets" / "gltf-samples"

@@ -21,10 +21,10 @@ from core.cubemap import default_face_size
 from core.errors import NotInAsset
 from core.options import RenderOptions
 from core.scene import CLAMP_TO_EDGE, MIRRORED_REPEAT, NEAREST, REPEAT
+from pipeline.environment.panorama import DEFAULT_ENVIRONMENT
 from pipeline.ingest import load_scene
-from pipeline.panorama import DEFAULT_ENVIRONMENT
 from renderer import render
-from renderer.framing import request_camera
+from renderer.view.framing import request_camera
 
 SAMPLES = Path(__file__).resolve().parents[1].parent / "shared" / "assets" / "gltf-samples"
 ALL_SAMPLES = sorted([*SAMPLES.glob("*/*/*.gltf"), *SAMPLES.glob("*/*/*.glb")])
@@ -334,7 +334,7 @@ def test_points_and_lines_are_drawn():
 
 
 def test_spec_gloss_conversion_formula():
-    from pipeline.gltf_specgloss import convert_factors
+    from pipeline.gltf.specgloss import convert_factors
     # a dielectric: specular 0.04 grey -> metallic 0, base colour = diffuse
     base, metallic, rough = convert_factors((0.5, 0.2, 0.1, 1.0), (0.04, 0.04, 0.04), 0.7)
     assert metallic == pytest.approx(0.0, abs=1e-6)

@@ -7,7 +7,7 @@ import trimesh
 
 from core.scene import Instance, Material, Mesh, Scene
 from pipeline.bake import build_baked
-from pipeline.interior import interior_vectors
+from pipeline.interior.vectors import interior_vectors
 
 
 def _run(m: trimesh.Trimesh, normals=None):
@@ -169,12 +169,12 @@ def test_hit_at_almost_zero_distance_is_skipped():
 
 
 def _embreex_reference(positions, normals, indices, epsilon):
-    """The pass as it was before pipeline.embree: embreex's own scene, one ray at a time.
+    """The pass as it was before pipeline.interior.embree: embreex's own scene, one ray at a time.
     Kept here to hold the new engine to the old results."""
     from embreex import rtcore_scene
     from embreex.mesh_construction import TriangleMesh
 
-    from pipeline.interior import GRAZE_RETRIES, _box_exit
+    from pipeline.interior.vectors import GRAZE_RETRIES, _box_exit
     p = np.ascontiguousarray(positions, np.float32)
     n = np.asarray(normals, np.float32)
     tris = np.ascontiguousarray(indices, np.int32).reshape(-1, 3)

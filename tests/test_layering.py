@@ -23,7 +23,7 @@ import pytest
 from bench import scenes
 from bench.reference import relative_mae, render_reference
 from core.options import RenderOptions
-from renderer.render import render
+from renderer.raster.render import render
 
 mi = pytest.importorskip("mitsuba")
 

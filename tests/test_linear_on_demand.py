@@ -13,10 +13,10 @@ import pytest
 import pipeline
 from core.cubemap import default_face_size
 from core.options import RenderOptions
-from pipeline.panorama import DEFAULT_ENVIRONMENT
+from pipeline.environment.panorama import DEFAULT_ENVIRONMENT
 from renderer import render
 
-R = importlib.import_module("renderer.render")  # the module (`renderer.render` is the function)
+R = importlib.import_module("renderer.raster.render")  # the module (`renderer.raster.render` is the function)
 
 
 @pytest.fixture(scope="module")

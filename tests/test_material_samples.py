@@ -15,7 +15,7 @@ from core.baked import BakedAsset
 from core.cubemap import default_face_size
 from core.options import RenderOptions
 from renderer import render
-from renderer.framing import request_camera
+from renderer.view.framing import request_camera
 
 SIZE = 256
 SAMPLES = ("ClearCoatTest", "SheenCloth", "SpecularTest", "TransmissionRoughnessTest",

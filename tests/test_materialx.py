@@ -13,8 +13,8 @@ from test_render_physics import constant_env
 import pipeline
 from core.options import RenderOptions
 from core.scene import TextureRef
-from pipeline.materialx import gltf_transform
-from renderer.render import render
+from pipeline.usd.materialx import gltf_transform
+from renderer.raster.render import render
 
 QUAD = """
         int[] faceVertexCounts = [4]

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from renderer.optics import f0_from_ior, fresnel_dielectric, fresnel_sp, reflect, refract, schlick
+from renderer.methods.optics import f0_from_ior, fresnel_dielectric, fresnel_sp, reflect, refract, schlick
 
 N = np.array([0.0, 0.0, 1.0])
 

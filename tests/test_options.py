@@ -15,7 +15,7 @@ from core.options import (
     from_request,
     request_fields,
 )
-from service.models import ThumbnailParams, render_options
+from service.http.models import ThumbnailParams, render_options
 
 
 def _cli(argv):
@@ -77,7 +77,7 @@ CHANGED = {"width": 300, "height": 300, "yaw": 1.0, "pitch": 1.0, "fov": 50.0, "
 
 
 def test_key_covers_every_field():
-    """Every input of a render changes the thumbnail key (service.core.thumbnail_key hashes it)."""
+    """Every input of a render changes the thumbnail key (service.operations.thumbnail_key hashes it)."""
     base = RenderOptions()
     missing = {f.name for f in dataclasses.fields(RenderOptions)} - set(CHANGED)
     assert not missing, f"add a changed value for {missing}"

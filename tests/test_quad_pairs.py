@@ -1,4 +1,4 @@
-"""Triangles paired into Embree quads (pipeline.quad_pairs): the same triangles, half as many
+"""Triangles paired into Embree quads (pipeline.interior.pairing): the same triangles, half as many
 primitives where the mesh allows."""
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from pipeline.quad_pairs import SPLIT_AT, pair_quads
+from pipeline.interior.pairing import SPLIT_AT, pair_quads
 
 
 def _halves(quads: np.ndarray) -> np.ndarray:

@@ -59,7 +59,7 @@ def test_without_ray_the_executor_fails_clearly(assets, tmp_path, monkeypatch, c
     assert code == 2 and "needs Ray" in err and "pip install 'asset-preview[ray]'" in err
     assert not (tmp_path / "cache").exists()
     from pipeline.executors import ExecutorUnavailable
-    from service.ray_workers import RayWorkerPool
+    from service.workers.ray import RayWorkerPool
     with pytest.raises(ExecutorUnavailable, match="pip install"):
         RayWorkerPool(1, str(tmp_path / "cache"))
 

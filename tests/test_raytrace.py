@@ -15,9 +15,9 @@ from bench import scenes
 from bench.reference import load_reference, relative_mae
 from core.baked import BakedEnvironment
 from core.options import MaterialOverride, RenderOptions
-from pipeline.environment import brdf_lut
+from pipeline.environment.prefilter import brdf_lut
 from renderer.frame import Frame
-from renderer.raytrace import render_raytrace
+from renderer.methods.raytrace import render_raytrace
 
 
 def render(name, reference_env, scene_cache, size=None, **opts):
@@ -216,7 +216,7 @@ def test_scene_glb_round_trips_through_ingest(name, tmp_path):
 
 def test_chunked_tracing_gives_the_same_image(reference_env, monkeypatch):
     """Large frames go through in chunks of pixels (bounded memory); the image is the same."""
-    import renderer.raytrace as rt
+    import renderer.methods.raytrace as rt
 
     asset = scenes.baked_asset(scenes.scene("glass_torus_ior1.5"))
     opts = RenderOptions(background="env", width=40, height=40, yaw=20, pitch=30)
@@ -257,9 +257,9 @@ def test_camera_inside_matches_mitsuba(reference_env, scene_cache):
     ("dielectric_sphere", {}),
 ])
 def test_compiled_kernel_matches_its_numpy_twin(name, opts, reference_env, scene_cache, monkeypatch):
-    """renderer.trace_kernel against the numpy shading it replaced (kept as _shade_numpy):
+    """renderer.methods.trace_kernel against the numpy shading it replaced (kept as _shade_numpy):
     the same rays and the same frame up to float rounding [max 1.2e-5 measured]."""
-    from renderer import raytrace
+    from renderer.methods import raytrace
     fast = render(name, reference_env, scene_cache, size=48, **opts)
     monkeypatch.setattr(raytrace, "KERNEL", False)
     slow = render(name, reference_env, scene_cache, size=48, **opts)

@@ -9,7 +9,7 @@ import pytest
 from bench import scenes
 from bench.reference import DEFAULT_SET, load_reference, relative_mae, spec_camera
 from core.cubemap import sample_equirect
-from renderer.optics import reflect
+from renderer.methods.optics import reflect
 
 
 @pytest.fixture(scope="module")

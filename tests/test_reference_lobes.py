@@ -11,7 +11,7 @@ from bench import scenes
 from bench.reference import relative_mae, render_reference
 from core.options import RenderOptions
 from core.scene import Material
-from renderer.render import render
+from renderer.raster.render import render
 
 mi = pytest.importorskip("mitsuba")
 

@@ -16,13 +16,13 @@ import pytest
 from bench import scenes
 from bench.reference import load_reference, relative_mae
 from core.baked import BakedAsset, BakedMesh
-from core.context import get_context
 from core.options import MaterialOverride, RenderOptions
 from core.scene import Material
-from pipeline.interior import interior_vectors
-from renderer import refraction
-from renderer.optics import fresnel_dielectric, refract
-from renderer.render import render
+from gl.context import get_context
+from pipeline.interior.vectors import interior_vectors
+from renderer.methods import refraction
+from renderer.methods.optics import fresnel_dielectric, refract
+from renderer.raster.render import render
 
 
 def draw(name, reference_env, scene_cache, method, size=None, spec=None, **opts):
@@ -50,7 +50,7 @@ def error(name, reference_env, scene_cache, method, size=None, **opts):
     return relative_mae(frame.linear, reference(name, frame.width))
 
 
-# --- GLSL twins of renderer.optics -------------------------------------------------------------
+# --- GLSL twins of renderer.methods.optics -------------------------------------------------------------
 
 _TWIN = """#version 430
 layout(local_size_x = 64) in;
@@ -126,7 +126,7 @@ def test_opaque_scene_runs_no_refraction_pass(reference_env, scene_cache):
     assert refraction.stats["backface_passes"] == before["backface_passes"] + 1
     assert ("back", 64, 64) in refraction.allocated()
     assert refraction.stats["frontface_passes"] == before["frontface_passes"] + (
-        frame.plan["auto"]["tir"] == "reflect")  # auto picks the TIR treatment (renderer.auto)
+        frame.plan["auto"]["tir"] == "reflect")  # auto picks the TIR treatment (renderer.methods.auto)
 
 
 # --- against the Mitsuba references ------------------------------------------------------------

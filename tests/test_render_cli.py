@@ -9,7 +9,7 @@ from PIL import Image
 from test_render_physics import constant_env, opts, sphere_asset
 
 from cli.main import main
-from renderer.render import render
+from renderer.raster.render import render
 
 
 @pytest.fixture(scope="module")

@@ -14,8 +14,8 @@ from core.baked import BakedAsset, BakedMesh
 from core.cubemap import env_rotation_matrix, sample_cube
 from core.options import RenderOptions
 from core.scene import Material
-from renderer.framing import request_camera
-from renderer.render import render
+from renderer.raster.render import render
+from renderer.view.framing import request_camera
 
 NEGATIVE_SCALE = "gltf-samples/NegativeScaleTest/glTF-Binary/NegativeScaleTest.glb"
 

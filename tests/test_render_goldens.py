@@ -15,7 +15,7 @@ from PIL import Image
 import pipeline
 from core.cubemap import default_face_size
 from core.options import RenderOptions
-from pipeline.panorama import DEFAULT_ENVIRONMENT
+from pipeline.environment.panorama import DEFAULT_ENVIRONMENT
 from renderer import render
 
 GOLDENS = Path(__file__).parent / "goldens"

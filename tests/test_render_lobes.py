@@ -11,7 +11,7 @@ from test_render_physics import _LUT, constant_env, interior, make_env, opts, sp
 
 from core.baked import BakedAsset
 from core.options import RenderOptions
-from renderer.render import render
+from renderer.raster.render import render
 
 ENV = constant_env(1.0)
 N = _LUT.shape[0]
@@ -108,7 +108,7 @@ def test_ior_sets_f0_of_an_opaque_dielectric():
 
 def test_no_extension_compiles_no_lobe():
     """The switches: a plain material defines none of the lobes (it costs what it did)."""
-    from renderer.render import _LOBES
+    from renderer.raster.render import _LOBES
     plain = sphere_asset(0.0, 0.5).meshes[0].material
     assert not any(plain.uses(lobe) for lobe in _LOBES)
     assert lobe_sphere(clearcoat=1.0).meshes[0].material.uses("clearcoat")

@@ -11,7 +11,7 @@ from test_render_physics import _LUT, constant_env, sphere_asset
 from core.baked import BakedAsset, BakedMesh
 from core.options import RenderOptions
 from core.scene import NEAREST, Light, Material, Sampler, Texture, TextureRef
-from renderer.render import render
+from renderer.raster.render import render
 
 S = 96
 RED, GREEN, BLUE, WHITE = (255, 0, 0, 255), (0, 255, 0, 255), (0, 0, 255, 255), (255, 255, 255, 255)

@@ -17,10 +17,10 @@ from core.baked import BakedAsset, BakedEnvironment, BakedMesh
 from core.cubemap import face_directions, sample_cube
 from core.options import MaterialOverride, RenderOptions
 from core.scene import Material
-from renderer import gpu
-from renderer.camera import frame_bounds
-from renderer.framing import asset_camera
-from renderer.render import UnsupportedMethod, render
+from renderer.raster import gpu
+from renderer.raster.render import UnsupportedMethod, render
+from renderer.view.camera import frame_bounds
+from renderer.view.framing import asset_camera
 
 SIZE = 128
 
@@ -320,7 +320,7 @@ def test_far_camera_keeps_a_finite_projection():
 
 
 def test_unavailable_and_bad_options_are_rejected_clearly():
-    from renderer.render import _METHODS
+    from renderer.raster.render import _METHODS
     env = constant_env(1.0)
     asset = sphere_asset(1.0, 0.3)
     if "wyman" not in _METHODS:

@@ -1,6 +1,6 @@
 """The ray tracer's rough-dielectric estimator against a numpy twin of Walter et al. (2007).
 
-renderer.optics.sample_rough_dielectric draws GGX visible normals and weights each child
+renderer.methods.optics.sample_rough_dielectric draws GGX visible normals and weights each child
 F G1 (reflection) and (1 - F) G1 (refraction). Averaged over many stratified draws, those
 weights must equal the BSDF's directional albedos, integrated here by quadrature over every
 outgoing direction straight from Walter's formulas (D, G = G1 G1, F on the half vector, the
@@ -11,7 +11,7 @@ to 1e-4.
 import numpy as np
 import pytest
 
-from renderer.optics import fresnel_dielectric, ggx_smith_g1, sample_rough_dielectric
+from renderer.methods.optics import fresnel_dielectric, ggx_smith_g1, sample_rough_dielectric
 
 N = np.array([0.0, 0.0, 1.0])
 

@@ -107,7 +107,7 @@ def test_thumbnails_of_every_sample_in_every_format(server, samples):
             assert img.shape[:2] == (96, 96)
             assert nontrivial(img), (name, fmt)
             plan = json.loads(r.headers["x-render-plan"])
-            assert plan["auto"]["objects"], plan  # auto's decisions (renderer.auto) reach clients
+            assert plan["auto"]["objects"], plan  # auto's decisions (renderer.methods.auto) reach clients
     # Non-square sizes and a transparent background come through.
     duck = samples["Duck.glb"]["id"]
     r = server.client.get(f"/assets/{duck}/thumbnail", params={"width": 120, "height": 64,

@@ -1,4 +1,4 @@
-"""The worker pool's order (service.workers.Pool): cost first with aging, a lane for cheap jobs,
+"""The worker pool's order (service.workers.pool.Pool): cost first with aging, a lane for cheap jobs,
 per-client shares. Jobs here run on threads that wait for the test to release them, so the
 order is observed exactly, without timing."""
 from __future__ import annotations
@@ -8,7 +8,7 @@ import threading
 
 import pytest
 
-from service.workers import Pool, QueueFull, WorkerConfig
+from service.workers.pool import Pool, QueueFull, WorkerConfig
 
 
 class _Slot:

@@ -14,12 +14,12 @@ from cli.main import main
 from core.baked import BakedAsset, BakedMesh
 from core.options import RenderOptions
 from core.scene import Material
-from pipeline import studio
-from renderer import gpu
-from renderer.camera import FILL
-from renderer.framing import asset_camera
-from renderer.render import render
+from pipeline.environment import studio
+from renderer.raster import gpu
+from renderer.raster.render import render
 from renderer.sequence import encode_animation, render_turntable, render_views, turntable_angles
+from renderer.view.camera import FILL
+from renderer.view.framing import asset_camera
 
 S = 96
 
@@ -76,7 +76,7 @@ def unit_sphere_hits(sphere: BakedAsset, options: RenderOptions):
 def test_white_lambert_sphere_is_near_white_in_the_middle(studio_env):
     """Default environment and tone map: the middle of a white diffuse sphere (N.V > 0.97)
     shows sRGB within 10% of white, neutral grey, and not clipped flat."""
-    assert pipeline.environment.DEFAULT_ENVIRONMENT == "studio"
+    assert pipeline.environment.prefilter.DEFAULT_ENVIRONMENT == "studio"
     options = RenderOptions(width=S, height=S)
     sphere = sphere_asset(0.0, 1.0)
     frame = render(sphere, studio_env, options)

@@ -6,7 +6,7 @@ import pytest
 
 import pipeline
 from pipeline.bake import build_baked
-from pipeline.subdivision import levels_for, loop_step
+from pipeline.usd.subdivision import levels_for, loop_step
 
 CUBE = """#usda 1.0
 (

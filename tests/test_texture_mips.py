@@ -91,8 +91,8 @@ def test_bake_stores_capped_compressed_chains_and_renders_upload_by_need(tmp_pat
     from test_render_physics import constant_env
 
     from core.options import RenderOptions
-    from renderer import gpu
-    from renderer.render import render
+    from renderer.raster import gpu
+    from renderer.raster.render import render
 
     img = checkerboard(2048)
     src = _textured_cube(tmp_path / "cube.glb", img)

@@ -13,7 +13,7 @@ import pipeline
 from core.errors import NotInAsset
 from core.options import RenderOptions
 from pipeline.bake import build_baked
-from renderer.framing import request_camera
+from renderer.view.framing import request_camera
 
 USD_SUFFIXES = {".usd", ".usda", ".usdc", ".usdz"}
 

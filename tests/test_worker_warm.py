@@ -10,8 +10,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 _PROBE = """
 import sys
-from renderer import trace_kernel
-from service.workers import WorkerConfig, WorkerState
+from renderer.methods import trace_kernel
+from service.workers.pool import WorkerConfig, WorkerState
 before = len(trace_kernel.shade.signatures)
 info = WorkerState(WorkerConfig(cache_dir=sys.argv[1])).ping()
 print(before, len(trace_kernel.shade.signatures), info["warm_seconds"])

@@ -1,0 +1,325 @@
+"""Environment bake (paper section 4.1): equirect panorama -> cube faces -> specular mip chain,
+9 spherical-harmonic coefficients for diffuse light, and the split-sum BRDF LUT (with the
+sheen albedo in its third channel).
+
+Prefiltering runs as GLSL in the process's headless context (`gl.context`); every face of
+a mip is drawn in one pass into an S x 6S atlas (shaders/cube_atlas.glsl) and read back as
+6 x S x S x 3 float32 in `core.cubemap`'s face order and orientation.
+
+Two methods, and the LOD the renderer must use for each (`roughness_to_lod`):
+- "ggx" (default): mip m holds the environment convolved with the GGX lobe of roughness
+  m / (levels - 1) under the split-sum N = V = R assumption (Karis 2013); mip 0 is the source
+  resampled. Importance sampling with mip-filtered samples (the source LOD is chosen from the
+  sample's pdf solid angle against the texel's, as Filament's cmgen does) keeps a few dozen
+  samples free of fireflies; sampling is in direction space through a seamless cube lookup, so
+  no seams. LOD = roughness x (levels - 1), linear.
+- "paper": the paper's baseline, a plain mip chain where each level is the previous one blurred
+  by a 3x3 Gaussian per face and halved (with the seams that causes). LOD = roughness x max LOD,
+  the same linear map, with max LOD = levels - 1.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+import numpy as np
+
+from core.cubemap import DEFAULT_FACE_SIZE, check_face_size, default_levels
+from pipeline.environment.panorama import DEFAULT_ENVIRONMENT, Panorama, list_bundled, load_panorama, synthetic_panorama  # noqa: F401
+
+log = logging.getLogger(__name__)
+
+METHODS = ("ggx", "paper")
+PREFILTER_VERSION = 3      # bump when the filter's output changes (cache keys include it)
+GGX_SAMPLES = 64           # per texel at mip 1, doubling per mip (coarse mips have few texels)
+GGX_MAX_SAMPLES = 512
+LUT_SIZE = 64
+LUT_SAMPLES = 256
+
+# Real SH basis l <= 2, standard order, in world coordinates (x, y, z):
+# Y00; Y1-1 = c1 y, Y10 = c1 z, Y11 = c1 x; Y2-2 = c2 xy, Y2-1 = c2 yz, Y20 = c3 (3z^2 - 1),
+# Y21 = c2 xz, Y22 = c4 (x^2 - y^2).
+_SH_C0 = 0.5 / math.sqrt(math.pi)
+_SH_C1 = math.sqrt(3 / (4 * math.pi))
+_SH_C2 = 0.5 * math.sqrt(15 / math.pi)
+_SH_C3 = 0.25 * math.sqrt(5 / math.pi)
+_SH_C4 = 0.25 * math.sqrt(15 / math.pi)
+
+
+@dataclass
+class EnvironmentArrays:
+    specular: list[np.ndarray]        # mips, each 6 x S x S x 3 float32 (+X,-X,+Y,-Y,+Z,-Z)
+    irradiance_sh: np.ndarray         # 9 x 3 radiance SH coefficients (basis above)
+    brdf_lut: np.ndarray              # N x N x 3; row j: roughness (j+.5)/N, column i: N.V (i+.5)/N
+    timings: dict = field(default_factory=dict)   # seconds per stage and "total"
+    method: str = "ggx"
+
+
+def roughness_to_lod(roughness, levels: int, method: str = "ggx"):
+    """The cube LOD the renderer samples for a roughness, for either method: roughness x
+    (levels - 1) (ggx: mip m was filtered for roughness m / (levels - 1); paper: its rule)."""
+    if method not in METHODS:
+        raise ValueError(f"unknown prefilter method {method!r}; one of {METHODS}")
+    return np.clip(roughness, 0.0, 1.0) * (levels - 1)
+
+
+def prefilter(pixels: np.ndarray, face_size: int = DEFAULT_FACE_SIZE, method: str = "ggx",
+              levels: int | None = None) -> EnvironmentArrays:
+    """Bake a linear H x W x 3 panorama into the specular mip chain, SH and BRDF LUT (see the
+    module docstring for the methods and their LOD mapping)."""
+    from gl import context as gl
+
+    if method not in METHODS:
+        raise ValueError(f"unknown prefilter method {method!r}; one of {METHODS}")
+    check_face_size(face_size)
+    levels = default_levels(face_size) if levels is None else int(levels)
+    if not 1 <= levels <= int(math.log2(face_size)) + 1:
+        raise ValueError(f"levels must be in 1..{int(math.log2(face_size)) + 1}, got {levels}")
+    pixels = np.ascontiguousarray(pixels, dtype=np.float32)
+    if pixels.ndim != 3 or pixels.shape[2] != 3 or pixels.shape[0] < 2 or pixels.shape[1] < 4:
+        raise ValueError(f"panorama must be H x W x 3, got {pixels.shape}")
+    timings: dict[str, float] = {}
+    t_start = t = time.perf_counter()
+    ctx = gl.get_context()
+    pixels = _fit_texture(pixels, ctx.info["GL_MAX_TEXTURE_SIZE"])
+    timings["context"] = time.perf_counter() - t
+    t = time.perf_counter()
+    base_tex = _equirect_to_cube(ctx, gl, pixels, face_size)
+    specular = [_read_atlas(base_tex, face_size)]
+    timings["cube"] = time.perf_counter() - t
+    t = time.perf_counter()
+    if method == "ggx":
+        specular += _ggx_mips(ctx, gl, specular[0], levels)
+    else:
+        specular += _paper_mips(ctx, gl, base_tex, face_size, levels)
+    base_tex.release()
+    timings["specular"] = time.perf_counter() - t
+    t = time.perf_counter()
+    sh = project_sh(pixels)
+    timings["sh"] = time.perf_counter() - t
+    t = time.perf_counter()
+    lut = brdf_lut()
+    timings["brdf_lut"] = time.perf_counter() - t
+    timings["total"] = time.perf_counter() - t_start
+    log.info("prefilter %s %dx%d -> %d px x %d mips in %.3f s", method, pixels.shape[1],
+             pixels.shape[0], face_size, levels, timings["total"])
+    return EnvironmentArrays(specular=specular, irradiance_sh=sh, brdf_lut=lut,
+                             timings=timings, method=method)
+
+
+# GL passes ------------------------------------------------------------------------------------
+
+def _fit_texture(pixels: np.ndarray, max_size: int) -> np.ndarray:
+    """Halve (2x2 box) a panorama wider or taller than the GL texture limit."""
+    while max(pixels.shape[:2]) > max_size:
+        h, w = pixels.shape[0] // 2 * 2, pixels.shape[1] // 2 * 2
+        pixels = pixels[:h, :w].reshape(h // 2, 2, w // 2, 2, 3).mean(axis=(1, 3), dtype=np.float32)
+        log.info("panorama halved to %dx%d to fit the GL texture limit", w // 2, h // 2)
+    return pixels
+
+
+def _atlas(ctx, size: int):
+    tex = ctx.texture((size, 6 * size), 4, dtype="f4")
+    return tex, ctx.framebuffer(color_attachments=[tex])
+
+
+def _draw(ctx, gl, fbo, prog) -> None:
+    fbo.use()
+    ctx.disable(ctx.BLEND | ctx.DEPTH_TEST | ctx.CULL_FACE)  # state the renderer may have left on
+    fbo.viewport = (0, 0) + fbo.size
+    gl.fullscreen_vao(prog).render(vertices=3)
+
+
+def _read_atlas(tex, size: int) -> np.ndarray:
+    data = np.frombuffer(tex.read(), dtype=np.float32)
+    return data.reshape(6, size, size, 4)[..., :3].copy()
+
+
+def _equirect_to_cube(ctx, gl, pixels: np.ndarray, size: int):
+    """Cube faces (as an atlas texture) resampled bilinearly from the panorama, supersampled
+    when the faces are coarser than the panorama (its width / 4 px per 90 degrees)."""
+    h, w = pixels.shape[:2]
+    supersample = int(min(8, max(1, math.ceil(w / 4 / size))))
+    pano = ctx.texture((w, h), 3, pixels.tobytes(), dtype="f4")
+    pano.repeat_x, pano.repeat_y = True, False
+    pano.filter = (ctx.LINEAR, ctx.LINEAR)
+    tex, fbo = _atlas(ctx, size)
+    prog = gl.program("screen_triangle.vert", "equirect_to_cube.frag", {"SUPERSAMPLE": supersample})
+    prog["u_size"].value = size
+    prog["u_panorama"].value = 0
+    pano.use(0)
+    _draw(ctx, gl, fbo, prog)
+    fbo.release()
+    pano.release()
+    return tex
+
+
+def _ggx_mips(ctx, gl, base: np.ndarray, levels: int) -> list[np.ndarray]:
+    size = base.shape[1]
+    # Texels carry (L w, w), w their solid angle, so box-filtered mips and trilinear lookups
+    # average radiance by solid angle: a plain box average over-weights the small corner texels
+    # (a sun near a cube corner came out up to 15% too bright at high roughness).
+    c = (np.arange(size) + 0.5) / size * 2 - 1
+    w = (1 + c[:, None] ** 2 + c[None, :] ** 2) ** -1.5
+    weighted = np.concatenate([base * w[None, :, :, None], np.broadcast_to(w[None, :, :, None], (6, size, size, 1))], axis=-1)
+    src = ctx.texture_cube((size, size), 4, weighted.astype(np.float32).tobytes(), dtype="f4")
+    src.build_mipmaps()
+    src.filter = (ctx.LINEAR_MIPMAP_NEAREST, ctx.LINEAR)  # whole LODs: bilinear, no blend of two mips (2-3x faster on llvmpipe)
+    max_lod = int(math.log2(size))
+    prog = gl.program("screen_triangle.vert", "prefilter_ggx.frag", {"MAX_SAMPLES": GGX_MAX_SAMPLES})
+    prog["u_source"].value = 0
+    src.use(0)
+    mips = []
+    for m in range(1, levels):
+        s = size >> m
+        count = ggx_sample_count(m)
+        samples = ggx_samples(m / (levels - 1), count, size, max_lod)
+        tex, fbo = _atlas(ctx, s)
+        prog["u_size"].value = s
+        prog["u_count"].value = len(samples)
+        prog["u_samples"].write(np.pad(samples, ((0, GGX_MAX_SAMPLES - len(samples)), (0, 0)))
+                                .astype(np.float32).tobytes())
+        _draw(ctx, gl, fbo, prog)
+        mips.append(_read_atlas(tex, s))
+        fbo.release()
+        tex.release()
+    src.release()
+    return mips
+
+
+def _paper_mips(ctx, gl, base_tex, size: int, levels: int) -> list[np.ndarray]:
+    prog = gl.program("screen_triangle.vert", "downsample_paper.frag")
+    prog["u_previous"].value = 0
+    mips, previous = [], base_tex
+    for m in range(1, levels):
+        s = size >> m
+        tex, fbo = _atlas(ctx, s)
+        previous.use(0)
+        prog["u_size"].value = s
+        _draw(ctx, gl, fbo, prog)
+        fbo.release()
+        mips.append(_read_atlas(tex, s))
+        if previous is not base_tex:
+            previous.release()
+        previous = tex
+    if previous is not base_tex:
+        previous.release()
+    return mips
+
+
+def _radical_inverse(i: np.ndarray) -> np.ndarray:
+    b: np.ndarray = i.astype(np.uint32)
+    b = (b << 16) | (b >> 16)
+    b = ((b & 0x55555555) << 1) | ((b & 0xAAAAAAAA) >> 1)
+    b = ((b & 0x33333333) << 2) | ((b & 0xCCCCCCCC) >> 2)
+    b = ((b & 0x0F0F0F0F) << 4) | ((b & 0xF0F0F0F0) >> 4)
+    b = ((b & 0x00FF00FF) << 8) | ((b & 0xFF00FF00) >> 8)
+    return b.astype(np.float64) * 2.0 ** -32
+
+
+def ggx_sample_count(mip: int) -> int:
+    """Samples per texel for a mip: mip-filtered sampling makes a few dozen enough for the
+    narrow lobes; wide lobes get more, which is cheap because their mips are small."""
+    return min(GGX_MAX_SAMPLES, GGX_SAMPLES << max(0, mip - 1))
+
+
+def ggx_samples(roughness: float, count: int, source_size: int, max_lod: float) -> np.ndarray:
+    """The GGX sample set for N = V (one per mip, shared by every texel): K x 4 rows of the
+    light direction in the lobe's frame (z = N) and the source LOD to read it at. Samples below
+    the horizon are dropped (their weight N.L would be 0)."""
+    alpha = max(roughness * roughness, 1e-6)
+    i = np.arange(count)
+    xi = _radical_inverse(i)
+    phi = 2 * np.pi * (i + 0.5) / count
+    cos_h = np.sqrt((1 - xi) / (1 + (alpha * alpha - 1) * xi))
+    sin_h = np.sqrt(np.maximum(1 - cos_h * cos_h, 0))
+    # L = reflect(-N, H) with N = V = +z
+    light = np.stack([2 * cos_h * sin_h * np.cos(phi), 2 * cos_h * sin_h * np.sin(phi),
+                      2 * cos_h * cos_h - 1], axis=-1)
+    d = alpha * alpha / (np.pi * (cos_h * cos_h * (alpha * alpha - 1) + 1) ** 2)
+    pdf = d / 4  # D * N.H / (4 V.H) with N = V
+    texel_solid_angle = 4 * np.pi / (6 * source_size * source_size)
+    # +1: Karis's bias toward a blurrier mip, which hides the sample pattern
+    lod = np.round(np.clip(0.5 * np.log2(1 / (count * pdf * texel_solid_angle)) + 1, 0, max_lod))
+    keep = light[:, 2] > 1e-4
+    return np.concatenate([light, lod[:, None]], axis=1)[keep]
+
+
+@lru_cache(maxsize=4)
+def _brdf_lut_cached(size: int, samples: int) -> np.ndarray:
+    from gl import context as gl
+    ctx = gl.get_context()
+    tex = ctx.texture((size, size), 4, dtype="f4")
+    fbo = ctx.framebuffer(color_attachments=[tex])
+    prog = gl.program("screen_triangle.vert", "brdf_lut.frag", {"SAMPLES": samples})
+    prog["u_size"].value = size  # type: ignore[union-attr]  # a uniform
+    _draw(ctx, gl, fbo, prog)
+    lut = np.frombuffer(tex.read(), dtype=np.float32).reshape(size, size, 4)[..., :3].copy()
+    fbo.release()
+    tex.release()
+    lut.flags.writeable = False
+    return lut
+
+
+def brdf_lut(size: int = LUT_SIZE, samples: int = LUT_SAMPLES) -> np.ndarray:
+    """The split-sum LUT (size x size x 3; row j: roughness (j+.5)/size, column i: N.V
+    (i+.5)/size; values (scale, bias) for F0 and the sheen lobe's directional albedo at sheen
+    roughness (j+.5)/size), drawn once per process by shaders/brdf_lut.frag."""
+    return _brdf_lut_cached(int(size), int(samples)).copy()
+
+
+# Spherical harmonics --------------------------------------------------------------------------
+
+def project_sh(pixels: np.ndarray) -> np.ndarray:
+    """9 x 3 radiance SH coefficients of an H x W x 3 panorama. Each pixel is a constant-radiance
+    cell and every basis function is integrated exactly over it (all are sums of f(theta) g(phi)
+    with closed-form integrals), so a constant environment projects exactly onto Y00."""
+    h, w = pixels.shape[:2]
+    mu = np.cos(np.linspace(0.0, np.pi, h + 1))          # cos(theta) at row edges, decreasing
+    sin = np.sqrt(np.maximum(1 - mu * mu, 0))
+    rows = {  # antiderivatives in mu = cos(theta) of f(theta) (sin(theta) d(theta) = -d(mu))
+        "1": mu, "c": mu * mu / 2, "s": (mu * sin + np.arcsin(mu)) / 2,
+        "sc": -sin ** 3 / 3, "ss": mu - mu ** 3 / 3, "cc": mu ** 3 / 3,
+    }
+    rows = {k: v[:-1] - v[1:] for k, v in rows.items()}
+    phi = (np.arange(w + 1) / w - 0.5) * 2 * np.pi       # x = -sin(phi) sin(theta), z = cos(phi) sin(theta)
+    col_keys = ("1", "cos", "sin", "cos2", "sin2", "sincos")
+    cols = np.stack([phi, np.sin(phi), -np.cos(phi), phi / 2 + np.sin(2 * phi) / 4,
+                     phi / 2 - np.sin(2 * phi) / 4, np.sin(phi) ** 2 / 2], axis=-1)
+    cols = cols[1:] - cols[:-1]                           # W x 6
+    per_row = np.tensordot(pixels.astype(np.float64), cols, axes=([1], [0]))  # H x 3 x 6
+    terms = [  # (constant, [(factor, row function, column function)]) per basis function
+        (_SH_C0, [(1, "1", "1")]),
+        (_SH_C1, [(1, "c", "1")]),                        # y
+        (_SH_C1, [(1, "s", "cos")]),                      # z
+        (_SH_C1, [(-1, "s", "sin")]),                     # x
+        (_SH_C2, [(-1, "sc", "sin")]),                    # xy
+        (_SH_C2, [(1, "sc", "cos")]),                     # yz
+        (_SH_C3, [(3, "ss", "cos2"), (-1, "1", "1")]),    # 3z^2 - 1
+        (_SH_C2, [(-1, "ss", "sincos")]),                 # xz
+        (_SH_C4, [(1, "ss", "sin2"), (-1, "cc", "1")]),   # x^2 - y^2
+    ]
+    sh = np.zeros((9, 3))
+    for k, (c, parts) in enumerate(terms):
+        for factor, rf, cf in parts:
+            sh[k] += c * factor * (rows[rf] @ per_row[:, :, col_keys.index(cf)])
+    return sh.astype(np.float32)
+
+
+def sh_basis(d: np.ndarray) -> np.ndarray:
+    """The 9 basis functions at unit directions (..., 3) -> (..., 9)."""
+    x, y, z = d[..., 0], d[..., 1], d[..., 2]
+    return np.stack([np.full_like(x, _SH_C0), _SH_C1 * y, _SH_C1 * z, _SH_C1 * x,
+                     _SH_C2 * x * y, _SH_C2 * y * z, _SH_C3 * (3 * z * z - 1),
+                     _SH_C2 * x * z, _SH_C4 * (x * x - y * y)], axis=-1)
+
+
+def sh_irradiance(sh: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """Irradiance / pi at unit normals (..., 3) -> (..., 3): the radiance a white Lambertian
+    surface reflects (Ramamoorthi & Hanrahan 2001: A0 = pi, A1 = 2pi/3, A2 = pi/4), as
+    shaders/sh.glsl computes it."""
+    band = np.array([1.0] + [2 / 3] * 3 + [1 / 4] * 5)
+    return (sh_basis(np.asarray(normals, dtype=np.float64)) * band) @ np.asarray(sh, np.float64)

@@ -1,0 +1,653 @@
+"""USD ingest (.usd .usda .usdc .usdz) with usd-core: a composed stage -> Scene.
+
+Order of work, so that hostile input is refused before USD touches it:
+1. `usd_layers.LayerGraph` opens the root layer and walks every sublayer, reference and
+   payload with Sdf alone (all variants), refusing URIs, absolute paths, `..` and symlink
+   escapes out of the asset's folder (or out of the `.usdz` package), and bounds the package.
+2. The stage is composed from those already-open layers (payloads loaded, variants as
+   authored) and checked to have used no other layer.
+3. Prims are traversed with instance proxies (scene-graph instancing: a prototype's meshes
+   are built once and placed per instance), skipping inactive, invisible, guide and proxy
+   prims. Each UsdGeom.Mesh is triangulated (a vectorised fan per face, `leftHanded` flips
+   winding, holes dropped); primvars (normals, every `st` a material reads, displayColor /
+   displayOpacity) with constant / uniform / vertex / varying / faceVarying interpolation,
+   indexed or not, are gathered per face-vertex and vertices are split only where a
+   uniform or faceVarying value differs (numpy unique over the combined key). GeomSubsets
+   bound to materials become one Mesh each. displayColor / displayOpacity become vertex
+   colours where USD draws them: on prims with no UsdPreviewSurface, and where a material
+   reads them through a primvar reader; never on top of a material's own diffuseColor.
+4. `usd_materials` maps UsdPreviewSurface (see its docstring for opacity/ior -> transmission).
+
+Conventions: USD `st` has v up (0 at the image bottom); the scene holds glTF UVs, v down,
+so v' = 1 - v (texture transforms are converted to match). World matrices come from an
+XformCache and are converted to the scene's +Y-up metres: upAxis Z is turned to Y by a -90
+degree rotation about X, and metersPerUnit scales (USD's fallback is 0.01, centimetres,
+when the stage does not author it). Time-varying values are read at the stage's start time
+code (or the earliest sample). Subdivision surfaces (catmullClark, loop) are read as their control cage
+with smooth normals, marked for refinement at bake (`subdivision`) when the scheme is
+authored; `model:drawMode` cards are viewport stand-ins and are not drawn. Implicit
+shapes (Sphere, Cube, Cylinder, Cone, Capsule, Plane) are tessellated (`usd_shapes`).
+Meshes bound to a UsdSkel skeleton are skinned (UsdSkel.Cache / SkinningQuery, linear blend
+or dual quaternion as authored) and posed by the skeleton's animation at that time code, or
+at its rest transforms without one, as usdview shows them. PointInstancers place their prototypes (one Mesh each, an Instance per unmasked point);
+nested ones, curves, points and NURBS are skipped with a warning. UsdLux distant / sphere /
+rect / disk lights become KHR_lights_punctual lights (`_light`), a dome light's texture the
+scene's environment; UsdGeomCameras are listed (`Scene.cameras`) for `render --camera PATH`.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from pxr import Ar, Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade, UsdSkel
+
+from core.errors import LimitExceeded, MalformedAsset, MissingFile, UnsafeReference
+from core.scene import Instance, Light, Mesh, Scene, SceneCamera
+from pipeline import deadline
+from pipeline.limits import Limits
+from pipeline.usd.layers import LayerGraph
+from pipeline.usd.materials import Binding, MaterialReader, authoring_layer
+from pipeline.usd.shapes import SHAPES, tessellate
+
+log = logging.getLogger(__name__)
+
+Y_UP_FROM_Z_UP = np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]], np.float64)
+PRUNED_TYPES = (UsdShade.Material, UsdShade.NodeGraph, UsdShade.Shader)
+
+
+def load(path: Path, limits: Limits, root: Path | None = None) -> Scene:
+    """Read a USD file (any of its four forms) into a Scene; AssetError on bad input.
+    Files it references must lie inside `root` (default: its folder; `paths.sandbox_root`)."""
+    path = Path(path)
+    graph = LayerGraph(path, limits, root)
+    try:
+        root_layer = graph.open()
+        stage = graph.stage = _compose(root_layer, graph)
+        scene = Scene(source=str(path), format=path.suffix.lower().lstrip("."))
+        scene.warnings.extend(graph.warnings)
+        _StageReader(stage, graph, scene, limits).read()
+        scene.files = list(graph.files)
+        return scene
+    finally:
+        graph.close()
+
+
+def _compose(root_layer: Sdf.Layer, graph: LayerGraph) -> Usd.Stage:
+    try:
+        stage = Usd.Stage.Open(root_layer, Usd.Stage.LoadAll)
+    except Tf.ErrorException as exc:
+        raise MalformedAsset(graph.path, f"USD stage does not compose: "
+                                         f"{str(exc).strip().splitlines()[-1]}") from None
+    if stage is None:
+        raise MalformedAsset(graph.path, "USD stage does not compose")
+    for layer in stage.GetUsedLayers():
+        if not layer.anonymous and layer.identifier not in graph.layers:
+            raise UnsafeReference(graph.path, f"composition read layer {layer.identifier!r}, "
+                                              "which the reference check did not see")
+    for err in stage.GetCompositionErrors():
+        text = f"composition: {str(err).strip().splitlines()[0]}"
+        if text not in graph.warnings and not any(u in text for u in graph.unreadable):
+            graph.warnings.append(text)
+    return stage
+
+
+def stage_matrix(stage: Usd.Stage) -> np.ndarray:
+    """Stage space -> scene space (+Y up, metres), for column vectors."""
+    scale = np.diag([UsdGeom.GetStageMetersPerUnit(stage)] * 3 + [1.0])
+    up = Y_UP_FROM_Z_UP if UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.z else np.eye(4)
+    return up @ scale
+
+
+@dataclass
+class _Primvar:
+    values: np.ndarray          # E x k
+    interpolation: str
+    indices: np.ndarray | None  # per element, into values
+
+
+@dataclass
+class _Topology:
+    """A mesh triangulated and its vertices split once; subsets select triangles from it."""
+    positions: np.ndarray
+    tri: np.ndarray              # T x 3 vertex indices
+    tri_face: np.ndarray         # T, face of each triangle
+    normals: np.ndarray | None
+    attrs: dict[str, np.ndarray] = field(default_factory=dict)
+    subdivision: str | None = None  # catmullClark / loop: refined at bake (pipeline/usd/subdivision.py)
+
+
+class _StageReader:
+    def __init__(self, stage: Usd.Stage, graph: LayerGraph, scene: Scene, limits: Limits):
+        self.stage, self.graph, self.scene, self.limits = stage, graph, scene, limits
+        self.time = (Usd.TimeCode(stage.GetStartTimeCode()) if stage.HasAuthoredTimeCodeRange()
+                     else Usd.TimeCode.EarliestTime())
+        self.xforms = UsdGeom.XformCache(self.time)
+        meters = UsdGeom.GetStageMetersPerUnit(stage)
+        if not (math.isfinite(meters) and meters > 0):  # 0 collapses the scene, < 0 mirrors it
+            raise MalformedAsset(graph.path, f"metersPerUnit = {meters} is not a positive number")
+        self.to_scene = stage_matrix(stage)
+        self.materials = MaterialReader(graph, scene, limits, self.time)
+        self._meshes: dict[tuple, int] = {}
+        self._topology: dict[tuple, _Topology | None] = {}
+        self.triangles = 0
+        self.vertices = 0
+        self._nodes = 0
+        self._skipped: set[str] = set()
+        self._skel: UsdSkel.Cache | None = None  # made at the first SkelRoot
+        if not stage.HasAuthoredMetadata(UsdGeom.Tokens.metersPerUnit):
+            self._warn("metersPerUnit not authored: USD's fallback 0.01 (centimetres) used")
+
+    def read(self) -> None:
+        self._walk(self.stage.GetPseudoRoot(), None)
+        for kind in sorted(self._skipped):
+            self._warn(f"{kind} prims are not read; skipped")
+
+    def _walk(self, root: Usd.Prim, placements: np.ndarray | None) -> None:
+        """Read the gprims under `root`. `placements` (K x 4 x 4, row vectors, relative to
+        `root`'s parent) places a PointInstancer prototype K times; None = the stage itself."""
+        predicate = Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)
+        it = iter(Usd.PrimRange(root, predicate))
+        for prim in it:
+            self._nodes += 1
+            if self._nodes > self.limits.max_nodes:
+                raise LimitExceeded(self.graph.path, f"more than {self.limits.max_nodes} prims")
+            if self._nodes % 256 == 0:
+                deadline.check()
+            if not prim.IsA(UsdGeom.Imageable):  # shading networks are not: tested only here
+                if any(prim.IsA(t) for t in PRUNED_TYPES):
+                    it.PruneChildren()
+                continue
+            img = UsdGeom.Imageable(prim)
+            # purpose inherits from the nearest ancestor with one authored (which wins over
+            # the prim's own): only a prim whose own is guide/proxy needs the computed one
+            if img.GetVisibilityAttr().Get(self.time) == UsdGeom.Tokens.invisible or \
+                    img.GetPurposeAttr().Get() in (UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy) \
+                    and img.ComputePurpose() in (UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy):
+                it.PruneChildren()
+                continue
+            if prim.IsA(UsdSkel.Root):
+                self._skel_root(prim)
+            if placements is None and prim.HasAPI(UsdLux.LightAPI) and not prim.IsA(UsdGeom.Gprim):
+                self._light(prim)
+                continue
+            if placements is None and prim.IsA(UsdGeom.Camera):
+                self._camera(prim)
+                continue
+            if prim.IsA(UsdGeom.Mesh) or str(prim.GetTypeName()) in SHAPES:
+                skinned = self._skinned(prim) if placements is None and self._skel else None
+                if skinned is not None:
+                    self._gprim(prim, skinned[0], skinned[1])
+                else:
+                    self._gprim(prim, self._matrices(prim, root, placements))
+            elif prim.IsA(UsdGeom.PointInstancer):
+                it.PruneChildren()  # its prototypes are drawn only where it places them
+                if placements is None:
+                    self._point_instancer(UsdGeom.PointInstancer(prim))
+                else:
+                    self._skipped.add("nested PointInstancer")
+            elif prim.IsA(UsdGeom.Gprim):
+                self._skipped.add(str(prim.GetTypeName()))
+
+    # -- UsdLux lights and UsdGeom cameras -----------------------------------------------------
+    def _light(self, prim: Usd.Prim) -> None:
+        """UsdLux -> KHR_lights_punctual (or the scene's environment for a dome light).
+        Intensity is USD's intensity x 2^exposure x colour (x blackbody when enabled); for
+        sphere, rect and disk lights x their area (radiance -> intensity; unless normalized),
+        which become point / spot (cone from ShapingAPI) and a 90 degree spot."""
+        api = UsdLux.LightAPI(prim)
+        get = lambda a, d: _finite(a.Get(self.time), d)  # noqa: E731
+        color = np.array(api.GetColorAttr().Get(self.time) or (1.0, 1.0, 1.0), np.float64)
+        if api.GetEnableColorTemperatureAttr().Get(self.time):
+            color = color * np.array(UsdLux.BlackbodyTemperatureAsRgb(
+                get(api.GetColorTemperatureAttr(), 6500.0)))
+        intensity = get(api.GetIntensityAttr(), 1.0) * 2.0 ** get(api.GetExposureAttr(), 0.0)
+        normalize = bool(api.GetNormalizeAttr().Get(self.time))
+        world = self.to_scene @ np.array(self.xforms.GetLocalToWorldTransform(prim)).T
+        where = str(prim.GetPath())
+        if prim.IsA(UsdLux.DomeLight):
+            self._dome(prim, where)
+            return
+        if prim.IsA(UsdLux.DistantLight):
+            kind, area = "directional", 1.0
+        elif prim.IsA(UsdLux.SphereLight):
+            light = UsdLux.SphereLight(prim)
+            r = get(light.GetRadiusAttr(), 0.5)
+            kind = "point"
+            area = 1.0 if light.GetTreatAsPointAttr().Get() else math.pi * r * r
+        elif prim.IsA(UsdLux.RectLight):
+            light = UsdLux.RectLight(prim)
+            kind, area = "rect", get(light.GetWidthAttr(), 1.0) * get(light.GetHeightAttr(), 1.0)
+        elif prim.IsA(UsdLux.DiskLight):
+            kind, area = "rect", math.pi * get(UsdLux.DiskLight(prim).GetRadiusAttr(), 0.5) ** 2
+        else:
+            self._warn(f"{where}: {prim.GetTypeName()} lights are not drawn")
+            return
+        if normalize:
+            area = 1.0
+        r, g, b = (float(c) for c in np.clip(color, 0, None))
+        out = Light(type="point", color=(r, g, b),
+                    intensity=float(intensity * area), matrix=_orthonormal(world))
+        if kind == "directional":
+            out.type = "directional"
+        elif kind == "rect":  # one-sided emitter along -Z: a hemisphere spot
+            out.type, out.inner_cone, out.outer_cone = "spot", 0.0, math.pi / 2
+        shaping = UsdLux.ShapingAPI(prim) if prim.HasAPI(UsdLux.ShapingAPI) else None
+        cone = get(shaping.GetShapingConeAngleAttr(), 90.0) if shaping else 90.0
+        if shaping and cone < 90.0:
+            soft = min(max(get(shaping.GetShapingConeSoftnessAttr(), 0.0), 0.0), 1.0)
+            out.type, out.outer_cone = "spot", math.radians(cone)
+            out.inner_cone = out.outer_cone * (1.0 - soft)
+        self.scene.lights.append(out)
+
+    def _dome(self, prim: Usd.Prim, where: str) -> None:
+        attr = UsdLux.DomeLight(prim).GetTextureFileAttr()
+        asset = attr.Get(self.time)
+        if not asset or not asset.path:
+            self._warn(f"{where}: dome light without a texture; the render's environment is used")
+            return
+        try:
+            identifier = self.graph.resolve(authoring_layer(attr, self.time), asset.path)
+        except MissingFile as exc:
+            self._warn(f"{where}: {exc.reason}; the render's environment is used")
+            return
+        if Ar.IsPackageRelativePath(identifier):
+            self._warn(f"{where}: a dome texture inside a package is not read; the render's "
+                       "environment is used")
+            return
+        if self.scene.environment is None:
+            self.scene.environment = identifier
+            self.graph.files.append(identifier)
+        else:
+            self._warn(f"{where}: a second dome light; the first one's texture is used")
+
+    def _camera(self, prim: Usd.Prim) -> None:
+        """A UsdGeomCamera as a SceneCamera (`render --camera PRIM_PATH`): vertical field of
+        view (or, orthographic, half the vertical aperture as ymag), clipping range, in scene
+        units; the output's aspect is used, as for glTF cameras."""
+        cam = UsdGeom.Camera(prim).GetCamera(self.time)
+        world = _orthonormal(self.to_scene @ np.array(self.xforms.GetLocalToWorldTransform(prim)).T)
+        scale = UsdGeom.GetStageMetersPerUnit(self.stage)
+        near, far = cam.clippingRange.min * scale, cam.clippingRange.max * scale
+        out = SceneCamera(name=str(prim.GetPath()), matrix=world, znear=float(near),
+                          zfar=float(far) if math.isfinite(far) else math.inf)
+        if cam.projection == Gf.Camera.Orthographic:
+            # apertures are in tenths of a scene unit for orthographic cameras (Gf.Camera)
+            out.type = "orthographic"
+            out.ymag = float(cam.verticalAperture * Gf.Camera.APERTURE_UNIT * scale / 2)
+            out.xmag = float(cam.horizontalAperture * Gf.Camera.APERTURE_UNIT * scale / 2)
+        else:
+            out.yfov = math.radians(cam.GetFieldOfView(Gf.Camera.FOVVertical))
+        self.scene.cameras.append(out)
+
+    # -- UsdSkel: skinned meshes posed as usdview shows them --------------------------------
+    def _skel_root(self, prim: Usd.Prim) -> None:
+        if self._skel is None:
+            self._skel = UsdSkel.Cache()
+        self._skel.Populate(UsdSkel.Root(prim),
+                            Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate))
+
+    def _skinned(self, prim: Usd.Prim):
+        """(world matrices, skinned points or None) of a mesh bound to a skeleton, posed by
+        its animation at the read time, else at the skeleton's rest transforms; None when
+        `prim` is not skinned. Skinned points are in the skeleton's space (the gprim's own
+        transform does not apply, as UsdSkel specifies)."""
+        assert self._skel is not None  # _walk calls this only once a SkelRoot was seen
+        query = self._skel.GetSkinningQuery(prim)
+        skeleton = UsdSkel.BindingAPI(prim).GetInheritedSkeleton()
+        if not query or not skeleton or not prim.IsA(UsdGeom.Mesh):
+            return None
+        skel_query = self._skel.GetSkelQuery(skeleton)
+        xforms = skel_query.ComputeSkinningTransforms(self.time) if skel_query else None
+        if not xforms:
+            self._warn(f"{prim.GetPath()}: skeleton {skeleton.GetPath()} has no usable pose; "
+                       "drawn unskinned")
+            return None
+        skel_world = np.array(self.xforms.GetLocalToWorldTransform(skeleton.GetPrim()))
+        if query.IsRigidlyDeformed():
+            rows = np.array(query.ComputeSkinnedTransform(xforms, self.time)) @ skel_world
+            return self.to_scene @ rows.T[None], None
+        points = UsdGeom.Mesh(prim).GetPointsAttr().Get(self.time)
+        if points is None or not query.ComputeSkinnedPoints(xforms, points, self.time):
+            self._warn(f"{prim.GetPath()}: skinning failed; drawn unskinned")
+            return None
+        return (self.to_scene @ skel_world.T)[None], np.asarray(points, np.float32).reshape(-1, 3)
+
+    def _matrices(self, prim: Usd.Prim, root: Usd.Prim, placements) -> np.ndarray:
+        """World matrices (column vectors, scene space) of `prim`, once per placement."""
+        if placements is None:
+            rows = np.array(self.xforms.GetLocalToWorldTransform(prim))[None]
+        else:
+            rel = np.array(self.xforms.ComputeRelativeTransform(prim, root)[0]) \
+                if prim != root else np.eye(4)
+            rows = rel[None] @ placements
+        return self.to_scene[None] @ np.transpose(rows, (0, 2, 1))
+
+    def _point_instancer(self, pi: UsdGeom.PointInstancer) -> None:
+        """Each prototype's gprims placed by the instancer's (unmasked) instance transforms."""
+        protos = pi.GetPrototypesRel().GetForwardedTargets()
+        indices = np.asarray(pi.GetProtoIndicesAttr().Get(self.time) or [], np.int64)
+        if len(indices) > self.limits.max_nodes:
+            raise LimitExceeded(self.graph.path, f"{pi.GetPath()}: {len(indices)} instances, "
+                                                 f"over the limit of {self.limits.max_nodes}")
+        if not len(indices) or not protos:
+            return
+        xforms = pi.ComputeInstanceTransformsAtTime(self.time, self.time,
+                                                    UsdGeom.PointInstancer.IncludeProtoXform,
+                                                    UsdGeom.PointInstancer.IgnoreMask)
+        rows = np.array([np.array(m) for m in xforms]).reshape(-1, 4, 4)
+        if len(rows) != len(indices):
+            self._warn(f"{pi.GetPath()}: instance transforms do not match protoIndices; skipped")
+            return
+        mask = np.asarray(pi.ComputeMaskAtTime(self.time) or [True] * len(indices), bool)
+        world = np.array(self.xforms.GetLocalToWorldTransform(pi.GetPrim()))
+        for j, target in enumerate(protos):
+            chosen = mask & (indices == j)
+            proto = self.stage.GetPrimAtPath(target)
+            if chosen.any() and proto:
+                # prototype root's own transform is inside the instance transform already
+                self._walk(proto, rows[chosen] @ world)
+
+    # -- one mesh or implicit shape ----------------------------------------------------------
+    def _gprim(self, prim: Usd.Prim, matrices: np.ndarray, points=None) -> None:
+        mesh = UsdGeom.Mesh(prim) if prim.IsA(UsdGeom.Mesh) else None
+        source = prim.GetPrimInPrototype() if prim.IsInstanceProxy() else prim
+        groups = self._groups(prim, mesh)
+        double_sided = bool(UsdGeom.Gprim(prim).GetDoubleSidedAttr().Get())
+        has_color = bool(UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance("displayColor"))
+        bindings = [self.materials.bind(mat, double_sided, has_color) for _, mat, _ in groups]
+        needed = sorted({n for b in bindings for n in b.uv_primvars}
+                        | {b.color_primvar for b in bindings if b.color_primvar})
+        if not any(b.uv_primvars for b in bindings):
+            needed.append("st")  # no texture reads it, but keep the conventional UVs
+        topo_key = (str(source.GetPath() if points is None else prim.GetPath()), tuple(needed))
+        if topo_key not in self._topology:
+            deadline.check()
+            self._topology[topo_key] = self._triangulate(prim, mesh, needed, points) if mesh \
+                else self._shape(prim, needed)
+        topo = self._topology[topo_key]
+        if topo is None:
+            return
+        for name in {n for b in bindings for n in b.uv_primvars} - set(topo.attrs):
+            self._warn(f"{prim.GetPath()}: its material reads primvar {name!r}, which the "
+                       "prim does not have (or is invalid); textures there have no UVs")
+        for (label, _, faces), binding in zip(groups, bindings):
+            key = (topo_key, label, binding.uv_primvars, binding.color_primvar)
+            if key not in self._meshes:
+                built = self._emit(topo, faces, binding, f"{source.GetPath()}{label}")
+                if built is None:
+                    self._meshes[key] = -1
+                    continue
+                self.scene.meshes.append(built)
+                self._meshes[key] = len(self.scene.meshes) - 1
+            if self._meshes[key] >= 0:
+                self.scene.instances.extend(Instance(self._meshes[key], binding.material, m)
+                                            for m in matrices)
+
+    def _groups(self, prim: Usd.Prim, mesh: UsdGeom.Mesh | None):
+        """[(label, material, faces or None)]: one per face subset of the materialBind family
+        (the only family material bindings apply to, as Hydra draws them: subsets of other
+        families would count their faces twice), then the faces no subset claims (faces None =
+        all faces)."""
+        own = self.materials.bound(prim)
+        subsets = [] if mesh is None else [
+            s for s in UsdShade.MaterialBindingAPI(prim).GetMaterialBindSubsets()
+            if s.GetElementTypeAttr().Get() == UsdGeom.Tokens.face]
+        if mesh is not None:
+            for s in UsdGeom.Subset.GetAllGeomSubsets(mesh):
+                if s.GetFamilyNameAttr().Get() != UsdShade.Tokens.materialBind and \
+                        UsdShade.MaterialBindingAPI(s.GetPrim()).GetDirectBindingRel().GetTargets():
+                    self._warn(f"{s.GetPath()}: a material binding on a GeomSubset of family "
+                               f"{s.GetFamilyNameAttr().Get()!r}, not materialBind; ignored, as "
+                               "Hydra ignores it")
+        if not subsets:
+            return [("", own if own else None, None)]
+        groups: list[tuple]  # (label, material, faces or ("rest", claimed faces))
+        groups, claimed = [], []
+        for subset in subsets:
+            faces = np.asarray(subset.GetIndicesAttr().Get(self.time) or [], np.int64)
+            mat = self.materials.bound(subset.GetPrim())
+            groups.append((f":{subset.GetPrim().GetName()}", mat if mat else None, faces))
+            claimed.append(faces)
+        groups.append(("", own if own else None, ("rest", np.concatenate(claimed))))
+        return groups
+
+    # -- geometry --------------------------------------------------------------------------------
+    def _triangulate(self, prim: Usd.Prim, mesh: UsdGeom.Mesh, names: list[str],
+                     skinned: np.ndarray | None = None) -> _Topology | None:
+        where = f"mesh {prim.GetPath()}"
+        counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(self.time) or [], np.int64)
+        fvi = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(self.time) or [], np.int64)
+        points = skinned if skinned is not None else \
+            np.asarray(mesh.GetPointsAttr().Get(self.time) or [], np.float32).reshape(-1, 3)
+        if not len(counts) or not len(points):
+            return None
+        if counts.min() < 0:
+            raise MalformedAsset(self.graph.path, f"{where}: negative faceVertexCounts")
+        per_face = np.maximum(counts - 2, 0)
+        n_tri = int(per_face.sum())
+        if self.triangles + n_tri > self.limits.max_triangles:
+            raise LimitExceeded(self.graph.path, f"{where}: faceVertexCounts make {n_tri} "
+                                                 f"triangles, over the limit of "
+                                                 f"{self.limits.max_triangles}")
+        if self.vertices + len(points) > self.limits.max_vertices:
+            raise LimitExceeded(self.graph.path, f"{where}: {len(points)} points, over the "
+                                                 f"limit of {self.limits.max_vertices}")
+        if int(counts.sum()) != len(fvi):
+            raise MalformedAsset(self.graph.path, f"{where}: faceVertexCounts sum to "
+                                                  f"{int(counts.sum())} but there are {len(fvi)} "
+                                                  "faceVertexIndices")
+        if len(fvi) and (fvi.min() < 0 or fvi.max() >= len(points)):
+            raise MalformedAsset(self.graph.path, f"{where}: faceVertexIndices outside the "
+                                                  f"{len(points)} points")
+        # Fan per face, vectorised: triangle j of face f uses corners s_f, s_f+k, s_f+k+1.
+        start = np.cumsum(counts) - counts
+        tri_face = np.repeat(np.arange(len(counts)), per_face)
+        k = np.arange(n_tri) - np.repeat(np.cumsum(per_face) - per_face, per_face) + 1
+        a = start[tri_face]
+        corners = np.stack([a, a + k, a + k + 1], axis=1)
+        if mesh.GetOrientationAttr().Get() == UsdGeom.Tokens.leftHanded:
+            corners = corners[:, [0, 2, 1]]
+        holes = np.asarray(mesh.GetHoleIndicesAttr().Get(self.time) or [], np.int64)
+        if len(holes):
+            keep = ~np.isin(tri_face, holes)
+            corners, tri_face = corners[keep], tri_face[keep]
+
+        primvars = {n: pv for n in names if (pv := self._primvar(prim, n, counts, fvi,
+                                                                 len(points))) is not None}
+        normals = self._normals(prim, mesh, counts, fvi, len(points))
+        if normals is None and mesh.GetSubdivisionSchemeAttr().Get() != UsdGeom.Tokens.none:
+            from pipeline.normals import smooth_normals
+            normals = _Primvar(smooth_normals(points, fvi[corners]), "vertex", None)
+        if "displayColor" in primvars:
+            opacity = self._primvar(prim, "displayOpacity", counts, fvi, len(points))
+            if opacity is not None:
+                primvars["displayOpacity"] = opacity
+
+        # Per face-vertex element index of every primvar; split vertices on the varying ones.
+        face_of_corner = np.repeat(np.arange(len(counts)), counts)
+        everything = dict(primvars, **({"normals": normals} if normals else {}))
+        columns = [fvi]
+        for pv in everything.values():
+            if pv.interpolation in ("uniform", "faceVarying"):
+                columns.append(_elements(pv, fvi, face_of_corner, np.arange(len(fvi))))
+        if len(columns) > 1:
+            inverse, rep = _unique_rows(columns)
+            tri = inverse[corners]
+            point_of_vertex = fvi[rep]
+            elem = lambda pv: _elements(pv, fvi, face_of_corner, rep)  # noqa: E731
+        else:
+            tri = fvi[corners]
+            point_of_vertex = np.arange(len(points))
+            elem = lambda pv: _point_elements(pv, len(points))  # noqa: E731
+        # Only an authored scheme is refined: most exporters leave USD's fallback
+        # (catmullClark) on hard-surface meshes, which usdview draws as cages by default.
+        attr = mesh.GetSubdivisionSchemeAttr()
+        scheme = str(attr.Get()) if attr.HasAuthoredValue() else "none"
+        topo = _Topology(points[point_of_vertex], tri.astype(np.uint32), tri_face, None,
+                         subdivision=scheme if scheme in ("catmullClark", "loop") else None)
+        if normals is not None:
+            topo.normals = normals.values[elem(normals)][:, :3].astype(np.float32)
+        for name, pv in primvars.items():
+            topo.attrs[name] = pv.values[elem(pv)].astype(np.float32)
+        self.triangles += n_tri
+        self.vertices += len(topo.positions)
+        return topo
+
+    def _shape(self, prim: Usd.Prim, names: list[str]) -> _Topology | None:
+        """An implicit shape, tessellated; only constant primvars (colours) apply to it."""
+        points, tri, normals = tessellate(prim, self.time)
+        self.triangles += len(tri)
+        self.vertices += len(points)
+        topo = _Topology(points, tri.astype(np.uint32), np.arange(len(tri)), normals)
+        for name in names + (["displayOpacity"] if "displayColor" in names else []):
+            pv = self._primvar(prim, name, np.array([len(points)]), np.arange(len(points)),
+                               len(points))
+            if pv is not None:
+                if pv.interpolation != "constant":
+                    self._warn(f"{prim.GetPath()}: {pv.interpolation} primvar {name} on an "
+                               "implicit shape: its first value is used")
+                value = pv.values[0 if pv.indices is None else pv.indices[0]]
+                topo.attrs[name] = np.repeat(value[None], len(points), axis=0)
+        return topo
+
+    def _primvar(self, prim, name, counts, fvi, n_points) -> _Primvar | None:
+        pv = UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance(name)
+        if not pv or not pv.HasValue():
+            return None
+        values = pv.Get(self.time)
+        indices = pv.GetIndices(self.time) if pv.IsIndexed() else None
+        return self._checked(prim, name, values, pv.GetInterpolation(), indices, counts, fvi,
+                             n_points)
+
+    def _normals(self, prim, mesh, counts, fvi, n_points) -> _Primvar | None:
+        pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar("normals")  # primvars:normals wins
+        if pv and pv.HasValue():
+            return self._checked(prim, "normals", pv.Get(self.time), pv.GetInterpolation(),
+                                 pv.GetIndices(self.time) if pv.IsIndexed() else None,
+                                 counts, fvi, n_points)
+        values = mesh.GetNormalsAttr().Get(self.time)
+        if values is None or not len(values):
+            return None
+        return self._checked(prim, "normals", values, mesh.GetNormalsInterpolation(), None,
+                             counts, fvi, n_points)
+
+    def _checked(self, prim, name, values, interpolation, indices, counts, fvi,
+                 n_points) -> _Primvar | None:
+        """A primvar whose element count fits its interpolation; None (with a warning) if not."""
+        if values is None:
+            return None
+        arr = np.asarray(values, np.float32)
+        arr = arr.reshape(len(arr), -1) if arr.ndim else arr.reshape(1, 1)
+        expected = {"constant": 1, "uniform": len(counts), "vertex": n_points,
+                    "varying": n_points, "faceVarying": len(fvi)}.get(str(interpolation))
+        idx = None if indices is None or not len(indices) else np.asarray(indices, np.int64)
+        count = len(idx) if idx is not None else len(arr)
+        problem = None
+        if expected is None:
+            problem = f"interpolation {interpolation!r} is not one USD defines"
+        elif count < expected:
+            problem = f"{count} values for {expected} {interpolation} elements"
+        elif idx is not None and len(idx) and (idx.min() < 0 or idx.max() >= len(arr)):
+            problem = "indices outside its values"
+        elif not np.isfinite(arr).all():
+            problem = "NaN or infinite values"
+        if problem:
+            self._warn(f"{prim.GetPath()}: primvar {name}: {problem}; ignored")
+            return None
+        return _Primvar(arr, str(interpolation), idx)
+
+    def _emit(self, topo: _Topology, faces, binding: Binding, name: str) -> Mesh | None:
+        """The Mesh of the triangles whose faces are in `faces`, with only the vertices they
+        use; UV sets and colours as `binding` asks."""
+        tri = topo.tri
+        if faces is not None:
+            if isinstance(faces, tuple):  # ("rest", claimed faces)
+                select = ~np.isin(topo.tri_face, faces[1])
+            else:
+                select = np.isin(topo.tri_face, faces)
+            tri = tri[select]
+        if not len(tri):
+            return None
+        used, local = np.unique(tri, return_inverse=True)
+        whole = len(used) == len(topo.positions)
+        pick = (lambda a: a) if whole else (lambda a: a[used])  # noqa: E731
+        uvs = [topo.attrs.get(n) for n in binding.uv_primvars] or [topo.attrs.get("st")]
+        uvs = [None if u is None else pick(_gltf_uv(u)) for u in uvs] + [None]
+        colors = None
+        if binding.color_primvar and binding.color_primvar in topo.attrs:
+            rgb = topo.attrs[binding.color_primvar][:, :3]
+            alpha = topo.attrs.get("displayOpacity") if binding.color_primvar == "displayColor" \
+                else None
+            alpha = np.ones((len(rgb), 1), np.float32) if alpha is None else alpha[:, :1]
+            colors = pick(np.concatenate([np.broadcast_to(rgb, (len(rgb), 3)), alpha], axis=1))
+        return Mesh(name=name, positions=pick(topo.positions),
+                    normals=None if topo.normals is None else pick(topo.normals),  # type: ignore[arg-type]  # None: pipeline.ingest computes them
+                    indices=local.reshape(-1, 3).astype(np.uint32),
+                    uv0=uvs[0], uv1=uvs[1], colors=colors, subdivision=topo.subdivision)
+
+    def _warn(self, text: str) -> None:
+        if text not in self.scene.warnings:
+            self.scene.warnings.append(text)
+            log.warning("%s: %s", self.graph.path, text)
+
+
+def _finite(value, default: float) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        return default
+    return v if math.isfinite(v) else default
+
+
+def _orthonormal(m: np.ndarray) -> np.ndarray:
+    """`m` with its rotation part's columns normalised (lights and cameras: the scale a
+    metersPerUnit or an Xform brings moves them, it does not stretch their frame)."""
+    out = np.array(m, np.float64)
+    for i in range(3):
+        n = np.linalg.norm(out[:3, i])
+        if n > 0:
+            out[:3, i] /= n
+    return out
+
+
+def _elements(pv: _Primvar, fvi, face_of_corner, corners) -> np.ndarray:
+    """Index into pv.values for each face-vertex in `corners`."""
+    if pv.interpolation == "constant":
+        e = np.zeros(len(corners), np.int64)
+    elif pv.interpolation == "uniform":
+        e = face_of_corner[corners]
+    elif pv.interpolation == "faceVarying":
+        e = corners
+    else:  # vertex, varying
+        e = fvi[corners]
+    return e if pv.indices is None else pv.indices[e]
+
+
+def _point_elements(pv: _Primvar, n_points: int) -> np.ndarray:
+    """Index into pv.values for each point (no uniform / faceVarying primvar in play)."""
+    e = np.zeros(n_points, np.int64) if pv.interpolation == "constant" else np.arange(n_points)
+    return e if pv.indices is None else pv.indices[e]
+
+
+def _unique_rows(columns: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """(inverse, representative) of the distinct rows of the stacked int columns."""
+    sizes = [int(c.max()) + 1 if len(c) else 1 for c in columns]
+    if float(np.prod([float(s) for s in sizes])) < 2.0 ** 62:  # one int64 key: fast path
+        key = np.zeros(len(columns[0]), np.int64)
+        for col, size in zip(columns, sizes):
+            key = key * size + col
+        _, rep, inverse = np.unique(key, return_index=True, return_inverse=True)
+    else:
+        _, rep, inverse = np.unique(np.stack(columns, axis=1), axis=0, return_index=True,
+                                    return_inverse=True)
+    return inverse.reshape(-1), rep
+
+
+def _gltf_uv(st: np.ndarray) -> np.ndarray:
+    """USD st (v up from the image bottom) -> glTF uv (v down from the image top)."""
+    uv = np.array(st[:, :2], np.float32)
+    uv[:, 1] = 1.0 - uv[:, 1]
+    return uv

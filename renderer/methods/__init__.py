@@ -1,0 +1,4 @@
+"""Rendering methods beyond plain PBR raster: refraction (`single`, `wyman`), the ray tracer
+and its compiled kernels, geometric optics, and `auto`, which picks one per object.
+
+May import `core`, `gl`, `renderer.view` and the raster passes they draw with."""
