@@ -52,6 +52,12 @@ class BakedTexture:
         source image, as scene Textures have it)."""
         return self.mips(self.spaces[0] if self.spaces else True)[0]
 
+    def nbytes(self) -> int:
+        """The most its mip chains can hold: a whole chain (4/3 of level 0) per colour space
+        it is read in, whatever a render has loaded yet."""
+        h, w = self.size
+        return h * w * 4 * 4 // 3 * max(1, len(self.spaces))
+
     def __repr__(self) -> str:
         return f"BakedTexture({self.name!r}, {self.size[1]}x{self.size[0]}, loaded {sorted(self._chains)})"
 
@@ -85,6 +91,12 @@ class BakedMesh:
     def interior_length(self) -> np.ndarray | None:
         return None if self.interior is None else np.linalg.norm(self.interior, axis=1)
 
+    def nbytes(self) -> int:
+        """Bytes of its arrays (the materials' textures are the asset's)."""
+        return _array_bytes(self.positions, self.normals, self.indices, self.transforms, self.tangents,
+                            self.uv0, self.uv1, self.colors, self.interior, self.edges, self.edge_faces,
+                            self.support)
+
 
 @dataclass
 class BakedAsset:
@@ -107,6 +119,12 @@ class BakedAsset:
     def __post_init__(self):
         self.textures = [t if isinstance(t, BakedTexture) else BakedTexture.from_texture(t)
                          for t in self.textures]
+
+    def nbytes(self) -> int:
+        """The most it may hold in memory: its meshes' arrays and each texture's whole mip
+        chains (textures decompress on demand, so this is what it can grow to)."""
+        return (sum(m.nbytes() for m in self.meshes) + sum(t.nbytes() for t in self.textures)
+                + _array_bytes(self.bounds, self.extent, self.hull))
 
     @property
     def triangle_count(self) -> int:
@@ -139,3 +157,10 @@ class BakedEnvironment:
     @property
     def face_size(self) -> int:
         return int(self.specular[0].shape[1])
+
+    def nbytes(self) -> int:
+        return _array_bytes(*self.specular, self.irradiance_sh, self.brdf_lut)
+
+
+def _array_bytes(*arrays: np.ndarray | None) -> int:
+    return sum(a.nbytes for a in arrays if a is not None)

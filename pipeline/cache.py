@@ -259,6 +259,13 @@ class Cache:
         self.evict(keep={(kind, key)})
         return Entry(kind, key, final, manifest, arrays, self)
 
+    def touch(self, kind: str, key: str) -> None:
+        """Mark an entry as just used, so eviction (least recently used first) keeps it."""
+        try:
+            os.utime(self.entry_dir(kind, key) / MANIFEST)
+        except (OSError, NotInCache):
+            pass  # gone, read-only or not a key: the next load finds out
+
     def remove(self, kind: str, key: str) -> None:
         """Delete an entry: renamed away first so no reader ever sees half of it."""
         path = self.entry_dir(kind, key)

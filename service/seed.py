@@ -11,6 +11,10 @@ import logging
 import zipfile
 from pathlib import Path
 
+from core.errors import AssetError
+from service.store import write_atomic
+from service.workers.protocol import WorkerFailure
+
 log = logging.getLogger(__name__)
 
 PACKAGED = Path(__file__).resolve().parent / "samples"
@@ -61,20 +65,16 @@ def _zip(folder: Path, names: list[str]) -> bytes:
     return buf.getvalue()
 
 
-async def seed(service) -> None:
+async def seed(assets) -> None:
     """Upload every sample (each failure logged, not fatal), then mark the store seeded."""
-    from core.errors import AssetError
-    from service.store import write_atomic
-    from service.workers.pool import WorkerFailure
-
     async def chunks(data: bytes):
         yield data
 
-    folder = service.settings.samples or default_folder()
+    folder = assets.settings.samples or default_folder()
     for name, data, main in sample_uploads(folder):
         try:
-            rec, created = await service.add_asset(name, chunks(data), main)
+            rec, created = await assets.add_asset(name, chunks(data), main)
             log.info("seeded %s as %s", name, rec.id)
         except (AssetError, WorkerFailure) as exc:
             log.warning("sample %s not seeded: %s", name, exc)
-    write_atomic(service.store.root / "seeded", b"")
+    write_atomic(assets.store.root / "seeded", b"")

@@ -24,7 +24,6 @@ import time
 import uuid
 from pathlib import Path
 
-from cachetools import LRUCache
 from pydantic import BaseModel
 
 from service.records import AssetRecord, EnvironmentRecord
@@ -166,99 +165,3 @@ class Store:
         if rec is None:
             rec = next((r for r in self.environments.values() if r.name == name_or_id), None)
         return rec
-
-
-class ThumbnailCache:
-    """Finished thumbnails: files on disk (at most `disk_bytes`, least recently used removed
-    first), the hottest also held in memory (a byte-weighed LRU of `memory_bytes`).
-    Each entry is (image bytes, strong ETag, render plan JSON). The ETag is derived from the
-    image bytes, so it changes whenever they do. The plan is written before the image, so an
-    image on disk always has its plan."""
-
-    def __init__(self, root: Path, memory_bytes: int, disk_bytes: int | None = None):
-        self.root = Path(root)
-        self.memory_bytes = memory_bytes
-        self.disk_bytes = disk_bytes
-        self._hot: LRUCache[str, tuple[bytes, str, str]] = LRUCache(maxsize=max(1, memory_bytes), getsizeof=lambda e: len(e[0]) or 1)
-        self._used: dict[str, float] = {}  # disk entry -> last use, for hits the disk never sees
-        self.written = 0  # bytes written since the last prune
-
-    def path(self, asset_id: str, key: str, fmt: str) -> Path:
-        return self.root / asset_id / f"{key}.{fmt}"
-
-    def get(self, asset_id: str, key: str, fmt: str) -> tuple[bytes, str, str] | None:
-        mem_key = f"{asset_id}/{key}.{fmt}"
-        hit = self._hot.get(mem_key)
-        if hit is None:
-            path = self.path(asset_id, key, fmt)
-            try:
-                data = path.read_bytes()
-                plan = path.with_suffix(".plan.json").read_text()
-            except FileNotFoundError:
-                return None
-            hit = self._remember(mem_key, data, plan)
-        self._used[mem_key] = time.time()
-        return hit
-
-    def write(self, asset_id: str, key: str, fmt: str, data: bytes, plan: str) -> None:
-        """The disk half of `put` (blocking: the server runs it in a thread). Prunes when the
-        bytes written since the last prune may have taken the folder over its budget."""
-        path = self.path(asset_id, key, fmt)
-        write_atomic(path.with_suffix(".plan.json"), plan.encode())
-        write_atomic(path, data)
-        self.written += len(data) + len(plan)
-        if self.disk_bytes and self.written > 0.05 * self.disk_bytes:
-            self.prune()
-
-    def put(self, asset_id: str, key: str, fmt: str, data: bytes, plan: str) -> tuple[bytes, str, str]:
-        self.write(asset_id, key, fmt, data, plan)
-        return self.remember(asset_id, key, fmt, data, plan)
-
-    def remember(self, asset_id: str, key: str, fmt: str, data: bytes, plan: str) -> tuple[bytes, str, str]:
-        """The memory half: call it from one thread only (the event loop's)."""
-        return self._remember(f"{asset_id}/{key}.{fmt}", data, plan)
-
-    def disk_usage(self) -> int:
-        return sum(p.stat().st_size for p in self.root.glob("*/*") if p.is_file())
-
-    def prune(self, max_bytes: int | None = None) -> int:
-        """Delete the least recently used thumbnails until the folder holds at most 90% of
-        `max_bytes` (default: the disk budget). Blocking: run it in a thread. Returns how
-        many files went."""
-        max_bytes = max_bytes or self.disk_bytes
-        self.written = 0
-        if not max_bytes:
-            return 0
-        files = []
-        for path in self.root.glob("*/*"):
-            try:
-                st = path.stat()
-            except FileNotFoundError:
-                continue
-            image = path.name.replace(".plan.json", "")  # a plan goes with its image
-            used = self._used.get(f"{path.parent.name}/{image}", 0.0)
-            files.append((max(st.st_mtime, used), st.st_size, path))
-        total = sum(size for _, size, _ in files)
-        if total <= max_bytes:
-            return 0
-        removed = 0
-        for _, size, path in sorted(files):
-            if total <= 0.9 * max_bytes:
-                break
-            path.unlink(missing_ok=True)  # a plan without its image is never read
-            self._used.pop(f"{path.parent.name}/{path.name.replace('.plan.json', '')}", None)
-            total -= size
-            removed += 1
-        return removed
-
-    def forget(self, asset_id: str) -> None:
-        for k in [k for k in self._hot if k.startswith(asset_id + "/")]:
-            self._hot.pop(k, None)
-        for k in [k for k in list(self._used) if k.startswith(asset_id + "/")]:  # prune runs in a thread
-            self._used.pop(k, None)
-
-    def _remember(self, mem_key: str, data: bytes, plan: str) -> tuple[bytes, str, str]:
-        entry = (data, '"' + hashlib.sha256(data).hexdigest()[:32] + '"', plan)
-        if len(data) <= self.memory_bytes // 4:
-            self._hot[mem_key] = entry
-        return entry

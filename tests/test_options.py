@@ -77,7 +77,7 @@ CHANGED = {"width": 300, "height": 300, "yaw": 1.0, "pitch": 1.0, "fov": 50.0, "
 
 
 def test_key_covers_every_field():
-    """Every input of a render changes the thumbnail key (service.operations.thumbnail_key hashes it)."""
+    """Every input of a render changes the thumbnail key (service.thumbnails.ThumbnailService.thumbnail_key hashes it)."""
     base = RenderOptions()
     missing = {f.name for f in dataclasses.fields(RenderOptions)} - set(CHANGED)
     assert not missing, f"add a changed value for {missing}"

@@ -9,6 +9,7 @@ import threading
 import pytest
 
 from service.workers.pool import Pool, QueueFull, WorkerConfig
+from service.workers.protocol import BakeEnvironmentJob, Done
 
 
 class _Slot:
@@ -35,13 +36,13 @@ class GatedPool(Pool):
         self._loop = asyncio.get_running_loop()
         self._free = list(self.workers)
 
-    def _exchange(self, w, op, args, deadline):
-        name = args[0]
+    def _exchange(self, w, job, deadline):
+        name = job.source  # any typed job does: this one carries a name
         with self._lock:
             self.started.append(name)
             gate = self.gates.setdefault(name, threading.Event())
         gate.wait(30)
-        return ("ok", name)
+        return Done(name)
 
     def open(self, name: str) -> None:
         with self._lock:
@@ -57,7 +58,7 @@ async def _until(cond, what: str) -> None:
 
 
 def _submit(pool, name, cost, client=None, expensive=None):
-    return asyncio.ensure_future(pool.run("job", name, deadline=30, cost_ms=cost, client=client,
+    return asyncio.ensure_future(pool.run(BakeEnvironmentJob(name), deadline=30, cost_ms=cost, client=client,
                                           expensive=expensive))
 
 
@@ -131,7 +132,7 @@ def test_queue_share_per_client_answers_queue_full():
         jobs = [_submit(pool, f"a{i}", 1, client="a") for i in range(2)]
         await asyncio.sleep(0.02)
         with pytest.raises(QueueFull, match="your share"):
-            await pool.run("job", "a2", deadline=30, client="a")
+            await pool.run(BakeEnvironmentJob("a2"), deadline=30, client="a")
         b = _submit(pool, "b0", 1, client="b")  # another client still gets in
         for name in ("a0", "a1", "b0"):
             pool.open(name)

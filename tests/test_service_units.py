@@ -10,7 +10,9 @@ import pytest
 from core.errors import LimitExceeded, MalformedAsset, UnsafeReference
 from service import archive
 from service.settings import Settings
-from service.store import ThumbnailCache, safe_name
+from service.store import safe_name
+from service.thumbnails import ThumbnailCache
+from service.workers.protocol import RenderPlan
 
 
 def make_zip(path, files: dict[str, bytes]):
@@ -102,7 +104,7 @@ def test_safe_names_and_thumbnail_cache(tmp_path):
     assert safe_name("C:\\dir\\My Duck.glb") == "My_Duck.glb"
     assert safe_name(".hidden") == "hidden" and safe_name("") == "upload"
     cache = ThumbnailCache(tmp_path, memory_bytes=1000)
-    data, etag, plan = cache.put("a" * 32, "k", "png", b"x" * 100, "{}")
+    data, etag, plan = cache.put("a" * 32, "k", "png", b"x" * 100, RenderPlan("raster"))
     assert etag.startswith('"') and cache.get("a" * 32, "k", "png") == (data, etag, plan)
     fresh = ThumbnailCache(tmp_path, memory_bytes=1000)  # as after a restart: from disk
     assert fresh.get("a" * 32, "k", "png") == (data, etag, plan)
@@ -113,7 +115,7 @@ def test_thumbnail_cache_prunes_oldest_first(tmp_path):
     import os
     cache = ThumbnailCache(tmp_path, memory_bytes=0)
     for i in range(10):
-        cache.put("a" * 32, f"k{i}", "png", bytes(100), "{}")
+        cache.put("a" * 32, f"k{i}", "png", bytes(100), RenderPlan("raster"))
         path = cache.path("a" * 32, f"k{i}", "png")
         os.utime(path, (1000 + i, 1000 + i))
         os.utime(path.with_suffix(".plan.json"), (1000 + i, 1000 + i))

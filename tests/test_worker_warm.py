@@ -11,10 +11,10 @@ ROOT = Path(__file__).resolve().parents[1]
 _PROBE = """
 import sys
 from renderer.methods import trace_kernel
-from service.workers.pool import WorkerConfig, WorkerState
+from service.workers.jobs import WorkerConfig, WorkerState
 before = len(trace_kernel.shade.signatures)
 info = WorkerState(WorkerConfig(cache_dir=sys.argv[1])).ping()
-print(before, len(trace_kernel.shade.signatures), info["warm_seconds"])
+print(before, len(trace_kernel.shade.signatures), info.warm_seconds)
 """
 
 

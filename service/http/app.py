@@ -1,7 +1,7 @@
 """The FastAPI application: `uvicorn service.http.app:app` or `asset-preview serve`.
 
 Routers by resource live in service/http/routes/; the state they share is one ThumbnailService
-(service/operations.py), created here and started with the app's lifespan (worker processes, seed).
+(service/thumbnails.py), created here and started with the app's lifespan (worker processes, seed).
 """
 from __future__ import annotations
 
@@ -14,21 +14,13 @@ from fastapi.responses import JSONResponse
 from fastapi_offline import FastAPIOffline
 
 from core.errors import AssetError, UnsupportedFormat
+from service.assets import BadParameter, Conflict, NotFound, QuotaExceeded, StillBaking, UploadTooLarge, public_message
 from service.http.metrics import MetricsMiddleware
 from service.http.routes import assets, environments, health, pages
 from service.http.security import AccessMiddleware
-from service.operations import (
-    BadParameter,
-    Conflict,
-    NotFound,
-    QuotaExceeded,
-    StillBaking,
-    ThumbnailService,
-    UploadTooLarge,
-    public_message,
-)
 from service.settings import Settings
-from service.workers.pool import QueueFull, WorkerFailure
+from service.thumbnails import ThumbnailService
+from service.workers.protocol import QueueFull, WorkerFailure
 
 log = logging.getLogger(__name__)
 

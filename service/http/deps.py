@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from fastapi import Request
 
-from service.operations import ThumbnailService
+from service.thumbnails import ThumbnailService
 
 
 # async: FastAPI runs plain-def dependencies in a thread pool, which costs more than the work.

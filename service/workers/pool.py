@@ -1,246 +1,38 @@
-"""A pool of render worker processes, each owning one headless GL context.
+"""The server's side of the render workers: the scheduler and the pool of worker processes.
 
-Native code (the GL driver, USD, Embree) runs only in these processes, so a crash takes down
-one worker, not the server: the job in flight fails with a clear message, the worker is
-replaced, and the next job runs on the new one. Workers start with `spawn` (GL contexts and
-fork do not mix) and keep their context, compiled shaders, loaded bakes and uploaded GPU data
-warm between jobs. Every job has a deadline; a worker past it is killed and replaced.
-
-This module is imported by the workers themselves, so it keeps its top-level imports light.
+A crash in a worker (service.workers.jobs) takes down that worker, not the server: the job in
+flight fails with a clear message, the worker is replaced, and the next job runs on the new
+one. Workers start with `spawn` (GL contexts and fork do not mix). Every job has a deadline;
+a worker past it is killed and replaced.
 """
 from __future__ import annotations
 
 import asyncio
 import logging
 import multiprocessing as mp
-import os
-import signal
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from multiprocessing.process import BaseProcess
 
+from service.workers.protocol import (
+    DeadlineExceeded,
+    Job,
+    PingJob,
+    QueueFull,
+    Reply,
+    WorkerConfig,
+    WorkerCrashed,
+    WorkerFailure,
+    WorkerInfo,
+    unpack,
+)
+
+__all__ = ["Pool", "WorkerPool", "WorkerConfig", "WorkerFailure", "WorkerCrashed", "DeadlineExceeded",
+           "QueueFull"]
+
 log = logging.getLogger(__name__)
-
-
-class WorkerFailure(RuntimeError):
-    """A job could not complete for a reason other than its input (-> HTTP 5xx)."""
-    status = 500
-
-
-class WorkerCrashed(WorkerFailure):
-    pass
-
-
-class DeadlineExceeded(WorkerFailure):
-    status = 504
-
-
-class QueueFull(WorkerFailure):
-    status = 503
-
-
-@dataclass(frozen=True)
-class WorkerConfig:
-    """What a worker process (or Ray actor) is started with."""
-    cache_dir: str
-    default_env: str = "footprint_court"
-    cache_bytes: int = 512 * 2**20       # baked assets and environments kept in memory
-    gpu_bytes: int = 512 * 2**20         # meshes and textures kept uploaded
-    bake_cache_bytes: int | None = None  # the bake cache's cap (LRU eviction after each bake)
-    limits: dict = field(default_factory=dict)
-    log_level: int = logging.INFO
-
-
-# ---------------------------------------------------------------------------------------------
-# The worker process
-
-
-class WorkerState:
-    """What a worker keeps warm between jobs: baked assets and environments in one LRU weighed
-    in bytes (the renderer keeps its GPU copies in its own byte-bounded LRU)."""
-
-    def __init__(self, config: WorkerConfig):
-        from cachetools import LRUCache
-        self.config = config
-        self.loaded: LRUCache[tuple, object] = LRUCache(maxsize=config.cache_bytes, getsizeof=_weight)
-        import renderer.raster.gpu as gpu
-        gpu.set_budget(asset_bytes=config.gpu_bytes, environments=4)
-
-    def limits(self):
-        from pipeline.limits import Limits
-        return Limits.from_env(**self.config.limits)
-
-    def cache(self):
-        from pipeline.cache import Cache
-        return Cache(self.config.cache_dir, max_bytes=self.config.bake_cache_bytes or 0)
-
-    def ping(self) -> dict:
-        """Creates the GL context, bakes the default environment and compiles the shaders (by
-        drawing a packaged sample opaque, as glass and ray traced), so a first request is not
-        slower."""
-        import renderer
-        from gl.context import get_context
-        t0 = time.perf_counter()
-        ctx = get_context()
-        info = {"pid": os.getpid(), "gl_renderer": ctx.info.get("GL_RENDERER", ""),
-                "renderer_version": str(getattr(renderer, "RENDERER_VERSION", "0"))}
-        try:
-            from pipeline.environment.prefilter import list_bundled
-            info["environments"] = list(list_bundled())
-        except ImportError:
-            log.warning("pipeline.environment.prefilter is not available: no bundled environments")
-        self._warm()
-        info["warm_seconds"] = round(time.perf_counter() - t0, 3)
-        return info
-
-    def _warm(self) -> None:
-        from pathlib import Path
-
-        import pipeline
-        import renderer
-        from core.options import MaterialOverride, RenderOptions
-        from renderer.methods.auto import environment_face_size
-        sample = Path(__file__).resolve().parents[1] / "samples" / "BoxTextured.glb"
-        try:
-            asset = pipeline.bake_asset(sample, self.cache())
-            # The environment a default-sized thumbnail needs (the face-size policy's answer).
-            env = self._env(self.config.default_env, environment_face_size(asset, RenderOptions())[0])
-            for override in (None, MaterialOverride(transmission=1.0, ior=1.5, roughness=0.0)):
-                renderer.render(asset, env, RenderOptions(width=16, height=16, override=override))
-            # and the ray tracer's compiled kernel, loaded from numba's cache (~0.5 s)
-            renderer.render(asset, env, RenderOptions(width=16, height=16, method="raytrace"))
-        except Exception as exc:  # a worker that cannot warm up still serves what it can
-            log.warning("warm-up render failed: %s", exc)
-
-    def inspect(self, path: str, root: str | None = None) -> dict:
-        """`root`: the upload's folder (a zip's extraction): references may use all of it."""
-        import pipeline
-        scene = pipeline.load_scene(path, self.limits(), root=root)
-        return {"format": scene.format, "triangles": int(scene.triangle_count),
-                "materials": len(scene.materials), "warnings": list(scene.warnings)[:20],
-                "transmissive": any(m.transmission > 0 for m in scene.materials),
-                "files": [str(f) for f in scene.files]}
-
-    def bake(self, path: str, root: str | None = None) -> dict:
-        import pipeline
-        t0 = time.perf_counter()
-        baked = pipeline.bake_asset(path, self.cache(), limits=self.limits(), root=root)
-        return {"key": baked.key, "triangles": int(baked.triangle_count),
-                "seconds": time.perf_counter() - t0}
-
-    def bake_env(self, source: str) -> dict:
-        from core.cubemap import DEFAULT_FACE_SIZE
-        env = self._env(source, DEFAULT_FACE_SIZE)
-        return {"key": env.key, "face_size": env.face_size}
-
-    def render(self, key: str, env_source: str, options, fmt: str) -> dict:
-        """`options` is a core.options.RenderOptions; the environment is sized for it by
-        the same policy the CLI uses (renderer.methods.auto.environment_face_size)."""
-        import renderer
-        from renderer.methods.auto import environment_face_size
-        t0 = time.perf_counter()
-        asset = self._cached(("asset", key), lambda: _load_baked(key, self.cache()))
-        _touch(self.cache(), key)  # in use: the bake cache's LRU must not see it as cold
-        env = self._env(env_source, environment_face_size(asset, options)[0])
-        if options.turntable:  # N frames from one upload and one bake, one animated image
-            from renderer.sequence import encode_animation, render_turntable
-            frames = render_turntable(asset, env, options, keep_linear=False)  # encoded only
-            frame, data = frames[0], encode_animation(frames, fmt)
-        else:
-            if options.views:
-                from renderer.sequence import render_views
-                frame = render_views(asset, env, options)
-            else:
-                frame = renderer.render(asset, env, options)
-            data = frame.encode(fmt)
-        plan = dict(getattr(frame, "plan", {}) or {})
-        return {"image": data, "plan": plan, "seconds": time.perf_counter() - t0}
-
-    def _env(self, source: str, face_size: int):
-        import pipeline
-        return self._cached(("env", f"{face_size}:{source}"), lambda: pipeline.bake_environment(
-            source, self.cache(), face_size=face_size))
-
-    def _cached(self, key: tuple, make):
-        value = self.loaded.get(key)
-        if value is None:
-            value = make()
-            if _weight(value) <= self.loaded.maxsize:  # one too big for the budget is not kept
-                self.loaded[key] = value
-        return value
-
-
-def _weight(value) -> int:
-    """Bytes a baked asset or environment may hold in memory: its arrays, and each texture's
-    whole mip chain in every colour space it is read in (decompressed on demand, so this is
-    the most it can grow to, whatever a render has read yet)."""
-    arrays = list(getattr(value, "specular", None) or []) + [getattr(value, "brdf_lut", None)]
-    total = sum(a.nbytes for a in arrays if a is not None)
-    for m in getattr(value, "meshes", []):
-        total += sum(a.nbytes for a in (m.positions, m.normals, m.indices, m.tangents, m.uv0, m.uv1,
-                                        m.colors, m.interior) if a is not None)
-    for t in getattr(value, "textures", []):
-        h, w = getattr(t, "size", (0, 0))
-        total += h * w * 4 * 4 // 3 * max(1, len(getattr(t, "spaces", ()) or (True,)))
-    return max(1, total)
-
-
-def _touch(cache, key: str) -> None:
-    try:
-        os.utime(cache.entry_dir("assets", key) / "manifest.json")
-    except (OSError, ValueError):
-        pass  # gone or read-only: the next load finds out
-
-
-def _load_baked(key: str, cache):
-    import pipeline
-    return pipeline.load_baked(key, cache)
-
-
-def answer(state: WorkerState, op: str, args: tuple) -> tuple[str, object]:
-    """Run one job in a worker (process or Ray actor): ("ok", value), ("asset_error", the
-    AssetError itself: it pickles as its own class) or ("error", text)."""
-    from core.errors import AssetError
-    try:
-        return ("ok", getattr(state, op)(*args))
-    except AssetError as exc:
-        return ("asset_error", exc)
-    except MemoryError:
-        return ("error", "out of memory")
-    except Exception as exc:  # reported to the caller as a 500 with this text
-        log.exception("job %s failed", op)
-        return ("error", f"{type(exc).__name__}: {exc}")
-
-
-def unpack_reply(op: str, status: str, value):
-    """A worker's reply as the job's value, or the exception it stands for."""
-    if status == "ok":
-        return value
-    if status == "asset_error":
-        raise value
-    raise WorkerFailure(f"{op} failed in the render worker: {value}")
-
-
-def _worker_main(conn, config: WorkerConfig) -> None:
-    logging.basicConfig(level=config.log_level, format="%(levelname)s worker %(process)d %(name)s: %(message)s")
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the server stops us; Ctrl-C goes to it
-    state = WorkerState(config)
-    while True:
-        try:
-            op, args = conn.recv()
-        except (EOFError, OSError):
-            return
-        reply = answer(state, op, args)
-        try:
-            conn.send(reply)
-        except (BrokenPipeError, OSError):
-            return
-
-
-# ---------------------------------------------------------------------------------------------
-# The server side
 
 
 @dataclass
@@ -253,7 +45,6 @@ class Worker:
     jobs: int = 0
     restarts: int = 0
     answered: bool = False
-    info: dict = field(default_factory=dict)
 
     @property
     def pid(self) -> int | None:
@@ -264,7 +55,8 @@ class Worker:
 
 
 @dataclass(eq=False)
-class _Job:
+class _Waiting:
+    """A job waiting for a worker, as the scheduler sees it."""
     cost_ms: float
     expensive: bool
     client: str | None
@@ -300,7 +92,7 @@ class Pool:
         self.client_queue = max(1, int(client_share * max_queue))
         self.workers: list = []
         self._free: list = []
-        self._waiting: list[_Job] = []
+        self._waiting: list[_Waiting] = []
         self._expensive_running = 0
         self._expensive_by: dict[str, int] = {}
         self._queued_by: dict[str, int] = {}
@@ -308,7 +100,7 @@ class Pool:
         self._seq = 0
         self._loop: asyncio.AbstractEventLoop | None = None
         self.pending = 0  # jobs counted against the queue bound (waiting or running)
-        self.info: dict = {}
+        self.info: WorkerInfo | None = None  # the last warm-up's answer
         self._closing = False
         # One waiting thread per busy worker: jobs never wait on threads used elsewhere.
         self._executor = ThreadPoolExecutor(size + 1, thread_name_prefix=thread_prefix)
@@ -317,9 +109,9 @@ class Pool:
     def ready(self) -> bool:
         return any(w.answered and w.alive() for w in self.workers)
 
-    async def run(self, op: str, *args, deadline: float, queue: bool = True, cost_ms: float = 0.0,
+    async def run(self, job: Job, *, deadline: float, queue: bool = True, cost_ms: float = 0.0,
                   expensive: bool | None = None, client: str | None = None):
-        """Run `op(*args)` on a worker within `deadline` seconds of starting it. `queue=True`
+        """Run `job` on a worker within `deadline` seconds of starting it. `queue=True`
         counts the job against the bound (requests); background work does not. `cost_ms` is
         the job's estimated cost; `client` who asked (None: the service itself)."""
         if queue:
@@ -332,13 +124,13 @@ class Pool:
             if client is not None:
                 self._queued_by[client] = self._queued_by.get(client, 0) + 1
         try:
-            job = _Job(cost_ms, cost_ms > self.cheap_ms if expensive is None else expensive, client,
-                       self._next_seq(), time.monotonic(), asyncio.get_running_loop().create_future())
-            w = await self._acquire(job)
-            future = self._executor.submit(self._call, w, op, args, deadline)
+            waiting = _Waiting(cost_ms, cost_ms > self.cheap_ms if expensive is None else expensive, client,
+                               self._next_seq(), time.monotonic(), asyncio.get_running_loop().create_future())
+            w = await self._acquire(waiting)
+            future = self._executor.submit(self._call, w, job, deadline)
             # Back to the free list when the thread is done with the worker, not when this
             # coroutine is (a cancelled request must not hand a busy worker to another).
-            future.add_done_callback(lambda _: self._release_threadsafe(w, job))
+            future.add_done_callback(lambda _: self._release_threadsafe(w, waiting))
             return await asyncio.wrap_future(future)
         finally:
             if queue:
@@ -352,7 +144,7 @@ class Pool:
         self._seq += 1
         return self._seq
 
-    async def _acquire(self, job: _Job):
+    async def _acquire(self, job: _Waiting):
         self._waiting.append(job)
         self._dispatch()
         try:
@@ -385,14 +177,14 @@ class Pool:
                     self._expensive_by[job.client] = self._expensive_by.get(job.client, 0) + 1
             job.future.set_result(w)
 
-    def _may_start(self, job: _Job) -> bool:
+    def _may_start(self, job: _Waiting) -> bool:
         if not job.expensive:
             return True
         if self._expensive_running >= self.expensive_slots:
             return False
         return job.client is None or self._expensive_by.get(job.client, 0) < self.client_slots
 
-    def _release(self, w, job: _Job) -> None:
+    def _release(self, w, job: _Waiting) -> None:
         if job.client is not None:
             self._running_by[job.client] -= 1
             if not self._running_by[job.client]:
@@ -406,24 +198,24 @@ class Pool:
         self._free.append(w)
         self._dispatch()
 
-    def _release_threadsafe(self, w, job: _Job) -> None:
+    def _release_threadsafe(self, w, job: _Waiting) -> None:
         assert self._loop is not None  # started: a job ran
         try:
             self._loop.call_soon_threadsafe(self._release, w, job)
         except RuntimeError:  # the loop is closed: the server is stopping
             pass
 
-    def _call(self, w, op: str, args: tuple, deadline: float):
-        w.busy_since, w.op = time.time(), op
+    def _call(self, w, job: Job, deadline: float):
+        w.busy_since, w.op = time.time(), job.name
         try:
-            status, value = self._exchange(w, op, args, deadline)
+            reply = self._exchange(w, job, deadline)
         finally:
             w.busy_since, w.op = None, None
         w.jobs += 1
         w.answered = True
-        return unpack_reply(op, status, value)
+        return unpack(job, reply)
 
-    def _exchange(self, w, op: str, args: tuple, deadline: float) -> tuple[str, object]:
+    def _exchange(self, w, job: Job, deadline: float) -> Reply:
         raise NotImplementedError
 
     def status(self) -> list[dict]:
@@ -431,6 +223,12 @@ class Pool:
         return [{"index": w.index, "pid": w.pid, "alive": w.alive(), "busy": w.busy_since is not None,
                  "op": w.op, "busy_seconds": round(now - w.busy_since, 3) if w.busy_since else None,
                  "jobs": w.jobs, "restarts": w.restarts} for w in self.workers]
+
+
+def _worker_process(conn: Connection, config: WorkerConfig) -> None:
+    # Imported here: the worker side (GL, renderer, USD, Embree) loads in the worker only.
+    from service.workers.jobs import worker_main
+    worker_main(conn, config)
 
 
 class WorkerPool(Pool):
@@ -469,7 +267,7 @@ class WorkerPool(Pool):
 
     def _spawn(self, w: Worker) -> None:
         parent, child = self._ctx.Pipe()
-        proc = self._ctx.Process(target=_worker_main, name=f"render-worker-{w.index}", daemon=True,
+        proc = self._ctx.Process(target=_worker_process, name=f"render-worker-{w.index}", daemon=True,
                                  args=(child, self.config))
         proc.start()
         child.close()
@@ -504,18 +302,19 @@ class WorkerPool(Pool):
 
     async def _ping(self) -> None:
         try:
-            self.info = await self.run("ping", deadline=120, queue=False)
+            self.info = await self.run(PingJob(), deadline=120, queue=False)
         except Exception as exc:  # logged; readiness stays false until a worker answers
             log.error("render worker warm-up failed: %s", exc)
 
     # -- jobs -------------------------------------------------------------------------------
 
-    def _exchange(self, w: Worker, op: str, args: tuple, deadline: float):
+    def _exchange(self, w: Worker, job: Job, deadline: float) -> Reply:
+        op = job.name
         if not w.alive():
             self._replace(w, "was found dead")
         assert w.conn is not None and w.process is not None  # set by _spawn
         try:
-            w.conn.send((op, args))
+            w.conn.send(job)
             if not w.conn.poll(deadline):
                 self._replace(w, f"passed the {deadline:g} s deadline of a {op} job")
                 raise DeadlineExceeded(f"{op} did not finish within its deadline of "

@@ -4,7 +4,7 @@ Same interface as `service.workers.pool.WorkerPool` (start, warm_up, run, stop, 
 pending, workers), so the service switches with one setting (`--executor ray`). An actor is
 the Ray counterpart of a worker process: it keeps its GL context, shaders, loaded bakes and
 GPU data warm between jobs and runs one job at a time; it runs the very same job code
-(`workers.WorkerState` through `workers.answer`). Actors are placed by Ray anywhere in the
+(`jobs.WorkerState` through `jobs.answer`, typed by `protocol`). Actors are placed by Ray anywhere in the
 cluster (`num_gpus` > 0 puts each on a GPU share), and read bakes from the shared cache, which
 must sit at the same absolute path on every node.
 
@@ -23,7 +23,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from service.workers.pool import DeadlineExceeded, Pool, WorkerConfig, WorkerCrashed, WorkerState, answer
+from pipeline.executors import connect, disconnect, require_ray, task_env
+from service.workers.pool import Pool
+from service.workers.protocol import DeadlineExceeded, Job, PingJob, Reply, WorkerConfig, WorkerCrashed
 
 log = logging.getLogger(__name__)
 
@@ -32,14 +34,16 @@ class RenderActor:
     """Runs in a Ray worker process: one GL context and warm state, jobs one at a time."""
 
     def __init__(self, config: WorkerConfig):
+        # Imported here: the worker side (GL, renderer, USD, Embree) loads in the actor only.
+        from service.workers.jobs import WorkerState, answer
         logging.basicConfig(level=config.log_level, format="%(levelname)s actor %(process)d %(name)s: %(message)s")
-        self.state = WorkerState(config)
+        self.state, self._answer = WorkerState(config), answer
 
-    def call(self, op: str, args: tuple) -> tuple[str, object]:
-        return answer(self.state, op, args)
+    def call(self, job: Job) -> Reply:
+        return self._answer(self.state, job)
 
     def where(self) -> dict:
-        import ray
+        import ray  # the optional dependency, present where an actor runs
         return {"pid": os.getpid(), "node": ray.util.get_node_ip_address()}
 
 
@@ -59,7 +63,7 @@ class ActorWorker:
     @property
     def pid(self) -> int | None:
         if not self.where and self.where_ref is not None:
-            import ray
+            import ray  # the optional dependency: this pool was made with it
             ready, _ = ray.wait([self.where_ref], timeout=0)
             if ready:
                 try:
@@ -75,7 +79,6 @@ class ActorWorker:
 class RayWorkerPool(Pool):
     def __init__(self, size: int, config: WorkerConfig | str, max_queue: int = 64, on_restart=None,
                  address: str | None = None, num_gpus: float = 0.0, num_cpus: float = 1.0, **order):
-        from pipeline.executors import require_ray
         self._ray = require_ray()  # fails here, at startup, with how to install it
         if isinstance(config, str):
             config = WorkerConfig(cache_dir=config)
@@ -90,7 +93,6 @@ class RayWorkerPool(Pool):
     # -- life cycle -------------------------------------------------------------------------
 
     async def start(self) -> None:
-        from pipeline.executors import connect, task_env
         ray = self._ray
         self._loop = loop = asyncio.get_running_loop()
         await loop.run_in_executor(self._executor, connect, self.address)
@@ -107,13 +109,12 @@ class RayWorkerPool(Pool):
         """Ping every actor once (creates its GL context); readiness follows the first answer."""
         async def one():
             try:
-                self.info = await self.run("ping", deadline=deadline, queue=False)
+                self.info = await self.run(PingJob(), deadline=deadline, queue=False)
             except Exception as exc:
                 log.error("render actor warm-up failed: %s", exc)
         await asyncio.gather(*(one() for _ in self.workers))
 
     async def stop(self) -> None:
-        from pipeline.executors import disconnect
         self._closing = True
         for w in self.workers:
             self._kill(w)
@@ -144,11 +145,11 @@ class RayWorkerPool(Pool):
 
     # -- jobs -------------------------------------------------------------------------------
 
-    def _exchange(self, w: ActorWorker, op: str, args: tuple, deadline: float):
-        ray = self._ray
+    def _exchange(self, w: ActorWorker, job: Job, deadline: float) -> Reply:
+        ray, op = self._ray, job.name
         if w.dead:
             self._replace(w, "was found dead")
-        ref = w.actor.call.remote(op, args)
+        ref = w.actor.call.remote(job)
         try:
             return ray.get(ref, timeout=deadline)
         except ray.exceptions.GetTimeoutError:

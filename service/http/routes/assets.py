@@ -8,10 +8,11 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response
 from pydantic import ValidationError
 
+from service.assets import BadParameter, NotFound
 from service.http.deps import client_of, get_service
 from service.http.models import MEDIA_TYPES, AssetInfo, AssetList, Deleted, ErrorDetail, ThumbnailParams, render_options
-from service.operations import BadParameter, NotFound, ThumbnailService
 from service.records import AssetRecord
+from service.thumbnails import ThumbnailService
 
 router = APIRouter(prefix="/assets", tags=["assets"])
 Service = Annotated[ThumbnailService, Depends(get_service)]
@@ -36,7 +37,7 @@ async def upload_asset(request: Request, service: Service, file: UploadFile = Fi
                        main: str | None = Form(None, description="file to ingest inside a .zip")):
     """Store an asset and bake it in the background. The id is the content hash: uploading the
     same bytes again answers 200 with the existing asset and bakes nothing."""
-    rec, created = await service.add_asset(file.filename or "", _chunks(file), main, client_of(request))
+    rec, created = await service.assets.add_asset(file.filename or "", _chunks(file), main, client_of(request))
     return JSONResponse(asset_info(rec).model_dump(), status_code=201 if created else 200)
 
 
@@ -90,7 +91,7 @@ async def thumbnail(asset_id: str, request: Request, service: Service):
     if asset_id not in service.store.assets:
         raise NotFound(asset_id)
     options = service.admit(options)
-    env_identity, env_source = service.resolve_environment(params.env)
+    env_identity, env_source = service.assets.resolve_environment(params.env)
     key = service.thumbnail_key(asset_id, options, env_identity)
     hit = service.cached(asset_id, key, params.format)
     outcome = "hit"
@@ -99,7 +100,7 @@ async def thumbnail(asset_id: str, request: Request, service: Service):
         hit = await service.render(asset_id, options, params.format, key, env_source, client_of(request))
     data, etag, plan = hit
     headers = {"ETag": etag, "Cache-Control": f"public, max-age={service.settings.cache_max_age}",
-               "X-Render-Plan": plan}
+               "X-Render-Plan": plan.to_json()}
     if_none_match = request.headers.get("if-none-match")
     if if_none_match and _matches(if_none_match, etag):
         service.metrics.thumbnail("not_modified")

@@ -8,7 +8,7 @@ from fastapi.responses import JSONResponse
 
 from service.http.deps import get_service
 from service.http.models import EnvironmentInfo, EnvironmentList, ErrorDetail
-from service.operations import ThumbnailService
+from service.thumbnails import ThumbnailService
 
 router = APIRouter(prefix="/environments", tags=["environments"])
 Service = Annotated[ThumbnailService, Depends(get_service)]
@@ -16,9 +16,9 @@ Service = Annotated[ThumbnailService, Depends(get_service)]
 
 @router.get("", response_model=EnvironmentList)
 async def list_environments(service: Service):
-    default = service.default_environment()
+    default = service.assets.default_environment()
     envs = [EnvironmentInfo(name=n, source="bundled", default=n == default)
-            for n in service.bundled_environments()]
+            for n in service.assets.bundled_environments()]
     envs += [EnvironmentInfo(name=r.name, source="uploaded", id=r.id)
              for r in sorted(service.store.environments.values(), key=lambda r: r.created)]
     return EnvironmentList(environments=envs)
@@ -33,6 +33,6 @@ async def upload_environment(service: Service,
     async def chunks():
         while chunk := await file.read(1 << 20):
             yield chunk
-    rec, created = await service.add_environment(file.filename or "", chunks(), name)
+    rec, created = await service.assets.add_environment(file.filename or "", chunks(), name)
     info = EnvironmentInfo(name=rec.name, source="uploaded", id=rec.id)
     return JSONResponse(info.model_dump(), status_code=201 if created else 200)

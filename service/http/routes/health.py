@@ -9,7 +9,7 @@ from fastapi.responses import JSONResponse, PlainTextResponse
 from service.http.deps import get_service
 from service.http.metrics import CONTENT_TYPE
 from service.http.models import Health, Ready
-from service.operations import ThumbnailService
+from service.thumbnails import ThumbnailService
 
 router = APIRouter(tags=["operations"])
 Service = Annotated[ThumbnailService, Depends(get_service)]
@@ -26,7 +26,7 @@ async def readyz(service: Service):
     """Ready when a render worker has answered since it (re)started; lists the workers."""
     pool = service.pool
     body = Ready(ready=pool.ready, renderer_version=service.renderer_version,
-                 gl_renderer=pool.info.get("gl_renderer"), queue=pool.pending, workers=pool.status())
+                 gl_renderer=pool.info.gl_renderer if pool.info else None, queue=pool.pending, workers=pool.status())
     return JSONResponse(body.model_dump(), status_code=200 if body.ready else 503)
 
 
