@@ -30,7 +30,16 @@ class Settings(FromEnv):
     insecure_no_auth: bool = Field(False, description="allow binding a non-loopback address without a key")
     allowed_hosts: str = Field("", description="names this service answers to in Host (every request "
                                "but probes) and Origin (writes), comma-separated; loopback names and "
-                               "--host always; `*` any")
+                               "--host always; `*` any); each with the server's own port unless "
+                               "given as NAME:PORT")
+    allowed_origins: str = Field("", description="origins besides this service's own (scheme://name:port, "
+                                 "comma-separated) whose pages may write (POST, DELETE)")
+    public_render_ms: float = Field(0.0, ge=0, description="with public_read: the estimated cost up to "
+                                    "which a read without a key may render (401 beyond; cached "
+                                    "thumbnails are always served); 0 = the default thumbnail's")
+    renders_per_minute: float = Field(0.0, ge=0, description="renders (cache misses) one client (key or "
+                                      "address) may start per minute, in bursts of as many; 429 with "
+                                      "Retry-After beyond; 0 = no limit")
     # -- request bounds --------------------------------------------------------------------
     max_upload_bytes: int = Field(256 * 2**20, ge=1, description="request body (413 beyond)")
     max_thumbnail_size: int = Field(2048, ge=1, description="width/height in pixels (422 beyond)")

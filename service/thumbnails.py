@@ -37,6 +37,45 @@ log = logging.getLogger(__name__)
 BUDGET_SHARE_OF_DEADLINE = 0.8  # budget_ms is capped here: the plan's estimate must leave headroom
 
 
+class NeedsKey(Exception):
+    """A read without a key (--public-read) asked for a render beyond what such reads may buy (-> 401)."""
+
+
+class RateLimited(Exception):
+    """The client started its share of renders for now (-> 429 Retry-After)."""
+
+    def __init__(self, message: str, retry_after: float):
+        super().__init__(message)
+        self.retry_after = retry_after
+
+
+class RateLimit:
+    """Token buckets per client: `per_minute` renders a minute, in bursts of as many."""
+
+    MAX_CLIENTS = 10_000  # past it, full buckets (clients idle for a minute) are dropped
+
+    def __init__(self, per_minute: float):
+        self.rate = per_minute / 60.0
+        self.burst = max(1.0, per_minute)
+        self._buckets: dict[str, tuple[float, float]] = {}  # client -> (tokens, when counted)
+
+    def take(self, client: str, now: float | None = None) -> float:
+        """0 when the client may start a render now (one token taken), else seconds to wait."""
+        if not self.rate:
+            return 0.0
+        now = time.monotonic() if now is None else now
+        tokens, last = self._buckets.get(client, (self.burst, now))
+        tokens = min(self.burst, tokens + (now - last) * self.rate)
+        if len(self._buckets) >= self.MAX_CLIENTS:
+            self._buckets = {c: (t, w) for c, (t, w) in self._buckets.items()
+                             if t + (now - w) * self.rate < self.burst}
+        if tokens >= 1:
+            self._buckets[client] = (tokens - 1, now)
+            return 0.0
+        self._buckets[client] = (tokens, now)
+        return (1 - tokens) / self.rate
+
+
 class Thumbnail(NamedTuple):
     image: bytes
     etag: str  # strong, from the image bytes
@@ -69,6 +108,7 @@ class ThumbnailService:
         self._renders: dict[str, asyncio.Future] = {}
         self._background: set[asyncio.Task] = set()
         self._writes: dict[asyncio.Task, str] = {}  # thumbnails on their way to disk -> asset id
+        self.rate = RateLimit(settings.renders_per_minute)
         m = self.metrics
         m.gauge("asset_preview_render_queue", "Renders waiting or running", (), lambda: {(): self.pool.pending})
         m.gauge("asset_preview_workers_busy", "Render workers running a job", (),
@@ -178,6 +218,24 @@ class ThumbnailService:
                                "per request (max_render_cost_ms); ask for fewer pixels, a raster "
                                "method or a smaller budget_ms")
         return cost
+
+    def check_may_render(self, rec: AssetRecord, options: RenderOptions, client: str, anonymous: bool) -> None:
+        """Before a cache miss renders: a read without a key (--public-read) buys at most the
+        default thumbnail's cost (or public_render_ms), and every client its rate of renders."""
+        if anonymous:
+            ceiling = self.settings.public_render_ms or self.estimate_ms(rec, self.admit(RenderOptions()))
+            cost = self.estimate_ms(rec, options)
+            if cost > ceiling:
+                self.metrics.rejected.labels("anonymous_cost").inc()
+                raise NeedsKey(f"this thumbnail is not cached and reads without an API key may only render "
+                               f"up to {ceiling:.0f} ms of estimated cost (this one: {cost:.0f} ms); send "
+                               "`Authorization: Bearer KEY`, or ask for a cached or smaller one")
+        wait = self.rate.take(client)
+        if wait:
+            self.metrics.rejected.labels("rate_limited").inc()
+            raise RateLimited(f"you started {self.settings.renders_per_minute:g} renders within a minute, "
+                              f"your rate; retry in {wait:.0f} s (cached thumbnails are served meanwhile)",
+                              wait)
 
     # -- rendering --------------------------------------------------------------------------
 

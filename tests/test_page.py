@@ -142,7 +142,7 @@ def test_upload_watch_open_turn_delete(server, browser, assets, tmp_path):
 
     # Delete: without the key the page asks for it; refused, the 401 is shown; given, the
     # card goes.
-    b.execute_script("document.getElementById('key').value = ''; localStorage.clear()")
+    b.execute_script("document.getElementById('key').value = ''; sessionStorage.clear()")
     find("#d-delete").click()
     b.switch_to.alert.accept()  # "Delete Duck.glb?"
     wait(lambda: _alert(b), 10, "the API key prompt").dismiss()

@@ -150,11 +150,18 @@ def test_access_matrix(hostile, duck):
             assert r.status_code == 401 and r.headers["www-authenticate"] == "Bearer", (method, path, headers)
     # With a key: another site's page cannot write through the browser (Origin), and a
     # rebound DNS name cannot reach the service at all (Host).
+    port = hostile.url.rsplit(":", 1)[1]
     for origin, expect in (("https://evil.example", 403), ("null", 403), (hostile.url, 415),
-                           ("http://preview.example", 415)):
+                           (f"http://preview.example:{port}", 415), (f"http://localhost:{port}", 415),
+                           ("http://localhost:3000", 403),  # another local page on another port
+                           (f"https://127.0.0.1:{port}", 403), ("http://preview.example", 403),
+                           (f"http://127.0.0.1:{port}.evil.com", 403), (f"http://127.0.0.1:{port}/x", 403)):
         r = anon.post("/assets", headers={**ALPHA, "Origin": origin}, files={"file": ("x.txt", b"x")})
         assert r.status_code == expect, (origin, r.status_code, r.text)
-    for host, expect in (("evil.example", 421), ("preview.example", 200), ("localhost:1", 200)):
+    for host, expect in (("evil.example", 421), (f"preview.example:{port}", 200), (f"localhost:{port}", 200),
+                         ("preview.example", 421),  # no port: 80, not this server's
+                         ("localhost:1", 421), (f"127.0.0.1:{port}.evil.com", 421), ("localhost:evil.com", 421),
+                         (f"[::1]:{port}", 200), (f"127.0.0.1:{port}:{port}", 421), ("", 421)):
         assert anon.get("/assets", headers={"Host": host}).status_code == expect, host
     assert anon.get("/healthz", headers={"Host": "10.1.2.3:80"}).status_code == 200  # probes
     r = anon.get("/")
@@ -164,6 +171,24 @@ def test_access_matrix(hostile, duck):
     assert r.headers["x-content-type-options"] == "nosniff" and "default-src 'none'" in r.headers["content-security-policy"]
     log = hostile.log.read_text()
     assert not [k for k in KEYS if k in log], "keys are never logged"
+    anon.close()
+
+
+def test_reads_without_a_key_cannot_buy_renders(hostile, duck):
+    """--public-read: a read without a key renders up to the default thumbnail's estimated cost;
+    beyond, 401 naming why, until someone with a key has rendered it (then it is served)."""
+    anon = httpx.Client(base_url=hostile.url, timeout=120)
+    url = f"/assets/{duck}/thumbnail"
+    assert anon.get(url, params={"size": 200, "yaw": 7}).status_code == 200  # under the default's cost
+    big = {"size": 512, "method": "raytrace", "bounces": 1, "yaw": 11}
+    r = anon.get(url, params=big)
+    assert r.status_code == 401 and r.headers["www-authenticate"] == "Bearer", r.text
+    assert "without an API key" in r.json()["detail"] and "estimated cost" in r.json()["detail"]
+    assert anon.head(url, params=big).status_code == 401
+    keyed = hostile.client.get(url, params=big)
+    assert keyed.status_code == 200, keyed.text
+    again = anon.get(url, params=big)  # cached now: served to anyone who may read
+    assert again.status_code == 200 and again.content == keyed.content
     anon.close()
 
 
@@ -203,7 +228,7 @@ def test_cheap_thumbnail_is_not_queued_behind_expensive_renders(hostile, duck):
     results: dict[str, int] = {}
 
     def get(tag: str, params: dict):
-        with httpx.Client(base_url=hostile.url, timeout=300) as c:
+        with httpx.Client(base_url=hostile.url, timeout=300, headers=ALPHA) as c:
             r = c.get(f"/assets/{duck}/thumbnail", params=params)
         results[tag] = r.status_code
         done[tag] = time.monotonic()

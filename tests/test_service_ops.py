@@ -71,9 +71,11 @@ def test_api_key_guards_every_endpoint_but_probes(ops, assets):
     assert r.status_code == 201, r.text
     asset_id = r.json()["id"]
     for path in (f"/assets/{asset_id}", "/assets", f"/assets/{asset_id}/thumbnail", "/environments",
-                 "/", "/docs", "/openapi.json", "/nowhere"):
+                 "/docs", "/openapi.json", "/nowhere"):
         assert anon.get(path).status_code == 401, path
-    for path in ("/healthz", "/readyz", "/metrics"):
+        assert anon.head(path).status_code == 401, path
+    # The page itself (no data) is served, so its key field can be used.
+    for path in ("/healthz", "/readyz", "/metrics", "/", "/static/page.js", "/static/page.css", "/favicon.ico"):
         assert anon.get(path).status_code == 200, path
     assert anon.delete(f"/assets/{asset_id}").status_code == 401
     assert anon.post("/environments", files={"file": ("a.png", b"x")}).status_code == 401

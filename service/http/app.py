@@ -6,6 +6,7 @@ Routers by resource live in service/http/routes/; the state they share is one Th
 from __future__ import annotations
 
 import logging
+import math
 from contextlib import asynccontextmanager
 
 from fastapi import FastAPI, Request
@@ -19,7 +20,7 @@ from service.http.metrics import MetricsMiddleware
 from service.http.routes import assets, environments, health, pages
 from service.http.security import AccessMiddleware
 from service.settings import Settings
-from service.thumbnails import ThumbnailService
+from service.thumbnails import NeedsKey, RateLimited, ThumbnailService
 from service.workers.protocol import QueueFull, WorkerFailure
 
 log = logging.getLogger(__name__)
@@ -70,6 +71,14 @@ def _install_error_handlers(app: FastAPI) -> None:
         if isinstance(exc, UploadTooLarge):
             return detail(413, message)
         return detail(415 if isinstance(exc, UnsupportedFormat) else 422, message)
+
+    @app.exception_handler(NeedsKey)
+    async def needs_key(request: Request, exc: NeedsKey):
+        return detail(401, str(exc), {"WWW-Authenticate": "Bearer"})
+
+    @app.exception_handler(RateLimited)
+    async def rate_limited(request: Request, exc: RateLimited):
+        return detail(429, str(exc), {"Retry-After": str(max(1, math.ceil(exc.retry_after)))})
 
     @app.exception_handler(QuotaExceeded)
     async def quota(request: Request, exc: QuotaExceeded):

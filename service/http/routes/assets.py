@@ -97,6 +97,8 @@ async def thumbnail(asset_id: str, request: Request, service: Service):
     outcome = "hit"
     if hit is None:
         outcome = "miss"
+        service.check_may_render(service.store.assets[asset_id], options, client_of(request),
+                                 request.scope.get("state", {}).get("anonymous", False))
         hit = await service.render(asset_id, options, params.format, key, env_source, client_of(request))
     data, etag, plan = hit
     headers = {"ETag": etag, "Cache-Control": f"public, max-age={service.settings.cache_max_age}",

@@ -34,6 +34,11 @@ async def index():
     return HTMLResponse(_page())
 
 
+@router.get("/favicon.ico", include_in_schema=False)
+async def favicon():
+    return FileResponse(STATIC / "icon.svg", media_type="image/svg+xml", headers={"Cache-Control": "max-age=86400"})
+
+
 @router.get("/static/{name}", include_in_schema=False)
 async def static(name: str):
     if name not in _FILES:

@@ -10,12 +10,14 @@ let frames = null;            // turntable ImageBitmaps of the detail view, with
 let stillUrl = null;
 const POLL_MS = 1500, TURNTABLE_FRAMES = 24;
 
+// The key lives in this tab's sessionStorage and goes as a bearer header, never as a cookie
+// (a cookie would go along with another site's requests too).
 function authHeaders() {
-  const key = $("key").value || localStorage.getItem("apiKey") || "";
+  const key = $("key").value || sessionStorage.getItem("apiKey") || "";
   return key ? {Authorization: "Bearer " + key} : {};
 }
-$("key").value = localStorage.getItem("apiKey") || "";
-$("key").onchange = () => localStorage.setItem("apiKey", $("key").value);
+$("key").value = sessionStorage.getItem("apiKey") || "";
+$("key").onchange = () => { sessionStorage.setItem("apiKey", $("key").value); poll(); };
 
 async function errorText(r) {
   try { const body = await r.json(); return `error ${r.status}: ${typeof body.detail === "string" ? body.detail : JSON.stringify(body.detail)}`; }
@@ -69,7 +71,14 @@ async function loadThumbnail(img, url) {
 async function poll() {
   try {
     const r = await fetch("/assets", {cache: "no-store", headers: authHeaders()});
+    if (r.status === 401) {  // the page is open, the data is not: ask for the key here
+      $("msg").textContent = "this server needs its API key: enter it in the key field";
+      $("key").classList.add("wanted");
+      return;
+    }
     if (!r.ok) throw new Error(await errorText(r));
+    $("key").classList.remove("wanted");
+    if ($("msg").textContent.startsWith("this server needs") || $("msg").textContent.startsWith("cannot list")) $("msg").textContent = "";
     const {assets} = await r.json();
     const seen = new Set(assets.map(a => a.id));
     assets.forEach(card);
@@ -130,18 +139,58 @@ function query(extra = {}) {
   return p;
 }
 
+// Each kind of request (the still, the turntable) has one in flight at most: a new one aborts
+// the old, and a response is shown only while its request is still the latest of its kind for
+// the asset on view, so a slow old answer never overwrites a newer one.
+const inflight = {still: null, turntable: null};
+
+function begin(kind) {
+  if (inflight[kind]) inflight[kind].abort();
+  const ctl = new AbortController();
+  inflight[kind] = ctl;
+  const rec = current;
+  return {signal: ctl.signal, latest: () => inflight[kind] === ctl && current === rec && !ctl.signal.aborted};
+}
+
+function abortAll() {
+  for (const kind of Object.keys(inflight)) { if (inflight[kind]) inflight[kind].abort(); inflight[kind] = null; }
+}
+
+function resetControls() {
+  // Every control back to its default: DEFAULTS (the server's, from core.options), else the page's own.
+  for (const name of controls) {
+    const el = $("c-" + name);
+    if (name in DEFAULTS && name !== "size") { el.value = DEFAULTS[name]; continue; }
+    if (el.tagName === "SELECT") {
+      const d = [...el.options].find(o => o.defaultSelected) || el.options[0];
+      if (d) el.value = d.value;
+    } else el.value = el.defaultValue;
+  }
+}
+
 async function openDetail(rec) {
+  abortAll();
   current = rec;
   frames = null;
   $("d-name").textContent = rec.name;
+  $("d-name").title = rec.name;
   $("d-info").textContent = `${rec.format} · ${rec.triangles.toLocaleString()} triangles · ${rec.materials} materials · ${rec.status}`;
   $("d-error").textContent = rec.status === "failed" ? "bake failed: " + (rec.reason || "") : "";
   $("d-plan").textContent = "";
+  $("d-plan").classList.remove("stale");
+  $("canvas").dataset.state = "empty";
+  delete $("canvas").dataset.frames;
+  $("d-stale").hidden = true;
+  $("hint").textContent = "drag to turn";
+  const c = $("canvas");
+  c.getContext("2d").clearRect(0, 0, c.width, c.height);
+  $("d-download").removeAttribute("href");
   await loadEnvironments();
-  for (const [name, value] of Object.entries(DEFAULTS)) if ($("c-" + name) && name !== "size") $("c-" + name).value = value;
+  if (current !== rec) return;
+  resetControls();
   showOutputs();
   if (!$("detail").open) $("detail").showModal();
-  if (rec.status !== "failed") { await renderStill(); loadTurntable(); }
+  if (rec.status !== "failed") { renderStill(); loadTurntable(); }
 }
 
 function showOutputs() {
@@ -150,13 +199,20 @@ function showOutputs() {
   $("o-shadow").textContent = $("c-shadow").value;
 }
 
-async function fetchImage(params) {
+function sleep(ms, signal) {
+  return new Promise((res, rej) => {
+    const t = setTimeout(res, ms);
+    signal.addEventListener("abort", () => { clearTimeout(t); rej(new DOMException("aborted", "AbortError")); }, {once: true});
+  });
+}
+
+async function fetchImage(params, req) {
   // 202: still baking; try again after Retry-After.
   for (let tries = 0; tries < 60; tries++) {
-    const r = await fetch(`/assets/${current.id}/thumbnail?${params}`, {headers: authHeaders()});
+    const r = await fetch(`/assets/${current.id}/thumbnail?${params}`, {headers: authHeaders(), signal: req.signal});
     if (r.status === 202) {
-      $("d-plan").textContent = "baking… the image follows when the bake is done";
-      await new Promise(res => setTimeout(res, 1000 * (+r.headers.get("Retry-After") || 2)));
+      if (req.latest()) $("d-plan").textContent = "baking… the image follows when the bake is done";
+      await sleep(1000 * (+r.headers.get("Retry-After") || 2), req.signal);
       continue;
     }
     if (!r.ok) throw new Error(await errorText(r));
@@ -166,14 +222,17 @@ async function fetchImage(params) {
 }
 
 async function renderStill() {
-  const rec = current, params = query();
-  $("d-error").textContent = "";
+  const rec = current, params = query(), req = begin("still");
   $("canvas").dataset.state = "loading";
   try {
-    const r = await fetchImage(params);
+    const r = await fetchImage(params, req);
     const blob = await r.blob();
-    if (rec !== current) return;
-    draw(await createImageBitmap(blob));
+    const bitmap = await createImageBitmap(blob);
+    if (!req.latest()) return;
+    draw(bitmap);
+    $("d-error").textContent = "";  // errors belong to the request that caused them
+    $("d-stale").hidden = true;
+    $("d-plan").classList.remove("stale");
     $("d-plan").textContent = planInWords(r.headers.get("X-Render-Plan"));
     if (stillUrl) URL.revokeObjectURL(stillUrl);
     stillUrl = URL.createObjectURL(blob);
@@ -181,8 +240,14 @@ async function renderStill() {
     $("d-download").download = `${rec.name.replace(/\.[^.]*$/, "")}-yaw${params.get("yaw")}.png`;
     $("canvas").dataset.state = "ready";
   } catch (e) {
+    if (e.name === "AbortError" || !req.latest()) return;
     $("d-error").textContent = e.message;
     $("canvas").dataset.state = "error";
+    // What is still drawn (if anything) is not what was asked for: say so over it.
+    const shown = !!$("d-download").getAttribute("href");
+    $("d-stale").textContent = shown ? "not updated: this request was refused (see below); the image and plan are of the previous settings" : "refused: see below";
+    $("d-stale").hidden = false;
+    if (shown) $("d-plan").classList.add("stale");
   }
 }
 
@@ -196,40 +261,49 @@ function draw(bitmap) {
 async function loadTurntable() {
   // One animated WebP (one request, one upload of the asset on the server), decoded frame by
   // frame with the browser's ImageDecoder; without it, dragging re-renders at the new yaw.
+  frames = null;  // the old frames show the old settings: none until the new ones are in
+  delete $("canvas").dataset.frames;
   if (!("ImageDecoder" in window)) { $("hint").textContent = "drag to turn (re-renders)"; return; }
-  const rec = current;
+  const req = begin("turntable");
   const size = Math.min(+$("c-size").value, 512);
-  const params = query({turntable: TURNTABLE_FRAMES, format: "webp", size, yaw: $("c-yaw").value});
+  const yaw0 = +$("c-yaw").value;
+  const params = query({turntable: TURNTABLE_FRAMES, format: "webp", size, yaw: yaw0});
+  $("hint").textContent = "drag to turn (re-renders until the turntable is in)";
   try {
-    const r = await fetchImage(params);
+    const r = await fetchImage(params, req);
     const decoder = new ImageDecoder({data: r.body, type: "image/webp"});
     await decoder.completed;  // all bytes in: the frame count is final
     const n = decoder.tracks.selectedTrack.frameCount;
     const list = [];
     for (let i = 0; i < n; i++) list.push(await createImageBitmap((await decoder.decode({frameIndex: i})).image));
-    if (rec !== current) return;
-    frames = {bitmaps: list, yaw0: +$("c-yaw").value};
+    if (!req.latest()) return;
+    frames = {bitmaps: list, yaw0};
     $("hint").textContent = `drag to turn (${n} frames)`;
     $("canvas").dataset.frames = n;
-  } catch (e) { $("hint").textContent = "drag to turn (re-renders): " + e.message; }
+  } catch (e) {
+    if (e.name === "AbortError" || !req.latest()) return;
+    $("hint").textContent = "drag to turn (re-renders): " + e.message;
+  }
 }
 
 let drag = null;
-$("canvas").onpointerdown = e => { drag = {x: e.clientX, frame: 0}; $("canvas").setPointerCapture(e.pointerId); };
+$("canvas").onpointerdown = e => { drag = {x: e.clientX, step: 0}; $("canvas").setPointerCapture(e.pointerId); };
 $("canvas").onpointermove = e => {
   if (!drag) return;
   const dx = e.clientX - drag.x, w = $("canvas").clientWidth;
   if (frames) {
-    const n = frames.bitmaps.length;
-    drag.frame = ((Math.round(-dx / w * n) % n) + n) % n;
-    draw(frames.bitmaps[drag.frame]);
-    $("canvas").dataset.frame = drag.frame;
+    // Frame 0 is at the turntable's yaw; the still may have turned since (a drag, the slider).
+    const n = frames.bitmaps.length, offset = Math.round((+$("c-yaw").value - frames.yaw0) / 360 * n);
+    drag.step = Math.round(-dx / w * n);
+    const frame = (((offset + drag.step) % n) + n) % n;
+    draw(frames.bitmaps[frame]);
+    $("canvas").dataset.frame = frame;
   }
   drag.degrees = -dx / w * 360;
 };
 $("canvas").onpointerup = () => {
   if (!drag) return;
-  const turned = frames ? drag.frame * 360 / frames.bitmaps.length : (drag.degrees || 0);
+  const turned = frames ? drag.step * 360 / frames.bitmaps.length : (drag.degrees || 0);
   drag = null;
   if (!turned) return;
   let yaw = ((+$("c-yaw").value + turned + 180) % 360 + 360) % 360 - 180;
@@ -240,12 +314,13 @@ $("canvas").onpointerup = () => {
 
 $("controls").oninput = showOutputs;
 $("controls").onchange = e => {
-  if (e.target.id === "c-yaw") { renderStill(); return; }
   renderStill();
-  loadTurntable();
+  // The turntable starts at the yaw, so only other controls make its frames stale.
+  if (e.target.id !== "c-yaw") loadTurntable();
 };
 $("controls").onsubmit = e => e.preventDefault();
 $("d-close").onclick = () => $("detail").close();
+$("detail").onclose = () => { abortAll(); current = null; };
 $("d-delete").onclick = async () => {
   const rec = current;
   if (!confirm(`Delete ${rec.name}?`)) return;
@@ -254,7 +329,7 @@ $("d-delete").onclick = async () => {
     const key = prompt("This server needs its API key to delete:");
     if (key) {
       $("key").value = key;
-      localStorage.setItem("apiKey", key);
+      sessionStorage.setItem("apiKey", key);
       r = await fetch(`/assets/${rec.id}`, {method: "DELETE", headers: authHeaders()});
     }
   }

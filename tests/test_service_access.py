@@ -1,0 +1,64 @@
+"""The page behind a key, HEAD wherever GET answers, and per-client render rates, on a real
+server over loopback."""
+from __future__ import annotations
+
+import httpx
+import pytest
+from service_server import Server
+
+KEY = "access-test-key"
+AUTH = {"Authorization": f"Bearer {KEY}"}
+
+
+@pytest.fixture(scope="module")
+def keyed(tmp_path_factory, assets):
+    srv = Server(tmp_path_factory.mktemp("access") / "cache", "--workers", "1", "--no-seed",
+                 "--api-key", KEY, env={"ASSET_PREVIEW_RENDERS_PER_MINUTE": "3"})
+    srv.client.headers.update(AUTH)
+    try:
+        srv.wait_ready()
+        r = srv.client.post("/assets", files={"file": ("Duck.glb", (assets / "gltf/Duck.glb").read_bytes())})
+        assert r.status_code == 201, r.text
+        assert srv.wait_status(r.json()["id"])["status"] == "ready"
+        srv.asset_id = r.json()["id"]
+        yield srv
+    finally:
+        srv.stop()
+
+
+def test_the_page_is_served_without_the_key_and_nothing_else(keyed):
+    anon = httpx.Client(base_url=keyed.url, timeout=60)
+    page = anon.get("/")
+    assert page.status_code == 200 and 'id="key"' in page.text and "text/html" in page.headers["content-type"]
+    for path in ("/static/page.js", "/static/page.css", "/favicon.ico"):
+        assert anon.get(path).status_code == 200, path
+    for path in ("/assets", f"/assets/{keyed.asset_id}", "/environments", "/docs"):
+        r = anon.get(path)
+        assert r.status_code == 401 and r.headers["www-authenticate"] == "Bearer", path
+    # a cookie is never a key
+    assert anon.get("/assets", headers={"Cookie": f"apiKey={KEY}"}).status_code == 401
+    anon.close()
+
+
+def test_head_answers_wherever_get_does(keyed):
+    c = keyed.client
+    for path in ("/", "/assets", f"/assets/{keyed.asset_id}", "/environments", "/healthz", "/readyz",
+                 "/metrics", "/static/page.js", "/favicon.ico", f"/assets/{keyed.asset_id}/thumbnail?size=48"):
+        get, head = c.get(path), c.head(path)
+        assert get.status_code == 200 and head.status_code == 200, (path, head.status_code)
+        assert head.content == b"" and head.headers["content-type"] == get.headers["content-type"], path
+        if "thumbnail" in path:  # the same cached image: the same validator
+            assert head.headers["etag"] == get.headers["etag"]
+    assert c.head("/nowhere").status_code == 404 and c.head("/assets/" + "0" * 32).status_code == 404
+    assert c.post("/healthz").status_code == 405  # HEAD is GET's: other methods still are not
+
+
+def test_renders_per_client_are_rate_limited_with_retry_after(keyed):
+    c, url = keyed.client, f"/assets/{keyed.asset_id}/thumbnail"
+    # The fixture's HEAD/GET test may have spent one token; spend the rest on distinct renders.
+    codes = [c.get(url, params={"size": 40, "yaw": yaw}).status_code for yaw in range(1, 6)]
+    assert codes[0] == 200 and 429 in codes, codes
+    r = c.get(url, params={"size": 40, "yaw": 99})
+    assert r.status_code == 429 and int(r.headers["retry-after"]) >= 1, r.text
+    assert "renders within a minute" in r.json()["detail"]
+    assert c.get(url, params={"size": 40, "yaw": 1}).status_code == 200  # cached: still served
