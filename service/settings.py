@@ -66,6 +66,8 @@ class Settings(FromEnv):
     worker_cache_bytes: int = Field(512 * 2**20, ge=1, description="baked assets and environments a "
                                     "render worker keeps in memory")
     gpu_bytes: int = Field(512 * 2**20, ge=1, description="meshes and textures a render worker keeps uploaded")
+    worker_max_rss_bytes: int = Field(0, ge=0, description="a render worker whose resident memory is over "
+                                      "this after a job is replaced before its next one; 0 = never")
     # -- content ---------------------------------------------------------------------------
     default_env: str = Field("studio", description="environment of renders that name none (studio: "
                              "generated in code, pipeline/environment/studio.py)")

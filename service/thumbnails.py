@@ -92,7 +92,7 @@ class ThumbnailService:
         self.metrics = Metrics()
         config = WorkerConfig(cache_dir=str(settings.cache), default_env=settings.default_env,
                               cache_bytes=settings.worker_cache_bytes, gpu_bytes=settings.gpu_bytes,
-                              bake_cache_bytes=settings.bake_cache_bytes,
+                              bake_cache_bytes=settings.bake_cache_bytes, max_rss_bytes=settings.worker_max_rss_bytes,
                               log_level=logging.getLogger().getEffectiveLevel())
         order = {"cheap_ms": settings.cheap_render_ms, "client_share": settings.client_share}
         if settings.executor == "ray":  # actors on a Ray cluster, same interface
@@ -164,7 +164,8 @@ class ThumbnailService:
         return task
 
     def _restarted(self, reason: str) -> None:
-        self.metrics.restarts.labels("deadline" if "deadline" in reason else "crash").inc()
+        kind = "deadline" if "deadline" in reason else "memory" if "resident" in reason else "crash"
+        self.metrics.restarts.labels(kind).inc()
 
     async def delete_asset(self, asset_id: str) -> None:
         """The asset (service.assets) and every thumbnail of it."""

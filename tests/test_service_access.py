@@ -1,6 +1,8 @@
-"""The page behind a key, HEAD wherever GET answers, and per-client render rates, on a real
-server over loopback."""
+"""The page behind a key, HEAD wherever GET answers, per-client render rates, finite values, and
+workers replaced past their memory bound, on a real server over loopback."""
 from __future__ import annotations
+
+import time
 
 import httpx
 import pytest
@@ -13,7 +15,9 @@ AUTH = {"Authorization": f"Bearer {KEY}"}
 @pytest.fixture(scope="module")
 def keyed(tmp_path_factory, assets):
     srv = Server(tmp_path_factory.mktemp("access") / "cache", "--workers", "1", "--no-seed",
-                 "--api-key", KEY, env={"ASSET_PREVIEW_RENDERS_PER_MINUTE": "3"})
+                 "--api-key", KEY, env={"ASSET_PREVIEW_RENDERS_PER_MINUTE": "3",
+                      # every job leaves the worker over this: each is replaced after each job
+                      "ASSET_PREVIEW_WORKER_MAX_RSS_BYTES": "1"})
     srv.client.headers.update(AUTH)
     try:
         srv.wait_ready()
@@ -62,3 +66,23 @@ def test_renders_per_client_are_rate_limited_with_retry_after(keyed):
     assert r.status_code == 429 and int(r.headers["retry-after"]) >= 1, r.text
     assert "renders within a minute" in r.json()["detail"]
     assert c.get(url, params={"size": 40, "yaw": 1}).status_code == 200  # cached: still served
+
+
+def test_a_worker_over_its_memory_bound_is_replaced_between_jobs(keyed):
+    # Its bound is 1 byte: the upload's inspect and bake and every render so far each replaced it.
+    c = keyed.client
+    end = time.monotonic() + 60
+    while time.monotonic() < end:
+        w = c.get("/readyz").json()["workers"][0]
+        if w["alive"] and w["restarts"] >= 2 and w["rss_bytes"]:  # replaced, then warmed up
+            break
+        time.sleep(0.2)
+    assert w["restarts"] >= 2 and w["rss_bytes"] > 50 * 2**20, w  # a warm GL worker, measured
+    assert 'asset_preview_worker_restarts_total{reason="memory"}' in c.get("/metrics").text
+    r = c.get(f"/assets/{keyed.asset_id}/thumbnail", params={"size": 40, "yaw": 1})  # cached
+    assert r.status_code == 200, r.text
+
+
+def test_non_finite_values_are_refused_as_such(keyed):
+    r = keyed.client.get(f"/assets/{keyed.asset_id}/thumbnail", params={"yaw": "nan"})
+    assert r.status_code == 422 and "finite number" in r.json()["detail"], r.text

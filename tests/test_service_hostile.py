@@ -180,7 +180,7 @@ def test_reads_without_a_key_cannot_buy_renders(hostile, duck):
     anon = httpx.Client(base_url=hostile.url, timeout=120)
     url = f"/assets/{duck}/thumbnail"
     assert anon.get(url, params={"size": 200, "yaw": 7}).status_code == 200  # under the default's cost
-    big = {"size": 512, "method": "raytrace", "bounces": 1, "yaw": 11}
+    big = {"size": 160, "method": "raytrace", "bounces": 1, "yaw": 11}
     r = anon.get(url, params=big)
     assert r.status_code == 401 and r.headers["www-authenticate"] == "Bearer", r.text
     assert "without an API key" in r.json()["detail"] and "estimated cost" in r.json()["detail"]

@@ -63,6 +63,7 @@ class WorkerStatus(BaseModel):
     busy_seconds: float | None = None
     jobs: int
     restarts: int
+    rss_bytes: int | None = Field(None, description="the worker's resident memory after its last job")
 
 
 class Ready(BaseModel):
@@ -81,7 +82,7 @@ def _thumbnail_params() -> type[BaseModel]:
     fields["format"] = (ImageFormat, Field("png", description="image encoding"))
     fields["env"] = (str | None, Field(None, description=(
         "environment name (GET /environments); default the bundled one")))
-    model = create_model("ThumbnailParams", __config__=ConfigDict(extra="forbid"), **fields)
+    model = create_model("ThumbnailParams", __config__=ConfigDict(extra="forbid", allow_inf_nan=False), **fields)
     model.__doc__ = _thumbnail_params.__doc__
     return model
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import multiprocessing as mp
+import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -45,6 +46,7 @@ class Worker:
     jobs: int = 0
     restarts: int = 0
     answered: bool = False
+    rss_bytes: int | None = None  # after its last job
 
     @property
     def pid(self) -> int | None:
@@ -222,7 +224,17 @@ class Pool:
         now = time.time()
         return [{"index": w.index, "pid": w.pid, "alive": w.alive(), "busy": w.busy_since is not None,
                  "op": w.op, "busy_seconds": round(now - w.busy_since, 3) if w.busy_since else None,
-                 "jobs": w.jobs, "restarts": w.restarts} for w in self.workers]
+                 "jobs": w.jobs, "restarts": w.restarts, "rss_bytes": getattr(w, "rss_bytes", None)}
+                for w in self.workers]
+
+
+def _resident_bytes(pid: int | None) -> int | None:
+    """A process's resident set (Linux /proc), or None where it cannot be read."""
+    try:
+        with open(f"/proc/{pid}/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        return None
 
 
 def _worker_process(conn: Connection, config: WorkerConfig) -> None:
@@ -271,7 +283,7 @@ class WorkerPool(Pool):
                                  args=(child, self.config))
         proc.start()
         child.close()
-        w.process, w.conn, w.answered = proc, parent, False
+        w.process, w.conn, w.answered, w.rss_bytes = proc, parent, False, None
         log.info("render worker %d started (pid %d)", w.index, proc.pid)
 
     def _replace(self, w: Worker, reason: str) -> None:
@@ -319,7 +331,7 @@ class WorkerPool(Pool):
                 self._replace(w, f"passed the {deadline:g} s deadline of a {op} job")
                 raise DeadlineExceeded(f"{op} did not finish within its deadline of "
                                        f"{deadline:g} s; the worker was stopped")
-            return w.conn.recv()
+            reply = w.conn.recv()
         except (EOFError, OSError, BrokenPipeError):
             pid = w.pid
             w.process.join(timeout=5)
@@ -328,3 +340,9 @@ class WorkerPool(Pool):
             self._replace(w, f"crashed during a {op} job ({how})")
             raise WorkerCrashed(f"render worker (pid {pid}) crashed during {op} ({how}); "
                                 "it has been restarted, retry the request") from None
+        w.rss_bytes = _resident_bytes(w.pid)
+        limit = self.config.max_rss_bytes
+        # The answer is in hand; a warm-up is the baseline, not a job that grew the worker.
+        if limit and w.rss_bytes is not None and w.rss_bytes > limit and not isinstance(job, PingJob):
+            self._replace(w, f"held {w.rss_bytes} resident bytes after a {op} job, over its bound of {limit}")
+        return reply

@@ -45,6 +45,7 @@ class WorkerConfig:
     bake_cache_bytes: int | None = None  # the bake cache's cap (LRU eviction after each bake)
     limits: dict = field(default_factory=dict)
     log_level: int = logging.INFO
+    max_rss_bytes: int = 0               # replaced between jobs past this (0: never)
 
 
 # -- jobs ---------------------------------------------------------------------------------------
