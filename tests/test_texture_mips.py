@@ -8,7 +8,7 @@ import pytest
 from gltf_builder import CUBE_INDICES, CUBE_POSITIONS, Builder, png_bytes
 
 from core.mips import level_shapes, mip_chain, texture_size_for
-from pipeline import bake_asset, load_baked
+from pipeline.bake import bake_asset, load_baked
 from pipeline.cache import CorruptEntry
 
 
