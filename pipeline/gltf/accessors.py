@@ -123,10 +123,10 @@ class Document:
         entry = items[index]
         return entry if type(entry) is dict else self.obj(entry, f"{key}[{index}]")
 
-    def name(self, key: str, index: int) -> str:
-        """The name of entry `index` of `key`, or one made up from both."""
+    def name(self, key: str, index: int, kind: str) -> str:
+        """The name of entry `index` of `key`, else `kind` and the index (`mesh3`)."""
         name = self.array(self.doc, key)[index].get("name")
-        return str(name) if name else f"{key[:-1]}{index}"
+        return str(name) if name else f"{kind}{index}"
 
     def integer(self, obj: dict, key: str, default=None, lo: int = 0) -> int:
         value = obj.get(key, default)

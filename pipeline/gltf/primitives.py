@@ -62,7 +62,7 @@ def primitive(d: Document, mesh_index: int, prim_index: int, prim: dict, weights
         faces = segments(idx, mode)
     else:
         faces = triangles(idx, mode)
-    return Mesh(name=f"{d.name('meshes', mesh_index)}/{prim_index}",
+    return Mesh(name=f"{d.name('meshes', mesh_index, 'mesh')}/{prim_index}",
                 positions=positions, normals=normals,  # type: ignore[arg-type]  # None: pipeline.ingest computes them
                 indices=faces, tangents=tangents,
                 uv0=_attribute(d, what, attrs, "TEXCOORD_0", (2,), n),
