@@ -74,8 +74,11 @@ import numpy as np
 
 from core.baked import BakedAsset, BakedEnvironment
 from core.cubemap import env_rotation_matrix, sample_cube
+from core.mips import texture_size_for
 from core.options import RenderOptions, apply_override, background_rgb
+from renderer.methods import trace_material
 from renderer.methods.optics import fresnel_dielectric, reflect, refract, sample_rough_dielectric
+from renderer.methods.trace_material import Surface
 from renderer.raster.render import register_frame_method
 from renderer.view.camera import Camera
 from renderer.view.framing import asset_camera
@@ -117,6 +120,9 @@ class TraceScene:
     culled: np.ndarray           # K bool: single-sided and opaque (back faces let rays through)
     emission: np.ndarray         # K x 3 emissive factor x strength (linear radiance)
     radius: float
+    surface: Surface | None = None  # UVs, tangents, colours, textures (trace_material)
+    eye: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
+    spread: float = 0.0          # ray cone angle per unit length (a camera ray's pixel share)
 
 
 def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> TraceScene:
@@ -124,9 +130,10 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
     from embreex import rtcore_scene as rtcs
     from embreex.mesh_construction import TriangleMesh
 
-    tris, nrms, mats, tables = [], [], [], []
+    tris, nrms, mats, tables, parts, materials = [], [], [], [], [], []
     for k, mesh in enumerate(asset.meshes):
         mat = apply_override(mesh.material, options.override)
+        materials.append(mat)
         tables.append((mat.base_color[:3], mat.metallic, mat.roughness, mat.transmission,
                        mat.ior, mat.absorption(), not mat.double_sided and mat.transmission <= 0,
                        np.asarray(mat.emissive, np.float64) * mat.emissive_strength))
@@ -141,6 +148,7 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
             else:
                 idx_w = idx
             tris.append(p[idx_w])
+            parts.append((k, idx_w, m[:3, :3]))
             nrms.append(n[idx_w])
             mats.append(np.full(len(idx), k, np.int32))
     tri = np.concatenate(tris) if tris else np.zeros((0, 3, 3))
@@ -157,6 +165,8 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
         TriangleMesh(scene, tri.astype(np.float32))
     lo, hi = np.asarray(asset.bounds, np.float64)
     col = list(zip(*tables)) if tables else [[]] * 8
+    surface = trace_material.build_surface(asset, materials, parts, tri,
+                                           texture_size_for(max(options.width, options.height)))
     return TraceScene(
         embree=scene, normals=nrm.astype(np.float32), geo_normals=ng.astype(np.float32),
         material=np.concatenate(mats) if mats else np.zeros(0, np.int32),
@@ -165,7 +175,7 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
         transmission=np.asarray(col[3], np.float64), ior=np.asarray(col[4], np.float64),
         sigma=np.asarray(col[5], np.float64).reshape(-1, 3), culled=np.asarray(col[6], bool),
         emission=np.asarray(col[7], np.float64).reshape(-1, 3),
-        radius=max(float(np.linalg.norm(hi - lo)) / 2, 1e-6))
+        radius=max(float(np.linalg.norm(hi - lo)) / 2, 1e-6), surface=surface)
 
 
 def _intersect(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray):
@@ -185,18 +195,35 @@ def _intersect(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray):
     return tuple(np.concatenate([p[k] for p in parts]) for k in ("primID", "u", "v", "tfar"))
 
 
-def _intersect_front(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray):
-    """_intersect, passing through the back faces of single-sided opaque materials."""
+def _intersect_front(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray,
+                     draw: np.ndarray | None = None):
+    """_intersect, passing through the back faces of single-sided opaque materials and
+    where alpha says so (MASK: below the cut-off; BLEND: where `draw`, a uniform per ray,
+    is at or above alpha; draw None: 0.5)."""
     prim, u, v, t = _intersect(ts, origins, dirs)
-    if not ts.culled.any():
+    surf = ts.surface
+    tested = surf is not None and surf.alpha_tested.any()
+    if not ts.culled.any() and not tested:
         return prim, u, v, t
     prim, u, v, t = prim.copy(), u.copy(), v.copy(), t.astype(np.float64)
     eps = EPSILON * ts.radius
-    for _ in range(MAX_CULLED):
+    for layer in range(MAX_CULLED):
         hit = np.flatnonzero(prim >= 0)
         k = ts.material[prim[hit]]
         back = np.einsum("ij,ij->i", dirs[hit], ts.geo_normals[prim[hit]]) > 0
-        sel = hit[ts.culled[k] & back]
+        through = ts.culled[k] & back
+        if surf is not None and tested:
+            at = np.flatnonzero(surf.alpha_tested[k] & ~through)
+            if len(at):
+                ray = hit[at]
+                width = ts.spread * (np.linalg.norm(origins[ray] - ts.eye, axis=-1) + t[ray])
+                cos_d = np.abs(np.einsum("ij,ij->i", dirs[ray], ts.geo_normals[prim[ray]]))
+                # each layer behind another draws anew (golden-ratio shift of the same draw)
+                u_draw = (np.full(len(ray), 0.5) if draw is None
+                          else (draw[ray] + 0.6180339887 * layer) % 1.0)
+                through[at] = trace_material.passes_through(
+                    surf, k[at], prim[ray], u[ray], v[ray], width, cos_d, u_draw)
+        sel = hit[through]
         if not len(sel):
             break
         start = t[sel] + eps
@@ -345,6 +372,9 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     if supersample is None:
         supersample = default_supersample(camera.width, camera.height)
     ts = build_scene(asset, options)
+    # A ray's cone: its share of a pixel's angle (the texture level follows its footprint).
+    ts.eye = np.asarray(camera.position, np.float64)
+    ts.spread = 2 * math.tan(math.radians(camera.fov) / 2) / camera.height / supersample
     sky = _Environment(env, options.env_rotation)
     t_build = time.perf_counter()
     npix = camera.width * camera.height
@@ -500,7 +530,7 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
         slot = pix
 
     if options.bounces <= 0:  # no surfaces: every camera ray reads the environment
-        hit = _intersect_front(ts, origins, dirs)[0] >= 0
+        hit = _intersect_front(ts, origins, dirs, _alpha_draw(pix, sub, n_sub, 0))[0] >= 0
         image.coverage += np.bincount(slot[hit], share[hit], minlength=image.npix)
         add(env.radiance(dirs, np.zeros(len(dirs))) * share[:, None], slot)
         return
@@ -511,7 +541,7 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
             # ... as if it left the medium it is in, without a Fresnel loss
             add((weight * (share * medium ** 2)[:, None]) * env.radiance(dirs, blur ** 0.25), slot)
             break
-        prim, u, v, t = _intersect_front(ts, origins, dirs)
+        prim, u, v, t = _intersect_front(ts, origins, dirs, _alpha_draw(pix, sub, n_sub, depth))
         stats["rays"] += len(dirs)
         if depth < len(stats["bounces"]):
             stats["bounces"][depth] += len(dirs)
@@ -523,12 +553,13 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
             if show_env:
                 bg = np.full(miss.sum(), options.background_blur)
                 add(env.radiance(dirs[miss], bg) * share[miss, None], slot[miss])
+        hits = _hit_material(ts, origins, dirs, prim, u, v, t)
         kernel = _kernel()
         if kernel is not None:
             out = kernel.shade(
                 np.ascontiguousarray(origins), dirs, prim, u, v, t, weight, pix, sub, slot, blur,
-                share, medium, ts.normals, ts.geo_normals, ts.material, ts.base, ts.metallic,
-                ts.roughness, ts.transmission, ts.ior, ts.sigma, ts.emission,
+                share, medium, hits.normal, ts.geo_normals, ts.material, hits.base, hits.metallic,
+                hits.roughness, hits.transmission, ts.ior, ts.sigma, hits.emission, hits.occlusion,
                 np.asarray(env.baked.brdf_lut, np.float64), depth, n_sub, eps,
                 options.rough_lobes == "sample", options.fresnel_split == "sample",
                 options.multiscatter, MIN_WEIGHT, kernel._SOBOL_DIM1,
@@ -548,23 +579,45 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
                     slot[miss])
             hit = ~miss
             d = dirs[hit].astype(np.float64)
+            sel = np.flatnonzero(hit)
             out = _shade_numpy(ts, env, options, depth, n_sub, eps, d,
-                               origins[hit] + d * t[hit, None], t[hit], prim[hit], u[hit], v[hit],
+                               origins[hit] + d * t[hit, None], t[hit], prim[hit],
+                               trace_material.Hits(*(getattr(hits, f.name)[sel] for f in
+                                                     dataclasses.fields(trace_material.Hits))),
                                weight[hit], pix[hit], sub[hit], slot[hit], blur[hit], share[hit],
                                medium[hit], add, stats)
         origins, dirs, weight, pix, sub, slot, blur, share, medium = out
 
 
+def _alpha_draw(pix: np.ndarray, sub: np.ndarray, n_sub: int, depth: int) -> np.ndarray:
+    """The uniform per ray that alpha BLEND compares with: stratified over a pixel's rays."""
+    return ((sub + 0.5) / n_sub + _pixel_shift(pix, depth + 900)) % 1.0
+
+
+def _hit_material(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray, prim: np.ndarray,
+                  u: np.ndarray, v: np.ndarray, t: np.ndarray) -> trace_material.Hits:
+    """The material at every ray's hit (trace_material.evaluate; rows of misses are zeros)."""
+    n = len(prim)
+    full = trace_material.Hits(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n), np.zeros(n),
+                               np.zeros(n), np.zeros((n, 3)), np.ones(n))
+    sel = np.flatnonzero(prim >= 0)
+    if not len(sel) or ts.surface is None:
+        return full
+    width = ts.spread * (np.linalg.norm(origins[sel] - ts.eye, axis=-1) + t[sel])
+    got = trace_material.evaluate(ts.surface, ts.normals, ts.material[prim[sel]], prim[sel],
+                                  u[sel], v[sel], dirs[sel], width)
+    for f in dataclasses.fields(trace_material.Hits):
+        getattr(full, f.name)[sel] = getattr(got, f.name)
+    return full
+
+
 def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, depth: int,
-                 n_sub: int, eps: float, d, p, t, prim, u, v, w, px, sb, sl, v_in, sh, n_in,
-                 add, stats: dict) -> tuple:
+                 n_sub: int, eps: float, d, p, t, prim, hits: trace_material.Hits, w, px, sb,
+                 sl, v_in, sh, n_in, add, stats: dict) -> tuple:
     """The numpy twin of renderer.methods.trace_kernel.shade (the reference the kernel is tested
     against): one bounce's hits -> their children (origin, dir, weight, pix, sub, slot,
     blur, share, medium); emission and the diffuse share go straight into `add`."""
-    u, v = u[:, None], v[:, None]
-    corner = ts.normals[prim].astype(np.float64)
-    ns = (1 - u - v) * corner[:, 0] + u * corner[:, 1] + v * corner[:, 2]
-    ns /= np.maximum(np.linalg.norm(ns, axis=-1, keepdims=True), 1e-20)
+    ns = hits.normal.copy()
     ng = ts.geo_normals[prim].astype(np.float64)
     entering = np.einsum("ij,ij->i", d, ng) < 0
     side = np.where(entering, 1.0, -1.0)[:, None]
@@ -572,16 +625,16 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
     flip = np.einsum("ij,ij->i", d, ns) >= 0      # shading normal behind the ray
     ns[flip] = ng[flip]
     k = ts.material[prim]
-    base, metal = ts.base[k], ts.metallic[k]
-    rough_k, trans, ior = ts.roughness[k], ts.transmission[k], ts.ior[k]
+    base, metal = hits.base, hits.metallic
+    rough_k, trans, ior = hits.roughness, hits.transmission, ts.ior[k]
     # Beer-Lambert over the segment just travelled inside the volume.
     inside = ~entering & (trans > 0) if ts.sigma.any() else np.zeros(0, bool)
     if np.any(inside):
         w = w.copy()
         w[inside] *= np.exp(-ts.sigma[k[inside]] * t[inside, None])
-    glow = ts.emission[k].max(axis=1) > 0 if ts.emission.any() else np.zeros(0, bool)
+    glow = hits.emission.max(axis=1) > 0
     if np.any(glow):
-        add(w[glow] * ts.emission[k[glow]] * sh[glow, None], sl[glow])
+        add(w[glow] * hits.emission[glow] * sh[glow, None], sl[glow])
     cos_i = -np.einsum("ij,ij->i", d, ns)
     eta = np.where(entering, 1.0 / ior, ior)
     fres = fresnel_dielectric(cos_i, eta)
@@ -625,7 +678,7 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
     if g_t is not None:  # sampled lobes: G1 instead of the lobe's mean albedo
         e_ss = np.where(lobe, g_t, e_ss)
     trans_w = ((1 - metal) * (1 - fres) * trans * eta * eta * e_ss)[:, None] * tint * w
-    diffuse_w = ((1 - metal) * (1 - fres) * (1 - trans))[:, None] * base * w
+    diffuse_w = ((1 - metal) * (1 - fres) * (1 - trans) * hits.occlusion)[:, None] * base * w
     # Lobe widths add as variances. A rough refraction bends directions by
     # |1 - eta| per unit of microfacet tilt where a reflection bends them by 2, so its
     # lobe is that much narrower than the reflection lobe the mips were filtered for.
