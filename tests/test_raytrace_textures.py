@@ -3,13 +3,16 @@ transform, UV set, sampler and mip level), vertex colours, normal maps, alpha.""
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
+from test_render_physics import _LUT, constant_env, sphere_asset
 
 import pipeline
 from core.mips import mip_chain
 from core.options import RenderOptions
+from core.scene import Light
 from pipeline.environment.panorama import DEFAULT_ENVIRONMENT
 from renderer import render
 from renderer.methods.trace_material import CLAMP_TO_EDGE, MIRRORED_REPEAT, TextureChain
@@ -78,3 +81,52 @@ def test_sampler_reads_texel_centres_and_wraps():
     # a footprint of the whole texture reads the last level: the mean
     mean = ch.sample(np.array([[0.3, 0.7]]), np.array([10.0]))
     assert np.allclose(mean[0], ch.levels[-1][0, 0] / 255.0)
+
+
+@pytest.mark.parametrize("albedo", [0.25, 0.75])
+def test_directional_light_by_next_event_estimation(albedo):
+    """As tests/test_render_materials.py's raster check: a directional light of E lux at N = V
+    = L on a rough dielectric gives E (albedo (1 - E_spec) / pi + F0 D G / 4 (1 + FmsEms /
+    FssEss)); nothing where the light does not reach."""
+    e = 2.0
+    asset = sphere_asset(0.0, 1.0, (albedo, albedo, albedo, 1.0))
+    lit = dataclasses.replace(asset, key=asset.key + "-lit",
+                              lights=[Light("directional", (1.0, 1.0, 1.0), e, matrix=np.eye(4))])
+    o = RenderOptions(width=64, height=64, tonemap="none", background="transparent", yaw=0.0,
+                      pitch=0.0, shadow=0.0, method="raytrace")
+    f = render(lit, constant_env(0.0), o)
+    c = 32
+    got = f.linear[c - 1:c + 1, c - 1:c + 1, :3].mean()
+    a, b = _LUT[-1, -1][:2]
+    fss = 0.04 * a + b
+    ems = 1 - (a + b)
+    favg = 0.04 + 0.96 / 21
+    fms = ems * fss * favg / (1 - ems * favg)
+    expected = e * (albedo * (1 - fss - fms) / math.pi + 0.04 / (4 * math.pi) * (1 + fms / fss))
+    assert abs(got / expected - 1) < 0.02, (got, expected)
+    assert render(lit, constant_env(0.0), dataclasses.replace(o, lights=False)).linear[..., :3].max() == 0
+
+
+def test_shadow_rays_find_the_occluder():
+    """A second sphere behind the first along a directional light is in its shadow: nearly
+    black (the environment is black), while the first sphere's lit side is not."""
+    front = sphere_asset(0.0, 1.0)
+    m = front.meshes[0]
+    behind = np.eye(4)
+    behind[0, 3] = -3.0
+    pair = dataclasses.replace(
+        front, key="pair", meshes=[dataclasses.replace(m, transforms=np.stack([np.eye(4), behind]))],
+        bounds=np.array([[-4.0, -1, -1], [1, 1, 1]]),
+        lights=[Light("directional", (1.0, 1.0, 1.0), 2.0,
+                      matrix=np.array([[0, 0, 1, 0], [0, 1, 0, 0], [-1, 0, 0, 0], [0, 0, 0, 1.0]]))])
+    o = RenderOptions(width=96, height=64, tonemap="none", background="transparent", yaw=0.0,
+                      pitch=0.0, shadow=0.0, method="raytrace")
+    f = render(pair, constant_env(0.0), o)
+    lum = f.linear[..., :3].sum(-1)
+    cover = f.linear[..., 3] > 0.99
+    cols = np.flatnonzero(cover.any(0))
+    mid = (cols[0] + cols[-1]) // 2
+    lit_side = lum[:, mid + 5:][cover[:, mid + 5:]].max()
+    shadowed = lum[:, :mid - 5][cover[:, :mid - 5]].max()
+    # what reaches the shadowed sphere is the lit one's light reflected once (interreflection)
+    assert shadowed < 0.05 * lit_side, (shadowed, lit_side)

@@ -76,7 +76,7 @@ from core.baked import BakedAsset, BakedEnvironment
 from core.cubemap import env_rotation_matrix, sample_cube
 from core.mips import texture_size_for
 from core.options import RenderOptions, apply_override, background_rgb
-from renderer.methods import trace_material
+from renderer.methods import trace_lights, trace_material
 from renderer.methods.optics import fresnel_dielectric, reflect, refract, sample_rough_dielectric
 from renderer.methods.trace_material import Surface
 from renderer.raster.render import register_frame_method
@@ -123,6 +123,7 @@ class TraceScene:
     surface: Surface | None = None  # UVs, tangents, colours, textures (trace_material)
     eye: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
     spread: float = 0.0          # ray cone angle per unit length (a camera ray's pixel share)
+    lights: trace_lights.Lights | None = None  # punctual lights (next-event estimation)
 
 
 def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> TraceScene:
@@ -375,6 +376,8 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     # A ray's cone: its share of a pixel's angle (the texture level follows its footprint).
     ts.eye = np.asarray(camera.position, np.float64)
     ts.spread = 2 * math.tan(math.radians(camera.fov) / 2) / camera.height / supersample
+    if options.lights and asset.lights:
+        ts.lights = trace_lights.lights_of(asset.lights)
     sky = _Environment(env, options.env_rotation)
     t_build = time.perf_counter()
     npix = camera.width * camera.height
@@ -554,6 +557,9 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
                 bg = np.full(miss.sum(), options.background_blur)
                 add(env.radiance(dirs[miss], bg) * share[miss, None], slot[miss])
         hits = _hit_material(ts, origins, dirs, prim, u, v, t)
+        if ts.lights is not None and len(ts.lights):
+            _light_hits(ts, ts.lights, env, options, origins, dirs, prim, t, hits,
+                        weight * share[:, None], slot, add)
         kernel = _kernel()
         if kernel is not None:
             out = kernel.shade(
@@ -587,6 +593,58 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
                                weight[hit], pix[hit], sub[hit], slot[hit], blur[hit], share[hit],
                                medium[hit], add, stats)
         origins, dirs, weight, pix, sub, slot, blur, share, medium = out
+
+
+def _light_hits(ts: TraceScene, lights: trace_lights.Lights, env: _Environment,
+                options: RenderOptions, origins, dirs, prim, t, hits: trace_material.Hits, carried: np.ndarray, slot: np.ndarray, add) -> None:
+    """Next-event estimation: what the punctual lights reflect along each ray from the
+    surface it hit, times what the ray carries, into `add`. Hits from inside a transmissive
+    object are skipped: light reaches them only refracted, which a straight shadow ray
+    cannot follow."""
+    sel = np.flatnonzero(prim >= 0)
+    k = ts.material[prim[sel]]
+    d = dirs[sel].astype(np.float64)
+    ng = ts.geo_normals[prim[sel]].astype(np.float64)
+    entering = np.einsum("ij,ij->i", d, ng) < 0
+    keep = entering | (ts.transmission[k] <= 0)
+    sel, k, d, ng = sel[keep], k[keep], d[keep], ng[keep]
+    if not len(sel):
+        return
+    ng = ng * np.where(np.einsum("ij,ij->i", d, ng) < 0, 1.0, -1.0)[:, None]
+    n = hits.normal[sel] * np.where(np.einsum("ij,ij->i", d, ng) < 0, 1.0, -1.0)[:, None]
+    n = np.where((np.einsum("ij,ij->i", d, n) >= 0)[:, None], ng, n)
+    p = origins[sel] + d * t[sel, None]
+    eps = EPSILON * ts.radius
+
+    def transmittance(o: np.ndarray, ldir: np.ndarray, dist: np.ndarray, normal: np.ndarray) -> np.ndarray:
+        vis = np.ones((len(o), 3))
+        start, dist = o + eps * normal, dist.copy()
+        todo = np.arange(len(o))
+        for _ in range(trace_lights.MAX_LAYERS):
+            hp, _, _, ht = _intersect_front(ts, start[todo], ldir[todo])
+            ht = np.asarray(ht, np.float64)
+            blocked = (hp >= 0) & (ht < dist[todo] - 2 * eps)
+            idx = todo[blocked]
+            if not len(idx):
+                break
+            km = ts.material[hp[blocked]]
+            through = ts.transmission[km] * (1 - ts.metallic[km])
+            vis[idx] *= through[:, None] * ts.base[km]
+            start[idx] += ldir[idx] * (ht[blocked] + eps)[:, None]
+            dist[idx] -= ht[blocked] + eps
+            todo = idx[through > 0]
+            if not len(todo):
+                break
+        return vis
+
+    def spec_albedo(f0: np.ndarray, cos_v: np.ndarray, rough: np.ndarray):
+        return (env.specular_albedo(f0, cos_v, rough, False),
+                env.specular_albedo(f0, cos_v, rough, options.multiscatter))
+
+    rgb = trace_lights.direct(lights, transmittance, p, n, ng, -d, hits.base[sel],
+                              hits.metallic[sel], hits.roughness[sel], hits.transmission[sel],
+                              ts.ior[k], spec_albedo)
+    add(rgb * carried[sel], slot[sel])
 
 
 def _alpha_draw(pix: np.ndarray, sub: np.ndarray, n_sub: int, depth: int) -> np.ndarray:
