@@ -39,10 +39,18 @@ narrower by |1 - eta| / 2): no noise, but biased. Inside a volume, Beer-Lambert
 attenuation exp(-sigma t) with sigma = -ln(attenuation_color) / attenuation_distance.
 Single-sided opaque materials are invisible from behind (rays pass through their back faces,
 as raster culling does); transmissive ones keep both sides (rays inside glass meet back
-faces). Emissive surfaces add their factor x strength wherever a path meets them. Material factors
-only: textures and normal maps are not sampled, and punctual lights are not
-used (the environment is the only light), so the method is exact for untextured glass and
-mirrors, which is what it is for.
+faces). Emissive surfaces add their emission wherever a path meets them.
+
+The material at a hit is the baked one the raster reads (renderer.methods.trace_material):
+factors times base colour, metal-rough, normal (baked tangents), occlusion, emissive and
+transmission textures, each with its KHR_texture_transform, UV set and sampler, trilinear on
+the baked mips at the ray cone's footprint, times vertex colours; alpha MASK cuts rays
+through, BLEND lets them through with probability 1 - alpha (stratified per pixel). Occlusion
+scales the diffuse share, which reads the environment without visibility (as the raster's
+ambient term). The asset's punctual lights are added by next-event estimation at every
+surface a path meets (renderer.methods.trace_lights). Not yet traced: the specular,
+clearcoat, sheen, iridescence, anisotropy and diffuse-transmission lobes (their factors and
+textures are ignored here; the raster has them).
 
 Anti-aliasing: `supersample` x `supersample` stratified rays per pixel (box filter) on and
 around the object, so silhouettes and the strongly minified refracted environment average
@@ -135,8 +143,10 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
     for k, mesh in enumerate(asset.meshes):
         mat = apply_override(mesh.material, options.override)
         materials.append(mat)
+        # unlit (KHR_materials_unlit): its colour is emitted (trace_material), and IOR 1
+        # with no transmission leaves no reflection or diffuse share
         tables.append((mat.base_color[:3], mat.metallic, mat.roughness, mat.transmission,
-                       mat.ior, mat.absorption(), not mat.double_sided and mat.transmission <= 0,
+                       1.0 if mat.unlit else mat.ior, mat.absorption(), not mat.double_sided and mat.transmission <= 0,
                        np.asarray(mat.emissive, np.float64) * mat.emissive_strength))
         idx = mesh.indices.astype(np.int64)
         for m in mesh.transforms:

@@ -256,6 +256,9 @@ def evaluate(surf: Surface, normals: np.ndarray, material: np.ndarray, prim: np.
         if t is not None:
             e *= t[:, :3]
         emis[sel] = e
+        if m.unlit:  # the colour as it is, emitted; nothing reflected
+            emis[sel], base[sel], metal[sel], trans[sel] = base[sel], 0.0, 0.0, 0.0
+            continue
         t = tex("occlusion")
         if t is not None:
             occ[sel] = 1.0 + m.occlusion_strength * (t[:, 0] - 1.0)
