@@ -30,9 +30,9 @@ def _path(name: str) -> Path:
 def main(argv: list[str] | None = None) -> int:
     import flip_evaluator
 
-    import pipeline
     from core.options import RenderOptions
-    from pipeline.bake import build_baked
+    from pipeline.bake import bake_environment, build_baked
+    from pipeline.ingest import load_scene
     from renderer import render
     from renderer.methods.auto import environment_face_size
     from renderer.raster.render import render_supersampled
@@ -46,10 +46,10 @@ def main(argv: list[str] | None = None) -> int:
     scores = []
     for name in args.models:
         src = _path(name)
-        baked = build_baked(pipeline.load_scene(src), "bench-" + name, {"thumbnail_size": args.px})
-        full = build_baked(pipeline.load_scene(src), "bench-full-" + name, {"thumbnail_size": 1 << 16})
+        baked = build_baked(load_scene(src), "bench-" + name, {"thumbnail_size": args.px})
+        full = build_baked(load_scene(src), "bench-full-" + name, {"thumbnail_size": 1 << 16})
         o = RenderOptions(width=args.px, height=args.px, background="env")
-        env = pipeline.bake_environment("studio", args.cache, face_size=environment_face_size(baked, o)[0])
+        env = bake_environment("studio", args.cache, face_size=environment_face_size(baked, o)[0])
         ours = render(baked, env, o).rgba8[..., :3] / np.float32(255)
         ref = render_supersampled(full, env, o, args.factor).rgba8[..., :3] / np.float32(255)
         _, mean, _ = flip_evaluator.evaluate(ref, ours, "LDR", applyMagma=False)
