@@ -14,15 +14,16 @@ from pathlib import Path
 
 from cachetools import LRUCache
 
-import pipeline
 import renderer
 from core.baked import BakedAsset, BakedEnvironment
 from core.cubemap import DEFAULT_FACE_SIZE
 from core.errors import AssetError
 from core.options import MaterialOverride, RenderOptions
 from gl.context import get_context
+from pipeline.bake import bake_asset, bake_environment, load_baked
 from pipeline.cache import Cache
 from pipeline.environment.prefilter import list_bundled
+from pipeline.ingest import load_scene
 from pipeline.limits import Limits
 from renderer.methods.auto import environment_face_size
 from renderer.raster import gpu
@@ -93,7 +94,7 @@ class WorkerState:
 
     def _warm(self) -> None:
         try:
-            asset = pipeline.bake_asset(SAMPLE, self.cache)
+            asset = bake_asset(SAMPLE, self.cache)
             # The environment a default-sized thumbnail needs (the face-size policy's answer).
             env = self._env(self.config.default_env, environment_face_size(asset, RenderOptions())[0])
             for override in (None, MaterialOverride(transmission=1.0, ior=1.5, roughness=0.0)):
@@ -104,7 +105,7 @@ class WorkerState:
             log.warning("warm-up render failed: %s", exc)
 
     def inspect(self, job: InspectJob) -> AssetSummary:
-        scene = pipeline.load_scene(job.path, self.limits, root=job.root)
+        scene = load_scene(job.path, self.limits, root=job.root)
         return AssetSummary(format=scene.format, triangles=int(scene.triangle_count),
                             materials=len(scene.materials), warnings=tuple(scene.warnings)[:20],
                             transmissive=any(m.transmission > 0 for m in scene.materials),
@@ -112,7 +113,7 @@ class WorkerState:
 
     def bake(self, job: BakeJob) -> BakeResult:
         t0 = time.perf_counter()
-        baked = pipeline.bake_asset(job.path, self.cache, limits=self.limits, root=job.root)
+        baked = bake_asset(job.path, self.cache, limits=self.limits, root=job.root)
         return BakeResult(baked.key, int(baked.triangle_count), time.perf_counter() - t0)
 
     def render(self, job: RenderJob) -> RenderReply:
@@ -120,7 +121,7 @@ class WorkerState:
         (renderer.methods.auto.environment_face_size)."""
         t0 = time.perf_counter()
         options = job.options
-        asset = self._cached(("asset", job.key), lambda: pipeline.load_baked(job.key, self.cache))
+        asset = self._cached(("asset", job.key), lambda: load_baked(job.key, self.cache))
         self.cache.touch("assets", job.key)  # in use: the bake cache's LRU must not see it as cold
         assert isinstance(asset, BakedAsset)
         env = self._env(job.env_source, environment_face_size(asset, options)[0])
@@ -133,7 +134,7 @@ class WorkerState:
         return RenderReply(data, RenderPlan.of(frame.plan), time.perf_counter() - t0)
 
     def _env(self, source: str, face_size: int) -> BakedEnvironment:
-        env = self._cached(("env", f"{face_size}:{source}"), lambda: pipeline.bake_environment(
+        env = self._cached(("env", f"{face_size}:{source}"), lambda: bake_environment(
             source, self.cache, face_size=face_size))
         assert isinstance(env, BakedEnvironment)
         return env
