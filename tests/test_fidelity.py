@@ -11,7 +11,6 @@ import pytest
 
 from bench.fidelity import blender_panorama, extensions_used, model_files
 
-
 SAMPLES = Path(__file__).resolve().parent / "assets" / "gltf-samples"
 
 
