@@ -30,16 +30,17 @@ if [ "$BASE" = debootstrap ]; then
   fi
 fi
 
-# A local wheel folder / index on the host (PIP_FIND_LINKS, PIP_EXTRA_INDEX_URL as file:// paths)
-# is mounted read-only into the build, where podman allows it.
+# The host's pip settings (a local wheel folder or file:// index, a proxy's CA bundle) pass into
+# the build, their folders and files mounted read-only at the same paths, where podman allows it.
 set -- --build-arg "BASE=$BASE" --network host -f docker/Dockerfile -t "$TAG"
 if [ "$ENGINE" = podman ]; then
-  for var in PIP_FIND_LINKS PIP_EXTRA_INDEX_URL PIP_INDEX_URL; do
+  for var in PIP_FIND_LINKS PIP_EXTRA_INDEX_URL PIP_INDEX_URL PIP_CERT; do
     val=$(eval echo "\${$var:-}")
     [ -n "$val" ] || continue
     set -- "$@" --build-arg "$var=$val"
-    for dir in $(echo "$val" | sed 's#file://##g'); do
-      [ -d "$dir" ] && set -- "$@" --volume "$dir:$dir:ro"
+    for path in $(echo "$val" | sed 's#file://##g'); do
+      case "$path" in */simple) path=$(dirname "$path");; esac  # the index's files sit beside it
+      [ -e "$path" ] && set -- "$@" --volume "$path:$path:ro"
     done
   done
 fi
