@@ -27,7 +27,7 @@ def _bench(tmp_path, *extra) -> tuple[str, dict]:
 
 def test_model_list_and_extensions(assets):
     models = dict(model_files(samples=SAMPLES))
-    assert len(models) == 16 and models["NegativeScaleTest"].suffix == ".glb"
+    assert len(models) == 18 and models["NegativeScaleTest"].suffix == ".glb"
     assert models["SheenCloth"].suffix == ".gltf"  # no glTF-Binary variant: the .gltf
     assert "KHR_materials_anisotropy" in extensions_used(models["AnisotropyRotationTest"])
 
