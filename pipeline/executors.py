@@ -20,11 +20,10 @@ import os
 import socket
 import sys
 import time
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-LOOPBACK = "127.0.0.1"  # every local cluster's address: nothing listens on the machine's network
+LOOPBACK = "127.0.0.1"  # a throwaway local cluster answers on loopback only
 
 log = logging.getLogger(__name__)
 
@@ -91,91 +90,6 @@ def _probe(address: str, timeout: float = 10.0) -> None:
         raise ExecutorUnavailable(f"not a Ray address: {address!r} (auto, HOST:PORT or ray://HOST:PORT)") from None
     except OSError as exc:
         raise ExecutorUnavailable(f"cannot reach the Ray cluster at {address}: {exc.strerror or exc}") from None
-
-
-class LoopbackCluster:
-    """A Ray cluster on this machine of separate `ray start --block` processes, every address
-    127.0.0.1: a head with no CPUs (the driver's node, which never runs a bake itself) and
-    worker nodes that can each be killed outright, as a lost machine would be. Each process is
-    its own session, so stopping one kills that node only (never `ray stop`, which stops every
-    Ray on the machine)."""
-
-    def __init__(self, workers: int = 2, cpus_per_worker: int = 1, timeout: float = 120.0):
-        import subprocess
-
-        self.port = _free_port()
-        self.address = f"{LOOPBACK}:{self.port}"
-        self.nodes: dict[int, subprocess.Popen] = {}  # node manager port -> its ray start
-        common = ["--node-ip-address", LOOPBACK, "--disable-usage-stats", "--block"]
-        self.head = self._start(["--head", "--port", str(self.port), "--num-cpus", "0",
-                                 "--include-dashboard", "false", *common])
-        _wait_listening(self.address, timeout)
-        for _ in range(workers):
-            port = _free_port()
-            self.nodes[port] = self._start(["--address", self.address, "--num-cpus", str(cpus_per_worker),
-                                            "--node-manager-port", str(port), *common])
-
-    @staticmethod
-    def _start(args):
-        import shutil
-        import subprocess
-
-        ray_cli = shutil.which("ray") or str(Path(sys.executable).with_name("ray"))
-        return subprocess.Popen([ray_cli, "start", *args], stdout=subprocess.DEVNULL,
-                                stderr=subprocess.DEVNULL, start_new_session=True)
-
-    def kill_node(self, port: int) -> None:
-        """SIGKILL one worker node's raylet and its workers (its whole process group)."""
-        import signal
-        proc = self.nodes.pop(port)
-        try:
-            os.killpg(proc.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
-        proc.wait()
-
-    def stop(self) -> None:
-        import signal
-        for proc in [*self.nodes.values(), self.head]:
-            try:
-                os.killpg(proc.pid, signal.SIGTERM)
-            except ProcessLookupError:
-                continue
-        for proc in [*self.nodes.values(), self.head]:
-            try:
-                proc.wait(timeout=30)
-            except Exception:  # noqa: BLE001  a node that will not stop is killed
-                os.killpg(proc.pid, signal.SIGKILL)
-        self.nodes.clear()
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind((LOOPBACK, 0))
-        return s.getsockname()[1]
-
-
-def _wait_listening(address: str, timeout: float) -> None:
-    end = time.monotonic() + timeout
-    while True:
-        try:
-            _probe(address, timeout=2)
-            return
-        except ExecutorUnavailable:
-            if time.monotonic() > end:
-                raise
-            time.sleep(0.5)
-
-
-@contextmanager
-def loopback_cluster(workers: int = 2, cpus_per_worker: int = 1):
-    """`LoopbackCluster` for a `with` block: stopped (its own processes only) at the end."""
-    require_ray()
-    cluster = LoopbackCluster(workers, cpus_per_worker)
-    try:
-        yield cluster
-    finally:
-        cluster.stop()
 
 
 def disconnect() -> None:
