@@ -1,6 +1,8 @@
 """The repository stands alone: no test, seed or shipped module reads `../shared` beside the
 checkout, and every sample file a test names is in tests/assets with its licence noted."""
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -39,3 +41,12 @@ def test_every_asset_folder_has_its_licence_noted():
     for model in sorted((ASSETS / "gltf-samples").iterdir()):
         assert (model / "LICENSE.md").is_file() and model.name in sources, model.name
     assert (ASSETS / "usd" / "LICENSE-usd-wg-assets").is_file()
+
+
+def test_the_wheel_ships_no_benchmarks_but_a_checkout_runs_them():
+    include = re.search(r"\[tool.setuptools.packages.find\][^\[]*include = \[([^\]]*)\]",
+                        (ROOT / "pyproject.toml").read_text(), re.S)
+    assert include and "core*" in include.group(1) and "bench" not in include.group(1)
+    p = subprocess.run([sys.executable, "-m", "cli.main", "bench", "--help"], cwd=ROOT,
+                       capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0 and "fidelity" in p.stdout, p.stderr[-2000:]
