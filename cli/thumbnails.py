@@ -91,22 +91,22 @@ class Thumbnails:
         return entry
 
     def _environment(self, asset, options):
-        import pipeline
+        from pipeline.bake import bake_environment
         from pipeline.environment.panorama import DEFAULT_ENVIRONMENT
         from renderer.methods.auto import environment_face_size
 
         face, _ = environment_face_size(asset, options)
         if face not in self._envs:
-            self._envs[face] = pipeline.bake_environment(self.env_source or DEFAULT_ENVIRONMENT,
-                                                         self.cache, face_size=face)
+            self._envs[face] = bake_environment(self.env_source or DEFAULT_ENVIRONMENT,
+                                                self.cache, face_size=face)
         return self._envs[face]
 
     def _render(self, key: str, name: str) -> dict:
-        import pipeline
+        from pipeline.bake import load_baked
         from renderer import render
         from renderer.sequence import encode_animation, render_turntable, render_views
 
-        asset = pipeline.load_baked(key, self.cache)
+        asset = load_baked(key, self.cache)
         env = self._environment(asset, self.options)
         target = self.out / name
         target.parent.mkdir(parents=True, exist_ok=True)
