@@ -50,10 +50,10 @@ $ENGINE build "$@" .
 [ "${SMOKE:-0}" = 1 ] || exit 0
 PORT=${PORT:-18080}
 NAME=asset-preview-smoke
-$ENGINE rm -f "$NAME" >/dev/null 2>&1 || true
+$ENGINE rm -f -v "$NAME" >/dev/null 2>&1 || true
 echo "== $ENGINE run $TAG on 127.0.0.1:$PORT"
 # shellcheck disable=SC2086
 $ENGINE run $RUNTIME -d --name "$NAME" -p "127.0.0.1:$PORT:8000" \
   -e ASSET_PREVIEW_INSECURE_NO_AUTH=true -e ASSET_PREVIEW_RENDER_WORKERS=1 "$TAG" >/dev/null
-trap '$ENGINE rm -f "$NAME" >/dev/null 2>&1 || true' EXIT
+trap '$ENGINE rm -f -v "$NAME" >/dev/null 2>&1 || true' EXIT  # -v: its /data volume too
 python3 docker/smoke.py "http://127.0.0.1:$PORT" tests/assets/gltf/Duck.glb "${SMOKE_OUT:-.cache/smoke-thumbnail.png}"
