@@ -26,8 +26,6 @@ from typing import Any
 from pipeline.bake import bake_one
 from pipeline.cache import default_cache_dir
 
-LOOPBACK = "127.0.0.1"  # a throwaway local cluster answers on loopback only
-
 log = logging.getLogger(__name__)
 
 RAY_MISSING = ("--executor ray needs Ray, which is not installed: "
@@ -74,8 +72,8 @@ def connect(address: str | None = None, num_cpus: int | None = None) -> None:
     try:
         if address:
             ray.init(address=address, **kwargs)
-        else:  # a throwaway cluster on this machine, no dashboard, on loopback only
-            ray.init(num_cpus=num_cpus, include_dashboard=False, _node_ip_address=LOOPBACK, **kwargs)
+        else:  # a throwaway cluster on this machine, no dashboard
+            ray.init(num_cpus=num_cpus, include_dashboard=False, **kwargs)
     except (ConnectionError, RuntimeError, ValueError) as exc:
         raise ExecutorUnavailable(f"cannot connect to the Ray cluster at {address or 'a new local one'}: "
                                   f"{exc}") from exc
