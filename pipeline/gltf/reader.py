@@ -21,6 +21,7 @@ from typing import cast
 
 import numpy as np
 
+from core.animation import Moment, seconds, select
 from core.errors import LimitExceeded, MalformedAsset, MissingFile, UnsupportedFormat
 from core.scene import (
     Instance,
@@ -35,6 +36,7 @@ from core.scene import (
     default_material,
 )
 from pipeline import deadline
+from pipeline.gltf.animation import read_animations
 from pipeline.gltf.decode import MESHOPT_EXTENSIONS, draco_primitive, meshopt_view
 from pipeline.gltf.materials import MATERIAL_EXTENSIONS, read_lobes
 from pipeline.gltf.skin import morph
@@ -67,10 +69,12 @@ WIRE_RADIUS = {POINTS: 0.012, LINES: 0.006}  # x the scene diagonal: a few pixel
 GLB_MAGIC, CHUNK_JSON, CHUNK_BIN = b"glTF", 0x4E4F534A, 0x004E4942
 
 
-def load(path: Path, limits: Limits, root: Path | None = None) -> Scene:
+def load(path: Path, limits: Limits, root: Path | None = None,
+         moment: Moment | None = None) -> Scene:
     """Read a .gltf or .glb file (checked against `limits`) into a Scene; its URIs must lie
-    inside `root` (default: its folder; `paths.sandbox_root`)."""
-    return _Reader(Path(path), limits, root).scene()
+    inside `root` (default: its folder; `paths.sandbox_root`). With a `moment`, nodes, skins
+    and morph weights are posed by that animation at that time (pipeline.gltf.animation)."""
+    return _Reader(Path(path), limits, root).scene(moment)
 
 
 def _split_glb(path: Path, data: bytes) -> tuple[memoryview, memoryview | None]:
@@ -113,6 +117,7 @@ class _Reader:
         self._arrays: dict[str, list] = {}  # top-level JSON arrays, type-checked once
         self._files_read: dict[str, bytes] = {}  # by resolved path
         self.textures: list[Texture] = []  # DeferredTextures
+        self._pose: dict[int, dict[str, np.ndarray]] = {}  # node -> animated TRS / weights
         self._unpacked = 0  # bytes of referenced files and decoded arrays, against the limit
         data = path.read_bytes()
         text: bytes | memoryview
@@ -713,6 +718,9 @@ class _Reader:
         return [i for i in range(len(nodes)) if i not in children]
 
     def _local(self, node: dict, index: int) -> np.ndarray:
+        if index in self._pose:  # animated: the channels' values replace the node's own
+            node = {k: v for k, v in node.items() if k != "matrix"}
+            node.update({k: [float(x) for x in v] for k, v in self._pose[index].items()})
         if "matrix" in node:
             m = np.array(self._floats(node, "matrix", (0.0,) * 16), np.float64)
             return m.reshape(4, 4).T  # glTF stores column-major
@@ -814,9 +822,16 @@ class _Reader:
             raise self._bad(f"{what}: TRANSLATION/SCALE must be VEC3 and ROTATION VEC4")
         return world @ _trs(t.astype(np.float64), q.astype(np.float64), k.astype(np.float64))
 
-    def scene(self) -> Scene:
+    def scene(self, moment: Moment | None = None) -> Scene:
         scene = Scene(source=str(self.path), format="glb" if self.glb_bin is not None or
                       self.path.suffix.lower() == ".glb" else "gltf")
+        animations = read_animations(self)
+        scene.animations = [a.summary() for a in animations]
+        if moment is not None:
+            anim = select(animations, moment.animation, str(self.path))
+            t = seconds(moment, anim)
+            self._pose = anim.pose(t)
+            scene.moment = {"animation": anim.name, "time": round(t, 6)}
         prim_meshes: dict[tuple, int | None] = {}
         materials: dict[int | None, int] = {}
         wire: dict[int, int] = {}  # scene mesh -> primitive mode, for points and lines
@@ -837,6 +852,8 @@ class _Reader:
             mesh_def = self._get("meshes", mesh_index, f"node {index} mesh")
             prims = self._list(mesh_def, "primitives")
             weights = node.get("weights", mesh_def.get("weights", ()))
+            if "weights" in self._pose.get(index, {}):
+                weights = [float(w) for w in self._pose[index]["weights"]]
             weights = self._floats({"w": weights}, "w", (0.0,) * len(weights)) if weights else ()
             skin = node.get("skin")
             if skin is not None and skin not in skins:
