@@ -137,13 +137,14 @@ def _finish(v: np.ndarray, quaternion: bool) -> np.ndarray:
     return _unit(v) if quaternion else v
 
 
-def select(animations: list[Animation], spec: str | None, source: str = "asset") -> Animation:
-    """The animation `spec` names (a name, or an index N), the first when None."""
+def select(animations: list, spec: str | None, source: str = "asset"):
+    """The animation `spec` names (a name, or an index N), the first when None; `animations`
+    holds Animations or their summary() dicts."""
     if not animations:
         raise NotInAsset(source, "has no animations (--time and --animate need one)")
     if spec is None:
         return animations[0]
-    names = [a.name for a in animations]
+    names = [a["name"] if isinstance(a, dict) else a.name for a in animations]
     if spec in names:
         return animations[names.index(spec)]
     if spec.isdigit() and int(spec) < len(animations):
@@ -155,3 +156,13 @@ def select(animations: list[Animation], spec: str | None, source: str = "asset")
 def seconds(moment: Moment, animation: Animation) -> float:
     """The moment's time in seconds of `animation` (poster resolved)."""
     return poster_time(animation) if moment.time == POSTER else float(moment.time)
+
+
+def requested(options) -> Moment | None:
+    """The Moment a core.options.RenderOptions asks for: its `time` (seconds or poster) of
+    its `animation`; an animation named without a time shows its poster frame; neither: None
+    (the asset at rest)."""
+    if options.time is None and options.animation is None:
+        return None
+    t = POSTER if options.time in (None, POSTER) else float(options.time)
+    return Moment(time=t, animation=options.animation)

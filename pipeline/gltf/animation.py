@@ -2,9 +2,11 @@
 sparse accessors, normalized integers and the file's limits apply as for geometry)."""
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
-from core.animation import Animation, Channel
+from core.animation import Animation, Channel, Path
 
 PATHS = {"translation": 3, "rotation": 4, "scale": 3, "weights": None}
 INTERPOLATIONS = ("LINEAR", "STEP", "CUBICSPLINE")
@@ -66,5 +68,5 @@ def _channel(reader, sampler: dict, node: int, path: str, what: str) -> Channel:
         raise reader._bad(f"{what}: output holds non-finite values")
     if interpolation == "CUBICSPLINE":
         values = values.reshape(len(times), 3, -1)
-    return Channel(node=node, path=path, interpolation=interpolation, times=times,
+    return Channel(node=node, path=cast(Path, path), interpolation=interpolation, times=times,
                    values=values)
