@@ -58,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
         return _fail(describe_error(exc))
     except ValueError as exc:
         return _fail(str(exc))
-    if options.turntable and out_ext not in (".webp", ".gif"):
+    if options.turntable and not options.animate and out_ext not in (".webp", ".gif"):
         return _fail(f"{args.out}: --turntable writes an animated .webp or .gif")
     if options.animate and out_ext not in (".webp", ".gif", ".png"):
         return _fail(f"{args.out}: --animate writes an animated .webp, .gif or .png (APNG)")

@@ -39,6 +39,7 @@ class Channel:
     interpolation: Interpolation
     times: np.ndarray   # K, float64, strictly increasing
     values: np.ndarray  # K x W (K x 3 x W for CUBICSPLINE: in-tangent, value, out-tangent)
+    node_name: str = ""  # for people: what inspect lists
 
     def sample(self, t: float) -> np.ndarray:
         """The channel's value at `t` seconds (W,), float64."""
@@ -74,8 +75,9 @@ class Animation:
         """What `inspect` lists: name, time range, channels and what they drive."""
         return {"name": self.name, "start": round(self.start, 6), "duration": round(self.duration, 6),
                 "channels": len(self.channels),
-                "targets": sorted({f"node {c.node} {c.path}" for c in self.channels},
-                                  key=lambda s: (int(s.split()[1]), s))}
+                "targets": [{"node": c.node, "name": c.node_name, "path": c.path,
+                             "interpolation": c.interpolation, "keys": len(c.times)}
+                            for c in sorted(self.channels, key=lambda c: (c.node, c.path))]}
 
 
 def poster_time(animation: Animation) -> float:

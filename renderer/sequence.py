@@ -91,25 +91,26 @@ def encode_animation(frames: list[Frame], fmt: str = "webp", quality: int | None
 
 
 def motion_camera(assets: list[BakedAsset], options: RenderOptions) -> RenderOptions:
-    """`options` with one target and distance for every frame of a motion: the centre of the
-    bounds over all frames, and the farthest fit of every frame (and, turning, every angle)
-    about it, so the whole motion stays in the frame and the camera neither zooms nor pans."""
+    """`options` with one target and distance for every frame of a motion, so the whole
+    motion stays in the frame and the camera neither zooms nor pans: the framing of all
+    frames' geometry at once (a stand-in asset holding every pose), and, turning, the
+    turntable's distance of that stand-in about its centre."""
     if options.camera is not None:  # the asset's own camera frames it
         return options
     lo = np.min([np.asarray(a.bounds, np.float64)[0] for a in assets], axis=0)
     hi = np.max([np.asarray(a.bounds, np.float64)[1] for a in assets], axis=0)
-    centre = np.asarray(options.target, np.float64) if options.target is not None else (lo + hi) / 2
-    if options.distance is not None:
-        return dataclasses.replace(options, target=_point(centre))
-    yaws = turntable_angles(options) if options.turntable else [options.yaw]
-    far = 0.0
-    for asset in assets:
-        for yaw in yaws:
-            cam = asset_camera(asset, dataclasses.replace(options, yaw=yaw, turntable=0))[0]
-            # fitted about this frame's own centre: about the common one it needs that much more
-            own = np.asarray(asset.bounds, np.float64).mean(axis=0)
-            far = max(far, float(np.linalg.norm(cam.position - own) + np.linalg.norm(own - centre)) * 1.05)
-    return dataclasses.replace(options, target=_point(centre), distance=far)
+    hulls = [a.hull for a in assets]
+    whole = dataclasses.replace(
+        assets[0], key=f"{assets[0].key}#motion{len(assets)}", textures=[],
+        meshes=[m for a in assets for m in a.meshes], bounds=np.stack([lo, hi]),
+        hull=None if any(h is None or len(h) == 0 for h in hulls) else np.concatenate(hulls))
+    if options.turntable:
+        centre = (lo + hi) / 2 if options.target is None else np.asarray(options.target)
+        return dataclasses.replace(options, target=_point(centre),
+                                   distance=turntable_distance(whole, options))
+    cam = asset_camera(whole, options)[0]
+    return dataclasses.replace(options, target=_point(cam.target),
+                               distance=float(np.linalg.norm(cam.position - cam.target)))
 
 
 def _point(p: np.ndarray) -> tuple[float, float, float]:

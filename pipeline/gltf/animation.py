@@ -69,4 +69,4 @@ def _channel(reader, sampler: dict, node: int, path: str, what: str) -> Channel:
     if interpolation == "CUBICSPLINE":
         values = values.reshape(len(times), 3, -1)
     return Channel(node=node, path=cast(Path, path), interpolation=interpolation, times=times,
-                   values=values)
+                   values=values, node_name=reader._name("nodes", node))
