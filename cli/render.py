@@ -64,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
         return _fail(f"{args.out}: --animate writes an animated .webp, .gif or .png (APNG)")
     if out_ext == ".gif" and not (options.turntable or options.animate):
         return _fail(f"{args.out}: .gif is for --turntable; use .png .jpg or .webp")
-    from core.animation import Moment, requested
+    from core.animation import requested
     from core.errors import AssetError
     try:
         asset = pipeline.bake_asset(args.path, args.cache, root=args.root,
@@ -77,11 +77,9 @@ def run(args: argparse.Namespace) -> int:
     from renderer.sequence import encode_animation, render_animation, render_turntable, render_views
     try:
         if options.animate:  # one pose per frame, one camera over the whole motion
-            from pipeline.animate import frame_times, posed
-            times, motion = frame_times(asset, options.animate, options.animation)
-            posed_assets = [posed(args.path, asset, Moment(t, options.animation), args.root)
-                            for t in times]
-            frames = render_animation(posed_assets, env, options, motion)
+            from pipeline.animate import poses_for
+            posed_assets, motion = poses_for(args.path, asset, options, args.root)
+            frames = render_animation(posed_assets, env, options, motion or {})
             frame = frames[0]
         elif options.turntable:  # N frames from this one bake and one upload
             frames = render_turntable(asset, env, options, keep_linear=bool(args.linear))

@@ -42,8 +42,22 @@ def posed(path, base: BakedAsset, moment: Moment, root=None, limits: Limits | No
     from pipeline.bake import build_baked
     from pipeline.ingest import load_scene
     scene = load_scene(Path(path), limits, root, moment=moment)
+    scene.textures = []  # not decoded again: no pose changes them, base's are used
     key = f"{base.key}@{moment.animation or ''}:{float(moment.time):.6f}"
     baked = build_baked(scene, key, {**(base.manifest or {}).get("options", {}),
                                      "moment": dataclasses.asdict(moment)})
     baked.textures = base.textures
     return baked
+
+
+def poses_for(path, base: BakedAsset, options, root=None,
+              limits: Limits | None = None) -> tuple[list[BakedAsset], dict | None]:
+    """The poses a request (core.options.RenderOptions) needs of `path`, whose rest bake is
+    `base`: every frame's for `animate` with what was played, the one pose of its `time`, or
+    `base` itself when it asks for neither."""
+    from core.animation import requested
+    if options.animate:
+        times, motion = frame_times(base, options.animate, options.animation)
+        return [posed(path, base, Moment(t, options.animation), root, limits) for t in times], motion
+    moment = requested(options)
+    return [base if moment is None else posed(path, base, moment, root, limits)], None

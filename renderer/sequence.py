@@ -99,11 +99,11 @@ def motion_camera(assets: list[BakedAsset], options: RenderOptions) -> RenderOpt
         return options
     lo = np.min([np.asarray(a.bounds, np.float64)[0] for a in assets], axis=0)
     hi = np.max([np.asarray(a.bounds, np.float64)[1] for a in assets], axis=0)
-    hulls = [a.hull for a in assets]
+    hulls = [a.hull for a in assets if a.hull is not None and len(a.hull)]
     whole = dataclasses.replace(
         assets[0], key=f"{assets[0].key}#motion{len(assets)}", textures=[],
         meshes=[m for a in assets for m in a.meshes], bounds=np.stack([lo, hi]),
-        hull=None if any(h is None or len(h) == 0 for h in hulls) else np.concatenate(hulls))
+        hull=np.concatenate(hulls) if len(hulls) == len(assets) else None)
     if options.turntable:
         centre = (lo + hi) / 2 if options.target is None else np.asarray(options.target)
         return dataclasses.replace(options, target=_point(centre),

@@ -279,3 +279,44 @@ def test_animate_needs_an_animation(assets, cache, tmp_path, capsys):
     assert main(["render", str(assets / "gltf/BoxTextured.glb"), "--out", str(out), "--size", "32",
                  "--cache", cache, "--animate", "4"]) == 2
     assert "no animation" in capsys.readouterr().err
+
+
+def test_time_and_animate_over_http(server, assets):
+    import io
+    import json
+
+    from test_service import upload
+    path = _sample(assets, "CesiumMan")
+    r = upload(server, "CesiumMan.glb", path.read_bytes())
+    assert r.status_code == 201, r.text
+    rec = server.wait_status(r.json()["id"])
+    assert rec["status"] == "ready", rec
+    url = f"/assets/{rec['id']}/thumbnail"
+    r = server.client.get(url, params={"size": 48, "animate": 4, "format": "webp"})
+    assert r.status_code == 200 and r.headers["content-type"] == "image/webp", r.text
+    im = Image.open(io.BytesIO(r.content))
+    assert im.n_frames == 8 and im.size == (48, 48)
+    plan = json.loads(r.headers["x-render-plan"])
+    assert plan["animate"]["frames"] == 8 and plan["animate"]["fps"] == 4
+    stills = [server.client.get(url, params={"size": 48, **p}) for p in ({}, {"time": "0.6"})]
+    assert all(s.status_code == 200 for s in stills)
+    assert stills[0].content != stills[1].content and stills[0].headers["etag"] != stills[1].headers["etag"]
+    r = server.client.get(url, params={"size": 48, "animate": 4})
+    assert r.status_code == 422 and "webp, gif or png" in r.json()["detail"]
+
+
+def test_worker_renders_time_and_animate(assets, tmp_path):
+    """The service's worker job (what the HTTP test above reaches through a server): posed
+    from the bake's source, the animation encoded in the format asked for."""
+    import io
+
+    from service.workers.pool import WorkerConfig, WorkerState
+    path = _sample(assets, "CesiumMan")
+    state = WorkerState(WorkerConfig(cache_dir=str(tmp_path / "cache"), default_env="studio"))
+    key = state.bake(str(path))["key"]
+    out = state.render(key, "studio", RenderOptions(width=40, height=40, animate=4), "webp")
+    im = Image.open(io.BytesIO(out["image"]))
+    assert im.n_frames == 8 and out["plan"]["animate"]["frames"] == 8
+    rest, moved = (state.render(key, "studio", RenderOptions(width=40, height=40, time=t), "png")
+                   for t in (None, "0.6"))
+    assert rest["image"] != moved["image"]
