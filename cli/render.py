@@ -65,12 +65,8 @@ def run(args: argparse.Namespace) -> int:
     if out_ext == ".gif" and not (options.turntable or options.animate):
         return _fail(f"{args.out}: .gif is for --turntable; use .png .jpg or .webp")
     from core.animation import requested
-    from core.errors import AssetError
-    try:
-        asset = pipeline.bake_asset(args.path, args.cache, root=args.root,
-                                    moment=None if options.animate else requested(options))
-    except AssetError as exc:
-        return _fail(str(exc))
+    asset = pipeline.bake_asset(args.path, args.cache, root=args.root,
+                                moment=None if options.animate else requested(options))
     face, env_why = environment_face_size(asset, options)
     env_source = args.env or _dome(asset, args.path) or DEFAULT_ENVIRONMENT
     env = pipeline.bake_environment(env_source, args.cache, face_size=face)
@@ -88,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
             frame = render_views(asset, env, options)
         else:
             frame = render(asset, env, options)
-    except (UnsupportedMethod, ValueError, AssetError) as exc:
+    except (UnsupportedMethod, ValueError) as exc:
         return _fail(str(exc))
     if options.animate:
         with open(args.out, "wb") as f:

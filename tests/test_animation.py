@@ -277,7 +277,7 @@ def test_animate_with_turntable_as_apng(assets, cache, tmp_path):
 def test_animate_needs_an_animation(assets, cache, tmp_path, capsys):
     out = tmp_path / "box.webp"
     assert main(["render", str(assets / "gltf/BoxTextured.glb"), "--out", str(out), "--size", "32",
-                 "--cache", cache, "--animate", "4"]) == 2
+                 "--cache", cache, "--animate", "4"]) == 3  # an AssetError (cli.main)
     assert "no animation" in capsys.readouterr().err
 
 
