@@ -320,3 +320,19 @@ def test_worker_renders_time_and_animate(assets, tmp_path):
     rest, moved = (state.render(key, "studio", RenderOptions(width=40, height=40, time=t), "png")
                    for t in (None, "0.6"))
     assert rest["image"] != moved["image"]
+
+
+def test_inspect_json_lists_animations_and_time_range(tmp_path, capsys):
+    import json
+    gltf = _animated(tmp_path / "anim.glb")
+    assert main(["inspect", "--json", str(gltf)]) == 0
+    info = json.loads(capsys.readouterr().out)
+    [anim] = info["animations"]
+    assert anim["name"] == "all" and anim["duration"] == 2.0 and anim["channels"] == 4
+    assert {t["path"] for t in anim["targets"]} == {"translation", "rotation", "weights"}
+    assert info["time_range"] is None
+    usd = tmp_path / "mover.usda"
+    usd.write_text(USDA)
+    assert main(["inspect", "--json", str(usd)]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["animations"] == [] and info["time_range"]["time_codes_per_second"] == 10.0
