@@ -10,9 +10,11 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from core.animation import Moment, select
+from core.animation import Moment, requested, select
 from core.baked import BakedAsset
 from core.errors import NotInAsset
+from pipeline.bake import build_baked
+from pipeline.ingest import load_scene
 from pipeline.limits import Limits
 
 MAX_FRAMES = 120  # as turntable's cap: an animated image past it is a video's job
@@ -39,8 +41,6 @@ def frame_times(base: BakedAsset, fps: float, animation: str | None = None) -> t
 def posed(path, base: BakedAsset, moment: Moment, root=None, limits: Limits | None = None) -> BakedAsset:
     """`path` posed at `moment`, built in memory with `base`'s textures; its key is `base`'s
     and the moment's (GPU uploads are by key: each pose is its own)."""
-    from pipeline.bake import build_baked
-    from pipeline.ingest import load_scene
     scene = load_scene(Path(path), limits, root, moment=moment)
     scene.textures = []  # not decoded again: no pose changes them, base's are used
     key = f"{base.key}@{moment.animation or ''}:{float(moment.time):.6f}"
@@ -55,7 +55,6 @@ def poses_for(path, base: BakedAsset, options, root=None,
     """The poses a request (core.options.RenderOptions) needs of `path`, whose rest bake is
     `base`: every frame's for `animate` with what was played, the one pose of its `time`, or
     `base` itself when it asks for neither."""
-    from core.animation import requested
     if options.animate:
         times, motion = frame_times(base, options.animate, options.animation)
         return [posed(path, base, Moment(t, options.animation), root, limits) for t in times], motion
