@@ -20,6 +20,7 @@ from core.cubemap import DEFAULT_FACE_SIZE
 from core.errors import AssetError
 from core.options import MaterialOverride, RenderOptions
 from gl.context import get_context
+from pipeline.animate import poses_for
 from pipeline.bake import bake_asset, bake_environment, load_baked
 from pipeline.cache import Cache
 from pipeline.environment.prefilter import list_bundled
@@ -27,7 +28,7 @@ from pipeline.ingest import load_scene
 from pipeline.limits import Limits
 from renderer.methods.auto import environment_face_size
 from renderer.raster import gpu
-from renderer.sequence import encode_animation, render_turntable, render_views
+from renderer.sequence import encode_animation, render_animation, render_turntable, render_views
 from service.workers.protocol import (
     AssetSummary,
     BakeEnvironmentJob,
@@ -125,6 +126,16 @@ class WorkerState:
         self.cache.touch("assets", job.key)  # in use: the bake cache's LRU must not see it as cold
         assert isinstance(asset, BakedAsset)
         env = self._env(job.env_source, environment_face_size(asset, options)[0])
+        if options.animate or options.time is not None or options.animation is not None:
+            # posed from the upload (pipeline.animate), its references inside its own folder
+            source = Path(asset.manifest["source"])
+            poses, motion = poses_for(source, asset, options, source.parent, self.limits)
+            if not options.animate:
+                asset = poses[0]
+            else:
+                frames = render_animation(poses, env, options, motion or {})
+                data = encode_animation(frames, job.fmt, frame_ms=1000.0 / options.animate)
+                return RenderReply(data, RenderPlan.of(frames[0].plan), time.perf_counter() - t0)
         if options.turntable:  # N frames from one upload and one bake, one animated image
             frames = render_turntable(asset, env, options, keep_linear=False)  # encoded only
             frame, data = frames[0], encode_animation(frames, job.fmt)
