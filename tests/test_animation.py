@@ -310,16 +310,17 @@ def test_worker_renders_time_and_animate(assets, tmp_path):
     from the bake's source, the animation encoded in the format asked for."""
     import io
 
-    from service.workers.pool import WorkerConfig, WorkerState
+    from service.workers.jobs import WorkerState
+    from service.workers.protocol import BakeJob, RenderJob, WorkerConfig
     path = _sample(assets, "CesiumMan")
     state = WorkerState(WorkerConfig(cache_dir=str(tmp_path / "cache"), default_env="studio"))
-    key = state.bake(str(path))["key"]
-    out = state.render(key, "studio", RenderOptions(width=40, height=40, animate=4), "webp")
-    im = Image.open(io.BytesIO(out["image"]))
-    assert im.n_frames == 8 and out["plan"]["animate"]["frames"] == 8
-    rest, moved = (state.render(key, "studio", RenderOptions(width=40, height=40, time=t), "png")
+    key = state.bake(BakeJob(str(path))).key
+    out = state.render(RenderJob(key, "studio", RenderOptions(width=40, height=40, animate=4), "webp"))
+    im = Image.open(io.BytesIO(out.image))
+    assert im.n_frames == 8 and out.plan.details["animate"]["frames"] == 8
+    rest, moved = (state.render(RenderJob(key, "studio", RenderOptions(width=40, height=40, time=t), "png"))
                    for t in (None, "0.6"))
-    assert rest["image"] != moved["image"]
+    assert rest.image != moved.image
 
 
 def test_inspect_json_lists_animations_and_time_range(tmp_path, capsys):
