@@ -1,6 +1,6 @@
 """A rendered image: linear radiance for measurement, tone-mapped sRGB for people, and encoders.
 
-Tone mapping and sRGB encoding normally run on the GPU in the final pass (renderer.raster.render);
+Tone mapping and sRGB encoding normally run on the GPU in the final pass (renderer.raster.final);
 `tonemap_srgb8` is the same arithmetic in numpy, used for frames made elsewhere (the ray
 tracer, the reference) so every path shows an image the same way.
 """
@@ -41,7 +41,7 @@ class FrameTimings:
 
 class Frame:
     """One rendered image. `linear` may be given as a function that reads it when first asked
-    for (renderer.raster.render: a thumbnail never needs it, so its final pass does not draw it)."""
+    for (renderer.raster.final: a thumbnail never needs it, so its final pass does not draw it)."""
 
     def __init__(self, linear: np.ndarray | Callable[[], np.ndarray], rgba8: np.ndarray,
                  plan: dict | None = None, timings: FrameTimings | None = None,

@@ -49,7 +49,7 @@ def render_turntable(asset: BakedAsset, env: BakedEnvironment, options: RenderOp
                      keep_linear: bool = True) -> list[Frame]:
     """options.turntable frames around +Y (at least one). With keep_linear False the frames
     hold their display pixels only (an animation's encoder reads no more): a kept frame's
-    linear image costs a pass of its own before the next frame (renderer.raster.render)."""
+    linear image costs a pass of its own before the next frame (renderer.raster.final)."""
     distance = turntable_distance(asset, options)
     uploads = dict(gpu.stats)
     frames = []

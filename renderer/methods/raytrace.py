@@ -75,8 +75,9 @@ import numpy as np
 from core.baked import BakedAsset, BakedEnvironment
 from core.cubemap import env_rotation_matrix, sample_cube
 from core.options import RenderOptions, apply_override, background_rgb
+from renderer.frame import Frame, FrameTimings, alpha_is_mask, tonemap_srgb8
 from renderer.methods.optics import fresnel_dielectric, reflect, refract, sample_rough_dielectric
-from renderer.raster.render import register_frame_method
+from renderer.raster.final import GRADIENT
 from renderer.view.camera import Camera
 from renderer.view.framing import asset_camera
 
@@ -675,13 +676,11 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
 def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
                     camera: Camera | None = None, supersample: int | None = None):
     """Render with the ray tracer: a renderer.frame.Frame (linear + tone-mapped sRGB)."""
-    from renderer.frame import Frame, FrameTimings, alpha_is_mask, tonemap_srgb8
 
     t0 = time.perf_counter()
     linear, stats = trace(asset, env, options, camera, supersample)
     background = background_rgb(options.background)
     if options.background == "gradient":  # as shaders/final.frag: sRGB top to bottom, per row
-        from renderer.raster.render import GRADIENT
         t = 1.0 - (np.arange(options.height) + 0.5) / options.height
         background = (t[:, None, None] * np.asarray(GRADIENT[0])
                       + (1 - t[:, None, None]) * np.asarray(GRADIENT[1])).astype(np.float32)
@@ -701,5 +700,3 @@ def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOpt
     return Frame(linear=linear, rgba8=rgba8, plan=plan, timings=timings,
                  alpha_is_mask=alpha_is_mask(options))
 
-
-register_frame_method("raytrace", render_raytrace)  # `--method raytrace` via renderer.raster.render
