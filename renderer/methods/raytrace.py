@@ -57,8 +57,7 @@ grid; `aa_threshold` > 0 traces 2 x 2 first and the full grid only where those d
 Speed: the per-surface work of a bounce (normals, Fresnel, lobes, children) runs in one
 compiled loop (renderer.methods.trace_kernel, numba; `_shade_numpy` is its numpy twin, the reference
 it is tested against), as do the environment reads; Embree casts each bounce's rays from two
-threads. At 128 px, 8 bounces, 16 rays a pixel on the IOR 1.5 sphere (490k rays): 340 ms
-with numpy shading, 210 ms compiled, of which Embree ~100 ms, its scene build ~28 ms.
+threads.
 """
 from __future__ import annotations
 
@@ -95,7 +94,7 @@ KERNEL = True          # shade hits with the compiled trace_kernel (False: the n
 
 def _kernel():
     """renderer.methods.trace_kernel, or None with KERNEL off. Imported on first use: numba's import
-    and the cached machine code cost ~0.6 s, which a process that never ray traces skips."""
+    and loading the cached machine code are heavy, and a process that never ray traces skips them."""
     if not KERNEL:
         return None
     from renderer.methods import trace_kernel
@@ -122,7 +121,7 @@ class TraceScene:
 
 def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> TraceScene:
     """Transform every instance into world space and hand the triangles to Embree."""
-    from embreex import rtcore_scene as rtcs
+    from embreex import rtcore_scene as rtcs  # Embree loads only in a process that traces
     from embreex.mesh_construction import TriangleMesh
 
     tris, nrms, mats, tables = [], [], [], []

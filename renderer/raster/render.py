@@ -105,6 +105,31 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
         if polygon is not None:
             final.mark_object(ctx, target.display_fbo, polygon, w, h)
 
+    _draw_geometry(pass_, target, items, supersample)
+    t_draw = time.perf_counter()
+
+    t_shadow = time.perf_counter()
+    ground = (shadow.ground_shadow(ctx, asset.key, gasset.meshes, asset.bounds, options.shadow)
+              if shadowed else None)
+    t_draw_end = time.perf_counter()
+    final_ = final.final_pass(target, camera, genv, options, ground, polygon, rect)
+    rgba8 = final_.draw(ctx, final.DISPLAY)
+    linear = final.linear_on_demand(ctx, final_)
+    t_end = time.perf_counter()
+    plan = _plan(options, env, items, lights, camera, target, edge_aa, supersample,
+                 shadow_why if shadowed else f"none: {shadow_why}", uploads_before, auto)
+    timings = FrameTimings((t_end - t0) * 1e3, {"upload": (t_upload - t0) * 1e3,
+                                                "draw": (t_draw - t_upload) * 1e3,
+                                                "shadow": (t_draw_end - t_shadow) * 1e3,
+                                                "finish": (t_end - t_draw_end) * 1e3})
+    return Frame(linear, rgba8, plan, timings, alpha_is_mask=alpha_is_mask(options))
+
+
+def _draw_geometry(pass_: Pass, target: targets.Target, items: list[DrawItem], supersample: int) -> None:
+    """Every mesh into the target's float framebuffer: opaque and mask meshes, then each
+    method's, then blend ones back to front; then the edge lines to smooth (edge_fbo)."""
+    ctx, options, camera = pass_.ctx, pass_.options, pass_.camera
+    w, h = options.width, options.height
     target.draw_fbo.use()
     ctx.viewport = (0, 0, w * supersample, h * supersample)
     # Cleared whole: llvmpipe clears a scissored part of an MSAA target by drawing, slower.
@@ -134,16 +159,12 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     if target.edge_fbo is not None and target.depth_tex is not None:
         edges.draw(ctx, target.edge_fbo, target.depth_tex, passes.edge_segments(items, camera),
                    camera.projection_matrix() @ camera.view_matrix(), w, h)
-    t_draw = time.perf_counter()
 
-    t_shadow = time.perf_counter()
-    ground = (shadow.ground_shadow(ctx, asset.key, gasset.meshes, asset.bounds, options.shadow)
-              if shadowed else None)
-    t_draw_end = time.perf_counter()
-    final_ = final.final_pass(target, camera, genv, options, ground, polygon, rect)
-    rgba8 = final_.draw(ctx, final.DISPLAY)
-    linear = final.linear_on_demand(ctx, final_)
-    t_end = time.perf_counter()
+
+def _plan(options: RenderOptions, env: BakedEnvironment, items: list[DrawItem], lights,
+          camera, target: targets.Target, edge_aa: bool, supersample: int, shadow_why: str,
+          uploads_before: dict, auto) -> dict:
+    """What the frame did and why (Frame.plan)."""
     plan = {
         "method": options.method,
         "objects": [{"mesh": it.mesh.baked.name, "class": it.material.material_class,
@@ -151,7 +172,7 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
         "lights": len(lights),
         "environment": env.name,
         "background": options.background,
-        "shadow": shadow_why if shadowed else f"none: {shadow_why}",
+        "shadow": shadow_why,
         "view": {"yaw": options.yaw, "pitch": options.pitch,
                  "distance": round(float(np.linalg.norm(camera.position - camera.target)), 6)},
         "tonemap": options.tonemap,
@@ -162,18 +183,13 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     }
     if auto is not None:
         plan["auto"] = auto.explain()
-    timings = FrameTimings((t_end - t0) * 1e3, {"upload": (t_upload - t0) * 1e3,
-                                                "draw": (t_draw - t_upload) * 1e3,
-                                                "shadow": (t_draw_end - t_shadow) * 1e3,
-                                                "finish": (t_end - t_draw_end) * 1e3})
-    return Frame(linear, rgba8, plan, timings, alpha_is_mask=alpha_is_mask(options))
+    return plan
 
 
 def _edge_antialiasing(asset: BakedAsset, options: RenderOptions, supersample: int) -> bool:
     """Whether the frame is smoothed by renderer.raster.edges rather than by MSAA samples."""
     return (options.antialias == "edges" and options.msaa > 1 and supersample == 1
             and asset.triangle_count <= edges.MAX_TRIANGLES)
-
 
 
 def _plan_items(gasset: gpu.GpuAsset, options: RenderOptions, auto=None) -> list[DrawItem]:
