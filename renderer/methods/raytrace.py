@@ -65,8 +65,7 @@ grid; `aa_threshold` > 0 traces 2 x 2 first and the full grid only where those d
 Speed: the per-surface work of a bounce (normals, Fresnel, lobes, children) runs in one
 compiled loop (renderer.methods.trace_kernel, numba; `_shade_numpy` is its numpy twin, the reference
 it is tested against), as do the environment reads; Embree casts each bounce's rays from two
-threads. At 128 px, 8 bounces, 16 rays a pixel on the IOR 1.5 sphere (490k rays): 340 ms
-with numpy shading, 210 ms compiled, of which Embree ~100 ms, its scene build ~28 ms.
+threads.
 """
 from __future__ import annotations
 
@@ -84,10 +83,11 @@ from core.baked import BakedAsset, BakedEnvironment
 from core.cubemap import env_rotation_matrix, sample_cube
 from core.mips import texture_size_for
 from core.options import RenderOptions, apply_override, background_rgb
+from renderer.frame import Frame, FrameTimings, alpha_is_mask, tonemap_srgb8
 from renderer.methods import trace_lights, trace_material
 from renderer.methods.optics import fresnel_dielectric, reflect, refract, sample_rough_dielectric
 from renderer.methods.trace_material import Surface
-from renderer.raster.render import register_frame_method
+from renderer.raster.final import GRADIENT
 from renderer.view.camera import Camera
 from renderer.view.framing import asset_camera
 
@@ -105,7 +105,7 @@ KERNEL = True          # shade hits with the compiled trace_kernel (False: the n
 
 def _kernel():
     """renderer.methods.trace_kernel, or None with KERNEL off. Imported on first use: numba's import
-    and the cached machine code cost ~0.6 s, which a process that never ray traces skips."""
+    and loading the cached machine code are heavy, and a process that never ray traces skips them."""
     if not KERNEL:
         return None
     from renderer.methods import trace_kernel
@@ -136,7 +136,7 @@ class TraceScene:
 
 def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> TraceScene:
     """Transform every instance into world space and hand the triangles to Embree."""
-    from embreex import rtcore_scene as rtcs
+    from embreex import rtcore_scene as rtcs  # Embree loads only in a process that traces
     from embreex.mesh_construction import TriangleMesh
 
     tris, nrms, mats, tables, parts, materials = [], [], [], [], [], []
@@ -796,13 +796,11 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
 def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
                     camera: Camera | None = None, supersample: int | None = None):
     """Render with the ray tracer: a renderer.frame.Frame (linear + tone-mapped sRGB)."""
-    from renderer.frame import Frame, FrameTimings, alpha_is_mask, tonemap_srgb8
 
     t0 = time.perf_counter()
     linear, stats = trace(asset, env, options, camera, supersample)
     background = background_rgb(options.background)
     if options.background == "gradient":  # as shaders/final.frag: sRGB top to bottom, per row
-        from renderer.raster.render import GRADIENT
         t = 1.0 - (np.arange(options.height) + 0.5) / options.height
         background = (t[:, None, None] * np.asarray(GRADIENT[0])
                       + (1 - t[:, None, None]) * np.asarray(GRADIENT[1])).astype(np.float32)
@@ -822,5 +820,3 @@ def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOpt
     return Frame(linear=linear, rgba8=rgba8, plan=plan, timings=timings,
                  alpha_is_mask=alpha_is_mask(options))
 
-
-register_frame_method("raytrace", render_raytrace)  # `--method raytrace` via renderer.raster.render
