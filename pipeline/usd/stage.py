@@ -194,34 +194,56 @@ class _StageReader:
     # -- UsdLux lights and UsdGeom cameras -----------------------------------------------------
     def _light(self, prim: Usd.Prim) -> None:
         """UsdLux -> KHR_lights_punctual (or the scene's environment for a dome light).
-        Intensity is USD's intensity x 2^exposure x colour (x blackbody when enabled); for
-        sphere, rect and disk lights x their area (radiance -> intensity; unless normalized),
-        which become point / spot (cone from ShapingAPI) and a 90 degree spot."""
+
+        Units, derived once: UsdLux's radiance is L = intensity x 2^exposure x colour (x the
+        blackbody colour when enabled), divided by the light's size when `normalize` is on.
+        Our directional light is an illuminance E (what a surface facing it receives) and our
+        point / spot light a radiant intensity I (E = I / d^2).
+        - DistantLight: a cap of half-angle t = angle/2 (0.53 degrees by default) seen with
+          radiance L gives E = L x pi sin^2(t) (t <= 90 degrees; the hemisphere's pi beyond);
+          normalized, L was divided by that same factor, so E = intensity. t = 0 is a delta
+          light whose size factor is 1 (UsdLux's "Normalizing Distant Lights").
+        - Sphere / rect / disk lights: a Lambertian emitter of area A (in m^2, world space: the
+          xform's scale and metersPerUnit included) facing the point gives I = L x A_projected
+          (pi r^2 for a sphere, w h for a rect, pi r^2 for a disk); normalized, I = intensity.
+        Sphere lights become point lights (spot with ShapingAPI's cone), rect and disk lights
+        a one-sided 90 degree spot."""
         api = UsdLux.LightAPI(prim)
         get = lambda a, d: _finite(a.Get(self.time), d)  # noqa: E731
         color = np.array(api.GetColorAttr().Get(self.time) or (1.0, 1.0, 1.0), np.float64)
         if api.GetEnableColorTemperatureAttr().Get(self.time):
             color = color * np.array(UsdLux.BlackbodyTemperatureAsRgb(
                 get(api.GetColorTemperatureAttr(), 6500.0)))
+        # the schema's fallback (1; 50,000 for a DistantLight) comes from Get()
         intensity = get(api.GetIntensityAttr(), 1.0) * 2.0 ** get(api.GetExposureAttr(), 0.0)
         normalize = bool(api.GetNormalizeAttr().Get(self.time))
-        world = self.to_scene @ np.array(self.xforms.GetLocalToWorldTransform(prim)).T
+        local = np.array(self.xforms.GetLocalToWorldTransform(prim)).T
+        world = self.to_scene @ local
+        axis_m = [float(np.linalg.norm(world[:3, i])) for i in range(3)]  # metres per light unit
         where = str(prim.GetPath())
         if prim.IsA(UsdLux.DomeLight):
             self._dome(prim, where)
             return
         if prim.IsA(UsdLux.DistantLight):
-            kind, area = "directional", 1.0
+            half = math.radians(min(max(get(UsdLux.DistantLight(prim).GetAngleAttr(), 0.53),
+                                        0.0), 360.0)) / 2
+            kind = "directional"
+            area = 1.0 if half <= 0 else math.pi * (math.sin(half) ** 2 if half <= math.pi / 2
+                                                   else 1.0)
         elif prim.IsA(UsdLux.SphereLight):
             light = UsdLux.SphereLight(prim)
-            r = get(light.GetRadiusAttr(), 0.5)
+            r = get(light.GetRadiusAttr(), 0.5) * float(np.mean(axis_m))
             kind = "point"
             area = 1.0 if light.GetTreatAsPointAttr().Get() else math.pi * r * r
         elif prim.IsA(UsdLux.RectLight):
             light = UsdLux.RectLight(prim)
-            kind, area = "rect", get(light.GetWidthAttr(), 1.0) * get(light.GetHeightAttr(), 1.0)
+            kind = "rect"
+            area = get(light.GetWidthAttr(), 1.0) * axis_m[0] * \
+                get(light.GetHeightAttr(), 1.0) * axis_m[1]
         elif prim.IsA(UsdLux.DiskLight):
-            kind, area = "rect", math.pi * get(UsdLux.DiskLight(prim).GetRadiusAttr(), 0.5) ** 2
+            kind = "rect"
+            area = math.pi * get(UsdLux.DiskLight(prim).GetRadiusAttr(), 0.5) ** 2 * \
+                axis_m[0] * axis_m[1]
         else:
             self._warn(f"{where}: {prim.GetTypeName()} lights are not drawn")
             return
