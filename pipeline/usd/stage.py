@@ -380,9 +380,9 @@ class _StageReader:
         double_sided = bool(UsdGeom.Gprim(prim).GetDoubleSidedAttr().Get())
         has_color = bool(UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance("displayColor"))
         bindings = [self.materials.bind(mat, double_sided, has_color) for _, mat, _ in groups]
-        needed = sorted({n for b in bindings for n in b.uv_primvars}
-                        | {b.color_primvar for b in bindings if b.color_primvar})
-        if not any(b.uv_primvars for b in bindings):
+        uv_sets = {n for b in bindings for n in b.uv_primvars if not n.startswith("=")}
+        needed = sorted(uv_sets | {b.color_primvar for b in bindings if b.color_primvar})
+        if not uv_sets:
             needed.append("st")  # no texture reads it, but keep the conventional UVs
         topo_key = (str(source.GetPath() if points is None else prim.GetPath()), tuple(needed))
         if topo_key not in self._topology:
@@ -392,7 +392,7 @@ class _StageReader:
         topo = self._topology[topo_key]
         if topo is None:
             return
-        for name in {n for b in bindings for n in b.uv_primvars} - set(topo.attrs):
+        for name in uv_sets - set(topo.attrs):
             self._warn(f"{prim.GetPath()}: its material reads primvar {name!r}, which the "
                        "prim does not have (or is invalid); textures there have no UVs")
         for (label, _, faces), binding in zip(groups, bindings):
@@ -596,7 +596,8 @@ class _StageReader:
         used, local = np.unique(tri, return_inverse=True)
         whole = len(used) == len(topo.positions)
         pick = (lambda a: a) if whole else (lambda a: a[used])  # noqa: E731
-        uvs = [topo.attrs.get(n) for n in binding.uv_primvars] or [topo.attrs.get("st")]
+        uvs = [_constant_st(n, len(topo.positions)) if n.startswith("=") else topo.attrs.get(n)
+               for n in binding.uv_primvars] or [topo.attrs.get("st")]
         uvs = [None if u is None else pick(_gltf_uv(u)) for u in uvs] + [None]
         colors = None
         if binding.color_primvar and binding.color_primvar in topo.attrs:
@@ -666,6 +667,12 @@ def _unique_rows(columns: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         _, rep, inverse = np.unique(np.stack(columns, axis=1), axis=0, return_index=True,
                                     return_inverse=True)
     return inverse.reshape(-1), rep
+
+
+def _constant_st(name: str, n: int) -> np.ndarray:
+    """The st of materials.constant_st's name, for each of n vertices."""
+    s, t = (float(v) for v in name[1:].split(","))
+    return np.tile(np.array([[s, t]], np.float32), (n, 1))
 
 
 def _gltf_uv(st: np.ndarray) -> np.ndarray:
