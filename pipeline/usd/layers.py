@@ -40,6 +40,7 @@ class LayerGraph:
         self.warnings: list[str] = []
         self.packages: dict[str, zipfile.ZipFile] = {}
         self.unreadable: set[str] = set()  # dependencies with no USD file format (e.g. .mtlx)
+        self.missing: dict[str, str] = {}  # absent reference / payload -> why (pxr reports use)
 
     # -- opening ------------------------------------------------------------------------
     def open(self) -> Sdf.Layer:
@@ -56,9 +57,11 @@ class LayerGraph:
                 try:
                     target = self.resolve(layer, dep)
                 except MissingFile as exc:
-                    if not sublayer:  # a reference or payload: the geometry it holds is missing
-                        raise MissingFile(exc.path, f"{exc.reason} (a reference or payload; "
-                                                    "the prims it brings would be missing)") from None
+                    if not sublayer:  # a reference or payload: pxr composes without it, and
+                        # says so (naming the file and the prim) only where it is used, not in
+                        # a variant left unselected
+                        self.missing[layer.ComputeAbsolutePath(dep)] = exc.reason
+                        continue
                     self.unreadable.add(layer.ComputeAbsolutePath(dep))
                     self.warnings.append(f"{self._name(layer)}: sublayer {dep!r} not found; "
                                          "the stage is composed without it")
@@ -76,9 +79,12 @@ class LayerGraph:
                     try:
                         pending.append(self._open_layer(target, self._name(layer)))
                     except MalformedAsset as exc:
-                        if not sublayer:
-                            raise
                         self.unreadable.add(target)
+                        if not sublayer:  # pxr will not open it either: composed without it
+                            self.warnings.append(f"{self._name(layer)}: {dep!r} is unreadable "
+                                                 f"({exc.reason}); the prims it brings are "
+                                                 "not drawn")
+                            continue
                         self.warnings.append(f"{self._name(layer)}: sublayer {dep!r} is "
                                              f"unreadable ({exc.reason}); the stage is composed "
                                              "without it")
