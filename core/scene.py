@@ -242,6 +242,7 @@ class Scene:
     environment: str | None = None  # panorama file the asset lights itself with (USD dome light)
     warnings: list[str] = field(default_factory=list)
     files: list[str] = field(default_factory=list)  # every file read (the asset and what it references)
+    absent: list[str] = field(default_factory=list)  # files it looked for and did not find (cache key)
     cameras: list[SceneCamera] = field(default_factory=list)
     variants: list[str] = field(default_factory=list)  # KHR_materials_variants names, by index
     extensions: dict[str, str] = field(default_factory=dict)  # used -> supported|partial|ignored

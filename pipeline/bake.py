@@ -91,7 +91,7 @@ def bake_or_load_asset(path, cache_dir=None, *, force: bool = False, limits: Lim
         start = time.perf_counter()
         scene = load_scene(path, limits, root)
         ingest_s = time.perf_counter() - start
-        source = SourceFiles.hash(path, scene.files)
+        source = SourceFiles.hash(path, scene.files, scene.absent)
     except (FileNotFoundError, PermissionError, IsADirectoryError) as exc:  # changed under us
         raise MissingFile(exc.filename or path, f"cannot read: {exc.strerror}") from None
     key = source.key("assets", opts)

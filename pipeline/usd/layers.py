@@ -37,6 +37,7 @@ class LayerGraph:
         self.limits = limits
         self.layers: dict[str, Sdf.Layer] = {}   # identifier -> layer (held open)
         self.files: list[str] = []
+        self.absent: list[str] = []  # files looked for (inside the root) and not found
         self.warnings: list[str] = []
         self.packages: dict[str, zipfile.ZipFile] = {}
         self.unreadable: set[str] = set()  # dependencies with no USD file format (e.g. .mtlx)
@@ -139,7 +140,11 @@ class LayerGraph:
         if _outer(ident).lower().endswith(".usdz"):  # the package's root layer
             return self._resolve_in_package(layer, uri)
         here = Path(layer.realPath)
-        resolve_reference(here, uri, base_dir=here.parent, root=self.root)  # safe and present
+        try:
+            resolve_reference(here, uri, base_dir=here.parent, root=self.root)  # safe, present
+        except MissingFile:
+            self._absent(layer.ComputeAbsolutePath(uri))
+            raise
         # The identifier Ar itself will use (anchored, not symlink-resolved), so that composing
         # finds these very layers already open.
         return layer.ComputeAbsolutePath(uri)
@@ -157,7 +162,17 @@ class LayerGraph:
             if norm not in self._package(outer).NameToInfo:
                 raise MissingFile(referrer, f"referenced file {uri!r} not found in the package")
             return Ar.JoinPackageRelativePath([outer, norm])
-        return str(resolve_reference(Path(referrer), uri, root=self.root))
+        try:
+            return str(resolve_reference(Path(referrer), uri, root=self.root))
+        except MissingFile:
+            self._absent(str(Path(referrer).parent / relative_path_text(referrer, uri)))
+            raise
+
+    def _absent(self, path: str) -> None:
+        """A file looked for inside the root and not there: in the cache key too, so that
+        it appearing later (a restored texture) bakes again."""
+        if path not in self.absent:
+            self.absent.append(path)
 
     def _resolve_in_package(self, layer: Sdf.Layer, uri: str) -> str:
         name = self._name(layer)

@@ -70,6 +70,7 @@ def load(path: Path, limits: Limits, root: Path | None = None) -> Scene:
         scene.warnings.extend(graph.warnings)
         _StageReader(stage, graph, scene, limits).read()
         scene.files = list(graph.files)
+        scene.absent = list(graph.absent)
         return scene
     finally:
         graph.close()
