@@ -25,6 +25,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quality", type=int, default=None, help="JPEG / WebP quality")
     p.add_argument("--linear", help="also write the linear frame (.exr or .npy)")
     p.add_argument("--cache", default=None, help="cache directory (default $ASSET_PREVIEW_CACHE or ./.cache)")
+    p.add_argument("--variant-set", action="append", default=[], metavar="[PRIM:]SET=NAME",
+                   help="USD: select a variant (repeatable; no PRIM: the default prim's set)")
     p.add_argument("--root", default=None, metavar="DIR",
                    help="folder the asset's references may read from (default: the asset's folder)")
     p.add_argument("--json", action="store_true", help="print the plan and timings as JSON")
@@ -62,7 +64,8 @@ def run(args: argparse.Namespace) -> int:
         return _fail(f"{args.out}: --turntable writes an animated .webp or .gif")
     if out_ext == ".gif" and not options.turntable:
         return _fail(f"{args.out}: .gif is for --turntable; use .png .jpg or .webp")
-    asset = pipeline.bake_asset(args.path, args.cache, root=args.root)
+    asset = pipeline.bake_asset(args.path, args.cache, root=args.root,
+                                **({"variant_sets": tuple(args.variant_set)} if args.variant_set else {}))
     face, env_why = environment_face_size(asset, options)
     env_source = args.env or _dome(asset, args.path) or DEFAULT_ENVIRONMENT
     env = pipeline.bake_environment(env_source, args.cache, face_size=face)

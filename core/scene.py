@@ -245,6 +245,7 @@ class Scene:
     absent: list[str] = field(default_factory=list)  # files it looked for and did not find (cache key)
     cameras: list[SceneCamera] = field(default_factory=list)
     variants: list[str] = field(default_factory=list)  # KHR_materials_variants names, by index
+    variant_sets: list[dict] = field(default_factory=list)  # USD: {prim, set, variants, selection}
     extensions: dict[str, str] = field(default_factory=dict)  # used -> supported|partial|ignored
 
     @property

@@ -11,11 +11,12 @@ from core.scene import Scene
 __all__ = ["AssetError", "Scene", "load_scene", "bake_asset", "bake_environment", "load_baked"]
 
 
-def load_scene(path, limits=None, root=None) -> Scene:
+def load_scene(path, limits=None, root=None, variant_sets=()) -> Scene:
     """Read any supported asset file into a `Scene` (raises an `AssetError` on bad input);
-    the files it references must lie inside `root` (default: its folder)."""
+    the files it references must lie inside `root` (default: its folder); `variant_sets`:
+    USD selections "[PRIM:]SET=NAME"."""
     from pipeline.ingest import load_scene as _load
-    return _load(path, limits, root)
+    return _load(path, limits, root, tuple(variant_sets))
 
 
 def bake_asset(path, cache_dir=None, **options):

@@ -43,7 +43,9 @@ log = logging.getLogger(__name__)
 # - thumbnail_size: the largest thumbnail (longer side, px) the cache is baked for; textures
 #   keep mips from texture_size_for(thumbnail_size) down (1024 px -> 2048^2 texels at most).
 #   A larger render still works, with textures no sharper than that.
-ASSET_OPTIONS = {"interior_epsilon": None, "subdivision_levels": None, "thumbnail_size": 1024}
+# - variant_sets: USD variant selections, "[PRIM:]SET=NAME" in order (pipeline.usd.stage.load).
+ASSET_OPTIONS = {"interior_epsilon": None, "subdivision_levels": None, "thumbnail_size": 1024,
+                 "variant_sets": ()}
 PREFILTERS = ("ggx", "paper")
 _MESH_ARRAYS = ("positions", "normals", "indices", "tangents", "uv0", "uv1", "colors", "interior",
                 "edges", "edge_faces", "support")
@@ -89,7 +91,7 @@ def bake_or_load_asset(path, cache_dir=None, *, force: bool = False, limits: Lim
             if entry and _inputs_inside(entry.manifest, path, root):
                 return unpack_asset(entry), True
         start = time.perf_counter()
-        scene = load_scene(path, limits, root)
+        scene = load_scene(path, limits, root, tuple(opts["variant_sets"]))
         ingest_s = time.perf_counter() - start
         source = SourceFiles.hash(path, scene.files, scene.absent)
     except (FileNotFoundError, PermissionError, IsADirectoryError) as exc:  # changed under us

@@ -21,7 +21,15 @@ from pathlib import Path
 
 import numpy as np
 
-from core.errors import AssetError, EmptyScene, LimitExceeded, MalformedAsset, MissingFile, UnsupportedFormat
+from core.errors import (
+    AssetError,
+    EmptyScene,
+    LimitExceeded,
+    MalformedAsset,
+    MissingFile,
+    NotInAsset,
+    UnsupportedFormat,
+)
 from core.scene import Mesh, Scene
 from pipeline import deadline
 from pipeline.framing import mark_backdrops
@@ -48,9 +56,11 @@ def _reader(kind: str):
     return mesh
 
 
-def load_scene(path, limits: Limits | None = None, root=None) -> Scene:
+def load_scene(path, limits: Limits | None = None, root=None,
+               variant_sets: tuple[str, ...] = ()) -> Scene:
     """Read any supported asset into a finished Scene; bad input raises an AssetError.
-    Files it references must lie inside `root` (default: its folder; `paths.sandbox_root`)."""
+    Files it references must lie inside `root` (default: its folder; `paths.sandbox_root`).
+    `variant_sets`: USD variant selections, "[PRIM:]SET=NAME" (pipeline.usd.stage.load)."""
     path = Path(path)
     limits = limits or Limits.from_env()
     try:
@@ -75,7 +85,10 @@ def load_scene(path, limits: Limits | None = None, root=None) -> Scene:
     start = time.perf_counter()
     with deadline.within(limits.ingest_seconds, str(path)):
         try:
-            scene = reader.load(path, limits, root)
+            if variant_sets and kind != "usd":
+                raise NotInAsset(path, "variant sets are USD's; this asset has none")
+            scene = reader.load(path, limits, root, tuple(variant_sets)) if variant_sets \
+                else reader.load(path, limits, root)
             finish(scene, limits)
             deadline.check()
         except AssetError:

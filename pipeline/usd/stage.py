@@ -44,7 +44,7 @@ from pathlib import Path
 import numpy as np
 from pxr import Ar, Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade, UsdSkel
 
-from core.errors import LimitExceeded, MalformedAsset, MissingFile, UnsafeReference
+from core.errors import LimitExceeded, MalformedAsset, MissingFile, NotInAsset, UnsafeReference
 from core.scene import Instance, Light, Mesh, Scene, SceneCamera
 from pipeline import deadline
 from pipeline.limits import Limits
@@ -56,17 +56,22 @@ log = logging.getLogger(__name__)
 
 Y_UP_FROM_Z_UP = np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]], np.float64)
 PRUNED_TYPES = (UsdShade.Material, UsdShade.NodeGraph, UsdShade.Shader)
+DRAWN_PURPOSES = (UsdGeom.Tokens.default_, UsdGeom.Tokens.render)
 
 
-def load(path: Path, limits: Limits, root: Path | None = None) -> Scene:
+def load(path: Path, limits: Limits, root: Path | None = None,
+         variant_sets: tuple[str, ...] = ()) -> Scene:
     """Read a USD file (any of its four forms) into a Scene; AssetError on bad input.
-    Files it references must lie inside `root` (default: its folder; `paths.sandbox_root`)."""
+    Files it references must lie inside `root` (default: its folder; `paths.sandbox_root`).
+    `variant_sets`: "[PRIM:]SET=NAME" selections (no PRIM: the default prim's set), applied
+    in order, so a selection may name a set that an earlier one brought in."""
     path = Path(path)
     graph = LayerGraph(path, limits, root)
     try:
         root_layer = graph.open()
-        stage = graph.stage = _compose(root_layer, graph)
+        stage = graph.stage = _compose(root_layer, graph, variant_sets)
         scene = Scene(source=str(path), format=path.suffix.lower().lstrip("."))
+        scene.variant_sets = list_variant_sets(stage)
         scene.warnings.extend(graph.warnings)
         _StageReader(stage, graph, scene, limits).read()
         scene.files = list(graph.files)
@@ -76,7 +81,7 @@ def load(path: Path, limits: Limits, root: Path | None = None) -> Scene:
         graph.close()
 
 
-def _compose(root_layer: Sdf.Layer, graph: LayerGraph) -> Usd.Stage:
+def _compose(root_layer: Sdf.Layer, graph: LayerGraph, variant_sets=()) -> Usd.Stage:
     try:
         stage = Usd.Stage.Open(root_layer, Usd.Stage.LoadAll)
     except Tf.ErrorException as exc:
@@ -84,6 +89,8 @@ def _compose(root_layer: Sdf.Layer, graph: LayerGraph) -> Usd.Stage:
                                          f"{str(exc).strip().splitlines()[-1]}") from None
     if stage is None:
         raise MalformedAsset(graph.path, "USD stage does not compose")
+    for text in variant_sets:
+        _select_variant(stage, graph.path, text)
     for layer in stage.GetUsedLayers():
         if not layer.anonymous and layer.identifier not in graph.layers:
             raise UnsafeReference(graph.path, f"composition read layer {layer.identifier!r}, "
@@ -93,6 +100,43 @@ def _compose(root_layer: Sdf.Layer, graph: LayerGraph) -> Usd.Stage:
         if text not in graph.warnings and not any(u in text for u in graph.unreadable):
             graph.warnings.append(text)
     return stage
+
+
+def _select_variant(stage: Usd.Stage, path: Path, text: str) -> None:
+    """Apply one "[PRIM:]SET=NAME" selection in the stage's session layer (every variant's
+    arcs were checked by LayerGraph; _compose then checks the layers used, as without one)."""
+    where, _, choice = text.rpartition("=")
+    prim_text, _, set_name = where.rpartition(":")
+    if not set_name or not choice:
+        raise NotInAsset(path, f"variant selection {text!r} is not [PRIM:]SET=NAME")
+    prim = stage.GetPrimAtPath(prim_text) if prim_text.startswith("/") else \
+        stage.GetDefaultPrim() if not prim_text else None
+    if not prim:
+        raise NotInAsset(path, f"variant selection {text!r}: no prim "
+                               f"{prim_text or '(the stage has no default prim)'}")
+    sets = prim.GetVariantSets()
+    if not sets.HasVariantSet(set_name):
+        raise NotInAsset(path, f"{prim.GetPath()} has no variant set {set_name!r}; it has "
+                               f"{', '.join(sets.GetNames()) or 'none'}")
+    names = sets.GetVariantSet(set_name).GetVariantNames()
+    if choice not in names:
+        raise NotInAsset(path, f"{prim.GetPath()} variant set {set_name!r} has no variant "
+                               f"{choice!r}; it has {', '.join(names)}")
+    with Usd.EditContext(stage, stage.GetSessionLayer()):
+        sets.GetVariantSet(set_name).SetVariantSelection(choice)
+
+
+def list_variant_sets(stage: Usd.Stage) -> list[dict]:
+    """Every composed prim's variant sets: [{prim, set, variants, selection}] (for inspect)."""
+    out = []
+    for prim in stage.Traverse():
+        sets = prim.GetVariantSets()
+        for name in sets.GetNames():
+            vset = sets.GetVariantSet(name)
+            out.append({"prim": str(prim.GetPath()), "set": name,
+                        "variants": list(vset.GetVariantNames()),
+                        "selection": vset.GetVariantSelection()})
+    return out
 
 
 def stage_matrix(stage: Usd.Stage) -> np.ndarray:
@@ -163,10 +207,11 @@ class _StageReader:
                 continue
             img = UsdGeom.Imageable(prim)
             # purpose inherits from the nearest ancestor with one authored (which wins over
-            # the prim's own): only a prim whose own is guide/proxy needs the computed one
+            # the prim's own): only a prim whose own is not default/render needs the computed
+            # one; usdview's default draws default + render (an unknown token is not drawn)
             if img.GetVisibilityAttr().Get(self.time) == UsdGeom.Tokens.invisible or \
-                    img.GetPurposeAttr().Get() in (UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy) \
-                    and img.ComputePurpose() in (UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy):
+                    img.GetPurposeAttr().Get() not in DRAWN_PURPOSES \
+                    and img.ComputePurpose() not in DRAWN_PURPOSES:
                 it.PruneChildren()
                 continue
             if prim.IsA(UsdSkel.Root):
