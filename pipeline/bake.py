@@ -459,11 +459,13 @@ def unpack_environment(entry: Entry) -> BakedEnvironment:
 
 
 def bake_one(kind: str, source: str, *, cache=None, max_bytes=None, force=False,
-             face_size=DEFAULT_FACE_SIZE, prefilter="ggx", roots=None) -> dict:
+             face_size=DEFAULT_FACE_SIZE, prefilter="ggx", roots=None, library=()) -> dict:
     """The unit of work of `asset-bake` (in processes or Ray tasks): bake one asset or
     environment; never raises (the result says what went wrong). `roots` maps an asset to
-    the folder its references may read (cli.bake's `_collect`)."""
-    from core.errors import AssetError
+    the folder its references may read (cli.bake's `_collect`); `library`: the files found
+    by walking a folder, where a USD layer with nothing to draw (a kit's material layer) is
+    skipped with a note, not failed."""
+    from core.errors import AssetError, EmptyScene
 
     start = time.perf_counter()
     result: dict[str, Any] = {"kind": kind, "path": source}
@@ -482,6 +484,11 @@ def bake_one(kind: str, source: str, *, cache=None, max_bytes=None, force=False,
                                                        prefilter=prefilter, force=force)
             result.update(face_size=baked.face_size, mips=len(baked.specular))
         result.update(status="cached" if hit else "baked", key=baked.key)
+    except EmptyScene as exc:
+        if source in library and Path(source).suffix.lower() in (".usd", ".usda", ".usdc"):
+            result.update(status="skipped", note=f"not an asset: {exc.reason}")
+        else:
+            result.update(status="failed", error=str(exc))
     except AssetError as exc:
         result.update(status="failed", error=str(exc))
     except (ValueError, OSError) as exc:  # bad option values, unwritable cache
