@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
-import pipeline
 from core.errors import AssetError
+from pipeline.ingest import load_scene
 
 CUBE = """#usda 1.0
 (
@@ -50,7 +50,7 @@ def write(tmp_path, selected: str):
     (tmp_path / "part.usda").write_text(CUBE)
     path = tmp_path / "stage.usda"
     path.write_text(STAGE.replace("SELECTED", selected))
-    return pipeline.load_scene(path)
+    return load_scene(path)
 
 
 def test_missing_reference_in_an_unselected_variant_loads(tmp_path):
@@ -71,7 +71,7 @@ def test_unreadable_reference_beside_valid_prims(tmp_path):
     path.write_text(STAGE.replace("SELECTED", "good").replace("missing.usda", "broken.usda")
                     .replace('"good"', '"ok"').replace('= "good"', '= "gone"'))
     path.write_text(path.read_text().replace('string look = "good"', 'string look = "gone"'))
-    scene = pipeline.load_scene(path)
+    scene = load_scene(path)
     assert len(scene.meshes) == 1
     assert any("broken.usda" in w for w in scene.warnings), scene.warnings
 
@@ -80,4 +80,4 @@ def test_a_stage_of_nothing_but_missing_references_is_refused(tmp_path):
     path = tmp_path / "empty.usda"
     path.write_text('#usda 1.0\ndef Xform "A" ( prepend references = @./nope.usda@ ) {}\n')
     with pytest.raises(AssetError):
-        pipeline.load_scene(path)
+        load_scene(path)

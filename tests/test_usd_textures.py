@@ -8,7 +8,7 @@ import OpenEXR
 import pytest
 from PIL import Image
 
-import pipeline
+from pipeline.ingest import load_scene
 
 STAGE = """#usda 1.0
 (
@@ -53,7 +53,7 @@ def Material "Look"
 def write(tmp_path, file: str, st: str = "float2 inputs:st.connect = </Look/Reader.outputs:result>"):
     path = tmp_path / "card.usda"
     path.write_text(STAGE.replace("FILE", file).replace("ST", st))
-    return pipeline.load_scene(path)
+    return load_scene(path)
 
 
 def texture_of(scene):

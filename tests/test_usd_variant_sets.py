@@ -8,10 +8,10 @@ import json
 import numpy as np
 import pytest
 
-import pipeline
 from cli.main import main
 from core.errors import NotInAsset
 from pipeline.bake import bake_or_load_asset
+from pipeline.ingest import load_scene
 
 KIT = """#usda 1.0
 (
@@ -81,13 +81,13 @@ def kit(tmp_path):
 
 
 def test_variant_sets_select_nested_and_are_listed(kit, capsys):
-    scene = pipeline.load_scene(kit)
+    scene = load_scene(kit)
     assert [(v["prim"], v["set"], v["variants"], v["selection"]) for v in scene.variant_sets] == \
         [("/Kit", "wheels", ["big", "small"], "small")]
     assert [m.name for m in scene.meshes] == ["/Kit/Car"]  # purpose guide/other/proxy not drawn
     small = scene.bounds
 
-    scene = pipeline.load_scene(kit, variant_sets=("wheels=big", "/Kit/Car:rim=spoked"))
+    scene = load_scene(kit, variant_sets=("wheels=big", "/Kit/Car:rim=spoked"))
     assert sorted(m.name for m in scene.meshes) == ["/Kit/Car/Body", "/Kit/Car/Rim"]
     assert ("/Kit/Car", "rim", ["plain", "spoked"], "spoked") in [
         (v["prim"], v["set"], v["variants"], v["selection"]) for v in scene.variant_sets]
@@ -107,7 +107,7 @@ def test_variant_sets_select_nested_and_are_listed(kit, capsys):
 ])
 def test_unknown_selection_is_refused_listing_the_choices(kit, text, match, capsys):
     with pytest.raises(NotInAsset, match=match):
-        pipeline.load_scene(kit, variant_sets=(text,))
+        load_scene(kit, variant_sets=(text,))
     assert main(["inspect", str(kit), "--variant-set", text]) == 3
 
 

@@ -39,10 +39,18 @@ narrower by |1 - eta| / 2): no noise, but biased. Inside a volume, Beer-Lambert
 attenuation exp(-sigma t) with sigma = -ln(attenuation_color) / attenuation_distance.
 Single-sided opaque materials are invisible from behind (rays pass through their back faces,
 as raster culling does); transmissive ones keep both sides (rays inside glass meet back
-faces). Emissive surfaces add their factor x strength wherever a path meets them. Material factors
-only: textures and normal maps are not sampled, and punctual lights are not
-used (the environment is the only light), so the method is exact for untextured glass and
-mirrors, which is what it is for.
+faces). Emissive surfaces add their emission wherever a path meets them.
+
+The material at a hit is the baked one the raster reads (renderer.methods.trace_material):
+factors times base colour, metal-rough, normal (baked tangents), occlusion, emissive and
+transmission textures, each with its KHR_texture_transform, UV set and sampler, trilinear on
+the baked mips at the ray cone's footprint, times vertex colours; alpha MASK cuts rays
+through, BLEND lets them through with probability 1 - alpha (stratified per pixel). Occlusion
+scales the diffuse share, which reads the environment without visibility (as the raster's
+ambient term). The asset's punctual lights are added by next-event estimation at every
+surface a path meets (renderer.methods.trace_lights). Not yet traced: the specular,
+clearcoat, sheen, iridescence, anisotropy and diffuse-transmission lobes (their factors and
+textures are ignored here; the raster has them).
 
 Anti-aliasing: `supersample` x `supersample` stratified rays per pixel (box filter) on and
 around the object, so silhouettes and the strongly minified refracted environment average
@@ -74,8 +82,11 @@ import numpy as np
 
 from core.baked import BakedAsset, BakedEnvironment
 from core.cubemap import env_rotation_matrix, sample_cube
+from core.mips import texture_size_for
 from core.options import RenderOptions, apply_override, background_rgb
+from renderer.methods import trace_lights, trace_material
 from renderer.methods.optics import fresnel_dielectric, reflect, refract, sample_rough_dielectric
+from renderer.methods.trace_material import Surface
 from renderer.raster.render import register_frame_method
 from renderer.view.camera import Camera
 from renderer.view.framing import asset_camera
@@ -117,6 +128,10 @@ class TraceScene:
     culled: np.ndarray           # K bool: single-sided and opaque (back faces let rays through)
     emission: np.ndarray         # K x 3 emissive factor x strength (linear radiance)
     radius: float
+    surface: Surface | None = None  # UVs, tangents, colours, textures (trace_material)
+    eye: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
+    spread: float = 0.0          # ray cone angle per unit length (a camera ray's pixel share)
+    lights: trace_lights.Lights | None = None  # punctual lights (next-event estimation)
 
 
 def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> TraceScene:
@@ -124,11 +139,14 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
     from embreex import rtcore_scene as rtcs
     from embreex.mesh_construction import TriangleMesh
 
-    tris, nrms, mats, tables = [], [], [], []
+    tris, nrms, mats, tables, parts, materials = [], [], [], [], [], []
     for k, mesh in enumerate(asset.meshes):
         mat = apply_override(mesh.material, options.override)
+        materials.append(mat)
+        # unlit (KHR_materials_unlit): its colour is emitted (trace_material), and IOR 1
+        # with no transmission leaves no reflection or diffuse share
         tables.append((mat.base_color[:3], mat.metallic, mat.roughness, mat.transmission,
-                       mat.ior, mat.absorption(), not mat.double_sided and mat.transmission <= 0,
+                       1.0 if mat.unlit else mat.ior, mat.absorption(), not mat.double_sided and mat.transmission <= 0,
                        np.asarray(mat.emissive, np.float64) * mat.emissive_strength))
         idx = mesh.indices.astype(np.int64)
         for m in mesh.transforms:
@@ -141,6 +159,7 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
             else:
                 idx_w = idx
             tris.append(p[idx_w])
+            parts.append((k, idx_w, m[:3, :3]))
             nrms.append(n[idx_w])
             mats.append(np.full(len(idx), k, np.int32))
     tri = np.concatenate(tris) if tris else np.zeros((0, 3, 3))
@@ -157,6 +176,8 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
         TriangleMesh(scene, tri.astype(np.float32))
     lo, hi = np.asarray(asset.bounds, np.float64)
     col = list(zip(*tables)) if tables else [[]] * 8
+    surface = trace_material.build_surface(asset, materials, parts, tri,
+                                           texture_size_for(max(options.width, options.height)))
     return TraceScene(
         embree=scene, normals=nrm.astype(np.float32), geo_normals=ng.astype(np.float32),
         material=np.concatenate(mats) if mats else np.zeros(0, np.int32),
@@ -165,7 +186,7 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
         transmission=np.asarray(col[3], np.float64), ior=np.asarray(col[4], np.float64),
         sigma=np.asarray(col[5], np.float64).reshape(-1, 3), culled=np.asarray(col[6], bool),
         emission=np.asarray(col[7], np.float64).reshape(-1, 3),
-        radius=max(float(np.linalg.norm(hi - lo)) / 2, 1e-6))
+        radius=max(float(np.linalg.norm(hi - lo)) / 2, 1e-6), surface=surface)
 
 
 def _intersect(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray):
@@ -185,18 +206,35 @@ def _intersect(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray):
     return tuple(np.concatenate([p[k] for p in parts]) for k in ("primID", "u", "v", "tfar"))
 
 
-def _intersect_front(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray):
-    """_intersect, passing through the back faces of single-sided opaque materials."""
+def _intersect_front(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray,
+                     draw: np.ndarray | None = None):
+    """_intersect, passing through the back faces of single-sided opaque materials and
+    where alpha says so (MASK: below the cut-off; BLEND: where `draw`, a uniform per ray,
+    is at or above alpha; draw None: 0.5)."""
     prim, u, v, t = _intersect(ts, origins, dirs)
-    if not ts.culled.any():
+    surf = ts.surface
+    tested = surf is not None and surf.alpha_tested.any()
+    if not ts.culled.any() and not tested:
         return prim, u, v, t
     prim, u, v, t = prim.copy(), u.copy(), v.copy(), t.astype(np.float64)
     eps = EPSILON * ts.radius
-    for _ in range(MAX_CULLED):
+    for layer in range(MAX_CULLED):
         hit = np.flatnonzero(prim >= 0)
         k = ts.material[prim[hit]]
         back = np.einsum("ij,ij->i", dirs[hit], ts.geo_normals[prim[hit]]) > 0
-        sel = hit[ts.culled[k] & back]
+        through = ts.culled[k] & back
+        if surf is not None and tested:
+            at = np.flatnonzero(surf.alpha_tested[k] & ~through)
+            if len(at):
+                ray = hit[at]
+                width = ts.spread * (np.linalg.norm(origins[ray] - ts.eye, axis=-1) + t[ray])
+                cos_d = np.abs(np.einsum("ij,ij->i", dirs[ray], ts.geo_normals[prim[ray]]))
+                # each layer behind another draws anew (golden-ratio shift of the same draw)
+                u_draw = (np.full(len(ray), 0.5) if draw is None
+                          else (draw[ray] + 0.6180339887 * layer) % 1.0)
+                through[at] = trace_material.passes_through(
+                    surf, k[at], prim[ray], u[ray], v[ray], width, cos_d, u_draw)
+        sel = hit[through]
         if not len(sel):
             break
         start = t[sel] + eps
@@ -345,6 +383,11 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     if supersample is None:
         supersample = default_supersample(camera.width, camera.height)
     ts = build_scene(asset, options)
+    # A ray's cone: its share of a pixel's angle (the texture level follows its footprint).
+    ts.eye = np.asarray(camera.position, np.float64)
+    ts.spread = 2 * math.tan(math.radians(camera.fov) / 2) / camera.height / supersample
+    if options.lights and asset.lights:
+        ts.lights = trace_lights.lights_of(asset.lights)
     sky = _Environment(env, options.env_rotation)
     t_build = time.perf_counter()
     npix = camera.width * camera.height
@@ -500,7 +543,7 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
         slot = pix
 
     if options.bounces <= 0:  # no surfaces: every camera ray reads the environment
-        hit = _intersect_front(ts, origins, dirs)[0] >= 0
+        hit = _intersect_front(ts, origins, dirs, _alpha_draw(pix, sub, n_sub, 0))[0] >= 0
         image.coverage += np.bincount(slot[hit], share[hit], minlength=image.npix)
         add(env.radiance(dirs, np.zeros(len(dirs))) * share[:, None], slot)
         return
@@ -511,7 +554,7 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
             # ... as if it left the medium it is in, without a Fresnel loss
             add((weight * (share * medium ** 2)[:, None]) * env.radiance(dirs, blur ** 0.25), slot)
             break
-        prim, u, v, t = _intersect_front(ts, origins, dirs)
+        prim, u, v, t = _intersect_front(ts, origins, dirs, _alpha_draw(pix, sub, n_sub, depth))
         stats["rays"] += len(dirs)
         if depth < len(stats["bounces"]):
             stats["bounces"][depth] += len(dirs)
@@ -523,12 +566,16 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
             if show_env:
                 bg = np.full(miss.sum(), options.background_blur)
                 add(env.radiance(dirs[miss], bg) * share[miss, None], slot[miss])
+        hits = _hit_material(ts, origins, dirs, prim, u, v, t)
+        if ts.lights is not None and len(ts.lights):
+            _light_hits(ts, ts.lights, env, options, origins, dirs, prim, t, hits,
+                        weight * share[:, None], slot, add)
         kernel = _kernel()
         if kernel is not None:
             out = kernel.shade(
                 np.ascontiguousarray(origins), dirs, prim, u, v, t, weight, pix, sub, slot, blur,
-                share, medium, ts.normals, ts.geo_normals, ts.material, ts.base, ts.metallic,
-                ts.roughness, ts.transmission, ts.ior, ts.sigma, ts.emission,
+                share, medium, hits.normal, ts.geo_normals, ts.material, hits.base, hits.metallic,
+                hits.roughness, hits.transmission, ts.ior, ts.sigma, hits.emission, hits.occlusion,
                 np.asarray(env.baked.brdf_lut, np.float64), depth, n_sub, eps,
                 options.rough_lobes == "sample", options.fresnel_split == "sample",
                 options.multiscatter, MIN_WEIGHT, kernel._SOBOL_DIM1,
@@ -548,23 +595,97 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
                     slot[miss])
             hit = ~miss
             d = dirs[hit].astype(np.float64)
+            sel = np.flatnonzero(hit)
             out = _shade_numpy(ts, env, options, depth, n_sub, eps, d,
-                               origins[hit] + d * t[hit, None], t[hit], prim[hit], u[hit], v[hit],
+                               origins[hit] + d * t[hit, None], t[hit], prim[hit],
+                               trace_material.Hits(*(getattr(hits, f.name)[sel] for f in
+                                                     dataclasses.fields(trace_material.Hits))),
                                weight[hit], pix[hit], sub[hit], slot[hit], blur[hit], share[hit],
                                medium[hit], add, stats)
         origins, dirs, weight, pix, sub, slot, blur, share, medium = out
 
 
+def _light_hits(ts: TraceScene, lights: trace_lights.Lights, env: _Environment,
+                options: RenderOptions, origins, dirs, prim, t, hits: trace_material.Hits, carried: np.ndarray, slot: np.ndarray, add) -> None:
+    """Next-event estimation: what the punctual lights reflect along each ray from the
+    surface it hit, times what the ray carries, into `add`. Hits from inside a transmissive
+    object are skipped: light reaches them only refracted, which a straight shadow ray
+    cannot follow."""
+    sel = np.flatnonzero(prim >= 0)
+    k = ts.material[prim[sel]]
+    d = dirs[sel].astype(np.float64)
+    ng = ts.geo_normals[prim[sel]].astype(np.float64)
+    entering = np.einsum("ij,ij->i", d, ng) < 0
+    keep = entering | (ts.transmission[k] <= 0)
+    sel, k, d, ng = sel[keep], k[keep], d[keep], ng[keep]
+    if not len(sel):
+        return
+    ng = ng * np.where(np.einsum("ij,ij->i", d, ng) < 0, 1.0, -1.0)[:, None]
+    n = hits.normal[sel] * np.where(np.einsum("ij,ij->i", d, ng) < 0, 1.0, -1.0)[:, None]
+    n = np.where((np.einsum("ij,ij->i", d, n) >= 0)[:, None], ng, n)
+    p = origins[sel] + d * t[sel, None]
+    eps = EPSILON * ts.radius
+
+    def transmittance(o: np.ndarray, ldir: np.ndarray, dist: np.ndarray, normal: np.ndarray) -> np.ndarray:
+        vis = np.ones((len(o), 3))
+        start, dist = o + eps * normal, dist.copy()
+        todo = np.arange(len(o))
+        for _ in range(trace_lights.MAX_LAYERS):
+            hp, _, _, ht = _intersect_front(ts, start[todo], ldir[todo])
+            ht = np.asarray(ht, np.float64)
+            blocked = (hp >= 0) & (ht < dist[todo] - 2 * eps)
+            idx = todo[blocked]
+            if not len(idx):
+                break
+            km = ts.material[hp[blocked]]
+            through = ts.transmission[km] * (1 - ts.metallic[km])
+            vis[idx] *= through[:, None] * ts.base[km]
+            start[idx] += ldir[idx] * (ht[blocked] + eps)[:, None]
+            dist[idx] -= ht[blocked] + eps
+            todo = idx[through > 0]
+            if not len(todo):
+                break
+        return vis
+
+    def spec_albedo(f0: np.ndarray, cos_v: np.ndarray, rough: np.ndarray):
+        return (env.specular_albedo(f0, cos_v, rough, False),
+                env.specular_albedo(f0, cos_v, rough, options.multiscatter))
+
+    rgb = trace_lights.direct(lights, transmittance, p, n, ng, -d, hits.base[sel],
+                              hits.metallic[sel], hits.roughness[sel], hits.transmission[sel],
+                              ts.ior[k], spec_albedo)
+    add(rgb * carried[sel], slot[sel])
+
+
+def _alpha_draw(pix: np.ndarray, sub: np.ndarray, n_sub: int, depth: int) -> np.ndarray:
+    """The uniform per ray that alpha BLEND compares with: stratified over a pixel's rays."""
+    return ((sub + 0.5) / n_sub + _pixel_shift(pix, depth + 900)) % 1.0
+
+
+def _hit_material(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray, prim: np.ndarray,
+                  u: np.ndarray, v: np.ndarray, t: np.ndarray) -> trace_material.Hits:
+    """The material at every ray's hit (trace_material.evaluate; rows of misses are zeros)."""
+    n = len(prim)
+    full = trace_material.Hits(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n), np.zeros(n),
+                               np.zeros(n), np.zeros((n, 3)), np.ones(n))
+    sel = np.flatnonzero(prim >= 0)
+    if not len(sel) or ts.surface is None:
+        return full
+    width = ts.spread * (np.linalg.norm(origins[sel] - ts.eye, axis=-1) + t[sel])
+    got = trace_material.evaluate(ts.surface, ts.normals, ts.material[prim[sel]], prim[sel],
+                                  u[sel], v[sel], dirs[sel], width)
+    for f in dataclasses.fields(trace_material.Hits):
+        getattr(full, f.name)[sel] = getattr(got, f.name)
+    return full
+
+
 def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, depth: int,
-                 n_sub: int, eps: float, d, p, t, prim, u, v, w, px, sb, sl, v_in, sh, n_in,
-                 add, stats: dict) -> tuple:
+                 n_sub: int, eps: float, d, p, t, prim, hits: trace_material.Hits, w, px, sb,
+                 sl, v_in, sh, n_in, add, stats: dict) -> tuple:
     """The numpy twin of renderer.methods.trace_kernel.shade (the reference the kernel is tested
     against): one bounce's hits -> their children (origin, dir, weight, pix, sub, slot,
     blur, share, medium); emission and the diffuse share go straight into `add`."""
-    u, v = u[:, None], v[:, None]
-    corner = ts.normals[prim].astype(np.float64)
-    ns = (1 - u - v) * corner[:, 0] + u * corner[:, 1] + v * corner[:, 2]
-    ns /= np.maximum(np.linalg.norm(ns, axis=-1, keepdims=True), 1e-20)
+    ns = hits.normal.copy()
     ng = ts.geo_normals[prim].astype(np.float64)
     entering = np.einsum("ij,ij->i", d, ng) < 0
     side = np.where(entering, 1.0, -1.0)[:, None]
@@ -572,16 +693,16 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
     flip = np.einsum("ij,ij->i", d, ns) >= 0      # shading normal behind the ray
     ns[flip] = ng[flip]
     k = ts.material[prim]
-    base, metal = ts.base[k], ts.metallic[k]
-    rough_k, trans, ior = ts.roughness[k], ts.transmission[k], ts.ior[k]
+    base, metal = hits.base, hits.metallic
+    rough_k, trans, ior = hits.roughness, hits.transmission, ts.ior[k]
     # Beer-Lambert over the segment just travelled inside the volume.
     inside = ~entering & (trans > 0) if ts.sigma.any() else np.zeros(0, bool)
     if np.any(inside):
         w = w.copy()
         w[inside] *= np.exp(-ts.sigma[k[inside]] * t[inside, None])
-    glow = ts.emission[k].max(axis=1) > 0 if ts.emission.any() else np.zeros(0, bool)
+    glow = hits.emission.max(axis=1) > 0
     if np.any(glow):
-        add(w[glow] * ts.emission[k[glow]] * sh[glow, None], sl[glow])
+        add(w[glow] * hits.emission[glow] * sh[glow, None], sl[glow])
     cos_i = -np.einsum("ij,ij->i", d, ns)
     eta = np.where(entering, 1.0 / ior, ior)
     fres = fresnel_dielectric(cos_i, eta)
@@ -625,7 +746,7 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
     if g_t is not None:  # sampled lobes: G1 instead of the lobe's mean albedo
         e_ss = np.where(lobe, g_t, e_ss)
     trans_w = ((1 - metal) * (1 - fres) * trans * eta * eta * e_ss)[:, None] * tint * w
-    diffuse_w = ((1 - metal) * (1 - fres) * (1 - trans))[:, None] * base * w
+    diffuse_w = ((1 - metal) * (1 - fres) * (1 - trans) * hits.occlusion)[:, None] * base * w
     # Lobe widths add as variances. A rough refraction bends directions by
     # |1 - eta| per unit of microfacet tilt where a reflection bends them by 2, so its
     # lobe is that much narrower than the reflection lobe the mips were filtered for.

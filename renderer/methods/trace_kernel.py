@@ -1,8 +1,10 @@
 """The ray tracer's per-surface work, compiled (numba): what renderer.methods.raytrace's numpy twin
 `_shade_numpy` does to the rays of one bounce that hit something, in one loop.
 
-Per hit: the interpolated shading normal facing the ray, Beer-Lambert over the segment just
-travelled, emission, exact Fresnel (rough glass: on a GGX visible normal drawn from the
+Per hit (the material as renderer.methods.trace_material evaluated it, textures included:
+per-hit shading normal, base colour, metallic, roughness, transmission, emission,
+occlusion; IOR and absorption per material): the shading normal turned to face the ray,
+Beer-Lambert over the segment just travelled, emission, exact Fresnel (rough glass: on a GGX visible normal drawn from the
 pixel's scrambled Sobol set), the metallic and rough-lobe albedos from the split-sum LUT,
 the diffuse share, and the reflected and refracted children that carry more than
 MIN_WEIGHT (with fresnel_split="sample" past the first surface, one of them). Same
@@ -178,8 +180,8 @@ def _refract(dx, dy, dz, nx, ny, nz, eta):
 @njit(cache=True)
 def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in,
           normals, geo_normals, material, base, metallic, roughness, transmission, ior, sigma,
-          emission, lut, depth, n_sub, eps, sample_lobes, split_sample, ms, min_weight, sobol,
-          roulette):
+          emission, occlusion, lut, depth, n_sub, eps, sample_lobes, split_sample, ms, min_weight,
+          sobol, roulette):
     """One bounce's rays (prim < 0: missed) -> (children: origin, dir, weight, pix, sub,
     slot, blur, share, medium; the misses' dir, weight x share, blur and slot; emission to
     add and its slots; the diffuse shares' weight x share, normals and slots; TIR events on
@@ -214,13 +216,7 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in,
             continue
         for c in range(3):
             p[c] = origins[i, c] + d[i, c] * t[i]
-        uu, vv = np.float64(u[i]), np.float64(v[i])
-        b0 = 1.0 - uu - vv
-        sx = b0 * normals[tri, 0, 0] + uu * normals[tri, 1, 0] + vv * normals[tri, 2, 0]
-        sy = b0 * normals[tri, 0, 1] + uu * normals[tri, 1, 1] + vv * normals[tri, 2, 1]
-        sz = b0 * normals[tri, 0, 2] + uu * normals[tri, 1, 2] + vv * normals[tri, 2, 2]
-        inv = 1.0 / max(math.sqrt(sx * sx + sy * sy + sz * sz), 1e-20)
-        sx, sy, sz = sx * inv, sy * inv, sz * inv
+        sx, sy, sz = normals[i, 0], normals[i, 1], normals[i, 2]
         gx, gy, gz = geo_normals[tri, 0], geo_normals[tri, 1], geo_normals[tri, 2]
         entering = dx * gx + dy * gy + dz * gz < 0
         side = 1.0 if entering else -1.0
@@ -228,16 +224,16 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in,
         if dx * sx + dy * sy + dz * sz >= 0:
             sx, sy, sz = gx, gy, gz
         k = material[tri]
-        metal, rough, trans, n_k = metallic[k], roughness[k], transmission[k], ior[k]
+        metal, rough, trans, n_k = metallic[i], roughness[i], transmission[i], ior[k]
         w0, w1, w2 = w[i, 0], w[i, 1], w[i, 2]
         if not entering and trans > 0:
             w0 *= math.exp(-sigma[k, 0] * t[i])
             w1 *= math.exp(-sigma[k, 1] * t[i])
             w2 *= math.exp(-sigma[k, 2] * t[i])
-        if max(emission[k, 0], emission[k, 1], emission[k, 2]) > 0:
-            direct[n_glow, 0] = w0 * emission[k, 0] * sh[i]
-            direct[n_glow, 1] = w1 * emission[k, 1] * sh[i]
-            direct[n_glow, 2] = w2 * emission[k, 2] * sh[i]
+        if max(emission[i, 0], emission[i, 1], emission[i, 2]) > 0:
+            direct[n_glow, 0] = w0 * emission[i, 0] * sh[i]
+            direct[n_glow, 1] = w1 * emission[i, 1] * sh[i]
+            direct[n_glow, 2] = w2 * emission[i, 2] * sh[i]
             glow[n_glow] = sl[i]
             n_glow += 1
         cos_i = -(dx * sx + dy * sy + dz * sz)
@@ -276,20 +272,20 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in,
         r0, r1, r2 = fr * w0, fr * w1, fr * w2
         if metal > 0:
             a, b = _split_sum(lut, cos_c, rough)
-            r0 += metal * _spec_albedo(base[k, 0], a, b, ms) * w0
-            r1 += metal * _spec_albedo(base[k, 1], a, b, ms) * w1
-            r2 += metal * _spec_albedo(base[k, 2], a, b, ms) * w2
+            r0 += metal * _spec_albedo(base[i, 0], a, b, ms) * w0
+            r1 += metal * _spec_albedo(base[i, 1], a, b, ms) * w1
+            r2 += metal * _spec_albedo(base[i, 2], a, b, ms) * w2
         e_ss = g_t if lobe else _lut_albedo(lut, cos_i, rough)
         ft = (1 - metal) * (1 - fres) * trans * eta * eta * e_ss
         if entering:
-            q0, q1, q2 = ft * base[k, 0] * w0, ft * base[k, 1] * w1, ft * base[k, 2] * w2
+            q0, q1, q2 = ft * base[i, 0] * w0, ft * base[i, 1] * w1, ft * base[i, 2] * w2
         else:
             q0, q1, q2 = ft * w0, ft * w1, ft * w2
-        fd = (1 - metal) * (1 - fres) * (1 - trans)
-        if fd > 0 and max(base[k, 0] * w0, base[k, 1] * w1, base[k, 2] * w2) > 0:
-            diffuse[n_matte, 0] = fd * base[k, 0] * w0 * sh[i]
-            diffuse[n_matte, 1] = fd * base[k, 1] * w1 * sh[i]
-            diffuse[n_matte, 2] = fd * base[k, 2] * w2 * sh[i]
+        fd = (1 - metal) * (1 - fres) * (1 - trans) * occlusion[i]
+        if fd > 0 and max(base[i, 0] * w0, base[i, 1] * w1, base[i, 2] * w2) > 0:
+            diffuse[n_matte, 0] = fd * base[i, 0] * w0 * sh[i]
+            diffuse[n_matte, 1] = fd * base[i, 1] * w1 * sh[i]
+            diffuse[n_matte, 2] = fd * base[i, 2] * w2 * sh[i]
             dnorm[n_matte, 0], dnorm[n_matte, 1], dnorm[n_matte, 2] = sx, sy, sz
             matte[n_matte] = sl[i]
             n_matte += 1
@@ -386,6 +382,68 @@ def sample_cube(faces, d, s_axis, s_sign, t_axis, t_sign):
     return out
 
 
+@njit(cache=True, inline="always")
+def _wrap(i, n, mode):
+    if mode == 33071:  # CLAMP_TO_EDGE
+        return min(max(i, 0), n - 1)
+    if mode == 33648:  # MIRRORED_REPEAT
+        m = i % (2 * n)
+        return m if m < n else 2 * n - 1 - m
+    return i % n  # REPEAT
+
+
+@njit(cache=True)
+def _texel_level(texels, offset, h, w, x, y, nearest, wrap_s, wrap_t, table, out, scale):
+    """Add `scale` x the bilinear (or nearest) RGBA of one level at texel coordinates x, y."""
+    x0f, y0f = math.floor(x), math.floor(y)
+    fx, fy = x - x0f, y - y0f
+    if nearest:
+        fx, fy = float(round(fx)), float(round(fy))
+    x0, y0 = int(x0f), int(y0f)
+    xa, xb = _wrap(x0, w, wrap_s), _wrap(x0 + 1, w, wrap_s)
+    ya, yb = _wrap(y0, h, wrap_t), _wrap(y0 + 1, h, wrap_t)
+    for c in range(4):
+        tab = table if c < 3 else _UNIT_LUT
+        v00, v01 = tab[texels[offset + ya * w + xa, c]], tab[texels[offset + ya * w + xb, c]]
+        v10, v11 = tab[texels[offset + yb * w + xa, c]], tab[texels[offset + yb * w + xb, c]]
+        out[c] += scale * ((v00 * (1 - fx) + v01 * fx) * (1 - fy) + (v10 * (1 - fx) + v11 * fx) * fy)
+
+
+_UNIT_LUT = np.arange(256) / 255.0
+_SRGB_LUT = np.where(_UNIT_LUT <= 0.04045, _UNIT_LUT / 12.92, ((_UNIT_LUT + 0.055) / 1.055) ** 2.4)
+
+
+@njit(cache=True)
+def sample_texture(texels, offsets, heights, widths, uv, lod, srgb, wrap_s, wrap_t, mag_nearest,
+                   min_nearest, mip_mode):
+    """N x 4 RGBA (sRGB colour decoded to linear) of a mip chain stored flat (`texels`: all
+    levels' RGBA8 rows one after another, level l from offsets[l]) at `uv` (glTF: v = 0 is
+    row 0) and level `lod`. mip_mode: 0 no mips (level 0), 1 nearest level, 2 linear."""
+    n = len(uv)
+    out = np.zeros((n, 4))
+    top = len(offsets) - 1
+    px = np.zeros(4)
+    for i in range(n):
+        level_f = min(max(lod[i], 0.0), float(top))
+        if mip_mode == 0:
+            level_f = 0.0
+        elif mip_mode == 1:
+            level_f = float(round(level_f))
+        lo = int(math.floor(level_f))
+        frac = level_f - lo
+        nearest = min_nearest if lod[i] > 0 else mag_nearest
+        px[:] = 0.0
+        for level, weight in ((lo, 1.0 - frac), (min(lo + 1, top), frac)):
+            if weight <= 0.0:
+                continue
+            h, w = heights[level], widths[level]
+            _texel_level(texels, offsets[level], h, w, uv[i, 0] * w - 0.5, uv[i, 1] * h - 0.5,
+                         nearest, wrap_s, wrap_t, _SRGB_LUT if srgb else _UNIT_LUT, px, weight)
+        for c in range(4):
+            out[i, c] = px[c]
+    return out
+
+
 def warm() -> None:
     """Compile (or load from numba's cache) every signature the tracer calls, on empty
     arrays: `python -m renderer.methods.trace_kernel`, run by `make install` and `make test` so that
@@ -395,10 +453,12 @@ def warm() -> None:
     for t_type in (f32, f64):  # Embree's distances, or float64 after culled back faces
         shade(e3, e3, np.zeros(0, np.int32), np.zeros(0, f32), np.zeros(0, f32),
               np.zeros(0, t_type), e3, np.zeros(0, i64), np.zeros(0, i64), np.zeros(0, i64),
-              e, e, e, np.zeros((0, 3, 3), f32), np.zeros((0, 3), f32), np.zeros(0, np.int32),
-              e3, e, e, e, e, e3, e3, np.zeros((2, 2, 2)), 0, 1, 1e-4, True, False, True,
+              e, e, e, e3, np.zeros((0, 3), f32), np.zeros(0, np.int32),
+              e3, e, e, e, e, e3, e3, e, np.zeros((2, 2, 2)), 0, 1, 1e-4, True, False, True,
               1e-3, _SOBOL_DIM1, 0.0)
     sample_cube(np.zeros((6, 2, 2, 3), f32), e3, _S_AXIS, _S_SIGN, _T_AXIS, _T_SIGN)
+    sample_texture(np.zeros((1, 4), np.uint8), np.zeros(1, i64), np.ones(1, i64), np.ones(1, i64),
+                   np.zeros((0, 2)), e, True, 10497, 10497, False, False, 2)
 
 
 if __name__ == "__main__":

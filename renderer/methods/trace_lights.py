@@ -1,0 +1,111 @@
+"""The asset's punctual lights (KHR_lights_punctual, USD lights mapped to them) in the ray
+tracer, by next-event estimation: at every surface a path meets, a shadow ray to each light
+and the BRDF the raster's shaders/punctual.glsl evaluates (Lambert diffuse under the GGX
+lobe's directional albedo, GGX specular with Schlick Fresnel and Smith masking, the range
+and cone falloffs). A punctual light is a delta: BSDF sampling can never hit it, so NEE alone
+is unbiased and needs no MIS weight. Shadow rays pass alpha cut-outs and culled back faces as
+camera rays do, and go straight through transmissive surfaces scaled by transmission x base
+colour (the caustic a refracting surface focuses is not traced).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from core.scene import Light
+
+MAX_LAYERS = 8  # transmissive surfaces a shadow ray passes through
+
+
+@dataclass
+class Lights:
+    kind: np.ndarray       # L int: 0 directional, 1 point, 2 spot
+    position: np.ndarray   # L x 3
+    axis: np.ndarray       # L x 3 direction the light travels
+    range: np.ndarray      # L (inf: none)
+    color: np.ndarray      # L x 3 colour x intensity
+    cone: np.ndarray       # L x 2 angle scale, offset (as the raster's u_light_cone)
+
+    def __len__(self) -> int:
+        return len(self.kind)
+
+
+def lights_of(lights: list[Light]) -> Lights:
+    kind, pos, axis, rng, color, cone = [], [], [], [], [], []
+    for light in lights:
+        mtx = np.asarray(light.matrix, np.float64)
+        a = -mtx[:3, 2]
+        axis.append(a / max(float(np.linalg.norm(a)), 1e-12))
+        kind.append({"directional": 0, "point": 1, "spot": 2}[light.type])
+        pos.append(mtx[:3, 3])
+        rng.append(float(light.range))
+        color.append(np.asarray(light.color, np.float64) * light.intensity)
+        scale = 1.0 / max(1e-3, math.cos(light.inner_cone) - math.cos(light.outer_cone))
+        cone.append([scale, -math.cos(light.outer_cone) * scale])
+    return Lights(np.asarray(kind, np.int64), np.asarray(pos, np.float64).reshape(-1, 3),
+                  np.asarray(axis, np.float64).reshape(-1, 3), np.asarray(rng, np.float64),
+                  np.asarray(color, np.float64).reshape(-1, 3), np.asarray(cone, np.float64).reshape(-1, 2))
+
+
+def _ggx_spec(f0, alpha, n_v, n_l, n_h, v_h):
+    """F D V of the GGX lobe (height-correlated Smith visibility), per row."""
+    a2 = alpha * alpha
+    d = a2 / (math.pi * (n_h * n_h * (a2 - 1.0) + 1.0) ** 2)
+    gv = n_l * np.sqrt(n_v * n_v * (1.0 - a2) + a2)
+    gl = n_v * np.sqrt(n_l * n_l * (1.0 - a2) + a2)
+    vis = 0.5 / np.maximum(gv + gl, 1e-12)
+    f = f0 + (1.0 - f0) * ((1.0 - v_h) ** 5)[:, None]
+    return f * (d * vis)[:, None]
+
+
+def direct(lights: Lights, occlusion_test, p: np.ndarray, n: np.ndarray, ng: np.ndarray,
+           v: np.ndarray, base: np.ndarray, metallic: np.ndarray, roughness: np.ndarray,
+           transmission: np.ndarray, ior: np.ndarray, spec_albedo) -> np.ndarray:
+    """N x 3 radiance reflected toward v (unit, pointing away from the surface) by surfaces at
+    p (shading normal n and geometric normal ng both on v's side) from every light.
+    `occlusion_test(origins, dirs, dist, normals)` -> N x 3 transmittance of the segments
+    (rays leave off the surface along `normals`);
+    `spec_albedo(f0, cos_v, roughness)` -> (single-scattering, total) N x 3 directional
+    albedos of the lobe: the diffuse base gets what the total leaves, and the lobe is scaled
+    by total / single (its multiple scattering, as the raster)."""
+    out = np.zeros((len(p), 3))
+    n_v = np.clip(np.einsum("ij,ij->i", n, v), 1e-4, 1.0)
+    dielectric = ((ior - 1) / (ior + 1)) ** 2
+    f0 = dielectric[:, None] * (1 - metallic[:, None]) + base * metallic[:, None]
+    e_ss, e_spec = spec_albedo(f0, n_v, roughness)
+    ms_scale = e_spec / np.maximum(e_ss, 1e-4)
+    diffuse = base * ((1 - metallic) * (1 - transmission))[:, None] / math.pi * (1 - e_spec)
+    alpha = np.maximum(roughness * roughness, 1e-3)
+    for i in range(len(lights)):
+        if lights.kind[i] == 0:
+            ldir = np.broadcast_to(-lights.axis[i], p.shape).copy()
+            dist = np.full(len(p), np.inf)
+            atten = np.ones(len(p))
+        else:
+            d = lights.position[i] - p
+            dist2 = np.maximum(np.einsum("ij,ij->i", d, d), 1e-12)
+            dist = np.sqrt(dist2)
+            ldir = d / dist[:, None]
+            atten = 1.0 / dist2
+            if math.isfinite(lights.range[i]) and lights.range[i] > 0:
+                r = dist2 / lights.range[i] ** 2
+                atten *= np.clip(1.0 - r * r, 0.0, 1.0)
+            if lights.kind[i] == 2:
+                cd = -ldir @ lights.axis[i]
+                s = np.clip(cd * lights.cone[i, 0] + lights.cone[i, 1], 0.0, 1.0)
+                atten *= s * s
+        n_l = np.einsum("ij,ij->i", n, ldir)
+        lit = np.flatnonzero((n_l > 0) & (atten > 0) & (np.einsum("ij,ij->i", ng, ldir) > 0))
+        if not len(lit):
+            continue
+        vis = occlusion_test(p[lit], ldir[lit], dist[lit], ng[lit])
+        h = ldir[lit] + v[lit]
+        h /= np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-12)
+        n_h = np.clip(np.einsum("ij,ij->i", n[lit], h), 0.0, 1.0)
+        v_h = np.clip(np.einsum("ij,ij->i", v[lit], h), 0.0, 1.0)
+        spec = _ggx_spec(f0[lit], alpha[lit], n_v[lit], n_l[lit], n_h, v_h) * ms_scale[lit]
+        radiance = lights.color[i] * atten[lit, None]
+        out[lit] += (diffuse[lit] + spec) * radiance * (n_l[lit])[:, None] * vis
+    return out

@@ -1,0 +1,280 @@
+"""The ray tracer's surface data: the material each hit sees, textures included.
+
+For every hit the tracer reads the same baked material the raster path does: factors times
+textures (base colour, metal-rough, normal, occlusion, emissive, transmission), each with its
+KHR_texture_transform, UV set and sampler, times vertex colours; the shading normal is the
+interpolated vertex normal perturbed by the normal map in the baked tangent frame (as
+shaders/material_info.glsl). Texels are read bilinearly from the baked mip chain (sRGB ones
+decoded to linear first, as GL's sRGB textures filter in linear light), the level chosen from
+the ray's footprint: a ray cone of `spread` radians per unit length (a camera ray's share of a
+pixel), widened over the distance from the eye (Akenine-Moeller et al. 2019, without the
+curvature term: a lower bound on secondary rays' footprints), against the triangle's texel
+density. A hit's alpha (base colour alpha x texture alpha x vertex alpha) decides MASK
+(cut-off) and BLEND (the ray passes with probability 1 - alpha: stochastic transparency,
+unbiased and deterministic per ray).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from core.baked import BakedAsset
+from core.scene import LINEAR, LINEAR_MIPMAP_LINEAR, NEAREST, Material, TextureRef, is_srgb
+
+MIRRORED_REPEAT, CLAMP_TO_EDGE = 33648, 33071
+NEAREST_MIPMAP_NEAREST, LINEAR_MIPMAP_NEAREST, NEAREST_MIPMAP_LINEAR = 9984, 9985, 9986
+SLOTS = ("base_color", "metallic_roughness", "normal", "occlusion", "emissive", "transmission")
+
+
+@dataclass
+class TextureChain:
+    """One texture's mip levels in one colour space, stored flat for the compiled sampler."""
+    levels: list[np.ndarray]  # RGBA8, level 0 first
+    srgb: bool
+    wrap: tuple[int, int]     # (s, t) GL wrap modes
+    mag: int
+    min: int
+
+    def __post_init__(self):
+        self.texels = np.ascontiguousarray(np.concatenate([lv.reshape(-1, 4) for lv in self.levels]))
+        sizes = [lv.shape[0] * lv.shape[1] for lv in self.levels]
+        self.offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
+        self.heights = np.asarray([lv.shape[0] for lv in self.levels], np.int64)
+        self.widths = np.asarray([lv.shape[1] for lv in self.levels], np.int64)
+
+    def sample(self, uv: np.ndarray, lod: np.ndarray) -> np.ndarray:
+        """N x 4 float (linear RGB, alpha) at `uv` (N x 2, glTF: v = 0 is row 0) and mip
+        level `lod` (N; log2 of the footprint in level-0 texels), as the sampler filters."""
+        mip_mode = (0 if self.min in (NEAREST, LINEAR) else
+                    1 if self.min in (NEAREST_MIPMAP_NEAREST, LINEAR_MIPMAP_NEAREST) else 2)
+        min_nearest = self.min in (NEAREST, NEAREST_MIPMAP_NEAREST, NEAREST_MIPMAP_LINEAR)
+        # numba's import costs ~0.6 s, which a process that never ray traces skips
+        from renderer.methods import trace_kernel
+        return trace_kernel.sample_texture(
+            self.texels, self.offsets, self.heights, self.widths,
+            np.ascontiguousarray(uv, np.float64), np.ascontiguousarray(lod, np.float64),
+            self.srgb, int(self.wrap[0]), int(self.wrap[1]), self.mag == NEAREST, min_nearest,
+            mip_mode)
+
+
+@dataclass
+class Slot:
+    """A material's texture slot: the chain, its UV set and transform."""
+    chain: TextureChain
+    uv_set: int
+    uvm: np.ndarray  # 3 x 3 KHR_texture_transform
+
+
+@dataclass
+class SurfaceMaterial:
+    """Material k as the tracer evaluates it."""
+    material: Material
+    slots: dict[str, Slot] = field(default_factory=dict)
+
+
+@dataclass
+class Surface:
+    """Per-triangle data the tracer interpolates at hits (world space), and the materials."""
+    uv: list[np.ndarray | None]          # per UV set: T x 3 x 2 (None: no mesh has the set)
+    texel_density: list[np.ndarray | None]  # per UV set: T, sqrt(uv area / world area)
+    tangents: np.ndarray | None          # T x 3 x 4 (w = 0: the mesh has none)
+    colors: np.ndarray | None            # T x 3 x 4 linear (1 where a mesh has none)
+    materials: list[SurfaceMaterial]
+    alpha_tested: np.ndarray             # K bool: MASK or BLEND (rays may pass through)
+
+
+def build_surface(asset: BakedAsset, materials: list[Material], parts: list[tuple[int, np.ndarray, np.ndarray]],
+                  world: np.ndarray, texture_top: int | None) -> Surface:
+    """`parts`: per placed mesh (mesh index, its T x 3 index array in world winding, the 3 x 3
+    linear part of its transform); `world`: all T x 3 x 3 world corners in the same order."""
+    n_sets = 2
+    uv: list[list[np.ndarray]] = [[] for _ in range(n_sets)]
+    have_uv = [False] * n_sets
+    tangents, colors = [], []
+    have_tan = have_col = False
+    for k, idx, lin in parts:
+        mesh = asset.meshes[k]
+        t = len(idx)
+        for s, arr in enumerate((mesh.uv0, mesh.uv1)):
+            if arr is not None:
+                have_uv[s] = True
+                uv[s].append(np.asarray(arr, np.float64)[idx])
+            else:
+                uv[s].append(np.zeros((t, 3, 2)))
+        if mesh.tangents is not None:
+            have_tan = True
+            tan = np.asarray(mesh.tangents, np.float64)[idx]
+            xyz = tan[..., :3] @ lin.T
+            w = np.where(tan[..., 3:4] < 0, -1.0, 1.0) * (1.0 if np.linalg.det(lin) >= 0 else -1.0)
+            tangents.append(np.concatenate([xyz, w], axis=-1))
+        else:
+            tangents.append(np.zeros((t, 3, 4)))
+        if mesh.colors is not None:
+            have_col = True
+            c = np.asarray(mesh.colors, np.float64)
+            if c.shape[1] == 3:
+                c = np.concatenate([c, np.ones((len(c), 1))], axis=1)
+            colors.append(c[idx])
+        else:
+            colors.append(np.ones((t, 3, 4)))
+    area = 0.5 * np.linalg.norm(np.cross(world[:, 1] - world[:, 0], world[:, 2] - world[:, 0]), axis=-1)
+    uvs: list[np.ndarray | None] = []
+    density: list[np.ndarray | None] = []
+    for s in range(n_sets):
+        if not have_uv[s] or not uv[s]:
+            uvs.append(None)
+            density.append(None)
+            continue
+        a = np.concatenate(uv[s])
+        e1, e2 = a[:, 1] - a[:, 0], a[:, 2] - a[:, 0]
+        uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+        uvs.append(a)
+        density.append(np.sqrt(uv_area / np.maximum(area, 1e-30)))
+    chains: dict[tuple[int, bool], TextureChain] = {}
+    surf_mats = []
+    for mat in materials:
+        sm = SurfaceMaterial(mat)
+        for slot in SLOTS:
+            ref: TextureRef | None = getattr(mat, f"{slot}_texture")
+            if ref is None or not 0 <= ref.texture < len(asset.textures) or uvs[min(ref.uv_set, 1)] is None:
+                continue
+            key = (ref.texture, is_srgb(slot))
+            if key not in chains:
+                tex = asset.textures[ref.texture]
+                chains[key] = TextureChain(tex.mips(key[1], texture_top), key[1],
+                                           (tex.sampler.wrap_s, tex.sampler.wrap_t),
+                                           tex.sampler.mag_filter or LINEAR,
+                                           tex.sampler.min_filter or LINEAR_MIPMAP_LINEAR)
+            sm.slots[slot] = Slot(chains[key], min(ref.uv_set, 1), ref.uv_matrix().astype(np.float64))
+        surf_mats.append(sm)
+    alpha_tested = np.asarray([m.alpha_mode in ("MASK", "BLEND") for m in materials], bool)
+    return Surface(uvs, density, np.concatenate(tangents) if have_tan and tangents else None,
+                   np.concatenate(colors) if have_col and colors else None, surf_mats, alpha_tested)
+
+
+def _interp(corners: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    return ((1 - u - v)[:, None] * corners[:, 0] + u[:, None] * corners[:, 1]
+            + v[:, None] * corners[:, 2])
+
+
+def _lookup(surf: Surface, slot: Slot, prim, u, v, width, cos_d, memo: dict | None = None) -> np.ndarray:
+    """Texel of `slot` at the hits (prim, u, v) for a ray footprint `width` (world units).
+    `memo` keeps each UV set's interpolated coordinates and footprint for the next slot."""
+    key = slot.uv_set
+    if memo is not None and key in memo:
+        uv0, foot = memo[key]
+    else:
+        uv0 = _interp(surf.uv[key][prim], u, v)  # type: ignore[index]
+        # the footprint in UV units: cone width over the surface's slant, times texel density
+        foot = width * surf.texel_density[key][prim] / np.maximum(cos_d, 0.05)  # type: ignore[index]
+        if memo is not None:
+            memo[key] = uv0, foot
+    uv = uv0 @ slot.uvm[:2, :2].T + slot.uvm[:2, 2]
+    h, w = slot.chain.levels[0].shape[:2]
+    scale = math.sqrt(abs(np.linalg.det(slot.uvm[:2, :2])) * w * h)
+    lod = np.log2(np.maximum(foot * scale, 1e-30))
+    return slot.chain.sample(uv, lod)
+
+
+def alpha(surf: Surface, material: np.ndarray, prim, u, v, width, cos_d) -> np.ndarray:
+    """Coverage alpha at hits on alpha-tested materials (`material` per hit)."""
+    out = np.ones(len(prim))
+    for k in np.unique(material):
+        sm = surf.materials[k]
+        sel = np.flatnonzero(material == k)
+        a = np.full(len(sel), float(sm.material.base_color[3]))
+        slot = sm.slots.get("base_color")
+        if slot is not None:
+            a *= _lookup(surf, slot, prim[sel], u[sel], v[sel], width[sel], cos_d[sel])[:, 3]
+        if surf.colors is not None:
+            a *= _interp(surf.colors[prim[sel]], u[sel], v[sel])[:, 3]
+        out[sel] = a
+    return out
+
+
+def passes_through(surf: Surface, material: np.ndarray, prim, u, v, width, cos_d,
+                   draw: np.ndarray) -> np.ndarray:
+    """Which hits on alpha-tested materials the ray goes through: MASK below the cut-off;
+    BLEND where `draw` (uniform per ray) >= alpha."""
+    a = alpha(surf, material, prim, u, v, width, cos_d)
+    mode = np.asarray([surf.materials[k].material.alpha_mode for k in material])
+    cutoff = np.asarray([surf.materials[k].material.alpha_cutoff for k in material], np.float64)
+    return np.where(mode == "MASK", a < cutoff, draw >= a)
+
+
+@dataclass
+class Hits:
+    """The material at each hit, as the shading kernel reads it."""
+    normal: np.ndarray     # N x 3 shading normal (front side, before facing the ray)
+    base: np.ndarray       # N x 3 linear
+    metallic: np.ndarray   # N
+    roughness: np.ndarray  # N
+    transmission: np.ndarray  # N
+    emission: np.ndarray   # N x 3
+    occlusion: np.ndarray  # N
+
+
+def evaluate(surf: Surface, normals: np.ndarray, material: np.ndarray, prim: np.ndarray,
+             u: np.ndarray, v: np.ndarray, d: np.ndarray, width: np.ndarray) -> Hits:
+    """Hits (prim >= 0 everywhere) -> their material. `normals`: T x 3 x 3 vertex normals;
+    `d`: ray directions; `width`: the ray cone's width at each hit."""
+    u, v = u.astype(np.float64), v.astype(np.float64)
+    n = len(prim)
+    ns = _interp(normals[prim].astype(np.float64), u, v)
+    ns /= np.maximum(np.linalg.norm(ns, axis=-1, keepdims=True), 1e-20)
+    cos_d = np.abs(np.einsum("ij,ij->i", d, ns))
+    base = np.empty((n, 3))
+    metal, rough, trans, occ = np.empty(n), np.empty(n), np.empty(n), np.ones(n)
+    emis = np.empty((n, 3))
+    for k in np.unique(material):
+        sm = surf.materials[k]
+        m = sm.material
+        sel = np.flatnonzero(material == k)
+        p, uu, vv = prim[sel], u[sel], v[sel]
+        memo: dict = {}
+        at = (p, uu, vv, width[sel], cos_d[sel], memo)
+
+        def tex(name: str, sm=sm, at=at) -> np.ndarray | None:
+            slot = sm.slots.get(name)
+            return None if slot is None else _lookup(surf, slot, *at)
+        b = np.broadcast_to(np.asarray(m.base_color[:3], np.float64), (len(sel), 3)).copy()
+        t = tex("base_color")
+        if t is not None:
+            b *= t[:, :3]
+        if surf.colors is not None:
+            b *= _interp(surf.colors[p], uu, vv)[:, :3]
+        base[sel] = b
+        mr = tex("metallic_roughness")
+        metal[sel] = np.clip(m.metallic * (1.0 if mr is None else mr[:, 2]), 0, 1)
+        rough[sel] = np.clip(m.roughness * (1.0 if mr is None else mr[:, 1]), 0, 1)
+        tr = tex("transmission")
+        trans[sel] = m.transmission * (1.0 if tr is None else tr[:, 0])
+        e = np.broadcast_to(np.asarray(m.emissive, np.float64) * m.emissive_strength, (len(sel), 3)).copy()
+        t = tex("emissive")
+        if t is not None:
+            e *= t[:, :3]
+        emis[sel] = e
+        if m.unlit:  # the colour as it is, emitted; nothing reflected
+            emis[sel], base[sel], metal[sel], trans[sel] = base[sel], 0.0, 0.0, 0.0
+            continue
+        t = tex("occlusion")
+        if t is not None:
+            occ[sel] = 1.0 + m.occlusion_strength * (t[:, 0] - 1.0)
+        t = tex("normal")
+        if t is not None and surf.tangents is not None:
+            tan = _interp(surf.tangents[p], uu, vv)
+            ok = np.abs(tan[:, 3]) > 0.5
+            if np.any(ok):
+                ng = ns[sel][ok]
+                tt = tan[ok, :3] - ng * np.einsum("ij,ij->i", ng, tan[ok, :3])[:, None]
+                tt /= np.maximum(np.linalg.norm(tt, axis=-1, keepdims=True), 1e-20)
+                bt = np.cross(ng, tt) * np.sign(tan[ok, 3])[:, None]
+                tn = t[ok, :3] * 2.0 - 1.0
+                tn[:, :2] *= m.normal_scale
+                pert = tn[:, :1] * tt + tn[:, 1:2] * bt + tn[:, 2:3] * ng
+                pert /= np.maximum(np.linalg.norm(pert, axis=-1, keepdims=True), 1e-20)
+                rows = sel[ok]
+                ns[rows] = np.where(np.isfinite(pert).all(axis=1, keepdims=True), pert, ng)
+    return Hits(ns, base, metal, rough, trans, emis, occ)
