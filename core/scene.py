@@ -241,8 +241,10 @@ class Scene:
     environment: str | None = None  # panorama file the asset lights itself with (USD dome light)
     warnings: list[str] = field(default_factory=list)
     files: list[str] = field(default_factory=list)  # every file read (the asset and what it references)
+    absent: list[str] = field(default_factory=list)  # files it looked for and did not find (cache key)
     cameras: list[SceneCamera] = field(default_factory=list)
     variants: list[str] = field(default_factory=list)  # KHR_materials_variants names, by index
+    variant_sets: list[dict] = field(default_factory=list)  # USD: {prim, set, variants, selection}
     extensions: dict[str, str] = field(default_factory=dict)  # used -> supported|partial|ignored
     animations: list[dict] = field(default_factory=list)  # core.animation.Animation.summary()s
     time_range: dict | None = None  # USD: start/end time codes and timeCodesPerSecond
