@@ -165,10 +165,10 @@ def run(args: argparse.Namespace) -> int:
 
 def measure(names: list[str], size: int, repeat: int, rt_repeat: int, cache: Path,
             peer_spp: list[int], budget_ms: float = BUDGET_MS) -> list[dict]:
-    import pipeline
     from bench import scenes
     from bench.metrics import errors, median_ms, reference_at, with_linear
     from core.options import RenderOptions
+    from pipeline.bake import bake_environment
     from renderer.raster.render import available_methods, render
 
     available = available_methods()
@@ -179,7 +179,7 @@ def measure(names: list[str], size: int, repeat: int, rt_repeat: int, cache: Pat
         spec = scenes.scene(name)
         ref = reference_at(name, size)
         asset = scenes.baked_asset(spec, cache)
-        envs = {p: pipeline.bake_environment(spec.env, cache, face_size=FACE, prefilter=p)
+        envs = {p: bake_environment(spec.env, cache, face_size=FACE, prefilter=p)
                 for p in ("ggx", "paper")}
         base = RenderOptions(background="env", width=size, height=size, yaw=spec.yaw, pitch=spec.pitch,
                              fov=spec.fov, distance=spec.camera_distance(size, size))

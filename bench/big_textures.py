@@ -23,7 +23,7 @@ def build(assets: Path, size: int = 8192) -> Path:
     out = Path(tempfile.gettempdir()) / "asset-preview-bench" / f"DuckTextures{size}.glb"
     if out.exists():
         return out
-    from pipeline import load_scene
+    from pipeline.ingest import load_scene
     scene = load_scene(assets / "gltf" / "Duck.glb")
     mesh = scene.meshes[0]
     world = scene.instances[0].matrix

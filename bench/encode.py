@@ -28,13 +28,13 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
     from PIL import Image
 
-    import pipeline
     from bench.assets import ASSETS
     from core.cubemap import default_face_size
     from core.options import RenderOptions
+    from pipeline.bake import bake_asset, bake_environment
     from renderer.raster.render import render
     cache = args.cache or tempfile.mkdtemp(prefix="bench-encode-")
-    asset = pipeline.bake_asset(ASSETS / "gltf" / "Duck.glb", cache)
+    asset = bake_asset(ASSETS / "gltf" / "Duck.glb", cache)
 
     def pillow(px, fmt, **kw) -> bytes:
         buf = io.BytesIO()
@@ -44,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
     # CPU time beside wall: encoding is one thread, so CPU ms is its cost on a busy machine
     print(f"{'px':>5} {'image':>12} {'encoder':>34} {'ms':>7} {'cpu ms':>7} {'KB':>8}")
     for size in (int(s) for s in args.sizes.split(",")):
-        env = pipeline.bake_environment("footprint_court", cache, face_size=default_face_size(size))
+        env = bake_environment("footprint_court", cache, face_size=default_face_size(size))
         for background in ("env", "transparent"):
             frame = render(asset, env, RenderOptions(width=size, height=size, yaw=30.0, pitch=20.0,
                                                      background=background))

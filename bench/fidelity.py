@@ -150,10 +150,10 @@ def _save_png(path: Path, linear: np.ndarray) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import pipeline
     from bench import scenes
     from core.errors import AssetError
     from core.options import RenderOptions
+    from pipeline.bake import bake_asset, bake_environment
     from pipeline.environment.panorama import load_panorama
     from renderer.frame import write_exr
     from renderer.raster.render import render
@@ -167,7 +167,7 @@ def run(args: argparse.Namespace) -> int:
     (out / "fidelity").mkdir(parents=True, exist_ok=True)
     cache = Path(args.cache) if args.cache else Path(tempfile.mkdtemp(prefix="bench-fidelity-"))
     work = Path(tempfile.mkdtemp(prefix="bench-fidelity-blender-"))
-    env = pipeline.bake_environment(args.env, cache, face_size=256)
+    env = bake_environment(args.env, cache, face_size=256)
     options = RenderOptions(width=args.size, height=args.size, background="transparent",
                             tonemap="aces", yaw=VIEW["yaw"], pitch=VIEW["pitch"], fov=VIEW["fov"])
 
@@ -207,7 +207,7 @@ def run(args: argparse.Namespace) -> int:
             _print(row)
             continue
         try:
-            asset = pipeline.bake_asset(path, cache)
+            asset = bake_asset(path, cache)
         except AssetError as exc:
             row["note"] = f"not ingested: {exc}"
             _print(row)

@@ -40,11 +40,11 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import pipeline
     from bench import scenes
     from bench.metrics import median_ms, with_linear
     from bench.reference import relative_mae, render_reference
     from core.options import RenderOptions
+    from pipeline.bake import bake_environment
     from renderer.methods.raytrace import render_raytrace
     from renderer.raster.render import available_methods, render
 
@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
     for name, size in cases:
         spec = scenes.scene(name)
         asset = scenes.baked_asset(spec, cache)
-        env = pipeline.bake_environment(spec.env, cache, face_size=FACE)
+        env = bake_environment(spec.env, cache, face_size=FACE)
         opts = RenderOptions(background="env", width=size, height=size, yaw=spec.yaw, pitch=spec.pitch,
                              fov=spec.fov, distance=spec.camera_distance(size, size))
         t0 = time.perf_counter()

@@ -192,14 +192,14 @@ def write_glb(spec: SceneSpec, path: str | Path) -> Path:
 
 def baked_asset(spec: SceneSpec, cache_dir: str | Path | None = None):
     """The scene as the renderer sees it, a BakedAsset: through the whole pipeline (write the
-    .glb, pipeline.bake_asset) with a cache folder; without one, in memory straight from the
+    .glb, pipeline.bake.bake_asset) with a cache folder; without one, in memory straight from the
     same arrays and without interior vectors (for tests that edit geometry; the ray tracer
     needs no interior)."""
     if cache_dir is not None:
-        import pipeline
+        from pipeline.bake import bake_asset
 
         glb = write_glb(spec, Path(cache_dir) / "scenes" / f"{spec.name}.glb")
-        return pipeline.bake_asset(glb, cache_dir)
+        return bake_asset(glb, cache_dir)
     from core.baked import BakedAsset, BakedMesh
     from core.scene import transformed_bounds
 

@@ -115,10 +115,10 @@ def flipped_sphere():
 
 
 def real_asset(kind: str):
-    """A sample asset's triangles in world space (every instance), through pipeline.load_scene."""
-    import pipeline
+    """A sample asset's triangles in world space (every instance), through pipeline.ingest.load_scene."""
+    from pipeline.ingest import load_scene
 
-    s = pipeline.load_scene(ASSETS / REAL_ASSETS[kind])
+    s = load_scene(ASSETS / REAL_ASSETS[kind])
     ps, ns, ids, base = [], [], [], 0
     for inst in s.instances:
         m = s.meshes[inst.mesh]

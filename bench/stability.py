@@ -104,11 +104,11 @@ def _tir_fraction(asset, env, opts, frame, mask) -> float | None:
 
 def run_case(case: str, cache: Path, quick: bool = False) -> tuple[list[dict], dict]:
     """Rows for one case, and {column: linear image} for the contact sheet."""
-    import pipeline
     from bench import scenes
     from bench.metrics import errors, reference_at, with_linear
     from core.errors import AssetError
     from core.options import RenderOptions
+    from pipeline.bake import bake_environment
     from renderer.raster.render import render
 
     scene_name, ref_name = CASES[case]
@@ -123,7 +123,7 @@ def run_case(case: str, cache: Path, quick: bool = False) -> tuple[list[dict], d
         return [{"case": case, "scene": scene_name, "method": m, "finite": True,
                  "nonfinite_px": 0, "tir_fallback": "", "flip": math.nan, "rel_mse": math.nan,
                  "verdict": "failed", "reason": f"bake rejected: {exc}"} for m in METHODS], images
-    env = pipeline.bake_environment(spec.env, cache, face_size=FACE)
+    env = bake_environment(spec.env, cache, face_size=FACE)
     base = RenderOptions(background="env", width=SIZE, height=SIZE, yaw=spec.yaw, pitch=spec.pitch, fov=spec.fov,
                          distance=spec.camera_distance(SIZE, SIZE))
     for method in METHODS:

@@ -64,7 +64,7 @@ ASSETS = {
     "BigTextures8k": None,  # generated: bench.big_textures
     "TeapotFine": "usd/Teapot/Teapot.usd",  # baked one subdivision level finer: 158k triangles
 }
-BAKE_OPTIONS = {"TeapotFine": {"subdivision_levels": 3}}
+BAKE_OPTIONS: dict[str, dict[str, Any]] = {"TeapotFine": {"subdivision_levels": 3}}
 TOOLS = ("ours", "ours-old", "pyrender", "f3d")  # and on request ours-unbaked (below)
 OLD_ENV = "footprint_court"  # the default light before the studio
 
@@ -92,9 +92,9 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import pipeline
     from bench import big_textures
     from bench.assets import ASSETS as assets_root
+    from pipeline.bake import bake_asset
     from pipeline.environment.panorama import DEFAULT_ENVIRONMENT, load_panorama, write_rgbe
     work = Path(tempfile.mkdtemp(prefix="bench-thumbnail-"))
     cache = Path(args.cache) if args.cache else work / "cache"
@@ -112,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
     for name in args.assets.split(","):
         rel = ASSETS[name]
         src = big_textures.build(assets_root) if rel is None else assets_root / rel
-        baked = pipeline.bake_asset(src, cache, **BAKE_OPTIONS.get(name, {}))  # ours renders from the cache, as the service does
+        baked = bake_asset(src, cache, **BAKE_OPTIONS.get(name, {}))  # ours renders from the cache, as the service does
         if name == big_textures.NAME:
             _texture_report(src, baked, cache, env_name)
         if any(t.startswith("ours") for t in tools):
@@ -141,19 +141,19 @@ def _texture_report(src: Path, baked, cache: Path, env_name: str, px: int = 1024
     import flip_evaluator
     import numpy as np
 
-    import pipeline
     from core.options import RenderOptions
-    from pipeline.bake import build_baked
+    from pipeline.bake import bake_environment, build_baked
+    from pipeline.ingest import load_scene
     from renderer import render
     from renderer.methods.auto import environment_face_size
     entry = cache / "assets" / baked.key
     tex_bytes = sum(f.stat().st_size for f in entry.glob("texture.*"))
     src_bytes = src.stat().st_size
-    full = build_baked(pipeline.load_scene(src), "full-resolution", {"thumbnail_size": 1 << 16})
+    full = build_baked(load_scene(src), "full-resolution", {"thumbnail_size": 1 << 16})
     errors = {}
     for bg in ("env", "transparent"):
         o = RenderOptions(width=px, height=px, background=bg, **_view())
-        env = pipeline.bake_environment(env_name, cache, face_size=environment_face_size(baked, o)[0])
+        env = bake_environment(env_name, cache, face_size=environment_face_size(baked, o)[0])
         a, b = render(baked, env, o), render(full, env, o)
         err, mean, _ = flip_evaluator.evaluate(b.rgba8[..., :3] / np.float32(255),
                                                a.rgba8[..., :3] / np.float32(255), "LDR",
@@ -212,13 +212,13 @@ def _aa_report(name: str, baked, cache: Path, env_name: str, size: int) -> dict:
     import flip_evaluator
     import numpy as np
 
-    import pipeline
     from core.options import RenderOptions
+    from pipeline.bake import bake_environment
     from renderer import render
     from renderer.methods.auto import environment_face_size
     from renderer.raster.render import render_supersampled
     o = RenderOptions(width=size, height=size, **_view())
-    env = pipeline.bake_environment(env_name, cache, face_size=environment_face_size(baked, o)[0])
+    env = bake_environment(env_name, cache, face_size=environment_face_size(baked, o)[0])
     ref = render_supersampled(baked, env, o, 4).rgba8[..., :3] / np.float32(255)
     out = {}
     for label, change in (("default", {}), ("msaa", {"antialias": "msaa", "msaa": 4}), ("no_aa", {"msaa": 0})):
@@ -235,10 +235,10 @@ def _multiscatter_cost(args, cache: Path, env_name: str, sizes: list[int]) -> in
     frame in this process so that both see the same machine load; medians and their ratio."""
     import dataclasses
 
-    import pipeline
     from bench.assets import ASSETS as assets_root
     from core.cubemap import default_face_size
     from core.options import RenderOptions
+    from pipeline.bake import bake_asset, bake_environment
     from renderer import render
     print(f"{'asset':>15} {'px':>4} {'multiscatter ms':>16} {'without ms':>11} {'ratio':>6}"
           f" {'cpu ms':>8} {'without':>8} {'ratio':>6}")
@@ -246,9 +246,9 @@ def _multiscatter_cost(args, cache: Path, env_name: str, sizes: list[int]) -> in
         rel = ASSETS[name]
         if rel is None:  # generated assets are the texture report's, not this comparison's
             continue
-        asset = pipeline.bake_asset(assets_root / rel, cache)
+        asset = bake_asset(assets_root / rel, cache)
         for size in sizes:
-            env = pipeline.bake_environment(env_name, cache, face_size=default_face_size(size))
+            env = bake_environment(env_name, cache, face_size=default_face_size(size))
             on = RenderOptions(width=size, height=size, **_view())
             off = dataclasses.replace(on, multiscatter=False)
             wall: dict[bool, list[float]] = {True: [], False: []}
@@ -409,17 +409,17 @@ def _png(rgb) -> bytes:
 
 
 def _ours(job: dict, old: bool = False, unbaked: bool = False):
-    import pipeline
     from core.options import RenderOptions
+    from pipeline.bake import bake_environment, load_baked
     from renderer.methods.auto import environment_face_size
-    asset = pipeline.load_baked(job["key"], job["cache"])
+    asset = load_baked(job["key"], job["cache"])
     if unbaked:  # edges, hull and support points computed by the first frame, as before the
         asset.hull = None  # bake stored them
         for mesh in asset.meshes:
             mesh.edges = mesh.edge_faces = mesh.support = None
     look: dict[str, Any] = {"background": "env", "shadow": 0.0} if old else {}
     options = RenderOptions(width=job["size"], height=job["size"], **_view(), **look)
-    env = pipeline.bake_environment(OLD_ENV if old else job["env"], job["cache"],
+    env = bake_environment(OLD_ENV if old else job["env"], job["cache"],
                                     face_size=environment_face_size(asset, options)[0])
 
     return _OursShot(asset, env, options)

@@ -45,8 +45,8 @@ def run(args: argparse.Namespace) -> int:
     if args.linear and os.path.splitext(args.linear)[1].lower() not in (".npy", ".exr"):
         return _fail(f"{args.linear}: --linear takes .npy or .exr")
     out_ext = os.path.splitext(args.out)[1].lower()
-    import pipeline
     from core.options import describe_error, from_arguments
+    from pipeline.bake import bake_asset, bake_environment
     from pipeline.environment.panorama import DEFAULT_ENVIRONMENT
     from renderer.methods.auto import environment_face_size
     from renderer.raster.render import UnsupportedMethod, render, validate_options
@@ -62,10 +62,10 @@ def run(args: argparse.Namespace) -> int:
         return _fail(f"{args.out}: --turntable writes an animated .webp or .gif")
     if out_ext == ".gif" and not options.turntable:
         return _fail(f"{args.out}: .gif is for --turntable; use .png .jpg or .webp")
-    asset = pipeline.bake_asset(args.path, args.cache, root=args.root)
+    asset = bake_asset(args.path, args.cache, root=args.root)
     face, env_why = environment_face_size(asset, options)
     env_source = args.env or _dome(asset, args.path) or DEFAULT_ENVIRONMENT
-    env = pipeline.bake_environment(env_source, args.cache, face_size=face)
+    env = bake_environment(env_source, args.cache, face_size=face)
     from renderer.sequence import encode_animation, render_turntable, render_views
     try:
         if options.turntable:  # N frames from this one bake and one upload

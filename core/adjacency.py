@@ -1,6 +1,6 @@
 """A triangle mesh's edges over its welded positions, with the (up to two) faces of each: what
 renderer.raster.edges needs to find silhouettes. Baked with each mesh by pipeline.bake (a sort of every
-position and every edge: ~0.5 ms per 1000 triangles here), so a render only reads it; computed
+position and every edge), so a render only reads it; computed
 at render time for meshes that were not baked with it (made in memory, or over the cap)."""
 from __future__ import annotations
 

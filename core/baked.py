@@ -8,6 +8,8 @@ from typing import Callable
 
 import numpy as np
 
+from core.errors import NotInAsset
+from core.mips import capped_size, mip_chain
 from core.scene import Light, Material, Sampler, SceneCamera, Texture
 
 
@@ -30,7 +32,6 @@ class BakedTexture:
     @classmethod
     def from_texture(cls, tex: Texture, spaces=(True, False), cap: int | None = None) -> "BakedTexture":
         """Mips of a decoded Texture, built on first use (hand-made assets, fresh bakes)."""
-        from core.mips import capped_size
         h, w = tex.image.shape[:2]
         return cls(tex.name, tex.sampler, tex.source, capped_size(h, w, cap),
                    spaces, partial(_chain_of, tex, cap))
@@ -57,7 +58,6 @@ class BakedTexture:
 
 
 def _chain_of(tex: Texture, cap: int | None, srgb: bool, top: int | None = None) -> list[np.ndarray]:
-    from core.mips import mip_chain
     return mip_chain(tex.image, srgb, cap)
 
 
@@ -118,7 +118,6 @@ class BakedAsset:
         if name is None:
             return self
         if name not in self.variants:
-            from core.errors import NotInAsset
             raise NotInAsset(self.source, f"no material variant {name!r}; it has "
                              f"{', '.join(map(repr, self.variants)) or 'none'}")
         meshes = [dataclasses.replace(m, material=m.variants.get(name, m.material))

@@ -1,10 +1,10 @@
 """Points on an asset's convex hull, baked (pipeline.bake) so that a first frame does not take
 them from every vertex; computed at render time for assets made in memory:
 - `hull_points`: points whose convex hull holds every drawn surface, the final pass's bound on
-  the pixels the object can reach (renderer.view.regions); qhull's scipy import alone costs a cold
-  render 0.25-0.45 s;
+  the pixels the object can reach (renderer.view.regions); qhull's scipy import alone would
+  weigh on a cold render;
 - `support_points`: a mesh's points farthest along a few hundred directions, what the default
-  camera frames (renderer.view.framing); over every vertex they cost the Teapot's first frame 0.26 s.
+  camera frames (renderer.view.framing); over every vertex they would slow a large mesh's first frame.
 """
 from __future__ import annotations
 
@@ -51,7 +51,7 @@ def _box(points: np.ndarray) -> np.ndarray:
 
 def _hull(points: np.ndarray) -> np.ndarray:
     """The points on the convex hull (all of them when qhull finds none: flat or tiny)."""
-    from scipy.spatial import ConvexHull, QhullError
+    from scipy.spatial import ConvexHull, QhullError  # heavy: only bakes take hulls, not renders from the cache
     if len(points) <= 8:
         return points
     try:

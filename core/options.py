@@ -26,6 +26,8 @@ from pydantic import ConfigDict, Field, ValidationError, field_validator, model_
 from pydantic.dataclasses import dataclass
 from pydantic.fields import FieldInfo
 
+from core.colour import srgb_to_linear
+
 if typing.TYPE_CHECKING:
     from core.scene import Material
 
@@ -231,7 +233,6 @@ def parse_color(text: str) -> tuple[float, float, float]:
     """`RRGGBB` / `#RRGGBB` (sRGB, as people pick colours) or `r,g,b` (linear) -> linear RGB."""
     m = _HEX.match(text.strip())
     if m:
-        from core.colour import srgb_to_linear
         rgb8 = np.array([int(m.group(1)[i:i + 2], 16) for i in (0, 2, 4)], np.uint8)
         return tuple(round(float(c), 6) for c in srgb_to_linear(rgb8))  # type: ignore[return-value]
     try:

@@ -18,20 +18,26 @@ import platform
 import time
 from datetime import datetime, timezone
 from functools import lru_cache, partial
+from importlib import metadata
 from pathlib import Path
 from typing import Any, cast
 
 import numpy as np
+import zstandard
 
 from core.adjacency import MAX_TRIANGLES, welded_edges
 from core.baked import BakedAsset, BakedEnvironment, BakedMesh, BakedTexture
 from core.cubemap import DEFAULT_FACE_SIZE
-from core.errors import MissingFile, UnsupportedFormat
+from core.errors import AssetError, MissingFile, UnsupportedFormat
 from core.hull import hull_points, support_points
 from core.mips import level_shapes, texture_size_for
 from core.scene import Light, Material, Sampler, Scene, SceneCamera, TextureRef, extent, is_srgb
 from pipeline.cache import BAKE_FORMAT_VERSION, Cache, Entry, NotInCache, SourceFiles
+from pipeline.environment import prefilter as environment
+from pipeline.environment.panorama import load_panorama, resolve_panorama
+from pipeline.ingest import load_scene
 from pipeline.limits import Limits
+from pipeline.paths import sandbox_root
 from pipeline.usd import subdivision
 
 log = logging.getLogger(__name__)
@@ -70,8 +76,6 @@ def bake_asset(path, cache_dir=None, *, force: bool = False, limits: Limits | No
 def bake_or_load_asset(path, cache_dir=None, *, force: bool = False, limits: Limits | None = None,
                        root=None, **options) -> tuple[BakedAsset, bool]:
     """As `bake_asset`, also saying whether it came from the cache (True) or was baked."""
-    from pipeline.ingest import load_scene
-
     unknown = set(options) - set(ASSET_OPTIONS)
     if unknown:
         raise TypeError(f"unknown bake option(s): {', '.join(sorted(unknown))}")
@@ -115,7 +119,6 @@ def bake_or_load_asset(path, cache_dir=None, *, force: bool = False, limits: Lim
 def _inputs_inside(manifest: dict, path: Path, root) -> bool:
     """Whether every input a cached bake read lies inside this call's root: a bake made with
     a wider --root is not handed to a narrower call (it bakes again, and is refused)."""
-    from pipeline.paths import sandbox_root
     top = sandbox_root(path, root)
     for item in manifest.get("inputs", [])[1:]:
         real = (path.parent / item["path"]).resolve()
@@ -146,7 +149,7 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> Bak
         interior = None
         if any(m.material_class == "transmissive" for m in (material, *variants.values())):
             if mi not in interiors:
-                from pipeline.interior.vectors import interior_vectors  # here: numba's import (0.25 s) is
+                from pipeline.interior.vectors import interior_vectors  # here: numba's import is
                 # for bakes of glass, not for every process that loads a bake
                 result = interior_vectors(mesh.positions, mesh.normals, mesh.indices,
                                           epsilon=opts["interior_epsilon"])
@@ -313,7 +316,6 @@ def _read_chain(entry: Entry, i: int, size, srgb: bool, top: int | None = None) 
     checksummed whole (compressed bytes), but it holds the levels smallest first, so only the
     prefix a render needs is decompressed (a 512 px render of a 2048 px chain: a quarter).
     Level views share one buffer. CorruptEntry if it fails (the entry is dropped)."""
-    import zstandard
     name = _texture_file(i, srgb)
     data = entry.read(name)
     shapes = level_shapes(*size)[::-1]  # smallest first, as stored
@@ -375,7 +377,6 @@ def _light_from_json(d: dict) -> Light:
 
 @lru_cache(maxsize=1)
 def _versions() -> dict:
-    from importlib import metadata
     out = {"bake_format": BAKE_FORMAT_VERSION, "python": platform.python_version()}
     for dist in ("asset-preview", "numpy", "embreex", "usd-core", "trimesh", "moderngl"):
         try:
@@ -397,12 +398,8 @@ def bake_environment(source, cache_dir=None, face_size: int = DEFAULT_FACE_SIZE,
 def bake_or_load_environment(source, cache_dir=None, face_size: int = DEFAULT_FACE_SIZE, prefilter: str = "ggx",
                              force: bool = False, limits: Limits | None = None
                              ) -> tuple[BakedEnvironment, bool]:
-    from pipeline.environment.panorama import load_panorama, resolve_panorama
-
     if prefilter not in PREFILTERS:
         raise ValueError(f"prefilter must be one of {PREFILTERS}, not {prefilter!r}")
-    from pipeline.environment import prefilter as environment
-
     environment.check_face_size(face_size)  # before the key: default_levels needs a valid one
     cache = _cache(cache_dir)
     # The filter's own constants are part of the key: changing them must not serve old bakes.
@@ -461,8 +458,6 @@ def bake_one(kind: str, source: str, *, cache=None, max_bytes=None, force=False,
     """The unit of work of `asset-bake` (in processes or Ray tasks): bake one asset or
     environment; never raises (the result says what went wrong). `roots` maps an asset to
     the folder its references may read (cli.bake's `_collect`)."""
-    from core.errors import AssetError
-
     start = time.perf_counter()
     result: dict[str, Any] = {"kind": kind, "path": source}
     try:

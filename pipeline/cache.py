@@ -57,8 +57,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import zstandard
 
 from core.errors import AssetError
+from pipeline.limits import pipeline_settings
 
 log = logging.getLogger(__name__)
 
@@ -83,7 +85,6 @@ class CorruptEntry(NotInCache):
 
 
 def default_cache_dir() -> Path:
-    from pipeline.limits import pipeline_settings
     return Path(pipeline_settings().cache)
 
 
@@ -172,7 +173,6 @@ class Cache:
     def __init__(self, root: str | os.PathLike | None = None, max_bytes: int | str | None = None):
         self.root = Path(root) if root is not None else default_cache_dir()
         if max_bytes is None:
-            from pipeline.limits import pipeline_settings
             max_bytes = pipeline_settings().cache_max_bytes
         self.max_bytes = parse_size(max_bytes)
 
@@ -403,7 +403,6 @@ def _encode(name: str, value) -> bytes:
     elif name.endswith(".npz"):
         np.savez(buf, **value)
     elif name.endswith(".zst"):
-        import zstandard
         raw = b"".join(np.ascontiguousarray(a).tobytes() for a in value)
         return zstandard.ZstdCompressor(level=ZSTD_LEVEL).compress(raw)
     else:

@@ -23,6 +23,9 @@ import time
 from pathlib import Path
 from typing import Any
 
+from pipeline.bake import bake_one
+from pipeline.cache import default_cache_dir
+
 log = logging.getLogger(__name__)
 
 RAY_MISSING = ("--executor ray needs Ray, which is not installed: "
@@ -38,7 +41,7 @@ class ExecutorUnavailable(RuntimeError):
 def require_ray():
     """The `ray` module, or ExecutorUnavailable saying how to install it."""
     try:
-        import ray
+        import ray  # optional (the `ray` extra) and heavy: only for --executor ray
     except ImportError as exc:
         raise ExecutorUnavailable(RAY_MISSING) from exc
     return ray
@@ -94,15 +97,12 @@ def disconnect() -> None:
     """Leave the cluster if `connect` joined it (a caller's own ray.init is left alone)."""
     global _connected_here
     if _connected_here:
-        import ray
-        ray.shutdown()
+        require_ray().shutdown()
         _connected_here = False
 
 
 def _bake_task(kind: str, source: str, cwd: str, common: dict) -> dict:
     """One bake job in a Ray worker, in the driver's working directory when this node has it."""
-    from pipeline.bake import bake_one
-
     if os.path.isdir(cwd):
         os.chdir(cwd)
     elif not os.path.isabs(source) and kind == "asset":
@@ -114,8 +114,7 @@ def _bake_task(kind: str, source: str, cwd: str, common: dict) -> dict:
 
 def _node() -> str:
     try:
-        import ray
-        return ray.util.get_node_ip_address()
+        return require_ray().util.get_node_ip_address()
     except Exception:  # only for a message
         return "?"
 
@@ -128,7 +127,6 @@ def run_ray(jobs: list[tuple[str, str]], common: dict, report, *, address: str |
     ray = require_ray()
     connect(address)
     common = dict(common)
-    from pipeline.cache import default_cache_dir
     # Absolute, so that a worker that cannot chdir (another mount layout) fails loudly on
     # the path instead of writing a private cache of its own.
     common["cache"] = str(Path(common.get("cache") or default_cache_dir()).absolute())

@@ -69,7 +69,7 @@ KTX2_IDENTIFIER = b"\xabKTX 20\xbb\r\n\x1a\n"
 def _open_ktx2(data: bytes | memoryview, source: str, limits: Limits):
     """A Basis Universal KTX2 (KHR_texture_basisu) opened with opengl_basisu, its size checked
     from the header (pixelWidth/Height at bytes 20..28) before the transcoder parses it."""
-    import opengl_basisu
+    import opengl_basisu  # the Basis transcoder: only KTX2 textures need it
 
     if len(data) < 80:
         raise MalformedAsset(source, f"KTX2 image is truncated ({len(data)} bytes)")
@@ -88,7 +88,7 @@ def _open_ktx2(data: bytes | memoryview, source: str, limits: Limits):
 
 def _decode_ktx2(data: bytes | memoryview, source: str, limits: Limits) -> np.ndarray:
     """KTX2 level 0 transcoded to RGBA8 (top row first, as KHR_texture_basisu requires)."""
-    import opengl_basisu
+    import opengl_basisu  # as in _open_ktx2
 
     tex = _open_ktx2(data, source, limits)
     try:

@@ -24,7 +24,9 @@ import numpy as np
 from core.errors import AssetError, EmptyScene, LimitExceeded, MalformedAsset, MissingFile, UnsupportedFormat
 from core.scene import Mesh, Scene
 from pipeline import deadline
+from pipeline import mesh as plain_mesh
 from pipeline.framing import mark_backdrops
+from pipeline.gltf import reader as gltf
 from pipeline.limits import Limits
 from pipeline.normals import compute_tangents, smooth_normals
 
@@ -36,16 +38,13 @@ READERS = {".gltf": "gltf", ".glb": "gltf",
 
 
 def _reader(kind: str):
-    """The format's reader module, imported on first use: usd-core and trimesh are heavy, and
-    most processes read one format."""
+    """The format's reader module."""
     if kind == "gltf":
-        from pipeline.gltf import reader as gltf
         return gltf
     if kind == "usd":
-        from pipeline.usd import stage as usd
+        from pipeline.usd import stage as usd  # usd-core is heavy: imported by USD reads only
         return usd
-    from pipeline import mesh
-    return mesh
+    return plain_mesh  # (trimesh is imported by its reads only)
 
 
 def load_scene(path, limits: Limits | None = None, root=None) -> Scene:

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 # Bump on any change that alters pixels: the service keys cached thumbnails with it.
-RENDERER_VERSION = "3"  # 3: energy compensation by default, layering, mirrored transforms (issue 18)
+RENDERER_VERSION = "4"  # 3: energy compensation by default, layering, mirrored transforms (issue 18); 4: anisotropic texture filtering (issue 30)
 
 # Imported eagerly: the submodule `renderer.raster.render` would otherwise shadow the function.
 from renderer.frame import Frame  # noqa: E402

@@ -30,8 +30,8 @@ def update_goldens(request) -> bool:
 def reference_env(tmp_path_factory):
     """The environment the Mitsuba references were rendered with, baked at 512 px faces: the
     cube resampling of a 256 px bake alone costs ~0.05 relative error against them."""
-    import pipeline
-    return pipeline.bake_environment("footprint_court", tmp_path_factory.mktemp("reference_env"),
+    from pipeline.bake import bake_environment
+    return bake_environment("footprint_court", tmp_path_factory.mktemp("reference_env"),
                                      face_size=512)
 
 

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from gltf_builder import CUBE_INDICES, CUBE_POSITIONS, Builder
 
-import pipeline
 from core.cubemap import default_face_size
 from core.options import RenderOptions
+from pipeline.bake import bake_asset, bake_environment
 from pipeline.environment.panorama import DEFAULT_ENVIRONMENT
 from renderer import render
 from renderer.raster.render import render_supersampled
@@ -47,8 +47,8 @@ def _edge_scene(tmp_path_factory):
 @pytest.mark.parametrize("scene", ["duck", "edges"])
 def test_default_antialiasing_against_16x_supersampling(assets, cache, tmp_path_factory, scene):
     src = assets / "gltf/Duck.glb" if scene == "duck" else _edge_scene(tmp_path_factory)
-    asset = pipeline.bake_asset(src, cache)
-    env = pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(SIZE))
+    asset = bake_asset(src, cache)
+    env = bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(SIZE))
     look = {} if scene == "duck" else {"background": "#ffffff", "shadow": 0.0}
     o = RenderOptions(width=SIZE, height=SIZE, **look)
     ref = render_supersampled(asset, env, o, 4)
@@ -64,8 +64,8 @@ def test_default_antialiasing_against_16x_supersampling(assets, cache, tmp_path_
 
 
 def test_supersampled_reference_refuses_a_ray_traced_frame(assets, cache):
-    asset = pipeline.bake_asset(assets / "gltf/Duck.glb", cache)
-    env = pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(32))
+    asset = bake_asset(assets / "gltf/Duck.glb", cache)
+    env = bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(32))
     from renderer.raster.render import UnsupportedMethod
     with pytest.raises(UnsupportedMethod):
         render_supersampled(asset, env, RenderOptions(width=32, height=32, method="raytrace"))

@@ -156,12 +156,12 @@ def cache(tmp_path_factory):
 def test_render_carries_the_plan(cache):
     """Through renderer.raster.render: the decisions land in Frame.plan["auto"] (the service's
     X-Render-Plan header), per object, and a budget makes the frame ray traced."""
-    import pipeline
+    from pipeline.bake import bake_environment
     from renderer.raster.render import render
 
     spec = scenes.scene("glass_torus_ior1.5")
     asset = scenes.baked_asset(spec, cache)
-    env = pipeline.bake_environment(spec.env, cache, face_size=32)
+    env = bake_environment(spec.env, cache, face_size=32)
     o = RenderOptions(background="env", width=32, height=32, yaw=spec.yaw, pitch=spec.pitch)
     frame = render(asset, env, o)
     assert frame.plan["objects"][0]["method"] == "wyman"

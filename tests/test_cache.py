@@ -10,9 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline import AssetError, bake_asset, load_baked, load_scene
-from pipeline.bake import bake_or_load_asset
+from core.errors import AssetError
+from pipeline.bake import bake_asset, bake_or_load_asset, load_baked
 from pipeline.cache import Cache, CorruptEntry, NotInCache, parse_size
+from pipeline.ingest import load_scene
 
 
 def _copy(src: Path, dst_dir: Path) -> Path:
@@ -179,8 +180,7 @@ def test_size_cap_evicts_least_recently_used(assets, tmp_path):
 
 
 def test_environment_bake_hit_and_load_by_key(tmp_path):
-    from pipeline import bake_environment
-    from pipeline.bake import bake_or_load_environment, load_environment
+    from pipeline.bake import bake_environment, bake_or_load_environment, load_environment
     env, hit = bake_or_load_environment("neutral", tmp_path, face_size=32)
     assert not hit and env.face_size == 32 and env.prefilter == "ggx"
     assert [m.shape for m in env.specular][:2] == [(6, 32, 32, 3), (6, 16, 16, 3)]

@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 from gltf_builder import CUBE_INDICES, CUBE_POSITIONS, Builder
 
-import pipeline
 from core.adjacency import welded_edges
 from core.cubemap import default_face_size
 from core.options import RenderOptions
+from pipeline.bake import bake_asset, bake_environment, load_baked
 from pipeline.environment.panorama import DEFAULT_ENVIRONMENT
+from pipeline.ingest import load_scene
 from renderer import render
 from renderer.raster import edges
 
@@ -113,8 +114,8 @@ def _frames(asset, env, **look):
 
 
 def test_only_pixels_on_an_edge_change(cache, tmp_path_factory):
-    asset = pipeline.bake_asset(_cubes(tmp_path_factory, False), cache)
-    env = pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(96))
+    asset = bake_asset(_cubes(tmp_path_factory, False), cache)
+    env = bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(96))
     smooth, none = _frames(asset, env)
     assert smooth.plan["antialias"] == "edges" and none.plan["antialias"] == "none"
     a, b = smooth.rgba8[..., :3].astype(int), none.rgba8[..., :3].astype(int)
@@ -134,8 +135,8 @@ def test_only_pixels_on_an_edge_change(cache, tmp_path_factory):
 
 
 def test_coverage_alpha_on_a_transparent_background(cache, tmp_path_factory):
-    asset = pipeline.bake_asset(_cubes(tmp_path_factory, False), cache)
-    env = pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(96))
+    asset = bake_asset(_cubes(tmp_path_factory, False), cache)
+    env = bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(96))
     smooth, none = _frames(asset, env, background="transparent")
     assert set(np.unique(none.rgba8[..., 3])) <= {0, 255}
     partial = (smooth.rgba8[..., 3] > 0) & (smooth.rgba8[..., 3] < 255)
@@ -145,9 +146,9 @@ def test_coverage_alpha_on_a_transparent_background(cache, tmp_path_factory):
 
 
 def test_hidden_edges_change_nothing(cache, tmp_path_factory):
-    env = pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(96))
-    alone = pipeline.bake_asset(_cubes(tmp_path_factory, False), cache)
-    behind = pipeline.bake_asset(_cubes(tmp_path_factory, True), cache)
+    env = bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(96))
+    alone = bake_asset(_cubes(tmp_path_factory, False), cache)
+    behind = bake_asset(_cubes(tmp_path_factory, True), cache)
     a, _ = _frames(alone, env)
     b, none = _frames(behind, env)
     assert np.array_equal(_frames(alone, env)[1].rgba8, none.rgba8)  # nothing of it shows
@@ -155,8 +156,8 @@ def test_hidden_edges_change_nothing(cache, tmp_path_factory):
 
 
 def test_msaa_when_asked_for_or_when_the_frame_is_too_big(cache, assets, monkeypatch):
-    asset = pipeline.bake_asset(assets / "gltf/Duck.glb", cache)
-    env = pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(64))
+    asset = bake_asset(assets / "gltf/Duck.glb", cache)
+    env = bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(64))
     o = RenderOptions(width=64, height=64)
     assert render(asset, env, o).plan["antialias"] == "edges"
     msaa = render(asset, env, dataclasses.replace(o, antialias="msaa"))
@@ -205,7 +206,7 @@ def test_welded_edges_by_their_definition(assets):
     shared = np.flatnonzero((np.sort(pos[e], axis=1) == np.sort(pos[[0, 1]], axis=0)).all(axis=(1, 2)))
     assert len(shared) == 1 and f[shared[0]].tolist() == [0, 1]  # four faces on it: the first two
     assert len(e) == 7  # 01 12 20, 03 31, 14 40: the collapsed 11 and the point 2 2 2 add none
-    duck = pipeline.load_scene(assets / "gltf/Duck.glb").meshes[0]
+    duck = load_scene(assets / "gltf/Duck.glb").meshes[0]
     e, f = welded_edges(duck.positions, duck.indices)
     ref = _reference_edges(duck.positions, duck.indices)
     np.testing.assert_array_equal(e, ref[0])
@@ -214,8 +215,8 @@ def test_welded_edges_by_their_definition(assets):
 
 @pytest.mark.parametrize("name", ["usd/Teapot/Teapot.usd", "gltf/CesiumMilkTruck.glb", "gltf/Duck.glb"])
 def test_baked_edges_are_those_a_render_would_build(name, assets, tmp_path):
-    baked = pipeline.bake_asset(assets / name, tmp_path)
-    again = pipeline.load_baked(baked.key, tmp_path)  # the cache round trip
+    baked = bake_asset(assets / name, tmp_path)
+    again = load_baked(baked.key, tmp_path)  # the cache round trip
     assert again.manifest["timings"]["adjacency_s"] >= 0
     for mesh in again.meshes:
         assert mesh.edges is not None and mesh.edge_faces is not None
@@ -231,11 +232,11 @@ def test_a_render_reads_the_baked_edges_and_matches_one_without(cache, assets, t
     render from an entry baked without them (over the cap), which computes them."""
     from pipeline import bake
     from renderer.raster import gpu
-    env = pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(96))
-    with_edges = pipeline.load_baked(pipeline.bake_asset(assets / "gltf/Duck.glb", tmp_path / "a").key,
+    env = bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(96))
+    with_edges = load_baked(bake_asset(assets / "gltf/Duck.glb", tmp_path / "a").key,
                                      tmp_path / "a")
     monkeypatch.setattr(bake, "MAX_TRIANGLES", 100)
-    without = pipeline.load_baked(pipeline.bake_asset(assets / "gltf/Duck.glb", tmp_path / "b").key,
+    without = load_baked(bake_asset(assets / "gltf/Duck.glb", tmp_path / "b").key,
                                   tmp_path / "b")
     monkeypatch.undo()
     assert all(m.edges is None and m.edge_faces is None for m in without.meshes)

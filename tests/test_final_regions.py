@@ -7,10 +7,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-import pipeline
 from core import hull
 from core.cubemap import default_face_size
 from core.options import RenderOptions
+from pipeline.bake import bake_asset, bake_environment, load_baked
 from pipeline.environment.panorama import DEFAULT_ENVIRONMENT
 from renderer import render
 from renderer.view import framing, regions
@@ -39,8 +39,8 @@ def _one_pass(monkeypatch):
 
 @pytest.mark.parametrize("rel", SAMPLES)
 def test_regions_write_the_pixels_of_one_full_screen_pass(assets, cache, rel, monkeypatch):
-    asset = pipeline.bake_asset(assets / rel, cache)
-    env = pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(96))
+    asset = bake_asset(assets / rel, cache)
+    env = bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(96))
     base = RenderOptions(width=96, height=80)
     for look in LOOKS:
         o = dataclasses.replace(base, **look)
@@ -55,8 +55,8 @@ def test_regions_write_the_pixels_of_one_full_screen_pass(assets, cache, rel, mo
 def test_object_polygon_holds_every_covered_pixel(assets, cache):
     """Every pixel with any coverage lies inside the silhouette bound, which is much
     smaller than the frame for the Duck (the work it saves)."""
-    asset = pipeline.bake_asset(assets / "gltf/Duck.glb", cache)
-    env = pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(128))
+    asset = bake_asset(assets / "gltf/Duck.glb", cache)
+    env = bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(128))
     o = RenderOptions(width=128, height=128, background="transparent", shadow=0.0)
     frame = render(asset, env, o)
     poly = regions.object_polygon(request_camera(asset, o), regions.hull_points(asset), 128, 128)
@@ -74,8 +74,8 @@ def test_object_polygon_holds_every_covered_pixel(assets, cache):
 def test_object_rect_holds_every_covered_pixel(assets, cache, rel):
     """The edge-smoothed frame's bound (a rectangle) holds every pixel with any coverage,
     smoothed edges included, and is the polygon's bounding rectangle."""
-    asset = pipeline.bake_asset(assets / rel, cache)
-    env = pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(128))
+    asset = bake_asset(assets / rel, cache)
+    env = bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(128))
     o = RenderOptions(width=128, height=112, background="transparent", shadow=0.0)
     frame = render(asset, env, o)
     assert frame.plan["antialias"] == "edges"
@@ -124,8 +124,8 @@ def test_small_meshes_are_bounded_by_their_points_without_scipy(assets, cache, m
     import, a quarter second of a cold render) and the same pixels as the hull's bound."""
     import sys
     from collections import OrderedDict
-    asset = _unbaked(pipeline.bake_asset(assets / "gltf/Duck.glb", cache))
-    env = pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(96))
+    asset = _unbaked(bake_asset(assets / "gltf/Duck.glb", cache))
+    env = bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(96))
     o = RenderOptions(width=96, height=96)
     monkeypatch.setattr(regions, "_hulls", OrderedDict())
     monkeypatch.setitem(sys.modules, "scipy.spatial", None)  # importing it now fails
@@ -143,8 +143,8 @@ def test_big_meshes_are_bounded_by_their_boxes(assets, cache, monkeypatch):
     """Past MAX_HULL_MESH vertices a mesh is bounded by its box's corners (qhull's cost and
     the hull's size grow with the mesh): still every covered pixel inside, same pixels."""
     from collections import OrderedDict
-    asset = _unbaked(pipeline.bake_asset(assets / "gltf/Duck.glb", cache))
-    env = pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(96))
+    asset = _unbaked(bake_asset(assets / "gltf/Duck.glb", cache))
+    env = bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(96))
     o = RenderOptions(width=96, height=96)
     exact = render(asset, env, o)
     monkeypatch.setattr(hull, "MAX_HULL_MESH", 10)
@@ -160,14 +160,14 @@ def test_baked_hull_and_support_points_are_those_a_render_would_take(name, asset
     """The bake stores the hull points and each mesh's support points (core.hull) a render
     would compute, read back from the cache; a render from them has the camera and draws the
     pixels of one that computes them."""
-    baked = pipeline.bake_asset(assets / name, cache)
-    again = pipeline.load_baked(baked.key, cache)
+    baked = bake_asset(assets / name, cache)
+    again = load_baked(baked.key, cache)
     assert again.hull is not None and len(again.hull) >= 4
     np.testing.assert_array_equal(again.hull, hull.hull_points(again.meshes))
     for m in again.meshes:
         assert m.support is not None and 4 <= len(m.support) <= max(256, len(m.positions))
         np.testing.assert_array_equal(m.support, hull.support_points(m.positions))
-    env = pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(96))
+    env = bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(96))
     sizes: list[int] = []  # the framing takes the baked points, not every vertex
     monkeypatch.setattr(framing, "_framing_points", {})
     monkeypatch.setattr(framing, "support_points", lambda p: sizes.append(len(p)) or hull.support_points(p))
@@ -186,11 +186,11 @@ def test_a_cold_render_from_the_cache_imports_neither_scipy_nor_numba(assets, ca
     (0.25 s: the interior pass's kernels are for bakes)."""
     import subprocess
     import sys
-    key = pipeline.bake_asset(assets / "usd/Teapot/Teapot.usd", cache).key
-    code = (f"import sys, pipeline; from core.options import RenderOptions; from renderer import render; "
+    key = bake_asset(assets / "usd/Teapot/Teapot.usd", cache).key
+    code = (f"import sys; from pipeline.bake import bake_environment, load_baked; from core.options import RenderOptions; from renderer import render; "
             f"from pipeline.environment.panorama import DEFAULT_ENVIRONMENT; from core.cubemap import default_face_size; "
-            f"a = pipeline.load_baked({key!r}, {str(cache)!r}); "
-            f"e = pipeline.bake_environment(DEFAULT_ENVIRONMENT, {str(cache)!r}, face_size=default_face_size(96)); "
+            f"a = load_baked({key!r}, {str(cache)!r}); "
+            f"e = bake_environment(DEFAULT_ENVIRONMENT, {str(cache)!r}, face_size=default_face_size(96)); "
             f"f = render(a, e, RenderOptions(width=96, height=96)); "
             f"print(f.plan['antialias'], sorted(m for m in sys.modules if m.startswith(('scipy.spatial', 'numba'))))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)

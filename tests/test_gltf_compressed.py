@@ -14,11 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import pipeline
 from bench.compressed import ktx2_variant, meshopt_variant
 from core.cubemap import default_face_size
 from core.errors import AssetError, LimitExceeded, MalformedAsset
 from core.options import RenderOptions
+from pipeline.bake import bake_asset, bake_environment
 from pipeline.environment.panorama import DEFAULT_ENVIRONMENT
 from pipeline.ingest import load_scene
 from renderer import render
@@ -47,7 +47,7 @@ def cache(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def env(cache):
-    return pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(SIZE))
+    return bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(SIZE))
 
 
 def _flip(a, b) -> float:
@@ -58,7 +58,7 @@ def _flip(a, b) -> float:
 
 
 def _render(path, cache, env):
-    frame = render(pipeline.bake_asset(path, cache), env,
+    frame = render(bake_asset(path, cache), env,
                    RenderOptions(width=SIZE, height=SIZE, yaw=30, pitch=20))
     assert np.isfinite(frame.linear).all()
     return frame

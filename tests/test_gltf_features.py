@@ -14,13 +14,13 @@ import numpy as np
 import pytest
 from gltf_builder import CUBE_INDICES, CUBE_POSITIONS, Builder, png_bytes
 
-import pipeline
 from cli.inspect import summary
 from core.colour import srgb_to_linear
 from core.cubemap import default_face_size
-from core.errors import NotInAsset
+from core.errors import AssetError, NotInAsset
 from core.options import RenderOptions
 from core.scene import CLAMP_TO_EDGE, MIRRORED_REPEAT, NEAREST, REPEAT
+from pipeline.bake import bake_asset, bake_environment
 from pipeline.environment.panorama import DEFAULT_ENVIRONMENT
 from pipeline.ingest import load_scene
 from renderer import render
@@ -39,7 +39,7 @@ def cache(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def env(cache):
-    return pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(128))
+    return bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(128))
 
 
 def _sample(name: str, variant: str = "glTF") -> Path:
@@ -57,7 +57,7 @@ def test_sample_folder_is_found():
 def test_every_sample_loads(path):
     rel = path.relative_to(SAMPLES).as_posix()
     if rel in REFUSED:
-        with pytest.raises(pipeline.AssetError, match=REFUSED[rel]):
+        with pytest.raises(AssetError, match=REFUSED[rel]):
             load_scene(path)
         return
     scene = load_scene(path)
@@ -79,7 +79,7 @@ def test_simple_instancing_draws_every_instance(cache):
     scene = load_scene(path)
     per_mesh = sum(m.triangle_count for m in scene.meshes)
     assert count > 1 and scene.triangle_count == count * per_mesh
-    baked = pipeline.bake_asset(path, cache)
+    baked = bake_asset(path, cache)
     assert [len(m.transforms) for m in baked.meshes] == [count]  # one instanced draw
     assert baked.triangle_count == scene.triangle_count
     # the instances spread over a grid, not stacked at the origin
@@ -116,7 +116,7 @@ def test_skinned_mesh_is_where_its_joints_put_it(tmp_path, cache, env):
     path = _skinned(tmp_path)
     scene = load_scene(path)
     np.testing.assert_allclose(scene.bounds, [[-1, -1, -1], [7, 1, 1]], atol=1e-5)
-    baked = pipeline.bake_asset(path, cache)
+    baked = bake_asset(path, cache)
     options = RenderOptions(width=128, height=64, yaw=0, pitch=0, background="transparent", msaa=0)
     frame = render(baked, env, options)
     cam = request_camera(baked, options)
@@ -234,7 +234,7 @@ def test_wrap_modes_per_axis_match_numpy(wrap_s, wrap_t, tmp_path, cache, env):
     quad = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], np.float32)
     uv = np.array([[-1, 2], [2, 2], [2, -1], [-1, -1]], np.float32)  # v down the image
     b.node(b.mesh(quad, np.array([0, 1, 2, 0, 2, 3], np.uint16), material=mat, TEXCOORD_0=uv))
-    baked = pipeline.bake_asset(b.write(tmp_path / "wrap.glb"), cache)
+    baked = bake_asset(b.write(tmp_path / "wrap.glb"), cache)
     options = RenderOptions(width=96, height=96, yaw=0, pitch=0, tonemap="none", msaa=0,
                             background="transparent")
     frame = render(baked, env, options)
@@ -257,7 +257,7 @@ def test_wrap_modes_per_axis_match_numpy(wrap_s, wrap_t, tmp_path, cache, env):
 def test_texture_settings_sample_keeps_its_wrap_modes(cache):
     """TextureSettingsTest's mirror rows reach the baked textures with MIRRORED_REPEAT on the
     one axis each names (and its clamp rows CLAMP_TO_EDGE)."""
-    baked = pipeline.bake_asset(_sample("TextureSettingsTest"), cache)
+    baked = bake_asset(_sample("TextureSettingsTest"), cache)
     modes = {}
     for m in baked.meshes:
         ref = m.material.base_color_texture
@@ -273,7 +273,7 @@ def test_texture_settings_sample_keeps_its_wrap_modes(cache):
 def test_texture_settings_mirror_cells_match_numpy(cache, env):
     """The sample's own mirror-S cell, drawn alone and unlit head-on, against numpy sampling
     of its texture with the mirrored wrap (LINEAR filtering: compared on the median)."""
-    baked = pipeline.bake_asset(_sample("TextureSettingsTest"), cache)
+    baked = bake_asset(_sample("TextureSettingsTest"), cache)
     for name, wraps in (("TextureMirrorMaterialS", (MIRRORED_REPEAT, REPEAT)),
                         ("TextureMirrorMaterialT", (REPEAT, MIRRORED_REPEAT))):
         mesh = next(m for m in baked.meshes if m.material.name == name)
@@ -353,7 +353,7 @@ def test_spec_gloss_sample_loads_and_matches_its_metal_rough_twin(cache, env):
     scene = load_scene(path)
     sg = [m for m in scene.materials if "SpecGloss" in m.name]
     assert sg and all(m.base_color_texture is not None for m in sg if "Bottle" in m.name)
-    baked = pipeline.bake_asset(path, cache)
+    baked = bake_asset(path, cache)
     frame = render(baked, env, RenderOptions(width=192, height=128, yaw=0, pitch=0,
                                              background="#000000"))
     img = frame.rgba8[..., :3].astype(np.float32) / 255
@@ -389,7 +389,7 @@ def test_variants_are_listed_and_selected(tmp_path, cache, env):
     info = summary(load_scene(path))
     assert info["variants"] == ["Red", "Blue"]
     assert info["extensions"]["KHR_materials_variants"] == "supported"
-    baked = pipeline.bake_asset(path, cache)
+    baked = bake_asset(path, cache)
     centre = {}
     for variant in (None, "Red", "Blue"):
         frame = render(baked, env, RenderOptions(width=32, height=32, tonemap="none",
@@ -406,7 +406,7 @@ def test_asset_cameras_are_listed_and_used(tmp_path, cache, env):
     path = _variant_cube(tmp_path)
     info = summary(load_scene(path))
     assert [c["name"] for c in info["cameras"]] == ["side"]
-    baked = pipeline.bake_asset(path, cache)
+    baked = bake_asset(path, cache)
     for spec in ("0", "side"):
         options = RenderOptions(width=64, height=64, camera=spec, background="transparent")
         cam = request_camera(baked, options)
@@ -432,7 +432,7 @@ def test_backdrop_is_not_framed(tmp_path, cache, env):
     scene = load_scene(path)
     np.testing.assert_allclose(scene.bounds, [[-0.5] * 3, [0.5] * 3])
     assert summary(scene)["backdrop"] == ["sky/0"]
-    baked = pipeline.bake_asset(path, cache)
+    baked = bake_asset(path, cache)
     cam = request_camera(baked, RenderOptions(width=64, height=64))
     assert np.linalg.norm(cam.position) < 10          # framed on the cube
     assert cam.far > 50 * math.sqrt(3)                 # the sky is still drawn, not clipped
@@ -448,7 +448,7 @@ def test_flat_asset_is_not_seen_edge_on(tmp_path, cache, env):
     plane = np.array([[-1, 0, -1], [1, 0, -1], [1, 0, 1], [-1, 0, 1]], np.float32)
     b.node(b.mesh(plane, np.array([0, 2, 1, 0, 3, 2], np.uint16),
                   material=b.material(doubleSided=True)))
-    baked = pipeline.bake_asset(b.write(tmp_path / "plane.glb"), cache)
+    baked = bake_asset(b.write(tmp_path / "plane.glb"), cache)
     options = RenderOptions(width=64, height=64, background="transparent")
     cam = request_camera(baked, options)
     view = (cam.position - cam.target) / np.linalg.norm(cam.position - cam.target)
@@ -458,7 +458,7 @@ def test_flat_asset_is_not_seen_edge_on(tmp_path, cache, env):
     # a pitch the request sets is kept
     assert request_camera(baked, RenderOptions(width=64, height=64, pitch=5)).position[1] < 0.5
     # the sample the issue names: a morphed floor tile, a tenth as tall as it is wide
-    tile = pipeline.bake_asset(_sample("MorphPrimitivesTest"), cache)
+    tile = bake_asset(_sample("MorphPrimitivesTest"), cache)
     cam = request_camera(tile, RenderOptions())
     view = (cam.position - cam.target) / np.linalg.norm(cam.position - cam.target)
     assert math.degrees(math.asin(view[1])) >= 40
@@ -471,7 +471,7 @@ def test_orthographic_camera_keeps_its_view_height(tmp_path, cache, env):
     b.doc["cameras"] = [{"type": "orthographic",
                          "orthographic": {"xmag": 2, "ymag": 2, "znear": 0.1, "zfar": 100}}]
     b.node(camera=0, translation=[0.0, 0.0, 10.0])
-    baked = pipeline.bake_asset(b.write(tmp_path / "ortho.glb"), cache)
+    baked = bake_asset(b.write(tmp_path / "ortho.glb"), cache)
     frame = render(baked, env, RenderOptions(width=64, height=64, camera="0",
                                              background="transparent", msaa=0))
     rows = (frame.linear[:, 32, 3] > 0.5).sum()

@@ -23,7 +23,7 @@ from core.errors import (
     UnsafeReference,
     UnsupportedFormat,
 )
-from pipeline import load_scene
+from pipeline.ingest import load_scene
 from pipeline.limits import Limits
 
 SECONDS = 10.0  # generous for 2 shared cores; every case here takes milliseconds

@@ -12,7 +12,7 @@ import trimesh
 from gltf_builder import CUBE_INDICES, CUBE_POSITIONS, Builder, cube, png_bytes
 
 from core.scene import CLAMP_TO_EDGE, NEAREST
-from pipeline import load_scene
+from pipeline.ingest import load_scene
 
 GLTF_SAMPLES = ["BoxTextured.glb", "CesiumMilkTruck.glb", "Duck.glb", "TestScene.gltf",
                 "rgb_cube_with_primitives.gltf"]

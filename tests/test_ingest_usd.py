@@ -14,8 +14,8 @@ import pytest
 from PIL import Image
 from pxr import Sdf, Usd, UsdGeom, UsdUtils
 
-import pipeline
 from core.errors import AssetError, LimitExceeded, MalformedAsset, MissingFile, UnsafeReference
+from pipeline.ingest import load_scene
 from pipeline.limits import Limits
 
 USD_SUFFIXES = {".usd", ".usda", ".usdc", ".usdz"}
@@ -101,7 +101,7 @@ def test_every_usd_sample_loads_with_pxr_triangle_count(assets):
     samples = usd_samples(assets)
     assert len(samples) >= 8
     for path in samples:
-        scene = pipeline.load_scene(path)
+        scene = load_scene(path)
         assert scene.triangle_count == rendered_triangles(path) > 0, path
         assert np.all(np.isfinite(scene.bounds)), path
         assert all(Path(f).is_file() and Path(f).resolve().is_relative_to(path.parent.resolve())
@@ -110,7 +110,7 @@ def test_every_usd_sample_loads_with_pxr_triangle_count(assets):
 
 def test_teapot_payload_and_variants_resolve(assets):
     path = assets / "usd/Teapot/Teapot.usd"
-    scene = pipeline.load_scene(path)
+    scene = load_scene(path)
     # modelVariant Utah (through the payload), shadingVariant CeramicLimeGreen
     assert scene.triangle_count == 2472
     assert [m.name for m in scene.meshes] == ["/Teapot/Geometry"]
@@ -130,7 +130,7 @@ def test_teapot_payload_and_variants_resolve(assets):
 
 
 def test_fancy_variant_materials_and_textures(assets):
-    scene = pipeline.load_scene(assets / "usd/Teapot/DrawModes.usd")
+    scene = load_scene(assets / "usd/Teapot/DrawModes.usd")
     assert len(scene.textures) == 2  # diffuse + ARM, shared by every fancy copy
     assert len(scene.materials) == 2  # PorcelainFlowers and Ceramic (equal copies shared)
     fancy = next(m for m in scene.materials if m.name.endswith("PorcelainFlowers"))
@@ -152,14 +152,14 @@ def test_teapot_packaged_as_usdz(assets, tmp_path):
                  ' variants = {\n string modelVariant = "Fancy"\n }\n) {}\n')
     pkg = tmp_path / "fancy.usdz"
     assert UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(root)), str(pkg))
-    scene = pipeline.load_scene(pkg)
+    scene = load_scene(pkg)
     assert scene.triangle_count == rendered_triangles(pkg) == 12144
     assert len(scene.textures) == 2 and scene.textures[0].image.shape == (2048, 2048, 4)
     assert scene.files == [str(pkg.resolve())]
 
 
 def test_texture_coordinate_test(assets):
-    scene = pipeline.load_scene(assets / "usd/TextureCoordinateTest/TextureCoordinateTest.usda")
+    scene = load_scene(assets / "usd/TextureCoordinateTest/TextureCoordinateTest.usda")
     assert len(scene.meshes) == 5 and len(scene.materials) == 5 and len(scene.textures) == 1
     by_name = {m.name.rsplit("/", 1)[-1]: m for m in scene.materials}
     # UsdUVTexture scale (0, .16, .8, 1) becomes the base colour factor
@@ -178,14 +178,14 @@ def test_texture_coordinate_test(assets):
 def test_materialx_reference_is_read(assets):
     """The .mtlx document is read with PyMaterialX (tests/test_materialx.py has the details)."""
     path = assets / "usd/TextureCoordinateTest/TextureCoordinateTestMaterialX.usda"
-    scene = pipeline.load_scene(path)
+    scene = load_scene(path)
     assert scene.triangle_count == 10
     assert not any("cannot read" in w for w in scene.warnings)
     assert len(scene.textures) == 1 and scene.textures[0].source.endswith("Template.png")
 
 
 def test_primvar_interpolations(assets):
-    scene = pipeline.load_scene(assets / "usd/primvar_interpolation.usda")
+    scene = load_scene(assets / "usd/primvar_interpolation.usda")
     meshes = {m.name.rsplit("/", 1)[-1]: m for m in scene.meshes}
     assert len(meshes) == 7
     assert len(meshes["vertex"].positions) == 6  # no split needed
@@ -208,7 +208,7 @@ def test_up_axis_z_and_meters_per_unit(tmp_path):
         int[] faceVertexIndices = [0, 1, 2]
         point3f[] points = [(0, 0, 0), (2, 0, 0), (0, 0, 4)]
 """))
-    scene = pipeline.load_scene(path)
+    scene = load_scene(path)
     inst = scene.instances[0]
     p = scene.meshes[inst.mesh].positions @ inst.matrix[:3, :3].T + inst.matrix[:3, 3]
     # Z up becomes Y up (right-handed: +Y in Z-up is -Z here), in metres
@@ -220,7 +220,7 @@ def test_up_axis_z_and_meters_per_unit(tmp_path):
 def test_meters_per_unit_must_be_positive(tmp_path, meters):
     path = write(tmp_path / "m.usda", f'(\n metersPerUnit = {meters}\n)\n' + mesh("M"))
     with pytest.raises(MalformedAsset, match="metersPerUnit"):
-        pipeline.load_scene(path)
+        load_scene(path)
 
 
 def test_ngons_left_handed_and_holes(tmp_path):
@@ -234,7 +234,7 @@ def test_ngons_left_handed_and_holes(tmp_path):
     right = write(tmp_path / "r.usda", '(\n metersPerUnit = 1\n)\n' + mesh("M", poly))
     left = write(tmp_path / "l.usda", '(\n metersPerUnit = 1\n)\n' + mesh(
         "M", poly + 'uniform token orientation = "leftHanded"'))
-    a, b = pipeline.load_scene(right), pipeline.load_scene(left)
+    a, b = load_scene(right), load_scene(left)
     assert a.triangle_count == b.triangle_count == 3 + 4  # pentagon + hexagon, hole dropped
 
     def z_of_normals(scene):
@@ -259,7 +259,7 @@ def test_indexed_facevarying_st_and_uniform_normals(tmp_path):
             interpolation = "uniform"
         )
 """))
-    m = pipeline.load_scene(path).meshes[0]
+    m = load_scene(path).meshes[0]
     np.testing.assert_allclose(m.normals, [[0, 0, 1]] * len(m.positions), atol=1e-6)
     by_pos = {tuple(p[:2]): tuple(uv) for p, uv in zip(m.positions, m.uv0)}
     # USD st (0,0) is the image's bottom-left: glTF (0, 1)
@@ -285,7 +285,7 @@ def test_geom_subsets_bind_their_own_materials(tmp_path):
     text = '(\n metersPerUnit = 1\n)\n' \
         + material("Red", "color3f inputs:diffuseColor = (1, 0, 0)") \
         + material("Blue", "color3f inputs:diffuseColor = (0, 0, 1)") + mesh("M", body, "Blue")
-    scene = pipeline.load_scene(write(tmp_path / "subsets.usda", text))
+    scene = load_scene(write(tmp_path / "subsets.usda", text))
     assert len(scene.meshes) == 2 and scene.triangle_count == 4
     colours = {scene.materials[i.material].base_color[:3]: scene.meshes[i.mesh].triangle_count
                for i in scene.instances}
@@ -310,7 +310,7 @@ def Xform "I{i}" (
     text += mesh("Hidden", meta="").replace("{", '{\n    token visibility = "invisible"', 1)
     text += mesh("Guide").replace("{", '{\n    uniform token purpose = "guide"', 1)
     text += mesh("Off", meta="active = false")
-    scene = pipeline.load_scene(write(tmp_path / "inst.usda", text))
+    scene = load_scene(write(tmp_path / "inst.usda", text))
     assert len(scene.meshes) == 1 and len(scene.instances) == 3  # one prototype, three places
     xs = sorted(i.matrix[0, 3] for i in scene.instances)
     assert xs == [0.0, 2.0, 4.0]
@@ -342,7 +342,7 @@ def Plane "L" {
 def BasisCurves "Curve" {
 }
 """
-    scene = pipeline.load_scene(write(tmp_path / "shapes.usda", text))
+    scene = load_scene(write(tmp_path / "shapes.usda", text))
     by = {m.name: m for m in scene.meshes}
     assert set(by) == {"/S", "/C", "/Y", "/K", "/P", "/L"}
     ext = {n: (m.positions.min(axis=0), m.positions.max(axis=0)) for n, m in by.items()}
@@ -386,7 +386,7 @@ def Xform "World" {
     }
 }
 """
-    scene = pipeline.load_scene(write(tmp_path / "pi.usda", text))
+    scene = load_scene(write(tmp_path / "pi.usda", text))
     assert len(scene.meshes) == 2  # each prototype built once
     placed = sorted((scene.meshes[i.mesh].name, tuple(np.round(i.matrix[:3, 3], 6)),
                      round(float(i.matrix[0, 0]), 6)) for i in scene.instances)
@@ -406,7 +406,7 @@ def Xform "World" {
 ])
 def test_opacity_and_ior_mapping(tmp_path, inputs, cls, transmission, alpha):
     text = '(\n metersPerUnit = 1\n)\n' + material("G", inputs) + mesh("M", binding="G")
-    mat = pipeline.load_scene(write(tmp_path / "glass.usda", text)).materials[0]
+    mat = load_scene(write(tmp_path / "glass.usda", text)).materials[0]
     assert mat.material_class == cls
     assert mat.transmission == pytest.approx(transmission)
     assert mat.base_color[3] == pytest.approx(alpha)
@@ -417,7 +417,7 @@ def test_factors_outside_0_1_are_clamped(tmp_path):
     inputs = ("float inputs:opacity = -1\n float inputs:ior = 1.5\n float inputs:roughness = 3"
               "\n float inputs:metallic = -2")
     text = '(\n metersPerUnit = 1\n)\n' + material("G", inputs) + mesh("M", binding="G")
-    mat = pipeline.load_scene(write(tmp_path / "range.usda", text)).materials[0]
+    mat = load_scene(write(tmp_path / "range.usda", text)).materials[0]
     assert (mat.transmission, mat.roughness, mat.metallic) == (1.0, 1.0, 0.0)
 
 
@@ -460,7 +460,7 @@ def test_uv_texture_in_usdz_with_wrap_scale_and_channels(tmp_path):
     with zipfile.ZipFile(pkg, "w", zipfile.ZIP_STORED) as z:
         z.write(layer, "root.usda")
         z.write(tmp_path / "src/tex/a.png", "tex/a.png")
-    scene = pipeline.load_scene(pkg)
+    scene = load_scene(pkg)
     mat = scene.materials[0]
     assert mat.base_color[:3] == (0.5, 0.5, 0.5)
     base = scene.textures[mat.base_color_texture.texture]
@@ -498,7 +498,7 @@ def test_texture_file_and_primvar_name_through_material_interface(tmp_path):
             interpolation = "vertex"
         )
 """, binding="G")
-    scene = pipeline.load_scene(write(tmp_path / "iface.usda", text))
+    scene = load_scene(write(tmp_path / "iface.usda", text))
     assert len(scene.textures) == 1 and scene.meshes[0].uv0 is not None
     assert tuple(scene.textures[0].image[0, 0]) == (0, 255, 0, 255)
 
@@ -524,7 +524,7 @@ def test_channel_repack_for_separate_maps(tmp_path):
         "G", "float inputs:roughness.connect = </G/Ro.outputs:r>\n"
              "        float inputs:metallic.connect = </G/Me.outputs:r>", nodes) \
         + mesh("M", binding="G")
-    scene = pipeline.load_scene(write(tmp_path / "mr.usda", text))
+    scene = load_scene(write(tmp_path / "mr.usda", text))
     mat = scene.materials[0]
     packed = scene.textures[mat.metallic_roughness_texture.texture].image
     assert tuple(packed[0, 0, 1:3]) == (10, 240)  # G roughness, B metallic
@@ -545,7 +545,7 @@ def test_transform2d_matches_usd_formula(tmp_path):
     }
 """
     text = _textured(tmp_path, "./a.png", extra_nodes=extra, st_source="</G/X.outputs:result>")
-    ref = pipeline.load_scene(write(tmp_path / "x.usda", text)).materials[0].base_color_texture
+    ref = load_scene(write(tmp_path / "x.usda", text)).materials[0].base_color_texture
     rng = np.random.default_rng(1)
     for s, t in rng.random((5, 2)):
         th = math.radians(30)
@@ -564,7 +564,7 @@ def test_symlink_inside_the_folder_is_followed(tmp_path):
     path = write(tmp_path / "a.usda", '(\n metersPerUnit = 1\n)\n'
                  'def "A" (\n prepend references = @./link.usda@\n) {}\n'
                  'def "B" (\n prepend references = @dir/../dir/part.usda@\n) {}\n')
-    assert pipeline.load_scene(path).triangle_count == 4
+    assert load_scene(path).triangle_count == 4
 
 
 def test_missing_sublayer_or_texture_is_a_warning_missing_payload_refused(tmp_path):
@@ -578,22 +578,22 @@ def test_missing_sublayer_or_texture_is_a_warning_missing_payload_refused(tmp_pa
         float3 outputs:rgb
     }"""))
     path = write(tmp_path / "a.usda", '(\n subLayers = [@./gone.usda@, @./geo.usda@]\n)\n')
-    scene = pipeline.load_scene(path)
+    scene = load_scene(path)
     assert scene.triangle_count == 2
     assert sum("gone.usda" in w for w in scene.warnings) == 1, scene.warnings
     assert any("gone.png" in w for w in scene.warnings)
     assert scene.materials[0].base_color[:3] == (0, 1, 0)  # UsdUVTexture's fallback
     (tmp_path / "bad.usda").write_bytes(b"#usda 1.0\n def {{{ nonsense")
-    scene = pipeline.load_scene(write(tmp_path / "b.usda", '(\n subLayers = [@./bad.usda@, '
+    scene = load_scene(write(tmp_path / "b.usda", '(\n subLayers = [@./bad.usda@, '
                                                            '@./geo.usda@]\n)\n'))
     assert scene.triangle_count == 2 and any("bad.usda" in w for w in scene.warnings)
     for arc in ("references", "payload"):
         path = write(tmp_path / f"{arc}.usda", f'def "A" (\n prepend {arc} = @./gone.usda@\n) {{}}\n'
                      + mesh("M"))
         with pytest.raises(MissingFile, match="gone.usda.*reference or payload"):
-            pipeline.load_scene(path)
+            load_scene(path)
     with pytest.raises(MissingFile, match="no such file"):
-        pipeline.load_scene(tmp_path / "nothing.usda")
+        load_scene(tmp_path / "nothing.usda")
 
 
 # -- hostile files --------------------------------------------------------------------------------
@@ -655,7 +655,7 @@ def test_hostile_files_are_refused_fast(tmp_path):
     for name, (path, error) in _hostile_cases(tmp_path).items():
         start = time.monotonic()
         with pytest.raises(error) as info:
-            pipeline.load_scene(path)
+            load_scene(path)
         assert time.monotonic() - start < 10, name  # refused, not hung
         assert isinstance(info.value, AssetError)
         assert info.value.path and info.value.reason, name
@@ -676,10 +676,10 @@ def test_usdz_nested_layer_references_are_relative_to_that_layer(tmp_path):
             z.writestr("sub/a.usda", f"#usda 1.0\n(\n subLayers = [@{up}/geo.usda@]\n)\n")
             z.writestr("geo.usda", "#usda 1.0\n" + geo)
         if error is None:
-            assert pipeline.load_scene(pkg).triangle_count == 1
+            assert load_scene(pkg).triangle_count == 1
         else:
             with pytest.raises(error, match="leaves the package"):
-                pipeline.load_scene(pkg)
+                load_scene(pkg)
 
 
 def test_usdz_entry_and_size_limits(tmp_path):
@@ -689,15 +689,15 @@ def test_usdz_entry_and_size_limits(tmp_path):
         for i in range(20):
             z.writestr(f"pad{i}.txt", b"x" * 1000)
     with pytest.raises(LimitExceeded, match="files"):
-        pipeline.load_scene(pkg, Limits(max_archive_files=10))
+        load_scene(pkg, Limits(max_archive_files=10))
     with pytest.raises(LimitExceeded, match="unpacks"):
-        pipeline.load_scene(pkg, Limits(max_unpacked_bytes=5000))
-    assert pipeline.load_scene(pkg).triangle_count == 2
+        load_scene(pkg, Limits(max_unpacked_bytes=5000))
+    assert load_scene(pkg).triangle_count == 2
 
 
 def test_undecodable_texture_is_a_warning(tmp_path):
     (tmp_path / "bad.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"\0" * 40)
-    scene = pipeline.load_scene(write(tmp_path / "t.usda", _textured(tmp_path, "./bad.png")))
+    scene = load_scene(write(tmp_path / "t.usda", _textured(tmp_path, "./bad.png")))
     mat = scene.materials[0]
     assert mat.base_color_texture is None
     assert mat.base_color == (0.0, 0.0, 0.0, 1.0)  # UsdUVTexture's default fallback

@@ -124,7 +124,7 @@ def test_far_from_origin_uses_scale_aware_epsilon():
 
 
 def test_torus_from_sample_assets(assets):
-    from pipeline import load_scene
+    from pipeline.ingest import load_scene
     scene = load_scene(assets / "mesh" / "torus.STL")
     mesh = scene.meshes[0]
     r = interior_vectors(mesh.positions, mesh.normals, mesh.indices)

@@ -47,8 +47,8 @@ def _furnace(spec) -> float:
 
 @pytest.fixture(scope="module")
 def env(tmp_path_factory):
-    import pipeline
-    return pipeline.bake_environment("footprint_court", tmp_path_factory.mktemp("layering"),
+    from pipeline.bake import bake_environment
+    return bake_environment("footprint_court", tmp_path_factory.mktemp("layering"),
                                      face_size=512)
 
 

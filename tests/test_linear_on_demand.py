@@ -10,9 +10,9 @@ import importlib
 import numpy as np
 import pytest
 
-import pipeline
 from core.cubemap import default_face_size
 from core.options import RenderOptions
+from pipeline.bake import bake_asset, bake_environment
 from pipeline.environment.panorama import DEFAULT_ENVIRONMENT
 from renderer import render
 
@@ -22,8 +22,8 @@ R = importlib.import_module("renderer.raster.render")  # the module (`renderer.r
 @pytest.fixture(scope="module")
 def duck(assets, tmp_path_factory):
     cache = tmp_path_factory.mktemp("linear")
-    asset = pipeline.bake_asset(assets / "gltf/Duck.glb", cache)
-    env = pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(96))
+    asset = bake_asset(assets / "gltf/Duck.glb", cache)
+    env = bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(96))
     return asset, env
 
 

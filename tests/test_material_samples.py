@@ -10,10 +10,10 @@ import pytest
 from PIL import Image
 from test_render_goldens import BAD_PIXELS, GOLDENS, MEAN_FLIP
 
-import pipeline
 from core.baked import BakedAsset
 from core.cubemap import default_face_size
 from core.options import RenderOptions
+from pipeline.bake import bake_asset, bake_environment
 from renderer import render
 from renderer.view.framing import request_camera
 
@@ -30,13 +30,13 @@ def cache(tmp_path_factory):
 @pytest.fixture(scope="module")
 def env(cache):
     # footprint_court, not the studio default: the measurements read its detail in reflections
-    return pipeline.bake_environment("footprint_court", cache, face_size=default_face_size(SIZE))
+    return bake_environment("footprint_court", cache, face_size=default_face_size(SIZE))
 
 
 @pytest.fixture(scope="module")
 def sample(assets, cache):
     def load(name: str) -> BakedAsset:
-        return pipeline.bake_asset(assets / "gltf-samples" / name / "glTF" / f"{name}.gltf", cache)
+        return bake_asset(assets / "gltf-samples" / name / "glTF" / f"{name}.gltf", cache)
     return load
 
 

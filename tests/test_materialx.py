@@ -10,9 +10,11 @@ import pytest
 from PIL import Image
 from test_render_physics import constant_env
 
-import pipeline
+from core.errors import AssetError
 from core.options import RenderOptions
 from core.scene import TextureRef
+from pipeline.bake import bake_asset
+from pipeline.ingest import load_scene
 from pipeline.usd.materialx import gltf_transform
 from renderer.raster.render import render
 
@@ -68,7 +70,7 @@ def quadrants_png(path):
 
 
 def one(path):
-    scene = pipeline.load_scene(path)
+    scene = load_scene(path)
     assert len(scene.materials) == 1
     return scene, scene.materials[0]
 
@@ -248,14 +250,14 @@ def test_mtlx_texture_outside_the_root_is_refused(tmp_path):
     quadrants_png(tmp_path / "q.png")
     doc = """<image name="img" type="color3"><input name="file" type="filename" value="../q.png"/>
     </image>""" + surface("standard_surface", '<input name="base_color" type="color3" nodename="img"/>')
-    with pytest.raises(pipeline.AssetError, match="leaves the root"):
-        pipeline.load_scene(stage(tmp_path / "lib", doc, "/World/mtl/M"))
+    with pytest.raises(AssetError, match="leaves the root"):
+        load_scene(stage(tmp_path / "lib", doc, "/World/mtl/M"))
 
 
 def test_texture_coordinate_test_materialx_matches_preview_surface(assets, tmp_path):
     folder = assets / "usd/TextureCoordinateTest"
-    mx = pipeline.load_scene(folder / "TextureCoordinateTestMaterialX.usda")
-    ps = pipeline.load_scene(folder / "TextureCoordinateTest.usda")
+    mx = load_scene(folder / "TextureCoordinateTestMaterialX.usda")
+    ps = load_scene(folder / "TextureCoordinateTest.usda")
     assert mx.triangle_count == ps.triangle_count == 10
     assert not any(".mtlx" in w and "cannot read" in w for w in mx.warnings)
     by_mesh = lambda s: {m.name.rsplit("/", 1)[-1]: s.materials[i.material]  # noqa: E731
@@ -291,7 +293,7 @@ def test_gltf_transform_round_trips_rotation_and_scale():
 
 # -- renders --------------------------------------------------------------------------------------
 def _render(path, tmp_path):
-    asset = pipeline.bake_asset(path, tmp_path / "cache")
+    asset = bake_asset(path, tmp_path / "cache")
     opts = RenderOptions(width=64, height=64, yaw=0, pitch=0, tonemap="none",
                          background="transparent", msaa=0, shadow=0)  # alpha: the object only
     return render(asset, constant_env(1.0), opts).linear

@@ -10,12 +10,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-import pipeline
 from bench import scenes
 from bench.reference import load_reference, relative_mae
 from core.baked import BakedEnvironment
 from core.options import MaterialOverride, RenderOptions
 from pipeline.environment.prefilter import brdf_lut
+from pipeline.ingest import load_scene
 from renderer.frame import Frame
 from renderer.methods.raytrace import render_raytrace
 
@@ -202,7 +202,7 @@ def test_degenerate_geometry_stays_finite(reference_env):
 def test_scene_glb_round_trips_through_ingest(name, tmp_path):
     """The generated .glb carries the material and node scale through pipeline ingest."""
     spec = scenes.scene(name)
-    scene = pipeline.load_scene(scenes.write_glb(spec, tmp_path / f"{name}.glb"))
+    scene = load_scene(scenes.write_glb(spec, tmp_path / f"{name}.glb"))
     (mat,) = scene.materials
     want = spec.material
     assert mat.transmission == want.transmission and mat.ior == pytest.approx(want.ior)

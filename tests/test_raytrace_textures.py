@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from test_render_physics import _LUT, constant_env, sphere_asset
 
-import pipeline
 from core.baked import BakedAsset, BakedMesh
 from core.mips import mip_chain
 from core.options import RenderOptions
 from core.scene import NEAREST, Light, Material, Sampler, Texture, TextureRef
+from pipeline.bake import bake_asset, bake_environment
 from pipeline.environment.panorama import DEFAULT_ENVIRONMENT
 from renderer import render
 from renderer.methods.trace_material import CLAMP_TO_EDGE, MIRRORED_REPEAT, TextureChain
@@ -28,7 +28,7 @@ def cache(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def env(cache):
-    return pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=128)
+    return bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=128)
 
 
 def _object(frame) -> tuple[np.ndarray, np.ndarray]:
@@ -38,7 +38,7 @@ def _object(frame) -> tuple[np.ndarray, np.ndarray]:
 
 @pytest.mark.parametrize("name", ["BoxTextured.glb", "Duck.glb"])
 def test_textured_asset_matches_the_raster_and_is_deterministic(assets, cache, env, name):
-    asset = pipeline.bake_asset(assets / "gltf" / name, cache)
+    asset = bake_asset(assets / "gltf" / name, cache)
     o = RenderOptions(width=SIZE, height=SIZE, background="transparent", shadow=0.0)
     raster = render(asset, env, dataclasses.replace(o, method="opaque"))
     traced = render(asset, env, dataclasses.replace(o, method="raytrace"))

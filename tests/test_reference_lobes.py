@@ -21,8 +21,8 @@ SPP = 64   # Mitsuba noise at 64 spp on these spheres: ~0.02 relative (measured 
 
 @pytest.fixture(scope="module")
 def env(tmp_path_factory):
-    import pipeline
-    return pipeline.bake_environment("footprint_court", tmp_path_factory.mktemp("ref-env"),
+    from pipeline.bake import bake_environment
+    return bake_environment("footprint_court", tmp_path_factory.mktemp("ref-env"),
                                      face_size=128)
 
 

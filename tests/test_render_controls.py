@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from test_render_physics import gradient_radiance, interior, make_env, opts, sphere_asset, sphere_geometry
 
-import pipeline
 from core.baked import BakedAsset, BakedMesh
 from core.cubemap import env_rotation_matrix, sample_cube
 from core.options import RenderOptions
 from core.scene import Material
+from pipeline.bake import bake_asset, bake_environment
 from renderer.raster.render import render
 from renderer.view.framing import request_camera
 
@@ -46,8 +46,8 @@ def test_negative_scale_spheres_match_their_unmirrored_twins(assets, cache):
     shades as its twin (mean difference < 4% of the twin's mean, linear); drawn inside-out
     (gl_FrontFacing taken for the un-mirrored winding) the white sphere turned chrome and the
     dark blue one black, differences of 30-60%."""
-    asset = pipeline.bake_asset(assets / NEGATIVE_SCALE, cache)
-    env = pipeline.bake_environment("neutral", cache, face_size=128)
+    asset = bake_asset(assets / NEGATIVE_SCALE, cache)
+    env = bake_environment("neutral", cache, face_size=128)
     o = RenderOptions(width=512, height=512, tonemap="none", method="opaque", background="env")
     frame = render(asset, env, o)
     camera = request_camera(asset, o)

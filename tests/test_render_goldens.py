@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-import pipeline
 from core.cubemap import default_face_size
 from core.options import RenderOptions
+from pipeline.bake import bake_asset, bake_environment
 from pipeline.environment.panorama import DEFAULT_ENVIRONMENT
 from renderer import render
 
@@ -39,7 +39,7 @@ def cache(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def env(cache):
-    return pipeline.bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(SIZE))
+    return bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(SIZE))
 
 
 def test_sample_list_is_complete(assets):
@@ -55,7 +55,7 @@ def test_sample_list_is_complete(assets):
 def test_golden(sample, assets, cache, env, update_goldens):
     import flip_evaluator as flip
 
-    asset = pipeline.bake_asset(assets / sample, cache)
+    asset = bake_asset(assets / sample, cache)
     frame = render(asset, env, RenderOptions(width=SIZE, height=SIZE, yaw=30, pitch=20))
     assert np.isfinite(frame.linear).all()
     assert frame.linear[..., 3].min() >= 0 and frame.linear[..., :3].min() >= 0

@@ -179,7 +179,7 @@ def test_dispersion_refracts_each_channel_by_its_ior(method):
     spheres at the red and blue IORs differ by over 1% of the whole frame's mean, 2.6%
     measured for single, the sphere covering a third of the frame)."""
     from bench import scenes
-    from pipeline import bake_environment
+    from pipeline.bake import bake_environment
 
     env = bake_environment("footprint_court", face_size=64)
     o = RenderOptions(width=96, height=96, method=method, tonemap="none", background="env",

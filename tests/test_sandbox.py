@@ -9,10 +9,10 @@ from pathlib import Path
 
 import pytest
 
-import pipeline
 from cli import bake as bake_cmd
 from cli import inspect as inspect_cmd
 from core.errors import UnsafeReference
+from pipeline.ingest import load_scene
 
 WHEEL = """#usda 1.0
 (
@@ -94,8 +94,8 @@ def test_single_file_is_refused_naming_its_root_and_root_widens(library, tmp_pat
 def test_root_must_hold_the_asset_and_inspect_takes_it(library, tmp_path, capsys):
     car = library / "cars/car/car.usda"
     with pytest.raises(UnsafeReference, match="outside the root"):
-        pipeline.load_scene(car, root=library / "parts")
-    assert pipeline.load_scene(car, root=library).triangle_count == 2
+        load_scene(car, root=library / "parts")
+    assert load_scene(car, root=library).triangle_count == 2
     parser = __import__("argparse").ArgumentParser()
     inspect_cmd.configure(parser)
     assert inspect_cmd.run(parser.parse_args([str(car), "--root", str(library), "--json"])) == 0

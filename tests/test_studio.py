@@ -9,12 +9,12 @@ import pytest
 from PIL import Image
 from test_render_physics import sphere_asset
 
-import pipeline
 from cli.main import main
 from core.baked import BakedAsset, BakedMesh
 from core.options import RenderOptions
 from core.scene import Material
-from pipeline.environment import studio
+from pipeline.bake import bake_asset, bake_environment
+from pipeline.environment import prefilter, studio
 from renderer.raster import gpu
 from renderer.raster.render import render
 from renderer.sequence import encode_animation, render_turntable, render_views, turntable_angles
@@ -26,7 +26,7 @@ S = 96
 
 @pytest.fixture(scope="module")
 def studio_env(tmp_path_factory):
-    return pipeline.bake_environment("studio", tmp_path_factory.mktemp("studio-env"), face_size=128)
+    return bake_environment("studio", tmp_path_factory.mktemp("studio-env"), face_size=128)
 
 
 def colour_cube(lift: float = 0.0) -> BakedAsset:
@@ -76,7 +76,7 @@ def unit_sphere_hits(sphere: BakedAsset, options: RenderOptions):
 def test_white_lambert_sphere_is_near_white_in_the_middle(studio_env):
     """Default environment and tone map: the middle of a white diffuse sphere (N.V > 0.97)
     shows sRGB within 10% of white, neutral grey, and not clipped flat."""
-    assert pipeline.environment.prefilter.DEFAULT_ENVIRONMENT == "studio"
+    assert prefilter.DEFAULT_ENVIRONMENT == "studio"
     options = RenderOptions(width=S, height=S)
     sphere = sphere_asset(0.0, 1.0)
     frame = render(sphere, studio_env, options)
@@ -111,7 +111,7 @@ def test_mirror_sphere_shows_the_studio_lights(studio_env):
 def test_default_view_of_a_cube_shows_three_faces():
     """Three faces (three distinct normals), each a fair share of the cube's pixels."""
     cube = colour_cube()
-    frame = render(cube, pipeline.bake_environment("studio", face_size=32),
+    frame = render(cube, bake_environment("studio", face_size=32),
                    RenderOptions(width=S, height=S, background="transparent"))
     labels = face_labels(frame, cube)
     covered = labels >= 0
@@ -126,7 +126,7 @@ def test_framing_fills_the_frame_with_the_projected_bounds(size):
     """Without a shadow the cube's projected corners span FILL of the tighter axis, centred."""
     w, h = size
     cube = colour_cube()
-    frame = render(cube, pipeline.bake_environment("studio", face_size=32),
+    frame = render(cube, bake_environment("studio", face_size=32),
                    RenderOptions(width=w, height=h, background="transparent", shadow=0))
     ys, xs = np.nonzero(frame.linear[..., 3] > 0.5)
     span_x, span_y = (xs.max() - xs.min() + 1) / w, (ys.max() - ys.min() + 1) / h
@@ -178,7 +178,7 @@ def test_no_shadow_without_a_clear_ground(studio_env):
 # --- turntable and views --------------------------------------------------------------------
 
 def test_turntable_frames_share_one_upload(assets, studio_env, tmp_path):
-    duck = pipeline.bake_asset(assets / "gltf/Duck.glb", tmp_path)
+    duck = bake_asset(assets / "gltf/Duck.glb", tmp_path)
     gpu.clear()  # count this test's uploads from nothing
     options = RenderOptions(width=48, height=48, turntable=12, yaw=10)
     before = dict(gpu.stats)

@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import pipeline
 from pipeline.bake import build_baked
+from pipeline.ingest import load_scene
 from pipeline.usd.subdivision import levels_for, loop_step
 
 CUBE = """#usda 1.0
@@ -42,7 +42,7 @@ def watertight(positions, indices) -> bool:
 
 @pytest.mark.parametrize("scheme", ["catmullClark", "loop"])
 def test_coarse_cage_is_refined_at_bake_and_stays_closed(tmp_path, scheme):
-    scene = pipeline.load_scene(cube(tmp_path, scheme))
+    scene = load_scene(cube(tmp_path, scheme))
     assert scene.triangle_count == 12 and scene.meshes[0].subdivision == scheme  # the cage
     baked = build_baked(scene)
     mesh = baked.meshes[0]
@@ -62,7 +62,7 @@ def test_open_cage_keeps_its_corners(tmp_path):
         "[4, 4, 4, 4, 4, 4]", "[4]").replace("[0, 1, 3, 2, 2, 3, 5, 4, 4, 5, 7, 6, 6, 7, 1, 0, "
                                              "1, 7, 5, 3, 6, 0, 2, 4]", "[0, 1, 3, 2]")
                     .replace('(interpolation = "faceVarying")', '(interpolation = "constant")'))
-    mesh = build_baked(pipeline.load_scene(path)).meshes[0]
+    mesh = build_baked(load_scene(path)).meshes[0]
     assert len(mesh.indices) == 32
     np.testing.assert_allclose(mesh.positions.min(0)[:2], (-1, -1), atol=1e-6)
     np.testing.assert_allclose(mesh.positions.max(0)[:2], (1, 1), atol=1e-6)
@@ -71,17 +71,17 @@ def test_open_cage_keeps_its_corners(tmp_path):
 def test_unauthored_scheme_is_drawn_as_the_cage(tmp_path):
     path = cube(tmp_path)
     path.write_text(path.read_text().replace('uniform token subdivisionScheme = "catmullClark"', ""))
-    assert pipeline.load_scene(path).meshes[0].subdivision is None
+    assert load_scene(path).meshes[0].subdivision is None
 
 
 def test_scheme_none_and_levels_zero_keep_the_cage(tmp_path):
-    assert len(build_baked(pipeline.load_scene(cube(tmp_path, "none"))).meshes[0].indices) == 12
-    scene = pipeline.load_scene(cube(tmp_path))
+    assert len(build_baked(load_scene(cube(tmp_path, "none"))).meshes[0].indices) == 12
+    scene = load_scene(cube(tmp_path))
     assert len(build_baked(scene, options={"subdivision_levels": 0}).meshes[0].indices) == 12
 
 
 def test_teapot_cage_refined_two_levels(assets):
-    scene = pipeline.load_scene(assets / "usd/Teapot/Teapot.usd")
+    scene = load_scene(assets / "usd/Teapot/Teapot.usd")
     assert scene.triangle_count == 2472
     assert build_baked(scene).manifest["stats"]["triangles"] == 2472 * 16
 

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from pxr import Usd, UsdGeom
 
-import pipeline
 from core.errors import NotInAsset
 from core.options import RenderOptions
 from pipeline.bake import build_baked
+from pipeline.ingest import load_scene
 from renderer.view.framing import request_camera
 
 USD_SUFFIXES = {".usd", ".usda", ".usdc", ".usdz"}
@@ -59,7 +59,7 @@ def test_every_usd_sample_matches_a_direct_pxr_traversal(assets):
     samples = sorted(p for p in (assets / "usd").rglob("*") if p.suffix in USD_SUFFIXES)
     assert len(samples) >= 8
     for path in samples:
-        assert pipeline.load_scene(path).triangle_count == pxr_triangles(path) > 0, path
+        assert load_scene(path).triangle_count == pxr_triangles(path) > 0, path
 
 
 QUAD = """
@@ -221,7 +221,7 @@ over "Library"
 def test_studio_stage_counts_and_instancing_agree_with_pxr(tmp_path):
     path = tmp_path / "studio.usda"
     path.write_text(STUDIO)
-    scene = pipeline.load_scene(path)
+    scene = load_scene(path)
     # 4 triangles a mesh: crates 3 x 4, Split 4, TwoFamilies 4 (its "parts" subset is not a
     # second copy of face 0), the selected variant's Low 4, Scatter 4 unmasked x 4; not Hidden,
     # Proxy, Guide, nor Render/M (its own proxy purpose wins)
@@ -280,7 +280,7 @@ def test_skinned_mesh_is_posed_at_the_rest_transforms(tmp_path):
     translate applies, the mesh's own does not)."""
     path = tmp_path / "arm.usda"
     path.write_text(SKEL)
-    scene = pipeline.load_scene(path)
+    scene = load_scene(path)
     inst = scene.instances[0]
     p = scene.meshes[inst.mesh].positions @ inst.matrix[:3, :3].T + inst.matrix[:3, 3]
     lo, hi = p.min(0), p.max(0)
@@ -342,7 +342,7 @@ def test_lights_dome_and_camera(tmp_path):
     Image.new("RGB", (8, 4), (10, 20, 200)).save(tmp_path / "sky.png")
     path = tmp_path / "lights.usda"
     path.write_text(LIGHTS)
-    scene = pipeline.load_scene(path)
+    scene = load_scene(path)
     sun, bulb, panel = scene.lights
     assert sun.type == "directional" and sun.intensity == pytest.approx(6)  # 3 x 2^1
     assert sun.color == pytest.approx((1, 0.5, 0.25))

@@ -18,6 +18,8 @@ from core.colour import srgb_to_linear
 from core.cubemap import equirect_direction
 from core.errors import AssetError, LimitExceeded, MalformedAsset, MissingFile, UnsupportedFormat
 from pipeline.deadline import check, within
+from pipeline.environment import studio
+from pipeline.images import decode_image
 from pipeline.limits import Limits
 
 log = logging.getLogger(__name__)
@@ -38,14 +40,12 @@ class Panorama:
 def list_bundled() -> list[str]:
     """Names usable as `load_panorama(name)`: the generated `studio` first, then the panoramas
     shipped in pipeline/data/env."""
-    from pipeline.environment.studio import NAME
-    return [NAME] + sorted(p.stem for p in DATA_DIR.glob("*.jpg"))
+    return [studio.NAME] + sorted(p.stem for p in DATA_DIR.glob("*.jpg"))
 
 
 def load_panorama(source: str | Path, limits: Limits | None = None) -> Panorama:
     """Read a panorama file, or a bundled one by bare name (`studio`, `footprint_court`, see
     `list_bundled`). Raises an `AssetError` subclass naming the file on bad input."""
-    from pipeline.environment import studio
     limits = limits or Limits.from_env()
     path = resolve_panorama(source)
     if path == studio.SOURCE:
@@ -67,7 +67,6 @@ def load_panorama(source: str | Path, limits: Limits | None = None) -> Panorama:
         except OSError as exc:
             raise MissingFile(path, f"cannot read: {exc.strerror}") from None
         if suffix in LDR_SUFFIXES:
-            from pipeline.images import decode_image
             pixels = srgb_to_linear(decode_image(data, str(path), limits)[..., :3])
         else:
             with within(limits.ingest_seconds, str(path)):  # the RLE decoder checks it per scanline
@@ -83,7 +82,6 @@ def load_panorama(source: str | Path, limits: Limits | None = None) -> Panorama:
 def resolve_panorama(source: str | Path) -> Path:
     """The file a panorama source names: an existing path, else a bundled name's JPEG; the
     name `studio` resolves to the module that generates it (its hash keys the bake)."""
-    from pipeline.environment import studio
     if source == studio.NAME:
         return studio.SOURCE
     path = Path(source)
@@ -214,7 +212,7 @@ def write_rgbe(path: str | Path, pixels: np.ndarray) -> None:
 
 def _read_exr(path: Path, limits: Limits) -> np.ndarray:
     try:
-        import OpenEXR
+        import OpenEXR  # only .exr panoramas need it
     except ImportError:
         raise UnsupportedFormat(path, "reading .exr needs the 'openexr' package") from None
     try:

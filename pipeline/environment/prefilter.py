@@ -33,7 +33,7 @@ from pipeline.environment.panorama import DEFAULT_ENVIRONMENT, Panorama, list_bu
 log = logging.getLogger(__name__)
 
 METHODS = ("ggx", "paper")
-PREFILTER_VERSION = 3      # bump when the filter's output changes (cache keys include it)
+PREFILTER_VERSION = 4      # bump when the filter's or the LUT's output changes (cache keys include it); 4: height-correlated Smith G
 GGX_SAMPLES = 64           # per texel at mip 1, doubling per mip (coarse mips have few texels)
 GGX_MAX_SAMPLES = 512
 LUT_SIZE = 64
@@ -70,7 +70,7 @@ def prefilter(pixels: np.ndarray, face_size: int = DEFAULT_FACE_SIZE, method: st
               levels: int | None = None) -> EnvironmentArrays:
     """Bake a linear H x W x 3 panorama into the specular mip chain, SH and BRDF LUT (see the
     module docstring for the methods and their LOD mapping)."""
-    from gl import context as gl
+    from gl import context as gl  # EGL and moderngl: not for processes that only load bakes
 
     if method not in METHODS:
         raise ValueError(f"unknown prefilter method {method!r}; one of {METHODS}")
@@ -250,7 +250,7 @@ def ggx_samples(roughness: float, count: int, source_size: int, max_lod: float) 
 
 @lru_cache(maxsize=4)
 def _brdf_lut_cached(size: int, samples: int) -> np.ndarray:
-    from gl import context as gl
+    from gl import context as gl  # as in prefilter_panorama
     ctx = gl.get_context()
     tex = ctx.texture((size, size), 4, dtype="f4")
     fbo = ctx.framebuffer(color_attachments=[tex])

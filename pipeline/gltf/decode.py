@@ -30,7 +30,7 @@ def meshopt_view(path, index: int, spec: dict, source: memoryview | bytes, limit
                  account) -> np.ndarray:
     """The decoded bytes (uint8, count*byteStride) of bufferView `index` whose meshopt
     extension is `spec`, from the compressed `source` bytes it points at."""
-    import meshopt
+    import meshopt  # only meshopt-compressed files need it
 
     what = f"bufferView {index} ({'/'.join(MESHOPT_EXTENSIONS[:1])})"
     count, stride = spec.get("count"), spec.get("byteStride")
@@ -71,7 +71,7 @@ def draco_primitive(path, what: str, data: memoryview | bytes, attribute_ids: di
     `attributes`); `expected` gives, per attribute and for "indices", the accessor's
     (count, component dtype, width). Returns ({name: (count, width) array}, flat indices),
     each checked against its accessor."""
-    import DracoPy
+    import DracoPy  # heavy, and only Draco-compressed files need it
 
     total = sum(c * np.dtype(d).itemsize * w for c, d, w in expected.values())
     if total > DRACO_MAX_RATIO * max(len(data), 1):

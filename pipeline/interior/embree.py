@@ -1,22 +1,22 @@
 """Closest-hit ray casting through Embree 4, called directly (ctypes) on the library embreex ships.
 
 Why not embreex's own classes: for the interior pass they cost more than the rays. Its
-TriangleMesh copies the mesh in per-element loops (~1-2 µs a triangle, several times the BVH
-build), while the pass casts about one ray per two triangles. Here the scene reads our numpy
+TriangleMesh copies the mesh in per-element loops (slower than the BVH build), while the
+pass casts about one ray per two triangles. Here the scene reads our numpy
 arrays in place (shared buffers) and rays go in 16-wide packets (rtcIntersect16): per span of
 packets one compiled loop (numba, no GIL) fills them and another traces them, the spans taken
 in turn by the calling thread and a pool thread, so both cores trace.
 
 The hits are embreex's, up to float rounding: the scene is ROBUST (as embreex's: without it
-rays grazing an edge slip through: 1449 of the 100k torus's 50000) and
+rays grazing an edge slip through) and
 its BVH is built by the SAH builder at medium quality, BVH8. Over quads (pipeline.interior.pairing:
-the mesh's own triangles, two to a quad) that build takes half the time of embreex's triangle
-build, and the build is most of the pass on a large mesh (see README, bench bake). What
+the mesh's own triangles, two to a quad) that build is faster than embreex's triangle build,
+and the build is most of the pass on a large mesh (figures: README, bench bake). What
 changes is only what float rounding already decides: a ray running within a face's plane (the
 flat panels of CesiumMilkTruck) is kept or lost by a last-bit difference, and on the truck
 every vertex the quads move is one that a one-ulp nudge of the positions moves in embreex's
 triangle pass too (tests/test_interior.py). Rejected by the same measurement: the Morton
-builder (3-5x faster to build, slower to trace) loses every corner ray of an axis-aligned split
+builder (faster to build, slower to trace) loses every corner ray of an axis-aligned split
 cube; the two-level (low quality) scene loses them too; non-robust leaves lose thousands of
 rays; compact (index) leaves and a BVH4 build no faster. Results: the closest hit's distance,
 or inf.
@@ -60,7 +60,7 @@ def _library() -> ctypes.CDLL:
     """libembree4 as bundled in the embreex wheel (its .libs folder), else the system's."""
     global _lib
     if _lib is None:
-        import embreex
+        import embreex  # only to find its bundled library, on first use
         here = os.path.dirname(embreex.__file__)
         found = sorted(glob.glob(os.path.join(here, os.pardir, "embreex.libs", "libembree4*.so*")))
         lib = ctypes.CDLL(found[0] if found else "libembree4.so.4")
@@ -137,7 +137,7 @@ class TriangleScene:
         v = select[k] ((n, 3) float32 rows, (n,) offsets).
 
         Each task fills its own packets (a compiled loop, _fill) and traces them, so the set-up
-        is spread over the cores too: through numpy it was ~0.2 ms of the bunny's ~2 ms trace."""
+        is spread over the cores too (through numpy it was a tenth of the trace)."""
         n = len(select)
         packets = -(-n // PACKET)
         buf = _aligned_words(packets * _ROWS * PACKET, zeroed=False).reshape(packets, _ROWS, PACKET)
@@ -202,11 +202,10 @@ def _trace_packets(intersect16, every, last, scene, base, stride, first, stop, p
     """Packets first..stop-1 traced by rtcIntersect16 (a ctypes function, passed in), without
     the GIL; the last packet has its own lane mask.
 
-    Why not a ctypes call per packet from each thread: every call (16 rays, ~6 µs) gives up and
-    takes back the GIL, and the threads' hand-offs serialise them: two threads traced the 100k
-    torus no faster than one (18 ms), this loop on two threads in 10 ms. The function comes as
-    an argument, not as a global, so that numba can cache the loop (an address compiled in
-    cannot be: that cost ~0.5 s in each process)."""
+    Why not a ctypes call per packet from each thread: every call gives up and takes back the
+    GIL, and the threads' hand-offs serialise them: two threads traced no faster than one. The
+    function comes as an argument, not as a global, so that numba can cache the loop (an
+    address compiled in cannot be: each process would compile it again)."""
     for k in range(first, stop):
         intersect16(every if k < packets - 1 else last, scene, base + k * stride, 0)
 

@@ -28,6 +28,9 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from pipeline.interior.embree import TriangleScene, spare_thread
+from pipeline.interior.pairing import pair_quads
+
 log = logging.getLogger(__name__)
 
 EPSILON_SCALE = 1e-4    # ray start offset, as a fraction of the mesh's bounding-box diagonal
@@ -57,9 +60,6 @@ class InteriorResult:
 def interior_vectors(positions: np.ndarray, normals: np.ndarray, indices: np.ndarray,
                      epsilon: float | None = None) -> InteriorResult:
     """Object-space vectors from each vertex to where a ray along -normal leaves the mesh."""
-    from pipeline.interior.embree import TriangleScene, spare_thread
-    from pipeline.interior.pairing import pair_quads
-
     p = np.ascontiguousarray(positions, dtype=np.float32).reshape(-1, 3)
     nrm = np.ascontiguousarray(normals, dtype=np.float32).reshape(-1, 3)
     tris = np.ascontiguousarray(indices, dtype=np.uint32).reshape(-1, 3)

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from typing import cast
 
 import numpy as np
+from PIL import Image
 from pxr import Sdf, Usd, UsdShade
 
 from core.errors import LimitExceeded, MalformedAsset, MissingFile
@@ -109,7 +110,6 @@ class _Packed(Texture):
 def _resized(channel: np.ndarray, h: int, w: int) -> np.ndarray:
     if channel.shape == (h, w):
         return channel
-    from PIL import Image
     return np.asarray(Image.fromarray(channel).resize((w, h), Image.Resampling.BILINEAR))
 
 

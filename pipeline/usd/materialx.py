@@ -22,7 +22,9 @@ import math
 from dataclasses import dataclass, field
 from functools import lru_cache
 
+import MaterialX as mx
 import numpy as np
+from pxr import Sdf, UsdShade
 
 from core.errors import AssetError, MalformedAsset
 from core.scene import Material, TextureRef
@@ -36,8 +38,7 @@ SRGB = ("srgb_texture", "srgb_displayp3", "gamma22", "gamma24")
 
 @lru_cache(maxsize=1)
 def library():
-    """MaterialX's standard node definitions (defaults and categories), loaded once (~0.8 s)."""
-    import MaterialX as mx
+    """MaterialX's standard node definitions (defaults and categories), loaded once: slow to load."""
     lib = mx.createDocument()
     mx.loadLibraries(mx.getDefaultDataLibraryFolders(), mx.getDefaultDataSearchPath(), lib)
     return lib
@@ -169,7 +170,6 @@ class UsdNode(Node):
         return _plain(inp.getValue())
 
     def get(self, name: str):
-        from pxr import Sdf, UsdShade
         inp = self.shader.GetInput(name)
         attrs = inp.GetValueProducingAttributes() if inp else []
         if not attrs:
@@ -577,7 +577,6 @@ def find_reference(stage, target, graph):
     """(identifier of the .mtlx, material name) a binding to the missing prim `target` means,
     or None: the nearest existing ancestor's reference or payload to a .mtlx file, with
     `target` mapped into the usdMtlx namespace (/MaterialX/Materials/<name>)."""
-    from pxr import Sdf
     path = target
     prim = stage.GetPrimAtPath(path)
     while not prim and path.pathElementCount > 1:
@@ -602,7 +601,6 @@ def find_reference(stage, target, graph):
 
 def read_document(data: bytes, where: str):
     """A parsed .mtlx document; XIncludes are not followed (they would read files unchecked)."""
-    import MaterialX as mx
     doc = mx.createDocument()
     options = mx.XmlReadOptions()
     options.readXIncludeFunction = None
@@ -615,7 +613,6 @@ def read_document(data: bytes, where: str):
 
 def document_surface(doc, material: str):
     """The surface shader node of `material` in `doc`, or None."""
-    import MaterialX as mx
     node = doc.getNode(material)
     if node is None or node.getType() != "material":
         return None

@@ -48,6 +48,7 @@ from core.errors import LimitExceeded, MalformedAsset, MissingFile, UnsafeRefere
 from core.scene import Instance, Light, Mesh, Scene, SceneCamera
 from pipeline import deadline
 from pipeline.limits import Limits
+from pipeline.normals import smooth_normals
 from pipeline.usd.layers import LayerGraph
 from pipeline.usd.materials import Binding, MaterialReader, authoring_layer
 from pipeline.usd.shapes import SHAPES, tessellate
@@ -459,7 +460,6 @@ class _StageReader:
                                                                  len(points))) is not None}
         normals = self._normals(prim, mesh, counts, fvi, len(points))
         if normals is None and mesh.GetSubdivisionSchemeAttr().Get() != UsdGeom.Tokens.none:
-            from pipeline.normals import smooth_normals
             normals = _Primvar(smooth_normals(points, fvi[corners]), "vertex", None)
         if "displayColor" in primvars:
             opacity = self._primvar(prim, "displayOpacity", counts, fvi, len(points))

@@ -19,6 +19,7 @@ import dataclasses
 import numpy as np
 
 from core.scene import Mesh, Scene
+from pipeline.normals import compute_tangents, smooth_normals
 
 BUDGET = 2_000_000  # triangles drawn (instances counted) that refinement may grow a scene to
 COARSE = (2_500, 25_000)  # below the first: two levels; below the second: one; else none
@@ -48,8 +49,6 @@ def refine_scene(scene: Scene, budget: int, levels: int | None = None) -> int:
 
 
 def refine(mesh: Mesh, levels: int) -> Mesh:
-    from pipeline.normals import compute_tangents, smooth_normals
-
     pos, tri = mesh.positions.astype(np.float64), mesh.indices.astype(np.int64)
     attrs = {k: getattr(mesh, k) for k in ("uv0", "uv1", "colors") if getattr(mesh, k) is not None}
     for _ in range(levels):

@@ -98,13 +98,13 @@ class WorkerState:
     def _warm(self) -> None:
         from pathlib import Path
 
-        import pipeline
         import renderer
         from core.options import MaterialOverride, RenderOptions
+        from pipeline.bake import bake_asset
         from renderer.methods.auto import environment_face_size
         sample = Path(__file__).resolve().parents[1] / "samples" / "BoxTextured.glb"
         try:
-            asset = pipeline.bake_asset(sample, self.cache())
+            asset = bake_asset(sample, self.cache())
             # The environment a default-sized thumbnail needs (the face-size policy's answer).
             env = self._env(self.config.default_env, environment_face_size(asset, RenderOptions())[0])
             for override in (None, MaterialOverride(transmission=1.0, ior=1.5, roughness=0.0)):
@@ -116,17 +116,17 @@ class WorkerState:
 
     def inspect(self, path: str, root: str | None = None) -> dict:
         """`root`: the upload's folder (a zip's extraction): references may use all of it."""
-        import pipeline
-        scene = pipeline.load_scene(path, self.limits(), root=root)
+        from pipeline.ingest import load_scene
+        scene = load_scene(path, self.limits(), root=root)
         return {"format": scene.format, "triangles": int(scene.triangle_count),
                 "materials": len(scene.materials), "warnings": list(scene.warnings)[:20],
                 "transmissive": any(m.transmission > 0 for m in scene.materials),
                 "files": [str(f) for f in scene.files]}
 
     def bake(self, path: str, root: str | None = None) -> dict:
-        import pipeline
+        from pipeline.bake import bake_asset
         t0 = time.perf_counter()
-        baked = pipeline.bake_asset(path, self.cache(), limits=self.limits(), root=root)
+        baked = bake_asset(path, self.cache(), limits=self.limits(), root=root)
         return {"key": baked.key, "triangles": int(baked.triangle_count),
                 "seconds": time.perf_counter() - t0}
 
@@ -159,8 +159,8 @@ class WorkerState:
         return {"image": data, "plan": plan, "seconds": time.perf_counter() - t0}
 
     def _env(self, source: str, face_size: int):
-        import pipeline
-        return self._cached(("env", f"{face_size}:{source}"), lambda: pipeline.bake_environment(
+        from pipeline.bake import bake_environment
+        return self._cached(("env", f"{face_size}:{source}"), lambda: bake_environment(
             source, self.cache(), face_size=face_size))
 
     def _cached(self, key: tuple, make):
@@ -195,8 +195,8 @@ def _touch(cache, key: str) -> None:
 
 
 def _load_baked(key: str, cache):
-    import pipeline
-    return pipeline.load_baked(key, cache)
+    from pipeline.bake import load_baked
+    return load_baked(key, cache)
 
 
 def answer(state: WorkerState, op: str, args: tuple) -> tuple[str, object]:
