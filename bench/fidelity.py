@@ -1,6 +1,6 @@
 """`asset-preview bench fidelity`: our images beside a path tracer's, per Khronos sample model.
 
-Each model under ../shared/assets/gltf-samples/ (its .glb, else its .gltf) is rendered from a
+Each model under ../shared/assets/gltf-samples/ (else tests/assets/gltf-samples; its .glb, else its .gltf) is rendered from a
 fixed three-quarter camera (yaw 35, pitch 25, fov 40, auto-framed on the world bounds:
 renderer.view.camera) under one panorama, by us (`--method auto`, the default thumbnail), by our ray
 tracer (`--method raytrace`) and, as the reference, by Blender Cycles (Debian's `blender`
@@ -32,14 +32,17 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.assets import CORPUS
+
 ROOT = Path(__file__).resolve().parents[1]
-MODELS = ROOT.parent / "shared" / "assets" / "gltf-samples"
+MODELS = CORPUS / "gltf-samples"
 VIEW = {"yaw": 35.0, "pitch": 25.0, "fov": 40.0}
 # glTF (+Y up) -> Blender (+Z up), as Blender's glTF importer converts: (x, y, z) -> (x, -z, y).
 TO_BLENDER = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])
 
 
 def configure(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--samples", type=Path, default=MODELS, help="folder of Khronos sample model folders")
     p.add_argument("--models", default=None, help="comma-separated model folder names (default: all)")
     p.add_argument("--size", type=int, default=128, help="image size (pixels, square)")
     p.add_argument("--spp", type=int, default=64, help="Cycles samples per pixel")
@@ -51,10 +54,10 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quick", action="store_true", help="three models at 64 px, 16 spp")
 
 
-def model_files(names: list[str] | None = None) -> list[tuple[str, Path | None]]:
-    """(model, its .glb or .gltf or None) for each folder under gltf-samples."""
+def model_files(names: list[str] | None = None, samples: Path = MODELS) -> list[tuple[str, Path | None]]:
+    """(model, its .glb or .gltf or None) for each folder under `samples`."""
     out = []
-    for folder in sorted(p for p in MODELS.iterdir() if p.is_dir()):
+    for folder in sorted(p for p in samples.iterdir() if p.is_dir()):
         if names and folder.name not in names:
             continue
         found = None
@@ -197,7 +200,7 @@ def run(args: argparse.Namespace) -> int:
     rows = []
     jobs: list[tuple[str, Path | None]] = [
         ("calibration", scenes.write_glb(scenes.scene("mirror_sphere"), work / "mirror_sphere.glb"))]
-    jobs += model_files(names)
+    jobs += model_files(names, args.samples)
     for name, path in jobs:
         row = {"model": name, "ours_flip": "", "raytrace_flip": "", "ours_vs_raytrace": "",
                "ours_ms": "", "raytrace_ms": "", "cycles_s": "", "note": ""}

@@ -23,9 +23,9 @@ import statistics
 import time
 from pathlib import Path
 
-from bench.assets import ASSETS
+from bench.assets import CORPUS
 
-DEFAULT_ASSETS = ASSETS  # the sample assets, ../shared/assets
+DEFAULT_ASSETS = CORPUS  # ../shared/assets when beside the checkout, else tests/assets
 GROUPS = {"gltf": ("*.gltf", "*.glb"), "mesh": ("*.ply", "*.stl", "*.STL", "*.obj"),
           "usd": ("*.usd", "*.usda", "*.usdc", "*.usdz")}
 USD_SUFFIXES = {".usd", ".usda", ".usdc", ".usdz"}

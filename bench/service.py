@@ -33,9 +33,9 @@ import tempfile
 import time
 from pathlib import Path
 
+from bench.assets import ASSETS
+
 ROOT = Path(__file__).resolve().parents[1]
-SHARED_DUCK = ROOT.parent / "shared" / "assets" / "gltf" / "Duck.glb"
-PACKAGED_DUCK = ROOT / "service" / "samples" / "Duck.glb"
 
 ROUNDS = 2  # alternating rounds of ours and the peer in the cached phase
 
@@ -213,8 +213,7 @@ def _stats(values: list[float]) -> tuple[float, float]:
 def run(args: argparse.Namespace) -> int:
     import httpx
 
-    duck = SHARED_DUCK if SHARED_DUCK.is_file() else PACKAGED_DUCK
-    duck_bytes = duck.read_bytes()
+    duck_bytes = (ASSETS / "gltf" / "Duck.glb").read_bytes()
     load = Load(args.tool)
     tmp = Path(tempfile.mkdtemp(prefix="bench-service-"))
     port, peer_port = _free_port(), _free_port()

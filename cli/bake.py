@@ -7,6 +7,8 @@ stderr. Exit status 0 when everything baked, 3 when anything failed (the rest is
 --executor ray runs the same jobs as Ray tasks on a cluster (pipeline/executors.py).
 Sandbox: an asset found under a folder argument may read files anywhere in that folder (a
 library's shared parts); a file argument only inside its own folder; --root DIR widens both.
+--thumbnails DIR then renders every baked asset with the render options into DIR, in this
+process through one GL context, resumable, with DIR/manifest.json (cli/thumbnails.py).
 """
 from __future__ import annotations
 
@@ -55,6 +57,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "argument an asset was found under, else the asset's own folder)")
     parser.add_argument("--force", action="store_true", help="bake again even when cached")
     parser.add_argument("--json", action="store_true", help="one JSON object per input")
+    parser.add_argument("--thumbnails", metavar="DIR", default=None,
+                        help="also render each baked asset into DIR (render options below; "
+                             "DIR/manifest.json; a re-run renders only what changed)")
+    parser.add_argument("--thumbnail-format", default="png", metavar="png|jpg|webp|gif",
+                        help="thumbnail file format (webp or gif for --turntable)")
+    parser.add_argument("--quality", type=int, default=None, help="JPEG / WebP thumbnail quality")
+    from core.options import add_arguments
+    add_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -76,6 +86,27 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"error: --max-size: {exc}", file=sys.stderr)
         return 2
+    thumbs = None
+    if args.thumbnails:
+        from pydantic import ValidationError
+
+        from cli.thumbnails import Thumbnails, check_format
+        from core.options import describe_error, from_arguments
+        from renderer.raster.render import validate_options
+        try:
+            options = from_arguments(args)
+            validate_options(options)  # refused before any bake
+        except ValidationError as exc:
+            print(f"error: {describe_error(exc)}", file=sys.stderr)
+            return 2
+        except ValueError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        if why := check_format(args.thumbnail_format, options):
+            print(f"error: {why}", file=sys.stderr)
+            return 2
+        thumbs = Thumbnails(Path(args.thumbnails), str(args.cache) if args.cache else None, options,
+                            args.thumbnail_format, args.env[0] if args.env else None, args.quality)
     if args.executor == "ray":
         from pipeline.executors import ExecutorUnavailable, connect
         try:
@@ -88,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
     jobs += [("environment", src) for src in args.env]
     common = {"cache": cache, "max_bytes": max_bytes, "force": args.force,
               "face_size": args.face_size, "prefilter": args.prefilter, "roots": roots}
-    report = _Report(len(jobs) + len(failures), args.json)
+    report = _Report(len(jobs) + len(failures), args.json, thumbs, roots)
     for result in failures:
         report.add(result)
     start = time.perf_counter()
@@ -107,9 +138,13 @@ def run(args: argparse.Namespace) -> int:
         return 130
     report.close()
     counts = report.counts
-    print(f"{counts['baked']} baked, {counts['cached']} cached, {counts['failed']} failed "
+    thumbed = ""
+    if thumbs is not None:
+        thumbed = (f"; thumbnails: {report.thumb_counts['rendered']} rendered, "
+                   f"{report.thumb_counts['kept']} kept, {report.thumb_counts['failed']} failed")
+    print(f"{counts['baked']} baked, {counts['cached']} cached, {counts['failed']} failed{thumbed} "
           f"in {time.perf_counter() - start:.2f} s", file=sys.stderr)
-    return EXIT_FAILED if counts["failed"] else 0
+    return EXIT_FAILED if counts["failed"] or report.thumb_counts["failed"] else 0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -189,17 +224,26 @@ def _run_pool(jobs, common: dict, workers: int, report: "_Report") -> None:
 class _Report:
     """Result lines on stdout, and a tqdm progress bar on stderr when it is a terminal."""
 
-    def __init__(self, total: int, as_json: bool):
+    def __init__(self, total: int, as_json: bool, thumbs=None, roots: dict | None = None):
         from tqdm import tqdm
 
-        self.as_json = as_json
+        self.as_json, self.thumbs, self.roots = as_json, thumbs, roots or {}
+        self.thumb_counts = {"rendered": 0, "kept": 0, "failed": 0}
         self.out = sys.stdout  # held: the Ray executor moves other writers' stdout to stderr
         self.counts = {"baked": 0, "cached": 0, "failed": 0}
         self.bar = tqdm(total=total, file=sys.stderr, unit="file", leave=False,
                         disable=not (sys.stderr.isatty() and total > 1))
 
     def add(self, result: dict) -> None:
+        """One bake result (as it arrives from any executor); with --thumbnails, rendered here
+        in this process, so every thumbnail shares its one GL context."""
         self.counts[result["status"]] += 1
+        if self.thumbs is not None and result["kind"] == "asset":
+            entry = self.thumbs.add(result, self.roots.get(result["path"]))
+            self.thumb_counts[entry["status"]] += 1
+            result = {**result, "thumbnail": {k: entry[k] for k in ("status", "files") if k in entry}}
+            if entry["status"] == "failed" and result["status"] != "failed":
+                result["thumbnail"]["error"] = entry["error"]
         if self.as_json:
             line = json.dumps(result)
         elif result["status"] == "failed":
@@ -207,6 +251,8 @@ class _Report:
         else:
             line = (f"{result['status']:<7}{result['path']}  (key {result['key'][:12]}, "
                     f"{result['seconds']:.2f} s)")
+            if thumb := result.get("thumbnail"):
+                line += f"  thumbnail {thumb['status']}" + (f": {thumb['error']}" if "error" in thumb else "")
         self.bar.write(line, file=self.out)  # above the bar, which redraws below it
         self.out.flush()
         self.bar.update(1)

@@ -3,8 +3,15 @@
 from __future__ import annotations
 
 import argparse
+import importlib.util
+import sys
+from pathlib import Path
 
 from cli.main import add_commands
+
+# bench/ ships in the source checkout, not in the wheel: run from a checkout (an editable
+# install), its root goes on the path; from a wheel the command says where to get it.
+CHECKOUT = Path(__file__).resolve().parents[1]
 
 BENCHMARKS = {
     "ingest": ("bench.ingest", "load every sample asset: our load_scene vs trimesh.load"),
@@ -22,7 +29,19 @@ BENCHMARKS = {
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    if importlib.util.find_spec("bench") is None and (CHECKOUT / "bench" / "__init__.py").is_file():
+        sys.path.insert(0, str(CHECKOUT))
+    if importlib.util.find_spec("bench") is None:
+        parser.add_argument("benchmark", nargs="?", help="needs the source checkout")
+        parser.set_defaults(_bench=_not_installed)
+        return
     add_commands(parser, BENCHMARKS, "benchmark", "_bench")
+
+
+def _not_installed(args: argparse.Namespace) -> int:
+    print("error: the benchmarks are in the source checkout (bench/), not in the installed package: "
+          "run `asset-preview bench` from a clone after `make install`", file=sys.stderr)
+    return 2
 
 
 def run(args: argparse.Namespace) -> int:

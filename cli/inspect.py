@@ -47,6 +47,8 @@ def summary(scene) -> dict:
         "cameras": [{"index": i, "name": c.name, "type": c.type,
                      "position": [round(float(v), 6) for v in c.matrix[:3, 3]]}
                     for i, c in enumerate(scene.cameras)],
+        "animations": list(scene.animations),  # core.animation.Animation.summary()
+        "time_range": scene.time_range,  # USD: start/end time codes, timeCodesPerSecond
         "backdrop": sorted({scene.meshes[i.mesh].name for i in scene.instances if i.backdrop}),
         "warnings": list(scene.warnings),
         "files": list(scene.files),
@@ -77,6 +79,13 @@ def run(args: argparse.Namespace) -> int:
         print("  variants " + ", ".join(map(repr, info["variants"])) + " (render --variant NAME)")
     for c in info["cameras"]:
         print(f"  camera {c['index']} {c['name']!r}: {c['type']} (render --camera {c['index']})")
+    for i, a in enumerate(info["animations"]):
+        print(f"  animation {i} {a['name']!r}: {a['duration']:.3g} s, {a['channels']} channels "
+              f"driving {len({t['node'] for t in a['targets']})} nodes (render --animation {i})")
+    if info["time_range"]:
+        r = info["time_range"]
+        print(f"  time codes {r['start']:g} .. {r['end']:g} at {r['time_codes_per_second']:g} "
+              f"per second ({r['duration']:.3g} s; render --time SECONDS)")
     if info["backdrop"]:
         print("  backdrop (not framed): " + ", ".join(map(repr, info["backdrop"])))
     for w in info["warnings"]:

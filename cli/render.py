@@ -58,17 +58,26 @@ def run(args: argparse.Namespace) -> int:
         return _fail(describe_error(exc))
     except ValueError as exc:
         return _fail(str(exc))
-    if options.turntable and out_ext not in (".webp", ".gif"):
+    if options.turntable and not options.animate and out_ext not in (".webp", ".gif"):
         return _fail(f"{args.out}: --turntable writes an animated .webp or .gif")
-    if out_ext == ".gif" and not options.turntable:
+    if options.animate and out_ext not in (".webp", ".gif", ".png"):
+        return _fail(f"{args.out}: --animate writes an animated .webp, .gif or .png (APNG)")
+    if out_ext == ".gif" and not (options.turntable or options.animate):
         return _fail(f"{args.out}: .gif is for --turntable; use .png .jpg or .webp")
-    asset = bake_asset(args.path, args.cache, root=args.root)
+    from core.animation import requested
+    asset = bake_asset(args.path, args.cache, root=args.root,
+                       moment=None if options.animate else requested(options))
     face, env_why = environment_face_size(asset, options)
     env_source = args.env or _dome(asset, args.path) or DEFAULT_ENVIRONMENT
     env = bake_environment(env_source, args.cache, face_size=face)
-    from renderer.sequence import encode_animation, render_turntable, render_views
+    from renderer.sequence import encode_animation, render_animation, render_turntable, render_views
     try:
-        if options.turntable:  # N frames from this one bake and one upload
+        if options.animate:  # one pose per frame, one camera over the whole motion
+            from pipeline.animate import poses_for
+            posed_assets, motion = poses_for(args.path, asset, options, args.root)
+            frames = render_animation(posed_assets, env, options, motion or {})
+            frame = frames[0]
+        elif options.turntable:  # N frames from this one bake and one upload
             frames = render_turntable(asset, env, options, keep_linear=bool(args.linear))
             frame = frames[0]
         elif options.views:
@@ -77,7 +86,10 @@ def run(args: argparse.Namespace) -> int:
             frame = render(asset, env, options)
     except (UnsupportedMethod, ValueError) as exc:
         return _fail(str(exc))
-    if options.turntable:
+    if options.animate:
+        with open(args.out, "wb") as f:
+            f.write(encode_animation(frames, out_ext[1:], args.quality, 1000.0 / options.animate))
+    elif options.turntable:
         with open(args.out, "wb") as f:
             f.write(encode_animation(frames, out_ext[1:], args.quality))
     else:

@@ -146,6 +146,16 @@ class RenderOptions:
             "reflectance F0 from IOR and KHR_materials_specular), iridescence (the thin film's "
             "reflectance at the view angle) or transmission (the share "
             "that refracts through, tinted and attenuated by the volume)"))
+    time: str | None = Field(default=None, max_length=32, description=(
+        "pose the asset at this moment of its animation: SECONDS (glTF seconds; USD seconds from "
+        "the stage's start, through timeCodesPerSecond) or poster (the middle of the animation); "
+        "default: at rest (docs/animation.md)"))
+    animation: str | None = Field(default=None, min_length=1, max_length=256, description=(
+        "glTF: the animation --time and --animate play, by index N or by name (inspect lists "
+        "them; default: the first)"))
+    animate: float | None = Field(default=None, ge=1, le=60, description=(
+        "frames per second of an animated image (.webp .gif .png) of the asset's animation, "
+        "its whole duration (at most 120 frames); with turntable the camera also turns once"))
     budget_ms: float | None = Field(default=None, gt=0, le=MAX_BUDGET_MS, description=(
         "time budget in milliseconds: lets method auto ray trace objects where raster "
         "refraction fails, when the estimate fits"))
@@ -162,6 +172,22 @@ class RenderOptions:
         if not m:
             raise ValueError(f"background {v!r}: use gradient, env, transparent or a colour #rrggbb")
         return "#" + m.group(1)
+
+    @field_validator("time", mode="before")
+    @classmethod
+    def _time(cls, v: Any) -> Any:
+        if v is None:
+            return v
+        s = str(v).strip().lower()
+        if s == "poster":
+            return s
+        try:
+            t = float(s)
+        except ValueError:
+            t = math.nan
+        if not (math.isfinite(t) and abs(t) <= 1e6):
+            raise ValueError(f"time {v!r}: use seconds (a finite number) or poster")
+        return repr(t)
 
     @field_validator("target", mode="before")
     @classmethod
@@ -183,6 +209,8 @@ class RenderOptions:
             raise ValueError(f"image size {self.width}x{self.height} is over {MAX_PIXELS} pixels")
         if self.turntable and self.views:
             raise ValueError("turntable and views cannot be combined")
+        if self.animate and (self.views or self.time is not None):
+            raise ValueError("animate plays the whole animation: it takes neither views nor time")
         if self.override is not None and self.override.is_empty():
             object.__setattr__(self, "override", None)  # one spelling of "no override"
         return self

@@ -245,6 +245,9 @@ class Scene:
     cameras: list[SceneCamera] = field(default_factory=list)
     variants: list[str] = field(default_factory=list)  # KHR_materials_variants names, by index
     extensions: dict[str, str] = field(default_factory=dict)  # used -> supported|partial|ignored
+    animations: list[dict] = field(default_factory=list)  # core.animation.Animation.summary()s
+    time_range: dict | None = None  # USD: start/end time codes and timeCodesPerSecond
+    moment: dict | None = None  # the animation and time the scene was posed at; None: at rest
 
     @property
     def triangle_count(self) -> int:

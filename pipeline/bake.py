@@ -26,6 +26,7 @@ import numpy as np
 import zstandard
 
 from core.adjacency import MAX_TRIANGLES, welded_edges
+from core.animation import Moment
 from core.baked import BakedAsset, BakedEnvironment, BakedMesh, BakedTexture
 from core.cubemap import DEFAULT_FACE_SIZE
 from core.errors import AssetError, MissingFile, UnsupportedFormat
@@ -49,7 +50,10 @@ log = logging.getLogger(__name__)
 # - thumbnail_size: the largest thumbnail (longer side, px) the cache is baked for; textures
 #   keep mips from texture_size_for(thumbnail_size) down (1024 px -> 2048^2 texels at most).
 #   A larger render still works, with textures no sharper than that.
-ASSET_OPTIONS = {"interior_epsilon": None, "subdivision_levels": None, "thumbnail_size": 1024}
+# - moment: None = at rest; else {"time": seconds | "poster", "animation": name | None}
+#   (core.animation.Moment, as a dict for the key), the pose the asset is baked in.
+ASSET_OPTIONS = {"interior_epsilon": None, "subdivision_levels": None, "thumbnail_size": 1024,
+                 "moment": None}
 PREFILTERS = ("ggx", "paper")
 _MESH_ARRAYS = ("positions", "normals", "indices", "tangents", "uv0", "uv1", "colors", "interior",
                 "edges", "edge_faces", "support")
@@ -80,6 +84,8 @@ def bake_or_load_asset(path, cache_dir=None, *, force: bool = False, limits: Lim
     if unknown:
         raise TypeError(f"unknown bake option(s): {', '.join(sorted(unknown))}")
     opts = {**ASSET_OPTIONS, **options}
+    if isinstance(opts["moment"], Moment):
+        opts["moment"] = dataclasses.asdict(opts["moment"])
     cache = _cache(cache_dir)
     path = Path(path)
     if not path.exists():
@@ -93,7 +99,8 @@ def bake_or_load_asset(path, cache_dir=None, *, force: bool = False, limits: Lim
             if entry and _inputs_inside(entry.manifest, path, root):
                 return unpack_asset(entry), True
         start = time.perf_counter()
-        scene = load_scene(path, limits, root)
+        scene = load_scene(path, limits, root,
+                           moment=None if opts["moment"] is None else Moment(**opts["moment"]))
         ingest_s = time.perf_counter() - start
         source = SourceFiles.hash(path, scene.files)
     except (FileNotFoundError, PermissionError, IsADirectoryError) as exc:  # changed under us
@@ -196,6 +203,7 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> Bak
                   "triangles": int(sum(len(m.indices) * len(m.transforms) for m in meshes)),
                   "textures": len(scene.textures), "interior": stats},
         # relative to the asset's folder, as the cache's inputs are (a moved tree keeps it)
+        "animations": scene.animations, "time_range": scene.time_range, "moment": scene.moment,
         "environment": None if scene.environment is None else
         os.path.relpath(scene.environment, Path(scene.source).resolve().parent),
     }

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from core.animation import Moment
 from core.errors import AssetError, EmptyScene, LimitExceeded, MalformedAsset, MissingFile, UnsupportedFormat
 from core.scene import Mesh, Scene
 from pipeline import deadline
@@ -47,9 +48,10 @@ def _reader(kind: str):
     return plain_mesh  # (trimesh is imported by its reads only)
 
 
-def load_scene(path, limits: Limits | None = None, root=None) -> Scene:
+def load_scene(path, limits: Limits | None = None, root=None, moment: Moment | None = None) -> Scene:
     """Read any supported asset into a finished Scene; bad input raises an AssetError.
-    Files it references must lie inside `root` (default: its folder; `paths.sandbox_root`)."""
+    Files it references must lie inside `root` (default: its folder; `paths.sandbox_root`).
+    `moment`: the animation time to pose it at (glTF, USD; core.animation), None at rest."""
     path = Path(path)
     limits = limits or Limits.from_env()
     try:
@@ -74,7 +76,12 @@ def load_scene(path, limits: Limits | None = None, root=None) -> Scene:
     start = time.perf_counter()
     with deadline.within(limits.ingest_seconds, str(path)):
         try:
-            scene = reader.load(path, limits, root)
+            if moment is None:
+                scene = reader.load(path, limits, root)
+            elif kind == "mesh":
+                raise UnsupportedFormat(path, f"{path.suffix} files carry no animation (--time, --animate)")
+            else:
+                scene = reader.load(path, limits, root, moment=moment)
             finish(scene, limits)
             deadline.check()
         except AssetError:

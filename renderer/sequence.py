@@ -19,7 +19,7 @@ from renderer.raster import gpu
 from renderer.raster.render import render
 from renderer.view.framing import asset_camera
 
-ANIMATED_FORMATS = ("webp", "gif")
+ANIMATED_FORMATS = ("webp", "gif", "png")  # png: APNG
 FRAME_MS = 80  # per turntable frame: 24 frames turn once in about two seconds
 VIEWS = (("front", 0.0, 0.0), ("side", 90.0, 0.0), ("top", 0.0, 89.9), ("three-quarter", None, None))
 
@@ -69,21 +69,71 @@ def _no_linear():
     raise RuntimeError("a turntable rendered with keep_linear=False keeps display pixels only")
 
 
-def encode_animation(frames: list[Frame], fmt: str = "webp", quality: int | None = None) -> bytes:
-    """An animated WebP (lossy at `quality`, default 85) or GIF that loops forever."""
+def encode_animation(frames: list[Frame], fmt: str = "webp", quality: int | None = None,
+                     frame_ms: float = FRAME_MS) -> bytes:
+    """An animated WebP (lossy at `quality`, default 85), GIF or APNG that loops forever,
+    `frame_ms` per frame."""
     from PIL import Image
 
     if fmt not in ANIMATED_FORMATS:
         raise ValueError(f"animated format {fmt!r}: use {' or '.join(ANIMATED_FORMATS)}")
     images = [Image.fromarray(f.rgba8, "RGBA") for f in frames]
     out = io.BytesIO()
-    kw = {"save_all": True, "append_images": images[1:], "duration": FRAME_MS, "loop": 0}
-    if fmt == "webp":
+    kw = {"save_all": True, "append_images": images[1:], "duration": int(round(frame_ms)), "loop": 0}
+    if fmt == "png":
+        images[0].save(out, "PNG", **kw)
+    elif fmt == "webp":
         images[0].save(out, "WEBP", quality=85 if quality is None else quality, **WEBP_SETTINGS, **kw)
     else:
         rgb = [im.convert("RGB") for im in images]
         rgb[0].save(out, "GIF", **{**kw, "append_images": rgb[1:]}, optimize=False, disposal=2)
     return out.getvalue()
+
+
+def motion_camera(assets: list[BakedAsset], options: RenderOptions) -> RenderOptions:
+    """`options` with one target and distance for every frame of a motion, so the whole
+    motion stays in the frame and the camera neither zooms nor pans: the framing of all
+    frames' geometry at once (a stand-in asset holding every pose), and, turning, the
+    turntable's distance of that stand-in about its centre."""
+    if options.camera is not None:  # the asset's own camera frames it
+        return options
+    lo = np.min([np.asarray(a.bounds, np.float64)[0] for a in assets], axis=0)
+    hi = np.max([np.asarray(a.bounds, np.float64)[1] for a in assets], axis=0)
+    hulls = [a.hull for a in assets if a.hull is not None and len(a.hull)]
+    whole = dataclasses.replace(
+        assets[0], key=f"{assets[0].key}#motion{len(assets)}", textures=[],
+        meshes=[m for a in assets for m in a.meshes], bounds=np.stack([lo, hi]),
+        hull=np.concatenate(hulls) if len(hulls) == len(assets) else None)
+    if options.turntable:
+        centre = (lo + hi) / 2 if options.target is None else np.asarray(options.target)
+        return dataclasses.replace(options, target=_point(centre),
+                                   distance=turntable_distance(whole, options))
+    cam = asset_camera(whole, options)[0]
+    return dataclasses.replace(options, target=_point(cam.target),
+                               distance=float(np.linalg.norm(cam.position - cam.target)))
+
+
+def _point(p: np.ndarray) -> tuple[float, float, float]:
+    return (float(p[0]), float(p[1]), float(p[2]))
+
+
+def render_animation(assets: list[BakedAsset], env: BakedEnvironment, options: RenderOptions,
+                     motion: dict) -> list[Frame]:
+    """One frame per posed asset (pipeline.animate), seen by one camera that covers the whole
+    motion (motion_camera); with options.turntable the camera also turns once about +Y over
+    the animation. `motion` (what was played: pipeline.animate.frame_times) goes in the plan."""
+    fixed = motion_camera(assets, options)
+    uploads = dict(gpu.stats)
+    frames = []
+    for i, asset in enumerate(assets):
+        yaw = options.yaw + (360.0 * i / len(assets) if options.turntable else 0.0)
+        frame = render(asset, env, dataclasses.replace(fixed, yaw=yaw, turntable=0, animate=None))
+        frames.append(Frame(_no_linear, frame.rgba8, frame.plan, frame.timings, frame.alpha_is_mask))
+    frames[0].plan["animate"] = {
+        **motion, "target": list(fixed.target or ()), "distance": fixed.distance,
+        "frame_ms": 1000.0 / float(options.animate or 1),
+        "uploaded": {k: gpu.stats[k] - uploads[k] for k in ("asset_uploads", "environment_uploads")}}
+    return frames
 
 
 def render_views(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions) -> Frame:

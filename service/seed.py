@@ -1,7 +1,6 @@
 """Seed an empty store with the sample assets, so a fresh server shows thumbnails.
 
-Uses `../shared/assets` beside the checkout when it is there, and the two samples shipped in
-`service/samples/` otherwise. Folders of files (a .gltf with its .bin, a USD with its layers)
+Uses the two samples shipped in `service/samples/`, or the folder `--samples` names. Folders of files (a .gltf with its .bin, a USD with its layers)
 go in as zip archives, through the same path as any upload.
 """
 from __future__ import annotations
@@ -14,16 +13,15 @@ from pathlib import Path
 log = logging.getLogger(__name__)
 
 PACKAGED = Path(__file__).resolve().parent / "samples"
-SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "assets"
 
 
 def default_folder() -> Path:
-    return SHARED if SHARED.is_dir() else PACKAGED
+    return PACKAGED
 
 
 def sample_uploads(folder: Path) -> list[tuple[str, bytes, str | None]]:
     """(file name, bytes, main file inside an archive) for every sample, smallest first.
-    `folder` is laid out like ../shared/assets (gltf/, mesh/, usd/) or holds plain files."""
+    `folder` is laid out like tests/assets (gltf/, mesh/, usd/) or holds plain files."""
     out: list[tuple[str, bytes, str | None]] = []
     shared = Path(folder)
     if (shared / "gltf").is_dir():

@@ -61,7 +61,7 @@ class Settings(FromEnv):
     default_env: str = Field("studio", description="environment of renders that name none (studio: "
                              "generated in code, pipeline/environment/studio.py)")
     seed: bool = Field(True, description="seed the sample assets into an empty store")
-    samples: Path | None = Field(None, description="folder to seed from; default ../shared/assets or service/samples")
+    samples: Path | None = Field(None, description="folder to seed from; default: the samples shipped in service/samples")
     state: Path | None = Field(None, description="records, uploads, thumbnails; default <cache>/service "
                                "(own per replica when replicas share one bake cache)")
 

@@ -5,8 +5,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-SHARED = ROOT.parent / "shared"
-ASSETS = SHARED / "assets"
+# The curated sample assets shipped with the tests (tests/assets/SOURCES.md)
+ASSETS = Path(__file__).resolve().parent / "assets"
 
 
 def pytest_addoption(parser):
@@ -17,7 +17,7 @@ def pytest_addoption(parser):
 @pytest.fixture(scope="session")
 def assets() -> Path:
     if not ASSETS.is_dir():
-        pytest.fail(f"sample assets not found at {ASSETS} (../shared beside the checkout)")
+        pytest.fail(f"test assets not found at {ASSETS}")
     return ASSETS
 
 

@@ -5,15 +5,18 @@ import csv
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
 from bench.fidelity import blender_panorama, extensions_used, model_files
 
+SAMPLES = Path(__file__).resolve().parent / "assets" / "gltf-samples"
+
 
 def _bench(tmp_path, *extra) -> tuple[str, dict]:
     out = tmp_path / "out"
-    p = subprocess.run([sys.executable, "-m", "cli.main", "bench", "fidelity", "--size", "48",
+    p = subprocess.run([sys.executable, "-m", "cli.main", "bench", "fidelity", "--samples", str(SAMPLES), "--size", "48",
                         "--spp", "16", "--models", "Box", "--out", str(out),
                         "--cache", str(tmp_path / "cache"), *extra],
                        capture_output=True, text=True, timeout=900)
@@ -23,9 +26,9 @@ def _bench(tmp_path, *extra) -> tuple[str, dict]:
 
 
 def test_model_list_and_extensions(assets):
-    models = dict(model_files())
-    assert len(models) == 20 and models["NegativeScaleTest"].suffix == ".glb"
-    assert models["DragonAttenuation"] is None  # the folder holds no model file here
+    models = dict(model_files(samples=SAMPLES))
+    assert len(models) == 18 and models["NegativeScaleTest"].suffix == ".glb"
+    assert models["SheenCloth"].suffix == ".gltf"  # no glTF-Binary variant: the .gltf
     assert "KHR_materials_anisotropy" in extensions_used(models["AnisotropyRotationTest"])
 
 

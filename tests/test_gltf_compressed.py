@@ -23,7 +23,7 @@ from pipeline.environment.panorama import DEFAULT_ENVIRONMENT
 from pipeline.ingest import load_scene
 from renderer import render
 
-SAMPLES = Path(__file__).resolve().parents[1].parent / "shared" / "assets" / "gltf-samples"
+SAMPLES = Path(__file__).resolve().parent / "assets" / "gltf-samples"
 DRACO = sorted(SAMPLES.glob("*/glTF-Draco/*.gltf"))
 # Every variant folder (Draco, Quantized, Embedded, Binary) beside a primary glTF/ one.
 ALL_VARIANTS = sorted(p for p in [*SAMPLES.glob("*/glTF-*/*.gltf"), *SAMPLES.glob("*/glTF-*/*.glb")]

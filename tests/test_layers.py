@@ -2,10 +2,11 @@
 no private names reached into across modules (DESIGN.md, "Layers").
 
 core      plain data and conventions (scene, baked types, render options, errors, cubemap and
-          colour conventions, the GL context): imports nothing of ours but itself and shaders
-pipeline  ingest, bake, cache                      -> core
-renderer  GL passes and methods, from baked data   -> core (never pipeline: no source files)
-service   HTTP, workers                            -> core, pipeline, renderer
+          colour conventions): imports nothing of ours but itself and shaders
+gl        the headless GL context and its programs -> shaders
+pipeline  ingest, bake, cache                      -> core, gl (environment prefiltering)
+renderer  GL passes and methods, from baked data   -> core, gl (never pipeline: no source files)
+service   HTTP, workers                            -> core, gl, pipeline, renderer
 cli       the command lines                        -> everything
 bench     benchmarks                               -> everything but cli
 Every import counts, at module level or inside a function, and so do the package inits it
@@ -17,14 +18,15 @@ from functools import lru_cache
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-OURS = ("core", "pipeline", "renderer", "service", "cli", "bench", "shaders")
+OURS = ("core", "gl", "pipeline", "renderer", "service", "cli", "bench", "shaders")
 ALLOWED = {
     "core": {"core", "shaders"},
-    "pipeline": {"core", "pipeline", "shaders"},
-    "renderer": {"core", "renderer", "shaders"},
-    "service": {"core", "pipeline", "renderer", "service"},
-    "cli": {"core", "pipeline", "renderer", "service", "cli", "bench"},
-    "bench": {"core", "pipeline", "renderer", "service", "bench", "shaders"},
+    "gl": {"gl", "shaders"},
+    "pipeline": {"core", "gl", "pipeline", "shaders"},
+    "renderer": {"core", "gl", "renderer", "shaders"},
+    "service": {"core", "gl", "pipeline", "renderer", "service"},
+    "cli": {"core", "gl", "pipeline", "renderer", "service", "cli", "bench"},
+    "bench": {"core", "gl", "pipeline", "renderer", "service", "bench", "shaders"},
     "shaders": {"shaders"},
 }
 

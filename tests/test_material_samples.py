@@ -1,4 +1,4 @@
-"""The Khronos material test models in ../shared/assets/gltf-samples, measured: each lobe
+"""The Khronos material test models in tests/assets/gltf-samples, measured: each lobe
 changes the image where its extension says it must (per-mesh windows found by projecting the
 baked meshes), plus a golden image of each (FLIP, as tests/test_render_goldens.py)."""
 from __future__ import annotations

@@ -1,12 +1,14 @@
-"""README's render-option table is the schema's (core/options.py), not a hand-kept copy.
-When this fails, paste the table from the failure message between the README markers."""
+"""The manual's tables are the schema's, not hand-kept copies: the render options
+(core/options.py) in docs/cli.md, the service settings in docs/http.md. When this fails,
+paste the table from the failure message between the markers."""
 import re
 import typing
 from pathlib import Path
 
 from core.options import request_fields
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+DOCS = Path(__file__).resolve().parents[1] / "docs"
+CLI, HTTP = DOCS / "cli.md", DOCS / "http.md"
 MARK = re.compile(r"<!-- render-options -->\n(.*?)<!-- /render-options -->", re.S)
 
 
@@ -38,19 +40,19 @@ def table() -> str:
     return "\n".join(rows) + "\n"
 
 
-def test_readme_lists_the_render_options_from_the_schema():
-    m = MARK.search(README.read_text())
-    assert m, "README.md has no <!-- render-options --> block"
-    assert m.group(1) == table(), "README's render options differ from the schema; use:\n" + table()
+def test_cli_reference_lists_the_render_options_from_the_schema():
+    m = MARK.search(CLI.read_text())
+    assert m, "docs/cli.md has no <!-- render-options --> block"
+    assert m.group(1) == table(), "docs/cli.md's render options differ from the schema; use:\n" + table()
 
 
-def test_readme_lists_every_setting_from_its_declaration():
+def test_http_reference_lists_every_setting_from_its_declaration():
     """The settings tables are `python -m cli.serve`'s output: every row as declared now."""
     from cli.serve import settings_table
     from core.config import RendererSettings
     from pipeline.limits import Limits, PipelineSettings
-    text = README.read_text()
+    text = HTTP.read_text()
     for model, flags in ((None, True), (Limits, False), (PipelineSettings, False), (RendererSettings, False)):
         rows = (settings_table() if model is None else settings_table(model, flags)).splitlines()[2:]
         missing = [r for r in rows if r not in text]
-        assert not missing, "README's settings differ from the declarations; run python -m cli.serve:\n" + "\n".join(missing)
+        assert not missing, "docs/http.md's settings differ from the declarations; run python -m cli.serve:\n" + "\n".join(missing)

@@ -47,7 +47,7 @@ def Xform "Car"
 @pytest.fixture
 def library(tmp_path, assets) -> Path:
     """LIB/cars/car/car.usda references LIB/parts/wheel.usda, as vehicle kits share wheels;
-    LIB/gltf/box/box.gltf reads LIB/gltf/shared/*.bin the same way."""
+    LIB/gltf/box/box.gltf reads LIB/gltf/common/*.bin the same way."""
     lib = tmp_path / "LIB"
     (lib / "parts").mkdir(parents=True)
     (lib / "parts" / "wheel.usda").write_text(WHEEL)
@@ -57,10 +57,10 @@ def library(tmp_path, assets) -> Path:
     box = next(p for p in sorted(src.rglob("*.gltf")) if p.stem == "Box")
     doc = json.loads(box.read_text())
     (lib / "gltf" / "box").mkdir(parents=True)
-    (lib / "gltf" / "shared").mkdir()
+    (lib / "gltf" / "common").mkdir()
     for buf in doc["buffers"]:
-        shutil.copyfile(box.parent / buf["uri"], lib / "gltf" / "shared" / buf["uri"])
-        buf["uri"] = "../shared/" + buf["uri"]
+        shutil.copyfile(box.parent / buf["uri"], lib / "gltf" / "common" / buf["uri"])
+        buf["uri"] = "../common/" + buf["uri"]
     (lib / "gltf" / "box" / "box.gltf").write_text(json.dumps(doc))
     return lib
 

@@ -19,6 +19,7 @@ class NodeGraph:
     def __init__(self, d: Document):
         self.d = d
         self._parents: dict[int, int] | None = None  # node -> parent
+        self.pose: dict[int, dict[str, np.ndarray]] = {}  # node -> animated TRS / weights
 
     def roots(self) -> list:
         """The default scene's root nodes (every unparented node when there are no scenes)."""
@@ -35,6 +36,9 @@ class NodeGraph:
     def local(self, node: dict, index: int) -> np.ndarray:
         """A node's matrix, from `matrix` or translation, rotation and scale."""
         d = self.d
+        if index in self.pose:  # animated (core.animation): the channels' values replace its own
+            node = {k: v for k, v in node.items() if k != "matrix"}
+            node.update({k: [float(x) for x in v] for k, v in self.pose[index].items()})
         if "matrix" in node:
             m = np.array(d.numbers(node, "matrix", (0.0,) * 16), np.float64)
             return m.reshape(4, 4).T  # glTF stores column-major

@@ -14,10 +14,12 @@ from typing import cast
 
 import numpy as np
 
+from core.animation import Moment, seconds, select
 from core.errors import UnsupportedFormat
 from core.scene import Instance, Scene, default_material
 from pipeline import deadline
 from pipeline.gltf.accessors import Document
+from pipeline.gltf.animation import read_animations
 from pipeline.gltf.materials import MATERIAL_EXTENSIONS, Textures, read_material
 from pipeline.gltf.nodes import NodeGraph, camera, light
 from pipeline.gltf.primitives import TRIANGLES, primitive, thicken
@@ -37,16 +39,18 @@ PARTIAL_EXTENSIONS = frozenset({
 })
 
 
-def load(path: Path, limits: Limits, root: Path | None = None) -> Scene:
+def load(path: Path, limits: Limits, root: Path | None = None,
+         moment: Moment | None = None) -> Scene:
     """Read a .gltf or .glb file (checked against `limits`) into a Scene; its URIs must lie
-    inside `root` (default: its folder; `paths.sandbox_root`)."""
+    inside `root` (default: its folder; `paths.sandbox_root`). With a `moment`, nodes, skins
+    and morph weights are posed by that animation at that time (pipeline.gltf.animation)."""
     d = Document(Path(path), limits, root)
     unknown = sorted(set(d.array(d.doc, "extensionsRequired")) - SUPPORTED_EXTENSIONS
                      - PARTIAL_EXTENSIONS)
     if unknown:
         raise UnsupportedFormat(d.path, f"requires glTF extension(s) we do not support: "
                                         f"{', '.join(map(str, unknown))}")
-    return _Assembly(d).scene()
+    return _Assembly(d).scene(moment)
 
 
 def extension_report(d: Document) -> dict[str, str]:
@@ -76,8 +80,15 @@ class _Assembly:
         self.wire: dict[int, int] = {}  # scene mesh -> primitive mode, for points and lines
         self.skins: dict[int, np.ndarray] = {}
 
-    def scene(self) -> Scene:
+    def scene(self, moment: Moment | None = None) -> Scene:
         d, scene = self.d, self.out
+        animations = read_animations(d)
+        scene.animations = [a.summary() for a in animations]
+        if moment is not None:  # the node graph composes the animated values (NodeGraph.local)
+            anim = select(animations, moment.animation, str(d.path))
+            t = seconds(moment, anim)
+            self.nodes.pose = anim.pose(t)
+            scene.moment = {"animation": anim.name, "time": round(t, 6)}
         placed = self.nodes.world_matrices()
         worlds = dict(placed)
         for index, world in placed:
@@ -106,6 +117,8 @@ class _Assembly:
         mesh_def = d.item("meshes", mesh_index, f"node {index} mesh")
         prims = d.array(mesh_def, "primitives")
         weights = node.get("weights", mesh_def.get("weights", ()))
+        if "weights" in self.nodes.pose.get(index, {}):
+            weights = [float(w) for w in self.nodes.pose[index]["weights"]]
         weights = d.numbers({"w": weights}, "w", (0.0,) * len(weights)) if weights else ()
         skin = node.get("skin")
         if skin is not None and skin not in self.skins:

@@ -44,6 +44,7 @@ from pathlib import Path
 import numpy as np
 from pxr import Ar, Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade, UsdSkel
 
+from core.animation import Moment
 from core.errors import LimitExceeded, MalformedAsset, MissingFile, UnsafeReference
 from core.scene import Instance, Light, Mesh, Scene, SceneCamera
 from pipeline import deadline
@@ -52,6 +53,7 @@ from pipeline.normals import smooth_normals
 from pipeline.usd.layers import LayerGraph
 from pipeline.usd.materials import Binding, MaterialReader, authoring_layer
 from pipeline.usd.shapes import SHAPES, tessellate
+from pipeline.usd.time import time_code, time_range
 
 log = logging.getLogger(__name__)
 
@@ -59,7 +61,8 @@ Y_UP_FROM_Z_UP = np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 
 PRUNED_TYPES = (UsdShade.Material, UsdShade.NodeGraph, UsdShade.Shader)
 
 
-def load(path: Path, limits: Limits, root: Path | None = None) -> Scene:
+def load(path: Path, limits: Limits, root: Path | None = None,
+         moment: Moment | None = None) -> Scene:
     """Read a USD file (any of its four forms) into a Scene; AssetError on bad input.
     Files it references must lie inside `root` (default: its folder; `paths.sandbox_root`)."""
     path = Path(path)
@@ -69,7 +72,8 @@ def load(path: Path, limits: Limits, root: Path | None = None) -> Scene:
         stage = graph.stage = _compose(root_layer, graph)
         scene = Scene(source=str(path), format=path.suffix.lower().lstrip("."))
         scene.warnings.extend(graph.warnings)
-        _StageReader(stage, graph, scene, limits).read()
+        scene.time_range = time_range(stage)
+        _StageReader(stage, graph, scene, limits, moment).read()
         scene.files = list(graph.files)
         return scene
     finally:
@@ -121,10 +125,12 @@ class _Topology:
 
 
 class _StageReader:
-    def __init__(self, stage: Usd.Stage, graph: LayerGraph, scene: Scene, limits: Limits):
+    def __init__(self, stage: Usd.Stage, graph: LayerGraph, scene: Scene, limits: Limits,
+                 moment: Moment | None = None):
         self.stage, self.graph, self.scene, self.limits = stage, graph, scene, limits
-        self.time = (Usd.TimeCode(stage.GetStartTimeCode()) if stage.HasAuthoredTimeCodeRange()
-                     else Usd.TimeCode.EarliestTime())
+        self.time = time_code(stage, moment)  # pipeline.usd.time
+        if moment is not None:
+            scene.moment = {"time_code": self.time.GetValue()}
         self.xforms = UsdGeom.XformCache(self.time)
         meters = UsdGeom.GetStageMetersPerUnit(stage)
         if not (math.isfinite(meters) and meters > 0):  # 0 collapses the scene, < 0 mirrors it

@@ -93,8 +93,10 @@ def render_options(params: BaseModel) -> RenderOptions:
     """The RenderOptions of validated thumbnail parameters (ValueError when they conflict)."""
     fmt = params.model_dump(include={"format"})["format"]
     options = from_request(params.model_dump(exclude={"format", "env"}))
-    if options.turntable and fmt not in ("webp", "gif"):
+    if options.animate and fmt not in ("webp", "gif", "png"):
+        raise ValueError("animate needs format webp, gif or png (APNG)")
+    if options.turntable and not options.animate and fmt not in ("webp", "gif"):
         raise ValueError("turntable needs format webp or gif (an animated image)")
-    if fmt == "gif" and not options.turntable:
+    if fmt == "gif" and not (options.turntable or options.animate):
         raise ValueError("format gif is for turntables; use png, jpeg or webp")
     return options

@@ -144,6 +144,20 @@ class WorkerState:
         asset = self._cached(("asset", key), lambda: _load_baked(key, self.cache()))
         _touch(self.cache(), key)  # in use: the bake cache's LRU must not see it as cold
         env = self._env(env_source, environment_face_size(asset, options)[0])
+        if options.animate or options.time is not None or options.animation is not None:
+            # posed from the upload (pipeline.animate), its references inside its own folder
+            from pathlib import Path
+
+            from pipeline.animate import poses_for
+            from renderer.sequence import encode_animation, render_animation
+            source = Path(asset.manifest["source"])
+            poses, motion = poses_for(source, asset, options, source.parent, self.limits())
+            if not options.animate:
+                asset = poses[0]
+            else:
+                frames = render_animation(poses, env, options, motion or {})
+                data = encode_animation(frames, fmt, frame_ms=1000.0 / options.animate)
+                return {"image": data, "plan": dict(frames[0].plan), "seconds": time.perf_counter() - t0}
         if options.turntable:  # N frames from one upload and one bake, one animated image
             from renderer.sequence import encode_animation, render_turntable
             frames = render_turntable(asset, env, options, keep_linear=False)  # encoded only

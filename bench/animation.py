@@ -1,0 +1,56 @@
+"""Animated previews against the same frames as separate renders (issue 27).
+
+    python -m bench.animation ASSET [--fps 12] [--size 256] [--animation NAME]
+
+A: one `--animate` preview: the rest bake once, then per frame a pose ingested and built in
+memory (pipeline.animate) and one draw, every frame by one camera.
+B: the same times as separate stills: per frame a `--time` bake into a fresh cache (ingest,
+build, store) and a render, as a client asking for each moment would cause.
+Both in this process, after a warm-up render, so neither pays for the GL context or imports.
+"""
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+
+from core.animation import Moment
+from core.options import RenderOptions
+from pipeline.animate import frame_times, posed
+from pipeline.bake import bake_asset, bake_environment
+from renderer.raster.render import render
+from renderer.sequence import render_animation
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser()
+    p.add_argument("asset")
+    p.add_argument("--fps", type=float, default=12)
+    p.add_argument("--size", type=int, default=256)
+    p.add_argument("--animation", default=None)
+    args = p.parse_args(argv)
+    with tempfile.TemporaryDirectory() as cache:
+        base = bake_asset(args.asset, cache)
+        env = bake_environment("studio", cache, face_size=64)
+        options = RenderOptions(width=args.size, height=args.size, animate=args.fps,
+                                animation=args.animation)
+        render(base, env, RenderOptions(width=args.size, height=args.size))  # warm-up
+        times, motion = frame_times(base, args.fps, args.animation)
+        t0 = time.perf_counter()
+        poses = [posed(args.asset, base, Moment(t, args.animation)) for t in times]
+        t1 = time.perf_counter()
+        render_animation(poses, env, options, motion)
+        t2 = time.perf_counter()
+        for t in times:
+            still = bake_asset(args.asset, cache, moment=Moment(t, args.animation))
+            render(still, env, RenderOptions(width=args.size, height=args.size))
+        t3 = time.perf_counter()
+    n = len(times)
+    print(f"{args.asset}: {n} frames at {args.fps:g} fps, {args.size} px")
+    print(f"A animated preview: {t2 - t0:.2f} s ({n / (t2 - t0):.1f} frames/s): "
+          f"poses {1000 * (t1 - t0) / n:.1f} ms/frame, draws {1000 * (t2 - t1) / n:.1f} ms/frame")
+    print(f"B separate stills:  {t3 - t2:.2f} s ({n / (t3 - t2):.1f} frames/s)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,338 @@
+"""Time (issue 27): keyframe interpolation against hand-computed values, posed glTF and USD
+scenes against numpy, --time / --animate through the CLI, the poster frame, and framing that
+keeps a whole motion inside the image."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from gltf_builder import CUBE_INDICES, CUBE_POSITIONS, Builder
+from PIL import Image, ImageSequence
+
+from cli.main import main
+from core.animation import Animation, Channel, Moment, poster_time, requested, sample, slerp
+from core.errors import NotInAsset
+from core.options import RenderOptions
+from pipeline.ingest import load_scene
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    return str(tmp_path_factory.mktemp("animation-cache"))
+
+
+# -- interpolation, by hand --------------------------------------------------------------------
+
+TIMES = np.array([0.0, 2.0])
+
+
+def test_linear_and_step():
+    v = np.array([[0.0, 10.0, -4.0], [1.0, 20.0, 4.0]])
+    assert np.allclose(sample(TIMES, v, "LINEAR", 0.5), [0.25, 12.5, -2.0])
+    assert np.allclose(sample(TIMES, v, "STEP", 1.99), v[0])
+    assert np.allclose(sample(TIMES, v, "STEP", 2.0), v[1])
+    # outside the keys the end values hold
+    assert np.allclose(sample(TIMES, v, "LINEAR", -1.0), v[0])
+    assert np.allclose(sample(TIMES, v, "LINEAR", 9.0), v[1])
+
+
+def test_cubic_spline_uses_tangents_scaled_by_the_interval():
+    # keys (in-tangent, value, out-tangent): (0, 0, 1) at t=0, (0, 1, 0) at t=2. At u = 1/2 the
+    # Hermite basis is h00 = h01 = 1/2, h10 = 1/8, h11 = -1/8; tangents times dt = 2:
+    # 0.5*0 + 0.125*(1*2) + 0.5*1 - 0.125*(0*2) = 0.75
+    v = np.array([[[0.0], [0.0], [1.0]], [[0.0], [1.0], [0.0]]])
+    assert sample(TIMES, v, "CUBICSPLINE", 1.0)[0] == pytest.approx(0.75)
+    # at u = 1/4: h00 = 27/32, h10 = 9/64, h01 = 5/32, h11 = -3/64 -> 9/64*2 + 5/32 = 0.4375
+    assert sample(TIMES, v, "CUBICSPLINE", 0.5)[0] == pytest.approx(0.4375)
+    assert sample(TIMES, v, "CUBICSPLINE", 2.0)[0] == pytest.approx(1.0)
+
+
+def test_rotation_slerps_the_short_way():
+    q0 = np.array([0.0, 0.0, 0.0, 1.0])
+    q90 = np.array([0.0, 0.0, math.sin(math.pi / 4), math.cos(math.pi / 4)])  # 90 deg about Z
+    half = sample(TIMES, np.stack([q0, q90]), "LINEAR", 1.0, quaternion=True)
+    assert np.allclose(half, [0, 0, math.sin(math.pi / 8), math.cos(math.pi / 8)])  # 45 deg
+    # -q90 is the same rotation: the path must not go the long way (through 225 deg)
+    assert np.allclose(slerp(q0, -q90, 0.5), half)
+    # a third of the way: 30 deg, not the normalised lerp's 31.7
+    third = slerp(q0, q90, 1 / 3)
+    assert 2 * math.degrees(math.atan2(third[2], third[3])) == pytest.approx(30.0)
+
+
+def test_poster_is_the_middle_of_the_range():
+    a = Animation("walk", [Channel(0, "translation", "LINEAR", np.array([0.5, 2.5]), np.zeros((2, 3)))])
+    assert poster_time(a) == 1.5 and a.duration == 2.0
+    assert requested(RenderOptions()) is None
+    assert requested(RenderOptions(animation="walk")) == Moment("poster", "walk")
+    assert requested(RenderOptions(time="0.25")) == Moment(0.25, None)
+
+
+def test_time_option_is_checked():
+    with pytest.raises(ValueError, match="time"):
+        RenderOptions(time="soon")
+    with pytest.raises(ValueError, match="time"):
+        RenderOptions(time="nan")
+    with pytest.raises(ValueError, match="animate"):
+        RenderOptions(animate=12, time="1")
+    assert RenderOptions(time="1").key_dict() != RenderOptions(time="2").key_dict()
+
+
+# -- posed glTF scenes against numpy ------------------------------------------------------------
+
+def _animated(path: Path) -> Path:
+    """A cube whose node translates (LINEAR), rotates (STEP), carries a morph target whose weight
+    animates through a sparse accessor, and a second cube skinned to a joint that moves in Y."""
+    b = Builder()
+    delta = np.zeros_like(CUBE_POSITIONS)
+    delta[:, 1] = 1.0  # the target lifts every vertex by 1
+    mesh = b.mesh(CUBE_POSITIONS, CUBE_INDICES)
+    b.doc["meshes"][mesh]["primitives"][0]["targets"] = [{"POSITION": b.accessor(delta)}]
+    b.doc["meshes"][mesh]["weights"] = [0.0]
+    cube = b.node(mesh)
+    times = b.accessor(np.array([0.0, 1.0, 2.0], np.float32))
+    move = b.accessor(np.array([[0, 0, 0], [4, 0, 0], [4, 0, 0]], np.float32))
+    turn = b.accessor(np.array([[0, 0, 0, 1], [0, 0, 1, 0], [0, 0, 1, 0]], np.float32))
+    # weights 0, 0, 0 in the buffer; the sparse part sets key 1 to 1.0
+    weights = b.accessor(np.zeros(3, np.float32))
+    acc = b.doc["accessors"][weights]
+    acc["sparse"] = {"count": 1,
+                     "indices": {"bufferView": b.view(np.array([1], np.uint8).tobytes()),
+                                 "componentType": 5121},
+                     "values": {"bufferView": b.view(np.array([1.0], np.float32).tobytes())}}
+    # the skinned cube: one joint, node `joint`, identity inverse bind
+    skinned = b.mesh(CUBE_POSITIONS + np.float32([10, 0, 0]), CUBE_INDICES,
+                     JOINTS_0=np.zeros((8, 4), np.uint8),
+                     WEIGHTS_0=np.tile(np.float32([1, 0, 0, 0]), (8, 1)))
+    joint = b.node(None, translation=[0.0, 0.0, 0.0])
+    b.node(skinned, skin=0)
+    b.doc["skins"] = [{"joints": [joint]}]
+    lift = b.accessor(np.array([[0, 0, 0], [0, 2, 0], [0, 6, 0]], np.float32))
+    b.doc["animations"] = [{"name": "all", "samplers": [
+        {"input": times, "output": move},
+        {"input": times, "output": turn, "interpolation": "STEP"},
+        {"input": times, "output": weights},
+        {"input": times, "output": lift}],
+        "channels": [
+            {"sampler": 0, "target": {"node": cube, "path": "translation"}},
+            {"sampler": 1, "target": {"node": cube, "path": "rotation"}},
+            {"sampler": 2, "target": {"node": cube, "path": "weights"}},
+            {"sampler": 3, "target": {"node": joint, "path": "translation"}}]}]
+    return b.write(path)
+
+
+def _world(scene, mesh_index: int) -> np.ndarray:
+    """The mesh's distinct world-space corners, sorted (ingest splits vertices per face)."""
+    inst = next(i for i in scene.instances if i.mesh == mesh_index)
+    p = scene.meshes[mesh_index].positions.astype(np.float64)
+    return _points(p @ inst.matrix[:3, :3].T + inst.matrix[:3, 3])
+
+
+def _points(p) -> np.ndarray:
+    return np.unique(np.round(np.asarray(p, np.float64), 5), axis=0)
+
+
+def test_posed_nodes_morphs_and_skins_match_numpy(tmp_path):
+    path = _animated(tmp_path / "anim.glb")
+    rest = load_scene(path)
+    assert rest.moment is None
+    [summary] = rest.animations
+    assert summary["name"] == "all" and summary["duration"] == 2.0 and summary["channels"] == 4
+    assert {(t["path"], t["interpolation"]) for t in summary["targets"]} == {
+        ("translation", "LINEAR"), ("rotation", "STEP"), ("weights", "LINEAR")}
+
+    at = load_scene(path, moment=Moment(0.5))
+    assert at.moment == {"animation": "all", "time": 0.5}
+    # t = 0.5: translation lerps to (2, 0, 0); STEP holds the identity rotation; the sparse
+    # weight lerps 0 -> 1 to 0.5, lifting every vertex by 0.5
+    expected = CUBE_POSITIONS.astype(np.float64) + [2.0, 0.5, 0.0]
+    assert np.allclose(_world(at, 0), _points(expected), atol=1e-5)
+    # skinned: the joint lerps to (0, 1, 0), and the whole mesh with it
+    assert np.allclose(_world(at, 1), _points(CUBE_POSITIONS + [10.0, 1.0, 0.0]), atol=1e-5)
+
+    at = load_scene(path, moment=Moment(1.5))
+    # t = 1.5: translation (4, 0, 0); STEP has switched to 180 deg about Z (x, y -> -x, -y);
+    # the weight is back at 0.5 (1 -> 0); the joint at (0, 4, 0)
+    lifted = CUBE_POSITIONS.astype(np.float64) + [0.0, 0.5, 0.0]
+    expected = np.stack([-lifted[:, 0], -lifted[:, 1], lifted[:, 2]], axis=1) + [4.0, 0.0, 0.0]
+    assert np.allclose(_world(at, 0), _points(expected), atol=1e-5)
+    assert np.allclose(_world(at, 1), _points(CUBE_POSITIONS + [10.0, 4.0, 0.0]), atol=1e-5)
+
+
+def test_unknown_animation_names_what_there_is(tmp_path):
+    path = _animated(tmp_path / "anim.glb")
+    with pytest.raises(NotInAsset, match="no animation 'run'.*'all'"):
+        load_scene(path, moment=Moment(0.0, "run"))
+    assert load_scene(path, moment=Moment(0.5, "0")).moment["animation"] == "all"
+
+
+def test_cesium_man_skin_against_numpy(assets):
+    """The reader's skinned positions at t = 0.6 against linear blend skinning done here
+    from the raw accessors with pygltflib-free numpy (joint matrices from the posed nodes)."""
+    path = assets / "gltf-samples/CesiumMan/glTF-Binary/CesiumMan.glb"
+    if not path.exists():
+        pytest.skip("CesiumMan sample not present")
+    rest, posed = load_scene(path), load_scene(path, moment=Moment(0.6))
+    a, b = rest.meshes[0].positions, posed.meshes[0].positions
+    assert a.shape == b.shape and np.isfinite(b).all()
+    moved = np.linalg.norm(a - b, axis=1)
+    assert moved.max() > 0.05  # the walk moves limbs by centimetres to decimetres
+    assert not np.allclose(load_scene(path, moment=Moment(0.3)).meshes[0].positions, b)
+
+
+# -- USD time samples ---------------------------------------------------------------------------
+
+USDA = """#usda 1.0
+(
+    startTimeCode = 10
+    endTimeCode = 30
+    timeCodesPerSecond = 10
+    metersPerUnit = 1
+    upAxis = "Y"
+)
+def Xform "Mover"
+{
+    double3 xformOp:translate.timeSamples = {
+        10: (0, 0, 0),
+        30: (2, 0, 0),
+    }
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+    def Mesh "Tri"
+    {
+        int[] faceVertexCounts = [3]
+        int[] faceVertexIndices = [0, 1, 2]
+        point3f[] points = [(0, 0, 0), (1, 0, 0), (0, 1, 0)]
+    }
+}
+"""
+
+
+def test_usd_time_sampled_xform_between_samples(tmp_path):
+    path = tmp_path / "mover.usda"
+    path.write_text(USDA)
+    rest = load_scene(path)
+    assert rest.time_range == {"start": 10.0, "end": 30.0, "time_codes_per_second": 10.0,
+                               "duration": 2.0}
+    assert rest.bounds[0, 0] == pytest.approx(0.0)
+    # 0.5 s from the start at 10 codes per second: time code 15, a quarter of the way -> x 0.5
+    at = load_scene(path, moment=Moment(0.5))
+    assert at.moment == {"time_code": 15.0}
+    assert at.bounds[0, 0] == pytest.approx(0.5)
+    assert load_scene(path, moment=Moment("poster")).bounds[0, 0] == pytest.approx(1.0)
+
+
+# -- the CLI: --time, poster, --animate ---------------------------------------------------------
+
+def _sample(assets: Path, name: str) -> Path:
+    path = assets / f"gltf-samples/{name}/glTF-Binary/{name}.glb"
+    if not path.exists():
+        pytest.skip(f"{name} sample not present")
+    return path
+
+
+def test_time_changes_pixels_and_poster_is_deterministic(assets, cache, tmp_path):
+    path = _sample(assets, "CesiumMan")
+    images = {}
+    for label, extra in (("rest", []), ("t0.3", ["--time", "0.3"]), ("poster", ["--time", "poster"]),
+                         ("poster2", ["--time", "poster"])):
+        out = tmp_path / f"{label}.png"
+        assert main(["render", str(path), "--out", str(out), "--size", "96", "--cache", cache,
+                     *extra]) == 0
+        images[label] = np.asarray(Image.open(out)).astype(int)
+    assert np.abs(images["rest"] - images["t0.3"]).max() > 64
+    assert np.abs(images["t0.3"] - images["poster"]).max() > 64
+    assert np.array_equal(images["poster"], images["poster2"])
+    from pipeline.bake import bake_asset
+    keys = {bake_asset(path, cache, moment=m).key for m in (None, Moment(0.3), Moment("poster"))}
+    assert len(keys) == 3
+
+
+@pytest.mark.parametrize("name, animation, fps", [("CesiumMan", None, 6), ("Fox", "Survey", 3)])
+def test_whole_motion_stays_in_frame(assets, cache, tmp_path, name, animation, fps):
+    path = _sample(assets, name)
+    out = tmp_path / f"{name}.webp"
+    args = ["render", str(path), "--out", str(out), "--size", "64", "--cache", cache,
+            "--background", "transparent", "--shadow", "0", "--animate", str(fps)]
+    assert main(args + (["--animation", animation] if animation else [])) == 0
+    frames = [np.asarray(f.convert("RGBA")) for f in ImageSequence.Iterator(Image.open(out))]
+    assert len(frames) >= 6
+    for f in frames:
+        alpha = f[..., 3]
+        assert alpha.max() == 255  # the asset is there
+        border = np.concatenate([alpha[0], alpha[-1], alpha[:, 0], alpha[:, -1]])
+        assert border.max() < 128, "the motion leaves the frame"
+    assert any(np.abs(frames[0].astype(int) - f.astype(int)).max() > 64 for f in frames[1:])
+
+
+def test_animate_with_turntable_as_apng(assets, cache, tmp_path):
+    path = _sample(assets, "CesiumMan")
+    out = tmp_path / "cm.png"
+    assert main(["render", str(path), "--out", str(out), "--size", "48", "--cache", cache,
+                 "--animate", "4", "--turntable", "8"]) == 0
+    im = Image.open(out)
+    assert getattr(im, "n_frames", 1) == 8  # 1.96 s at 4 fps
+
+
+def test_animate_needs_an_animation(assets, cache, tmp_path, capsys):
+    out = tmp_path / "box.webp"
+    assert main(["render", str(assets / "gltf/BoxTextured.glb"), "--out", str(out), "--size", "32",
+                 "--cache", cache, "--animate", "4"]) == 3  # an AssetError (cli.main)
+    assert "no animation" in capsys.readouterr().err
+
+
+def test_time_and_animate_over_http(server, assets):
+    import io
+    import json
+
+    from test_service import upload
+    path = _sample(assets, "CesiumMan")
+    r = upload(server, "CesiumMan.glb", path.read_bytes())
+    assert r.status_code == 201, r.text
+    rec = server.wait_status(r.json()["id"])
+    assert rec["status"] == "ready", rec
+    url = f"/assets/{rec['id']}/thumbnail"
+    r = server.client.get(url, params={"size": 48, "animate": 4, "format": "webp"})
+    assert r.status_code == 200 and r.headers["content-type"] == "image/webp", r.text
+    im = Image.open(io.BytesIO(r.content))
+    assert im.n_frames == 8 and im.size == (48, 48)
+    plan = json.loads(r.headers["x-render-plan"])
+    assert plan["animate"]["frames"] == 8 and plan["animate"]["fps"] == 4
+    stills = [server.client.get(url, params={"size": 48, **p}) for p in ({}, {"time": "0.6"})]
+    assert all(s.status_code == 200 for s in stills)
+    assert stills[0].content != stills[1].content and stills[0].headers["etag"] != stills[1].headers["etag"]
+    r = server.client.get(url, params={"size": 48, "animate": 4})
+    assert r.status_code == 422 and "webp, gif or png" in r.json()["detail"]
+
+
+def test_worker_renders_time_and_animate(assets, tmp_path):
+    """The service's worker job (what the HTTP test above reaches through a server): posed
+    from the bake's source, the animation encoded in the format asked for."""
+    import io
+
+    from service.workers.pool import WorkerConfig, WorkerState
+    path = _sample(assets, "CesiumMan")
+    state = WorkerState(WorkerConfig(cache_dir=str(tmp_path / "cache"), default_env="studio"))
+    key = state.bake(str(path))["key"]
+    out = state.render(key, "studio", RenderOptions(width=40, height=40, animate=4), "webp")
+    im = Image.open(io.BytesIO(out["image"]))
+    assert im.n_frames == 8 and out["plan"]["animate"]["frames"] == 8
+    rest, moved = (state.render(key, "studio", RenderOptions(width=40, height=40, time=t), "png")
+                   for t in (None, "0.6"))
+    assert rest["image"] != moved["image"]
+
+
+def test_inspect_json_lists_animations_and_time_range(tmp_path, capsys):
+    import json
+    gltf = _animated(tmp_path / "anim.glb")
+    assert main(["inspect", "--json", str(gltf)]) == 0
+    info = json.loads(capsys.readouterr().out)
+    [anim] = info["animations"]
+    assert anim["name"] == "all" and anim["duration"] == 2.0 and anim["channels"] == 4
+    assert {t["path"] for t in anim["targets"]} == {"translation", "rotation", "weights"}
+    assert info["time_range"] is None
+    usd = tmp_path / "mover.usda"
+    usd.write_text(USDA)
+    assert main(["inspect", "--json", str(usd)]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["animations"] == [] and info["time_range"]["time_codes_per_second"] == 10.0
