@@ -210,7 +210,8 @@ def _intersect_front(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray,
                      draw: np.ndarray | None = None):
     """_intersect, passing through the back faces of single-sided opaque materials and
     where alpha says so (MASK: below the cut-off; BLEND: where `draw`, a uniform per ray,
-    is at or above alpha; draw None: 0.5)."""
+    is at or above alpha; draw None: 0, so that any alpha above 0 is found, as the first
+    pass that finds the object's pixels needs)."""
     prim, u, v, t = _intersect(ts, origins, dirs)
     surf = ts.surface
     tested = surf is not None and surf.alpha_tested.any()
@@ -218,8 +219,9 @@ def _intersect_front(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray,
         return prim, u, v, t
     prim, u, v, t = prim.copy(), u.copy(), v.copy(), t.astype(np.float64)
     eps = EPSILON * ts.radius
+    fresh = np.ones(len(prim), bool)  # rays whose current hit is not yet accepted
     for layer in range(MAX_CULLED):
-        hit = np.flatnonzero(prim >= 0)
+        hit = np.flatnonzero((prim >= 0) & fresh)
         k = ts.material[prim[hit]]
         back = np.einsum("ij,ij->i", dirs[hit], ts.geo_normals[prim[hit]]) > 0
         through = ts.culled[k] & back
@@ -230,13 +232,15 @@ def _intersect_front(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray,
                 width = ts.spread * (np.linalg.norm(origins[ray] - ts.eye, axis=-1) + t[ray])
                 cos_d = np.abs(np.einsum("ij,ij->i", dirs[ray], ts.geo_normals[prim[ray]]))
                 # each layer behind another draws anew (golden-ratio shift of the same draw)
-                u_draw = (np.full(len(ray), 0.5) if draw is None
+                u_draw = (np.zeros(len(ray)) if draw is None
                           else (draw[ray] + 0.6180339887 * layer) % 1.0)
                 through[at] = trace_material.passes_through(
                     surf, k[at], prim[ray], u[ray], v[ray], width, cos_d, u_draw)
         sel = hit[through]
         if not len(sel):
             break
+        fresh[:] = False
+        fresh[sel] = True
         start = t[sel] + eps
         p2, u2, v2, t2 = _intersect(ts, origins[sel] + dirs[sel] * start[:, None], dirs[sel])
         prim[sel], u[sel], v[sel] = p2, u2, v2
