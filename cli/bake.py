@@ -116,10 +116,19 @@ def run(args: argparse.Namespace) -> int:
             return 2
     cache = str(args.cache) if args.cache else None
     jobs, failures, roots = _collect(args.paths, cache, args.root)
+    library = tuple(src for kind, src in jobs if src in roots)
+    parts = _usd_parts([Path(p) for p in library])
+    skipped = [{"kind": "asset", "path": src, "status": "skipped", "seconds": 0.0,
+                "note": f"a part of {parts[src]} (it references, sublayers or payloads it)"}
+               for _, src in jobs if src in parts]
+    jobs = [j for j in jobs if j[1] not in parts]
     jobs += [("environment", src) for src in args.env]
     common = {"cache": cache, "max_bytes": max_bytes, "force": args.force,
-              "face_size": args.face_size, "prefilter": args.prefilter, "roots": roots}
-    report = _Report(len(jobs) + len(failures), args.json, thumbs, roots)
+              "face_size": args.face_size, "prefilter": args.prefilter, "roots": roots,
+              "library": library}
+    report = _Report(len(jobs) + len(failures) + len(skipped), args.json, thumbs, roots)
+    for result in skipped:
+        report.add(result)
     for result in failures:
         report.add(result)
     start = time.perf_counter()
@@ -142,7 +151,8 @@ def run(args: argparse.Namespace) -> int:
     if thumbs is not None:
         thumbed = (f"; thumbnails: {report.thumb_counts['rendered']} rendered, "
                    f"{report.thumb_counts['kept']} kept, {report.thumb_counts['failed']} failed")
-    print(f"{counts['baked']} baked, {counts['cached']} cached, {counts['failed']} failed{thumbed} "
+    print(f"{counts['baked']} baked, {counts['cached']} cached, {counts['skipped']} skipped, "
+          f"{counts['failed']} failed{thumbed} "
           f"in {time.perf_counter() - start:.2f} s", file=sys.stderr)
     return EXIT_FAILED if counts["failed"] or report.thumb_counts["failed"] else 0
 
@@ -200,6 +210,29 @@ def _collect(paths: list[str], cache: str | None, root: str | None = None):
     return jobs, failures, roots
 
 
+def _usd_parts(files: list[Path]) -> dict[str, str]:
+    """{file: a file that uses it} for the USD files among `files` that another one of them
+    references, sublayers or payloads: parts of a kit, not its entry points. Read with Sdf
+    alone (no composition); a file that does not open is left to fail in its own bake."""
+    usd = {f.resolve(): str(f) for f in files if f.suffix.lower() in (".usd", ".usda", ".usdc")}
+    if len(usd) < 2:
+        return {}
+    from pxr import Sdf, Tf, UsdUtils  # heavy: only for a folder with several USD files
+
+    parts: dict[str, str] = {}
+    for real, text in usd.items():
+        try:
+            subs, refs, payloads = UsdUtils.ExtractExternalReferences(str(real))
+        except Tf.ErrorException:
+            continue
+        layer = Sdf.Layer.FindOrOpen(str(real))
+        for dep in [*subs, *refs, *payloads]:
+            target = Path(layer.ComputeAbsolutePath(dep)).resolve() if layer else None
+            if target in usd and target != real:
+                parts.setdefault(usd[target], text)
+    return parts
+
+
 def _run_pool(jobs, common: dict, workers: int, report: "_Report") -> None:
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -230,7 +263,7 @@ class _Report:
         self.as_json, self.thumbs, self.roots = as_json, thumbs, roots or {}
         self.thumb_counts = {"rendered": 0, "kept": 0, "failed": 0}
         self.out = sys.stdout  # held: the Ray executor moves other writers' stdout to stderr
-        self.counts = {"baked": 0, "cached": 0, "failed": 0}
+        self.counts = {"baked": 0, "cached": 0, "skipped": 0, "failed": 0}
         self.bar = tqdm(total=total, file=sys.stderr, unit="file", leave=False,
                         disable=not (sys.stderr.isatty() and total > 1))
 
@@ -238,7 +271,7 @@ class _Report:
         """One bake result (as it arrives from any executor); with --thumbnails, rendered here
         in this process, so every thumbnail shares its one GL context."""
         self.counts[result["status"]] += 1
-        if self.thumbs is not None and result["kind"] == "asset":
+        if self.thumbs is not None and result["kind"] == "asset" and result["status"] != "skipped":
             entry = self.thumbs.add(result, self.roots.get(result["path"]))
             self.thumb_counts[entry["status"]] += 1
             result = {**result, "thumbnail": {k: entry[k] for k in ("status", "files") if k in entry}}
@@ -248,6 +281,8 @@ class _Report:
             line = json.dumps(result)
         elif result["status"] == "failed":
             line = f"failed: {result['error']}"
+        elif result["status"] == "skipped":
+            line = f"skipped {result['path']}  ({result['note']})"
         else:
             line = (f"{result['status']:<7}{result['path']}  (key {result['key'][:12]}, "
                     f"{result['seconds']:.2f} s)")

@@ -13,6 +13,8 @@ from pathlib import Path
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("path", type=Path, metavar="PATH", help="asset file (glTF, USD, OBJ/PLY/STL)")
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    parser.add_argument("--variant-set", action="append", default=[], metavar="[PRIM:]SET=NAME",
+                        help="USD: select a variant (repeatable; no PRIM: the default prim's set)")
     parser.add_argument("--root", type=Path, default=None, metavar="DIR",
                         help="folder the asset's references may read from (default: the "
                              "asset's folder); widen it for libraries that share parts")
@@ -44,6 +46,7 @@ def summary(scene) -> dict:
         "bounds": scene.bounds.tolist(),
         "extensions": dict(scene.extensions),  # extensionsUsed -> supported|partial|ignored
         "variants": list(scene.variants),
+        "variant_sets": list(scene.variant_sets),  # USD: {prim, set, variants, selection}
         "cameras": [{"index": i, "name": c.name, "type": c.type,
                      "position": [round(float(v), 6) for v in c.matrix[:3, 3]]}
                     for i, c in enumerate(scene.cameras)],
@@ -58,7 +61,7 @@ def summary(scene) -> dict:
 def run(args: argparse.Namespace) -> int:
     from pipeline.ingest import load_scene
 
-    info = summary(load_scene(args.path, root=args.root))
+    info = summary(load_scene(args.path, root=args.root, variant_sets=tuple(args.variant_set)))
     if args.json:
         print(json.dumps(info))
         return 0
@@ -77,6 +80,9 @@ def run(args: argparse.Namespace) -> int:
         print("  extensions " + ", ".join(f"{k} ({v})" for k, v in info["extensions"].items()))
     if info["variants"]:
         print("  variants " + ", ".join(map(repr, info["variants"])) + " (render --variant NAME)")
+    for v in info["variant_sets"]:
+        print(f"  variant set {v['prim']}:{v['set']} = {v['selection'] or '(none)'!r} of "
+              + ", ".join(map(repr, v["variants"])) + " (--variant-set PRIM:SET=NAME)")
     for c in info["cameras"]:
         print(f"  camera {c['index']} {c['name']!r}: {c['type']} (render --camera {c['index']})")
     for i, a in enumerate(info["animations"]):

@@ -13,10 +13,9 @@ from typing import Literal, cast
 
 import numpy as np
 
+from core.lobes import SRGB_SLOTS  # texture slots holding colour (sRGB decoded), by extension
+
 MaterialClass = Literal["opaque", "mask", "blend", "transmissive"]
-# Material texture slots holding colour (sampled through sRGB decoding); the rest are data.
-SRGB_SLOTS = frozenset({"base_color", "emissive", "specular_color", "sheen_color",
-                        "diffuse_transmission_color"})
 
 
 def is_srgb(slot: str) -> bool:
@@ -95,7 +94,7 @@ class Material:
     attenuation_color: tuple[float, float, float] = (1.0, 1.0, 1.0)
     attenuation_distance: float = math.inf
     # KHR_materials_specular / _clearcoat / _sheen / _iridescence / _anisotropy (glTF defaults,
-    # which mean "absent": a material that uses none compiles none, renderer.raster.render defines);
+    # which mean "absent": a material that uses none compiles none: core/lobes.py);
     # glTF fills them in pipeline/gltf/materials.py, MaterialX surfaces in pipeline/usd/materialx.py.
     specular: float = 1.0
     specular_texture: TextureRef | None = None  # A channel
@@ -242,8 +241,10 @@ class Scene:
     environment: str | None = None  # panorama file the asset lights itself with (USD dome light)
     warnings: list[str] = field(default_factory=list)
     files: list[str] = field(default_factory=list)  # every file read (the asset and what it references)
+    absent: list[str] = field(default_factory=list)  # files it looked for and did not find (cache key)
     cameras: list[SceneCamera] = field(default_factory=list)
     variants: list[str] = field(default_factory=list)  # KHR_materials_variants names, by index
+    variant_sets: list[dict] = field(default_factory=list)  # USD: {prim, set, variants, selection}
     extensions: dict[str, str] = field(default_factory=dict)  # used -> supported|partial|ignored
     animations: list[dict] = field(default_factory=list)  # core.animation.Animation.summary()s
     time_range: dict | None = None  # USD: start/end time codes and timeCodesPerSecond

@@ -29,7 +29,7 @@ from core.adjacency import MAX_TRIANGLES, welded_edges
 from core.animation import Moment
 from core.baked import BakedAsset, BakedEnvironment, BakedMesh, BakedTexture
 from core.cubemap import DEFAULT_FACE_SIZE
-from core.errors import AssetError, MissingFile, UnsupportedFormat
+from core.errors import AssetError, EmptyScene, MissingFile, UnsupportedFormat
 from core.hull import hull_points, support_points
 from core.mips import level_shapes, texture_size_for
 from core.scene import Light, Material, Sampler, Scene, SceneCamera, TextureRef, extent, is_srgb
@@ -52,8 +52,9 @@ log = logging.getLogger(__name__)
 #   A larger render still works, with textures no sharper than that.
 # - moment: None = at rest; else {"time": seconds | "poster", "animation": name | None}
 #   (core.animation.Moment, as a dict for the key), the pose the asset is baked in.
+# - variant_sets: USD variant selections, "[PRIM:]SET=NAME" in order (pipeline.usd.stage.load).
 ASSET_OPTIONS = {"interior_epsilon": None, "subdivision_levels": None, "thumbnail_size": 1024,
-                 "moment": None}
+                 "moment": None, "variant_sets": ()}
 PREFILTERS = ("ggx", "paper")
 _MESH_ARRAYS = ("positions", "normals", "indices", "tangents", "uv0", "uv1", "colors", "interior",
                 "edges", "edge_faces", "support")
@@ -100,9 +101,10 @@ def bake_or_load_asset(path, cache_dir=None, *, force: bool = False, limits: Lim
                 return unpack_asset(entry), True
         start = time.perf_counter()
         scene = load_scene(path, limits, root,
-                           moment=None if opts["moment"] is None else Moment(**opts["moment"]))
+                           moment=None if opts["moment"] is None else Moment(**opts["moment"]),
+                           variant_sets=tuple(opts["variant_sets"]))
         ingest_s = time.perf_counter() - start
-        source = SourceFiles.hash(path, scene.files)
+        source = SourceFiles.hash(path, scene.files, scene.absent)
     except (FileNotFoundError, PermissionError, IsADirectoryError) as exc:  # changed under us
         raise MissingFile(exc.filename or path, f"cannot read: {exc.strerror}") from None
     key = source.key("assets", opts)
@@ -462,10 +464,12 @@ def unpack_environment(entry: Entry) -> BakedEnvironment:
 
 
 def bake_one(kind: str, source: str, *, cache=None, max_bytes=None, force=False,
-             face_size=DEFAULT_FACE_SIZE, prefilter="ggx", roots=None) -> dict:
+             face_size=DEFAULT_FACE_SIZE, prefilter="ggx", roots=None, library=()) -> dict:
     """The unit of work of `asset-bake` (in processes or Ray tasks): bake one asset or
     environment; never raises (the result says what went wrong). `roots` maps an asset to
-    the folder its references may read (cli.bake's `_collect`)."""
+    the folder its references may read (cli.bake's `_collect`); `library`: the files found
+    by walking a folder, where a USD layer with nothing to draw (a kit's material layer) is
+    skipped with a note, not failed."""
     start = time.perf_counter()
     result: dict[str, Any] = {"kind": kind, "path": source}
     try:
@@ -483,6 +487,11 @@ def bake_one(kind: str, source: str, *, cache=None, max_bytes=None, force=False,
                                                        prefilter=prefilter, force=force)
             result.update(face_size=baked.face_size, mips=len(baked.specular))
         result.update(status="cached" if hit else "baked", key=baked.key)
+    except EmptyScene as exc:
+        if source in library and Path(source).suffix.lower() in (".usd", ".usda", ".usdc"):
+            result.update(status="skipped", note=f"not an asset: {exc.reason}")
+        else:
+            result.update(status="failed", error=str(exc))
     except AssetError as exc:
         result.update(status="failed", error=str(exc))
     except (ValueError, OSError) as exc:  # bad option values, unwritable cache

@@ -18,9 +18,9 @@ SHA-256, suffix, options, version), the dependency list it found with each file'
 the key. A lookup hashes the main file, reads that record and re-hashes the listed files: if all
 match, the key follows (the same main bytes and the same dependency bytes make a deterministic
 ingest read the same files). Several records per id are kept, newest first, for copies of one
-main file beside different dependencies. Known gap: a reference that was missing at bake time
-(ingest warned and went on) and appears later is not noticed until the main file changes or
-`--force`.
+main file beside different dependencies. A file the asset looked for and did not find (a USD
+texture or reference missing at bake time: Scene.absent) is listed with no SHA-256, so its
+appearing later is a change too. Known gap: glTF does not report its absent files yet.
 
 Atomicity. An entry is built in tmp/ on the same filesystem, then renamed into place; the
 loser of a race (its rename finds the entry there) discards its copy. Entries are removed by
@@ -117,19 +117,25 @@ class SourceFiles:
     """An asset's main file and the files it depends on, hashed."""
     main: Path
     main_sha256: str
-    deps: list[tuple[str, str]] = field(default_factory=list)  # (path relative to main's folder, sha256)
+    deps: list[tuple[str, str | None]] = field(default_factory=list)  # (path relative to main's folder, sha256; None: absent)
 
     @classmethod
-    def hash(cls, main: str | os.PathLike, files=()) -> "SourceFiles":
+    def hash(cls, main: str | os.PathLike, files=(), absent=()) -> "SourceFiles":
+        """`absent`: files the asset looked for and did not find; recorded as such, so that
+        one appearing later, or a copy of the main file beside them, is another key."""
         main = Path(main).resolve()
-        deps = {}
+        deps: dict[str, str | None] = {}
+        for f in absent:
+            f = Path(f).resolve()
+            if not f.exists():
+                deps[Path(os.path.relpath(f, main.parent)).as_posix()] = None
         for f in files:
             f = Path(f).resolve()
             if f == main:
                 continue
             # relative even above the main file's folder (../textures): a moved tree keeps its key
             deps[Path(os.path.relpath(f, main.parent)).as_posix()] = file_sha256(f)
-        return cls(main, file_sha256(main), sorted(deps.items()))
+        return cls(main, file_sha256(main), sorted(deps.items(), key=lambda d: d[0]))
 
     def key(self, kind: str, options: dict) -> str:
         return _digest({"format": BAKE_FORMAT_VERSION, "kind": kind, "suffix": self.main.suffix.lower(),

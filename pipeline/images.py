@@ -8,6 +8,7 @@ import struct
 import warnings
 
 import numpy as np
+import OpenEXR
 from PIL import Image
 
 from core.errors import LimitExceeded, MalformedAsset
@@ -16,7 +17,7 @@ from pipeline.limits import Limits
 
 log = logging.getLogger(__name__)
 
-FORMATS = ("PNG", "JPEG", "WEBP")
+FORMATS = ("PNG", "JPEG", "WEBP", "TGA")  # TGA: USD textures (UsdUVTexture reads it)
 # Register every plugin now: with a `formats` list naming one not yet registered (WEBP),
 # Image.open would re-run Image.init() on every call (over 100 us each).
 Image.init()
@@ -32,8 +33,13 @@ def decode_image(data: bytes | memoryview, source: str, limits: Limits) -> np.nd
     """
     if bytes(data[:12]) == KTX2_IDENTIFIER:
         return _decode_ktx2(data, source, limits)
+    if bytes(data[:4]) == EXR_MAGIC:
+        return _decode_exr(data, source, limits)
     with _pillow_errors(source):
         im = _open(data, source, limits)
+        if im.mode.startswith("I"):  # 16-bit grey: convert() would clip it, not scale it
+            grey = np.round(np.asarray(im, np.float64) / 257.0).clip(0, 255).astype(np.uint8)
+            im = Image.fromarray(grey, "L")
         arr = np.asarray(im.convert("RGBA"), dtype=np.uint8)  # palette/grey/16-bit -> RGBA8
     if arr.ndim != 3 or arr.shape[2] != 4:
         raise MalformedAsset(source, f"image decoded to unexpected shape {arr.shape}")
@@ -48,6 +54,8 @@ def probe_image(data: bytes | memoryview, source: str, limits: Limits) -> tuple[
     head = bytes(data[:16])
     if head[:12] == KTX2_IDENTIFIER:
         return _open_ktx2(data, source, limits).level_size(0)
+    if head[:4] == EXR_MAGIC:
+        return _exr_size(data, source, limits)
     if head[:8] == PNG_SIGNATURE and head[12:] == b"IHDR" and len(data) >= 33:
         # PNG's size sits at a fixed place in IHDR: read it without Pillow (a third of ingest
         # time for a small asset); anything odd falls through to Pillow's full header parse.
@@ -63,6 +71,46 @@ def probe_image(data: bytes | memoryview, source: str, limits: Limits) -> tuple[
 
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+EXR_MAGIC = b"\x76\x2f\x31\x01"
+
+
+def _exr_size(data: bytes | memoryview, source: str, limits: Limits) -> tuple[int, int]:
+    """An OpenEXR image's data window (header only), checked against the limits."""
+    try:
+        header = OpenEXR.File(io.BytesIO(bytes(data)), header_only=True).header()
+        (x0, y0), (x1, y1) = header["dataWindow"]
+    except Exception as exc:  # the bindings raise RuntimeError / ValueError for broken files
+        raise MalformedAsset(source, f"EXR image does not decode: {exc}") from None
+    w, h = int(x1 - x0 + 1), int(y1 - y0 + 1)
+    if w <= 0 or h <= 0:
+        raise MalformedAsset(source, f"EXR data window is {w}x{h}")
+    _check_size(w, h, source, limits)
+    return w, h
+
+
+def _decode_exr(data: bytes | memoryview, source: str, limits: Limits) -> np.ndarray:
+    """An OpenEXR texture (PyPI `OpenEXR`) as RGBA8. Its linear values are sRGB-encoded (and
+    clipped to 0..1): textures are held as 8-bit, and an EXR texture is mostly a colour map,
+    which the renderer samples as sRGB; a data EXR (roughness, normals) reads off-curve."""
+    w, h = _exr_size(data, source, limits)
+    try:
+        channels = OpenEXR.File(io.BytesIO(bytes(data)), separate_channels=True).channels()
+    except Exception as exc:
+        raise MalformedAsset(source, f"EXR image does not decode: {exc}") from None
+    planes = {name.split(".")[-1].upper(): ch.pixels for name, ch in channels.items()}
+    rgb = [planes[c] for c in "RGB"] if all(c in planes for c in "RGB") else \
+        [planes["Y"]] * 3 if "Y" in planes else None
+    if rgb is None:
+        raise MalformedAsset(source, f"EXR image has no R, G, B or Y channels "
+                                     f"({', '.join(channels)})")
+    alpha = planes.get("A", np.ones((h, w), np.float32))
+    if any(p.shape != (h, w) for p in [*rgb, alpha]):
+        raise MalformedAsset(source, "EXR image has subsampled channels")
+    lin = np.nan_to_num(np.stack(rgb, axis=-1).astype(np.float32), nan=0.0, posinf=1.0)
+    lin = np.clip(lin, 0.0, 1.0)
+    srgb = np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055)
+    a = np.clip(np.nan_to_num(alpha.astype(np.float32), nan=1.0), 0.0, 1.0)[..., None]
+    return np.ascontiguousarray(np.round(np.concatenate([srgb, a], -1) * 255).astype(np.uint8))
 KTX2_IDENTIFIER = b"\xabKTX 20\xbb\r\n\x1a\n"
 
 

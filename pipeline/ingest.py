@@ -22,7 +22,15 @@ from pathlib import Path
 import numpy as np
 
 from core.animation import Moment
-from core.errors import AssetError, EmptyScene, LimitExceeded, MalformedAsset, MissingFile, UnsupportedFormat
+from core.errors import (
+    AssetError,
+    EmptyScene,
+    LimitExceeded,
+    MalformedAsset,
+    MissingFile,
+    NotInAsset,
+    UnsupportedFormat,
+)
 from core.scene import Mesh, Scene
 from pipeline import deadline
 from pipeline import mesh as plain_mesh
@@ -48,10 +56,12 @@ def _reader(kind: str):
     return plain_mesh  # (trimesh is imported by its reads only)
 
 
-def load_scene(path, limits: Limits | None = None, root=None, moment: Moment | None = None) -> Scene:
+def load_scene(path, limits: Limits | None = None, root=None, moment: Moment | None = None,
+               variant_sets: tuple[str, ...] = ()) -> Scene:
     """Read any supported asset into a finished Scene; bad input raises an AssetError.
     Files it references must lie inside `root` (default: its folder; `paths.sandbox_root`).
-    `moment`: the animation time to pose it at (glTF, USD; core.animation), None at rest."""
+    `moment`: the animation time to pose it at (glTF, USD; core.animation), None at rest.
+    `variant_sets`: USD variant selections, "[PRIM:]SET=NAME" (pipeline.usd.stage.load)."""
     path = Path(path)
     limits = limits or Limits.from_env()
     try:
@@ -76,12 +86,15 @@ def load_scene(path, limits: Limits | None = None, root=None, moment: Moment | N
     start = time.perf_counter()
     with deadline.within(limits.ingest_seconds, str(path)):
         try:
+            if variant_sets and kind != "usd":
+                raise NotInAsset(path, "variant sets are USD's; this asset has none")
+            extra = {"variant_sets": tuple(variant_sets)} if variant_sets else {}
             if moment is None:
-                scene = reader.load(path, limits, root)
+                scene = reader.load(path, limits, root, **extra)
             elif kind == "mesh":
                 raise UnsupportedFormat(path, f"{path.suffix} files carry no animation (--time, --animate)")
             else:
-                scene = reader.load(path, limits, root, moment=moment)
+                scene = reader.load(path, limits, root, moment=moment, **extra)
             finish(scene, limits)
             deadline.check()
         except AssetError:

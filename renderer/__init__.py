@@ -1,11 +1,13 @@
-"""Headless OpenGL renderer: baked asset + baked environment + options -> Frame."""
+"""Headless OpenGL renderer: baked asset + baked environment + options -> Frame.
+
+`render` and `Frame` are re-exported here; no module of the package imports this `__init__`
+back (they import the submodules they need), so the package has no import cycle."""
 from __future__ import annotations
+
+from renderer.frame import Frame
+from renderer.raster.render import render
 
 # Bump on any change that alters pixels: the service keys cached thumbnails with it.
 RENDERER_VERSION = "4"  # 3: energy compensation by default, layering, mirrored transforms (issue 18); 4: anisotropic texture filtering (issue 30)
-
-# Imported eagerly: the submodule `renderer.raster.render` would otherwise shadow the function.
-from renderer.frame import Frame  # noqa: E402
-from renderer.raster.render import render  # noqa: E402
 
 __all__ = ["render", "Frame", "RENDERER_VERSION"]

@@ -1,6 +1,6 @@
 """A rendered image: linear radiance for measurement, tone-mapped sRGB for people, and encoders.
 
-Tone mapping and sRGB encoding normally run on the GPU in the final pass (renderer.raster.render);
+Tone mapping and sRGB encoding normally run on the GPU in the final pass (renderer.raster.final);
 `tonemap_srgb8` is the same arithmetic in numpy, used for frames made elsewhere (the ray
 tracer, the reference) so every path shows an image the same way.
 """
@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
+from isal import isal_zlib
+from PIL import Image
 
 from core.colour import srgb_encode
 
@@ -41,7 +43,7 @@ class FrameTimings:
 
 class Frame:
     """One rendered image. `linear` may be given as a function that reads it when first asked
-    for (renderer.raster.render: a thumbnail never needs it, so its final pass does not draw it)."""
+    for (renderer.raster.final: a thumbnail never needs it, so its final pass does not draw it)."""
 
     def __init__(self, linear: np.ndarray | Callable[[], np.ndarray], rgba8: np.ndarray,
                  plan: dict | None = None, timings: FrameTimings | None = None,
@@ -77,7 +79,6 @@ class Frame:
         opaque = bool(np.all(self.rgba8[..., 3] == 255))
         if key == "png":
             return encode_png(self.rgba8[..., :3] if opaque else self.rgba8)
-        from PIL import Image
         if _PIL_FORMATS[key] == "JPEG" or opaque:
             rgb = self.rgba8[..., :3]
             if not opaque and not self.alpha_is_mask:  # JPEG has no alpha: onto black
@@ -111,9 +112,8 @@ class Frame:
 def encode_png(pixels: np.ndarray) -> bytes:
     """H x W x 3 (RGB) or 4 (RGBA) uint8 as an 8-bit PNG, for thumbnails: every row with the
     Sub filter (vectorised here; Pillow's adaptive filtering costs more than it saves at this
-    size) and deflated by ISA-L at level 1, ~5x faster than Pillow's compress_level=1 at 512 px
-    for a slightly smaller file (README: Encoding)."""
-    from isal import isal_zlib
+    size) and deflated by ISA-L at level 1, faster than Pillow's compress_level=1 for a
+    slightly smaller file (README: Encoding)."""
     h, w, c = pixels.shape
     rows = np.ascontiguousarray(pixels, np.uint8).reshape(h, w * c)
     filtered = np.empty((h, w * c + 1), np.uint8)
@@ -136,7 +136,7 @@ def alpha_is_mask(options) -> bool:
 
 def write_exr(path: str, linear: np.ndarray) -> None:
     """Linear float32 RGBA OpenEXR (PyPI `OpenEXR`, ZIP compression)."""
-    import OpenEXR
+    import OpenEXR  # only EXR output loads it (a C extension of its own)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     channels = {"RGBA": np.ascontiguousarray(linear, dtype=np.float32)}
     with OpenEXR.File(header, channels) as f:

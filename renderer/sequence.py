@@ -11,6 +11,7 @@ import io
 import time
 
 import numpy as np
+from PIL import Image, ImageDraw
 
 from core.baked import BakedAsset, BakedEnvironment
 from core.options import RenderOptions
@@ -49,7 +50,7 @@ def render_turntable(asset: BakedAsset, env: BakedEnvironment, options: RenderOp
                      keep_linear: bool = True) -> list[Frame]:
     """options.turntable frames around +Y (at least one). With keep_linear False the frames
     hold their display pixels only (an animation's encoder reads no more): a kept frame's
-    linear image costs a pass of its own before the next frame (renderer.raster.render)."""
+    linear image costs a pass of its own before the next frame (renderer.raster.final)."""
     distance = turntable_distance(asset, options)
     uploads = dict(gpu.stats)
     frames = []
@@ -73,8 +74,6 @@ def encode_animation(frames: list[Frame], fmt: str = "webp", quality: int | None
                      frame_ms: float = FRAME_MS) -> bytes:
     """An animated WebP (lossy at `quality`, default 85), GIF or APNG that loops forever,
     `frame_ms` per frame."""
-    from PIL import Image
-
     if fmt not in ANIMATED_FORMATS:
         raise ValueError(f"animated format {fmt!r}: use {' or '.join(ANIMATED_FORMATS)}")
     images = [Image.fromarray(f.rgba8, "RGBA") for f in frames]
@@ -141,8 +140,6 @@ def render_views(asset: BakedAsset, env: BakedEnvironment, options: RenderOption
     one frame of `options` (each view is a quarter of it). Its linear image, which a sheet
     served as PNG or WebP never needs, is made only when asked for: the views are drawn again
     (the same pixels) and their linear images placed as the display ones are."""
-    from PIL import Image, ImageDraw
-
     t0 = time.perf_counter()
     w, h = max(options.width // 2, 1), max(options.height // 2, 1)
     views = [(label, dataclasses.replace(options, width=w, height=h, views=False, turntable=0,

@@ -5,7 +5,7 @@
 // instead of with a blit, is what makes MSAA affordable on a CPU rasteriser.
 // BACKGROUND: 0 transparent, 1 colour, 2 environment, 3 the studio gradient. SHADOW 1: the
 // ground contact shadow (renderer/shadow.py) darkens the background, never the object.
-// OBJECT 0: a region of the frame the object does not reach (renderer.render draws the pass
+// OBJECT 0: a region of the frame the object does not reach (renderer.raster.final draws the pass
 // in scissored regions, each with only the work its pixels need): no MSAA fetch, coverage 0.
 // Outputs: display RGBA8 (straight alpha) and linear RGBA float (premultiplied). OUTPUT 1:
 // display alone, 2: linear alone (each at location 0: a thumbnail draws no linear image and
@@ -20,7 +20,7 @@
 #define SUPERSAMPLE 1
 #endif
 // ROWS 1 (BACKGROUND 3): the gradient's value per row, linear and display, read from a column
-// that this same program drew without ROWS (renderer.render._gradient_rows): the gradient
+// that this same program drew without ROWS (renderer.raster.final._gradient_rows): the gradient
 // depends on the row alone, and reading it costs less than the sRGB arithmetic.
 #ifndef ROWS
 #define ROWS 0
@@ -140,7 +140,7 @@ void main() {
     ivec2 xy = ivec2(gl_FragCoord.x, u_height - 1 - int(gl_FragCoord.y));
 #if !OBJECT
     vec4 p = vec4(0.0);
-#elif SUPERSAMPLE > 1  // renderer.render.render_supersampled: a box over K x K texels
+#elif SUPERSAMPLE > 1  // renderer.raster.render.render_supersampled: a box over K x K texels
     vec4 p = vec4(0.0);
     for (int j = 0; j < SUPERSAMPLE; ++j)
         for (int i = 0; i < SUPERSAMPLE; ++i) p += texelFetch(u_frame, xy * SUPERSAMPLE + ivec2(i, j), 0);

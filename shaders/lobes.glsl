@@ -25,7 +25,7 @@ const vec3 CLEARCOAT_F0 = vec3(0.04);
 
 #ifdef MATERIAL_INFO_GLSL
 #ifdef MATERIAL_DEBUG
-// `render --material-debug LOBE`: one lobe alone (renderer.render.MATERIAL_DEBUG_VIEWS).
+// `render --material-debug LOBE`: one lobe alone (renderer.raster.passes.MATERIAL_DEBUG_VIEWS).
 vec3 debug_lobe(MaterialInfo m, Lobes l) {
 #if MATERIAL_DEBUG == 1
     return l.base;

@@ -1,7 +1,8 @@
 // One MaterialInfo per fragment: factors x textures x vertex colour, the shading normal, and
 // the derived F0 / diffuse colour. Everything the lighting code needs flows through it.
 // Each Khronos extension has one getter below, compiled in only under its MATERIAL_* define
-// (renderer.render sets them from Material.uses), so a material pays only for what it uses.
+// (renderer/raster/materials.py sets them from the rows of core/lobes.py), so a material pays
+// only for what it uses.
 #ifndef MATERIAL_INFO_GLSL
 #define MATERIAL_INFO_GLSL
 #include "textures.glsl"

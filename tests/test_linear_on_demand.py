@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import dataclasses
 import gc
-import importlib
 
 import numpy as np
 import pytest
@@ -15,8 +14,7 @@ from core.options import RenderOptions
 from pipeline.bake import bake_asset, bake_environment
 from pipeline.environment.panorama import DEFAULT_ENVIRONMENT
 from renderer import render
-
-R = importlib.import_module("renderer.raster.render")  # the module (`renderer.raster.render` is the function)
+from renderer.raster import final as R  # the final pass: its draws are spied on
 
 
 @pytest.fixture(scope="module")
@@ -29,12 +27,12 @@ def duck(assets, tmp_path_factory):
 
 def _outputs_drawn(monkeypatch) -> list[int]:
     drawn: list[int] = []
-    draw = R._FinalPass.draw
+    draw = R.FinalPass.draw
 
     def spy(self, ctx, output):
         drawn.append(output)
         return draw(self, ctx, output)
-    monkeypatch.setattr(R._FinalPass, "draw", spy)
+    monkeypatch.setattr(R.FinalPass, "draw", spy)
     return drawn
 
 
@@ -95,7 +93,7 @@ def test_linear_on_demand_equals_the_pass_that_draws_both(duck, monkeypatch):
     outputs (final.frag OUTPUT 3, as the gradient's rows use) writes."""
     asset, env = duck
     both: dict = {}
-    draw = R._FinalPass.draw
+    draw = R.FinalPass.draw
 
     def draw_both(self, ctx, output):
         both[output] = _draw_both(self, ctx)
@@ -105,7 +103,7 @@ def test_linear_on_demand_equals_the_pass_that_draws_both(duck, monkeypatch):
         frame = render(asset, env, o)
         linear, rgba8 = frame.linear, frame.rgba8
         with monkeypatch.context() as m:
-            m.setattr(R._FinalPass, "draw", draw_both)
+            m.setattr(R.FinalPass, "draw", draw_both)
             again = render(asset, env, o)
             assert np.array_equal(again.rgba8, rgba8)
         display, lin = both[R.DISPLAY]

@@ -366,3 +366,25 @@ def test_render_of_an_image_node_matches_preview_surface_texture(tmp_path):
         a, b = mx[y, x, :3], ps[y, x, :3]
         assert np.argmax(a) == np.argmax(b) and np.allclose(a, b, atol=0.05), (y, x, a, b)
     assert np.argmax(mx[q, q, :3]) == 0  # red at the top left, as the image
+
+
+def test_several_documents_each_material_found(tmp_path):
+    """Two .mtlx documents referenced on one prim: each material is looked up in the document
+    that defines it, whatever the reference order."""
+    for name, doc in (("plastic", surface("standard_surface", '<input name="base_color" '
+                                          'type="color3" value="0.1, 0.2, 0.9"/>', "blue")),
+                      ("metal", surface("standard_surface", '<input name="base_color" '
+                                        'type="color3" value="1, 0.8, 0.3"/><input '
+                                        'name="metalness" type="float" value="1"/>', "gold"))):
+        (tmp_path / f"{name}.mtlx").write_text(f'<?xml version="1.0"?>\n<materialx '
+                                               f'version="1.38">\n{doc}\n</materialx>\n')
+    refs = ('def Scope "mtl" ( prepend references = [@./plastic.mtlx@</MaterialX/Materials>, '
+            '@./metal.mtlx@</MaterialX/Materials>] ) {}')
+    for binding, colour, metallic in (("/World/mtl/gold", (1, 0.8, 0.3), 1.0),
+                                      ("/World/mtl/blue", (0.1, 0.2, 0.9), 0.0)):
+        path = tmp_path / "quad.usda"
+        stage(tmp_path, None, binding, materials=refs)
+        scene, m = one(path)
+        assert not any("fallback" in w for w in scene.warnings), scene.warnings
+        np.testing.assert_allclose(m.base_color[:3], colour, atol=1e-6)
+        assert m.metallic == pytest.approx(metallic)

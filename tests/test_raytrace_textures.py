@@ -164,3 +164,28 @@ def test_texture_transform_uv_set_and_wrap_match_the_raster(case):
     diff = np.abs(raster[both, :3] - traced[both, :3])
     # texel edges differ where the tracer's 4 x 4 rays per pixel straddle them
     assert np.median(diff) < 0.01 and diff.mean() < 0.05, (np.median(diff), diff.mean())
+
+
+def test_alpha_mask_and_blend_let_rays_through():
+    ref = TextureRef(0)
+    asset = _quad("quad-alpha", ref)
+    img = asset.textures[0].image.copy()
+    img[..., 3] = np.where(np.indices((8, 8)).sum(0) % 2 == 0, 255, 0).astype(np.uint8)  # checker
+    tex = Texture("checker", img, Sampler(mag_filter=NEAREST, min_filter=NEAREST))
+    mesh = asset.meshes[0]
+    o = RenderOptions(width=64, height=64, tonemap="none", background="transparent", yaw=0.0,
+                      pitch=0.0, shadow=0.0)
+    masked = dataclasses.replace(asset, key="quad-mask", textures=[tex], meshes=[dataclasses.replace(
+        mesh, material=dataclasses.replace(mesh.material, alpha_mode="MASK"))])
+    raster = render(masked, constant_env(0.0), dataclasses.replace(o, method="opaque")).linear[..., 3]
+    traced = render(masked, constant_env(0.0), dataclasses.replace(o, method="raytrace")).linear[..., 3]
+    quad = render(asset, constant_env(0.0), dataclasses.replace(o, method="opaque")).linear[..., 3]
+    assert 0.45 < traced.sum() / quad.sum() < 0.55               # half the texels are cut
+    on = quad > 0.99
+    assert np.corrcoef(raster[on], traced[on])[0, 1] > 0.9      # the same ones as the raster
+    half = dataclasses.replace(asset, key="quad-blend", meshes=[dataclasses.replace(
+        mesh, material=dataclasses.replace(mesh.material, alpha_mode="BLEND",
+                                           base_color=(1.0, 1.0, 1.0, 0.5)))])
+    cover = render(half, constant_env(0.0), dataclasses.replace(o, method="raytrace")).linear[..., 3]
+    inside = cover[24:40, 24:40]
+    assert np.abs(inside - 0.5).max() <= 1 / 16 + 1e-6        # 4 x 4 stratified rays a pixel

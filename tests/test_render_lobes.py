@@ -108,9 +108,9 @@ def test_ior_sets_f0_of_an_opaque_dielectric():
 
 def test_no_extension_compiles_no_lobe():
     """The switches: a plain material defines none of the lobes (it costs what it did)."""
-    from renderer.raster.render import _LOBES
+    from core.lobes import SHADER_LOBES
     plain = sphere_asset(0.0, 0.5).meshes[0].material
-    assert not any(plain.uses(lobe) for lobe in _LOBES)
+    assert not any(plain.uses(lobe) for lobe in SHADER_LOBES)
     assert lobe_sphere(clearcoat=1.0).meshes[0].material.uses("clearcoat")
 
 

@@ -326,10 +326,10 @@ def test_far_camera_keeps_a_finite_projection():
 
 
 def test_unavailable_and_bad_options_are_rejected_clearly():
-    from renderer.raster.render import _METHODS
+    from renderer.methods.registry import METHODS
     env = constant_env(1.0)
     asset = sphere_asset(1.0, 0.3)
-    if "wyman" not in _METHODS:
+    if "wyman" not in METHODS:
         with pytest.raises(UnsupportedMethod, match="wyman"):
             render(asset, env, opts(method="wyman"))
     with pytest.raises(ValueError, match="method"):  # refused by the schema, before any render

@@ -344,7 +344,9 @@ def test_lights_dome_and_camera(tmp_path):
     path.write_text(LIGHTS)
     scene = load_scene(path)
     sun, bulb, panel = scene.lights
-    assert sun.type == "directional" and sun.intensity == pytest.approx(6)  # 3 x 2^1
+    # 3 x 2^1 radiance over a 0.53 degree disc: illuminance x pi sin^2(0.265 degrees)
+    assert sun.type == "directional" and \
+        sun.intensity == pytest.approx(6 * math.pi * math.sin(math.radians(0.265)) ** 2)
     assert sun.color == pytest.approx((1, 0.5, 0.25))
     np.testing.assert_allclose(-sun.matrix[:3, 2], (0, -1, 0), atol=1e-9)  # -Z of Z-up: down
     assert bulb.type == "spot" and bulb.intensity == pytest.approx(4 * math.pi * 0.25)
@@ -393,3 +395,95 @@ def test_render_through_the_usd_camera_and_dome(tmp_path, capsys):
     assert abs((cols.min() + cols.max()) / 2 - 31.5) < 2
     sky = img[~covered][:, :3].mean(0)
     assert sky[2] > 3 * sky[0]  # the dome's blue, not the default environment
+
+
+GREY_CARD = """#usda 1.0
+(
+    metersPerUnit = 1
+    upAxis = "Y"
+)
+def Xform "World"
+{
+    def Mesh "Card" ( prepend apiSchemas = ["MaterialBindingAPI"] )
+    {
+        int[] faceVertexCounts = [4]
+        int[] faceVertexIndices = [0, 1, 2, 3]
+        point3f[] points = [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)]
+        rel material:binding = </World/Grey>
+    }
+    def Material "Grey"
+    {
+        token outputs:surface.connect = </World/Grey/S.outputs:surface>
+        def Shader "S"
+        {
+            uniform token info:id = "UsdPreviewSurface"
+            color3f inputs:diffuseColor = (0.5, 0.5, 0.5)
+            float inputs:roughness = 1
+            float inputs:ior = 1
+            token outputs:surface
+        }
+    }
+    def DistantLight "Sun"
+    {
+LIGHT
+    }
+}
+"""
+
+
+@pytest.mark.parametrize("authored, illuminance", [
+    ("", 50000 * math.pi * math.sin(math.radians(0.53 / 2)) ** 2),  # the schema's fallback
+    ("float inputs:intensity = 1.5\nfloat inputs:exposure = 1\nbool inputs:normalize = 1", 3.0),
+    ("float inputs:intensity = 40\nfloat inputs:angle = 20",
+     40 * math.pi * math.sin(math.radians(10)) ** 2),
+])
+def test_grey_card_under_a_distant_light(tmp_path, authored, illuminance):
+    """A Lambertian card facing a DistantLight: what the light adds is albedo / pi x E."""
+    from cli.main import main
+    path = tmp_path / "card.usda"
+    path.write_text(GREY_CARD.replace("LIGHT", authored))
+
+    def shot(*extra):
+        out = tmp_path / "card.npy"
+        assert main(["render", str(path), "--out", str(out), "--size", "32", "--yaw", "0",
+                     "--pitch", "0", "--tonemap", "none", "--msaa", "0",
+                     "--cache", str(tmp_path / "cache"), *extra]) == 0
+        return np.load(out).astype(np.float64)[12:20, 12:20, :3]
+
+    added = shot() - shot("--no-lights")
+    np.testing.assert_allclose(added, 0.5 / math.pi * illuminance, rtol=0.02)
+
+
+def test_area_lights_in_metres(tmp_path):
+    """A RectLight's and a SphereLight's size is in stage units x metersPerUnit x scale."""
+    path = tmp_path / "cm.usda"
+    path.write_text("""#usda 1.0
+(
+    metersPerUnit = 0.01
+)
+def Cube "Box"
+{
+}
+def RectLight "Panel"
+{
+    float inputs:width = 200
+    float inputs:height = 50
+    float inputs:intensity = 3
+}
+def SphereLight "Bulb"
+{
+    float inputs:radius = 10
+    double3 xformOp:scale = (2, 2, 2)
+    uniform token[] xformOpOrder = ["xformOp:scale"]
+}
+def SphereLight "Normalized"
+{
+    float inputs:radius = 10
+    float inputs:intensity = 7
+    bool inputs:normalize = 1
+}
+""")
+    panel, bulb, normalized = load_scene(path).lights
+    assert panel.intensity == pytest.approx(3 * 2.0 * 0.5)
+    assert bulb.intensity == pytest.approx(math.pi * 0.2 ** 2)
+    assert normalized.intensity == pytest.approx(7)

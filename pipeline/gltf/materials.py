@@ -12,6 +12,7 @@ import math
 from typing import cast
 
 from core.errors import LimitExceeded, MalformedAsset, MissingFile
+from core.lobes import BY_NAME
 from core.scene import Material, Sampler, Texture, TextureRef
 from pipeline import deadline
 from pipeline.gltf.accessors import Document
@@ -20,12 +21,12 @@ from pipeline.images import DeferredTexture, probe_image
 
 log = logging.getLogger(__name__)
 
-# Extensions whose absence in a renderer would change the look but not the geometry.
-MATERIAL_EXTENSIONS = frozenset({
-    "KHR_materials_specular", "KHR_materials_clearcoat", "KHR_materials_sheen",
-    "KHR_materials_iridescence", "KHR_materials_anisotropy", "KHR_materials_diffuse_transmission",
-    "KHR_materials_dispersion",
-})
+# The rows of core/lobes.py that read_lobes reads (read_material reads ior, transmission,
+# volume, emissive_strength and unlit with the core model); their absence in a renderer would
+# change the look but not the geometry.
+LOBES = tuple(BY_NAME[name] for name in ("specular", "clearcoat", "sheen", "iridescence",
+                                         "anisotropy", "diffuse_transmission", "dispersion"))
+MATERIAL_EXTENSIONS = frozenset(lobe.extension for lobe in LOBES if lobe.extension)
 
 
 class Textures:
@@ -232,59 +233,47 @@ def _spec_gloss(d: Document, tex: Textures, out: Material, sg: dict, slot: str) 
 
 def read_lobes(d: Document, tex: Textures, ext: dict, out: Material, slot: str) -> None:
     """Fill `out` from the extension objects in `ext` (a material's `extensions`), through
-    the document's checked JSON access and `tex.ref` (UV set, KHR_texture_transform, limits)."""
+    the document's checked JSON access and `tex.ref` (UV set, KHR_texture_transform, limits).
+    Texture slots and their glTF keys come from the table."""
+    for lobe in LOBES:
+        if lobe.extension in ext:
+            e = d.obj(ext[lobe.extension], f"{slot} {lobe.extension}")
+            for t in lobe.slots:
+                setattr(out, f"{t.name}_texture", tex.ref(
+                    e.get(t.gltf), f"{slot} {t.gltf.removesuffix('Texture')}"))
     if "KHR_materials_specular" in ext:
         e = d.obj(ext["KHR_materials_specular"], f"{slot} KHR_materials_specular")
         out.specular = d.number(e, "specularFactor", 1.0, 0.0, 1.0)
-        out.specular_texture = tex.ref(e.get("specularTexture"), f"{slot} specular")
         out.specular_color = tuple(max(c, 0.0) for c in d.numbers(e, "specularColorFactor",
                                                                   (1.0, 1.0, 1.0)))
-        out.specular_color_texture = tex.ref(e.get("specularColorTexture"),
-                                                   f"{slot} specularColor")
     if "KHR_materials_clearcoat" in ext:
         e = d.obj(ext["KHR_materials_clearcoat"], f"{slot} KHR_materials_clearcoat")
         out.clearcoat = d.number(e, "clearcoatFactor", 0.0, 0.0, 1.0)
-        out.clearcoat_texture = tex.ref(e.get("clearcoatTexture"), f"{slot} clearcoat")
         out.clearcoat_roughness = d.number(e, "clearcoatRoughnessFactor", 0.0, 0.0, 1.0)
-        out.clearcoat_roughness_texture = tex.ref(e.get("clearcoatRoughnessTexture"),
-                                                        f"{slot} clearcoatRoughness")
         normal = d.obj(e.get("clearcoatNormalTexture"), f"{slot} clearcoatNormalTexture")
-        out.clearcoat_normal_texture = tex.ref(e.get("clearcoatNormalTexture"),
-                                                     f"{slot} clearcoatNormal")
         out.clearcoat_normal_scale = d.number(normal, "scale", 1.0)
     if "KHR_materials_sheen" in ext:
         e = d.obj(ext["KHR_materials_sheen"], f"{slot} KHR_materials_sheen")
         out.sheen_color = tuple(min(max(c, 0.0), 1.0) for c in d.numbers(
             e, "sheenColorFactor", (0.0, 0.0, 0.0)))
-        out.sheen_color_texture = tex.ref(e.get("sheenColorTexture"), f"{slot} sheenColor")
         out.sheen_roughness = d.number(e, "sheenRoughnessFactor", 0.0, 0.0, 1.0)
-        out.sheen_roughness_texture = tex.ref(e.get("sheenRoughnessTexture"),
-                                                    f"{slot} sheenRoughness")
     if "KHR_materials_iridescence" in ext:
         e = d.obj(ext["KHR_materials_iridescence"], f"{slot} KHR_materials_iridescence")
         out.iridescence = d.number(e, "iridescenceFactor", 0.0, 0.0, 1.0)
-        out.iridescence_texture = tex.ref(e.get("iridescenceTexture"), f"{slot} iridescence")
         out.iridescence_ior = d.number(e, "iridescenceIor", 1.3, 1.0, 10.0)
         out.iridescence_thickness_range = (
             d.number(e, "iridescenceThicknessMinimum", 100.0, 0.0, 1e5),
             d.number(e, "iridescenceThicknessMaximum", 400.0, 0.0, 1e5))
-        out.iridescence_thickness_texture = tex.ref(e.get("iridescenceThicknessTexture"),
-                                                          f"{slot} iridescenceThickness")
     if "KHR_materials_anisotropy" in ext:
         e = d.obj(ext["KHR_materials_anisotropy"], f"{slot} KHR_materials_anisotropy")
         out.anisotropy_strength = d.number(e, "anisotropyStrength", 0.0, 0.0, 1.0)
         out.anisotropy_rotation = d.number(e, "anisotropyRotation", 0.0)
-        out.anisotropy_texture = tex.ref(e.get("anisotropyTexture"), f"{slot} anisotropy")
     if "KHR_materials_diffuse_transmission" in ext:
         e = d.obj(ext["KHR_materials_diffuse_transmission"],
                     f"{slot} KHR_materials_diffuse_transmission")
         out.diffuse_transmission = d.number(e, "diffuseTransmissionFactor", 0.0, 0.0, 1.0)
-        out.diffuse_transmission_texture = tex.ref(e.get("diffuseTransmissionTexture"),
-                                                         f"{slot} diffuseTransmission")
         out.diffuse_transmission_color = tuple(min(max(c, 0.0), 1.0) for c in d.numbers(
             e, "diffuseTransmissionColorFactor", (1.0, 1.0, 1.0)))
-        out.diffuse_transmission_color_texture = tex.ref(
-            e.get("diffuseTransmissionColorTexture"), f"{slot} diffuseTransmissionColor")
     if "KHR_materials_dispersion" in ext:
         e = d.obj(ext["KHR_materials_dispersion"], f"{slot} KHR_materials_dispersion")
         out.dispersion = d.number(e, "dispersion", 0.0, 0.0, 100.0)

@@ -37,9 +37,11 @@ class LayerGraph:
         self.limits = limits
         self.layers: dict[str, Sdf.Layer] = {}   # identifier -> layer (held open)
         self.files: list[str] = []
+        self.absent: list[str] = []  # files looked for (inside the root) and not found
         self.warnings: list[str] = []
         self.packages: dict[str, zipfile.ZipFile] = {}
         self.unreadable: set[str] = set()  # dependencies with no USD file format (e.g. .mtlx)
+        self.missing: dict[str, str] = {}  # absent reference / payload -> why (pxr reports use)
 
     # -- opening ------------------------------------------------------------------------
     def open(self) -> Sdf.Layer:
@@ -56,9 +58,11 @@ class LayerGraph:
                 try:
                     target = self.resolve(layer, dep)
                 except MissingFile as exc:
-                    if not sublayer:  # a reference or payload: the geometry it holds is missing
-                        raise MissingFile(exc.path, f"{exc.reason} (a reference or payload; "
-                                                    "the prims it brings would be missing)") from None
+                    if not sublayer:  # a reference or payload: pxr composes without it, and
+                        # says so (naming the file and the prim) only where it is used, not in
+                        # a variant left unselected
+                        self.missing[layer.ComputeAbsolutePath(dep)] = exc.reason
+                        continue
                     self.unreadable.add(layer.ComputeAbsolutePath(dep))
                     self.warnings.append(f"{self._name(layer)}: sublayer {dep!r} not found; "
                                          "the stage is composed without it")
@@ -76,9 +80,12 @@ class LayerGraph:
                     try:
                         pending.append(self._open_layer(target, self._name(layer)))
                     except MalformedAsset as exc:
-                        if not sublayer:
-                            raise
                         self.unreadable.add(target)
+                        if not sublayer:  # pxr will not open it either: composed without it
+                            self.warnings.append(f"{self._name(layer)}: {dep!r} is unreadable "
+                                                 f"({exc.reason}); the prims it brings are "
+                                                 "not drawn")
+                            continue
                         self.warnings.append(f"{self._name(layer)}: sublayer {dep!r} is "
                                              f"unreadable ({exc.reason}); the stage is composed "
                                              "without it")
@@ -133,7 +140,11 @@ class LayerGraph:
         if _outer(ident).lower().endswith(".usdz"):  # the package's root layer
             return self._resolve_in_package(layer, uri)
         here = Path(layer.realPath)
-        resolve_reference(here, uri, base_dir=here.parent, root=self.root)  # safe and present
+        try:
+            resolve_reference(here, uri, base_dir=here.parent, root=self.root)  # safe, present
+        except MissingFile:
+            self._absent(layer.ComputeAbsolutePath(uri))
+            raise
         # The identifier Ar itself will use (anchored, not symlink-resolved), so that composing
         # finds these very layers already open.
         return layer.ComputeAbsolutePath(uri)
@@ -151,7 +162,17 @@ class LayerGraph:
             if norm not in self._package(outer).NameToInfo:
                 raise MissingFile(referrer, f"referenced file {uri!r} not found in the package")
             return Ar.JoinPackageRelativePath([outer, norm])
-        return str(resolve_reference(Path(referrer), uri, root=self.root))
+        try:
+            return str(resolve_reference(Path(referrer), uri, root=self.root))
+        except MissingFile:
+            self._absent(str(Path(referrer).parent / relative_path_text(referrer, uri)))
+            raise
+
+    def _absent(self, path: str) -> None:
+        """A file looked for inside the root and not there: in the cache key too, so that
+        it appearing later (a restored texture) bakes again."""
+        if path not in self.absent:
+            self.absent.append(path)
 
     def _resolve_in_package(self, layer: Sdf.Layer, uri: str) -> str:
         name = self._name(layer)

@@ -195,10 +195,25 @@ class MaterialReader:
 
     def _mtlx_reference(self, target: Sdf.Path):
         """The material a binding to `target` names inside a referenced .mtlx document."""
-        found = materialx.find_reference(self.graph.stage, target, self.graph)
-        if found is None:
+        found = materialx.find_references(self.graph.stage, target, self.graph)
+        if not found:
             return None
-        identifier, name = found
+        shader = None
+        for identifier, name in found:
+            doc = self._document(identifier)
+            shader = materialx.document_surface(doc, name) if doc is not None else None
+            if shader is not None:
+                break
+        if shader is None:
+            names = ", ".join(sorted({i.rsplit("/", 1)[-1] for i, _ in found}))
+            self._warn(f"{target}: no surfacematerial {found[0][1]!r} with a surface shader in "
+                       f"{names}; drawn with the fallback material")
+            return default_material(str(target)), (), None
+        resolve = lambda text, doc=identifier: self._resolve_file(doc, text)  # noqa: E731
+        return self._materialx(str(target), materialx.MxNode(shader, resolve))
+
+    def _document(self, identifier: str):
+        """The parsed .mtlx at `identifier` (read once), or None with a warning."""
         if identifier not in self._documents:
             deadline.check()
             try:
@@ -208,15 +223,7 @@ class MaterialReader:
                 self._warn(f"{identifier}: {getattr(exc, 'reason', exc)}; its materials are "
                            "drawn with the fallback material")
                 self._documents[identifier] = None
-        doc = self._documents[identifier]
-        shader = materialx.document_surface(doc, name) if doc is not None else None
-        if shader is None:
-            if doc is not None:
-                self._warn(f"{identifier}: no surfacematerial {name!r} with a surface shader; "
-                           "drawn with the fallback material")
-            return default_material(str(target)), (), None
-        resolve = lambda text: self._resolve_file(identifier, text)  # noqa: E731
-        return self._materialx(str(target), materialx.MxNode(shader, resolve))
+        return self._documents[identifier]
 
     def _resolve_usd_file(self, attr: Usd.Attribute, text: str) -> "materialx.File":
         try:
@@ -424,6 +431,9 @@ class MaterialReader:
                     UsdShade.Output.IsOutput(source[0]) else None
             if prev and (prev.GetShaderId() or "").startswith("UsdPrimvarReader_"):
                 primvar = self._primvar_name(prev) or "st"
+        else:  # unconnected: every point reads st's value (fallback (0, 0)), as UsdShade says
+            value = _vec(self._input(node, "st"), 2, (0.0, 0.0))
+            primvar = constant_st(float(value[0]), float(value[1]))
         return _Tex(texture, output if output in CHANNELS else "rgb",
                     tuple(_vec(self._input(node, "scale"), 4, (1.0, 1.0, 1.0, 1.0))),
                     tuple(_vec(self._input(node, "bias"), 4, (0.0, 0.0, 0.0, 0.0))),
@@ -496,6 +506,11 @@ class MaterialReader:
 
 def _with(tex: _Tex, texture: int) -> _Tex:
     return dataclasses.replace(tex, texture=texture)
+
+
+def constant_st(s: float, t: float) -> str:
+    """The uv set name of a texture whose `st` is unconnected: one st for every point."""
+    return f"={s!r},{t!r}"
 
 
 def authoring_layer(attr: Usd.Attribute, time: Usd.TimeCode) -> Sdf.Layer:

@@ -4,7 +4,7 @@ Two ways a USD asset carries MaterialX, read by one evaluator:
 - a `.mtlx` document referenced from USD (`references = @look.mtlx@</MaterialX/Materials>`).
   usd-core's wheel has no MaterialX file-format plugin, so USD cannot compose it; the binding
   target (`/Asset/mtl/M_Gold`) is mapped back through the referencing prim to the document's
-  `surfacematerial` of that name (`find_reference`) and the document is read here;
+  `surfacematerial` of that name (`find_references`: in each referenced document, in order) and the document is read here;
 - UsdShade networks authored in USD with MaterialX node ids (`info:id = "ND_standard_surface_
   surfaceshader"`, on the material's `outputs:mtlx:surface`).
 
@@ -573,18 +573,21 @@ class SurfaceReader:
 
 # -- .mtlx documents referenced from USD ------------------------------------------------------
 
-def find_reference(stage, target, graph):
-    """(identifier of the .mtlx, material name) a binding to the missing prim `target` means,
-    or None: the nearest existing ancestor's reference or payload to a .mtlx file, with
-    `target` mapped into the usdMtlx namespace (/MaterialX/Materials/<name>)."""
+def find_references(stage, target, graph) -> list[tuple[str, str]]:
+    """[(identifier of a .mtlx, material name)] a binding to the missing prim `target` may
+    mean, strongest arc first: every reference or payload to a .mtlx file on the nearest
+    existing ancestor, with `target` mapped into the usdMtlx namespace
+    (/MaterialX/Materials/<name>). A stage often references several documents on one prim;
+    the material is the one of the first document that defines it."""
     path = target
     prim = stage.GetPrimAtPath(path)
     while not prim and path.pathElementCount > 1:
         path = path.GetParentPath()
         prim = stage.GetPrimAtPath(path)
     if not prim:
-        return None
+        return []
     tail = target.MakeRelativePath(path)
+    found = []
     for spec in prim.GetPrimStack():
         arcs = list(spec.referenceList.GetAddedOrExplicitItems()) + \
             list(spec.payloadList.GetAddedOrExplicitItems())
@@ -595,8 +598,8 @@ def find_reference(stage, target, graph):
             full = inside if tail == Sdf.Path(".") else inside.AppendPath(tail)
             parts = str(full).strip("/").split("/")
             if len(parts) == 3 and parts[:2] == ["MaterialX", "Materials"]:
-                return graph.resolve(spec.layer, arc.assetPath), parts[2]
-    return None
+                found.append((graph.resolve(spec.layer, arc.assetPath), parts[2]))
+    return found
 
 
 def read_document(data: bytes, where: str):

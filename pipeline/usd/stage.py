@@ -45,7 +45,7 @@ import numpy as np
 from pxr import Ar, Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade, UsdSkel
 
 from core.animation import Moment
-from core.errors import LimitExceeded, MalformedAsset, MissingFile, UnsafeReference
+from core.errors import LimitExceeded, MalformedAsset, MissingFile, NotInAsset, UnsafeReference
 from core.scene import Instance, Light, Mesh, Scene, SceneCamera
 from pipeline import deadline
 from pipeline.limits import Limits
@@ -59,28 +59,33 @@ log = logging.getLogger(__name__)
 
 Y_UP_FROM_Z_UP = np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]], np.float64)
 PRUNED_TYPES = (UsdShade.Material, UsdShade.NodeGraph, UsdShade.Shader)
+DRAWN_PURPOSES = (UsdGeom.Tokens.default_, UsdGeom.Tokens.render)
 
 
 def load(path: Path, limits: Limits, root: Path | None = None,
-         moment: Moment | None = None) -> Scene:
+         moment: Moment | None = None, variant_sets: tuple[str, ...] = ()) -> Scene:
     """Read a USD file (any of its four forms) into a Scene; AssetError on bad input.
-    Files it references must lie inside `root` (default: its folder; `paths.sandbox_root`)."""
+    Files it references must lie inside `root` (default: its folder; `paths.sandbox_root`).
+    `variant_sets`: "[PRIM:]SET=NAME" selections (no PRIM: the default prim's set), applied
+    in order, so a selection may name a set that an earlier one brought in."""
     path = Path(path)
     graph = LayerGraph(path, limits, root)
     try:
         root_layer = graph.open()
-        stage = graph.stage = _compose(root_layer, graph)
+        stage = graph.stage = _compose(root_layer, graph, variant_sets)
         scene = Scene(source=str(path), format=path.suffix.lower().lstrip("."))
+        scene.variant_sets = list_variant_sets(stage)
         scene.warnings.extend(graph.warnings)
         scene.time_range = time_range(stage)
         _StageReader(stage, graph, scene, limits, moment).read()
         scene.files = list(graph.files)
+        scene.absent = list(graph.absent)
         return scene
     finally:
         graph.close()
 
 
-def _compose(root_layer: Sdf.Layer, graph: LayerGraph) -> Usd.Stage:
+def _compose(root_layer: Sdf.Layer, graph: LayerGraph, variant_sets=()) -> Usd.Stage:
     try:
         stage = Usd.Stage.Open(root_layer, Usd.Stage.LoadAll)
     except Tf.ErrorException as exc:
@@ -88,6 +93,8 @@ def _compose(root_layer: Sdf.Layer, graph: LayerGraph) -> Usd.Stage:
                                          f"{str(exc).strip().splitlines()[-1]}") from None
     if stage is None:
         raise MalformedAsset(graph.path, "USD stage does not compose")
+    for text in variant_sets:
+        _select_variant(stage, graph.path, text)
     for layer in stage.GetUsedLayers():
         if not layer.anonymous and layer.identifier not in graph.layers:
             raise UnsafeReference(graph.path, f"composition read layer {layer.identifier!r}, "
@@ -97,6 +104,43 @@ def _compose(root_layer: Sdf.Layer, graph: LayerGraph) -> Usd.Stage:
         if text not in graph.warnings and not any(u in text for u in graph.unreadable):
             graph.warnings.append(text)
     return stage
+
+
+def _select_variant(stage: Usd.Stage, path: Path, text: str) -> None:
+    """Apply one "[PRIM:]SET=NAME" selection in the stage's session layer (every variant's
+    arcs were checked by LayerGraph; _compose then checks the layers used, as without one)."""
+    where, _, choice = text.rpartition("=")
+    prim_text, _, set_name = where.rpartition(":")
+    if not set_name or not choice:
+        raise NotInAsset(path, f"variant selection {text!r} is not [PRIM:]SET=NAME")
+    prim = stage.GetPrimAtPath(prim_text) if prim_text.startswith("/") else \
+        stage.GetDefaultPrim() if not prim_text else None
+    if not prim:
+        raise NotInAsset(path, f"variant selection {text!r}: no prim "
+                               f"{prim_text or '(the stage has no default prim)'}")
+    sets = prim.GetVariantSets()
+    if not sets.HasVariantSet(set_name):
+        raise NotInAsset(path, f"{prim.GetPath()} has no variant set {set_name!r}; it has "
+                               f"{', '.join(sets.GetNames()) or 'none'}")
+    names = sets.GetVariantSet(set_name).GetVariantNames()
+    if choice not in names:
+        raise NotInAsset(path, f"{prim.GetPath()} variant set {set_name!r} has no variant "
+                               f"{choice!r}; it has {', '.join(names)}")
+    with Usd.EditContext(stage, stage.GetSessionLayer()):
+        sets.GetVariantSet(set_name).SetVariantSelection(choice)
+
+
+def list_variant_sets(stage: Usd.Stage) -> list[dict]:
+    """Every composed prim's variant sets: [{prim, set, variants, selection}] (for inspect)."""
+    out = []
+    for prim in stage.Traverse():
+        sets = prim.GetVariantSets()
+        for name in sets.GetNames():
+            vset = sets.GetVariantSet(name)
+            out.append({"prim": str(prim.GetPath()), "set": name,
+                        "variants": list(vset.GetVariantNames()),
+                        "selection": vset.GetVariantSelection()})
+    return out
 
 
 def stage_matrix(stage: Usd.Stage) -> np.ndarray:
@@ -169,10 +213,11 @@ class _StageReader:
                 continue
             img = UsdGeom.Imageable(prim)
             # purpose inherits from the nearest ancestor with one authored (which wins over
-            # the prim's own): only a prim whose own is guide/proxy needs the computed one
+            # the prim's own): only a prim whose own is not default/render needs the computed
+            # one; usdview's default draws default + render (an unknown token is not drawn)
             if img.GetVisibilityAttr().Get(self.time) == UsdGeom.Tokens.invisible or \
-                    img.GetPurposeAttr().Get() in (UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy) \
-                    and img.ComputePurpose() in (UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy):
+                    img.GetPurposeAttr().Get() not in DRAWN_PURPOSES \
+                    and img.ComputePurpose() not in DRAWN_PURPOSES:
                 it.PruneChildren()
                 continue
             if prim.IsA(UsdSkel.Root):
@@ -201,34 +246,56 @@ class _StageReader:
     # -- UsdLux lights and UsdGeom cameras -----------------------------------------------------
     def _light(self, prim: Usd.Prim) -> None:
         """UsdLux -> KHR_lights_punctual (or the scene's environment for a dome light).
-        Intensity is USD's intensity x 2^exposure x colour (x blackbody when enabled); for
-        sphere, rect and disk lights x their area (radiance -> intensity; unless normalized),
-        which become point / spot (cone from ShapingAPI) and a 90 degree spot."""
+
+        Units, derived once: UsdLux's radiance is L = intensity x 2^exposure x colour (x the
+        blackbody colour when enabled), divided by the light's size when `normalize` is on.
+        Our directional light is an illuminance E (what a surface facing it receives) and our
+        point / spot light a radiant intensity I (E = I / d^2).
+        - DistantLight: a cap of half-angle t = angle/2 (0.53 degrees by default) seen with
+          radiance L gives E = L x pi sin^2(t) (t <= 90 degrees; the hemisphere's pi beyond);
+          normalized, L was divided by that same factor, so E = intensity. t = 0 is a delta
+          light whose size factor is 1 (UsdLux's "Normalizing Distant Lights").
+        - Sphere / rect / disk lights: a Lambertian emitter of area A (in m^2, world space: the
+          xform's scale and metersPerUnit included) facing the point gives I = L x A_projected
+          (pi r^2 for a sphere, w h for a rect, pi r^2 for a disk); normalized, I = intensity.
+        Sphere lights become point lights (spot with ShapingAPI's cone), rect and disk lights
+        a one-sided 90 degree spot."""
         api = UsdLux.LightAPI(prim)
         get = lambda a, d: _finite(a.Get(self.time), d)  # noqa: E731
         color = np.array(api.GetColorAttr().Get(self.time) or (1.0, 1.0, 1.0), np.float64)
         if api.GetEnableColorTemperatureAttr().Get(self.time):
             color = color * np.array(UsdLux.BlackbodyTemperatureAsRgb(
                 get(api.GetColorTemperatureAttr(), 6500.0)))
+        # the schema's fallback (1; 50,000 for a DistantLight) comes from Get()
         intensity = get(api.GetIntensityAttr(), 1.0) * 2.0 ** get(api.GetExposureAttr(), 0.0)
         normalize = bool(api.GetNormalizeAttr().Get(self.time))
-        world = self.to_scene @ np.array(self.xforms.GetLocalToWorldTransform(prim)).T
+        local = np.array(self.xforms.GetLocalToWorldTransform(prim)).T
+        world = self.to_scene @ local
+        axis_m = [float(np.linalg.norm(world[:3, i])) for i in range(3)]  # metres per light unit
         where = str(prim.GetPath())
         if prim.IsA(UsdLux.DomeLight):
             self._dome(prim, where)
             return
         if prim.IsA(UsdLux.DistantLight):
-            kind, area = "directional", 1.0
+            half = math.radians(min(max(get(UsdLux.DistantLight(prim).GetAngleAttr(), 0.53),
+                                        0.0), 360.0)) / 2
+            kind = "directional"
+            area = 1.0 if half <= 0 else math.pi * (math.sin(half) ** 2 if half <= math.pi / 2
+                                                   else 1.0)
         elif prim.IsA(UsdLux.SphereLight):
             light = UsdLux.SphereLight(prim)
-            r = get(light.GetRadiusAttr(), 0.5)
+            r = get(light.GetRadiusAttr(), 0.5) * float(np.mean(axis_m))
             kind = "point"
             area = 1.0 if light.GetTreatAsPointAttr().Get() else math.pi * r * r
         elif prim.IsA(UsdLux.RectLight):
             light = UsdLux.RectLight(prim)
-            kind, area = "rect", get(light.GetWidthAttr(), 1.0) * get(light.GetHeightAttr(), 1.0)
+            kind = "rect"
+            area = get(light.GetWidthAttr(), 1.0) * axis_m[0] * \
+                get(light.GetHeightAttr(), 1.0) * axis_m[1]
         elif prim.IsA(UsdLux.DiskLight):
-            kind, area = "rect", math.pi * get(UsdLux.DiskLight(prim).GetRadiusAttr(), 0.5) ** 2
+            kind = "rect"
+            area = math.pi * get(UsdLux.DiskLight(prim).GetRadiusAttr(), 0.5) ** 2 * \
+                axis_m[0] * axis_m[1]
         else:
             self._warn(f"{where}: {prim.GetTypeName()} lights are not drawn")
             return
@@ -365,9 +432,9 @@ class _StageReader:
         double_sided = bool(UsdGeom.Gprim(prim).GetDoubleSidedAttr().Get())
         has_color = bool(UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance("displayColor"))
         bindings = [self.materials.bind(mat, double_sided, has_color) for _, mat, _ in groups]
-        needed = sorted({n for b in bindings for n in b.uv_primvars}
-                        | {b.color_primvar for b in bindings if b.color_primvar})
-        if not any(b.uv_primvars for b in bindings):
+        uv_sets = {n for b in bindings for n in b.uv_primvars if not n.startswith("=")}
+        needed = sorted(uv_sets | {b.color_primvar for b in bindings if b.color_primvar})
+        if not uv_sets:
             needed.append("st")  # no texture reads it, but keep the conventional UVs
         topo_key = (str(source.GetPath() if points is None else prim.GetPath()), tuple(needed))
         if topo_key not in self._topology:
@@ -377,7 +444,7 @@ class _StageReader:
         topo = self._topology[topo_key]
         if topo is None:
             return
-        for name in {n for b in bindings for n in b.uv_primvars} - set(topo.attrs):
+        for name in uv_sets - set(topo.attrs):
             self._warn(f"{prim.GetPath()}: its material reads primvar {name!r}, which the "
                        "prim does not have (or is invalid); textures there have no UVs")
         for (label, _, faces), binding in zip(groups, bindings):
@@ -580,7 +647,8 @@ class _StageReader:
         used, local = np.unique(tri, return_inverse=True)
         whole = len(used) == len(topo.positions)
         pick = (lambda a: a) if whole else (lambda a: a[used])  # noqa: E731
-        uvs = [topo.attrs.get(n) for n in binding.uv_primvars] or [topo.attrs.get("st")]
+        uvs = [_constant_st(n, len(topo.positions)) if n.startswith("=") else topo.attrs.get(n)
+               for n in binding.uv_primvars] or [topo.attrs.get("st")]
         uvs = [None if u is None else pick(_gltf_uv(u)) for u in uvs] + [None]
         colors = None
         if binding.color_primvar and binding.color_primvar in topo.attrs:
@@ -650,6 +718,12 @@ def _unique_rows(columns: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         _, rep, inverse = np.unique(np.stack(columns, axis=1), axis=0, return_index=True,
                                     return_inverse=True)
     return inverse.reshape(-1), rep
+
+
+def _constant_st(name: str, n: int) -> np.ndarray:
+    """The st of materials.constant_st's name, for each of n vertices."""
+    s, t = (float(v) for v in name[1:].split(","))
+    return np.tile(np.array([[s, t]], np.float32), (n, 1))
 
 
 def _gltf_uv(st: np.ndarray) -> np.ndarray:

@@ -27,16 +27,18 @@ from __future__ import annotations
 import logging
 import math
 import threading
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Literal, cast
 
 import numpy as np
 from cachetools import LRUCache
 
 from core.baked import BakedAsset, BakedMesh
+from core.cubemap import default_face_size, default_levels
 from core.options import RenderOptions, apply_override
 from core.scene import Material
 from renderer.view.camera import Camera
+from renderer.view.framing import asset_camera
 
 log = logging.getLogger(__name__)
 
@@ -147,7 +149,7 @@ def topology(positions: np.ndarray, indices: np.ndarray) -> tuple[int | None, in
 
     A closed 2-manifold with C components and Euler characteristic V - E + F has genus
     (2C - chi) / 2 summed over components; with open or non-manifold edges genus is None."""
-    from scipy.sparse import coo_matrix
+    from scipy.sparse import coo_matrix  # scipy is heavy to import: only topology needs it
     from scipy.sparse.csgraph import connected_components
 
     _, weld = np.unique(np.round(np.asarray(positions, np.float64), 6), axis=0, return_inverse=True)
@@ -209,7 +211,7 @@ def shape(mesh: BakedMesh) -> MeshShape:
     faceted = float(area[flat].sum() / max(area.sum(), 1e-30))
     convexity = None
     if genus is not None:
-        from scipy.spatial import ConvexHull
+        from scipy.spatial import ConvexHull  # heavy, as in topology()
         volume = abs(float(np.einsum("ij,ij->i", p0, np.cross(p1, p2)).sum()) / 6)
         try:
             convexity = round(min(1.0, volume / ConvexHull(pos).volume), 3)
@@ -322,8 +324,6 @@ def estimate_request_ms(triangles: int, width: int, height: int, method: str, tr
 
 def plan_request(asset: BakedAsset, options: RenderOptions, available: list[str]) -> Plan:
     """Decide every mesh's method for `options` (method "auto") and whether to ray trace."""
-    from renderer.view.framing import asset_camera
-
     camera = None  # the camera the frame will have: only transmissive objects need it
     decisions, failing, coverage = [], [], 0.0
     for mesh in asset.meshes:
@@ -377,8 +377,6 @@ def plan_request(asset: BakedAsset, options: RenderOptions, available: list[str]
 
 def run_frame_method(plan: Plan, fn, asset: BakedAsset, env, options: RenderOptions):
     """Render the whole frame with the frame method `plan` chose; its decisions in the plan."""
-    from dataclasses import replace
-
     assert plan.frame_method is not None and plan.bounces is not None  # set together by plan_request
     frame = fn(asset, env, replace(options, method=plan.frame_method, bounces=plan.bounces))
     frame.plan["auto"] = plan.explain()
@@ -395,8 +393,6 @@ def environment_face_size(asset: BakedAsset, options: RenderOptions) -> tuple[in
     alpha = roughness^2 radians half-width needs about pi / alpha texels per face (two texels
     across it); the mip count then follows the face size (pipeline.environment.prefilter.default_levels:
     mip m holds roughness m / (levels - 1), so the chain always reaches roughness 1)."""
-    from core.cubemap import default_face_size, default_levels
-
     px = max(options.width, options.height)
     face = default_face_size(px)
     why = f"{face} px faces for a {px} px frame"

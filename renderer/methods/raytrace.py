@@ -65,8 +65,7 @@ grid; `aa_threshold` > 0 traces 2 x 2 first and the full grid only where those d
 Speed: the per-surface work of a bounce (normals, Fresnel, lobes, children) runs in one
 compiled loop (renderer.methods.trace_kernel, numba; `_shade_numpy` is its numpy twin, the reference
 it is tested against), as do the environment reads; Embree casts each bounce's rays from two
-threads. At 128 px, 8 bounces, 16 rays a pixel on the IOR 1.5 sphere (490k rays): 340 ms
-with numpy shading, 210 ms compiled, of which Embree ~100 ms, its scene build ~28 ms.
+threads.
 """
 from __future__ import annotations
 
@@ -84,10 +83,11 @@ from core.baked import BakedAsset, BakedEnvironment
 from core.cubemap import env_rotation_matrix, sample_cube
 from core.mips import texture_size_for
 from core.options import RenderOptions, apply_override, background_rgb
+from renderer.frame import Frame, FrameTimings, alpha_is_mask, tonemap_srgb8
 from renderer.methods import trace_lights, trace_material
 from renderer.methods.optics import fresnel_dielectric, reflect, refract, sample_rough_dielectric
 from renderer.methods.trace_material import Surface
-from renderer.raster.render import register_frame_method
+from renderer.raster.final import GRADIENT
 from renderer.view.camera import Camera
 from renderer.view.framing import asset_camera
 
@@ -105,7 +105,7 @@ KERNEL = True          # shade hits with the compiled trace_kernel (False: the n
 
 def _kernel():
     """renderer.methods.trace_kernel, or None with KERNEL off. Imported on first use: numba's import
-    and the cached machine code cost ~0.6 s, which a process that never ray traces skips."""
+    and loading the cached machine code are heavy, and a process that never ray traces skips them."""
     if not KERNEL:
         return None
     from renderer.methods import trace_kernel
@@ -136,7 +136,7 @@ class TraceScene:
 
 def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> TraceScene:
     """Transform every instance into world space and hand the triangles to Embree."""
-    from embreex import rtcore_scene as rtcs
+    from embreex import rtcore_scene as rtcs  # Embree loads only in a process that traces
     from embreex.mesh_construction import TriangleMesh
 
     tris, nrms, mats, tables, parts, materials = [], [], [], [], [], []
@@ -210,7 +210,8 @@ def _intersect_front(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray,
                      draw: np.ndarray | None = None):
     """_intersect, passing through the back faces of single-sided opaque materials and
     where alpha says so (MASK: below the cut-off; BLEND: where `draw`, a uniform per ray,
-    is at or above alpha; draw None: 0.5)."""
+    is at or above alpha; draw None: 0, so that any alpha above 0 is found, as the first
+    pass that finds the object's pixels needs)."""
     prim, u, v, t = _intersect(ts, origins, dirs)
     surf = ts.surface
     tested = surf is not None and surf.alpha_tested.any()
@@ -218,8 +219,9 @@ def _intersect_front(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray,
         return prim, u, v, t
     prim, u, v, t = prim.copy(), u.copy(), v.copy(), t.astype(np.float64)
     eps = EPSILON * ts.radius
+    fresh = np.ones(len(prim), bool)  # rays whose current hit is not yet accepted
     for layer in range(MAX_CULLED):
-        hit = np.flatnonzero(prim >= 0)
+        hit = np.flatnonzero((prim >= 0) & fresh)
         k = ts.material[prim[hit]]
         back = np.einsum("ij,ij->i", dirs[hit], ts.geo_normals[prim[hit]]) > 0
         through = ts.culled[k] & back
@@ -230,13 +232,15 @@ def _intersect_front(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray,
                 width = ts.spread * (np.linalg.norm(origins[ray] - ts.eye, axis=-1) + t[ray])
                 cos_d = np.abs(np.einsum("ij,ij->i", dirs[ray], ts.geo_normals[prim[ray]]))
                 # each layer behind another draws anew (golden-ratio shift of the same draw)
-                u_draw = (np.full(len(ray), 0.5) if draw is None
+                u_draw = (np.zeros(len(ray)) if draw is None
                           else (draw[ray] + 0.6180339887 * layer) % 1.0)
                 through[at] = trace_material.passes_through(
                     surf, k[at], prim[ray], u[ray], v[ray], width, cos_d, u_draw)
         sel = hit[through]
         if not len(sel):
             break
+        fresh[:] = False
+        fresh[sel] = True
         start = t[sel] + eps
         p2, u2, v2, t2 = _intersect(ts, origins[sel] + dirs[sel] * start[:, None], dirs[sel])
         prim[sel], u[sel], v[sel] = p2, u2, v2
@@ -796,13 +800,11 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
 def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
                     camera: Camera | None = None, supersample: int | None = None):
     """Render with the ray tracer: a renderer.frame.Frame (linear + tone-mapped sRGB)."""
-    from renderer.frame import Frame, FrameTimings, alpha_is_mask, tonemap_srgb8
 
     t0 = time.perf_counter()
     linear, stats = trace(asset, env, options, camera, supersample)
     background = background_rgb(options.background)
     if options.background == "gradient":  # as shaders/final.frag: sRGB top to bottom, per row
-        from renderer.raster.render import GRADIENT
         t = 1.0 - (np.arange(options.height) + 0.5) / options.height
         background = (t[:, None, None] * np.asarray(GRADIENT[0])
                       + (1 - t[:, None, None]) * np.asarray(GRADIENT[1])).astype(np.float32)
@@ -822,5 +824,3 @@ def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOpt
     return Frame(linear=linear, rgba8=rgba8, plan=plan, timings=timings,
                  alpha_is_mask=alpha_is_mask(options))
 
-
-register_frame_method("raytrace", render_raytrace)  # `--method raytrace` via renderer.raster.render

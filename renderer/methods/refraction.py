@@ -29,7 +29,8 @@ import moderngl
 import numpy as np
 
 from renderer.raster.lru import ReleasingLRU
-from renderer.raster.render import FIRST_FREE_UNIT, DrawItem, Pass, register_method
+from renderer.raster.materials import FIRST_FREE_UNIT
+from renderer.raster.passes import DrawItem, Pass
 
 log = logging.getLogger(__name__)
 
@@ -43,7 +44,7 @@ DEFAULT_TIR = "reflect"
 EXIT_REFINE_STEPS = 2
 DEBUG_VIEWS = {"backface_normals": 1, "tir": 2, "exit_distance": 3}
 MAX_TARGETS = 6  # (kind, size) entries: back, front and opaque layers for two sizes
-# Texture units above the material's (render.Pass.draw binds 0, 1 and one per material slot).
+# Texture units above the material's (renderer.raster.passes.Pass.draw binds 0, 1 and one per material slot).
 (_UNIT_BACK_POSITION, _UNIT_BACK_NORMAL, _UNIT_OPAQUE_COLOR, _UNIT_OPAQUE_DEPTH,
  _UNIT_FRONT_POSITION, _UNIT_FRONT_NORMAL) = range(FIRST_FREE_UNIT, FIRST_FREE_UNIT + 6)
 
@@ -211,6 +212,3 @@ def draw_wyman(p: Pass, items: list[DrawItem]) -> None:
     """Back-face pass, then two refractions with Wyman's exit estimate."""
     _draw(p, items, wyman=True)
 
-
-register_method("single", draw_single)
-register_method("wyman", draw_wyman)

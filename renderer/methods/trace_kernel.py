@@ -8,12 +8,13 @@ Beer-Lambert over the segment just travelled, emission, exact Fresnel (rough gla
 pixel's scrambled Sobol set), the metallic and rough-lobe albedos from the split-sum LUT,
 the diffuse share, and the reflected and refracted children that carry more than
 MIN_WEIGHT (with fresnel_split="sample" past the first surface, one of them). Same
-arithmetic as the numpy twin (tests/test_raytrace.py compares the two frames), about 10x
-less time: numpy spent ~1 us a ray on some 80 array passes and their temporaries.
+arithmetic as the numpy twin (tests/test_raytrace.py compares the two frames), without the
+numpy twin's some 80 array passes a bounce and their temporaries.
 """
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 from numba import njit
@@ -447,7 +448,7 @@ def sample_texture(texels, offsets, heights, widths, uv, lod, srgb, wrap_s, wrap
 def warm() -> None:
     """Compile (or load from numba's cache) every signature the tracer calls, on empty
     arrays: `python -m renderer.methods.trace_kernel`, run by `make install` and `make test` so that
-    no timed render or server deadline pays the first compile (~5 s)."""
+    no timed render or server deadline pays the first compile."""
     f64, f32, i64 = np.float64, np.float32, np.int64
     e3, e = np.zeros((0, 3)), np.zeros(0)
     for t_type in (f32, f64):  # Embree's distances, or float64 after culled back faces
@@ -462,7 +463,6 @@ def warm() -> None:
 
 
 if __name__ == "__main__":
-    import time
     t0 = time.perf_counter()
     warm()
     print(f"renderer.methods.trace_kernel compiled or loaded in {time.perf_counter() - t0:.1f} s")

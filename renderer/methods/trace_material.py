@@ -21,11 +21,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from core.baked import BakedAsset
+from core.lobes import BY_NAME
 from core.scene import LINEAR, LINEAR_MIPMAP_LINEAR, NEAREST, Material, TextureRef, is_srgb
 
 MIRRORED_REPEAT, CLAMP_TO_EDGE = 33648, 33071
 NEAREST_MIPMAP_NEAREST, LINEAR_MIPMAP_NEAREST, NEAREST_MIPMAP_LINEAR = 9984, 9985, 9986
-SLOTS = ("base_color", "metallic_roughness", "normal", "occlusion", "emissive", "transmission")
+# The texture slots the tracer samples: the core model's and transmission's (core/lobes.py).
+SLOTS = tuple(s.name for row in ("core", "transmission") for s in BY_NAME[row].slots)
 
 
 @dataclass

@@ -6,6 +6,8 @@ asset (any camera, size or options) uploads nothing. `stats` counts uploads for 
 """
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import logging
 import os
 from concurrent.futures import ThreadPoolExecutor
@@ -16,6 +18,7 @@ import moderngl
 import numpy as np
 
 from core.baked import BakedAsset, BakedEnvironment, BakedMesh, BakedTexture
+from core.config import renderer_settings
 from core.mips import level_shapes, texture_size_for
 from core.scene import CLAMP_TO_EDGE, MIRRORED_REPEAT, REPEAT, Light, is_srgb
 from gl import context
@@ -42,7 +45,6 @@ _budget: Budget | None = None
 def budget() -> Budget:
     global _budget
     if _budget is None:
-        from core.config import renderer_settings
         s = renderer_settings()
         _budget = Budget(int(s.gpu_bytes), s.gpu_environments)
     return _budget
@@ -350,8 +352,6 @@ def _gl():
     exported by EGL_KHR_get_all_proc_addresses, which Mesa and NVIDIA implement)."""
     global _GL
     if _GL is None:
-        import ctypes
-        import ctypes.util
         egl = ctypes.CDLL(ctypes.util.find_library("EGL") or "libEGL.so.1")
         egl.eglGetProcAddress.restype = ctypes.c_void_p
         egl.eglGetProcAddress.argtypes = [ctypes.c_char_p]

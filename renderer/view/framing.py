@@ -10,6 +10,7 @@ import math
 import numpy as np
 
 from core.baked import BakedAsset
+from core.errors import NotInAsset
 from core.hull import support_points
 from core.options import RenderOptions
 from renderer.raster import shadow
@@ -58,7 +59,6 @@ def _named_camera(asset: BakedAsset, spec: str):
         return cams[int(spec)]
     if spec in names:
         return cams[names.index(spec)]
-    from core.errors import NotInAsset
     raise NotInAsset(getattr(asset, "source", "asset"), f"no camera {spec!r}; it has "
                      f"{', '.join(f'{i} {n!r}' for i, n in enumerate(names)) or 'none'}")
 
@@ -98,7 +98,6 @@ GRAZING = 30.0  # degrees: a default view closer than this to a flat asset's pla
 def _not_edge_on(bounds: np.ndarray, options) -> tuple[float, float]:
     """The default yaw/pitch, turned so a flat asset (a floor plane, a card) is not seen
     edge-on: the view is raised to 45 degrees off its plane. Angles a request sets are kept."""
-    from core.options import RenderOptions
     yaw, pitch = options.yaw, options.pitch
     defaults = RenderOptions()
     if (yaw, pitch) != (defaults.yaw, defaults.pitch) or options.distance is not None:

@@ -1,5 +1,5 @@
 """Where on the screen a frame's surfaces and its ground shadow can reach, so that the final
-pass (renderer.raster.render) does each kind of work only there.
+pass (renderer.raster.final) does each kind of work only there.
 
 On a CPU rasteriser every branch of a shader costs on every pixel, so the final pass is drawn
 as several programs, each over the pixels that need it: the MSAA resolve and tone mapping

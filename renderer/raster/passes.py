@@ -1,0 +1,165 @@
+"""The geometry passes: what a method draws with (`Pass`, `DrawItem`), the per-frame
+defines and uniforms every material program shares, and the opaque and blend passes."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import moderngl
+import numpy as np
+
+from core.cubemap import env_rotation_matrix
+from core.options import RenderOptions
+from core.scene import Material
+from gl import context
+from renderer.raster import edges, gpu
+from renderer.raster.materials import MaterialState, mat3_bytes, material_state
+from renderer.view.camera import Camera
+
+MAX_LIGHTS = 8
+MATERIAL_DEBUG_VIEWS = {"base": 1, "clearcoat": 2, "sheen": 3, "specular": 4, "transmission": 5,
+                        "iridescence": 6}
+
+
+@dataclass
+class DrawItem:
+    """One baked mesh as drawn this frame: its GPU data and its material after overrides."""
+    mesh: gpu.GpuMesh
+    material: Material
+    method: str
+    why: str
+
+
+@dataclass
+class Pass:
+    """What a method needs to draw into the frame being rendered."""
+    ctx: moderngl.Context
+    fbo: moderngl.Framebuffer
+    camera: Camera
+    env: gpu.GpuEnvironment
+    asset: gpu.GpuAsset
+    options: RenderOptions
+    frame_defines: dict
+    frame_uniforms: dict[str, bytes]
+    opaque_drawn: bool = False  # the opaque pass has drawn into fbo (refraction reads it)
+    _bound: set = field(default_factory=set)
+
+    def program(self, item: DrawItem, fragment: str = "pbr.frag", vertex: str = "pbr.vert",
+                extra_defines: dict | None = None) -> tuple[moderngl.Program, MaterialState]:
+        """The program for `item`'s material with this frame's uniforms set."""
+        state = material_state(item.mesh, item.material, self.asset, self.options)
+        defines = {**self.frame_defines, **state.defines, **(extra_defines or {})}
+        prog = context.program(vertex, fragment, defines)
+        if prog.glo not in self._bound:
+            for name, data in self.frame_uniforms.items():
+                if name in prog:
+                    prog[name].write(data)  # type: ignore[union-attr]  # a uniform
+            for unit, name in ((0, "u_env"), (1, "u_brdf_lut")):
+                if name in prog:
+                    prog[name].value = unit  # type: ignore[union-attr]  # a uniform
+            self._bound.add(prog.glo)
+        return prog, state
+
+    def draw(self, item: DrawItem, prog: moderngl.Program, state: MaterialState,
+             cull: bool | None = None) -> None:
+        """Draw every instance of `item` with `prog` (material uniforms and textures bound)."""
+        for name, value in state.uniforms:
+            if name in prog:
+                prog[name].write(value)  # type: ignore[union-attr]  # a uniform
+        for unit, (name, tex) in enumerate(state.textures, start=2):
+            if name in prog:
+                prog[name].value = unit  # type: ignore[union-attr]  # a uniform
+                tex.use(unit)
+        self.env.cube.use(0)
+        self.env.lut.use(1)
+        cull = (not item.material.double_sided) if cull is None else cull
+        for mirrored, _, count in item.mesh.instances:
+            # A mirroring transform turns the winding clockwise (glTF 2.0, "Instantiation"):
+            # the front face follows it for culling and for gl_FrontFacing, which flips a
+            # double-sided material's normal.
+            self.ctx.front_face = "cw" if mirrored else "ccw"
+            if cull:
+                self.ctx.enable(moderngl.CULL_FACE)
+            else:
+                self.ctx.disable(moderngl.CULL_FACE)
+            item.mesh.vao(prog, mirrored).render(moderngl.TRIANGLES, instances=count)
+        self.ctx.front_face = "ccw"
+
+
+def env_rotated(options: RenderOptions) -> bool:
+    return options.env_rotation % 360.0 != 0.0
+
+
+def frame_defines(options: RenderOptions, lights) -> dict:
+    d = {"LIGHT_COUNT": len(lights)}
+    if options.multiscatter:
+        d["MULTISCATTER"] = 1
+    if options.material_debug:  # shaders/lobes.glsl: one lobe alone
+        d["MATERIAL_DEBUG"] = MATERIAL_DEBUG_VIEWS[options.material_debug]
+    if env_rotated(options):
+        d["ENV_ROTATED"] = 1
+    return d
+
+
+def frame_uniforms(camera: Camera, env: gpu.GpuEnvironment, lights,
+                   options: RenderOptions) -> dict[str, bytes]:
+    f4 = np.float32
+    view_proj = camera.projection_matrix() @ camera.view_matrix()
+    u = {
+        "u_view_proj": np.ascontiguousarray(view_proj.T, f4).tobytes(),
+        "u_camera_position": np.asarray(camera.position, f4).tobytes(),
+        "u_env_max_lod": f4(env.max_lod).tobytes(),
+        "u_sh": env.sh.tobytes(),
+    }
+    if env_rotated(options):
+        u["u_env_rotation"] = mat3_bytes(env_rotation_matrix(options.env_rotation))
+    if lights:
+        pos, direction, color, cone = [], [], [], []
+        for light in lights:
+            mtx = np.asarray(light.matrix, np.float64)
+            axis = -mtx[:3, 2]
+            axis = axis / max(float(np.linalg.norm(axis)), 1e-12)
+            kind = {"directional": 0.0, "point": 1.0, "spot": 2.0}[light.type]
+            pos.append([*mtx[:3, 3], kind])
+            direction.append([*axis, light.range if math.isfinite(light.range) else 0.0])
+            color.append(np.asarray(light.color) * light.intensity)
+            scale = 1.0 / max(1e-3, math.cos(light.inner_cone) - math.cos(light.outer_cone))
+            cone.append([scale, -math.cos(light.outer_cone) * scale])
+        u["u_light_position"] = np.asarray(pos, f4).tobytes()
+        u["u_light_direction"] = np.asarray(direction, f4).tobytes()
+        u["u_light_color"] = np.asarray(color, f4).tobytes()
+        u["u_light_cone"] = np.asarray(cone, f4).tobytes()
+    return u
+
+
+def draw_opaque(p: Pass, items: list[DrawItem]) -> None:
+    for it in items:
+        prog, state = p.program(it)
+        p.draw(it, prog, state)
+
+
+def draw_blend(p: Pass, items: list[DrawItem]) -> None:
+    """Meshes back to front by the distance of their first instance's centre (a mesh's own
+    instances are not sorted among themselves)."""
+    eye = p.camera.position
+    order = sorted(((float(np.linalg.norm(c - eye)), i, it) for i, it in enumerate(items)
+                    for c in it.mesh.centers[:1]), key=lambda t: -t[0])
+    p.ctx.enable(moderngl.BLEND)
+    p.ctx.blend_func = (moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA,  # type: ignore[assignment]  # stubs: 2 or 4
+                        moderngl.ONE, moderngl.ONE_MINUS_SRC_ALPHA)
+    p.fbo.depth_mask = False
+    for _, _, it in order:
+        prog, state = p.program(it)
+        p.draw(it, prog, state)
+    p.fbo.depth_mask = True
+    p.ctx.disable(moderngl.BLEND)
+
+
+def edge_segments(items: list[DrawItem], camera: Camera) -> np.ndarray:
+    """World endpoints of every drawn mesh's edges to smooth (renderer.raster.edges) from `camera`."""
+    parts = []
+    for it in items:
+        if it.mesh.edges is None:  # once per upload, from the baked edges where there are some
+            it.mesh.edges = edges.of_mesh(it.mesh.baked)
+        parts.append(edges.segments(it.mesh.edges, it.mesh.baked.transforms, camera.position))
+    return np.concatenate(parts) if parts else np.zeros((0, 2, 3))
