@@ -301,7 +301,7 @@ def test_time_and_animate_over_http(server, assets):
     stills = [server.client.get(url, params={"size": 48, **p}) for p in ({}, {"time": "0.6"})]
     assert all(s.status_code == 200 for s in stills)
     assert stills[0].content != stills[1].content and stills[0].headers["etag"] != stills[1].headers["etag"]
-    r = server.client.get(url, params={"size": 48, "animate": 4, "format": "jpg"})
+    r = server.client.get(url, params={"size": 48, "animate": 4, "format": "jpeg"})
     assert r.status_code == 422 and "webp, gif or png" in r.json()["detail"]
 
 
