@@ -8,7 +8,11 @@ and dividing by its weight is exact:
     f = m * Metal + (1 - m)(1 - tr) * Plastic + (1 - m) tr * Glass
 
 - Metal: GGX reflection (alpha = roughness^2, height-correlated Smith G2), Schlick F at F0 =
-  base colour; sampled from the visible normals (Heitz 2018).
+  base colour; sampled from the visible normals (Heitz 2018). With `multiscatter` (the
+  default) the lobe is scaled by the multiply-scattered share of Fdez-Aguera 2019 (as the
+  raster's shaders/ibl.glsl), E_ss the single-scattering albedo of this very lobe
+  (ggx_albedo): a white rough metal keeps its energy (single-scattering GGX at roughness 1
+  returns only 0.31 at normal incidence).
 - Plastic: glTF's fresnel_mix: (1 - F(v.h)) * base / pi + F(v.h) * D G2 / (4 n.v n.l) with
   Schlick F at F0 from the IOR; the GGX lobe is sampled with probability F(n.v) (at least
   0.1), the cosine-weighted diffuse otherwise; the component's pdf is the mixture of both.
@@ -54,9 +58,15 @@ import numpy as np
 
 from core.cubemap import direction_to_face
 from core.options import RenderOptions
-from renderer.methods import trace_material
-from renderer.methods.optics import (fresnel_dielectric, ggx_smith_g1, ggx_visible_normal,
-                                     orthonormal_basis, reflect, refract, sample_rough_dielectric)
+from renderer.methods.optics import (
+    fresnel_dielectric,
+    ggx_smith_g1,
+    ggx_visible_normal,
+    orthonormal_basis,
+    reflect,
+    refract,
+    sample_rough_dielectric,
+)
 
 FIREFLY = 16.0        # max-RGB clamp of indirect contributions (linear radiance)
 ROUGH_ALPHA = 0.1     # lobes at least this wide count as rough for the clamp
@@ -160,6 +170,8 @@ class _Lobes:
     p_plastic: np.ndarray  # (1 - m)(1 - tr)
     f0_d: np.ndarray     # dielectric F0 (N x 1)
     p_spec: np.ndarray   # within Plastic: probability of sampling the GGX lobe
+    ms_m: np.ndarray     # N x 3 multiple-scattering scale of the Metal lobe (1: off)
+    ms_d: np.ndarray     # N x 1 the same for Plastic's GGX lobe
 
     def eval(self, wi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(f * cos(n, wi), pdf of wi under Metal + Plastic sampling, both unconditioned on
@@ -177,13 +189,55 @@ class _Lobes:
         spec = d * g2 / (4 * n_v)                               # x cos(n, wi) already
         f_m = _schlick(self.base, v_h)
         f_d = _schlick(self.f0_d, v_h)
-        fcos = (self.p_metal[:, None] * f_m * spec[:, None]
+        fcos = (self.p_metal[:, None] * f_m * self.ms_m * spec[:, None]
                 + self.p_plastic[:, None] * ((1 - f_d) * self.base * (n_l / math.pi)[:, None]
-                                             + f_d * spec[:, None]))
+                                             + f_d * self.ms_d * spec[:, None]))
         pdf_ggx = ggx_smith_g1(n_v, self.alpha) * d / (4 * n_v)
         pdf = (self.p_metal * pdf_ggx
                + self.p_plastic * (self.p_spec * pdf_ggx + (1 - self.p_spec) * n_l / math.pi))
         return np.where(ok[:, None], fcos, 0.0), np.where(ok, pdf, 0.0)
+
+
+_E_TABLE: np.ndarray | None = None
+_E_N = 32
+
+
+def ggx_albedo(cos_v: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+    """Single-scattering albedo E_ss of this module's GGX lobe at F = 1 (height-correlated
+    G2), bilinear in a 32 x 32 table over (cos_v, alpha) computed once by stratified VNDF
+    quadrature (E = mean of G2 / G1): the same lobe the paths sample, so that the
+    multiple-scattering scale 1 / E_ss makes a white lobe exactly lossless at wo."""
+    global _E_TABLE
+    if _E_TABLE is None:
+        k = 32
+        g = (np.arange(k) + 0.5) / k
+        u1, u2 = (np.tile(a.reshape(-1), _E_N) for a in np.meshgrid(g, g, indexing="ij"))
+        a = np.repeat(np.linspace(ALPHA_MIN, 1.0, _E_N), k * k)
+        nn = np.tile([0.0, 0.0, 1.0], (len(a), 1))
+        table = np.zeros((_E_N, _E_N))
+        for i, mu in enumerate(np.linspace(0.02, 1.0, _E_N)):
+            wo = np.tile([math.sqrt(1 - mu * mu), 0.0, mu], (len(a), 1))
+            n_l = reflect(-wo, ggx_visible_normal(wo, nn, a, u1, u2))[:, 2]
+            g2 = 1.0 / (1.0 + _lambda(np.full(len(a), mu), a) + _lambda(np.maximum(n_l, 1e-7), a))
+            ratio = np.where(n_l > 0, g2 / ggx_smith_g1(mu, a), 0.0)
+            table[i] = ratio.reshape(_E_N, k * k).mean(axis=1)
+        _E_TABLE = table
+    x = np.clip((np.asarray(cos_v) - 0.02) / 0.98 * (_E_N - 1), 0, _E_N - 1)
+    y = np.clip((np.asarray(alpha) - ALPHA_MIN) / (1 - ALPHA_MIN) * (_E_N - 1), 0, _E_N - 1)
+    x0, y0 = np.minimum(x.astype(int), _E_N - 2), np.minimum(y.astype(int), _E_N - 2)
+    fx, fy = x - x0, y - y0
+    t = _E_TABLE
+    return ((t[x0, y0] * (1 - fx) + t[x0 + 1, y0] * fx) * (1 - fy)
+            + (t[x0, y0 + 1] * (1 - fx) + t[x0 + 1, y0 + 1] * fx) * fy)
+
+
+def _ms_scale(f0: np.ndarray, e_ss: np.ndarray) -> np.ndarray:
+    """The multiply-scattered share over the single-scattered one, as the raster's
+    Fdez-Aguera 2019 term: 1 + E_ms F_avg / (1 - E_ms F_avg), E_ms = 1 - E_ss; 1 / E_ss for
+    a white lobe."""
+    e_ms = 1.0 - e_ss
+    f_avg = f0 + (1.0 - f0) / 21.0
+    return 1.0 + e_ms * f_avg / (1.0 - e_ms * f_avg)
 
 
 def _cosine(n, u1, u2):
@@ -288,7 +342,12 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         p_metal = metal
         p_plastic = (1 - metal) * (1 - trans)
         p_spec = np.clip(_schlick(f0_d, n_v)[:, 0], 0.1, 0.9)
-        lobes = _Lobes(ns, ng, wo, hits.base, alpha, p_metal, p_plastic, f0_d, p_spec)
+        if options.multiscatter:  # energy lost between microfacets, put back (Turquin 2019)
+            e_ss = np.clip(ggx_albedo(n_v, alpha), 0.05, 1.0)[:, None]
+            ms_m, ms_d = _ms_scale(hits.base, e_ss), _ms_scale(f0_d, e_ss)
+        else:
+            ms_m, ms_d = np.ones((len(d), 3)), np.ones((len(d), 1))
+        lobes = _Lobes(ns, ng, wo, hits.base, alpha, p_metal, p_plastic, f0_d, p_spec, ms_m, ms_d)
         # hits from inside a transmissive object see only Glass (light reaches them refracted)
         surface_lit = entering | (trans <= 0)
         nee_clamp = n_rough > 0
@@ -496,6 +555,7 @@ def trace(ts, sky, options: RenderOptions, camera, first_near: np.ndarray,
                 stop = "budget"
                 break
     stats.update(passes=len(pass_ms), samples_mean=float(count.mean()) if npix else 0.0,
-                 stop=stop, pass_ms=pass_ms)
+                 stop=stop, pass_ms_max=max(pass_ms, default=0.0),
+                 path_ms=(time.perf_counter() - t0) * 1e3)
     safe = np.maximum(count, 1)
     return total / safe[:, None], cover / safe
