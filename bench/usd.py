@@ -67,8 +67,7 @@ def _over_grey(path: Path, size: int) -> np.ndarray:
     im = Image.open(path).convert("RGBA")
     if im.size != (size, size):
         im = im.resize((size, size), Image.Resampling.BILINEAR)
-    a = np.asarray(im, np.float32) / 255.0
-    return a[..., :3] * a[..., 3:] + GREY * (1.0 - a[..., 3:])
+    return over_grey(np.asarray(im))
 
 
 def ldr_flip(ours: np.ndarray, ref: np.ndarray) -> tuple[float, np.ndarray]:
@@ -103,8 +102,8 @@ def _ours_cold(wrapper, out: Path, cache: Path, size: int, root: Path, timeout: 
     return {"cold_s": wall, "phases": phases, "warnings": warnings[:5]}
 
 
-def _ours_warm(wrapper, cache: Path, size: int, root: Path) -> float:
-    """A second image in this process from the warm cache (the first one warms GL and shaders)."""
+def render_ours(wrapper, cache: Path, size: int, root: Path):
+    """Our Frame of the wrapper, in this process, as the cold command renders it."""
     from cli.render import _dome
     from core.options import from_request
     from pipeline.bake import bake_asset, bake_environment
@@ -114,18 +113,25 @@ def _ours_warm(wrapper, cache: Path, size: int, root: Path) -> float:
 
     options = from_request({"width": size, "height": size, "camera": CAMERA, "tonemap": "none",
                             "background": "transparent", "shadow": 0.0})
+    asset = bake_asset(str(wrapper.path), str(cache), root=str(root))
+    face, _ = environment_face_size(asset, options)
+    source = str(wrapper.black_env) if wrapper.black_env else (_dome(asset, str(wrapper.path))
+                                                               or DEFAULT_ENVIRONMENT)
+    env = bake_environment(source, str(cache), face_size=face)
+    return render(asset, env, options)
 
-    def once() -> None:
-        asset = bake_asset(str(wrapper.path), str(cache), root=str(root))
-        face, _ = environment_face_size(asset, options)
-        source = str(wrapper.black_env) if wrapper.black_env else (_dome(asset, str(wrapper.path))
-                                                                   or DEFAULT_ENVIRONMENT)
-        env = bake_environment(source, str(cache), face_size=face)
-        render(asset, env, options).encode("png")  # Storm's Record writes a PNG too
-    once()
+
+def _ours_warm(wrapper, cache: Path, size: int, root: Path) -> float:
+    """A second image in this process from the warm cache (the first one warms GL and shaders)."""
+    render_ours(wrapper, cache, size, root).encode("png")
     start = time.perf_counter()
-    once()
+    render_ours(wrapper, cache, size, root).encode("png")  # Storm's Record writes a PNG too
     return time.perf_counter() - start
+
+
+def over_grey(rgba8: np.ndarray) -> np.ndarray:
+    a = rgba8.astype(np.float32) / 255.0
+    return a[..., :3] * a[..., 3:] + GREY * (1.0 - a[..., 3:])
 
 
 def run(args: argparse.Namespace) -> int:
