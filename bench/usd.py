@@ -180,6 +180,9 @@ def run(args: argparse.Namespace) -> int:
                 storm = render_storm(python, wrapper.path, storm_png, args.size, timeout=args.timeout)
                 row.update({"storm_cold_s": None if math.isnan(storm.first_image_s) else storm.first_image_s,
                             "storm_warm_s": storm.warm_s, "storm_error": storm.error})
+            if storm_png.is_file():
+                from PIL import Image
+                row["storm_drew"] = bool(np.asarray(Image.open(storm_png).convert("RGBA"))[..., 3].max() > 0)
             if ours_png.is_file() and storm_png.is_file():
                 a, b = _over_grey(ours_png, args.size), _over_grey(storm_png, args.size)
                 row["flip"], emap = ldr_flip(a, b)
@@ -213,8 +216,12 @@ def _median(rows: list[dict], key: str) -> float | None:
 def summary(rows: list[dict]) -> str:
     both = [r for r in rows if r.get("flip") is not None]
     timed = [r for r in rows if r.get("ours_cold_s") is not None and r.get("storm_cold_s") is not None]
-    lines = [f"stages: {len(rows)}; both rendered: {len(both)}; ours failed: "
-             f"{sum(1 for r in rows if r.get('ours_error'))}; Storm failed: {sum(1 for r in rows if r.get('storm_error'))}"]
+    refused = [r for r in rows if r.get("ours_error") and r.get("storm_drew")]
+    empty = [r for r in rows if r.get("ours_error") and r.get("storm_drew") is False]
+    lines = [f"stages: {len(rows)}; both rendered: {len(both)}; nothing to draw for either (ours refuses, "
+             f"Storm's frame is empty): {len(empty)}; ours failed where Storm drew: {len(refused)} "
+             f"{[r['stage'] for r in refused]}; Storm failed: {sum(1 for r in rows if r.get('storm_error'))}; "
+             f"pxr cannot open: {sum(1 for r in rows if r.get('error'))}"]
     if both:
         lines.append(f"FLIP (LDR, Storm reference): median {statistics.median(r['flip'] for r in both):.3f}, "
                      f"mean {statistics.mean(r['flip'] for r in both):.3f}")
@@ -225,9 +232,9 @@ def summary(rows: list[dict]) -> str:
             lines.append(f"cold first image {label}: ours median {oc:.2f} s, Storm {sc:.2f} s, ratio {oc / sc:.2f}")
         if ow and sw:
             lines.append(f"warm image: ours median {ow:.3f} s, Storm {sw:.3f} s, ratio {ow / sw:.2f}")
-    ph = {k: _median(rows, f"phase_{k}") for k in PHASES}
+    ph = {k: _median(timed, f"phase_{k}") for k in PHASES}
     if any(v is not None for v in ph.values()):
-        lines.append("our cold time, median per phase (s): " +
+        lines.append("our cold time over those stages, median per phase (s): " +
                      ", ".join(f"{k} {v:.3f}" for k, v in ph.items() if v is not None))
     worst = sorted(both, key=lambda r: -r["flip"])[:10]
     lines.append("largest FLIP: " + "; ".join(f"{r['stage']} {r['flip']:.3f}" for r in worst))
@@ -262,7 +269,8 @@ def contact_sheet(rows: list[dict], size: int, per_row: int = 3):
             arr = img if img.dtype == np.uint8 else (np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8)
             sheet.paste(Image.fromarray(arr[..., :3]), (x + j * size, y + label_h))
         flip = r.get("flip")
-        err = (r.get("ours_error") or r.get("storm_error") or r.get("error") or "")[:60]
+        err = ("both empty" if r.get("storm_drew") is False and r.get("ours_error") else
+               (r.get("ours_error") or r.get("storm_error") or r.get("error") or ""))[:60]
         text = f"{r['stage'].split('/', 1)[-1][-52:]}  " + (f"FLIP {flip:.3f}" if flip is not None else err)
         draw.text((x + 2, y + 1), text, fill=(230, 230, 230))
     return sheet
