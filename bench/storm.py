@@ -123,6 +123,7 @@ def write_wrapper(stage_path: Path, name: str | None = None) -> Wrapper:
 class StormFrame:
     image: Path | None
     first_image_s: float  # from spawning the process to the first image on disk
+    first_image_cpu_s: float | None  # CPU seconds (all threads) of the process up to then
     warm_s: float | None  # a second image of the stage in the same process
     report: dict
     error: str = ""
@@ -151,7 +152,7 @@ def render_storm(python: str, stage: Path, out: Path, width: int = 256, warm: bo
             proc.wait(timeout)
         except subprocess.TimeoutExpired:
             proc.kill()
-            return StormFrame(None, math.nan, None, {}, f"timed out after {timeout:.0f} s")
+            return StormFrame(None, math.nan, None, None, {}, f"timed out after {timeout:.0f} s")
         stderr = proc.stderr.read() if proc.stderr else ""
         if warm_out.exists():
             warm_out.unlink()
@@ -162,9 +163,9 @@ def render_storm(python: str, stage: Path, out: Path, width: int = 256, warm: bo
             break
     if proc.returncode or not report:
         tail = [ln for ln in stderr.splitlines() if "HgiGLPostPendingGLErrors" not in ln][-3:]
-        return StormFrame(None, math.nan, None, report, f"exit {proc.returncode}: {' | '.join(tail)}")
+        return StormFrame(None, math.nan, None, None, report, f"exit {proc.returncode}: {' | '.join(tail)}")
     written = report.get("first", {}).get("written")
-    return StormFrame(out if written else None, first, report.get("warm_s"), report,
+    return StormFrame(out if written else None, first, report.get("first_image_cpu_s"), report.get("warm_s"), report,
                       "" if written else "no image written")
 
 

@@ -73,6 +73,7 @@ def main(job_path: str) -> int:
 
     result["first"] = frame(job["out"])
     result["first_image_s"] = time.perf_counter() - t0
+    result["first_image_cpu_s"] = time.process_time()  # all threads, since the process started
     print("FIRST", flush=True)  # the parent times the first image by this line's arrival
     if job.get("warm_out"):
         t = time.perf_counter()

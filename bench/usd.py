@@ -99,7 +99,7 @@ def _ours_cold(wrapper, out: Path, cache: Path, size: int, root: Path, timeout: 
             proc.stderr.strip().splitlines()[-1:]
         return {"error": f"exit {proc.returncode}: {' | '.join(msg)[:300]}", "phases": phases}
     warnings = [ln for ln in proc.stderr.splitlines() if "WARNING" in ln or "warning" in ln]
-    return {"cold_s": wall, "phases": phases, "warnings": warnings[:5]}
+    return {"cold_s": wall, "cold_cpu_s": phases.get("cpu_s"), "phases": phases, "warnings": warnings[:5]}
 
 
 def render_ours(wrapper, cache: Path, size: int, root: Path):
@@ -169,7 +169,7 @@ def run(args: argparse.Namespace) -> int:
             ours_png, storm_png = images / f"{slug}.ours.png", images / f"{slug}.storm.png"
             cache = work / "cache" / slug
             ours = _ours_cold(wrapper, ours_png, cache, args.size, root, args.timeout)
-            row.update({"ours_cold_s": ours.get("cold_s"), "ours_error": ours.get("error", ""),
+            row.update({"ours_cold_s": ours.get("cold_s"), "ours_cold_cpu_s": ours.get("cold_cpu_s"), "ours_error": ours.get("error", ""),
                         **{f"phase_{k}": ours.get("phases", {}).get(k) for k in PHASES}})
             if "cold_s" in ours:
                 try:
@@ -179,7 +179,7 @@ def run(args: argparse.Namespace) -> int:
             if python:
                 storm = render_storm(python, wrapper.path, storm_png, args.size, timeout=args.timeout)
                 row.update({"storm_cold_s": None if math.isnan(storm.first_image_s) else storm.first_image_s,
-                            "storm_warm_s": storm.warm_s, "storm_error": storm.error})
+                            "storm_cold_cpu_s": storm.first_image_cpu_s, "storm_warm_s": storm.warm_s, "storm_error": storm.error})
             if storm_png.is_file():
                 from PIL import Image
                 row["storm_drew"] = bool(np.asarray(Image.open(storm_png).convert("RGBA"))[..., 3].max() > 0)
@@ -230,6 +230,10 @@ def summary(rows: list[dict]) -> str:
         ow, sw = _median(sub, "ours_warm_s"), _median(sub, "storm_warm_s")
         if oc and sc:
             lines.append(f"cold first image {label}: ours median {oc:.2f} s, Storm {sc:.2f} s, ratio {oc / sc:.2f}")
+        ocpu, scpu = _median(sub, "ours_cold_cpu_s"), _median(sub, "storm_cold_cpu_s")
+        if ocpu and scpu:
+            lines.append(f"cold first image, CPU seconds (all threads): ours median {ocpu:.2f}, Storm {scpu:.2f}, "
+                         f"ratio {ocpu / scpu:.2f}")
         if ow and sw:
             lines.append(f"warm image: ours median {ow:.3f} s, Storm {sw:.3f} s, ratio {ow / sw:.2f}")
     ph = {k: _median(timed, f"phase_{k}") for k in PHASES}

@@ -89,6 +89,7 @@ def main(argv: list[str]) -> int:
               ("composition", "materialx", "bake", "environment", "first_frame")}}
     out["other"] = max(run_s - sum(phases.seconds.values()), 0.0)
     out["rc"] = rc
+    out["cpu_s"] = time.process_time()  # all threads, since the process started: less load-bound than wall time
     sys.stdout.flush()
     print(json.dumps(out))
     return rc
