@@ -8,6 +8,6 @@ from renderer.frame import Frame
 from renderer.raster.render import render
 
 # Bump on any change that alters pixels: the service keys cached thumbnails with it.
-RENDERER_VERSION = "3"  # 3: energy compensation by default, layering, mirrored transforms (issue 18)
+RENDERER_VERSION = "4"  # 3: energy compensation by default, layering, mirrored transforms (issue 18); 4: anisotropic texture filtering (issue 30)
 
 __all__ = ["render", "Frame", "RENDERER_VERSION"]
