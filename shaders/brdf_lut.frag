@@ -64,5 +64,9 @@ void main() {
         }
     }
     sheen *= 2.0 * PI / float(SHEEN_THETA * SHEEN_PHI);  // d(cos) d(phi) over 2 x [0, pi]
-    f_color = vec4(sum / float(SAMPLES), min(sheen, 1.0), 1.0);
+    // A lobe reflects at most what arrives: the quadrature overshoots 1 by up to 2e-4 where
+    // the lobe is near a mirror, and 1 - E_ss < 0 would make the multiscatter term negative.
+    vec2 e = sum / float(SAMPLES);
+    e /= max(e.x + e.y, 1.0);
+    f_color = vec4(e, min(sheen, 1.0), 1.0);
 }
