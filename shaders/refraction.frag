@@ -347,6 +347,8 @@ vec3 transmitted(vec3 v, vec3 n, float ior, float roughness, float d_interior, o
                 dir = r3;
                 origin = p_exit + r_in * D2;
                 path += D2;
+            } else {
+                path += D;  // the light still crossed the volume again before it left
             }
 #else
             dir = r1;  // the paper's fallback: the first refraction alone
