@@ -443,3 +443,12 @@ def test_hostile_rle_hdr_stops_at_the_ingest_time_bound(tmp_path):
     path.write_bytes(f"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y {h} +X {w}\n".encode() + row * h)
     with pytest.raises(IngestTimeout, match="runs.hdr.*time bound"):
         env.load_panorama(path, Limits(ingest_seconds=0.05))
+
+
+def test_brdf_lut_albedo_never_exceeds_one():
+    # 1 - E_ss feeds the multiscatter term: an albedo above 1 (the quadrature overshoots near
+    # the mirror limit) made a mirror sphere's pixels negative.
+    lut = env.brdf_lut()
+    e = lut[..., 0] + lut[..., 1]
+    assert e.max() <= 1.0 + 1e-6 and lut[..., :2].min() >= 0.0
+    assert e[:, -1].max() > 0.99  # not scaled down wholesale: a smooth lobe at normal view keeps ~1
