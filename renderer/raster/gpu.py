@@ -290,6 +290,11 @@ def _upload_texture(gl_tex: moderngl.Texture | None, tex: BakedTexture, chain: l
                         GL_UNSIGNED_BYTE, np.ascontiguousarray(img).ctypes.data)
     gl.glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAX_LEVEL, len(chain) - 1)
     gl_tex.filter = (tex.sampler.min_filter, tex.sampler.mag_filter)
+    if tex.sampler.min_filter in MIPMAP_FILTERS:
+        # Anisotropic filtering (GL_EXT_texture_filter_anisotropic; llvmpipe and every desktop
+        # driver have it): a surface seen at an angle samples along its footprint's long axis
+        # instead of taking the blurrier mip its long axis alone would pick.
+        gl_tex.anisotropy = min(MAX_ANISOTROPY, context.get_context().max_anisotropy)
     # glTF wrap enums are GL's (REPEAT, CLAMP_TO_EDGE, MIRRORED_REPEAT); moderngl's repeat_x
     # knows only the first two, so set both axes directly on the bound texture.
     for axis, mode in ((GL_TEXTURE_WRAP_S, tex.sampler.wrap_s), (GL_TEXTURE_WRAP_T, tex.sampler.wrap_t)):
@@ -336,6 +341,9 @@ GL_TEXTURE_CUBE_MAP_POSITIVE_X = 0x8515
 GL_TEXTURE_MAX_LEVEL = 0x813D
 GL_TEXTURE_WRAP_S, GL_TEXTURE_WRAP_T = 0x2802, 0x2803
 WRAP_MODES = (REPEAT, CLAMP_TO_EDGE, MIRRORED_REPEAT)
+MIPMAP_FILTERS = (moderngl.NEAREST_MIPMAP_NEAREST, moderngl.LINEAR_MIPMAP_NEAREST,
+                  moderngl.NEAREST_MIPMAP_LINEAR, moderngl.LINEAR_MIPMAP_LINEAR)
+MAX_ANISOTROPY = 16.0  # what reference viewers ask for (three.js, Filament: the driver's maximum)
 GL_RGB16F, GL_RGB, GL_FLOAT = 0x881B, 0x1907, 0x1406
 
 
