@@ -125,6 +125,15 @@ class RenderOptions:
         "ray (sample: converges to the rough dielectric, some noise) or keeps the mirror "
         "direction and reads the prefiltered environment for the lobe width (prefilter: no "
         "noise, biased)"))
+    integrator: Literal["tree", "path"] = Field(default="tree", description=(
+        "raytrace: tree: the deterministic Fresnel tree (exact two-interface glass, no noise); "
+        "path: unbiased path tracing of the whole metal-rough material with environment "
+        "importance sampling and MIS, in passes until `noise`, `samples` or `budget_ms`"))
+    samples: int = Field(default=64, ge=1, le=4096, description=(
+        "raytrace integrator path: most paths per pixel (one per pass)"))
+    noise: float = Field(default=0.02, ge=0, le=1, description=(
+        "raytrace integrator path: a pixel stops when the relative standard error of its "
+        "luminance is below this (0: run all samples or the budget)"))
     supersample: int | None = Field(default=None, ge=1, le=16, description=(
         "raytrace: rays per pixel side on and around the object (default: 4 below 256 px, "
         "3 below 384, else 2)"))
@@ -158,7 +167,8 @@ class RenderOptions:
         "its whole duration (at most 120 frames); with turntable the camera also turns once"))
     budget_ms: float | None = Field(default=None, gt=0, le=MAX_BUDGET_MS, description=(
         "time budget in milliseconds: lets method auto ray trace objects where raster "
-        "refraction fails, when the estimate fits"))
+        "refraction fails, when the estimate fits; raytrace integrator path stops its passes "
+        "before this is spent (granularity: one pass)"))
 
     @field_validator("background", mode="before")
     @classmethod
