@@ -53,8 +53,17 @@ log = logging.getLogger(__name__)
 # - moment: None = at rest; else {"time": seconds | "poster", "animation": name | None}
 #   (core.animation.Moment, as a dict for the key), the pose the asset is baked in.
 # - variant_sets: USD variant selections, "[PRIM:]SET=NAME" in order (pipeline.usd.stage.load).
+# - purposes: USD purposes drawn besides default (render, proxy, guide); other formats have
+#   none, so theirs is always the default (one bake whatever a request asks).
 ASSET_OPTIONS = {"interior_epsilon": None, "subdivision_levels": None, "thumbnail_size": 1024,
-                 "moment": None, "variant_sets": ()}
+                 "moment": None, "variant_sets": (), "purposes": ("render",)}
+USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
+
+
+def asset_options(options) -> dict:
+    """The bake options a core.options.RenderOptions asks for (which prims a USD stage
+    draws); the pose (`moment`) is the caller's, as an animation bakes none."""
+    return {"variant_sets": tuple(options.variant_set), "purposes": tuple(options.purposes)}
 PREFILTERS = ("ggx", "paper")
 _MESH_ARRAYS = ("positions", "normals", "indices", "tangents", "uv0", "uv1", "colors", "interior",
                 "edges", "edge_faces", "support")
@@ -85,6 +94,9 @@ def bake_or_load_asset(path, cache_dir=None, *, force: bool = False, limits: Lim
     if unknown:
         raise TypeError(f"unknown bake option(s): {', '.join(sorted(unknown))}")
     opts = {**ASSET_OPTIONS, **options}
+    opts["variant_sets"], opts["purposes"] = tuple(opts["variant_sets"]), tuple(opts["purposes"])
+    if Path(path).suffix.lower() not in USD_SUFFIXES:
+        opts["purposes"] = ASSET_OPTIONS["purposes"]
     if isinstance(opts["moment"], Moment):
         opts["moment"] = dataclasses.asdict(opts["moment"])
     cache = _cache(cache_dir)
@@ -102,7 +114,7 @@ def bake_or_load_asset(path, cache_dir=None, *, force: bool = False, limits: Lim
         start = time.perf_counter()
         scene = load_scene(path, limits, root,
                            moment=None if opts["moment"] is None else Moment(**opts["moment"]),
-                           variant_sets=tuple(opts["variant_sets"]))
+                           variant_sets=opts["variant_sets"], purposes=opts["purposes"])
         ingest_s = time.perf_counter() - start
         source = SourceFiles.hash(path, scene.files, scene.absent)
     except (FileNotFoundError, PermissionError, IsADirectoryError) as exc:  # changed under us

@@ -275,7 +275,9 @@ class ThumbnailService:
             assert rec.bake_key is not None  # ready
             try:
                 out: RenderReply = await self.pool.run(
-                    RenderJob(rec.bake_key, env_source, options, fmt), deadline=self.settings.render_seconds,
+                    RenderJob(rec.bake_key, env_source, options, fmt,
+                              str(self.store.asset_dir(asset_id) / "src")),
+                    deadline=self.settings.render_seconds,
                     cost_ms=cost, client=client)
                 break
             except NotInCache:

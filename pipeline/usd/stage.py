@@ -59,15 +59,17 @@ log = logging.getLogger(__name__)
 
 Y_UP_FROM_Z_UP = np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]], np.float64)
 PRUNED_TYPES = (UsdShade.Material, UsdShade.NodeGraph, UsdShade.Shader)
-DRAWN_PURPOSES = (UsdGeom.Tokens.default_, UsdGeom.Tokens.render)
+PURPOSES = (UsdGeom.Tokens.render, UsdGeom.Tokens.proxy, UsdGeom.Tokens.guide)
 
 
 def load(path: Path, limits: Limits, root: Path | None = None,
-         moment: Moment | None = None, variant_sets: tuple[str, ...] = ()) -> Scene:
+         moment: Moment | None = None, variant_sets: tuple[str, ...] = (),
+         purposes: tuple[str, ...] = ("render",)) -> Scene:
     """Read a USD file (any of its four forms) into a Scene; AssetError on bad input.
     Files it references must lie inside `root` (default: its folder; `paths.sandbox_root`).
     `variant_sets`: "[PRIM:]SET=NAME" selections (no PRIM: the default prim's set), applied
-    in order, so a selection may name a set that an earlier one brought in."""
+    in order, so a selection may name a set that an earlier one brought in. `purposes`: drawn
+    besides default (usdview's render / proxy / guide toggles; render by default)."""
     path = Path(path)
     graph = LayerGraph(path, limits, root)
     try:
@@ -77,7 +79,7 @@ def load(path: Path, limits: Limits, root: Path | None = None,
         scene.variant_sets = list_variant_sets(stage)
         scene.warnings.extend(graph.warnings)
         scene.time_range = time_range(stage)
-        _StageReader(stage, graph, scene, limits, moment).read()
+        _StageReader(stage, graph, scene, limits, moment, purposes).read()
         scene.files = list(graph.files)
         scene.absent = list(graph.absent)
         return scene
@@ -170,8 +172,9 @@ class _Topology:
 
 class _StageReader:
     def __init__(self, stage: Usd.Stage, graph: LayerGraph, scene: Scene, limits: Limits,
-                 moment: Moment | None = None):
+                 moment: Moment | None = None, purposes: tuple[str, ...] = ("render",)):
         self.stage, self.graph, self.scene, self.limits = stage, graph, scene, limits
+        self.drawn = (UsdGeom.Tokens.default_, *(p for p in PURPOSES if p in purposes))
         self.time = time_code(stage, moment)  # pipeline.usd.time
         if moment is not None:
             scene.moment = {"time_code": self.time.GetValue()}
@@ -201,6 +204,10 @@ class _StageReader:
         `root`'s parent) places a PointInstancer prototype K times; None = the stage itself."""
         predicate = Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)
         it = iter(Usd.PrimRange(root, predicate))
+        purposes: dict[Sdf.Path, str] = {}  # computed purpose by path
+        parent = root.GetParent()
+        if parent and parent.IsA(UsdGeom.Imageable):  # a prototype's walk: its instancer's
+            purposes[parent.GetPath()] = UsdGeom.Imageable(parent).ComputePurpose()
         for prim in it:
             self._nodes += 1
             if self._nodes > self.limits.max_nodes:
@@ -212,13 +219,20 @@ class _StageReader:
                     it.PruneChildren()
                 continue
             img = UsdGeom.Imageable(prim)
-            # purpose inherits from the nearest ancestor with one authored (which wins over
-            # the prim's own): only a prim whose own is not default/render needs the computed
-            # one; usdview's default draws default + render (an unknown token is not drawn)
-            if img.GetVisibilityAttr().Get(self.time) == UsdGeom.Tokens.invisible or \
-                    img.GetPurposeAttr().Get() not in DRAWN_PURPOSES \
-                    and img.ComputePurpose() not in DRAWN_PURPOSES:
+            if img.GetVisibilityAttr().Get(self.time) == UsdGeom.Tokens.invisible:
                 it.PruneChildren()
+                continue
+            # purpose as UsdGeom computes it: a prim's own authored value, else its parent's
+            # (parents come first in the traversal); a render prim under a proxy Xform is
+            # drawn with render purpose on, so a prim not drawn does not prune its children.
+            # usdview's default draws default + render (an unknown token never)
+            attr = img.GetPurposeAttr()
+            purpose = attr.Get() if attr.HasAuthoredValue() else \
+                purposes.get(prim.GetPath().GetParentPath(), UsdGeom.Tokens.default_)
+            purposes[prim.GetPath()] = purpose
+            if purpose not in self.drawn:
+                if prim.IsA(UsdGeom.PointInstancer):
+                    it.PruneChildren()  # its prototypes are not drawn in their own right
                 continue
             if prim.IsA(UsdSkel.Root):
                 self._skel_root(prim)

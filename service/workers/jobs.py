@@ -21,7 +21,7 @@ from core.errors import AssetError
 from core.options import MaterialOverride, RenderOptions
 from gl.context import get_context
 from pipeline.animate import poses_for
-from pipeline.bake import bake_asset, bake_environment, load_baked
+from pipeline.bake import ASSET_OPTIONS, USD_SUFFIXES, asset_options, bake_asset, bake_environment, load_baked
 from pipeline.cache import Cache
 from pipeline.environment.prefilter import list_bundled
 from pipeline.ingest import load_scene
@@ -125,6 +125,13 @@ class WorkerState:
         asset = self._cached(("asset", job.key), lambda: load_baked(job.key, self.cache))
         self.cache.touch("assets", job.key)  # in use: the bake cache's LRU must not see it as cold
         assert isinstance(asset, BakedAsset)
+        wanted = asset_options(options)
+        if any(wanted[k] != ASSET_OPTIONS[k] for k in wanted) and \
+                asset.manifest["source"].lower().endswith(USD_SUFFIXES):
+            # another population of the stage: its own bake (cached, keyed by the selection)
+            source = Path(asset.manifest["source"])
+            asset = self._cached(("asset", job.key, repr(sorted(wanted.items()))), lambda: bake_asset(
+                source, self.cache, limits=self.limits, root=job.root or source.parent, **wanted))
         env = self._env(job.env_source, environment_face_size(asset, options)[0])
         if options.animate or options.time is not None or options.animation is not None:
             # posed from the upload (pipeline.animate), its references inside its own folder

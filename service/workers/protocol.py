@@ -81,11 +81,14 @@ class BakeEnvironmentJob:
 
 @dataclass(frozen=True)
 class RenderJob:
-    """One thumbnail: the bake `key`, the environment's source, the options, the image format."""
+    """One thumbnail: the bake `key`, the environment's source, the options, the image format;
+    `root`: the upload's folder, where a bake the options ask for (a USD variant selection,
+    other purposes) reads from."""
     key: str
     env_source: str
     options: RenderOptions
     fmt: str
+    root: str | None = None
     name: ClassVar[str] = "render"
 
 

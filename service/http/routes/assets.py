@@ -8,6 +8,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response
 from pydantic import ValidationError
 
+from core.options import REPEATABLE
 from service.assets import BadParameter, NotFound
 from service.http.deps import client_of, get_service
 from service.http.models import MEDIA_TYPES, AssetInfo, AssetList, Deleted, ErrorDetail, ThumbnailParams, render_options
@@ -81,7 +82,10 @@ async def thumbnail(asset_id: str, request: Request, service: Service):
     This is the hot path: the query is validated here with the pydantic model directly,
     which costs a fraction of FastAPI's per-parameter query-model machinery."""
     try:
-        params: Any = ThumbnailParams.model_validate(dict(request.query_params))  # fields made by create_model
+        query: dict[str, Any] = dict(request.query_params)
+        for name in REPEATABLE & query.keys():  # variant_set=A&variant_set=B: every value, in order
+            query[name] = request.query_params.getlist(name)
+        params: Any = ThumbnailParams.model_validate(query)  # fields made by create_model
         options = render_options(params)
     except ValidationError as exc:
         raise RequestValidationError([dict(e, loc=("query", *e["loc"])) for e in
