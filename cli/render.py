@@ -48,6 +48,7 @@ def run(args: argparse.Namespace) -> int:
     from core.options import describe_error, from_arguments
     from pipeline.bake import asset_options, bake_asset, bake_environment
     from pipeline.environment.panorama import DEFAULT_ENVIRONMENT
+    from pipeline.lighting import environment_source
     from renderer.methods.auto import environment_face_size
     from renderer.raster.render import UnsupportedMethod, render, validate_options
 
@@ -68,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
     asset = bake_asset(args.path, args.cache, root=args.root,
                        moment=None if options.animate else requested(options), **asset_options(options))
     face, env_why = environment_face_size(asset, options)
-    env_source = args.env or _dome(asset, args.path) or DEFAULT_ENVIRONMENT
+    env_source = environment_source(asset, args.path, args.env, DEFAULT_ENVIRONMENT, options.lights)
     env = bake_environment(env_source, args.cache, face_size=face)
     from renderer.sequence import encode_animation, render_animation, render_turntable, render_views
     try:
@@ -110,14 +111,3 @@ def run(args: argparse.Namespace) -> int:
              frame.timings.total_ms)
     return 0
 
-
-def _dome(asset, path: str) -> str | None:
-    """The panorama the asset's dome light names (USD), when the request gives no --env."""
-    rel = (asset.manifest or {}).get("environment")
-    if not rel:
-        return None
-    found = os.path.join(os.path.dirname(os.path.abspath(path)), rel)
-    if os.path.isfile(found):
-        return found
-    log.warning("%s: dome light texture %s not found; default environment used", path, found)
-    return None

@@ -239,6 +239,10 @@ class Scene:
     instances: list[Instance] = field(default_factory=list)
     lights: list[Light] = field(default_factory=list)
     environment: str | None = None  # panorama file the asset lights itself with (USD dome light)
+    # USD: the stage has its own lights (UsdLux), so it is lit by them alone, as Storm lights
+    # it, not by the studio (pipeline.lighting); an untextured dome's uniform radiance (linear)
+    own_lighting: bool = False
+    dome_radiance: tuple[float, float, float] | None = None
     warnings: list[str] = field(default_factory=list)
     files: list[str] = field(default_factory=list)  # every file read (the asset and what it references)
     absent: list[str] = field(default_factory=list)  # files it looked for and did not find (cache key)

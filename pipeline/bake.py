@@ -35,6 +35,7 @@ from core.mips import level_shapes, texture_size_for
 from core.scene import Light, Material, Sampler, Scene, SceneCamera, TextureRef, extent, is_srgb
 from pipeline.cache import BAKE_FORMAT_VERSION, Cache, Entry, NotInCache, SourceFiles
 from pipeline.environment import prefilter as environment
+from pipeline.environment import uniform
 from pipeline.environment.panorama import load_panorama, resolve_panorama
 from pipeline.ingest import load_scene
 from pipeline.limits import Limits
@@ -220,6 +221,8 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> Bak
         "animations": scene.animations, "time_range": scene.time_range, "moment": scene.moment,
         "environment": None if scene.environment is None else
         os.path.relpath(scene.environment, Path(scene.source).resolve().parent),
+        "own_lighting": scene.own_lighting,  # pipeline.lighting
+        "dome_radiance": None if scene.dome_radiance is None else list(scene.dome_radiance),
     }
     cap = texture_size_for(opts["thumbnail_size"])
     spaces = _texture_spaces(scene)
@@ -428,6 +431,8 @@ def bake_or_load_environment(source, cache_dir=None, face_size: int = DEFAULT_FA
     opts = {"face_size": face_size, "prefilter": prefilter, "version": environment.PREFILTER_VERSION,
             "levels": environment.default_levels(face_size), "ggx_samples": environment.GGX_SAMPLES,
             "lut": [environment.LUT_SIZE, environment.LUT_SAMPLES]}
+    if uniform.parse(source) is not None:  # one module makes every uniform one: the value keys it
+        opts["uniform"] = list(uniform.parse(source))  # type: ignore[arg-type]
     source_files = SourceFiles.hash(resolve_panorama(source))
     key = source_files.key("environments", opts)
     if not force:

@@ -288,8 +288,9 @@ class _StageReader:
         axis_m = [float(np.linalg.norm(world[:3, i])) for i in range(3)]  # metres per light unit
         where = str(prim.GetPath())
         if prim.IsA(UsdLux.DomeLight):
-            self._dome(prim, where)
+            self._dome(prim, where, color * intensity)
             return
+        self.scene.own_lighting = True
         if prim.IsA(UsdLux.DistantLight):
             half = math.radians(min(max(get(UsdLux.DistantLight(prim).GetAngleAttr(), 0.53),
                                         0.0), 360.0)) / 2
@@ -330,24 +331,29 @@ class _StageReader:
             out.inner_cone = out.outer_cone * (1.0 - soft)
         self.scene.lights.append(out)
 
-    def _dome(self, prim: Usd.Prim, where: str) -> None:
+    def _dome(self, prim: Usd.Prim, where: str, radiance: np.ndarray) -> None:
+        """A textured dome's panorama is the environment; an untextured one's radiance
+        (colour x intensity x 2^exposure from every direction, UsdLux) a uniform one."""
         attr = UsdLux.DomeLight(prim).GetTextureFileAttr()
         asset = attr.Get(self.time)
         if not asset or not asset.path:
-            self._warn(f"{where}: dome light without a texture; the render's environment is used")
+            if self.scene.dome_radiance is None and self.scene.environment is None:
+                self.scene.dome_radiance = tuple(float(c) for c in np.clip(radiance, 0, None))  # type: ignore[assignment]
+                self.scene.own_lighting = True
             return
         try:
             identifier = self.graph.resolve(authoring_layer(attr, self.time), asset.path)
         except MissingFile as exc:
-            self._warn(f"{where}: {exc.reason}; the render's environment is used")
+            self._warn(f"{where}: {exc.reason}; this dome gives no light")
             return
         if Ar.IsPackageRelativePath(identifier):
-            self._warn(f"{where}: a dome texture inside a package is not read; the render's "
-                       "environment is used")
+            self._warn(f"{where}: a dome texture inside a package is not read; this dome "
+                       "gives no light")
             return
         if self.scene.environment is None:
             self.scene.environment = identifier
             self.graph.files.append(identifier)
+            self.scene.own_lighting = True
         else:
             self._warn(f"{where}: a second dome light; the first one's texture is used")
 

@@ -25,6 +25,7 @@ from pipeline.bake import ASSET_OPTIONS, USD_SUFFIXES, asset_options, bake_asset
 from pipeline.cache import Cache
 from pipeline.environment.prefilter import list_bundled
 from pipeline.ingest import load_scene
+from pipeline.lighting import environment_source
 from pipeline.limits import Limits
 from renderer.methods.auto import environment_face_size
 from renderer.raster import gpu
@@ -132,7 +133,9 @@ class WorkerState:
             source = Path(asset.manifest["source"])
             asset = self._cached(("asset", job.key, repr(sorted(wanted.items()))), lambda: bake_asset(
                 source, self.cache, limits=self.limits, root=job.root or source.parent, **wanted))
-        env = self._env(job.env_source, environment_face_size(asset, options)[0])
+        env_source = job.env_source if not job.env_default else environment_source(
+            asset, asset.manifest["source"], None, job.env_source, options.lights)
+        env = self._env(env_source, environment_face_size(asset, options)[0])
         if options.animate or options.time is not None or options.animation is not None:
             # posed from the upload (pipeline.animate), its references inside its own folder
             source = Path(asset.manifest["source"])

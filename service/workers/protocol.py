@@ -83,12 +83,14 @@ class BakeEnvironmentJob:
 class RenderJob:
     """One thumbnail: the bake `key`, the environment's source, the options, the image format;
     `root`: the upload's folder, where a bake the options ask for (a USD variant selection,
-    other purposes) reads from."""
+    other purposes) reads from; `env_default`: the request named no environment, so the
+    asset's own lighting may replace `env_source` (pipeline.lighting)."""
     key: str
     env_source: str
     options: RenderOptions
     fmt: str
     root: str | None = None
+    env_default: bool = False
     name: ClassVar[str] = "render"
 
 

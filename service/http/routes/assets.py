@@ -96,6 +96,8 @@ async def thumbnail(asset_id: str, request: Request, service: Service):
         raise NotFound(asset_id)
     options = service.admit(options)
     env_identity, env_source = service.assets.resolve_environment(params.env)
+    if params.env is None:  # the asset's own lighting may replace it (pipeline.lighting)
+        env_identity += " (default)"
     key = service.thumbnail_key(asset_id, options, env_identity)
     hit = service.cached(asset_id, key, params.format)
     outcome = "hit"
@@ -103,7 +105,8 @@ async def thumbnail(asset_id: str, request: Request, service: Service):
         outcome = "miss"
         service.check_may_render(service.store.assets[asset_id], options, client_of(request),
                                  request.scope.get("state", {}).get("anonymous", False))
-        hit = await service.render(asset_id, options, params.format, key, env_source, client_of(request))
+        hit = await service.render(asset_id, options, params.format, key, env_source, client_of(request),
+                                   env_default=params.env is None)
     data, etag, plan = hit
     headers = {"ETag": etag, "Cache-Control": f"public, max-age={service.settings.cache_max_age}",
                "X-Render-Plan": plan.to_json()}
