@@ -450,7 +450,14 @@ class _StageReader:
         source = prim.GetPrimInPrototype() if prim.IsInstanceProxy() else prim
         groups = self._groups(prim, mesh)
         double_sided = bool(UsdGeom.Gprim(prim).GetDoubleSidedAttr().Get())
-        has_color = bool(UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance("displayColor"))
+        # authored here or on an ancestor: the schema declares displayColor on every gprim
+        color_pv = UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance("displayColor")
+        has_color = bool(color_pv) and color_pv.HasAuthoredValue()
+        if has_color:  # displayOpacity under 1 anywhere: drawn blended, as Storm draws it
+            opacity_pv = UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance("displayOpacity")
+            values = opacity_pv.Get(self.time) if opacity_pv and opacity_pv.HasAuthoredValue() else None
+            if values is not None and len(values) and float(np.min(values)) < 1.0:
+                has_color = "translucent"
         bindings = [self.materials.bind(mat, double_sided, has_color) for _, mat, _ in groups]
         uv_sets = {n for b in bindings for n in b.uv_primvars if not n.startswith("=")}
         needed = sorted(uv_sets | {b.color_primvar for b in bindings if b.color_primvar})
