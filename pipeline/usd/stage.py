@@ -46,7 +46,7 @@ from pxr import Ar, Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade, UsdSkel
 
 from core.animation import Moment
 from core.errors import LimitExceeded, MalformedAsset, MissingFile, NotInAsset, UnsafeReference
-from core.scene import Instance, Light, Mesh, Scene, SceneCamera
+from core.scene import Creases, Instance, Light, Mesh, Scene, SceneCamera
 from pipeline import deadline
 from pipeline.limits import Limits
 from pipeline.normals import smooth_normals
@@ -168,6 +168,7 @@ class _Topology:
     normals: np.ndarray | None
     attrs: dict[str, np.ndarray] = field(default_factory=dict)
     subdivision: str | None = None  # catmullClark / loop: refined at bake (pipeline/usd/subdivision.py)
+    creases: Creases | None = None
 
 
 class _StageReader:
@@ -588,6 +589,8 @@ class _StageReader:
         scheme = str(attr.Get()) if attr.HasAuthoredValue() else "none"
         topo = _Topology(points[point_of_vertex], tri.astype(np.uint32), tri_face, None,
                          subdivision=scheme if scheme in ("catmullClark", "loop") else None)
+        if topo.subdivision:
+            topo.creases = self._creases(prim, mesh, points, fvi)
         if normals is not None:
             topo.normals = normals.values[elem(normals)][:, :3].astype(np.float32)
         for name, pv in primvars.items():
@@ -595,6 +598,43 @@ class _StageReader:
         self.triangles += n_tri
         self.vertices += len(topo.positions)
         return topo
+
+    def _creases(self, prim: Usd.Prim, mesh: UsdGeom.Mesh, points: np.ndarray,
+                 fvi: np.ndarray) -> Creases | None:
+        """creaseIndices (chains of creaseLengths points; creaseSharpnesses one per chain or
+        one per edge) and cornerIndices / cornerSharpnesses, as end positions."""
+        get = lambda a, kind: np.asarray(a.Get(self.time) or [], kind)  # noqa: E731
+        idx, lengths = get(mesh.GetCreaseIndicesAttr(), np.int64), get(mesh.GetCreaseLengthsAttr(), np.int64)
+        sharp = get(mesh.GetCreaseSharpnessesAttr(), np.float64)
+        c_idx, c_sharp = get(mesh.GetCornerIndicesAttr(), np.int64), get(mesh.GetCornerSharpnessesAttr(), np.float64)
+        if not len(idx) and not len(c_idx):
+            return None
+        where = f"{prim.GetPath()}"
+        edges, edge_s = np.zeros((0, 2), np.int64), np.zeros(0)
+        if len(idx):
+            n_edges = int(np.maximum(lengths - 1, 0).sum())
+            if lengths.min(initial=0) < 0 or int(lengths.sum()) != len(idx) or \
+                    len(sharp) not in (len(lengths), n_edges) or idx.min() < 0 or idx.max() >= len(points):
+                self._warn(f"{where}: creaseIndices / creaseLengths / creaseSharpnesses do not "
+                           "agree; creases ignored")
+            else:
+                start = np.cumsum(lengths) - lengths
+                chain = np.repeat(np.arange(len(lengths)), np.maximum(lengths - 1, 0))
+                step = np.arange(n_edges) - np.repeat(np.cumsum(np.maximum(lengths - 1, 0))
+                                                       - np.maximum(lengths - 1, 0),
+                                                       np.maximum(lengths - 1, 0))
+                first = start[chain] + step
+                edges = np.stack([idx[first], idx[first + 1]], axis=1)
+                edge_s = sharp[chain] if len(sharp) == len(lengths) and len(sharp) != n_edges \
+                    else sharp
+        if len(c_idx) and (len(c_sharp) != len(c_idx) or c_idx.min() < 0 or c_idx.max() >= len(points)):
+            self._warn(f"{where}: cornerIndices / cornerSharpnesses do not agree; corners ignored")
+            c_idx, c_sharp = np.zeros(0, np.int64), np.zeros(0)
+        keep, keep_c = edge_s > 0, c_sharp > 0
+        if not keep.any() and not keep_c.any():
+            return None
+        return Creases(points[edges[keep]].astype(np.float32), edge_s[keep].astype(np.float32),
+                       points[c_idx[keep_c]].astype(np.float32), c_sharp[keep_c].astype(np.float32))
 
     def _shape(self, prim: Usd.Prim, names: list[str]) -> _Topology | None:
         """An implicit shape, tessellated; only constant primvars (colours) apply to it."""
@@ -687,7 +727,8 @@ class _StageReader:
         return Mesh(name=name, positions=pick(topo.positions),
                     normals=None if topo.normals is None else pick(topo.normals),  # type: ignore[arg-type]  # None: pipeline.ingest computes them
                     indices=local.reshape(-1, 3).astype(np.uint32),
-                    uv0=uvs[0], uv1=uvs[1], colors=colors, subdivision=topo.subdivision)
+                    uv0=uvs[0], uv1=uvs[1], colors=colors, subdivision=topo.subdivision,
+                    creases=topo.creases)
 
     def _warn(self, text: str) -> None:
         if text not in self.scene.warnings:
