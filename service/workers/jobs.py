@@ -25,6 +25,7 @@ from pipeline.bake import ASSET_OPTIONS, USD_SUFFIXES, asset_options, bake_asset
 from pipeline.cache import Cache
 from pipeline.environment.prefilter import list_bundled
 from pipeline.ingest import load_scene
+from pipeline.library import drawless, usd_parts
 from pipeline.lighting import environment_source
 from pipeline.limits import Limits
 from renderer.methods.auto import environment_face_size
@@ -40,6 +41,7 @@ from service.workers.protocol import (
     Failed,
     InspectJob,
     Job,
+    PartsJob,
     PingJob,
     Refused,
     RenderJob,
@@ -75,6 +77,11 @@ class WorkerState:
             return self.inspect(job)
         if isinstance(job, BakeJob):
             return self.bake(job)
+        if isinstance(job, PartsJob):
+            root = Path(job.root)
+            layers = [root / f for f in job.files]
+            skip = set(usd_parts(layers)) | drawless(layers)  # parts, material libraries
+            return tuple(sorted(Path(p).relative_to(root).as_posix() for p in skip))
         if isinstance(job, BakeEnvironmentJob):
             env = self._env(job.source, DEFAULT_FACE_SIZE)
             return EnvironmentResult(env.key, env.face_size)

@@ -66,6 +66,16 @@ class InspectJob:
 
 
 @dataclass(frozen=True)
+class PartsJob:
+    """Which of an upload's USD files (`files`, relative to `root`) are not entry points:
+    parts another one references, and layers that draw nothing (pipeline.library; read in a
+    worker, as every byte of an upload is)."""
+    root: str
+    files: tuple[str, ...]
+    name: ClassVar[str] = "parts"
+
+
+@dataclass(frozen=True)
 class BakeJob:
     path: str
     root: str | None = None
@@ -94,7 +104,7 @@ class RenderJob:
     name: ClassVar[str] = "render"
 
 
-Job = Union[PingJob, InspectJob, BakeJob, BakeEnvironmentJob, RenderJob]
+Job = Union[PingJob, InspectJob, PartsJob, BakeJob, BakeEnvironmentJob, RenderJob]
 
 
 # -- results ------------------------------------------------------------------------------------
