@@ -41,10 +41,13 @@ def frame_times(base: BakedAsset, fps: float, animation: str | None = None) -> t
 def posed(path, base: BakedAsset, moment: Moment, root=None, limits: Limits | None = None) -> BakedAsset:
     """`path` posed at `moment`, built in memory with `base`'s textures; its key is `base`'s
     and the moment's (GPU uploads are by key: each pose is its own)."""
-    scene = load_scene(Path(path), limits, root, moment=moment)
+    opts = (base.manifest or {}).get("options", {})  # the same variants and purposes as base
+    scene = load_scene(Path(path), limits, root, moment=moment,
+                       variant_sets=tuple(opts.get("variant_sets", ())),
+                       purposes=tuple(opts.get("purposes", ("render",))))
     scene.textures = []  # not decoded again: no pose changes them, base's are used
     key = f"{base.key}@{moment.animation or ''}:{float(moment.time):.6f}"
-    baked = build_baked(scene, key, {**(base.manifest or {}).get("options", {}),
+    baked = build_baked(scene, key, {**opts,
                                      "moment": dataclasses.asdict(moment)})
     baked.textures = base.textures
     return baked

@@ -57,11 +57,12 @@ def _reader(kind: str):
 
 
 def load_scene(path, limits: Limits | None = None, root=None, moment: Moment | None = None,
-               variant_sets: tuple[str, ...] = ()) -> Scene:
+               variant_sets: tuple[str, ...] = (), purposes: tuple[str, ...] = ("render",)) -> Scene:
     """Read any supported asset into a finished Scene; bad input raises an AssetError.
     Files it references must lie inside `root` (default: its folder; `paths.sandbox_root`).
     `moment`: the animation time to pose it at (glTF, USD; core.animation), None at rest.
-    `variant_sets`: USD variant selections, "[PRIM:]SET=NAME" (pipeline.usd.stage.load)."""
+    `variant_sets`: USD variant selections, "[PRIM:]SET=NAME" (pipeline.usd.stage.load);
+    `purposes`: the USD purposes drawn besides default (other formats have none)."""
     path = Path(path)
     limits = limits or Limits.from_env()
     try:
@@ -88,7 +89,9 @@ def load_scene(path, limits: Limits | None = None, root=None, moment: Moment | N
         try:
             if variant_sets and kind != "usd":
                 raise NotInAsset(path, "variant sets are USD's; this asset has none")
-            extra = {"variant_sets": tuple(variant_sets)} if variant_sets else {}
+            extra: dict = {"variant_sets": tuple(variant_sets)} if variant_sets else {}
+            if kind == "usd" and tuple(purposes) != ("render",):
+                extra["purposes"] = tuple(purposes)
             if moment is None:
                 scene = reader.load(path, limits, root, **extra)
             elif kind == "mesh":
