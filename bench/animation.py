@@ -16,7 +16,7 @@ import time
 
 from core.animation import Moment
 from core.options import RenderOptions
-from pipeline.animate import frame_times, posed
+from pipeline.animate import frame_times, frames, posed
 from pipeline.bake import bake_asset, bake_environment
 from renderer.raster.render import render
 from renderer.sequence import render_animation
@@ -28,6 +28,8 @@ def main(argv=None) -> None:
     p.add_argument("--fps", type=float, default=12)
     p.add_argument("--size", type=int, default=256)
     p.add_argument("--animation", default=None)
+    p.add_argument("--whole", action="store_true",
+                   help="A reads each frame whole (the path before the rig, and USD's)")
     args = p.parse_args(argv)
     with tempfile.TemporaryDirectory() as cache:
         base = bake_asset(args.asset, cache)
@@ -37,7 +39,8 @@ def main(argv=None) -> None:
         render(base, env, RenderOptions(width=args.size, height=args.size))  # warm-up
         times, motion = frame_times(base, args.fps, args.animation)
         t0 = time.perf_counter()
-        poses = [posed(args.asset, base, Moment(t, args.animation)) for t in times]
+        poses = (frames(args.asset, base, times, args.animation) if not args.whole else
+                 [posed(args.asset, base, Moment(t, args.animation)) for t in times])
         t1 = time.perf_counter()
         render_animation(poses, env, options, motion)
         t2 = time.perf_counter()
