@@ -27,7 +27,7 @@ import numpy as np
 
 from core.animation import Animation, select
 from core.baked import BakedAsset
-from core.hull import hull_points, support_points
+from core.hull import hull_points, hull_support_points
 from core.scene import Scene, transformed_bounds
 from pipeline.bake import build_baked, instance_groups
 from pipeline.gltf.nodes import NodeGraph, camera, light
@@ -169,7 +169,7 @@ class Rig:
                 interior = None if tm.interior is None else _interior(
                     positions, normals, tm.indices, self.epsilon)
                 mesh = dataclasses.replace(tm, positions=positions, normals=normals, tangents=tangents,
-                                           transforms=transforms, support=support_points(positions),
+                                           transforms=transforms, support=hull_support_points(positions),
                                            interior=interior)
             else:
                 mesh = dataclasses.replace(tm, transforms=transforms)
