@@ -44,7 +44,7 @@ def load(path: Path, limits: Limits, root: Path | None = None,
     """Read a .gltf or .glb file (checked against `limits`) into a Scene; its URIs must lie
     inside `root` (default: its folder; `paths.sandbox_root`). With a `moment`, nodes, skins
     and morph weights are posed by that animation at that time (pipeline.gltf.animation)."""
-    return _Assembly(open_document(path, limits, root)).scene(moment)
+    return Assembly(open_document(path, limits, root)).scene(moment)
 
 
 def open_document(path: Path, limits: Limits, root: Path | None = None) -> Document:
@@ -72,7 +72,7 @@ def extension_report(d: Document) -> dict[str, str]:
     return report
 
 
-class _Assembly:
+class Assembly:
     """One scene being built: each (mesh, primitive, skin, weights) and each material read
     once, however many nodes place them. `own_weights`: nodes whose morph weights get a
     mesh of their own even where another node's are equal (a rig animates them apart);

@@ -31,11 +31,11 @@ from core.hull import hull_points, hull_support_points
 from core.scene import Scene, transformed_bounds
 from pipeline.bake import build_baked, instance_groups
 from pipeline.gltf.nodes import NodeGraph, camera, light
-from pipeline.gltf.primitives import _attribute
-from pipeline.gltf.reader import _Assembly, open_document
+from pipeline.gltf.primitives import attribute
+from pipeline.gltf.reader import Assembly, open_document
 from pipeline.gltf.skin import morph
 from pipeline.gltf.skin import skin as skin_vertices
-from pipeline.ingest import _flat_normals, finish
+from pipeline.ingest import finish, flat_normals
 from pipeline.limits import Limits
 from pipeline.normals import compute_tangents
 
@@ -75,7 +75,7 @@ class Rig:
         self.animation: Animation = select(probe, animation, str(d.path))
         d.warnings.clear()  # the assembly reads them again, with its own warnings
         animated_weights = frozenset(c.node for c in self.animation.channels if c.path == "weights")
-        asm = _Assembly(d, own_weights=animated_weights)
+        asm = Assembly(d, own_weights=animated_weights)
         scene = asm.scene(None)
         deformers: dict[int, _Deformer] = {}  # by id(Mesh): ingest may drop and reorder meshes
         for mesh in scene.meshes:
@@ -87,7 +87,7 @@ class Rig:
                 if mesh.indices.shape[1] != 3:
                     raise RigUnsupported(f"mesh {mesh.name!r} is points or lines")
                 deformer.corners = mesh.indices.reshape(-1).copy()
-                _flat_normals(mesh)
+                flat_normals(mesh)
             deformers[id(mesh)] = deformer
         finish(scene, limits)
         self.nodes: NodeGraph = asm.nodes
@@ -127,19 +127,19 @@ class Rig:
             raise RigUnsupported(f"{what} is Draco-compressed (decoded per read)")
         positions = d.accessor(attrs["POSITION"], d.limits.max_vertices, f"{what} POSITION")
         n = len(positions)
-        normals = _attribute(d, what, attrs, "NORMAL", (3,), n)
-        tangents = _attribute(d, what, attrs, "TANGENT", (4,), n)
+        normals = attribute(d, what, attrs, "NORMAL", (3,), n)
+        tangents = attribute(d, what, attrs, "TANGENT", (4,), n)
         deltas: dict[str, list[np.ndarray | None]] = {k: [] for k in ("POSITION", "NORMAL", "TANGENT")}
         for t, target in enumerate(targets):
             target = d.obj(target, f"{what} target {t}")
             for k, arr in deltas.items():
-                arr.append(_attribute(d, what, target, k, (3,), n))
+                arr.append(attribute(d, what, target, k, (3,), n))
         node_def = d.item("nodes", node, "node")
         mesh_def = d.item("meshes", mesh_index, "mesh")
         rest = node_def.get("weights", mesh_def.get("weights", ()))
         rest = d.numbers({"w": rest}, "w", (0.0,) * len(rest)) if rest else ()
         joints = [d.accessor(j, d.limits.max_vertices, f"{what} JOINTS") for j, _ in sets] if skinned else []
-        weights = [cast(np.ndarray, _attribute(d, what, attrs, f"WEIGHTS_{k}", (4,), n))
+        weights = [cast(np.ndarray, attribute(d, what, attrs, f"WEIGHTS_{k}", (4,), n))
                    for k in range(len(sets))] if skinned else []
         return _Deformer(node, skin if skinned else None, positions.astype(np.float32), normals,
                          tangents, deltas, tuple(rest), joints, weights)
