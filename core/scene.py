@@ -213,6 +213,9 @@ class Instance:
     matrix: np.ndarray = field(default_factory=lambda: np.eye(4, dtype=np.float64))
     variants: dict[int, int] = field(default_factory=dict)  # variant index -> material (glTF)
     backdrop: bool = False  # a skybox/backdrop around the content: not framed (pipeline.framing)
+    # glTF: (node, skinned, matrix in the node's frame) to place it again at another pose
+    # (pipeline.gltf.rig): world = (identity if skinned else node's world) @ matrix
+    placement: tuple | None = None
 
 
 @dataclass

@@ -149,6 +149,15 @@ def _inputs_inside(manifest: dict, path: Path, root) -> bool:
     return True
 
 
+def instance_groups(scene: Scene) -> dict[tuple, list[int]]:
+    """(mesh, material, variant mapping) -> the instances drawn as one BakedMesh, in the
+    order build_baked makes them (a glTF variant mapping belongs to the primitive: kept with it)."""
+    groups: dict[tuple, list[int]] = {}
+    for k, inst in enumerate(scene.instances):
+        groups.setdefault((inst.mesh, inst.material, tuple(sorted(inst.variants.items()))), []).append(k)
+    return groups
+
+
 def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> BakedAsset:
     """Group a Scene's instances into BakedMeshes, compute interior vectors where needed and
     the welded edges that edge anti-aliasing reads (renderer.raster.edges) for assets it serves, and
@@ -158,10 +167,8 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> Bak
     refined = subdivision.refine_scene(scene, min(Limits.from_env().max_triangles,
                                                   subdivision.BUDGET), opts["subdivision_levels"])
     subdivide_s = time.perf_counter() - start
-    groups: dict[tuple, list[np.ndarray]] = {}
-    for inst in scene.instances:  # a glTF variant mapping belongs to the primitive: kept with it
-        group = (inst.mesh, inst.material, tuple(sorted(inst.variants.items())))
-        groups.setdefault(group, []).append(np.asarray(inst.matrix, np.float64))
+    groups = {g: [np.asarray(scene.instances[k].matrix, np.float64) for k in members]
+              for g, members in instance_groups(scene).items()}
     interiors: dict[int, np.ndarray] = {}
     stats = {"rays": 0, "misses": 0, "degenerate": 0, "build_s": 0.0, "trace_s": 0.0}
     meshes = []

@@ -132,7 +132,7 @@ def finish(scene: Scene, limits: Limits) -> Scene:
         deadline.check()
         dropped += _check(mesh, path)
         if mesh.normals is None or len(mesh.normals) != len(mesh.positions):
-            _flat_normals(mesh)
+            flat_normals(mesh)
         else:
             mesh.normals = _unit_normals(mesh)
         ref = needs_tangents.get(i)
@@ -213,7 +213,7 @@ def _nonzero_area(positions: np.ndarray, tri: np.ndarray) -> np.ndarray:
     return (by * cz != bz * cy) | (bz * cx != bx * cz) | (bx * cy != by * cx)
 
 
-def _flat_normals(mesh: Mesh) -> None:
+def flat_normals(mesh: Mesh) -> None:
     """Flat normals, as glTF asks for meshes without them: every triangle gets its own vertices."""
     corners = mesh.indices.reshape(-1)
     for name in ("positions", "uv0", "uv1", "colors", "tangents"):
