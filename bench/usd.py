@@ -54,11 +54,11 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 def entry_points(folder: Path) -> list[Path]:
     """USD files under `folder` that no other one uses (asset-bake's rule), .usdz included."""
-    from cli.bake import _usd_parts
+    from pipeline.library import usd_parts
 
     files = sorted(p for p in folder.rglob("*") if p.suffix.lower() in (".usd", ".usda", ".usdc", ".usdz")
                    and not p.name.endswith(".bench.usda"))
-    parts = _usd_parts(files)
+    parts = usd_parts(files)
     return [p for p in files if str(p) not in parts]
 
 
@@ -104,7 +104,7 @@ def _ours_cold(wrapper, out: Path, cache: Path, size: int, root: Path, timeout: 
 
 def render_ours(wrapper, cache: Path, size: int, root: Path):
     """Our Frame of the wrapper, in this process, as the cold command renders it."""
-    from cli.render import _dome
+    from pipeline.lighting import dome_texture
     from core.options import from_request
     from pipeline.bake import bake_asset, bake_environment
     from pipeline.environment.panorama import DEFAULT_ENVIRONMENT
@@ -115,7 +115,7 @@ def render_ours(wrapper, cache: Path, size: int, root: Path):
                             "background": "transparent", "shadow": 0.0})
     asset = bake_asset(str(wrapper.path), str(cache), root=str(root))
     face, _ = environment_face_size(asset, options)
-    source = str(wrapper.black_env) if wrapper.black_env else (_dome(asset, str(wrapper.path))
+    source = str(wrapper.black_env) if wrapper.black_env else (dome_texture(asset, str(wrapper.path))
                                                                or DEFAULT_ENVIRONMENT)
     env = bake_environment(source, str(cache), face_size=face)
     return render(asset, env, options)
