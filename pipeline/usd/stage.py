@@ -84,7 +84,7 @@ def load(path: Path, limits: Limits, root: Path | None = None,
         _StageReader(stage, graph, scene, limits, moment).read()
         scene.files = list(graph.files)
         scene.absent = list(graph.absent)
-        _take_diagnostics(diagnostics, scene.warnings)
+        _take_diagnostics(diagnostics, scene.warnings, (*graph.absent, *graph.unreadable))
         return scene
     finally:
         del diagnostics  # unregisters the delegate
@@ -94,12 +94,13 @@ def load(path: Path, limits: Limits, root: Path | None = None,
 _PXR_CONTEXT = re.compile(r"\s*\((?:instantiating stage|in file|on stage) [^()]*(?:\([^()]*\)[^()]*)*\)\s*$")
 
 
-def _take_diagnostics(delegate, warnings: list[str]) -> None:
+def _take_diagnostics(delegate, warnings: list[str], reported: tuple[str, ...] = ()) -> None:
     """pxr's warnings and status messages as ours: each once, without the C++ source line or the
-    stage's address, and not again when a composition error already said it."""
+    stage's address, and not again when a composition error or the layer check (`reported`:
+    the files it found absent or unreadable) already said it."""
     for diag in delegate.TakeUncoalescedDiagnostics():
         text = _PXR_CONTEXT.sub("", " ".join(str(diag.commentary).split()))
-        if not text:
+        if not text or any(f in text for f in reported):
             continue
         said = [w.partition(": ")[2].rstrip(".") for w in warnings if w.startswith("composition: ")]
         if any(s and s in text for s in said) or any(text in w for w in warnings):

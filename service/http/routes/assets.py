@@ -8,6 +8,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response
 from pydantic import ValidationError
 
+from core.options import RenderOptions
 from service.assets import BadParameter, NotFound
 from service.http.deps import client_of, get_service
 from service.http.models import MEDIA_TYPES, AssetInfo, AssetList, Deleted, ErrorDetail, ThumbnailParams, render_options
@@ -80,14 +81,7 @@ async def thumbnail(asset_id: str, request: Request, service: Service):
 
     This is the hot path: the query is validated here with the pydantic model directly,
     which costs a fraction of FastAPI's per-parameter query-model machinery."""
-    try:
-        params: Any = ThumbnailParams.model_validate(dict(request.query_params))  # fields made by create_model
-        options = render_options(params)
-    except ValidationError as exc:
-        raise RequestValidationError([dict(e, loc=("query", *e["loc"])) for e in
-                                      exc.errors(include_url=False, include_context=False)]) from None
-    except ValueError as exc:  # parameters that are valid alone but not together (format, turntable)
-        raise BadParameter(str(exc)) from None
+    params, options = _thumbnail_options(request)
     if asset_id not in service.store.assets:
         raise NotFound(asset_id)
     options = service.admit(options)
@@ -109,6 +103,46 @@ async def thumbnail(asset_id: str, request: Request, service: Service):
         return Response(status_code=304, headers=headers)
     service.metrics.thumbnail(outcome)
     return Response(data, media_type=MEDIA_TYPES[params.format], headers=headers)
+
+
+@router.get("/{asset_id}/estimate", responses=ERRORS,
+            openapi_extra={"parameters": _query_parameters(ThumbnailParams)})
+async def estimate(asset_id: str, request: Request, service: Service) -> dict[str, Any]:
+    """What the thumbnail with these parameters would cost, by the model the service admits
+    renders with (renderer.methods.auto), and whether this caller would be refused it: the
+    page shows it next to `raytrace` before anyone waits for one. Starts no render."""
+    params, options = _thumbnail_options(request)
+    if asset_id not in service.store.assets:
+        raise NotFound(asset_id)
+    rec = service.store.assets[asset_id]
+    options = service.admit(options)
+    env_identity, _ = service.assets.resolve_environment(params.env)
+    cached = service.cached(asset_id, service.thumbnail_key(asset_id, options, env_identity),
+                            params.format) is not None
+    cost = service.estimate_ms(rec, options)
+    ceiling = service.settings.render_cost_ceiling_ms
+    refused = None
+    if not cached and cost > ceiling:
+        refused = f"over this server's ceiling of {ceiling:.0f} ms per render (max_render_cost_ms)"
+    elif not cached and request.scope.get("state", {}).get("anonymous", False):
+        public = service.public_ceiling_ms(rec)
+        if cost > public:
+            ceiling, refused = public, f"over the {public:.0f} ms a read without an API key may render"
+    return {"method": options.method, "width": options.width, "height": options.height,
+            "estimated_ms": round(cost, 1), "ceiling_ms": round(ceiling, 1), "cached": cached,
+            "refused": refused}
+
+
+def _thumbnail_options(request: Request) -> tuple[Any, RenderOptions]:
+    """The query's thumbnail parameters and their RenderOptions (422 as FastAPI words it)."""
+    try:
+        params: Any = ThumbnailParams.model_validate(dict(request.query_params))  # fields made by create_model
+        return params, render_options(params)
+    except ValidationError as exc:
+        raise RequestValidationError([dict(e, loc=("query", *e["loc"])) for e in
+                                      exc.errors(include_url=False, include_context=False)]) from None
+    except ValueError as exc:  # parameters that are valid alone but not together (format, turntable)
+        raise BadParameter(str(exc)) from None
 
 
 def _matches(header: str, etag: str) -> bool:
