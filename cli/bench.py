@@ -25,6 +25,8 @@ BENCHMARKS = {
     "accuracy": ("bench.accuracy", "speed-vs-accuracy chart: every scene x method vs Mitsuba, Pareto front, auto"),
     "stability": ("bench.stability", "stability suite: every hard case x method, finite, TIR, error, verdict"),
     "fidelity": ("bench.fidelity", "Khronos samples: ours and raytrace vs Blender Cycles (FLIP per model)"),
+    "upload_disk": ("bench.upload_disk", "bytes on disk one upload costs, folder by folder (upload, bake, thumbnails)"),
+    "worker_memory": ("bench.worker_memory", "a render worker's RSS after 1M-triangle and 8k-texture jobs, vs its bound"),
 }
 
 
