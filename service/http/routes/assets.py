@@ -11,7 +11,16 @@ from pydantic import ValidationError
 from core.options import RenderOptions
 from service.assets import BadParameter, NotFound
 from service.http.deps import client_of, get_service
-from service.http.models import MEDIA_TYPES, AssetInfo, AssetList, Deleted, ErrorDetail, ThumbnailParams, render_options
+from service.http.models import (
+    MEDIA_TYPES,
+    AssetInfo,
+    AssetList,
+    CostEstimate,
+    Deleted,
+    ErrorDetail,
+    ThumbnailParams,
+    render_options,
+)
 from service.records import AssetRecord
 from service.thumbnails import ThumbnailService
 
@@ -105,9 +114,9 @@ async def thumbnail(asset_id: str, request: Request, service: Service):
     return Response(data, media_type=MEDIA_TYPES[params.format], headers=headers)
 
 
-@router.get("/{asset_id}/estimate", responses=ERRORS,
+@router.get("/{asset_id}/estimate", response_model=CostEstimate, responses=ERRORS,
             openapi_extra={"parameters": _query_parameters(ThumbnailParams)})
-async def estimate(asset_id: str, request: Request, service: Service) -> dict[str, Any]:
+async def estimate(asset_id: str, request: Request, service: Service) -> CostEstimate:
     """What the thumbnail with these parameters would cost, by the model the service admits
     renders with (renderer.methods.auto), and whether this caller would be refused it: the
     page shows it next to `raytrace` before anyone waits for one. Starts no render."""
@@ -128,9 +137,9 @@ async def estimate(asset_id: str, request: Request, service: Service) -> dict[st
         public = service.public_ceiling_ms(rec)
         if cost > public:
             ceiling, refused = public, f"over the {public:.0f} ms a read without an API key may render"
-    return {"method": options.method, "width": options.width, "height": options.height,
-            "estimated_ms": round(cost, 1), "ceiling_ms": round(ceiling, 1), "cached": cached,
-            "refused": refused}
+    return CostEstimate(method=options.method, width=options.width, height=options.height,
+                        estimated_ms=round(cost, 1), ceiling_ms=round(ceiling, 1), cached=cached,
+                        refused=refused)
 
 
 def _thumbnail_options(request: Request) -> tuple[Any, RenderOptions]:
