@@ -26,6 +26,8 @@ BENCHMARKS = {
     "stability": ("bench.stability", "stability suite: every hard case x method, finite, TIR, error, verdict"),
     "fidelity": ("bench.fidelity", "Khronos samples: ours and raytrace vs Blender Cycles (FLIP per model)"),
     "usd": ("bench.usd", "USD stages: ours vs Hydra Storm (usdview), FLIP, cold and warm first image"),
+    "upload_disk": ("bench.upload_disk", "bytes on disk one upload costs, folder by folder (upload, bake, thumbnails)"),
+    "worker_memory": ("bench.worker_memory", "a render worker's RSS after 1M-triangle and 8k-texture jobs, vs its bound"),
 }
 
 

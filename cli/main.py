@@ -38,13 +38,23 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def cli_message(exc) -> str:
+    """The error as a command line says it: a reference refused for leaving the root names the
+    flag that widens it (the service says the same of the upload in its own words)."""
+    from core.errors import UnsafeReference
+    text = str(exc)
+    if isinstance(exc, UnsafeReference) and ("outside the root" in text or "leaves the root" in text):
+        text += " (widen it with --root DIR)"
+    return text
+
+
 def run_guarded(run, args) -> int:
     """Run a command; an AssetError becomes `error: FILE: REASON` and exit status 3."""
     from core.errors import AssetError
     try:
         return int(run(args) or 0)
     except AssetError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"error: {cli_message(exc)}", file=sys.stderr)
         return 3
     except BrokenPipeError:
         # the reader went away (`... | head`): not an error; keep Python from complaining at exit

@@ -49,7 +49,7 @@ def resolve_reference(asset: Path, uri: str, base_dir: Path | None = None,
     lexical = Path(_normalise(base.resolve() / path_text))
     if not _inside(lexical, top_real):
         raise UnsafeReference(asset, f"refusing reference {uri!r}: it leaves the root "
-                                     f"{top_real} (widen it with --root DIR)")
+                                     f"{top_real}")
     real = candidate.resolve()
     if not _inside(real, top_real):
         raise UnsafeReference(asset, f"refusing reference {uri!r}: it resolves (through a "

@@ -371,8 +371,15 @@ def public_error(exc: AssetError, folder: Path, name: str) -> AssetError:
     return type(exc)(path, _strip(exc.reason, folder))
 
 
+_ROOT = re.compile(r"(leaves|outside) the root \S+")
+
+
 def _strip(text: str, folder: Path) -> str:
-    """Server paths out of a message: the client knows files by their names in its upload."""
+    """Server paths out of a message: the client knows files by their names in its upload, and
+    a reference refused for leaving the sandbox is one that leaves the upload."""
+    text = _ROOT.sub(lambda m: f"{m.group(1)} the upload (a reference must name a file sent in "
+                               "the same upload: send the asset and its files together as a .zip)",
+                     text)
     for prefix in (str(folder.resolve()) + "/", str(folder) + "/", str(folder.resolve()), str(folder)):
         text = text.replace(prefix, "")
     return public_message(text)

@@ -210,6 +210,11 @@ class ThumbnailService:
                                    transmissive, options.budget_ms, options.bounces,
                                    options.supersample)
 
+    def public_ceiling_ms(self, rec: AssetRecord) -> float:
+        """The estimated cost a read without a key may render: public_render_ms, else the
+        default thumbnail's."""
+        return self.settings.public_render_ms or self.estimate_ms(rec, self.admit(RenderOptions()))
+
     def check_cost(self, rec: AssetRecord, options: RenderOptions) -> float:
         cost = self.estimate_ms(rec, options)
         ceiling = self.settings.render_cost_ceiling_ms
@@ -224,7 +229,7 @@ class ThumbnailService:
         """Before a cache miss renders: a read without a key (--public-read) buys at most the
         default thumbnail's cost (or public_render_ms), and every client its rate of renders."""
         if anonymous:
-            ceiling = self.settings.public_render_ms or self.estimate_ms(rec, self.admit(RenderOptions()))
+            ceiling = self.public_ceiling_ms(rec)
             cost = self.estimate_ms(rec, options)
             if cost > ceiling:
                 self.metrics.rejected.labels("anonymous_cost").inc()

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from gltf_builder import CUBE_INDICES, CUBE_POSITIONS, Builder, png_bytes
+from gltf_builder import CUBE_INDICES, CUBE_POSITIONS, Builder, cube, png_bytes
 
 from cli.inspect import summary
 from core.colour import srgb_to_linear
@@ -417,8 +417,12 @@ def test_asset_cameras_are_listed_and_used(tmp_path, cache, env):
         alpha = frame.linear[..., 3]
         # the 2 m cube 10 m away under a 34 degree fov: about a third of the frame, centred
         assert alpha[32, 32] > 0.5 and alpha[2, 2] == 0 and 0.05 < (alpha > 0.5).mean() < 0.3
-    with pytest.raises(NotInAsset, match="side"):
+    # the real bound, not "it has 0 'side'" (which reads as a count)
+    with pytest.raises(NotInAsset, match=r"no camera '7': the asset has 1 camera \(index 0\.\.0 or name: 0 'side'\)"):
         render(baked, env, RenderOptions(width=32, height=32, camera="7"))
+    plain = bake_asset(cube(tmp_path / "plain.glb"), cache)
+    with pytest.raises(NotInAsset, match="the asset has no cameras"):
+        render(plain, env, RenderOptions(width=32, height=32, camera="999999"))
 
 
 def test_backdrop_is_not_framed(tmp_path, cache, env):

@@ -54,3 +54,63 @@ def test_rejected_asset_exits_3(tmp_path):
 def test_usage_errors_exit_2(args):
     proc = inspect(*args)
     assert proc.returncode == 2 and "usage:" in proc.stderr
+
+
+def test_reference_refused_names_the_flag(tmp_path):
+    # the CLI's refusal names the flag that widens the sandbox (the service speaks of the upload)
+    doc = json.loads(cube(tmp_path / "c.gltf", "gltf").read_text())
+    doc["buffers"][0]["uri"] = "../c.bin"
+    (tmp_path / "a").mkdir()
+    path = tmp_path / "a" / "escape.gltf"
+    path.write_text(json.dumps(doc))
+    proc = inspect(path)
+    assert proc.returncode == 3 and "leaves the root" in proc.stderr, proc.stderr
+    assert "--root DIR" in proc.stderr
+    assert inspect(path, "--root", tmp_path).returncode == 0
+
+
+PART = """#usda 1.0
+def Mesh "M" {
+    int[] faceVertexCounts = [3]
+    int[] faceVertexIndices = [0, 1, 2]
+    point3f[] points = [(0, 0, 0), (1, 0, 0), (0, 1, 0)]
+}
+"""
+BROKEN_REFS = """#usda 1.0
+(
+    defaultPrim = "W"
+)
+def Xform "W" {
+    def "A" (references = @./part.usda@</Nope>) {}
+    def "B" (references = @./part.usda@</M>) {}
+    def "C" (references = @./missing.usda@</M>) {}
+}
+"""
+
+
+def test_usd_warnings_once_and_pxr_diagnostics_captured(tmp_path):
+    (tmp_path / "part.usda").write_text(PART)
+    path = tmp_path / "main.usda"
+    path.write_text(BROKEN_REFS)
+    proc = inspect(path)
+    assert proc.returncode == 0, proc.stderr
+    # pxr's raw lines (`Warning: in _ReportErrors at line ... of stage.cpp`) do not leak to stderr,
+    # nor does our logger repeat what the output lists
+    assert "_ReportErrors" not in proc.stderr and "stage.cpp" not in proc.stderr, proc.stderr
+    assert "WARNING" not in proc.stderr and "metersPerUnit" not in proc.stderr, proc.stderr
+    lines = [line for line in proc.stdout.splitlines() if "warning:" in line]
+    assert len(lines) == len(set(lines)) == 3, proc.stdout  # </Nope>, missing.usda, metersPerUnit
+    assert sum("missing.usda" in line for line in lines) == 1 and sum("Nope" in line for line in lines) == 1
+
+
+def test_pxr_diagnostics_become_warnings():
+    from pxr import Tf, UsdUtils
+
+    from pipeline.usd.stage import _take_diagnostics
+    delegate = UsdUtils.CoalescingDiagnosticDelegate()
+    Tf.Warn("odd thing (instantiating stage on stage @x.usda@ <0x1234>)")
+    Tf.Warn("composition said this already")
+    warnings = ["composition: composition said this already"]
+    _take_diagnostics(delegate, warnings)
+    del delegate
+    assert warnings == ["composition: composition said this already", "USD: odd thing"]

@@ -27,8 +27,20 @@ NORMALIZE = {5120: 127.0, 5121: 255.0, 5122: 32767.0, 5123: 65535.0}
 GLB_MAGIC, CHUNK_JSON, CHUNK_BIN = b"glTF", 0x4E4F534A, 0x004E4942
 
 
-def split_glb(path: Path, data: bytes) -> tuple[memoryview, memoryview | None]:
-    """The JSON text and BIN chunk of a GLB container, every length checked."""
+def _chunk_header_at(data: bytes, pos: int, length: int) -> bool:
+    """Whether a plausible chunk header (a known kind whose bytes fit) starts at `pos`."""
+    if pos + 8 > length:
+        return False
+    size, kind = struct.unpack_from("<II", data, pos)
+    return kind in (CHUNK_JSON, CHUNK_BIN) and pos + 8 + size <= length
+
+
+def split_glb(path: Path, data: bytes,
+              warnings: list[str] | None = None) -> tuple[memoryview, memoryview | None]:
+    """The JSON text and BIN chunk of a GLB container, every length checked. A chunk length
+    that is not a multiple of 4 breaks the spec's alignment but not its bytes: as glTF-Validator
+    (GLB_CHUNK_LENGTH_UNALIGNED) it is a warning, and the next chunk is looked for both right
+    after the chunk and after the padding the writer may have added anyway."""
     if len(data) < 20:
         raise MalformedAsset(path, f"GLB file is truncated ({len(data)} bytes)")
     magic, version, length = struct.unpack_from("<4sII", data)
@@ -45,11 +57,36 @@ def split_glb(path: Path, data: bytes) -> tuple[memoryview, memoryview | None]:
         if pos + 8 + size > length:
             raise MalformedAsset(path, f"GLB chunk at byte {pos} runs past the end of the file")
         chunks.append((kind, memoryview(data)[pos + 8: pos + 8 + size]))
-        pos += 8 + size + (-size % 4 if pos + 8 + size + (-size % 4) <= length else 0)
+        end = pos + 8 + size
+        if size % 4:
+            if warnings is not None:
+                name = {CHUNK_JSON: "JSON", CHUNK_BIN: "BIN"}.get(kind, f"0x{kind:08x}")
+                warnings.append(f"GLB {name} chunk length {size} is not a multiple of 4 "
+                                f"(the spec requires padding); read as is")
+            padded = end + (-size % 4)
+            # the next header right after the bytes, else after the padding, else the end
+            if not _chunk_header_at(data, end, length) and padded <= length:
+                end = padded
+        pos = end
     if not chunks or chunks[0][0] != CHUNK_JSON:
         raise MalformedAsset(path, "GLB file does not start with a JSON chunk")
     binary = next((c for k, c in chunks[1:] if k == CHUNK_BIN), None)
     return chunks[0][1], binary
+
+
+def _kind_of(data: bytes) -> str:
+    """Binary or text, in words, from the first 4 KiB (for messages, not parsing)."""
+    head = bytes(data[:4096])
+    if not head:
+        return "the file is empty"
+    if b"\0" not in head:
+        try:
+            head.decode("utf-8")
+            return "the file is text"
+        except UnicodeDecodeError as exc:
+            if exc.start >= len(head) - 3 and len(data) > 4096:  # a character cut at 4 KiB
+                return "the file is text"
+    return "the file is binary data"
 
 
 def as_values(arr: np.ndarray, acc: dict) -> np.ndarray:
@@ -80,12 +117,18 @@ class Document:
         data = path.read_bytes()
         text: bytes | memoryview
         if data[:4] == GLB_MAGIC:
-            text, self.glb_bin = split_glb(path, data)
+            text, self.glb_bin = split_glb(path, data, self.warnings)
+        elif path.suffix.lower() == ".glb":
+            raise MalformedAsset(path, f"not a GLB file: it starts with {bytes(data[:4])!r}, "
+                                       f"not b'glTF' ({_kind_of(data)})")
         else:
             text, self.glb_bin = data, None
         try:
             self.doc = json.loads(bytes(text))
-        except (ValueError, UnicodeDecodeError, RecursionError) as exc:
+        except UnicodeDecodeError:
+            raise MalformedAsset(path, "glTF JSON is not UTF-8 text: "
+                                       f"{_kind_of(bytes(text))}") from None
+        except (ValueError, RecursionError) as exc:
             raise MalformedAsset(path, f"invalid glTF JSON: {exc}") from None
         if not isinstance(self.doc, dict):
             raise MalformedAsset(path, "glTF JSON is not an object")

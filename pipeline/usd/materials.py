@@ -531,7 +531,7 @@ class MaterialReader:
     def _warn(self, text: str) -> None:
         if text not in self.scene.warnings:
             self.scene.warnings.append(text)
-            log.warning("%s: %s", self.graph.path, text)
+            log.info("%s: %s", self.graph.path, text)  # said once, as the scene's warning
 
 
 def fallback_material(name: str) -> Material:

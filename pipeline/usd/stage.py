@@ -38,11 +38,12 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from pxr import Ar, Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade, UsdSkel
+from pxr import Ar, Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade, UsdSkel, UsdUtils
 
 from core.animation import Moment
 from core.errors import LimitExceeded, MalformedAsset, MissingFile, NotInAsset, UnsafeReference
@@ -72,6 +73,9 @@ def load(path: Path, limits: Limits, root: Path | None = None,
     besides default (usdview's render / proxy / guide toggles; render by default)."""
     path = Path(path)
     graph = LayerGraph(path, limits, root)
+    # pxr's own diagnostics (`Warning: in _ReportErrors at line ... of stage.cpp`) would go to
+    # stderr, once per process and out of order; caught here they become the scene's warnings
+    diagnostics = UsdUtils.CoalescingDiagnosticDelegate()
     try:
         root_layer = graph.open()
         stage = graph.stage = _compose(root_layer, graph, variant_sets)
@@ -82,9 +86,28 @@ def load(path: Path, limits: Limits, root: Path | None = None,
         _StageReader(stage, graph, scene, limits, moment, purposes).read()
         scene.files = list(graph.files)
         scene.absent = list(graph.absent)
+        _take_diagnostics(diagnostics, scene.warnings, (*graph.absent, *graph.unreadable))
         return scene
     finally:
+        del diagnostics  # unregisters the delegate
         graph.close()
+
+
+_PXR_CONTEXT = re.compile(r"\s*\((?:instantiating stage|in file|on stage) [^()]*(?:\([^()]*\)[^()]*)*\)\s*$")
+
+
+def _take_diagnostics(delegate, warnings: list[str], reported: tuple[str, ...] = ()) -> None:
+    """pxr's warnings and status messages as ours: each once, without the C++ source line or the
+    stage's address, and not again when a composition error or the layer check (`reported`:
+    the files it found absent or unreadable) already said it."""
+    for diag in delegate.TakeUncoalescedDiagnostics():
+        text = _PXR_CONTEXT.sub("", " ".join(str(diag.commentary).split()))
+        if not text or any(f in text for f in reported):
+            continue
+        said = [w.partition(": ")[2].rstrip(".") for w in warnings if w.startswith("composition: ")]
+        if any(s and s in text for s in said) or any(text in w for w in warnings):
+            continue
+        warnings.append(f"USD: {text}")
 
 
 def _compose(root_layer: Sdf.Layer, graph: LayerGraph, variant_sets=()) -> Usd.Stage:
@@ -733,7 +756,7 @@ class _StageReader:
     def _warn(self, text: str) -> None:
         if text not in self.scene.warnings:
             self.scene.warnings.append(text)
-            log.warning("%s: %s", self.graph.path, text)
+            log.info("%s: %s", self.graph.path, text)  # said once, as the scene's warning
 
 
 def _finite(value, default: float) -> float:

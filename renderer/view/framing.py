@@ -59,8 +59,13 @@ def _named_camera(asset: BakedAsset, spec: str):
         return cams[int(spec)]
     if spec in names:
         return cams[names.index(spec)]
-    raise NotInAsset(getattr(asset, "source", "asset"), f"no camera {spec!r}; it has "
-                     f"{', '.join(f'{i} {n!r}' for i, n in enumerate(names)) or 'none'}")
+    if not names:
+        raise NotInAsset(getattr(asset, "source", "asset"), f"no camera {spec!r}: the asset has "
+                         "no cameras (leave camera out to frame it)")
+    listed = ", ".join(f"{i} {n!r}" for i, n in enumerate(names))
+    raise NotInAsset(getattr(asset, "source", "asset"),
+                     f"no camera {spec!r}: the asset has {len(names)} camera"
+                     f"{'s' if len(names) > 1 else ''} (index 0..{len(names) - 1} or name: {listed})")
 
 
 _framing_points: dict[str, np.ndarray] = {}

@@ -34,6 +34,16 @@ class AssetList(BaseModel):
     assets: list[AssetInfo]
 
 
+class CostEstimate(BaseModel):
+    method: str = Field(description="the method asked for (auto, opaque, ..., raytrace)")
+    width: int
+    height: int
+    estimated_ms: float = Field(description="the admission model's estimate (renderer.methods.auto)")
+    ceiling_ms: float = Field(description="the most this caller may be rendered, by estimate")
+    cached: bool = Field(description="already rendered: served at once, whatever it cost")
+    refused: str | None = Field(None, description="why a thumbnail with these parameters would be refused")
+
+
 class Deleted(BaseModel):
     id: str
     deleted: bool = True

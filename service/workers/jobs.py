@@ -31,6 +31,7 @@ from pipeline.limits import Limits
 from renderer.methods.auto import environment_face_size
 from renderer.raster import gpu
 from renderer.sequence import encode_animation, render_animation, render_turntable, render_views
+from service.workers import memory
 from service.workers.protocol import (
     AssetSummary,
     BakeEnvironmentJob,
@@ -177,7 +178,9 @@ class WorkerState:
 
 
 def answer(state: WorkerState, job: Job) -> Reply:
-    """Run one job in a worker (process or Ray actor) and wrap its outcome for the wire."""
+    """Run one job in a worker (process or Ray actor) and wrap its outcome for the wire; what
+    the job freed goes back to the system before the answer does (service.workers.memory), so
+    the RSS the pool reads after it is what the worker keeps."""
     try:
         return Done(state.run(job))
     except AssetError as exc:
@@ -187,12 +190,15 @@ def answer(state: WorkerState, job: Job) -> Reply:
     except Exception as exc:  # reported to the caller as a 500 with this text
         log.exception("job %s failed", job.name)
         return Failed(f"{type(exc).__name__}: {exc}")
+    finally:
+        memory.release_free_memory()
 
 
 def worker_main(conn, config: WorkerConfig) -> None:
     """A worker process: jobs from `conn`, one at a time, each answered on it."""
     logging.basicConfig(level=config.log_level, format="%(levelname)s worker %(process)d %(name)s: %(message)s")
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the server stops us; Ctrl-C goes to it
+    memory.configure_allocator()  # before the first big array
     state = WorkerState(config)
     while True:
         try:

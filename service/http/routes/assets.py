@@ -8,10 +8,19 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response
 from pydantic import ValidationError
 
-from core.options import REPEATABLE
+from core.options import REPEATABLE, RenderOptions
 from service.assets import BadParameter, NotFound
 from service.http.deps import client_of, get_service
-from service.http.models import MEDIA_TYPES, AssetInfo, AssetList, Deleted, ErrorDetail, ThumbnailParams, render_options
+from service.http.models import (
+    MEDIA_TYPES,
+    AssetInfo,
+    AssetList,
+    CostEstimate,
+    Deleted,
+    ErrorDetail,
+    ThumbnailParams,
+    render_options,
+)
 from service.records import AssetRecord
 from service.thumbnails import ThumbnailService
 
@@ -81,17 +90,7 @@ async def thumbnail(asset_id: str, request: Request, service: Service):
 
     This is the hot path: the query is validated here with the pydantic model directly,
     which costs a fraction of FastAPI's per-parameter query-model machinery."""
-    try:
-        query: dict[str, Any] = dict(request.query_params)
-        for name in REPEATABLE & query.keys():  # variant_set=A&variant_set=B: every value, in order
-            query[name] = request.query_params.getlist(name)
-        params: Any = ThumbnailParams.model_validate(query)  # fields made by create_model
-        options = render_options(params)
-    except ValidationError as exc:
-        raise RequestValidationError([dict(e, loc=("query", *e["loc"])) for e in
-                                      exc.errors(include_url=False, include_context=False)]) from None
-    except ValueError as exc:  # parameters that are valid alone but not together (format, turntable)
-        raise BadParameter(str(exc)) from None
+    params, options = _thumbnail_options(request)
     if asset_id not in service.store.assets:
         raise NotFound(asset_id)
     options = service.admit(options)
@@ -116,6 +115,51 @@ async def thumbnail(asset_id: str, request: Request, service: Service):
         return Response(status_code=304, headers=headers)
     service.metrics.thumbnail(outcome)
     return Response(data, media_type=MEDIA_TYPES[params.format], headers=headers)
+
+
+@router.get("/{asset_id}/estimate", response_model=CostEstimate, responses=ERRORS,
+            openapi_extra={"parameters": _query_parameters(ThumbnailParams)})
+async def estimate(asset_id: str, request: Request, service: Service) -> CostEstimate:
+    """What the thumbnail with these parameters would cost, by the model the service admits
+    renders with (renderer.methods.auto), and whether this caller would be refused it: the
+    page shows it next to `raytrace` before anyone waits for one. Starts no render."""
+    params, options = _thumbnail_options(request)
+    if asset_id not in service.store.assets:
+        raise NotFound(asset_id)
+    rec = service.store.assets[asset_id]
+    options = service.admit(options)
+    env_identity, _ = service.assets.resolve_environment(params.env)
+    if params.env is None:  # as the thumbnail keys it
+        env_identity += " (default)"
+    cached = service.cached(asset_id, service.thumbnail_key(asset_id, options, env_identity),
+                            params.format) is not None
+    cost = service.estimate_ms(rec, options)
+    ceiling = service.settings.render_cost_ceiling_ms
+    refused = None
+    if not cached and cost > ceiling:
+        refused = f"over this server's ceiling of {ceiling:.0f} ms per render (max_render_cost_ms)"
+    elif not cached and request.scope.get("state", {}).get("anonymous", False):
+        public = service.public_ceiling_ms(rec)
+        if cost > public:
+            ceiling, refused = public, f"over the {public:.0f} ms a read without an API key may render"
+    return CostEstimate(method=options.method, width=options.width, height=options.height,
+                        estimated_ms=round(cost, 1), ceiling_ms=round(ceiling, 1), cached=cached,
+                        refused=refused)
+
+
+def _thumbnail_options(request: Request) -> tuple[Any, RenderOptions]:
+    """The query's thumbnail parameters and their RenderOptions (422 as FastAPI words it)."""
+    try:
+        query: dict[str, Any] = dict(request.query_params)
+        for name in REPEATABLE & query.keys():  # variant_set=A&variant_set=B: every value, in order
+            query[name] = request.query_params.getlist(name)
+        params: Any = ThumbnailParams.model_validate(query)  # fields made by create_model
+        return params, render_options(params)
+    except ValidationError as exc:
+        raise RequestValidationError([dict(e, loc=("query", *e["loc"])) for e in
+                                      exc.errors(include_url=False, include_context=False)]) from None
+    except ValueError as exc:  # parameters that are valid alone but not together (format, turntable)
+        raise BadParameter(str(exc)) from None
 
 
 def _matches(header: str, etag: str) -> bool:

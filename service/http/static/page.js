@@ -142,7 +142,7 @@ function query(extra = {}) {
 // Each kind of request (the still, the turntable) has one in flight at most: a new one aborts
 // the old, and a response is shown only while its request is still the latest of its kind for
 // the asset on view, so a slow old answer never overwrites a newer one.
-const inflight = {still: null, turntable: null};
+const inflight = {still: null, turntable: null, estimate: null};
 
 function begin(kind) {
   if (inflight[kind]) inflight[kind].abort();
@@ -177,6 +177,8 @@ async function openDetail(rec) {
   $("d-info").textContent = `${rec.format} · ${rec.triangles.toLocaleString()} triangles · ${rec.materials} materials · ${rec.status}`;
   $("d-error").textContent = rec.status === "failed" ? "bake failed: " + (rec.reason || "") : "";
   $("d-plan").textContent = "";
+  $("d-cost").textContent = "";
+  $("c-method").querySelector("option[value=raytrace]").textContent = "raytrace";
   $("d-plan").classList.remove("stale");
   $("canvas").dataset.state = "empty";
   delete $("canvas").dataset.frames;
@@ -190,7 +192,7 @@ async function openDetail(rec) {
   resetControls();
   showOutputs();
   if (!$("detail").open) $("detail").showModal();
-  if (rec.status !== "failed") { renderStill(); loadTurntable(); }
+  if (rec.status !== "failed") { renderStill(); loadTurntable(); updateCost(); }
 }
 
 function showOutputs() {
@@ -248,6 +250,30 @@ async function renderStill() {
     $("d-stale").textContent = shown ? "not updated: this request was refused (see below); the image and plan are of the previous settings" : "refused: see below";
     $("d-stale").hidden = false;
     if (shown) $("d-plan").classList.add("stale");
+  }
+}
+
+function seconds(ms) { return ms < 1000 ? `${Math.round(ms)} ms` : `${(ms / 1000).toFixed(ms < 10000 ? 1 : 0)} s`; }
+
+async function updateCost() {
+  // What method=raytrace costs at these settings, by the service's own estimator (the model it
+  // admits renders with), shown before anyone waits for one; and whether it would be refused.
+  const req = begin("estimate"), opt = $("c-method").querySelector("option[value=raytrace]");
+  try {
+    const r = await fetch(`/assets/${current.id}/estimate?${query({method: "raytrace"})}`, {headers: authHeaders(), signal: req.signal});
+    if (!r.ok) throw new Error(await errorText(r));
+    const e = await r.json();
+    if (!req.latest()) return;
+    const cost = e.cached ? "cached" : "≈ " + seconds(e.estimated_ms);
+    opt.textContent = `raytrace (${cost}${e.refused ? ", refused here" : ""})`;
+    $("d-cost").textContent = e.cached ? "raytrace at these settings: cached, served at once"
+      : `raytrace at these settings: ≈ ${seconds(e.estimated_ms)} estimated` +
+        (e.refused ? `, ${e.refused.replace(/\d+ ms/, seconds(e.ceiling_ms))}: it would be refused` : "");
+    $("d-cost").dataset.refused = e.refused ? "1" : "";
+  } catch (err) {
+    if (err.name === "AbortError" || !req.latest()) return;
+    opt.textContent = "raytrace";
+    $("d-cost").textContent = "raytrace cost unknown: " + err.message;
   }
 }
 
@@ -316,7 +342,7 @@ $("controls").oninput = showOutputs;
 $("controls").onchange = e => {
   renderStill();
   // The turntable starts at the yaw, so only other controls make its frames stale.
-  if (e.target.id !== "c-yaw") loadTurntable();
+  if (e.target.id !== "c-yaw") { loadTurntable(); updateCost(); }
 };
 $("controls").onsubmit = e => e.preventDefault();
 $("d-close").onclick = () => $("detail").close();
