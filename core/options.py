@@ -43,6 +43,7 @@ REPEATABLE = frozenset({"variant_set"})  # given once per value (CLI: append; HT
 MAX_PIXELS = 8192 * 8192
 MAX_SIDE = 8192
 MAX_DISTANCE = 1e12  # scene units (metres); beyond it the projection's arithmetic overflows
+MAX_FRAMES = 120  # frames of a turntable or an animated image: past it is a video's job
 MAX_BUDGET_MS = 60_000.0  # a render's time budget cannot exceed the service's render deadline
 
 Unit = Annotated[float, Field(ge=0.0, le=1.0)]
@@ -94,7 +95,7 @@ class RenderOptions:
         "roughness of the prefiltered environment mip shown behind the asset, 0..1"))
     shadow: float = Field(default=0.8, ge=0, le=1, description=(
         "ground contact shadow under the object, 0..1 (0: none; never with background env)"))
-    turntable: int = Field(default=0, ge=0, le=120, description=(
+    turntable: int = Field(default=0, ge=0, le=MAX_FRAMES, description=(
         "frames of an animated image turning about +Y (.webp / .gif); 0: one still image"))
     views: bool = Field(default=False, description="a labelled 2 x 2 sheet: front, side, top, three-quarter")
     override: MaterialOverride | None = None

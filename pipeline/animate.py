@@ -14,13 +14,13 @@ from pathlib import Path
 from core.animation import Moment, requested, select
 from core.baked import BakedAsset
 from core.errors import NotInAsset
+from core.options import MAX_FRAMES
 from pipeline.bake import build_baked
 from pipeline.ingest import load_scene
 from pipeline.limits import Limits
 
 log = logging.getLogger(__name__)
 
-MAX_FRAMES = 120  # as turntable's cap: an animated image past it is a video's job
 
 
 def frame_times(base: BakedAsset, fps: float, animation: str | None = None) -> tuple[list[float], dict]:

@@ -19,7 +19,7 @@ from typing import NamedTuple
 from cachetools import LRUCache
 
 from core.errors import AssetError, LimitExceeded
-from core.options import RenderOptions
+from core.options import MAX_FRAMES, RenderOptions
 from pipeline.cache import Cache, NotInCache
 from renderer import RENDERER_VERSION
 from renderer.methods.auto import estimate_request_ms
@@ -202,13 +202,17 @@ class ThumbnailService:
         return options
 
     def estimate_ms(self, rec: AssetRecord, options: RenderOptions) -> float:
-        """The request's cost by the model `auto` plans with (renderer.methods.auto)."""
+        """The request's cost by the model `auto` plans with (renderer.methods.auto), times its
+        frames: a turntable's, or for an animated image the most it may have (the record does not
+        know the animation's length, so the cap: an upper estimate, as the model's are)."""
         ov = options.override
         transmissive = bool(ov and ov.transmission) or ((ov is None or ov.transmission is None)
                                                         and rec.transmissive)
-        return estimate_request_ms(rec.triangles, options.width, options.height, options.method,
-                                   transmissive, options.budget_ms, options.bounces,
-                                   options.supersample)
+        frame = estimate_request_ms(rec.triangles, options.width, options.height, options.method,
+                                    transmissive, options.budget_ms, options.bounces,
+                                    options.supersample, options.integrator, options.samples)
+        frames = MAX_FRAMES if options.animate else max(options.turntable, 1)
+        return frame * frames
 
     def public_ceiling_ms(self, rec: AssetRecord) -> float:
         """The estimated cost a read without a key may render: public_render_ms, else the

@@ -49,6 +49,21 @@ def test_estimate_is_the_admission_model(server):
     assert server.client.get(f"/assets/{server.duck}/estimate", headers={"Authorization": ""}).status_code == 401
 
 
+def test_estimate_counts_frames_and_the_path_tracers_budget(server):
+    def cost(**params) -> float:
+        r = server.client.get(f"/assets/{server.duck}/estimate", params={"size": 256, **params})
+        assert r.status_code == 200, r.text
+        return r.json()["estimated_ms"]
+    still = cost(method="opaque")
+    # a turntable is its frames' cost, an animated image the most frames it may have (the cap)
+    assert cost(method="opaque", turntable=24, format="webp") == pytest.approx(24 * still, rel=1e-3)
+    assert cost(method="opaque", animate=12, format="webp") == pytest.approx(120 * still, rel=1e-3)
+    # the path tracer costs by its paths a pixel, and stops before its budget
+    few, many = cost(method="raytrace", integrator="path", samples=16), cost(method="raytrace", integrator="path", samples=256)
+    assert many == pytest.approx(16 * few, rel=1e-3)
+    assert cost(method="raytrace", integrator="path", samples=256, budget_ms=2000) <= 2000
+
+
 def test_page_offers_raytrace_with_its_cost_and_marks_its_refusal(server):
     from selenium.webdriver.common.by import By
     b = _start_browser()

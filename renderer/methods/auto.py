@@ -302,9 +302,16 @@ def estimate_raytrace_ms(asset: BakedAsset, options: RenderOptions, coverage_px:
             * rays_factor(options.supersample))
 
 
+# The path tracer (integrator path) against the tree at its default: about 3.6 x the tree's time
+# for 64 paths a pixel on Duck at 128 px (bench/RESULTS.md, "raytrace (path tracer)"), so a path a
+# pixel costs about a sixteenth of a tree pixel.
+TREE_PATHS_EQUIVALENT = 16
+
+
 def estimate_request_ms(triangles: int, width: int, height: int, method: str, transmissive: bool,
                         budget_ms: float | None, bounces: int = RAYTRACE_BOUNCES,
-                        supersample: int | None = None) -> float:
+                        supersample: int | None = None, integrator: str = "tree",
+                        samples: int = 64) -> float:
     """Upper estimate of one render's time from what is known before loading the asset
     (its triangle count, whether anything transmits): the ray-trace model above with the
     whole frame covered, or the raster model. `auto` with a budget ray traces only when its
@@ -312,6 +319,10 @@ def estimate_request_ms(triangles: int, width: int, height: int, method: str, tr
     pixels = width * height
     raytrace = (RT_FIXED_MS + RT_MS_PER_TRIANGLE * triangles + RT_MS_PER_FRAME_PIXEL * pixels
                 + RT_MS_PER_PIXEL_BOUNCE * pixels * max(bounces, 1) * rays_factor(supersample))
+    if integrator == "path":  # passes stop before budget_ms is spent (renderer.methods.path_trace)
+        raytrace *= samples / TREE_PATHS_EQUIVALENT
+        if budget_ms:
+            raytrace = min(raytrace, budget_ms)
     if method == "raytrace":
         return raytrace
     raster_method = method if method in RASTER_MS_PER_PIXEL else ("wyman" if transmissive else "opaque")
