@@ -66,7 +66,7 @@ def connect(address: str | None = None, num_cpus: int | None = None) -> None:
         return
     address = address or os.environ.get("RAY_ADDRESS") or None
     # Worker output stays in Ray's session logs: stdout is for result lines only.
-    kwargs = {"logging_level": logging.WARNING, "log_to_driver": False}
+    kwargs: dict[str, Any] = {"logging_level": logging.WARNING, "log_to_driver": False}
     if address and address != "auto":
         _probe(address)
     try:
