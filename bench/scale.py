@@ -268,7 +268,12 @@ def _cluster_job(files: list[Path], work: Path, label: str, workers: int, kill: 
                 time.sleep(0.05)
         out, err = proc.communicate(timeout=3600)
         wall = time.perf_counter() - start
-    rows = [json.loads(line) for line in out.splitlines() if line.strip()]
+    rows, stray = [], []
+    for line in filter(str.strip, out.splitlines()):
+        try:
+            rows.append(json.loads(line))
+        except ValueError:
+            stray.append(line)  # stdout is for result lines only: counted as a failure
     paths = [r["path"] for r in rows]
     manifest = json.loads((th / "manifest.json").read_text())["assets"]
     store = Cache(cache)
@@ -278,7 +283,7 @@ def _cluster_job(files: list[Path], work: Path, label: str, workers: int, kill: 
     return {"label": label, "code": proc.returncode, "wall": wall, "killed_at": killed_at,
             "once": sorted(paths) == sorted(map(str, files)) and sorted(manifest) == sorted(paths),
             "rendered": sum(e["status"] == "rendered" for e in manifest.values()), "whole": whole,
-            "entries": len(list((cache / "assets").iterdir())), "err": err[-1500:]}
+            "entries": len(list((cache / "assets").iterdir())), "err": err[-1500:], "stray": stray}
 
 
 def _run_cluster(args: argparse.Namespace, work: Path) -> int:
@@ -297,5 +302,8 @@ def _run_cluster(args: argparse.Namespace, work: Path) -> int:
               f"{r['rendered']:8d} {r['entries']:7d} {str(r['whole']):>11}")
         if r["code"]:
             print(r["err"], file=sys.stderr)
-    ok = all(r["code"] == 0 and r["once"] and r["whole"] and r["rendered"] == len(files) for r in runs)
+        for line in r["stray"]:
+            print(f"  not a result line on stdout: {line[:300]!r}")
+    ok = all(r["code"] == 0 and r["once"] and r["whole"] and r["rendered"] == len(files)
+             and not r["stray"] for r in runs)
     return 0 if ok else 1
