@@ -117,7 +117,8 @@ def run(args: argparse.Namespace) -> int:
     cache = str(args.cache) if args.cache else None
     jobs, failures, roots = _collect(args.paths, cache, args.root)
     library = tuple(src for kind, src in jobs if src in roots)
-    parts = _usd_parts([Path(p) for p in library])
+    from pipeline.library import usd_parts
+    parts = usd_parts([Path(p) for p in library])
     skipped = [{"kind": "asset", "path": src, "status": "skipped", "seconds": 0.0,
                 "note": f"a part of {parts[src]} (it references, sublayers or payloads it)"}
                for _, src in jobs if src in parts]
@@ -208,29 +209,6 @@ def _collect(paths: list[str], cache: str | None, root: str | None = None):
         else:
             add(path)  # a missing or unsupported file fails in bake_one, with the reason
     return jobs, failures, roots
-
-
-def _usd_parts(files: list[Path]) -> dict[str, str]:
-    """{file: a file that uses it} for the USD files among `files` that another one of them
-    references, sublayers or payloads: parts of a kit, not its entry points. Read with Sdf
-    alone (no composition); a file that does not open is left to fail in its own bake."""
-    usd = {f.resolve(): str(f) for f in files if f.suffix.lower() in (".usd", ".usda", ".usdc")}
-    if len(usd) < 2:
-        return {}
-    from pxr import Sdf, Tf, UsdUtils  # heavy: only for a folder with several USD files
-
-    parts: dict[str, str] = {}
-    for real, text in usd.items():
-        try:
-            subs, refs, payloads = UsdUtils.ExtractExternalReferences(str(real))
-        except Tf.ErrorException:
-            continue
-        layer = Sdf.Layer.FindOrOpen(str(real))
-        for dep in [*subs, *refs, *payloads]:
-            target = Path(layer.ComputeAbsolutePath(dep)).resolve() if layer else None
-            if target in usd and target != real:
-                parts.setdefault(usd[target], text)
-    return parts
 
 
 def _run_pool(jobs, common: dict, workers: int, report: "_Report") -> None:

@@ -25,6 +25,7 @@ BENCHMARKS = {
     "accuracy": ("bench.accuracy", "speed-vs-accuracy chart: every scene x method vs Mitsuba, Pareto front, auto"),
     "stability": ("bench.stability", "stability suite: every hard case x method, finite, TIR, error, verdict"),
     "fidelity": ("bench.fidelity", "Khronos samples: ours and raytrace vs Blender Cycles (FLIP per model)"),
+    "usd": ("bench.usd", "USD stages: ours vs Hydra Storm (usdview), FLIP, cold and warm first image"),
 }
 
 

@@ -6,7 +6,6 @@ import json
 import logging
 import os
 import sys
-from typing import Any
 
 from pydantic import ValidationError
 
@@ -26,8 +25,6 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quality", type=int, default=None, help="JPEG / WebP quality")
     p.add_argument("--linear", help="also write the linear frame (.exr or .npy)")
     p.add_argument("--cache", default=None, help="cache directory (default $ASSET_PREVIEW_CACHE or ./.cache)")
-    p.add_argument("--variant-set", action="append", default=[], metavar="[PRIM:]SET=NAME",
-                   help="USD: select a variant (repeatable; no PRIM: the default prim's set)")
     p.add_argument("--root", default=None, metavar="DIR",
                    help="folder the asset's references may read from (default: the asset's folder)")
     p.add_argument("--json", action="store_true", help="print the plan and timings as JSON")
@@ -49,8 +46,9 @@ def run(args: argparse.Namespace) -> int:
         return _fail(f"{args.linear}: --linear takes .npy or .exr")
     out_ext = os.path.splitext(args.out)[1].lower()
     from core.options import describe_error, from_arguments
-    from pipeline.bake import bake_asset, bake_environment
+    from pipeline.bake import asset_options, bake_asset, bake_environment
     from pipeline.environment.panorama import DEFAULT_ENVIRONMENT
+    from pipeline.lighting import environment_source
     from renderer.methods.auto import environment_face_size
     from renderer.raster.render import UnsupportedMethod, render, validate_options
 
@@ -68,11 +66,10 @@ def run(args: argparse.Namespace) -> int:
     if out_ext == ".gif" and not (options.turntable or options.animate):
         return _fail(f"{args.out}: .gif is for --turntable; use .png .jpg or .webp")
     from core.animation import requested
-    bake_options: dict[str, Any] = {"variant_sets": tuple(args.variant_set)} if args.variant_set else {}
     asset = bake_asset(args.path, args.cache, root=args.root,
-                       moment=None if options.animate else requested(options), **bake_options)
+                       moment=None if options.animate else requested(options), **asset_options(options))
     face, env_why = environment_face_size(asset, options)
-    env_source = args.env or _dome(asset, args.path) or DEFAULT_ENVIRONMENT
+    env_source = environment_source(asset, args.path, args.env, DEFAULT_ENVIRONMENT, options.lights)
     env = bake_environment(env_source, args.cache, face_size=face)
     from renderer.sequence import encode_animation, render_animation, render_turntable, render_views
     try:
@@ -114,14 +111,3 @@ def run(args: argparse.Namespace) -> int:
              frame.timings.total_ms)
     return 0
 
-
-def _dome(asset, path: str) -> str | None:
-    """The panorama the asset's dome light names (USD), when the request gives no --env."""
-    rel = (asset.manifest or {}).get("environment")
-    if not rel:
-        return None
-    found = os.path.join(os.path.dirname(os.path.abspath(path)), rel)
-    if os.path.isfile(found):
-        return found
-    log.warning("%s: dome light texture %s not found; default environment used", path, found)
-    return None

@@ -115,6 +115,9 @@ class BakedAsset:
     # K x 3 world points whose convex hull holds every surface (core.hull), baked; 0 x 3: no
     # bound; None: computed on first render. A copy with other geometry must drop it.
     hull: np.ndarray | None = None
+    # The key its GPU copy is kept under when not its own: the frames of one animation
+    # (pipeline.gltf.rig) share one upload, whose moved buffers each frame rewrites.
+    gpu_key: str | None = None
 
     def __post_init__(self):
         self.textures = [t if isinstance(t, BakedTexture) else BakedTexture.from_texture(t)
@@ -140,7 +143,9 @@ class BakedAsset:
                              f"{', '.join(map(repr, self.variants)) or 'none'}")
         meshes = [dataclasses.replace(m, material=m.variants.get(name, m.material))
                   for m in self.meshes]
-        return dataclasses.replace(self, key=f"{self.key}#variant={name}", meshes=meshes)
+        return dataclasses.replace(self, key=f"{self.key}#variant={name}", meshes=meshes,
+                                   gpu_key=None if self.gpu_key is None else
+                                   f"{self.gpu_key}#variant={name}")
 
 
 @dataclass

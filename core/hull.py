@@ -75,3 +75,12 @@ def support_points(points: np.ndarray, directions: int = 256) -> np.ndarray:
     keep = np.zeros(len(points), bool)  # each extreme point once, in order (np.unique's
     keep[np.argmax(points @ d.T, axis=0)] = True  # result, without its 16 ms numpy.ma import)
     return points[keep]
+
+
+def hull_support_points(points: np.ndarray, directions: int = 256) -> np.ndarray:
+    """support_points over the points' convex hull vertices: the same extremes (a point
+    farthest along a direction is a hull vertex), or every hull vertex when there are fewer
+    than `directions`; for a surface that moves every frame (pipeline.gltf.rig), where qhull
+    over N points beats N x directions dot products."""
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    return support_points(_hull(points) if len(points) > directions else points, directions)

@@ -35,6 +35,10 @@ Method = Literal["auto", "opaque", "single", "wyman", "raytrace"]
 METHODS: tuple[str, ...] = typing.get_args(Method)
 Tonemap = Literal["neutral", "aces", "none"]
 TONEMAPS: tuple[str, ...] = typing.get_args(Tonemap)
+Purpose = Literal["render", "proxy", "guide"]
+PURPOSES: tuple[str, ...] = typing.get_args(Purpose)
+MAX_VARIANT_SELECTIONS = 32
+REPEATABLE = frozenset({"variant_set"})  # given once per value (CLI: append; HTTP: repeated key)
 
 MAX_PIXELS = 8192 * 8192
 MAX_SIDE = 8192
@@ -125,6 +129,15 @@ class RenderOptions:
         "ray (sample: converges to the rough dielectric, some noise) or keeps the mirror "
         "direction and reads the prefiltered environment for the lobe width (prefilter: no "
         "noise, biased)"))
+    integrator: Literal["tree", "path"] = Field(default="tree", description=(
+        "raytrace: tree: the deterministic Fresnel tree (exact two-interface glass, no noise); "
+        "path: unbiased path tracing of the whole metal-rough material with environment "
+        "importance sampling and MIS, in passes until `noise`, `samples` or `budget_ms`"))
+    samples: int = Field(default=64, ge=1, le=4096, description=(
+        "raytrace integrator path: most paths per pixel (one per pass)"))
+    noise: float = Field(default=0.02, ge=0, le=1, description=(
+        "raytrace integrator path: a pixel stops when the relative standard error of its "
+        "luminance is below this (0: run all samples or the budget)"))
     supersample: int | None = Field(default=None, ge=1, le=16, description=(
         "raytrace: rays per pixel side on and around the object (default: 4 below 256 px, "
         "3 below 384, else 2)"))
@@ -158,7 +171,16 @@ class RenderOptions:
         "its whole duration (at most 120 frames); with turntable the camera also turns once"))
     budget_ms: float | None = Field(default=None, gt=0, le=MAX_BUDGET_MS, description=(
         "time budget in milliseconds: lets method auto ray trace objects where raster "
-        "refraction fails, when the estimate fits"))
+        "refraction fails, when the estimate fits; raytrace integrator path stops its passes "
+        "before this is spent (granularity: one pass)"))
+    # USD stage population: bake options (pipeline.bake.asset_options), so in the bake key too
+    variant_set: tuple[str, ...] = Field(default=(), max_length=MAX_VARIANT_SELECTIONS, description=(
+        "USD: select a variant, [PRIM:]SET=NAME (repeatable, applied in order, so a selection "
+        "may name a set an earlier one brought in; no PRIM: the default prim's set; inspect "
+        "lists them)"))
+    purposes: tuple[Purpose, ...] = Field(default=("render",), description=(
+        "USD: the purposes drawn besides default, comma-separated from render, proxy, guide "
+        "(usdview's toggles; default render; empty: default only)"))
 
     @field_validator("background", mode="before")
     @classmethod
@@ -188,6 +210,31 @@ class RenderOptions:
         if not (math.isfinite(t) and abs(t) <= 1e6):
             raise ValueError(f"time {v!r}: use seconds (a finite number) or poster")
         return repr(t)
+
+    @field_validator("variant_set", mode="before")
+    @classmethod
+    def _variant_set(cls, v: Any) -> Any:
+        items = (v,) if isinstance(v, str) else tuple(v or ())
+        for text in items:
+            if not isinstance(text, str):
+                return v  # pydantic names the type error
+            where, _, choice = text.rpartition("=")
+            if not where.rpartition(":")[2] or not choice or len(text) > 512:
+                raise ValueError(f"variant_set {text!r}: expected [PRIM:]SET=NAME")
+        return items
+
+    @field_validator("purposes", mode="before")
+    @classmethod
+    def _purposes(cls, v: Any) -> Any:
+        """"render,proxy" (CLI, query) or a sequence; one canonical order, so one key."""
+        items = [v] if isinstance(v, str) else list(v or ())
+        names = {p.strip().lower() for item in items if isinstance(item, str)
+                 for p in item.split(",") if p.strip()}
+        unknown = names - set(PURPOSES)
+        if unknown:
+            raise ValueError(f"purposes: unknown {', '.join(sorted(unknown))}; choose from "
+                             f"{', '.join(PURPOSES)} (default is always drawn)")
+        return tuple(p for p in PURPOSES if p in names)
 
     @field_validator("target", mode="before")
     @classmethod
@@ -294,7 +341,7 @@ def request_fields() -> Mapping[str, FieldInfo]:
             out.update(_override_fields())
         elif name in ("width", "height"):
             out[name] = _optional(info)
-        elif name == "target":  # "x,y,z" on both surfaces, parsed by RenderOptions
+        elif name in ("target", "purposes"):  # "x,y,z" / "render,proxy" on both surfaces, parsed by RenderOptions
             out[name] = FieldInfo.from_annotated_attribute(
                 str | None, Field(default=None, description=info.description))  # type: ignore[arg-type]  # a union is an annotation
         else:
@@ -346,6 +393,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         if ann is bool:
             group.add_argument(flag, dest=name, action=argparse.BooleanOptionalAction,
                                default=None, help=help_text)
+        elif name in REPEATABLE:
+            group.add_argument(flag, dest=name, action="append", default=None, help=help_text,
+                               metavar=name.upper())
         elif typing.get_origin(ann) is Literal:
             group.add_argument(flag, dest=name, choices=typing.get_args(ann), default=None, help=help_text)
         else:

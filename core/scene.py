@@ -175,6 +175,18 @@ class Material:
 
 
 @dataclass
+class Creases:
+    """A subdivision cage's sharp edges and corners (USD creaseIndices / cornerIndices), by
+    the positions of their cage vertices (a mesh's vertices are split for UVs, and subsets
+    renumber them; the refinement welds by position). Sharpness as OpenSubdiv counts it:
+    levels of refinement an edge stays sharp, 10 or more for ever (SHARPNESS_INFINITE)."""
+    edges: np.ndarray            # K x 2 x 3 end positions
+    edge_sharpness: np.ndarray   # K
+    corners: np.ndarray          # C x 3 positions
+    corner_sharpness: np.ndarray  # C
+
+
+@dataclass
 class Mesh:
     """Triangle geometry of one primitive (one material). Arrays are float32 / uint32."""
     name: str
@@ -186,6 +198,7 @@ class Mesh:
     uv1: np.ndarray | None = None
     colors: np.ndarray | None = None  # N x 4 linear
     subdivision: str | None = None  # a subdivision cage ("catmullClark", "loop"): refined at bake
+    creases: Creases | None = None  # the cage's sharp edges and corners, used by that refinement
 
     @property
     def triangle_count(self) -> int:
@@ -200,6 +213,9 @@ class Instance:
     matrix: np.ndarray = field(default_factory=lambda: np.eye(4, dtype=np.float64))
     variants: dict[int, int] = field(default_factory=dict)  # variant index -> material (glTF)
     backdrop: bool = False  # a skybox/backdrop around the content: not framed (pipeline.framing)
+    # glTF: (node, skinned, matrix in the node's frame) to place it again at another pose
+    # (pipeline.gltf.rig): world = (identity if skinned else node's world) @ matrix
+    placement: tuple | None = None
 
 
 @dataclass
@@ -239,6 +255,10 @@ class Scene:
     instances: list[Instance] = field(default_factory=list)
     lights: list[Light] = field(default_factory=list)
     environment: str | None = None  # panorama file the asset lights itself with (USD dome light)
+    # USD: the stage has its own lights (UsdLux), so it is lit by them alone, as Storm lights
+    # it, not by the studio (pipeline.lighting); an untextured dome's uniform radiance (linear)
+    own_lighting: bool = False
+    dome_radiance: tuple[float, float, float] | None = None
     warnings: list[str] = field(default_factory=list)
     files: list[str] = field(default_factory=list)  # every file read (the asset and what it references)
     absent: list[str] = field(default_factory=list)  # files it looked for and did not find (cache key)

@@ -8,6 +8,7 @@ bake's textures, which no pose changes.
 from __future__ import annotations
 
 import dataclasses
+import logging
 from pathlib import Path
 
 from core.animation import Moment, requested, select
@@ -16,6 +17,8 @@ from core.errors import NotInAsset
 from pipeline.bake import build_baked
 from pipeline.ingest import load_scene
 from pipeline.limits import Limits
+
+log = logging.getLogger(__name__)
 
 MAX_FRAMES = 120  # as turntable's cap: an animated image past it is a video's job
 
@@ -41,13 +44,32 @@ def frame_times(base: BakedAsset, fps: float, animation: str | None = None) -> t
 def posed(path, base: BakedAsset, moment: Moment, root=None, limits: Limits | None = None) -> BakedAsset:
     """`path` posed at `moment`, built in memory with `base`'s textures; its key is `base`'s
     and the moment's (GPU uploads are by key: each pose is its own)."""
-    scene = load_scene(Path(path), limits, root, moment=moment)
+    opts = (base.manifest or {}).get("options", {})  # the same variants and purposes as base
+    scene = load_scene(Path(path), limits, root, moment=moment,
+                       variant_sets=tuple(opts.get("variant_sets", ())),
+                       purposes=tuple(opts.get("purposes", ("render",))))
     scene.textures = []  # not decoded again: no pose changes them, base's are used
     key = f"{base.key}@{moment.animation or ''}:{float(moment.time):.6f}"
-    baked = build_baked(scene, key, {**(base.manifest or {}).get("options", {}),
+    baked = build_baked(scene, key, {**opts,
                                      "moment": dataclasses.asdict(moment)})
     baked.textures = base.textures
     return baked
+
+
+def frames(path, base: BakedAsset, times: list[float], animation: str | None = None, root=None,
+           limits: Limits | None = None) -> list[BakedAsset]:
+    """`path` posed at each of `times` (seconds of `animation`). glTF: one Rig (pipeline.gltf.rig)
+    read once and posed per frame, the frames sharing one GPU upload; USD, or a glTF the rig
+    cannot pose: each frame read whole (posed)."""
+    if Path(path).suffix.lower() in (".gltf", ".glb"):
+        from pipeline.gltf.rig import Rig, RigUnsupported
+        try:
+            rig = Rig(path, base, animation, root, limits)
+        except RigUnsupported as exc:
+            log.info("%s: each frame read whole: %s", path, exc)
+        else:
+            return [rig.pose(t, f"{base.key}@{animation or ''}:{t:.6f}") for t in times]
+    return [posed(path, base, Moment(t, animation), root, limits) for t in times]
 
 
 def poses_for(path, base: BakedAsset, options, root=None,
@@ -57,6 +79,6 @@ def poses_for(path, base: BakedAsset, options, root=None,
     `base` itself when it asks for neither."""
     if options.animate:
         times, motion = frame_times(base, options.animate, options.animation)
-        return [posed(path, base, Moment(t, options.animation), root, limits) for t in times], motion
+        return frames(path, base, times, options.animation, root, limits), motion
     moment = requested(options)
     return [base if moment is None else posed(path, base, moment, root, limits)], None

@@ -35,6 +35,7 @@ from core.mips import level_shapes, texture_size_for
 from core.scene import Light, Material, Sampler, Scene, SceneCamera, TextureRef, extent, is_srgb
 from pipeline.cache import BAKE_FORMAT_VERSION, Cache, Entry, NotInCache, SourceFiles
 from pipeline.environment import prefilter as environment
+from pipeline.environment import uniform
 from pipeline.environment.panorama import load_panorama, resolve_panorama
 from pipeline.ingest import load_scene
 from pipeline.limits import Limits
@@ -53,8 +54,17 @@ log = logging.getLogger(__name__)
 # - moment: None = at rest; else {"time": seconds | "poster", "animation": name | None}
 #   (core.animation.Moment, as a dict for the key), the pose the asset is baked in.
 # - variant_sets: USD variant selections, "[PRIM:]SET=NAME" in order (pipeline.usd.stage.load).
+# - purposes: USD purposes drawn besides default (render, proxy, guide); other formats have
+#   none, so theirs is always the default (one bake whatever a request asks).
 ASSET_OPTIONS = {"interior_epsilon": None, "subdivision_levels": None, "thumbnail_size": 1024,
-                 "moment": None, "variant_sets": ()}
+                 "moment": None, "variant_sets": (), "purposes": ("render",)}
+USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
+
+
+def asset_options(options) -> dict:
+    """The bake options a core.options.RenderOptions asks for (which prims a USD stage
+    draws); the pose (`moment`) is the caller's, as an animation bakes none."""
+    return {"variant_sets": tuple(options.variant_set), "purposes": tuple(options.purposes)}
 PREFILTERS = ("ggx", "paper")
 _MESH_ARRAYS = ("positions", "normals", "indices", "tangents", "uv0", "uv1", "colors", "interior",
                 "edges", "edge_faces", "support")
@@ -85,6 +95,9 @@ def bake_or_load_asset(path, cache_dir=None, *, force: bool = False, limits: Lim
     if unknown:
         raise TypeError(f"unknown bake option(s): {', '.join(sorted(unknown))}")
     opts = {**ASSET_OPTIONS, **options}
+    opts["variant_sets"], opts["purposes"] = tuple(opts["variant_sets"]), tuple(opts["purposes"])
+    if Path(path).suffix.lower() not in USD_SUFFIXES:
+        opts["purposes"] = ASSET_OPTIONS["purposes"]
     if isinstance(opts["moment"], Moment):
         opts["moment"] = dataclasses.asdict(opts["moment"])
     cache = _cache(cache_dir)
@@ -102,7 +115,7 @@ def bake_or_load_asset(path, cache_dir=None, *, force: bool = False, limits: Lim
         start = time.perf_counter()
         scene = load_scene(path, limits, root,
                            moment=None if opts["moment"] is None else Moment(**opts["moment"]),
-                           variant_sets=tuple(opts["variant_sets"]))
+                           variant_sets=opts["variant_sets"], purposes=opts["purposes"])
         ingest_s = time.perf_counter() - start
         source = SourceFiles.hash(path, scene.files, scene.absent)
     except (FileNotFoundError, PermissionError, IsADirectoryError) as exc:  # changed under us
@@ -136,6 +149,15 @@ def _inputs_inside(manifest: dict, path: Path, root) -> bool:
     return True
 
 
+def instance_groups(scene: Scene) -> dict[tuple, list[int]]:
+    """(mesh, material, variant mapping) -> the instances drawn as one BakedMesh, in the
+    order build_baked makes them (a glTF variant mapping belongs to the primitive: kept with it)."""
+    groups: dict[tuple, list[int]] = {}
+    for k, inst in enumerate(scene.instances):
+        groups.setdefault((inst.mesh, inst.material, tuple(sorted(inst.variants.items()))), []).append(k)
+    return groups
+
+
 def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> BakedAsset:
     """Group a Scene's instances into BakedMeshes, compute interior vectors where needed and
     the welded edges that edge anti-aliasing reads (renderer.raster.edges) for assets it serves, and
@@ -145,10 +167,8 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> Bak
     refined = subdivision.refine_scene(scene, min(Limits.from_env().max_triangles,
                                                   subdivision.BUDGET), opts["subdivision_levels"])
     subdivide_s = time.perf_counter() - start
-    groups: dict[tuple, list[np.ndarray]] = {}
-    for inst in scene.instances:  # a glTF variant mapping belongs to the primitive: kept with it
-        group = (inst.mesh, inst.material, tuple(sorted(inst.variants.items())))
-        groups.setdefault(group, []).append(np.asarray(inst.matrix, np.float64))
+    groups = {g: [np.asarray(scene.instances[k].matrix, np.float64) for k in members]
+              for g, members in instance_groups(scene).items()}
     interiors: dict[int, np.ndarray] = {}
     stats = {"rays": 0, "misses": 0, "degenerate": 0, "build_s": 0.0, "trace_s": 0.0}
     meshes = []
@@ -208,6 +228,8 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> Bak
         "animations": scene.animations, "time_range": scene.time_range, "moment": scene.moment,
         "environment": None if scene.environment is None else
         os.path.relpath(scene.environment, Path(scene.source).resolve().parent),
+        "own_lighting": scene.own_lighting,  # pipeline.lighting
+        "dome_radiance": None if scene.dome_radiance is None else list(scene.dome_radiance),
     }
     cap = texture_size_for(opts["thumbnail_size"])
     spaces = _texture_spaces(scene)
@@ -416,6 +438,8 @@ def bake_or_load_environment(source, cache_dir=None, face_size: int = DEFAULT_FA
     opts = {"face_size": face_size, "prefilter": prefilter, "version": environment.PREFILTER_VERSION,
             "levels": environment.default_levels(face_size), "ggx_samples": environment.GGX_SAMPLES,
             "lut": [environment.LUT_SIZE, environment.LUT_SAMPLES]}
+    if uniform.parse(source) is not None:  # one module makes every uniform one: the value keys it
+        opts["uniform"] = list(uniform.parse(source))  # type: ignore[arg-type]
     source_files = SourceFiles.hash(resolve_panorama(source))
     key = source_files.key("environments", opts)
     if not force:

@@ -57,11 +57,12 @@ def _reader(kind: str):
 
 
 def load_scene(path, limits: Limits | None = None, root=None, moment: Moment | None = None,
-               variant_sets: tuple[str, ...] = ()) -> Scene:
+               variant_sets: tuple[str, ...] = (), purposes: tuple[str, ...] = ("render",)) -> Scene:
     """Read any supported asset into a finished Scene; bad input raises an AssetError.
     Files it references must lie inside `root` (default: its folder; `paths.sandbox_root`).
     `moment`: the animation time to pose it at (glTF, USD; core.animation), None at rest.
-    `variant_sets`: USD variant selections, "[PRIM:]SET=NAME" (pipeline.usd.stage.load)."""
+    `variant_sets`: USD variant selections, "[PRIM:]SET=NAME" (pipeline.usd.stage.load);
+    `purposes`: the USD purposes drawn besides default (other formats have none)."""
     path = Path(path)
     limits = limits or Limits.from_env()
     try:
@@ -88,7 +89,9 @@ def load_scene(path, limits: Limits | None = None, root=None, moment: Moment | N
         try:
             if variant_sets and kind != "usd":
                 raise NotInAsset(path, "variant sets are USD's; this asset has none")
-            extra = {"variant_sets": tuple(variant_sets)} if variant_sets else {}
+            extra: dict = {"variant_sets": tuple(variant_sets)} if variant_sets else {}
+            if kind == "usd" and tuple(purposes) != ("render",):
+                extra["purposes"] = tuple(purposes)
             if moment is None:
                 scene = reader.load(path, limits, root, **extra)
             elif kind == "mesh":
@@ -129,7 +132,7 @@ def finish(scene: Scene, limits: Limits) -> Scene:
         deadline.check()
         dropped += _check(mesh, path)
         if mesh.normals is None or len(mesh.normals) != len(mesh.positions):
-            _flat_normals(mesh)
+            flat_normals(mesh)
         else:
             mesh.normals = _unit_normals(mesh)
         ref = needs_tangents.get(i)
@@ -210,7 +213,7 @@ def _nonzero_area(positions: np.ndarray, tri: np.ndarray) -> np.ndarray:
     return (by * cz != bz * cy) | (bz * cx != bx * cz) | (bx * cy != by * cx)
 
 
-def _flat_normals(mesh: Mesh) -> None:
+def flat_normals(mesh: Mesh) -> None:
     """Flat normals, as glTF asks for meshes without them: every triangle gets its own vertices."""
     corners = mesh.indices.reshape(-1)
     for name in ("positions", "uv0", "uv1", "colors", "tangents"):

@@ -8,6 +8,6 @@ from renderer.frame import Frame
 from renderer.raster.render import render
 
 # Bump on any change that alters pixels: the service keys cached thumbnails with it.
-RENDERER_VERSION = "3"  # 3: energy compensation by default, layering, mirrored transforms (issue 18)
+RENDERER_VERSION = "5"  # 3: energy compensation by default, layering, mirrored transforms (issue 18); 4: anisotropic texture filtering, 5: rough transmittance and TIR attenuation (issue 30)
 
 __all__ = ["render", "Frame", "RENDERER_VERSION"]

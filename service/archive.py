@@ -129,15 +129,36 @@ def _safe_member(info: zipfile.ZipInfo, name: str, max_depth: int = 32, max_name
     return PurePosixPath(*parts)
 
 
-def find_root(files: list[str], name: str, main: str | None = None) -> str:
-    """The asset file to ingest among extracted `files`: `main` when given, else the only
-    supported file at the shallowest depth, else the one whose stem matches the archive's."""
+class AmbiguousEntry(MalformedAsset):
+    """Several files could be the archive's asset; `candidates` names them (the 422's body)."""
+
+    def __init__(self, path, reason: str, candidates: tuple[str, ...] = ()):
+        super().__init__(path, reason)
+        self.candidates = tuple(candidates)
+
+    def __reduce__(self):
+        return (type(self), (self.path, self.reason, self.candidates))
+
+
+def usd_layers(files: list[str]) -> list[str]:
+    """The USD layers among `files`, which may reference one another (kit parts)."""
+    return [f for f in files if f.lower().endswith((".usd", ".usda", ".usdc"))
+            and "__MACOSX" not in f]
+
+
+def find_root(files: list[str], name: str, main: str | None = None,
+              parts: frozenset[str] | set[str] = frozenset()) -> str:
+    """The asset file to ingest among extracted `files`: `main` when given, else, leaving
+    out `parts` (USD files another one references: pipeline.library, the rule asset-bake
+    follows), the only supported file at the shallowest depth, else the one whose stem
+    matches the archive's; else AmbiguousEntry naming the candidates."""
     if main:
         wanted = PurePosixPath(main.replace("\\", "/")).as_posix().lstrip("./")
         if wanted not in files:
             raise MalformedAsset(name, f"main file {main!r} is not in the archive")
         return wanted
-    candidates = [f for f in files if f.lower().endswith(ROOT_SUFFIXES) and "__MACOSX" not in f]
+    candidates = [f for f in files if f.lower().endswith(ROOT_SUFFIXES) and "__MACOSX" not in f
+                  and f not in parts]
     if not candidates:
         raise MalformedAsset(name, "archive holds no .gltf, .glb or USD file")
     depth = min(f.count("/") for f in candidates)
@@ -151,8 +172,9 @@ def find_root(files: list[str], name: str, main: str | None = None) -> str:
     named = [f for f in top if PurePosixPath(f).stem.lower() == stem]
     if len(named) == 1:
         return named[0]
-    raise MalformedAsset(name, f"archive holds several asset files ({', '.join(top[:8])}); "
-                               "name the one to use in the `main` form field")
+    raise AmbiguousEntry(name, f"archive holds several entry points ({', '.join(top[:8])}); "
+                               "upload again naming one in the `main` form field (the "
+                               "response's `candidates` lists them)", tuple(top[:64]))
 
 
 def _no_paths(exc: Exception) -> str:

@@ -34,6 +34,7 @@ from service.workers.protocol import (
     BakeResult,
     DeadlineExceeded,
     InspectJob,
+    PartsJob,
     QueueFull,
     WorkerFailure,
 )
@@ -138,7 +139,12 @@ class Assets:
                     archive.extract, raw, src, max_bytes=lim.max_unpacked_bytes,
                     max_files=lim.max_archive_files, max_depth=lim.max_archive_depth,
                     max_name=lim.max_name_length, max_ratio=lim.max_archive_ratio, label=name)
-                root = archive.find_root(files, name, main)
+                try:
+                    root = archive.find_root(files, name, main)
+                except archive.AmbiguousEntry:
+                    # a kit: its parts (files other USD files reference) are not entry points
+                    parts = await self._parts(src, archive.usd_layers(files), name, client)
+                    root = archive.find_root(files, name, main, frozenset(parts))
                 raw.unlink()
             else:
                 src.mkdir()
@@ -160,6 +166,20 @@ class Assets:
             return rec, True
         finally:
             shutil.rmtree(staged, ignore_errors=True)
+
+    async def _parts(self, src: Path, layers: list[str], name: str, client: str | None) -> tuple[str, ...]:
+        if len(layers) < 2:
+            return ()
+        try:
+            parts: tuple[str, ...] = await self.pool.run(
+                PartsJob(str(src), tuple(layers)), deadline=1.5 * self.limits.ingest_seconds + 10,
+                cost_ms=self.settings.cheap_render_ms, expensive=True, client=client)
+            return parts
+        except AssetError as exc:
+            raise public_error(exc, src, name) from None
+        except WorkerFailure:  # a layer that crashes Sdf: no parts known, the listing stands
+            log.error("upload %s: reading its USD references failed in a worker", name)
+            return ()
 
     async def _inspect(self, src: Path, root: str, name: str, client: str | None) -> AssetSummary:
         try:

@@ -244,7 +244,7 @@ class ThumbnailService:
         return self.thumbs.get(asset_id, key, fmt)
 
     async def render(self, asset_id: str, options: RenderOptions, fmt: str, key: str,
-                     env_source: str, client: str | None = None) -> Thumbnail:
+                     env_source: str, client: str | None = None, env_default: bool = False) -> Thumbnail:
         """Render (once, however many requests ask at the same time) and cache."""
         fut = self._renders.get(key + fmt)
         if fut is not None:
@@ -252,7 +252,7 @@ class ThumbnailService:
         fut = asyncio.get_running_loop().create_future()
         self._renders[key + fmt] = fut
         try:
-            result = await self._render(asset_id, options, fmt, key, env_source, client)
+            result = await self._render(asset_id, options, fmt, key, env_source, client, env_default)
             fut.set_result(result)
             return result
         except BaseException as exc:
@@ -263,7 +263,7 @@ class ThumbnailService:
             self._renders.pop(key + fmt, None)
 
     async def _render(self, asset_id: str, options: RenderOptions, fmt: str, key: str,
-                      env_source: str, client: str | None) -> Thumbnail:
+                      env_source: str, client: str | None, env_default: bool = False) -> Thumbnail:
         rec = self.store.assets.get(asset_id)
         if rec is None:
             raise NotFound(asset_id)
@@ -275,7 +275,9 @@ class ThumbnailService:
             assert rec.bake_key is not None  # ready
             try:
                 out: RenderReply = await self.pool.run(
-                    RenderJob(rec.bake_key, env_source, options, fmt), deadline=self.settings.render_seconds,
+                    RenderJob(rec.bake_key, env_source, options, fmt,
+                              str(self.store.asset_dir(asset_id) / "src"), env_default),
+                    deadline=self.settings.render_seconds,
                     cost_ms=cost, client=client)
                 break
             except NotInCache:

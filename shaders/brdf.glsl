@@ -1,5 +1,5 @@
 // Cook-Torrance microfacet BRDF with the paper's terms (section 4.1):
-// GGX / Trowbridge-Reitz D with alpha = roughness^2, Smith with Schlick-GGX G, Schlick F.
+// GGX / Trowbridge-Reitz D with alpha = roughness^2, height-correlated Smith G, Schlick F.
 #ifndef BRDF_GLSL
 #define BRDF_GLSL
 const float BRDF_PI = 3.14159265358979;
@@ -23,22 +23,18 @@ float D_ggx(float NdotH, float alpha) {
     return a2 / (BRDF_PI * d * d);
 }
 
-// Schlick-GGX G1 with k = alpha / 2. The paper writes k = alpha / pi; the source it cites
-// (Karis 2013, "Specular BRDF Reference") gives k = alpha * sqrt(2/pi) as Schlick's fit to
-// Beckmann and k = alpha / 2 as the fit to Smith-GGX. Checked against the separable exact
-// Smith-GGX G that the reference renderer (Mitsuba's roughconductor) uses, through the
-// directional albedo it produces (tests/test_render_physics.py): alpha / 2 is exact at
-// roughness 1 and has the smaller worst-case error for roughness >= 0.5 (0.08 vs 0.43 at
-// roughness 0.75), where masking matters; alpha / pi is closer on average below roughness
-// 0.5 (mean 0.04 vs 0.08, errors at grazing angles). The split-sum LUT
-// (shaders/brdf_lut.frag) integrates with alpha / 2 too, so lights and IBL share one G.
-float G1_schlick_ggx(float NdotX, float k) {
-    return NdotX / (NdotX * (1.0 - k) + k);
-}
-
+// Height-correlated Smith masking-shadowing of GGX (Heitz 2014), G = 1 / (1 + L(v) + L(l)):
+// the glTF 2.0 specification's V_GGX, as the Sample Viewer, Filament, three.js and Cycles
+// use it. It masks less than the separable G1(v) G1(l) (Mitsuba's roughconductor; Schlick's
+// k = alpha / 2 fit of it was used before): at roughness 1 and N.V 0.42 the directional
+// albedo's F0 scale is 0.48, not 0.44, the specular sheen on a rough dielectric seen at a low
+// angle (Box's top face; docs/textures.md). The split-sum LUT (shaders/brdf_lut.frag)
+// integrates this G too, so lights and IBL share it.
 float G_smith(float NdotV, float NdotL, float alpha) {
-    float k = alpha * 0.5;
-    return G1_schlick_ggx(NdotV, k) * G1_schlick_ggx(NdotL, k);
+    float a2 = alpha * alpha;
+    float lv = NdotL * sqrt(NdotV * NdotV * (1.0 - a2) + a2);
+    float ll = NdotV * sqrt(NdotL * NdotL * (1.0 - a2) + a2);
+    return 2.0 * NdotV * NdotL / max(lv + ll, 1e-7);
 }
 
 // Specular lobe, already divided by 4 N.L N.V; multiply by N.L and the light's radiance.

@@ -11,9 +11,7 @@
 // on smooth sheen (the integral reaches 2.2 at N.V < 0.06, roughness < 0.1), and reflecting
 // more than arrives would make 1 - E negative under the base.
 //
-// Smith-Schlick G with k = alpha / 2: Karis's fit of Schlick's form to the Smith GGX masking
-// function for image-based lighting. The paper's k = alpha / pi matches neither Smith GGX nor
-// Karis's punctual-light remapping and leaves rough surfaces too bright (too little masking).
+// G is brdf.glsl's G_smith (height-correlated Smith GGX), as the lights use it.
 #include "brdf.glsl"
 const float PI = 3.14159265358979;
 const int SHEEN_THETA = 48;
@@ -31,15 +29,10 @@ float radical_inverse(uint bits) {
     return float(bits) * 2.3283064365386963e-10;
 }
 
-float g1_schlick(float n_dot_x, float k) {
-    return n_dot_x / (n_dot_x * (1.0 - k) + k);
-}
-
 void main() {
     float n_dot_v = gl_FragCoord.x / float(u_size);
     float roughness = gl_FragCoord.y / float(u_size);
     float alpha = roughness * roughness;
-    float k = alpha * 0.5;
     vec3 v = vec3(sqrt(1.0 - n_dot_v * n_dot_v), 0.0, n_dot_v);  // N = +z
     vec2 sum = vec2(0.0);
     for (uint i = 0u; i < uint(SAMPLES); ++i) {
@@ -53,7 +46,7 @@ void main() {
         vec3 l = 2.0 * v_dot_h * h - v;
         if (l.z > 0.0 && v_dot_h > 0.0) {
             // estimator f * cos / pdf with pdf = D * N.H / (4 V.H): G * V.H / (N.H * N.V)
-            float g = g1_schlick(n_dot_v, k) * g1_schlick(l.z, k);
+            float g = G_smith(n_dot_v, l.z, alpha);
             float g_vis = g * v_dot_h / (cos_h * n_dot_v);
             float fc = pow(1.0 - v_dot_h, 5.0);
             sum += vec2(1.0 - fc, fc) * g_vis;
@@ -71,5 +64,9 @@ void main() {
         }
     }
     sheen *= 2.0 * PI / float(SHEEN_THETA * SHEEN_PHI);  // d(cos) d(phi) over 2 x [0, pi]
-    f_color = vec4(sum / float(SAMPLES), min(sheen, 1.0), 1.0);
+    // A lobe reflects at most what arrives: the quadrature overshoots 1 by up to 2e-4 where
+    // the lobe is near a mirror, and 1 - E_ss < 0 would make the multiscatter term negative.
+    vec2 e = sum / float(SAMPLES);
+    e /= max(e.x + e.y, 1.0);
+    f_color = vec4(e, min(sheen, 1.0), 1.0);
 }

@@ -49,7 +49,7 @@ void specular_albedo(vec3 f0, float f90, float NdotV, float roughness, out vec3 
     vec2 ab = texture(u_brdf_lut, vec2(NdotV, roughness)).rg;
     FssEss = f0 * ab.x + f90 * ab.y;
 #ifdef MULTISCATTER
-    float Ems = 1.0 - (ab.x + ab.y);
+    float Ems = max(1.0 - (ab.x + ab.y), 0.0);  // the LUT is filtered: never above 1
     vec3 Favg = f0 + (1.0 - f0) / 21.0;
     FmsEms = Ems * FssEss * Favg / (1.0 - Ems * Favg);
 #else

@@ -23,6 +23,7 @@ void main() {
 #endif
     vec3 color = compose(m, v, lobes, u_brdf_lut);
 #endif
+    color = max(color, vec3(0.0));  // radiance is never negative (float rounding in the lobes' sums)
 #ifdef ALPHA_BLEND
     f_color = vec4(color, m.base_color.a);
 #else

@@ -173,13 +173,48 @@ bool second_exit(vec3 p, vec3 r, vec2 uv0, out float t, out vec3 n) {
 #endif
 #endif
 
-// What a rough interface lets through of the light crossing it: its microfacets mask and
-// shadow the transmitted share as they do the reflected one, so it keeps the GGX lobe's
-// single-scattering albedo E_ss (LUT scale + bias, F0 = 1); 1 when smooth. The ray tracer
-// applies the same factor (renderer/raytrace.py).
-float single_scatter_albedo(float cos_theta, float roughness) {
-    vec2 ab = texture(u_brdf_lut, vec2(clamp(abs(cos_theta), 1e-4, 1.0), roughness)).rg;
-    return ab.x + ab.y;
+// What a rough interface lets through of the light crossing it, the mean over GGX's visible
+// normals m of (1 - F(v.m)) G1(t): Walter et al.'s rough dielectric with the separable Smith
+// masking of the way out, the expectation of the ray tracer's sampled weight
+// (renderer/methods/optics.py sample_rough_dielectric; Mitsuba's roughdielectric). A fixed
+// stratified quadrature, so the frame stays noise-free. cos_i: the incident direction's cosine
+// to the macro normal on its side; eta = n_incident / n_transmitted. Smooth: 1 - F exactly.
+// The reflection keeps the smooth Fresnel F, so what passes is capped at 1 - F (at grazing
+// views the facets turned toward the viewer would let more through than the macro surface).
+float smith_g1(float c, float alpha) {
+    float c2 = clamp(c * c, 1e-12, 1.0);
+    return 2.0 / (1.0 + sqrt(1.0 + alpha * alpha * (1.0 - c2) / c2));
+}
+
+vec3 visible_normal(vec3 v, float alpha, vec2 u) {  // Heitz 2018, local frame (n = +z)
+    vec3 vh = normalize(vec3(alpha * v.x, alpha * v.y, v.z));
+    float lensq = vh.x * vh.x + vh.y * vh.y;
+    vec3 t1 = lensq > 0.0 ? vec3(-vh.y, vh.x, 0.0) * inversesqrt(lensq) : vec3(1.0, 0.0, 0.0);
+    vec3 t2 = cross(vh, t1);
+    float r = sqrt(u.x), phi = 6.28318530717959 * u.y;
+    float p1 = r * cos(phi), p2 = r * sin(phi);
+    float s = 0.5 * (1.0 + vh.z);
+    p2 = (1.0 - s) * sqrt(max(1.0 - p1 * p1, 0.0)) + s * p2;
+    vec3 nh = p1 * t1 + p2 * t2 + sqrt(max(1.0 - p1 * p1 - p2 * p2, 0.0)) * vh;
+    return normalize(vec3(alpha * nh.x, alpha * nh.y, max(nh.z, 1e-7)));
+}
+
+float rough_transmittance(float cos_i, float alpha, float eta) {
+    cos_i = clamp(abs(cos_i), 1e-4, 1.0);
+    float smooth_t = 1.0 - fresnel_dielectric(cos_i, eta);
+    if (alpha <= 1e-4) return smooth_t;
+    const int N = 6;
+    vec3 v = vec3(sqrt(1.0 - cos_i * cos_i), 0.0, cos_i);
+    float sum = 0.0;
+    for (int i = 0; i < N; ++i) {
+        for (int j = 0; j < N; ++j) {
+            vec3 m = visible_normal(v, alpha, (vec2(i, j) + 0.5) / float(N));
+            vec3 t;
+            if (refract_ray(-v, m, eta, t) && t.z < 0.0)
+                sum += (1.0 - fresnel_dielectric(dot(v, m), eta)) * smith_g1(-t.z, alpha);
+        }
+    }
+    return min(sum / float(N * N), smooth_t);
 }
 
 // Angular radius of a lobe of `variance`: a reflection lobe of GGX alpha spreads directions
@@ -279,7 +314,7 @@ vec3 transmitted(vec3 v, vec3 n, float ior, float roughness, float d_interior, o
     vec4 bpos;
     vec3 n2;
     bool inside_hit = false;
-    float exit_loss = 1.0;  // the exit interface's microfacet loss (single_scatter_albedo)
+    float exit_T = 1.0;     // what the exit interface lets through (rough_transmittance)
     float exit_F = 0.0;     // exit Fresnel: the internally reflected share reads the
     vec3 exit_refl = r1;    // environment along its direction (as a 2-bounce ray tracer)
 #ifdef SCREEN_OPAQUE
@@ -294,7 +329,7 @@ vec3 transmitted(vec3 v, vec3 n, float ior, float roughness, float d_interior, o
         if (refract_ray(r1, -n2, ior, r2)) {
             dir = r2;
             exit_F = fresnel_dielectric(dot(r1, n2), ior);
-            exit_loss = single_scatter_albedo(dot(r1, n2), bpos.w);
+            exit_T = rough_transmittance(dot(r1, n2), alpha_back, ior);
             exit_refl = reflect(r1, n2);
         } else {
             tir = true;
@@ -312,6 +347,8 @@ vec3 transmitted(vec3 v, vec3 n, float ior, float roughness, float d_interior, o
                 dir = r3;
                 origin = p_exit + r_in * D2;
                 path += D2;
+            } else {
+                path += D;  // the light still crossed the volume again before it left
             }
 #else
             dir = r1;  // the paper's fallback: the first refraction alone
@@ -319,7 +356,7 @@ vec3 transmitted(vec3 v, vec3 n, float ior, float roughness, float d_interior, o
         }
     }
     if (!inside_hit) through = outside_radiance(origin, dir, variance);
-    through = (1.0 - exit_F) * exit_loss * through
+    through = exit_T * through
             + exit_F * textureLod(u_env, ENV_DIR(exit_refl), roughness_to_lod(pow(variance_reflected, 0.25))).rgb;
 #else
     through = outside_radiance(v_world, r1, variance);
@@ -378,7 +415,10 @@ void main() {
     Fv = mix(Fv, m.iridescence_fresnel, m.iridescence);  // the film reflects, the rest enters
 #endif
     vec3 ks = m.metallic * FssEss + dielectric * Fv;
-    vec3 kr = dielectric * (1.0 - Fv) * transmission * single_scatter_albedo(cos_i, m.roughness);
+    // the rough interface's share of the smooth one's (iridescence tints the smooth share)
+    float rough_ratio = rough_transmittance(cos_i, m.roughness * m.roughness, 1.0 / u_ior)
+                      / max(1.0 - F, 1e-6);
+    vec3 kr = dielectric * (1.0 - Fv) * transmission * rough_ratio;
     vec3 kd = dielectric * (1.0 - Fv) * (1.0 - transmission);
     vec3 reflected = env_radiance(reflect(d, n), m.roughness);
     Lobes lobes = ibl_lobes(m, v);  // sheen and clearcoat over the glass, as on opaque
@@ -405,5 +445,5 @@ void main() {
     color = vec3(D * u_debug_scale);
 #endif
 #endif
-    f_color = vec4(color, 1.0);
+    f_color = vec4(max(color, vec3(0.0)), 1.0);  // radiance is never negative
 }

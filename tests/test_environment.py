@@ -373,7 +373,7 @@ def test_glsl_sh_irradiance_equals_numpy(court):
 def _lut_quadrature(size: int) -> np.ndarray:
     """Gauss-Legendre quadrature of the split-sum integrals over the half vector h:
     scale, bias = integral of D(h) G(v, l) (v.h) / (n.v) * (1 - Fc, Fc) dw_h over l above the
-    horizon, with Fc = (1 - v.h)^5 and Smith-Schlick G, k = alpha / 2. theta_h is substituted
+    horizon, with Fc = (1 - v.h)^5 and height-correlated Smith G. theta_h is substituted
     by theta_h = atan(alpha tan(pi t / 2)) so that narrow lobes get nodes where D lives."""
     t, wt = np.polynomial.legendre.leggauss(192)
     t, wt = (t + 1) / 2, wt / 2
@@ -383,7 +383,7 @@ def _lut_quadrature(size: int) -> np.ndarray:
     n_v = (np.arange(size) + 0.5) / size
     for j in range(size):
         alpha = ((j + 0.5) / size) ** 2
-        k = alpha / 2
+        a2 = alpha ** 2
         tan_w = np.tan(np.pi * t / 2)
         theta = np.arctan(alpha * tan_w)
         dtheta = alpha * (np.pi / 2) / np.cos(np.pi * t / 2) ** 2 / (1 + (alpha * tan_w) ** 2)
@@ -396,7 +396,9 @@ def _lut_quadrature(size: int) -> np.ndarray:
             v_h = vx * hx + nv * hz
             l_z = 2 * v_h * hz - nv
             ok = (l_z > 0) & (v_h > 0)
-            g = nv / (nv * (1 - k) + k) * np.where(ok, l_z / (l_z * (1 - k) + k), 0)
+            lz = np.clip(l_z, 1e-9, 1)
+            g = np.where(ok, 2 * nv * lz / (lz * np.sqrt(nv * nv * (1 - a2) + a2)
+                                            + nv * np.sqrt(lz * lz * (1 - a2) + a2)), 0)
             common = np.where(ok, d * g * v_h / nv, 0) * area
             fc = (1 - np.clip(v_h, 0, 1)) ** 5
             out[j, i] = (common * (1 - fc)).sum(), (common * fc).sum()
@@ -441,3 +443,12 @@ def test_hostile_rle_hdr_stops_at_the_ingest_time_bound(tmp_path):
     path.write_bytes(f"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y {h} +X {w}\n".encode() + row * h)
     with pytest.raises(IngestTimeout, match="runs.hdr.*time bound"):
         env.load_panorama(path, Limits(ingest_seconds=0.05))
+
+
+def test_brdf_lut_albedo_never_exceeds_one():
+    # 1 - E_ss feeds the multiscatter term: an albedo above 1 (the quadrature overshoots near
+    # the mirror limit) made a mirror sphere's pixels negative.
+    lut = env.brdf_lut()
+    e = lut[..., 0] + lut[..., 1]
+    assert e.max() <= 1.0 + 1e-6 and lut[..., :2].min() >= 0.0
+    assert e[:, -1].max() > 0.99  # not scaled down wholesale: a smooth lobe at normal view keeps ~1

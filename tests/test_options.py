@@ -71,9 +71,11 @@ CHANGED = {"width": 300, "height": 300, "yaw": 1.0, "pitch": 1.0, "fov": 50.0, "
            "background_blur": 0.5, "override": MaterialOverride(metallic=1.0), "msaa": 1, "antialias": "msaa",
            "lights": False, "multiscatter": False, "tir": "paper", "bounces": 2, "fresnel_split": "sample",
            "rough_lobes": "prefilter", "supersample": 3, "aa_threshold": 0.05,
+           "integrator": "path", "samples": 16, "noise": 0.05,
            "debug": "tir", "budget_ms": 10.0, "time": "0.5", "animation": "walk", "animate": 12.0, "variant": "red", "camera": "0",
            "material_debug": "clearcoat", "target": (0.0, 1.0, 0.0), "env_rotation": 90.0,
-           "alpha": "coverage", "shadow": 0.2, "turntable": 12, "views": True}
+           "alpha": "coverage", "shadow": 0.2, "turntable": 12, "views": True,
+           "variant_set": ("wheels=big",), "purposes": ("render", "proxy")}
 
 
 def test_key_covers_every_field():

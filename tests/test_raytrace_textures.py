@@ -134,7 +134,8 @@ def test_shadow_rays_find_the_occluder():
 
 
 def _quad(key: str, ref: TextureRef, wrap: int = 10497) -> BakedAsset:
-    """A unit quad facing +Z with an 8 x 8 random texture (nearest), UV set 1 = set 0 flipped."""
+    """A unit quad facing +Z (keys start "rt-": the GPU cache holds uploads by key, and other test
+    files make quads of other textures) with an 8 x 8 random texture (nearest), UV set 1 = set 0 flipped."""
     rng = np.random.default_rng(7)
     img = rng.integers(0, 256, (8, 8, 4), dtype=np.uint8)
     img[..., 3] = 255
@@ -154,7 +155,7 @@ def test_texture_transform_uv_set_and_wrap_match_the_raster(case):
     ref = {"transform": TextureRef(0, offset=(0.25, 0.1), rotation=0.4, scale=(0.6, 0.8)),
            "texcoord1": TextureRef(0, uv_set=1),
            "mirrored": TextureRef(0, offset=(-0.5, 0.3), scale=(2.5, 2.0))}[case]
-    asset = _quad(f"quad-{case}", ref, MIRRORED_REPEAT if case == "mirrored" else 10497)
+    asset = _quad(f"rt-quad-{case}", ref, MIRRORED_REPEAT if case == "mirrored" else 10497)
     o = RenderOptions(width=64, height=64, tonemap="none", background="transparent", yaw=0.0,
                       pitch=0.0, shadow=0.0)
     raster = render(asset, constant_env(0.0), dataclasses.replace(o, method="opaque")).linear
@@ -168,14 +169,14 @@ def test_texture_transform_uv_set_and_wrap_match_the_raster(case):
 
 def test_alpha_mask_and_blend_let_rays_through():
     ref = TextureRef(0)
-    asset = _quad("quad-alpha", ref)
+    asset = _quad("rt-quad-alpha", ref)
     img = asset.textures[0].image.copy()
     img[..., 3] = np.where(np.indices((8, 8)).sum(0) % 2 == 0, 255, 0).astype(np.uint8)  # checker
     tex = Texture("checker", img, Sampler(mag_filter=NEAREST, min_filter=NEAREST))
     mesh = asset.meshes[0]
     o = RenderOptions(width=64, height=64, tonemap="none", background="transparent", yaw=0.0,
                       pitch=0.0, shadow=0.0)
-    masked = dataclasses.replace(asset, key="quad-mask", textures=[tex], meshes=[dataclasses.replace(
+    masked = dataclasses.replace(asset, key="rt-quad-mask", textures=[tex], meshes=[dataclasses.replace(
         mesh, material=dataclasses.replace(mesh.material, alpha_mode="MASK"))])
     raster = render(masked, constant_env(0.0), dataclasses.replace(o, method="opaque")).linear[..., 3]
     traced = render(masked, constant_env(0.0), dataclasses.replace(o, method="raytrace")).linear[..., 3]
@@ -183,7 +184,7 @@ def test_alpha_mask_and_blend_let_rays_through():
     assert 0.45 < traced.sum() / quad.sum() < 0.55               # half the texels are cut
     on = quad > 0.99
     assert np.corrcoef(raster[on], traced[on])[0, 1] > 0.9      # the same ones as the raster
-    half = dataclasses.replace(asset, key="quad-blend", meshes=[dataclasses.replace(
+    half = dataclasses.replace(asset, key="rt-quad-blend", meshes=[dataclasses.replace(
         mesh, material=dataclasses.replace(mesh.material, alpha_mode="BLEND",
                                            base_color=(1.0, 1.0, 1.0, 0.5)))])
     cover = render(half, constant_env(0.0), dataclasses.replace(o, method="raytrace")).linear[..., 3]

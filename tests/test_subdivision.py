@@ -89,6 +89,78 @@ def test_teapot_cage_refined_two_levels(assets):
 def test_levels_follow_the_cage_size_and_loop_step_is_linear_in_attributes():
     assert [levels_for(n) for n in (100, 10_000, 100_000)] == [2, 1, 0]
     pos = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
-    new_pos, tri, attrs = loop_step(pos, np.array([[0, 1, 2]]), {"uv0": pos[:, :2].copy()})
+    new_pos, tri, attrs, _ = loop_step(pos, np.array([[0, 1, 2]]), {"uv0": pos[:, :2].copy()})
     assert len(tri) == 4 and len(new_pos) == 6
     np.testing.assert_allclose(attrs["uv0"][3:], [[0.5, 0], [0, 0.5], [0.5, 0.5]], atol=1e-12)
+
+
+# The cube's 12 edges as chains of 2 points, and its 8 corners.
+EDGES = [(0, 1), (2, 3), (4, 5), (6, 7), (0, 2), (1, 3), (4, 6), (5, 7), (0, 6), (1, 7), (2, 4), (3, 5)]
+
+
+def creased(tmp_path, sharpness=None, corners=None, name="creased"):
+    text = cube(tmp_path).read_text()
+    extra = ""
+    if isinstance(sharpness, (int, float)):
+        sharpness = ", ".join([str(sharpness)] * 12)  # one per chain
+    if sharpness is not None:
+        extra += (f"    int[] creaseIndices = [{', '.join(f'{a}, {b}' for a, b in EDGES)}]\n"
+                  f"    int[] creaseLengths = [{', '.join(['2'] * 12)}]\n"
+                  f"    float[] creaseSharpnesses = [{sharpness}]\n")
+    if corners is not None:
+        extra += f"    int[] cornerIndices = [0, 1, 2, 3, 4, 5, 6, 7]\n" \
+                 f"    float[] cornerSharpnesses = [{', '.join([str(corners)] * 8)}]\n"
+    path = tmp_path / f"{name}.usda"
+    path.write_text(text.replace("    uniform token subdivisionScheme", extra + "    uniform token subdivisionScheme"))
+    return path
+
+
+def off_cube(mesh) -> float:
+    """Mean distance of the refined points from the cage cube's surface (0: still a cube)."""
+    return float(np.mean(1.0 - np.abs(mesh.positions).max(axis=1)))
+
+
+def test_infinitely_sharp_creases_keep_the_cube(tmp_path):
+    mesh = build_baked(load_scene(creased(tmp_path, 10))).meshes[0]
+    assert len(mesh.indices) == 12 * 16
+    assert off_cube(mesh) < 1e-6  # every point on a face: edges stay sharp lines
+    np.testing.assert_allclose(np.abs(mesh.positions).max(axis=0), 1.0, atol=1e-6)  # corners too
+    assert watertight(mesh.positions, mesh.indices)
+    # shading breaks along the crease: every normal is its face's (no soft band at the edges)
+    np.testing.assert_allclose(np.abs(mesh.normals).max(axis=1), 1.0, atol=1e-5)
+
+
+def test_semi_sharp_creases_round_less_as_sharpness_grows(tmp_path):
+    smooth = off_cube(build_baked(load_scene(cube(tmp_path))).meshes[0])
+    one = off_cube(build_baked(load_scene(creased(tmp_path, 1, name="one"))).meshes[0])
+    half = off_cube(build_baked(load_scene(creased(tmp_path, 0.5, name="half"))).meshes[0])
+    assert smooth > half > one > 0.0
+
+
+def test_authored_corners_stay_put(tmp_path):
+    mesh = build_baked(load_scene(creased(tmp_path, corners=10))).meshes[0]
+    corners = np.abs(np.abs(mesh.positions) - 1).max(axis=1) < 1e-6
+    assert corners.any()  # (+-1, +-1, +-1) survive
+    welded = np.unique(mesh.positions[corners], axis=0)
+    assert len(welded) == 8
+    smooth = build_baked(load_scene(cube(tmp_path))).meshes[0]
+    assert not (np.abs(np.abs(smooth.positions) - 1).max(axis=1) < 1e-6).any()
+
+
+def test_mismatched_crease_arrays_are_a_warning(tmp_path):
+    path = creased(tmp_path, "1, 2")  # two values for twelve chains of one edge
+    scene = load_scene(path)
+    assert any("creases ignored" in w for w in scene.warnings)
+    assert scene.meshes[0].creases is None
+
+
+def test_a_crease_chain_with_one_sharpness_per_edge(tmp_path):
+    path = cube(tmp_path)
+    path.write_text(path.read_text().replace("    uniform token subdivisionScheme",
+                                             "    int[] creaseIndices = [0, 1, 3, 2, 0]\n"
+                                             "    int[] creaseLengths = [5]\n"
+                                             "    float[] creaseSharpnesses = [10, 10, 0, 2]\n"
+                                             "    uniform token subdivisionScheme"))
+    creases = load_scene(path).meshes[0].creases
+    assert creases is not None and list(creases.edge_sharpness) == [10, 10, 2]  # the 0 is smooth
+    np.testing.assert_allclose(creases.edges[0], [(-1, -1, 1), (1, -1, 1)])

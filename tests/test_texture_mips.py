@@ -68,13 +68,27 @@ def test_checkerboard_four_times_the_cap_mip0_is_the_box_filter(srgb):
     _assert_rounded(chain[3], _box_reference(img, 32, srgb))
 
 
-def test_under_the_cap_mip0_is_the_source_and_odd_edges_are_dropped():
+def test_under_the_cap_mip0_is_the_source_and_levels_have_gl_sizes():
     img = np.random.default_rng(1).integers(0, 256, (300, 517, 4), dtype=np.uint8)
     chain = mip_chain(img, True, cap=1024)
     np.testing.assert_array_equal(chain[0], img)
     assert [c.shape[:2] for c in chain] == level_shapes(300, 517)
     assert chain[1].shape[:2] == (150, 258)
     assert texture_size_for(1024) == 2048 and texture_size_for(300) == 1024 and texture_size_for(1) == 2
+
+
+def test_odd_edge_is_weighed_in_not_dropped():
+    """A non-power-of-two texture loses nothing at its odd edge: a white last column of a
+    black 5-wide image reaches level 1 (2 wide; a 2x2 box drops that column), on its own
+    side; and a constant image stays constant at every level."""
+    img = np.zeros((4, 5, 4), np.uint8)
+    img[..., 3] = 255
+    img[:, 4, :3] = 255
+    chain = mip_chain(img, False)
+    assert chain[1].shape[:2] == (2, 2)
+    assert (chain[1][:, 1, 0] >= 255 / 5).all() and (chain[1][:, 0, 0] == 0).all()
+    flat = np.full((37, 91, 4), 200, np.uint8)
+    assert all((lv == 200).all() for lv in mip_chain(flat, True))
 
 
 def _textured_cube(path, texture: np.ndarray):
@@ -121,6 +135,8 @@ def test_bake_stores_capped_compressed_chains_and_renders_upload_by_need(tmp_pat
     gasset = gpu._assets[loaded.key]
     # levels up to twice the render's size (atlases), no sharper
     assert {k: v[0] for k, v in gasset.texture_levels.items()} == {(0, True): (128, 128), (0, False): (128, 128)}
+    # trilinear with the anisotropic footprint (the context has GL_EXT_texture_filter_anisotropic)
+    assert all(t.anisotropy == min(16.0, t.ctx.max_anisotropy) > 1 for t in gasset.textures.values())
     small_bytes = gasset.nbytes
     render(loaded, constant_env(1.0), RenderOptions(width=200, height=150, **opts))
     assert gasset.texture_levels[(0, True)][0] == (512, 512)  # sharper levels, same GL texture

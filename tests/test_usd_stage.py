@@ -227,7 +227,7 @@ def test_studio_stage_counts_and_instancing_agree_with_pxr(tmp_path):
     # Proxy, Guide, nor Render/M (its own proxy purpose wins)
     assert scene.triangle_count == pxr_triangles(path) == 12 + 4 + 4 + 4 + 16
     assert any("partLeft" in w and "not materialBind" in w for w in scene.warnings)
-    by_name = {}
+    by_name: dict[str, list] = {}
     for inst in scene.instances:
         by_name.setdefault(scene.meshes[inst.mesh].name, []).append(inst)
     crate = [n for n in by_name if n.endswith("/Box")]
@@ -431,6 +431,15 @@ LIGHT
 """
 
 
+def _card_shot(path, tmp_path, *extra):
+    from cli.main import main
+    out = tmp_path / "card.npy"
+    assert main(["render", str(path), "--out", str(out), "--size", "32", "--yaw", "0",
+                 "--pitch", "0", "--tonemap", "none", "--msaa", "0",
+                 "--cache", str(tmp_path / "cache"), *extra]) == 0
+    return np.load(out).astype(np.float64)[12:20, 12:20, :3]
+
+
 @pytest.mark.parametrize("authored, illuminance", [
     ("", 50000 * math.pi * math.sin(math.radians(0.53 / 2)) ** 2),  # the schema's fallback
     ("float inputs:intensity = 1.5\nfloat inputs:exposure = 1\nbool inputs:normalize = 1", 3.0),
@@ -438,20 +447,28 @@ LIGHT
      40 * math.pi * math.sin(math.radians(10)) ** 2),
 ])
 def test_grey_card_under_a_distant_light(tmp_path, authored, illuminance):
-    """A Lambertian card facing a DistantLight: what the light adds is albedo / pi x E."""
-    from cli.main import main
+    """A Lambertian card facing a DistantLight is lit by it alone, as Storm lights it (no
+    studio environment on top): albedo / pi x E."""
     path = tmp_path / "card.usda"
     path.write_text(GREY_CARD.replace("LIGHT", authored))
+    np.testing.assert_allclose(_card_shot(path, tmp_path), 0.5 / math.pi * illuminance, rtol=0.02)
+    # its lights off, the studio lights it; named, an environment lights it with the stage's lights
+    studio = _card_shot(path, tmp_path, "--no-lights")
+    assert studio.min() > 0.1
+    both = _card_shot(path, tmp_path, "--env", "studio")
+    np.testing.assert_allclose(both - studio, 0.5 / math.pi * illuminance, rtol=0.02)
 
-    def shot(*extra):
-        out = tmp_path / "card.npy"
-        assert main(["render", str(path), "--out", str(out), "--size", "32", "--yaw", "0",
-                     "--pitch", "0", "--tonemap", "none", "--msaa", "0",
-                     "--cache", str(tmp_path / "cache"), *extra]) == 0
-        return np.load(out).astype(np.float64)[12:20, 12:20, :3]
 
-    added = shot() - shot("--no-lights")
-    np.testing.assert_allclose(added, 0.5 / math.pi * illuminance, rtol=0.02)
+def test_untextured_dome_is_a_uniform_environment(tmp_path):
+    """A DomeLight without a texture is radiance colour x intensity x 2^exposure from every
+    direction (UsdLux): a Lambertian card shows albedo x L; with a distant light beside it, both."""
+    path = tmp_path / "dome.usda"
+    dome = 'def DomeLight "Sky"\n    {\n        float inputs:intensity = 0.5\n        ' \
+           'float inputs:exposure = 1\n        color3f inputs:color = (1, 0.5, 0.25)\n    }\n    '
+    path.write_text(GREY_CARD.replace('def DistantLight "Sun"', dome + 'def DistantLight "Sun"')
+                    .replace("LIGHT", "float inputs:intensity = 0.2\nbool inputs:normalize = 1"))
+    expect = 0.5 * np.array([1.0, 0.5, 0.25]) + 0.5 / math.pi * 0.2
+    np.testing.assert_allclose(_card_shot(path, tmp_path), np.broadcast_to(expect, (8, 8, 3)), rtol=0.02)
 
 
 def test_area_lights_in_metres(tmp_path):
@@ -487,3 +504,21 @@ def SphereLight "Normalized"
     assert panel.intensity == pytest.approx(3 * 2.0 * 0.5)
     assert bulb.intensity == pytest.approx(math.pi * 0.2 ** 2)
     assert normalized.intensity == pytest.approx(7)
+
+
+def test_stage_lights_replace_the_studio_over_http(server, tmp_path):
+    """The service lights a stage with its own lights as the CLI does (the default
+    environment is not added); a named environment lights it beside them."""
+    from test_service import decode, upload
+    r = upload(server, "card.usda", GREY_CARD.replace("LIGHT", "float inputs:intensity = 2\n"
+                                                      "bool inputs:normalize = 1").encode())
+    rec = server.wait_status(r.json()["id"])
+    assert rec["status"] == "ready", rec
+    q = {"size": 32, "yaw": 0, "pitch": 0, "tonemap": "none", "msaa": 0}
+    own = server.client.get(f"/assets/{rec['id']}/thumbnail", params=q)
+    studio = server.client.get(f"/assets/{rec['id']}/thumbnail", params={**q, "env": "studio"})
+    assert own.status_code == studio.status_code == 200
+    centre = lambda r: decode(r.content)[12:20, 12:20, :3].mean() / 255  # noqa: E731
+    expect = (0.5 / math.pi * 2) ** (1 / 2.4) * 1.055 - 0.055  # sRGB of albedo / pi x E
+    assert abs(centre(own) - expect) < 0.02
+    assert centre(studio) > centre(own) + 0.1

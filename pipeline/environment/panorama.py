@@ -18,7 +18,7 @@ from core.colour import srgb_to_linear
 from core.cubemap import equirect_direction
 from core.errors import AssetError, LimitExceeded, MalformedAsset, MissingFile, UnsupportedFormat
 from pipeline.deadline import check, within
-from pipeline.environment import studio
+from pipeline.environment import studio, uniform
 from pipeline.images import decode_image
 from pipeline.limits import Limits
 
@@ -50,6 +50,9 @@ def load_panorama(source: str | Path, limits: Limits | None = None) -> Panorama:
     path = resolve_panorama(source)
     if path == studio.SOURCE:
         return Panorama(name=studio.NAME, pixels=studio.studio_panorama().copy(), files=[path])
+    rgb = uniform.parse(source)
+    if rgb is not None:
+        return Panorama(name=str(source), pixels=uniform.panorama(rgb), files=[path])
     suffix = path.suffix.lower()
     if suffix not in LDR_SUFFIXES + HDR_SUFFIXES:
         raise UnsupportedFormat(path, f"not a panorama format ({', '.join(LDR_SUFFIXES + HDR_SUFFIXES)})")
@@ -84,6 +87,8 @@ def resolve_panorama(source: str | Path) -> Path:
     name `studio` resolves to the module that generates it (its hash keys the bake)."""
     if source == studio.NAME:
         return studio.SOURCE
+    if uniform.parse(source) is not None:  # `dark`, `uniform:R,G,B` (pipeline/environment/uniform.py)
+        return uniform.SOURCE
     path = Path(source)
     if path.is_file():
         return path

@@ -33,7 +33,7 @@ from pipeline.environment.panorama import DEFAULT_ENVIRONMENT, Panorama, list_bu
 log = logging.getLogger(__name__)
 
 METHODS = ("ggx", "paper")
-PREFILTER_VERSION = 3      # bump when the filter's output changes (cache keys include it)
+PREFILTER_VERSION = 5      # bump when the filter's or the LUT's output changes (cache keys include it); 4: height-correlated Smith G, 5: LUT albedo <= 1
 GGX_SAMPLES = 64           # per texel at mip 1, doubling per mip (coarse mips have few texels)
 GGX_MAX_SAMPLES = 512
 LUT_SIZE = 64

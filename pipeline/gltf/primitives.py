@@ -43,7 +43,7 @@ def primitive(d: Document, mesh_index: int, prim_index: int, prim: dict, weights
     n = len(positions)
     if positions.shape[1] != 3:
         raise d.bad(f"{what}: POSITION is not VEC3")
-    colors = _attribute(d, what, attrs, "COLOR_0", (4, 3), n)
+    colors = attribute(d, what, attrs, "COLOR_0", (4, 3), n)
     if colors is not None and colors.shape[1] == 3:
         colors = np.concatenate([colors, np.ones((n, 1), np.float32)], axis=1)
     if "indices" in prim:
@@ -55,7 +55,7 @@ def primitive(d: Document, mesh_index: int, prim_index: int, prim: dict, weights
         idx = np.arange(n, dtype=np.uint32)
     positions, normals, tangents = _deform(
         d, what, prim, attrs, weights, skin, positions.astype(np.float32, copy=False),
-        _attribute(d, what, attrs, "NORMAL", (3,), n), _attribute(d, what, attrs, "TANGENT", (4,), n))
+        attribute(d, what, attrs, "NORMAL", (3,), n), attribute(d, what, attrs, "TANGENT", (4,), n))
     if mode == POINTS:
         faces = idx.reshape(-1, 1)
     elif mode in (LINES, LINE_LOOP, LINE_STRIP):
@@ -65,11 +65,11 @@ def primitive(d: Document, mesh_index: int, prim_index: int, prim: dict, weights
     return Mesh(name=f"{d.name('meshes', mesh_index, 'mesh')}/{prim_index}",
                 positions=positions, normals=normals,  # type: ignore[arg-type]  # None: pipeline.ingest computes them
                 indices=faces, tangents=tangents,
-                uv0=_attribute(d, what, attrs, "TEXCOORD_0", (2,), n),
-                uv1=_attribute(d, what, attrs, "TEXCOORD_1", (2,), n), colors=colors)
+                uv0=attribute(d, what, attrs, "TEXCOORD_0", (2,), n),
+                uv1=attribute(d, what, attrs, "TEXCOORD_1", (2,), n), colors=colors)
 
 
-def _attribute(d: Document, what: str, source: dict, name: str, widths: tuple[int, ...],
+def attribute(d: Document, what: str, source: dict, name: str, widths: tuple[int, ...],
                n: int) -> np.ndarray | None:
     """Vertex attribute `name` of `source` (a primitive's attributes or a morph target) as
     float32, checked to hold `n` rows of one of `widths`; None when absent."""
@@ -93,7 +93,7 @@ def _deform(d: Document, what: str, prim: dict, attrs: dict, weights, skin: np.n
         for t, target in enumerate(targets[:len(weights)]):
             target = d.obj(target, f"{what} target {t}")
             for k, arr in deltas.items():
-                arr.append(_attribute(d, what, target, k, (3,), n))
+                arr.append(attribute(d, what, target, k, (3,), n))
         positions = morph(positions, deltas["POSITION"], weights)
         if normals is not None:
             normals = morph(normals, deltas["NORMAL"], weights)
@@ -106,7 +106,7 @@ def _deform(d: Document, what: str, prim: dict, attrs: dict, weights, skin: np.n
     if not sets:
         return positions, normals, tangents
     joints = [d.accessor(j, d.limits.max_vertices, f"{what} JOINTS") for j, _ in sets]
-    weights4 = [cast(np.ndarray, _attribute(d, what, attrs, f"WEIGHTS_{k}", (4,), n))
+    weights4 = [cast(np.ndarray, attribute(d, what, attrs, f"WEIGHTS_{k}", (4,), n))
                 for k in range(len(sets))]
     if any(j.shape != (n, 4) or j.dtype.kind != "u" for j in joints):
         raise d.bad(f"{what}: JOINTS_n must be {n} x 4 unsigned integers")

@@ -44,13 +44,18 @@ def load(path: Path, limits: Limits, root: Path | None = None,
     """Read a .gltf or .glb file (checked against `limits`) into a Scene; its URIs must lie
     inside `root` (default: its folder; `paths.sandbox_root`). With a `moment`, nodes, skins
     and morph weights are posed by that animation at that time (pipeline.gltf.animation)."""
+    return Assembly(open_document(path, limits, root)).scene(moment)
+
+
+def open_document(path: Path, limits: Limits, root: Path | None = None) -> Document:
+    """The document, refused when it requires extensions we do not read."""
     d = Document(Path(path), limits, root)
     unknown = sorted(set(d.array(d.doc, "extensionsRequired")) - SUPPORTED_EXTENSIONS
                      - PARTIAL_EXTENSIONS)
     if unknown:
         raise UnsupportedFormat(d.path, f"requires glTF extension(s) we do not support: "
                                         f"{', '.join(map(str, unknown))}")
-    return _Assembly(d).scene(moment)
+    return d
 
 
 def extension_report(d: Document) -> dict[str, str]:
@@ -67,11 +72,15 @@ def extension_report(d: Document) -> dict[str, str]:
     return report
 
 
-class _Assembly:
+class Assembly:
     """One scene being built: each (mesh, primitive, skin, weights) and each material read
-    once, however many nodes place them."""
+    once, however many nodes place them. `own_weights`: nodes whose morph weights get a
+    mesh of their own even where another node's are equal (a rig animates them apart);
+    `recipes`: per scene mesh (by id), what it was read from, for pipeline.gltf.rig."""
 
-    def __init__(self, d: Document):
+    def __init__(self, d: Document, own_weights: frozenset[int] = frozenset()):
+        self.own_weights = own_weights
+        self.recipes: dict[int, tuple] = {}  # id(Mesh) -> (mesh index, primitive, prim, skin, node)
         self.d, self.textures, self.nodes = d, Textures(d), NodeGraph(d)
         self.out = Scene(source=str(d.path), format="glb" if d.glb_bin is not None or
                          d.path.suffix.lower() == ".glb" else "gltf")
@@ -82,7 +91,7 @@ class _Assembly:
 
     def scene(self, moment: Moment | None = None) -> Scene:
         d, scene = self.d, self.out
-        animations = read_animations(d)
+        animations = self.animations = read_animations(d)
         scene.animations = [a.summary() for a in animations]
         if moment is not None:  # the node graph composes the animated values (NodeGraph.local)
             anim = select(animations, moment.animation, str(d.path))
@@ -125,12 +134,13 @@ class _Assembly:
             self.skins[skin] = self.nodes.joint_matrices(d.integer(node, "skin"), worlds)
         # A skinned mesh ignores its node's transform: the joints place it (glTF 2.0 spec).
         placements = self.nodes.instancing(node, index, np.eye(4) if skin is not None else world)
+        local = placements if skin is not None else self.nodes.instancing(node, index, np.eye(4))
         for p, prim in enumerate(prims):
             deadline.check()
             prim = d.obj(prim, f"mesh {mesh_index} primitive {p}")
-            key = (mesh_index, p, skin, weights)
+            key = (mesh_index, p, skin, weights, index if index in self.own_weights else None)
             if key not in self.prim_meshes:
-                self.prim_meshes[key] = self._mesh(mesh_index, p, prim, weights, skin)
+                self.prim_meshes[key] = self._mesh(mesh_index, p, prim, weights, skin, index)
             if self.prim_meshes[key] is None:
                 continue
             mat = prim.get("material")
@@ -140,16 +150,18 @@ class _Assembly:
                                           else read_material(d, self.textures,
                                                              d.integer(prim, "material")))
             variants = variant_materials(d, prim, self._scene_material)
-            for matrix in placements:
+            for matrix, at in zip(placements, local):
                 self.out.instances.append(Instance(cast(int, self.prim_meshes[key]),
-                                                   self.materials[mat], matrix, variants=variants))
+                                                   self.materials[mat], matrix, variants=variants,
+                                                   placement=(index, skin is not None, at)))
 
-    def _mesh(self, mesh_index: int, p: int, prim: dict, weights, skin) -> int | None:
+    def _mesh(self, mesh_index: int, p: int, prim: dict, weights, skin, node: int) -> int | None:
         """Scene index of a newly read primitive (None when it is skipped)."""
         mesh = primitive(self.d, mesh_index, p, prim, weights,
                          None if skin is None else self.skins[skin])
         if mesh is None:
             return None
+        self.recipes[id(mesh)] = (mesh_index, p, prim, skin, node)
         if mesh.indices.shape[1] != 3:
             self.wire[len(self.out.meshes)] = int(prim.get("mode", TRIANGLES))
         self.out.meshes.append(mesh)

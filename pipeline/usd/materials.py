@@ -41,7 +41,6 @@ from core.scene import (
     Scene,
     Texture,
     TextureRef,
-    default_material,
 )
 from pipeline import deadline
 from pipeline.images import DeferredTexture, probe_image
@@ -56,6 +55,7 @@ WRAP = {"repeat": REPEAT, "mirror": MIRRORED_REPEAT, "clamp": CLAMP_TO_EDGE,
         "black": CLAMP_TO_EDGE, "useMetadata": REPEAT}
 # UsdPreviewSurface fallbacks (its spec), where they differ from Material's glTF defaults.
 DIFFUSE, METALLIC, ROUGHNESS, IOR = (0.18, 0.18, 0.18), 0.0, 0.5, 1.5
+HYDRA_GREY = (0.5, 0.5, 0.5)  # displayColor when a gprim authors none (UsdImaging's fallback)
 
 
 @dataclass
@@ -137,8 +137,9 @@ class MaterialReader:
         targets = rel.GetTargets() if rel else []
         return targets[0] if targets else None
 
-    def bind(self, material, double_sided: bool, has_display_color: bool) -> Binding:
-        """`material`: what `bound` returned."""
+    def bind(self, material, double_sided: bool, has_display_color: bool | str) -> Binding:
+        """`material`: what `bound` returned; `has_display_color`: True, or "translucent"
+        when its displayOpacity falls under 1."""
         if isinstance(material, Sdf.Path):
             key = (material, double_sided, has_display_color)
         else:
@@ -150,7 +151,7 @@ class MaterialReader:
         return self._bindings[key]
 
     # -- one material -----------------------------------------------------------------------
-    def _read(self, material, has_display_color: bool):
+    def _read(self, material, has_display_color: bool | str):
         """(Material, uv primvar names, colour primvar name) for one bound material."""
         shader = None
         if isinstance(material, Sdf.Path):
@@ -175,9 +176,11 @@ class MaterialReader:
             if has_display_color:
                 mat = Material(name="displayColor", base_color=(1.0, 1.0, 1.0, 1.0),
                                metallic=0.0, roughness=0.5)
+                if has_display_color == "translucent":  # displayOpacity < 1 (the vertex alpha)
+                    mat.alpha_mode = "BLEND"
                 return mat, (), "displayColor"
             name = str(material.GetPath()) if material else "default"
-            return default_material(name), (), None
+            return fallback_material(name), (), None
         deadline.check()
         assert material is not None  # a shader comes from a bound material
         return self._preview_surface(str(material.GetPath()), shader)
@@ -188,7 +191,7 @@ class MaterialReader:
             self._warn(f"material {name}: MaterialX surface {node.category or node.name!r} is "
                        f"not one of {', '.join(materialx.SURFACES)}; drawn with the fallback "
                        "material")
-            return default_material(name), (), None
+            return fallback_material(name), (), None
         reader = materialx.SurfaceReader(self, name, node)
         mat = reader.read()
         return mat, tuple(reader.uv_names[:2]), None
@@ -208,7 +211,7 @@ class MaterialReader:
             names = ", ".join(sorted({i.rsplit("/", 1)[-1] for i, _ in found}))
             self._warn(f"{target}: no surfacematerial {found[0][1]!r} with a surface shader in "
                        f"{names}; drawn with the fallback material")
-            return default_material(str(target)), (), None
+            return fallback_material(str(target)), (), None
         resolve = lambda text, doc=identifier: self._resolve_file(doc, text)  # noqa: E731
         return self._materialx(str(target), materialx.MxNode(shader, resolve))
 
@@ -356,8 +359,35 @@ class MaterialReader:
                 mat.alpha_mode = "BLEND"
                 mat.base_color = (*mat.base_color[:3], alpha)
         if int(_scalar(self._input(shader, "useSpecularWorkflow"), 0)):
-            self._warn(f"{name}: useSpecularWorkflow = 1 is not supported; read as metallic "
-                       "workflow (specularColor ignored)")
+            # UsdPreviewSurface's specular workflow (as Storm's previewSurface shades it):
+            # F0 = specularColor (fallback black), F90 = 1, metallic unused, ior for
+            # refraction only. As KHR_materials_specular, whose dielectric F0 is
+            # ((ior-1)/(ior+1))^2 x specular_color (the product clamped to 1) with F90 = the
+            # specular factor: specular_color = specularColor / that IOR's F0, factor 1.
+            mat.metallic, mat.specular = 0.0, 1.0
+            f0 = ((mat.ior - 1.0) / (mat.ior + 1.0)) ** 2
+            if f0 < 1e-4:  # ior ~1 reflects nothing to tint: its own F0 (1.5's) stands in
+                self._warn(f"{name}: specular workflow with ior {mat.ior}: specularColor read "
+                           "over ior 1.5's reflectance, the refraction keeps ior 1.5")
+                mat.ior, f0 = IOR, ((IOR - 1.0) / (IOR + 1.0)) ** 2
+            spec = self._input(shader, "specularColor")
+            if isinstance(spec, _Tex):
+                self._check_tex(name, "specularColor", spec, "sRGB")
+                if spec.output in ("rgb", "rgba"):
+                    mat.specular_color_texture = ref(spec)
+                    rgb = spec.scale[:3]
+                else:  # one channel, as grey
+                    c = spec.channel
+                    mat.specular_color_texture = ref(_with(spec, self._pack(
+                        {0: (spec.texture, c), 1: (spec.texture, c), 2: (spec.texture, c)})))
+                    rgb = (spec.scale[c],) * 3
+            elif isinstance(spec, str):
+                self._warn(f"{name}: specularColor from primvar {spec!r} is not supported; black")
+                rgb = (0.0, 0.0, 0.0)
+            else:
+                rgb = _vec(spec, 3, (0.0, 0.0, 0.0))
+            mat.specular_color = cast(tuple[float, float, float],
+                                      tuple(max(float(c), 0.0) / f0 for c in rgb))
         return mat, tuple(uv_names), color_primvar
 
     # -- inputs ---------------------------------------------------------------------------------
@@ -502,6 +532,12 @@ class MaterialReader:
         if text not in self.scene.warnings:
             self.scene.warnings.append(text)
             log.warning("%s: %s", self.graph.path, text)
+
+
+def fallback_material(name: str) -> Material:
+    """What Hydra draws a gprim with when it has no usable material and no displayColor:
+    displayColor's fallback, 0.5 linear grey (UsdImagingGprimAdapter::GetColor), opaque."""
+    return Material(name=name, base_color=(*HYDRA_GREY, 1.0), metallic=0.0, roughness=0.5)
 
 
 def _with(tex: _Tex, texture: int) -> _Tex:

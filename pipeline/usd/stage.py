@@ -46,7 +46,7 @@ from pxr import Ar, Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade, UsdSkel
 
 from core.animation import Moment
 from core.errors import LimitExceeded, MalformedAsset, MissingFile, NotInAsset, UnsafeReference
-from core.scene import Instance, Light, Mesh, Scene, SceneCamera
+from core.scene import Creases, Instance, Light, Mesh, Scene, SceneCamera
 from pipeline import deadline
 from pipeline.limits import Limits
 from pipeline.normals import smooth_normals
@@ -59,15 +59,17 @@ log = logging.getLogger(__name__)
 
 Y_UP_FROM_Z_UP = np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]], np.float64)
 PRUNED_TYPES = (UsdShade.Material, UsdShade.NodeGraph, UsdShade.Shader)
-DRAWN_PURPOSES = (UsdGeom.Tokens.default_, UsdGeom.Tokens.render)
+PURPOSES = (UsdGeom.Tokens.render, UsdGeom.Tokens.proxy, UsdGeom.Tokens.guide)
 
 
 def load(path: Path, limits: Limits, root: Path | None = None,
-         moment: Moment | None = None, variant_sets: tuple[str, ...] = ()) -> Scene:
+         moment: Moment | None = None, variant_sets: tuple[str, ...] = (),
+         purposes: tuple[str, ...] = ("render",)) -> Scene:
     """Read a USD file (any of its four forms) into a Scene; AssetError on bad input.
     Files it references must lie inside `root` (default: its folder; `paths.sandbox_root`).
     `variant_sets`: "[PRIM:]SET=NAME" selections (no PRIM: the default prim's set), applied
-    in order, so a selection may name a set that an earlier one brought in."""
+    in order, so a selection may name a set that an earlier one brought in. `purposes`: drawn
+    besides default (usdview's render / proxy / guide toggles; render by default)."""
     path = Path(path)
     graph = LayerGraph(path, limits, root)
     try:
@@ -77,7 +79,7 @@ def load(path: Path, limits: Limits, root: Path | None = None,
         scene.variant_sets = list_variant_sets(stage)
         scene.warnings.extend(graph.warnings)
         scene.time_range = time_range(stage)
-        _StageReader(stage, graph, scene, limits, moment).read()
+        _StageReader(stage, graph, scene, limits, moment, purposes).read()
         scene.files = list(graph.files)
         scene.absent = list(graph.absent)
         return scene
@@ -166,12 +168,14 @@ class _Topology:
     normals: np.ndarray | None
     attrs: dict[str, np.ndarray] = field(default_factory=dict)
     subdivision: str | None = None  # catmullClark / loop: refined at bake (pipeline/usd/subdivision.py)
+    creases: Creases | None = None
 
 
 class _StageReader:
     def __init__(self, stage: Usd.Stage, graph: LayerGraph, scene: Scene, limits: Limits,
-                 moment: Moment | None = None):
+                 moment: Moment | None = None, purposes: tuple[str, ...] = ("render",)):
         self.stage, self.graph, self.scene, self.limits = stage, graph, scene, limits
+        self.drawn = (UsdGeom.Tokens.default_, *(p for p in PURPOSES if p in purposes))
         self.time = time_code(stage, moment)  # pipeline.usd.time
         if moment is not None:
             scene.moment = {"time_code": self.time.GetValue()}
@@ -201,6 +205,10 @@ class _StageReader:
         `root`'s parent) places a PointInstancer prototype K times; None = the stage itself."""
         predicate = Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)
         it = iter(Usd.PrimRange(root, predicate))
+        purposes: dict[Sdf.Path, str] = {}  # computed purpose by path
+        parent = root.GetParent()
+        if parent and parent.IsA(UsdGeom.Imageable):  # a prototype's walk: its instancer's
+            purposes[parent.GetPath()] = UsdGeom.Imageable(parent).ComputePurpose()
         for prim in it:
             self._nodes += 1
             if self._nodes > self.limits.max_nodes:
@@ -212,13 +220,20 @@ class _StageReader:
                     it.PruneChildren()
                 continue
             img = UsdGeom.Imageable(prim)
-            # purpose inherits from the nearest ancestor with one authored (which wins over
-            # the prim's own): only a prim whose own is not default/render needs the computed
-            # one; usdview's default draws default + render (an unknown token is not drawn)
-            if img.GetVisibilityAttr().Get(self.time) == UsdGeom.Tokens.invisible or \
-                    img.GetPurposeAttr().Get() not in DRAWN_PURPOSES \
-                    and img.ComputePurpose() not in DRAWN_PURPOSES:
+            if img.GetVisibilityAttr().Get(self.time) == UsdGeom.Tokens.invisible:
                 it.PruneChildren()
+                continue
+            # purpose as UsdGeom computes it: a prim's own authored value, else its parent's
+            # (parents come first in the traversal); a render prim under a proxy Xform is
+            # drawn with render purpose on, so a prim not drawn does not prune its children.
+            # usdview's default draws default + render (an unknown token never)
+            attr = img.GetPurposeAttr()
+            purpose = attr.Get() if attr.HasAuthoredValue() else \
+                purposes.get(prim.GetPath().GetParentPath(), UsdGeom.Tokens.default_)
+            purposes[prim.GetPath()] = purpose
+            if purpose not in self.drawn:
+                if prim.IsA(UsdGeom.PointInstancer):
+                    it.PruneChildren()  # its prototypes are not drawn in their own right
                 continue
             if prim.IsA(UsdSkel.Root):
                 self._skel_root(prim)
@@ -274,8 +289,9 @@ class _StageReader:
         axis_m = [float(np.linalg.norm(world[:3, i])) for i in range(3)]  # metres per light unit
         where = str(prim.GetPath())
         if prim.IsA(UsdLux.DomeLight):
-            self._dome(prim, where)
+            self._dome(prim, where, color * intensity)
             return
+        self.scene.own_lighting = True
         if prim.IsA(UsdLux.DistantLight):
             half = math.radians(min(max(get(UsdLux.DistantLight(prim).GetAngleAttr(), 0.53),
                                         0.0), 360.0)) / 2
@@ -316,24 +332,29 @@ class _StageReader:
             out.inner_cone = out.outer_cone * (1.0 - soft)
         self.scene.lights.append(out)
 
-    def _dome(self, prim: Usd.Prim, where: str) -> None:
+    def _dome(self, prim: Usd.Prim, where: str, radiance: np.ndarray) -> None:
+        """A textured dome's panorama is the environment; an untextured one's radiance
+        (colour x intensity x 2^exposure from every direction, UsdLux) a uniform one."""
         attr = UsdLux.DomeLight(prim).GetTextureFileAttr()
         asset = attr.Get(self.time)
         if not asset or not asset.path:
-            self._warn(f"{where}: dome light without a texture; the render's environment is used")
+            if self.scene.dome_radiance is None and self.scene.environment is None:
+                self.scene.dome_radiance = tuple(float(c) for c in np.clip(radiance, 0, None))  # type: ignore[assignment]
+                self.scene.own_lighting = True
             return
         try:
             identifier = self.graph.resolve(authoring_layer(attr, self.time), asset.path)
         except MissingFile as exc:
-            self._warn(f"{where}: {exc.reason}; the render's environment is used")
+            self._warn(f"{where}: {exc.reason}; this dome gives no light")
             return
         if Ar.IsPackageRelativePath(identifier):
-            self._warn(f"{where}: a dome texture inside a package is not read; the render's "
-                       "environment is used")
+            self._warn(f"{where}: a dome texture inside a package is not read; this dome "
+                       "gives no light")
             return
         if self.scene.environment is None:
             self.scene.environment = identifier
             self.graph.files.append(identifier)
+            self.scene.own_lighting = True
         else:
             self._warn(f"{where}: a second dome light; the first one's texture is used")
 
@@ -430,7 +451,14 @@ class _StageReader:
         source = prim.GetPrimInPrototype() if prim.IsInstanceProxy() else prim
         groups = self._groups(prim, mesh)
         double_sided = bool(UsdGeom.Gprim(prim).GetDoubleSidedAttr().Get())
-        has_color = bool(UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance("displayColor"))
+        # authored here or on an ancestor: the schema declares displayColor on every gprim
+        color_pv = UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance("displayColor")
+        has_color = bool(color_pv) and color_pv.HasAuthoredValue()
+        if has_color:  # displayOpacity under 1 anywhere: drawn blended, as Storm draws it
+            opacity_pv = UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance("displayOpacity")
+            values = opacity_pv.Get(self.time) if opacity_pv and opacity_pv.HasAuthoredValue() else None
+            if values is not None and len(values) and float(np.min(values)) < 1.0:
+                has_color = "translucent"
         bindings = [self.materials.bind(mat, double_sided, has_color) for _, mat, _ in groups]
         uv_sets = {n for b in bindings for n in b.uv_primvars if not n.startswith("=")}
         needed = sorted(uv_sets | {b.color_primvar for b in bindings if b.color_primvar})
@@ -561,6 +589,8 @@ class _StageReader:
         scheme = str(attr.Get()) if attr.HasAuthoredValue() else "none"
         topo = _Topology(points[point_of_vertex], tri.astype(np.uint32), tri_face, None,
                          subdivision=scheme if scheme in ("catmullClark", "loop") else None)
+        if topo.subdivision:
+            topo.creases = self._creases(prim, mesh, points, fvi)
         if normals is not None:
             topo.normals = normals.values[elem(normals)][:, :3].astype(np.float32)
         for name, pv in primvars.items():
@@ -568,6 +598,43 @@ class _StageReader:
         self.triangles += n_tri
         self.vertices += len(topo.positions)
         return topo
+
+    def _creases(self, prim: Usd.Prim, mesh: UsdGeom.Mesh, points: np.ndarray,
+                 fvi: np.ndarray) -> Creases | None:
+        """creaseIndices (chains of creaseLengths points; creaseSharpnesses one per chain or
+        one per edge) and cornerIndices / cornerSharpnesses, as end positions."""
+        get = lambda a, kind: np.asarray(a.Get(self.time) or [], kind)  # noqa: E731
+        idx, lengths = get(mesh.GetCreaseIndicesAttr(), np.int64), get(mesh.GetCreaseLengthsAttr(), np.int64)
+        sharp = get(mesh.GetCreaseSharpnessesAttr(), np.float64)
+        c_idx, c_sharp = get(mesh.GetCornerIndicesAttr(), np.int64), get(mesh.GetCornerSharpnessesAttr(), np.float64)
+        if not len(idx) and not len(c_idx):
+            return None
+        where = f"{prim.GetPath()}"
+        edges, edge_s = np.zeros((0, 2), np.int64), np.zeros(0)
+        if len(idx):
+            n_edges = int(np.maximum(lengths - 1, 0).sum())
+            if lengths.min(initial=0) < 0 or int(lengths.sum()) != len(idx) or \
+                    len(sharp) not in (len(lengths), n_edges) or idx.min() < 0 or idx.max() >= len(points):
+                self._warn(f"{where}: creaseIndices / creaseLengths / creaseSharpnesses do not "
+                           "agree; creases ignored")
+            else:
+                start = np.cumsum(lengths) - lengths
+                chain = np.repeat(np.arange(len(lengths)), np.maximum(lengths - 1, 0))
+                step = np.arange(n_edges) - np.repeat(np.cumsum(np.maximum(lengths - 1, 0))
+                                                       - np.maximum(lengths - 1, 0),
+                                                       np.maximum(lengths - 1, 0))
+                first = start[chain] + step
+                edges = np.stack([idx[first], idx[first + 1]], axis=1)
+                edge_s = sharp[chain] if len(sharp) == len(lengths) and len(sharp) != n_edges \
+                    else sharp
+        if len(c_idx) and (len(c_sharp) != len(c_idx) or c_idx.min() < 0 or c_idx.max() >= len(points)):
+            self._warn(f"{where}: cornerIndices / cornerSharpnesses do not agree; corners ignored")
+            c_idx, c_sharp = np.zeros(0, np.int64), np.zeros(0)
+        keep, keep_c = edge_s > 0, c_sharp > 0
+        if not keep.any() and not keep_c.any():
+            return None
+        return Creases(points[edges[keep]].astype(np.float32), edge_s[keep].astype(np.float32),
+                       points[c_idx[keep_c]].astype(np.float32), c_sharp[keep_c].astype(np.float32))
 
     def _shape(self, prim: Usd.Prim, names: list[str]) -> _Topology | None:
         """An implicit shape, tessellated; only constant primvars (colours) apply to it."""
@@ -660,7 +727,8 @@ class _StageReader:
         return Mesh(name=name, positions=pick(topo.positions),
                     normals=None if topo.normals is None else pick(topo.normals),  # type: ignore[arg-type]  # None: pipeline.ingest computes them
                     indices=local.reshape(-1, 3).astype(np.uint32),
-                    uv0=uvs[0], uv1=uvs[1], colors=colors, subdivision=topo.subdivision)
+                    uv0=uvs[0], uv1=uvs[1], colors=colors, subdivision=topo.subdivision,
+                    creases=topo.creases)
 
     def _warn(self, text: str) -> None:
         if text not in self.scene.warnings:

@@ -415,16 +415,16 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
             d, _ = _subpixel_rays(camera, chunk, 1)
             for img in images:
                 img.add(sky.radiance(d, np.full(len(d), options.background_blur)), chunk)
-    adaptive = options.aa_threshold > 0 and supersample > 2 and len(passes) == 1
-    stats["refined"] = 0
-    for chunk in _chunks(np.flatnonzero(near), CHUNK_PIXELS):
-        if adaptive:  # 2 x 2 first; the full grid only where those disagree
-            chunk = _coarse_pass(ts, sky, options, camera, chunk, image, stats)
-            stats["refined"] += len(chunk)
-        dirs, pix = _subpixel_rays(camera, chunk, supersample)
+    if options.integrator == "path":  # progressive path tracing (renderer.methods.path_trace)
+        from renderer.methods import path_trace
+        pixels = np.flatnonzero(near)
         for scene, img in zip(passes, images):
-            _trace_paths(scene, sky, options, camera.position, dirs, pix, 1.0 / supersample ** 2,
-                         img, stats)
+            rgb_p, cov_p = path_trace.trace(scene, sky, options, camera, pixels, stats)
+            img.rgb[pixels] += rgb_p
+            img.coverage[pixels] += cov_p
+        supersample = 1
+    else:
+        _trace_tree(ts, sky, options, camera, near, supersample, passes, images, stats)
 
     rgb = image.rgb if len(images) == 1 else np.stack([img.rgb[:, c] for c, img in enumerate(images)], -1)
     rgb = rgb.reshape(camera.height, camera.width, 3)
@@ -439,6 +439,24 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     log.info("raytrace %dx%d: %d rays in %.0f ms (%d bounces used)", camera.width,
              camera.height, stats["rays"], (t1 - t0) * 1e3, len(stats["bounces"]))
     return linear, stats
+
+
+def _trace_tree(ts: TraceScene, sky: _Environment, options: RenderOptions, camera: Camera,
+                near: np.ndarray, supersample: int, passes: list[TraceScene], images: list[_Image],
+                stats: dict) -> None:
+    """The Fresnel tree over the pixels `near`, ss x ss rays each (adaptive with aa_threshold)."""
+    image = images[0]
+    adaptive = options.aa_threshold > 0 and supersample > 2 and len(passes) == 1
+    stats["refined"] = 0
+    for chunk in _chunks(np.flatnonzero(near), CHUNK_PIXELS):
+        if adaptive:  # 2 x 2 first; the full grid only where those disagree
+            chunk = _coarse_pass(ts, sky, options, camera, chunk, image, stats)
+            stats["refined"] += len(chunk)
+        dirs, pix = _subpixel_rays(camera, chunk, supersample)
+        for scene, img in zip(passes, images):
+            _trace_paths(scene, sky, options, camera.position, dirs, pix, 1.0 / supersample ** 2,
+                         img, stats)
+
 
 
 def _coarse_pass(ts: TraceScene, sky: _Environment, options: RenderOptions, camera: Camera,
@@ -817,7 +835,11 @@ def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOpt
             "shadow": "none: the ray tracer draws no ground shadow",
             "supersample": stats["supersample"],
             "rays": stats["rays"], "rays_per_bounce": stats["bounces"],
-            "tir_events": stats["tir"]}
+            "tir_events": stats["tir"], "integrator": options.integrator}
+    if options.integrator == "path":
+        plan.update(passes=stats["passes"], samples_mean=round(stats["samples_mean"], 2),
+                    stop=stats["stop"], nonfinite=stats.get("nonfinite", 0),
+                    path_ms=round(stats["path_ms"], 1), pass_ms_max=round(stats["pass_ms_max"], 1))
     total = (t1 - t0) * 1e3
     timings = FrameTimings(total, {"build": stats["build_ms"], "trace": stats["trace_ms"],
                                    "tonemap": total - stats["build_ms"] - stats["trace_ms"]})

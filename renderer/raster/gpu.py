@@ -62,7 +62,9 @@ def uploaded_bytes() -> int:
     return sum(a.nbytes for a in _assets.values_all()) if _assets is not None else 0
 
 
-stats = {"asset_uploads": 0, "environment_uploads": 0, "evictions": 0}
+stats = {"asset_uploads": 0, "environment_uploads": 0, "evictions": 0,
+         # frames of an animation on one upload (BakedAsset.gpu_key): buffers rewritten
+         "poses": 0, "vertex_writes": 0, "instance_writes": 0}
 
 # Vertex attributes by BakedMesh field: (shader name, moderngl format).
 _ATTRIBUTES = {
@@ -179,7 +181,15 @@ def asset(baked: BakedAsset, pixels: int = 1024) -> GpuAsset:
     texture levels sharp enough for a render of `pixels` (its longer side) and no sharper
     (core.mips.texture_size_for: up to twice its size, for atlases)."""
     table = _tables()[0]
-    gpu = _cached(table, baked.key, lambda: _upload_asset(baked), "asset_uploads")
+    gpu = _cached(table, baked.gpu_key or baked.key, lambda: _upload_asset(baked), "asset_uploads")
+    if baked.gpu_key is not None and (len(gpu.meshes) != len(baked.meshes) or any(
+            gm.baked is not m for gm, m in zip(gpu.meshes, baked.meshes))):
+        if not _repose(gpu, baked):  # another pose of what it holds, or of another rig
+            before = table.evictions
+            gpu = _upload_asset(baked)
+            table.replace(gpu.key, gpu)
+            stats["asset_uploads"] += 1
+            stats["evictions"] += table.evictions - before
     if _upload_textures(gpu, baked, texture_size_for(pixels)):
         before = table.evictions
         table.reweigh(baked.key)  # it grew: others go while the budget needs it
@@ -216,13 +226,76 @@ def _upload_asset(baked: BakedAsset) -> GpuAsset:
             sel = transforms[(det < 0) == mirrored]
             if len(sel):
                 instances.append((mirrored, ctx.buffer(_instance_data(sel)), len(sel)))
-        centre = (m.positions.min(axis=0) + m.positions.max(axis=0)) / 2 if len(m.positions) else np.zeros(3)
-        centers = transforms[:, :3, :3] @ centre + transforms[:, :3, 3]
+        centers = transforms[:, :3, :3] @ _centre(m) + transforms[:, :3, 3]
         nbytes = sum(b.size for b in buffers.values()) + ibo.size
         meshes.append(GpuMesh(m, buffers, ibo, instances, centers, nbytes))
     nbytes = sum(m.nbytes for m in meshes)
     log.info("uploaded %s: %d meshes, %.1f MB", baked.key[:12], len(meshes), nbytes / 2**20)
-    return GpuAsset(baked.key, meshes, {}, list(baked.lights), np.asarray(baked.bounds), nbytes)
+    return GpuAsset(baked.gpu_key or baked.key, meshes, {}, list(baked.lights),
+                    np.asarray(baked.bounds), nbytes)
+
+
+def _repose(gpu: GpuAsset, baked: BakedAsset) -> bool:
+    """Make `gpu` hold `baked`, another pose of the asset it holds: the vertex buffers whose
+    arrays are other objects are rewritten (a pose shares every array that did not move with
+    the one before), the instance matrices of every mesh; nothing else is uploaded. False,
+    touching nothing, when `baked` is laid out otherwise (other meshes, triangles or
+    attributes: another animation's rig): it needs an upload of its own."""
+    if len(baked.meshes) != len(gpu.meshes):
+        return False
+    for gm, m in zip(gpu.meshes, baked.meshes):
+        old = gm.baked
+        if m.indices is not old.indices and not np.array_equal(m.indices, old.indices):
+            return False
+        have = {name for name in _ATTRIBUTES
+                if (a := getattr(m, name)) is not None and len(a) == len(m.positions)}
+        if have != set(gm.buffers) or len(m.positions) != len(old.positions):
+            return False
+    ctx = context.get_context()
+    for gm, m in zip(gpu.meshes, baked.meshes):
+        old = gm.baked
+        for name, buf in gm.buffers.items():
+            arr = getattr(m, name)
+            if arr is getattr(old, name):
+                continue
+            buf.write(np.ascontiguousarray(arr, np.float32))
+            stats["vertex_writes"] += 1
+        if m.positions is not old.positions:
+            gm.edges = None  # the edge planes follow the surface (renderer.raster.edges)
+        if m.material is not old.material:
+            gm.states.clear()
+        transforms = np.asarray(m.transforms, np.float64).reshape(-1, 4, 4)
+        det = np.linalg.det(transforms[:, :3, :3])
+        for mirrored, buf, count in gm.instances:
+            sel = transforms[(det < 0) == mirrored]
+            if len(sel) != count:  # a scale through zero turned some over: lay them out anew
+                _instances_anew(ctx, gm, transforms, det)
+                break
+            buf.write(_instance_data(sel))
+        else:
+            if sum(c for _, _, c in gm.instances) != len(transforms):
+                _instances_anew(ctx, gm, transforms, det)
+        stats["instance_writes"] += 1
+        gm.centers = transforms[:, :3, :3] @ _centre(m) + transforms[:, :3, 3]
+        gm.baked = m
+    gpu.lights, gpu.bounds = list(baked.lights), np.asarray(baked.bounds)
+    stats["poses"] += 1
+    return True
+
+
+def _instances_anew(ctx, gm: GpuMesh, transforms: np.ndarray, det: np.ndarray) -> None:
+    for vao in gm.vaos.values():
+        vao.release()
+    gm.vaos.clear()
+    for _, buf, _ in gm.instances:
+        buf.release()
+    gm.instances = [(mirrored, ctx.buffer(_instance_data(sel)), len(sel))
+                    for mirrored in (False, True)
+                    if len(sel := transforms[(det < 0) == mirrored])]
+
+
+def _centre(m: BakedMesh) -> np.ndarray:
+    return (m.positions.min(axis=0) + m.positions.max(axis=0)) / 2 if len(m.positions) else np.zeros(3)
 
 
 def _upload_textures(gpu: GpuAsset, baked: BakedAsset, top: int) -> int:
@@ -290,6 +363,11 @@ def _upload_texture(gl_tex: moderngl.Texture | None, tex: BakedTexture, chain: l
                         GL_UNSIGNED_BYTE, np.ascontiguousarray(img).ctypes.data)
     gl.glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAX_LEVEL, len(chain) - 1)
     gl_tex.filter = (tex.sampler.min_filter, tex.sampler.mag_filter)
+    if tex.sampler.min_filter in MIPMAP_FILTERS:
+        # Anisotropic filtering (GL_EXT_texture_filter_anisotropic; llvmpipe and every desktop
+        # driver have it): a surface seen at an angle samples along its footprint's long axis
+        # instead of taking the blurrier mip its long axis alone would pick.
+        gl_tex.anisotropy = min(MAX_ANISOTROPY, context.get_context().max_anisotropy)
     # glTF wrap enums are GL's (REPEAT, CLAMP_TO_EDGE, MIRRORED_REPEAT); moderngl's repeat_x
     # knows only the first two, so set both axes directly on the bound texture.
     for axis, mode in ((GL_TEXTURE_WRAP_S, tex.sampler.wrap_s), (GL_TEXTURE_WRAP_T, tex.sampler.wrap_t)):
@@ -336,6 +414,9 @@ GL_TEXTURE_CUBE_MAP_POSITIVE_X = 0x8515
 GL_TEXTURE_MAX_LEVEL = 0x813D
 GL_TEXTURE_WRAP_S, GL_TEXTURE_WRAP_T = 0x2802, 0x2803
 WRAP_MODES = (REPEAT, CLAMP_TO_EDGE, MIRRORED_REPEAT)
+MIPMAP_FILTERS = (moderngl.NEAREST_MIPMAP_NEAREST, moderngl.LINEAR_MIPMAP_NEAREST,
+                  moderngl.NEAREST_MIPMAP_LINEAR, moderngl.LINEAR_MIPMAP_LINEAR)
+MAX_ANISOTROPY = 16.0  # what reference viewers ask for (three.js, Filament: the driver's maximum)
 GL_RGB16F, GL_RGB, GL_FLOAT = 0x881B, 0x1907, 0x1406
 
 

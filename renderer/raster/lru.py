@@ -36,6 +36,12 @@ class ReleasingLRU(LRUCache):
             value = super().pop(key)  # __delitem__: not an eviction, nothing released
             self[key] = value
 
+    def replace(self, key, value) -> None:
+        """`key`'s entry released and `value` put in its place."""
+        if key in self and not (self._big is not None and self._big[0] == key):
+            super().pop(key).release()  # __delitem__: not counted as an eviction
+        self[key] = value  # a big entry of this key is released by __setitem__
+
     def get(self, key, default=None):
         return self[key] if key in self else default
 

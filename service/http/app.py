@@ -15,6 +15,7 @@ from fastapi.responses import JSONResponse
 from fastapi_offline import FastAPIOffline
 
 from core.errors import AssetError, UnsupportedFormat
+from service.archive import AmbiguousEntry
 from service.assets import BadParameter, Conflict, NotFound, QuotaExceeded, StillBaking, UploadTooLarge, public_message
 from service.http.metrics import MetricsMiddleware
 from service.http.routes import assets, environments, health, pages
@@ -70,6 +71,8 @@ def _install_error_handlers(app: FastAPI) -> None:
         message = public_message(str(exc))  # never a server folder, whichever path raised it
         if isinstance(exc, UploadTooLarge):
             return detail(413, message)
+        if isinstance(exc, AmbiguousEntry):  # the page (or a client) offers these as `main`
+            return JSONResponse({"detail": message, "candidates": list(exc.candidates)}, status_code=422)
         return detail(415 if isinstance(exc, UnsupportedFormat) else 422, message)
 
     @app.exception_handler(NeedsKey)

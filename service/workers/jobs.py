@@ -21,10 +21,12 @@ from core.errors import AssetError
 from core.options import MaterialOverride, RenderOptions
 from gl.context import get_context
 from pipeline.animate import poses_for
-from pipeline.bake import bake_asset, bake_environment, load_baked
+from pipeline.bake import ASSET_OPTIONS, USD_SUFFIXES, asset_options, bake_asset, bake_environment, load_baked
 from pipeline.cache import Cache
 from pipeline.environment.prefilter import list_bundled
 from pipeline.ingest import load_scene
+from pipeline.library import drawless, usd_parts
+from pipeline.lighting import environment_source
 from pipeline.limits import Limits
 from renderer.methods.auto import environment_face_size
 from renderer.raster import gpu
@@ -39,6 +41,7 @@ from service.workers.protocol import (
     Failed,
     InspectJob,
     Job,
+    PartsJob,
     PingJob,
     Refused,
     RenderJob,
@@ -74,6 +77,11 @@ class WorkerState:
             return self.inspect(job)
         if isinstance(job, BakeJob):
             return self.bake(job)
+        if isinstance(job, PartsJob):
+            root = Path(job.root)
+            layers = [root / f for f in job.files]
+            skip = set(usd_parts(layers)) | drawless(layers)  # parts, material libraries
+            return tuple(sorted(Path(p).relative_to(root).as_posix() for p in skip))
         if isinstance(job, BakeEnvironmentJob):
             env = self._env(job.source, DEFAULT_FACE_SIZE)
             return EnvironmentResult(env.key, env.face_size)
@@ -125,7 +133,16 @@ class WorkerState:
         asset = self._cached(("asset", job.key), lambda: load_baked(job.key, self.cache))
         self.cache.touch("assets", job.key)  # in use: the bake cache's LRU must not see it as cold
         assert isinstance(asset, BakedAsset)
-        env = self._env(job.env_source, environment_face_size(asset, options)[0])
+        wanted = asset_options(options)
+        if any(wanted[k] != ASSET_OPTIONS[k] for k in wanted) and \
+                asset.manifest["source"].lower().endswith(USD_SUFFIXES):
+            # another population of the stage: its own bake (cached, keyed by the selection)
+            source = Path(asset.manifest["source"])
+            asset = self._cached(("asset", job.key, repr(sorted(wanted.items()))), lambda: bake_asset(
+                source, self.cache, limits=self.limits, root=job.root or source.parent, **wanted))
+        env_source = job.env_source if not job.env_default else environment_source(
+            asset, asset.manifest["source"], None, job.env_source, options.lights)
+        env = self._env(env_source, environment_face_size(asset, options)[0])
         if options.animate or options.time is not None or options.animation is not None:
             # posed from the upload (pipeline.animate), its references inside its own folder
             source = Path(asset.manifest["source"])

@@ -66,6 +66,16 @@ class InspectJob:
 
 
 @dataclass(frozen=True)
+class PartsJob:
+    """Which of an upload's USD files (`files`, relative to `root`) are not entry points:
+    parts another one references, and layers that draw nothing (pipeline.library; read in a
+    worker, as every byte of an upload is)."""
+    root: str
+    files: tuple[str, ...]
+    name: ClassVar[str] = "parts"
+
+
+@dataclass(frozen=True)
 class BakeJob:
     path: str
     root: str | None = None
@@ -81,15 +91,20 @@ class BakeEnvironmentJob:
 
 @dataclass(frozen=True)
 class RenderJob:
-    """One thumbnail: the bake `key`, the environment's source, the options, the image format."""
+    """One thumbnail: the bake `key`, the environment's source, the options, the image format;
+    `root`: the upload's folder, where a bake the options ask for (a USD variant selection,
+    other purposes) reads from; `env_default`: the request named no environment, so the
+    asset's own lighting may replace `env_source` (pipeline.lighting)."""
     key: str
     env_source: str
     options: RenderOptions
     fmt: str
+    root: str | None = None
+    env_default: bool = False
     name: ClassVar[str] = "render"
 
 
-Job = Union[PingJob, InspectJob, BakeJob, BakeEnvironmentJob, RenderJob]
+Job = Union[PingJob, InspectJob, PartsJob, BakeJob, BakeEnvironmentJob, RenderJob]
 
 
 # -- results ------------------------------------------------------------------------------------

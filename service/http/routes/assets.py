@@ -8,6 +8,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response
 from pydantic import ValidationError
 
+from core.options import REPEATABLE
 from service.assets import BadParameter, NotFound
 from service.http.deps import client_of, get_service
 from service.http.models import MEDIA_TYPES, AssetInfo, AssetList, Deleted, ErrorDetail, ThumbnailParams, render_options
@@ -81,7 +82,10 @@ async def thumbnail(asset_id: str, request: Request, service: Service):
     This is the hot path: the query is validated here with the pydantic model directly,
     which costs a fraction of FastAPI's per-parameter query-model machinery."""
     try:
-        params: Any = ThumbnailParams.model_validate(dict(request.query_params))  # fields made by create_model
+        query: dict[str, Any] = dict(request.query_params)
+        for name in REPEATABLE & query.keys():  # variant_set=A&variant_set=B: every value, in order
+            query[name] = request.query_params.getlist(name)
+        params: Any = ThumbnailParams.model_validate(query)  # fields made by create_model
         options = render_options(params)
     except ValidationError as exc:
         raise RequestValidationError([dict(e, loc=("query", *e["loc"])) for e in
@@ -92,6 +96,8 @@ async def thumbnail(asset_id: str, request: Request, service: Service):
         raise NotFound(asset_id)
     options = service.admit(options)
     env_identity, env_source = service.assets.resolve_environment(params.env)
+    if params.env is None:  # the asset's own lighting may replace it (pipeline.lighting)
+        env_identity += " (default)"
     key = service.thumbnail_key(asset_id, options, env_identity)
     hit = service.cached(asset_id, key, params.format)
     outcome = "hit"
@@ -99,7 +105,8 @@ async def thumbnail(asset_id: str, request: Request, service: Service):
         outcome = "miss"
         service.check_may_render(service.store.assets[asset_id], options, client_of(request),
                                  request.scope.get("state", {}).get("anonymous", False))
-        hit = await service.render(asset_id, options, params.format, key, env_source, client_of(request))
+        hit = await service.render(asset_id, options, params.format, key, env_source, client_of(request),
+                                   env_default=params.env is None)
     data, etag, plan = hit
     headers = {"ETag": etag, "Cache-Control": f"public, max-age={service.settings.cache_max_age}",
                "X-Render-Plan": plan.to_json()}

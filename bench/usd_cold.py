@@ -1,0 +1,99 @@
+"""A cold first image, broken down: `python -m bench.usd_cold RENDER-ARGS...` runs
+`asset-preview render RENDER-ARGS` in this (new) process and prints, as the last line of
+stdout, a JSON object of seconds per phase:
+
+- python: interpreter start to this module's first line (from the process's start time)
+- pxr_import: importing pxr's Usd, UsdGeom, UsdShade, UsdLux, Sdf
+- our_import: the CLI's own imports (numpy, moderngl, pipeline, renderer ...)
+- composition: the layers read (LayerGraph.open) and composed (Usd.Stage.Open)
+- materialx: MaterialX's library, documents and surfaces read
+- bake: the rest of bake_asset (meshes, textures, interior, cache write)
+- environment: bake_environment
+- first_frame: render() (GL context, upload, shaders, draw, read back)
+- other: what is left of the time to exit (argument parsing, encoding the PNG ...)
+
+Each phase's time is exclusive: a MaterialX read inside the bake counts once, as MaterialX.
+"""
+from __future__ import annotations
+
+import functools
+import json
+import os
+import sys
+import time
+
+_T0 = time.perf_counter()
+
+
+def _process_age() -> float:
+    """Seconds since this process started (/proc: start time in clock ticks after boot)."""
+    with open("/proc/self/stat") as f:
+        start_ticks = int(f.read().rsplit(")", 1)[1].split()[19])
+    with open("/proc/uptime") as f:
+        uptime = float(f.read().split()[0])
+    return uptime - start_ticks / os.sysconf("SC_CLK_TCK")
+
+
+class _Phases:
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+        self._stack: list[list] = []  # [phase, started, seconds of nested phases]
+
+    def wrap(self, owner, name: str, phase: str, static: bool = False) -> None:
+        fn = getattr(owner, name)
+
+        @functools.wraps(fn)
+        def timed(*args, **kwargs):
+            now = time.perf_counter()
+            self._stack.append([phase, now, 0.0])
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                ph, start, inner = self._stack.pop()
+                spent = time.perf_counter() - start
+                self.seconds[ph] = self.seconds.get(ph, 0.0) + spent - inner
+                if self._stack:
+                    self._stack[-1][2] += spent
+        setattr(owner, name, staticmethod(timed) if static else timed)
+
+
+def main(argv: list[str]) -> int:
+    python_s = max(_process_age() - (time.perf_counter() - _T0), 0.0)
+    phases = _Phases()
+    t = time.perf_counter()
+    from pxr import Sdf, Usd, UsdGeom, UsdLux, UsdShade  # noqa: F401
+    pxr_s = time.perf_counter() - t
+    t = time.perf_counter()
+    import cli.main
+    import cli.render  # noqa: F401
+    import pipeline.bake
+    import pipeline.usd.layers
+    import pipeline.usd.materials
+    import pipeline.usd.materialx as mtlx
+    import renderer.raster.render
+    import renderer.sequence  # noqa: F401
+    ours_s = time.perf_counter() - t
+    phases.wrap(Usd.Stage, "Open", "composition", static=True)
+    phases.wrap(pipeline.usd.layers.LayerGraph, "open", "composition")  # layers read before composing
+    for fn in ("library", "read_document", "find_references"):
+        phases.wrap(mtlx, fn, "materialx")
+    phases.wrap(pipeline.usd.materials.MaterialReader, "_materialx", "materialx")
+    phases.wrap(pipeline.bake, "bake_asset", "bake")
+    phases.wrap(pipeline.bake, "bake_environment", "environment")
+    phases.wrap(renderer.raster.render, "render", "first_frame")
+    t = time.perf_counter()
+    rc = cli.main.main(["render", *argv])
+    run_s = time.perf_counter() - t
+    out = {"python": python_s, "pxr_import": pxr_s, "our_import": ours_s,
+           **{k: phases.seconds.get(k, 0.0) for k in
+              ("composition", "materialx", "bake", "environment", "first_frame")}}
+    out["other"] = max(run_s - sum(phases.seconds.values()), 0.0)
+    out["rc"] = rc
+    out["cpu_s"] = time.process_time()  # all threads, since the process started: less load-bound than wall time
+    sys.stdout.flush()
+    print(json.dumps(out))
+    return rc
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,561 @@
+"""The path-tracing integrator of method raytrace (`integrator="path"`).
+
+Unbiased paths through the same baked material the Fresnel tree and the raster read
+(trace_material: textures, normal maps, vertex colours, alpha). The BSDF is glTF's
+metal-rough model as a mixture with wo-independent weights, so that choosing a component
+and dividing by its weight is exact:
+
+    f = m * Metal + (1 - m)(1 - tr) * Plastic + (1 - m) tr * Glass
+
+- Metal: GGX reflection (alpha = roughness^2, height-correlated Smith G2), Schlick F at F0 =
+  base colour; sampled from the visible normals (Heitz 2018). With `multiscatter` (the
+  default) the lobe is scaled by the multiply-scattered share of Fdez-Aguera 2019 (as the
+  raster's shaders/ibl.glsl), E_ss the single-scattering albedo of this very lobe
+  (ggx_albedo): a white rough metal keeps its energy (single-scattering GGX at roughness 1
+  returns only 0.31 at normal incidence).
+- Plastic: glTF's fresnel_mix: (1 - F(v.h)) * base / pi + F(v.h) * D G2 / (4 n.v n.l) with
+  Schlick F at F0 from the IOR; the GGX lobe is sampled with probability F(n.v) (at least
+  0.1), the cosine-weighted diffuse otherwise; the component's pdf is the mixture of both.
+- Glass: the exact dielectric (smooth: mirror / refraction with exact Fresnel, TIR included;
+  rough: Walter et al. about a sampled visible normal, renderer.methods.optics), tinted by
+  base colour on the way in, radiance scaled by eta^2 across the interface (as the tree),
+  Beer-Lambert attenuation inside. It is only BSDF-sampled (no light sampling).
+
+Light: the environment is importance-sampled from a luminance x solid-angle CDF over the
+texels of the bake's sharpest cube-map level (90%, mixed with 10% uniform over the sphere
+so that no direction with radiance has zero pdf), combined with BSDF sampling of Metal and
+Plastic by the power heuristic (Veach 1995); rays that escape after Glass or a smooth lobe
+take the environment at full weight. Punctual lights are deltas: next-event estimation
+alone, with an occlusion-only shadow ray (a glass occluder blocks them: its caustic is not
+a path BSDF sampling can find). Emissive surfaces add their emission where a path meets
+them. Russian roulette from the fourth surface on (survival = the path's throughput, at
+most 0.95); a path still alive after `bounces` surfaces reads the environment along its
+direction, as the tree does.
+
+Samples: one path per pixel per pass, the camera ray jittered within the pixel; every
+dimension pair of pass s is the R2 low-discrepancy point s (Roberts 2018) rotated by a hash
+of (pixel, dimension): deterministic, stratified over a pixel's passes, independent across
+pixels. Passes run until every pixel's relative standard error (of luminance, over its
+passes) is under `noise`, or `samples` passes, or until the next pass would overrun
+`budget_ms` (the granularity is one pass; the first pass always runs). Pixels that have
+reached the noise target stop being traced. Background pixels away from the object keep
+one centre ray (as the tree).
+
+Firefly clamp: once a path has scattered off a rough lobe (diffuse, or GGX with alpha >=
+ROUGH_ALPHA), what any later vertex adds is clamped to FIREFLY in max-RGB (colour kept):
+direct light (first rough vertex, by NEE or by MIS'd BSDF sampling) is never clamped; this
+is the only bias besides the closing environment read. Every pixel is finite (NaN and
+infinities are zeroed and counted in the plan).
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from core.cubemap import direction_to_face
+from core.options import RenderOptions
+from renderer.methods.optics import (
+    fresnel_dielectric,
+    ggx_smith_g1,
+    ggx_visible_normal,
+    orthonormal_basis,
+    reflect,
+    refract,
+    sample_rough_dielectric,
+)
+
+FIREFLY = 16.0        # max-RGB clamp of indirect contributions (linear radiance)
+ROUGH_ALPHA = 0.1     # lobes at least this wide count as rough for the clamp
+ALPHA_MIN = 1e-3      # GGX alpha floor: a smooth metal stays finite (1e-6 of D's peak width)
+UNIFORM_SHARE = 0.1   # of environment samples drawn uniformly over the sphere
+RR_START = 3          # Russian roulette from this surface index on
+MIN_PASSES = 4        # before the noise target is tested
+_R2 = (0.7548776662466927, 0.5698402909980532)  # 1/phi2, 1/phi2^2 (Roberts' R2)
+
+
+def _dot(a, b):
+    return np.einsum("ij,ij->i", a, b)
+
+
+class EnvSampler:
+    """Importance sampling of a cube-map environment: a CDF over texels of luminance x
+    solid angle, texels drawn uniformly in face coordinates (the pdf accounts for the
+    cube's Jacobian), mixed with uniform sphere sampling."""
+
+    def __init__(self, faces: np.ndarray, to_env: np.ndarray | None):
+        faces = np.asarray(faces, np.float64)
+        self.size = s = faces.shape[1]
+        c = (np.arange(s) + 0.5) / s * 2 - 1
+        tc, sc = np.meshgrid(c, c, indexing="ij")
+        domega = (2.0 / s) ** 2 / (1 + sc * sc + tc * tc) ** 1.5      # texel solid angle
+        lum = faces[..., :3] @ np.array([0.2126, 0.7152, 0.0722])
+        w = (np.maximum(lum, 0) * domega[None]).reshape(-1)
+        total = w.sum()
+        self.p_texel = w / total if total > 0 else np.full(w.size, 1.0 / w.size)
+        self.cdf = np.cumsum(self.p_texel)
+        self.cdf[-1] = 1.0
+        self.to_env = to_env
+        self.faces = faces
+        from core import cubemap
+        self._faces_def = (cubemap._S_AXIS, cubemap._S_SIGN, cubemap._T_AXIS, cubemap._T_SIGN)
+
+    def _texel_pdf(self, d_env: np.ndarray) -> np.ndarray:
+        face, s, t = direction_to_face(d_env)
+        n = self.size
+        x = np.clip((s * n).astype(np.int64), 0, n - 1)
+        y = np.clip((t * n).astype(np.int64), 0, n - 1)
+        p = self.p_texel[(face * n + y) * n + x]
+        sc, tc = s * 2 - 1, t * 2 - 1
+        return p * n * n / 4.0 * (1 + sc * sc + tc * tc) ** 1.5
+
+    def pdf(self, d_world: np.ndarray) -> np.ndarray:
+        d = d_world if self.to_env is None else d_world @ self.to_env.T
+        return (1 - UNIFORM_SHARE) * self._texel_pdf(d) + UNIFORM_SHARE / (4 * math.pi)
+
+    def sample(self, u1: np.ndarray, u2: np.ndarray, u3: np.ndarray) -> np.ndarray:
+        """World directions; u3 picks uniform (below UNIFORM_SHARE) or the CDF."""
+        n = self.size
+        idx = np.minimum(np.searchsorted(self.cdf, u1, side="right"), self.cdf.size - 1)
+        face, rest = np.divmod(idx, n * n)
+        y, x = np.divmod(rest, n)
+        # u1's position inside its CDF bin is a fresh uniform for the texel's first axis
+        lo = np.where(idx > 0, self.cdf[np.maximum(idx - 1, 0)], 0.0)
+        fx = np.clip((u1 - lo) / np.maximum(self.p_texel[idx], 1e-300), 0.0, 1.0 - 1e-9)
+        sc = (x + fx) / n * 2 - 1
+        tc = (y + u2) / n * 2 - 1
+        s_axis, s_sign, t_axis, t_sign = self._faces_def
+        major, sign = face // 2, np.where(face % 2 == 0, 1.0, -1.0)
+        d = np.zeros((len(u1), 3))
+        rows = np.arange(len(u1))
+        d[rows, major] = sign
+        d[rows, s_axis[face]] = s_sign[face] * sc
+        d[rows, t_axis[face]] = t_sign[face] * tc
+        d /= np.linalg.norm(d, axis=-1, keepdims=True)
+        uni = u3 < UNIFORM_SHARE
+        if np.any(uni):  # uniform on the sphere from (u1, u2)
+            z = 1 - 2 * u1[uni]
+            r = np.sqrt(np.maximum(0.0, 1 - z * z))
+            phi = 2 * math.pi * u2[uni]
+            d[uni] = np.stack([r * np.cos(phi), r * np.sin(phi), z], -1)
+        return d if self.to_env is None else d @ self.to_env
+
+
+def _lambda(cos_v, alpha):
+    c2 = np.clip(cos_v * cos_v, 1e-12, 1.0)
+    return 0.5 * (np.sqrt(1.0 + alpha * alpha * (1.0 - c2) / c2) - 1.0)
+
+
+def _ggx_d(cos_h, alpha):
+    a2 = alpha * alpha
+    return a2 / (math.pi * (cos_h * cos_h * (a2 - 1.0) + 1.0) ** 2)
+
+
+def _schlick(f0, cos):
+    return f0 + (1.0 - f0) * ((1.0 - np.clip(cos, 0.0, 1.0)) ** 5)[:, None]
+
+
+@dataclass
+class _Lobes:
+    """Per-hit Metal + Plastic parameters (Glass is sampled separately)."""
+    n: np.ndarray        # shading normal on the side of wo
+    ng: np.ndarray       # geometric normal on the side of wo
+    wo: np.ndarray
+    base: np.ndarray
+    alpha: np.ndarray
+    p_metal: np.ndarray  # mixture weight m
+    p_plastic: np.ndarray  # (1 - m)(1 - tr)
+    f0_d: np.ndarray     # dielectric F0 (N x 1)
+    p_spec: np.ndarray   # within Plastic: probability of sampling the GGX lobe
+    ms_m: np.ndarray     # N x 3 multiple-scattering scale of the Metal lobe (1: off)
+    ms_d: np.ndarray     # N x 1 the same for Plastic's GGX lobe
+
+    def eval(self, wi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(f * cos(n, wi), pdf of wi under Metal + Plastic sampling, both unconditioned on
+        choosing them): the pdf is sum_c P_c pdf_c."""
+        n_l = _dot(self.n, wi)
+        n_v = np.maximum(_dot(self.n, self.wo), 1e-6)
+        ok = (n_l > 1e-7) & (_dot(self.ng, wi) > 0)
+        n_l = np.maximum(n_l, 1e-7)
+        h = wi + self.wo
+        h /= np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-12)
+        n_h = np.clip(_dot(self.n, h), 0.0, 1.0)
+        v_h = np.clip(_dot(self.wo, h), 0.0, 1.0)
+        d = _ggx_d(n_h, self.alpha)
+        g2 = 1.0 / (1.0 + _lambda(n_v, self.alpha) + _lambda(n_l, self.alpha))
+        spec = d * g2 / (4 * n_v)                               # x cos(n, wi) already
+        f_m = _schlick(self.base, v_h)
+        f_d = _schlick(self.f0_d, v_h)
+        fcos = (self.p_metal[:, None] * f_m * self.ms_m * spec[:, None]
+                + self.p_plastic[:, None] * ((1 - f_d) * self.base * (n_l / math.pi)[:, None]
+                                             + f_d * self.ms_d * spec[:, None]))
+        pdf_ggx = ggx_smith_g1(n_v, self.alpha) * d / (4 * n_v)
+        pdf = (self.p_metal * pdf_ggx
+               + self.p_plastic * (self.p_spec * pdf_ggx + (1 - self.p_spec) * n_l / math.pi))
+        return np.where(ok[:, None], fcos, 0.0), np.where(ok, pdf, 0.0)
+
+
+_E_TABLE: np.ndarray | None = None
+_E_N = 32
+
+
+def ggx_albedo(cos_v: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+    """Single-scattering albedo E_ss of this module's GGX lobe at F = 1 (height-correlated
+    G2), bilinear in a 32 x 32 table over (cos_v, alpha) computed once by stratified VNDF
+    quadrature (E = mean of G2 / G1): the same lobe the paths sample, so that the
+    multiple-scattering scale 1 / E_ss makes a white lobe exactly lossless at wo."""
+    global _E_TABLE
+    if _E_TABLE is None:
+        k = 32
+        g = (np.arange(k) + 0.5) / k
+        u1, u2 = (np.tile(a.reshape(-1), _E_N) for a in np.meshgrid(g, g, indexing="ij"))
+        a = np.repeat(np.linspace(ALPHA_MIN, 1.0, _E_N), k * k)
+        nn = np.tile([0.0, 0.0, 1.0], (len(a), 1))
+        table = np.zeros((_E_N, _E_N))
+        for i, mu in enumerate(np.linspace(0.02, 1.0, _E_N)):
+            wo = np.tile([math.sqrt(1 - mu * mu), 0.0, mu], (len(a), 1))
+            n_l = reflect(-wo, ggx_visible_normal(wo, nn, a, u1, u2))[:, 2]
+            g2 = 1.0 / (1.0 + _lambda(np.full(len(a), mu), a) + _lambda(np.maximum(n_l, 1e-7), a))
+            ratio = np.where(n_l > 0, g2 / ggx_smith_g1(mu, a), 0.0)
+            table[i] = ratio.reshape(_E_N, k * k).mean(axis=1)
+        _E_TABLE = table
+    x = np.clip((np.asarray(cos_v) - 0.02) / 0.98 * (_E_N - 1), 0, _E_N - 1)
+    y = np.clip((np.asarray(alpha) - ALPHA_MIN) / (1 - ALPHA_MIN) * (_E_N - 1), 0, _E_N - 1)
+    x0, y0 = np.minimum(x.astype(int), _E_N - 2), np.minimum(y.astype(int), _E_N - 2)
+    fx, fy = x - x0, y - y0
+    t = _E_TABLE
+    return ((t[x0, y0] * (1 - fx) + t[x0 + 1, y0] * fx) * (1 - fy)
+            + (t[x0, y0 + 1] * (1 - fx) + t[x0 + 1, y0 + 1] * fx) * fy)
+
+
+def _ms_scale(f0: np.ndarray, e_ss: np.ndarray) -> np.ndarray:
+    """The multiply-scattered share over the single-scattered one, as the raster's
+    Fdez-Aguera 2019 term: 1 + E_ms F_avg / (1 - E_ms F_avg), E_ms = 1 - E_ss; 1 / E_ss for
+    a white lobe."""
+    e_ms = 1.0 - e_ss
+    f_avg = f0 + (1.0 - f0) / 21.0
+    return 1.0 + e_ms * f_avg / (1.0 - e_ms * f_avg)
+
+
+def _cosine(n, u1, u2):
+    t, b = orthonormal_basis(n)
+    r, phi = np.sqrt(u1), 2 * math.pi * u2
+    z = np.sqrt(np.maximum(0.0, 1 - u1))
+    return (r * np.cos(phi))[:, None] * t + (r * np.sin(phi))[:, None] * b + z[:, None] * n
+
+
+class _Sampler:
+    """Uniforms for (pixel, pass, dimension): R2 point `pass` rotated per (pixel, dim)."""
+
+    def __init__(self, shift):
+        self.shift = shift  # raytrace._pixel_shift
+
+    def __call__(self, pix: np.ndarray, s: int, dim: int) -> tuple[np.ndarray, np.ndarray]:
+        a = (self.shift(pix, 5000 + 2 * dim) + _R2[0] * (s + 1)) % 1.0
+        b = (self.shift(pix, 5001 + 2 * dim) + _R2[1] * (s + 1)) % 1.0
+        return a, b
+
+
+def _clamp(rgb: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    m = rgb.max(axis=1)
+    scale = np.where(mask & (m > FIREFLY), FIREFLY / np.maximum(m, 1e-30), 1.0)
+    return rgb * scale[:, None]
+
+
+def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarray,
+               pix: np.ndarray, s: int, env_sampler: EnvSampler, stats: dict) -> tuple[np.ndarray, np.ndarray]:
+    """One path per camera ray `dirs` (pixel `pix`, pass `s`): (N x 3 radiance, N bool: the
+    camera ray hit the object)."""
+    from renderer.methods import raytrace as rt
+    sample = _Sampler(rt._pixel_shift)
+    eps = rt.EPSILON * ts.radius
+    n = len(dirs)
+    out = np.zeros((n, 3))
+    origins = np.broadcast_to(eye, dirs.shape).astype(np.float64)
+    d = dirs.astype(np.float64)
+    w = np.ones((n, 3))
+    slot = np.arange(n)
+    medium = np.ones(n)            # IOR around the ray
+    mis_pdf = np.zeros(n)          # BSDF pdf of the last scatter (0: delta or glass: no MIS)
+    clamp_esc = np.zeros(n, bool)  # what the next vertex or escape adds is indirect
+    n_rough = np.zeros(n, np.int64)
+    show_env = options.background == "env"
+    stats.setdefault("paths", 0)
+    stats["paths"] += n
+    max_depth = max(int(options.bounces), 1)
+    hit0 = np.zeros(n, bool)
+    for depth in range(max_depth + 1):
+        if not len(d):
+            break
+        if depth == max_depth:  # out of surfaces: the environment along the ray (as the tree)
+            add = w * (medium ** 2)[:, None] * env.radiance(d, np.zeros(len(d)))
+            out[slot] += _clamp(add, clamp_esc)
+            break
+        u_alpha, _ = sample(pix[slot], s, 100 + depth)
+        prim, u, v, t = rt._intersect_front(ts, origins, d, u_alpha)
+        stats["rays"] += len(d)
+        miss = prim < 0
+        if depth == 0:
+            hit0 = ~miss
+        if np.any(miss) and (depth > 0 or show_env):
+            dm = d[miss]
+            le = env.radiance(dm, np.zeros(len(dm)))
+            p_b = mis_pdf[miss]
+            mis = np.ones(len(dm))
+            has = p_b > 0
+            if np.any(has):
+                p_l = env_sampler.pdf(dm[has])
+                mis[has] = p_b[has] ** 2 / (p_b[has] ** 2 + p_l ** 2)
+            out[slot[miss]] += _clamp(w[miss] * (mis * medium[miss] ** 2)[:, None] * le, clamp_esc[miss])
+        hit = np.flatnonzero(~miss)
+        if not len(hit):
+            break
+        hits = rt._hit_material(ts, origins[hit], d[hit], prim[hit], u[hit], v[hit], t[hit])
+        origins, d, w, slot, medium = origins[hit], d[hit], w[hit], slot[hit], medium[hit]
+        clamp_esc, n_rough, prim, t = clamp_esc[hit], n_rough[hit], prim[hit], t[hit]
+        px = pix[slot]
+        k = ts.material[prim]
+        p = origins + d * t[:, None]
+        ng = ts.geo_normals[prim].astype(np.float64)
+        entering = _dot(d, ng) < 0
+        side = np.where(entering, 1.0, -1.0)[:, None]
+        ng = ng * side
+        ns = hits.normal * side
+        flip = _dot(d, ns) >= 0
+        ns[flip] = ng[flip]
+        trans, metal = hits.transmission, hits.metallic
+        # Beer-Lambert over the segment just travelled inside a volume
+        inside = ~entering & (trans > 0)
+        if np.any(inside) and ts.sigma.any():
+            w[inside] *= np.exp(-ts.sigma[k[inside]] * t[inside, None])
+        glow = hits.emission.max(axis=1) > 0
+        if np.any(glow):
+            out[slot[glow]] += _clamp(w[glow] * hits.emission[glow], clamp_esc[glow])
+        ior = ts.ior[k]
+        wo = -d
+        alpha = np.maximum(hits.roughness ** 2, ALPHA_MIN)
+        f0_d = (((ior - 1) / (ior + 1)) ** 2)[:, None]
+        n_v = np.clip(_dot(ns, wo), 1e-6, 1.0)
+        p_metal = metal
+        p_plastic = (1 - metal) * (1 - trans)
+        p_spec = np.clip(_schlick(f0_d, n_v)[:, 0], 0.1, 0.9)
+        if options.multiscatter:  # energy lost between microfacets, put back (Turquin 2019)
+            e_ss = np.clip(ggx_albedo(n_v, alpha), 0.05, 1.0)[:, None]
+            ms_m, ms_d = _ms_scale(hits.base, e_ss), _ms_scale(f0_d, e_ss)
+        else:
+            ms_m, ms_d = np.ones((len(d), 3)), np.ones((len(d), 1))
+        lobes = _Lobes(ns, ng, wo, hits.base, alpha, p_metal, p_plastic, f0_d, p_spec, ms_m, ms_d)
+        # hits from inside a transmissive object see only Glass (light reaches them refracted)
+        surface_lit = entering | (trans <= 0)
+        nee_clamp = n_rough > 0
+        # --- next-event estimation: the environment, MIS with BSDF sampling
+        ua, ub = sample(px, s, 10 * depth + 1)
+        uc, _ = sample(px, s, 10 * depth + 2)
+        ls = np.flatnonzero(surface_lit & (p_metal + p_plastic > 0))
+        if len(ls):
+            wi = env_sampler.sample(ua[ls], ub[ls], uc[ls])
+            fcos, p_b = lobes_eval(lobes, ls, wi)
+            p_l = env_sampler.pdf(wi)
+            good = (p_b > 0) | (fcos.max(axis=1) > 0)
+            ls, wi, fcos, p_b, p_l = ls[good], wi[good], fcos[good], p_b[good], p_l[good]
+            if len(ls):
+                vis = _unoccluded(ts, p[ls] + eps * ng[ls], wi, np.full(len(ls), np.inf), px[ls], s, depth)
+                mis = p_l ** 2 / (p_l ** 2 + p_b ** 2)
+                contrib = w[ls] * fcos * (vis * mis / np.maximum(p_l, 1e-300))[:, None] \
+                    * env.radiance(wi, np.zeros(len(wi)))
+                out[slot[ls]] += _clamp(contrib, nee_clamp[ls])
+        # --- next-event estimation: punctual lights (deltas: no MIS)
+        if ts.lights is not None and len(ts.lights):
+            ls = np.flatnonzero(surface_lit & (p_metal + p_plastic > 0))
+            for i in range(len(ts.lights)):
+                if not len(ls):
+                    break
+                ldir, dist, radiance = _light(ts.lights, i, p[ls])
+                fcos, _ = lobes_eval(lobes, ls, ldir)
+                live = np.flatnonzero((fcos.max(axis=1) > 0) & (radiance.max(axis=1) > 0))
+                if not len(live):
+                    continue
+                sel = ls[live]
+                vis = _unoccluded(ts, p[sel] + eps * ng[sel], ldir[live], dist[live], px[sel], s, depth)
+                out[slot[sel]] += _clamp(w[sel] * fcos[live] * radiance[live] * vis[:, None], nee_clamp[sel])
+        # --- BSDF sampling: choose Metal, Plastic or Glass by their mixture weights
+        u_pick, u_lobe = sample(px, s, 10 * depth + 3)
+        u1, u2 = sample(px, s, 10 * depth + 4)
+        glass = (u_pick >= p_metal + p_plastic) | ~surface_lit
+        new_d = np.zeros_like(d)
+        new_w = w.copy()
+        new_pdf = np.zeros(len(d))
+        rough = np.zeros(len(d), bool)
+        new_medium = medium.copy()
+        alive = np.ones(len(d), bool)
+        # Metal / Plastic
+        mp = np.flatnonzero(~glass)
+        if len(mp):
+            use_ggx = (u_pick[mp] < p_metal[mp]) | (u_lobe[mp] < p_spec[mp])
+            wi = np.empty((len(mp), 3))
+            g = np.flatnonzero(use_ggx)
+            if len(g):
+                m = ggx_visible_normal(wo[mp[g]], ns[mp[g]], alpha[mp[g]], u1[mp[g]], u2[mp[g]])
+                wi[g] = reflect(d[mp[g]], m)
+            c = np.flatnonzero(~use_ggx)
+            if len(c):
+                wi[c] = _cosine(ns[mp[c]], u1[mp[c]], u2[mp[c]])
+            fcos, p_b = lobes_eval(lobes, mp, wi)
+            ok = p_b > 0
+            new_w[mp] = w[mp] * np.where(ok[:, None], fcos / np.maximum(p_b, 1e-300)[:, None], 0.0)
+            new_d[mp] = wi
+            # a near-delta lobe's pdf is huge and the environment pdf negligible: no MIS needed
+            new_pdf[mp] = np.where(ok, p_b, 0.0)
+            rough[mp] = ~use_ggx | (alpha[mp] >= ROUGH_ALPHA)
+            alive[mp] = ok
+        # Glass: exact dielectric, conditioned on the choice (weight (1 - m) tr / P = 1)
+        gl = np.flatnonzero(glass)
+        if len(gl):
+            eta = np.where(entering[gl], 1.0 / ior[gl], ior[gl])
+            dg, ng_g = d[gl], ns[gl]
+            smooth = hits.roughness[gl] <= 0
+            r_dir = reflect(dg, ng_g)
+            t_dir, tir = refract(dg, ng_g, eta)
+            fres = fresnel_dielectric(np.clip(_dot(-dg, ng_g), 0.0, 1.0), eta)
+            g_r = np.ones(len(gl))
+            g_t = np.ones(len(gl))
+            rs = np.flatnonzero(~smooth)
+            if len(rs):
+                _, f_m, r_m, wr_m, t_m, wt_m, tir_m = sample_rough_dielectric(
+                    dg[rs], ng_g[rs], alpha[gl[rs]], eta[rs], u1[gl[rs]], u2[gl[rs]])
+                r_dir[rs], t_dir[rs], tir[rs], fres[rs] = r_m, t_m, tir_m, f_m
+                g_r[rs] = wr_m / np.maximum(f_m, 1e-30)
+                g_t[rs] = wt_m / np.maximum(1 - f_m, 1e-30)
+            fres = np.where(tir, 1.0, fres)
+            # what is not transmitted of this component is the dielectric's reflection
+            take_r = u_lobe[gl] < fres
+            tint = np.where((entering[gl] & ~take_r)[:, None], hits.base[gl], 1.0)
+            # a surface seen from inside with no transmission still refracts out as glass
+            new_d[gl] = np.where(take_r[:, None], r_dir, t_dir)
+            factor = np.where(take_r, g_r, g_t * eta * eta)
+            new_w[gl] = w[gl] * tint * factor[:, None]
+            new_medium[gl] = np.where(take_r, medium[gl], np.where(entering[gl], ior[gl], 1.0))
+            new_pdf[gl] = 0.0
+            rough[gl] = ~smooth & (alpha[gl] >= ROUGH_ALPHA)
+            stats["tir"] += int(np.sum(tir))
+        # Russian roulette
+        if depth >= RR_START:
+            q = np.clip(new_w.max(axis=1) * new_medium ** 2, 0.0, 0.95)
+            u_rr, _ = sample(px, s, 10 * depth + 5)
+            survive = u_rr < q
+            alive &= survive
+            new_w = new_w / np.maximum(q, 1e-30)[:, None]
+        alive &= new_w.max(axis=1) > 0
+        clamp_esc = n_rough > 0
+        n_rough = n_rough + rough
+        side_t = np.where(_dot(new_d, ng) > 0, eps, -eps)
+        keep = np.flatnonzero(alive)
+        origins = (p + side_t[:, None] * ng)[keep]
+        d, w, slot, medium = new_d[keep], new_w[keep], slot[keep], new_medium[keep]
+        mis_pdf, clamp_esc, n_rough = new_pdf[keep], clamp_esc[keep], n_rough[keep]
+    return out, hit0
+
+
+def lobes_eval(lobes: _Lobes, rows: np.ndarray, wi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    sub = _Lobes(*(getattr(lobes, f)[rows] for f in lobes.__dataclass_fields__))
+    return sub.eval(wi)
+
+
+def _light(lights, i: int, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(direction to light i, distance, incident radiance x attenuation) at points p (as
+    renderer.methods.trace_lights, the raster's falloffs)."""
+    if lights.kind[i] == 0:
+        ldir = np.broadcast_to(-lights.axis[i], p.shape).copy()
+        return ldir, np.full(len(p), np.inf), np.broadcast_to(lights.color[i], p.shape).copy()
+    dv = lights.position[i] - p
+    dist2 = np.maximum(_dot(dv, dv), 1e-12)
+    dist = np.sqrt(dist2)
+    ldir = dv / dist[:, None]
+    atten = 1.0 / dist2
+    if math.isfinite(lights.range[i]) and lights.range[i] > 0:
+        r = dist2 / lights.range[i] ** 2
+        atten *= np.clip(1.0 - r * r, 0.0, 1.0)
+    if lights.kind[i] == 2:
+        cd = -ldir @ lights.axis[i]
+        sc = np.clip(cd * lights.cone[i, 0] + lights.cone[i, 1], 0.0, 1.0)
+        atten *= sc * sc
+    return ldir, dist, lights.color[i] * atten[:, None]
+
+
+def _unoccluded(ts, o: np.ndarray, wi: np.ndarray, dist: np.ndarray, pix: np.ndarray,
+                s: int, depth: int) -> np.ndarray:
+    """1 where nothing (alpha cut-outs and culled back faces excepted) lies within dist."""
+    from renderer.methods import raytrace as rt
+    u_alpha, _ = _Sampler(rt._pixel_shift)(pix, s, 200 + depth)
+    prim, _, _, t = rt._intersect_front(ts, o, wi, u_alpha)
+    eps = rt.EPSILON * ts.radius
+    return ((prim < 0) | (np.asarray(t, np.float64) >= dist - 2 * eps)).astype(np.float64)
+
+
+def trace(ts, sky, options: RenderOptions, camera, first_near: np.ndarray,
+          stats: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+    """Progressive passes over the pixels `first_near` (flat indices): (mean radiance per
+    pixel, N x 3; coverage per pixel, N). Fills stats with passes, samples and timings."""
+    from renderer.methods import raytrace as rt
+    t0 = time.perf_counter()
+    env_sampler = EnvSampler(sky.baked.specular[0], sky.to_env)
+    pixels = np.asarray(first_near, np.int64)
+    npix = len(pixels)
+    total = np.zeros((npix, 3))
+    lum_sum = np.zeros(npix)
+    lum_sq = np.zeros(npix)
+    cover = np.zeros(npix)
+    count = np.zeros(npix)
+    active = np.ones(npix, bool)
+    budget = options.budget_ms
+    max_passes = int(options.samples)
+    stats.update(rays=stats.get("rays", 0), tir=stats.get("tir", 0))
+    pass_ms: list[float] = []
+    lum_w = np.array([0.2126, 0.7152, 0.0722])
+    stop = "samples"
+    r_, u_, f_ = camera.basis()
+    th = math.tan(math.radians(camera.fov) / 2)
+    rows, cols = np.divmod(pixels, camera.width)
+    for s in range(max_passes):
+        ps = time.perf_counter()
+        idx = np.flatnonzero(active)
+        jx, jy = _Sampler(rt._pixel_shift)(pixels[idx], s, 0)
+        sx = ((cols[idx] + jx) / camera.width * 2 - 1) * th * camera.aspect
+        sy = (1 - (rows[idx] + jy) / camera.height * 2) * th
+        dirs = f_ + sx[:, None] * r_ + sy[:, None] * u_
+        dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
+        rgb, first = trace_pass(ts, sky, options, np.asarray(camera.position, np.float64), dirs,
+                         pixels[idx], s, env_sampler, stats)
+        cover[idx] += first
+        bad = ~np.isfinite(rgb).all(axis=1)
+        if np.any(bad):
+            stats["nonfinite"] = stats.get("nonfinite", 0) + int(bad.sum())
+            rgb[bad] = 0.0
+        total[idx] += rgb
+        lum = rgb @ lum_w
+        lum_sum[idx] += lum
+        lum_sq[idx] += lum * lum
+        count[idx] += 1
+        pass_ms.append((time.perf_counter() - ps) * 1e3)
+        if s + 1 >= MIN_PASSES:
+            c = count[idx]
+            mean = lum_sum[idx] / c
+            var = np.maximum(lum_sq[idx] / c - mean * mean, 0.0) * c / np.maximum(c - 1, 1)
+            rel = np.sqrt(var / c) / np.maximum(mean, 1e-3)
+            active[idx[rel <= options.noise]] = False
+            if not active.any():
+                stop = "noise"
+                break
+        if budget is not None:
+            elapsed = (time.perf_counter() - t0) * 1e3
+            if elapsed + pass_ms[-1] > budget:
+                stop = "budget"
+                break
+    stats.update(passes=len(pass_ms), samples_mean=float(count.mean()) if npix else 0.0,
+                 stop=stop, pass_ms_max=max(pass_ms, default=0.0),
+                 path_ms=(time.perf_counter() - t0) * 1e3)
+    safe = np.maximum(count, 1)
+    return total / safe[:, None], cover / safe
