@@ -50,6 +50,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="parallel efficiency per machine in the projection (default 0.8)")
     parser.add_argument("--fs-mb-s", type=float, default=500.0,
                         help="shared filesystem write bandwidth in the projection, MB/s")
+    parser.add_argument("--cluster", action="store_true",
+                        help="instead: the library job (--thumbnails) on a local loopback Ray cluster "
+                             "with 1 and 2 worker nodes, and with 2 that lose one mid-run")
     parser.add_argument("--keep", type=Path, default=None, help="build corpus and caches here and keep them")
 
 
@@ -172,7 +175,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     work = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="bench-scale-"))
     try:
-        return _run(args, work)
+        return _run_cluster(args, work) if args.cluster else _run(args, work)
     finally:
         if not args.keep:
             shutil.rmtree(work, ignore_errors=True)
@@ -234,3 +237,73 @@ def _run(args: argparse.Namespace, work: Path) -> int:
         print(f"{n:8d} {bounds['compute'] / 3600:9.3f} {bounds['driver'] / 3600:8.3f} "
               f"{bounds['filesystem'] / 3600:6.3f} {t / 3600:7.3f} {CATALOGUE / t:9.0f}  {which}")
     return 0 if same and not any(r["failed"] for r in results.values()) else 1
+
+
+# -- the library job on a cluster that loses a node ----------------------------------------------
+
+def _cluster_job(files: list[Path], work: Path, label: str, workers: int, kill: bool) -> dict:
+    """One cold `asset-bake --thumbnails --executor ray` on a fresh loopback cluster; with
+    `kill`, worker node 0's raylet is SIGKILLed once a quarter of the library is done."""
+    from bench.cluster import LocalCluster
+    from pipeline.cache import MANIFEST, Cache
+
+    cache, th = work / f"cache-{label}", work / f"th-{label}"
+    cmd = [sys.executable, "-m", "cli.bake", "--cache", str(cache), "--thumbnails", str(th), "--size", "64",
+           "--json", "--executor", "ray", *map(str, files)]
+    with LocalCluster(workers=workers) as cluster:
+        start = time.perf_counter()
+        proc = subprocess.Popen(cmd, env=cluster.driver_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                text=True)
+        killed_at = None
+        if kill:
+            while proc.poll() is None:
+                try:
+                    done = len(json.loads((th / "manifest.json").read_text())["assets"])
+                except (FileNotFoundError, ValueError):
+                    done = 0
+                if done >= len(files) // 4:
+                    cluster.kill_worker(0)
+                    killed_at = done
+                    break
+                time.sleep(0.05)
+        out, err = proc.communicate(timeout=3600)
+        wall = time.perf_counter() - start
+    rows, stray = [], []
+    for line in filter(str.strip, out.splitlines()):
+        try:
+            rows.append(json.loads(line))
+        except ValueError:
+            stray.append(line)  # stdout is for result lines only: counted as a failure
+    paths = [r["path"] for r in rows]
+    manifest = json.loads((th / "manifest.json").read_text())["assets"]
+    store = Cache(cache)
+    whole = all(store.load("assets", e.name) is not None
+                and {f.name for f in e.iterdir()} == {MANIFEST, *json.loads((e / MANIFEST).read_bytes())["files"]}
+                for e in (cache / "assets").iterdir())
+    return {"label": label, "code": proc.returncode, "wall": wall, "killed_at": killed_at,
+            "once": sorted(paths) == sorted(map(str, files)) and sorted(manifest) == sorted(paths),
+            "rendered": sum(e["status"] == "rendered" for e in manifest.values()), "whole": whole,
+            "entries": len(list((cache / "assets").iterdir())), "err": err[-1500:], "stray": stray}
+
+
+def _run_cluster(args: argparse.Namespace, work: Path) -> int:
+    work.mkdir(parents=True, exist_ok=True)
+    files = build_corpus(args.assets, work / "corpus", args.copies)
+    print(f"library job on a loopback Ray cluster (head: 0 CPUs; worker nodes: 1 CPU each; token auth): "
+          f"{len(files)} assets, --size 64 PNG thumbnails rendered in the driver, {os.cpu_count()} cores")
+    runs = [_cluster_job(files, work, "1 worker node", 1, False),
+            _cluster_job(files, work, "2 worker nodes", 2, False),
+            _cluster_job(files, work, "2, one killed", 2, True)]
+    print(f"{'cluster':16} {'exit':>4} {'wall s':>7} {'assets/min':>10} {'killed at':>9} {'exactly once':>12} "
+          f"{'rendered':>8} {'entries':>7} {'cache whole':>11}")
+    for r in runs:
+        print(f"{r['label']:16} {r['code']:4d} {r['wall']:7.1f} {60 * len(files) / r['wall']:10.1f} "
+              f"{r['killed_at'] if r['killed_at'] is not None else '-':>9} {str(r['once']):>12} "
+              f"{r['rendered']:8d} {r['entries']:7d} {str(r['whole']):>11}")
+        if r["code"]:
+            print(r["err"], file=sys.stderr)
+        for line in r["stray"]:
+            print(f"  not a result line on stdout: {line[:300]!r}")
+    ok = all(r["code"] == 0 and r["once"] and r["whole"] and r["rendered"] == len(files)
+             and not r["stray"] for r in runs)
+    return 0 if ok else 1

@@ -66,11 +66,14 @@ def connect(address: str | None = None, num_cpus: int | None = None) -> None:
         return
     address = address or os.environ.get("RAY_ADDRESS") or None
     # Worker output stays in Ray's session logs: stdout is for result lines only.
-    kwargs = {"logging_level": logging.WARNING, "log_to_driver": False}
+    kwargs: dict[str, Any] = {"logging_level": logging.WARNING, "log_to_driver": False}
     if address and address != "auto":
         _probe(address)
     try:
         if address:
+            if address.removeprefix("ray://").rpartition(":")[0] in ("127.0.0.1", "localhost"):
+                # a loopback cluster: this driver's own servers bind loopback too
+                kwargs["_node_ip_address"] = "127.0.0.1"
             ray.init(address=address, **kwargs)
         else:  # a throwaway cluster on this machine, no dashboard
             ray.init(num_cpus=num_cpus, include_dashboard=False, **kwargs)
