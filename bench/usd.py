@@ -104,10 +104,10 @@ def _ours_cold(wrapper, out: Path, cache: Path, size: int, root: Path, timeout: 
 
 def render_ours(wrapper, cache: Path, size: int, root: Path):
     """Our Frame of the wrapper, in this process, as the cold command renders it."""
-    from pipeline.lighting import dome_texture
     from core.options import from_request
     from pipeline.bake import bake_asset, bake_environment
     from pipeline.environment.panorama import DEFAULT_ENVIRONMENT
+    from pipeline.lighting import dome_texture
     from renderer.methods.auto import environment_face_size
     from renderer.raster.render import render
 

@@ -128,7 +128,15 @@ def run_ray(jobs: list[tuple[str, str]], common: dict, report, *, address: str |
     as it arrives; `common` holds `bake_one`'s keyword arguments. Connects (see `connect`)
     unless connected already, and disconnects when done if it connected."""
     ray = require_ray()
-    connect(address)
+    # Ray prints its own notices ("a worker died...", a node lost while disconnecting) to
+    # sys.stdout; the report holds the real stdout, so from connecting to disconnecting they go
+    # to stderr and stdout stays result lines only.
+    stdout, sys.stdout = sys.stdout, sys.stderr
+    try:
+        connect(address)
+    except BaseException:
+        sys.stdout = stdout
+        raise
     common = dict(common)
     # Absolute, so that a worker that cannot chdir (another mount layout) fails loudly on
     # the path instead of writing a private cache of its own.
@@ -142,9 +150,6 @@ def run_ray(jobs: list[tuple[str, str]], common: dict, report, *, address: str |
     todo = list(reversed(jobs))
     running: dict = {}
     start = time.perf_counter()
-    # Ray prints its own notices ("a worker died...") to sys.stdout; the report holds the
-    # real stdout, so they go to stderr and stdout stays result lines only.
-    stdout, sys.stdout = sys.stdout, sys.stderr
     try:
         while todo or running:
             while todo and len(running) < window:
@@ -159,9 +164,11 @@ def run_ray(jobs: list[tuple[str, str]], common: dict, report, *, address: str |
             ray.cancel(ref, force=True)
         raise
     finally:
-        sys.stdout = stdout
         log.info("ray: %d jobs in %.2f s", len(jobs), time.perf_counter() - start)
-        disconnect()
+        try:
+            disconnect()
+        finally:
+            sys.stdout = stdout
 
 
 def _result(ray, ref, kind: str, source: str, t0: float, max_retries: int) -> dict:
