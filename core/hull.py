@@ -60,6 +60,9 @@ def _hull(points: np.ndarray) -> np.ndarray:
         return points
 
 
+SUPPORT_BLOCK = 16384  # points a block: 16384 x 256 doubles is 32 MiB
+
+
 def support_points(points: np.ndarray, directions: int = 256) -> np.ndarray:
     """The points farthest along `directions` evenly spread unit vectors (a Fibonacci
     sphere): a few hundred points whose projection bounds the object's almost as tightly as
@@ -72,8 +75,18 @@ def support_points(points: np.ndarray, directions: int = 256) -> np.ndarray:
     phi = math.pi * (1 + 5 ** 0.5) * i
     r = np.sqrt(1 - z * z)
     d = np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+    # The farthest point per direction, over blocks of points: the whole N x directions product
+    # of a million-vertex mesh would be gigabytes, the bake's peak memory.
+    best = np.full(directions, -np.inf)
+    where = np.zeros(directions, np.int64)
+    for start in range(0, len(points), SUPPORT_BLOCK):
+        dots = points[start:start + SUPPORT_BLOCK] @ d.T
+        arg = np.argmax(dots, axis=0)
+        top = dots[arg, np.arange(directions)]
+        better = top > best  # strictly: the first block's point wins a tie, as one argmax would
+        best[better], where[better] = top[better], arg[better] + start
     keep = np.zeros(len(points), bool)  # each extreme point once, in order (np.unique's
-    keep[np.argmax(points @ d.T, axis=0)] = True  # result, without its 16 ms numpy.ma import)
+    keep[where] = True                  # result, without its numpy.ma import)
     return points[keep]
 
 

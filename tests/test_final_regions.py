@@ -196,3 +196,20 @@ def test_a_cold_render_from_the_cache_imports_neither_scipy_nor_numba(assets, ca
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.split()[-2:] == ["edges", "[]"], out.stdout
+
+
+def test_support_points_over_blocks_are_the_whole_products_extremes():
+    """support_points works over blocks of points (the whole N x 256 product of a million-vertex
+    mesh was the bake's multi-gigabyte peak); across blocks it keeps the same points."""
+    rng = np.random.default_rng(5)
+    points = rng.normal(size=(3 * hull.SUPPORT_BLOCK + 17, 3))
+    points[-1] = points[0] * 3  # an extreme in the last, short block
+    i = np.arange(256) + 0.5
+    z = 1 - 2 * i / 256
+    phi = np.pi * (1 + 5 ** 0.5) * i
+    d = np.stack([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z], 1)
+    keep = np.zeros(len(points), bool)
+    keep[np.argmax(points @ d.T, axis=0)] = True
+    got = hull.support_points(points)
+    assert np.array_equal(got, points[keep])
+    assert any(np.array_equal(p, points[-1]) for p in got)
