@@ -80,14 +80,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print the results as JSON too")
 
 
-def _free_port() -> int:
+def free_port() -> int:
     import socket
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
 
 
-def _wait_http(url: str, timeout: float = 300) -> None:
+def wait_http(url: str, timeout: float = 300) -> None:
     import httpx
     end = time.monotonic() + timeout
     while time.monotonic() < end:
@@ -216,7 +216,7 @@ def run(args: argparse.Namespace) -> int:
     duck_bytes = (ASSETS / "gltf" / "Duck.glb").read_bytes()
     load = Load(args.tool)
     tmp = Path(tempfile.mkdtemp(prefix="bench-service-"))
-    port, peer_port = _free_port(), _free_port()
+    port, peer_port = free_port(), free_port()
     base = f"http://127.0.0.1:{port}"
     env = {k: v for k, v in os.environ.items() if not k.startswith("ASSET_PREVIEW_")}
     log_path = tmp / "server.log"
@@ -229,7 +229,7 @@ def run(args: argparse.Namespace) -> int:
     rows: list[tuple] = []
     try:
         try:
-            _wait_http(f"{base}/readyz")
+            wait_http(f"{base}/readyz")
         except TimeoutError:
             print(log_path.read_text()[-3000:], file=sys.stderr)
             raise
@@ -245,7 +245,7 @@ def run(args: argparse.Namespace) -> int:
         #    alternate in rounds so that both see the same load on the shared CPU.
         peer = subprocess.Popen([sys.executable, "-c", _PEER_APP, str(png), str(peer_port)],
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        _wait_http(f"http://127.0.0.1:{peer_port}/image")
+        wait_http(f"http://127.0.0.1:{peer_port}/image")
         targets = {"cached thumbnail": thumb,
                    "peer: bare Starlette, same bytes": f"http://127.0.0.1:{peer_port}/image?size=256"}
         rounds: dict[str, list[tuple]] = {label: [] for label in targets}
@@ -308,7 +308,7 @@ def run(args: argparse.Namespace) -> int:
         #    renders keep the workers busy; then cheap renders while maximum-cost ones run.
         peer = subprocess.Popen([sys.executable, "-c", _PEER_APP, str(png), str(peer_port)],
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        _wait_http(f"http://127.0.0.1:{peer_port}/image")
+        wait_http(f"http://127.0.0.1:{peer_port}/image")
         busy = Background(f"{base}/assets/{asset_id}/thumbnail?size=1024&transmission=1", 2)
         loaded = {"cached thumbnail, 1024 px renders running": thumb,
                   "peer: bare Starlette, renders running": f"http://127.0.0.1:{peer_port}/image?size=256"}

@@ -18,7 +18,7 @@ import time
 import zipfile
 from pathlib import Path
 
-from bench.service import ROOT, _free_port, _wait_http
+from bench.service import ROOT, free_port, wait_http
 
 ASSETS = ROOT / "tests" / "assets"
 DEFAULT = ASSETS / "gltf-samples" / "IridescenceLamp" / "glTF"
@@ -47,14 +47,14 @@ def run(args: argparse.Namespace) -> int:
             z.write(f, f.name)
     upload = buf.getvalue()
     tmp = Path(tempfile.mkdtemp(prefix="bench-disk-"))
-    cache, port = tmp / "cache", _free_port()
+    cache, port = tmp / "cache", free_port()
     env = {k: v for k, v in os.environ.items() if not k.startswith("ASSET_PREVIEW_")}
     log = open(tmp / "server.log", "wb")
     server = subprocess.Popen([sys.executable, "-m", "cli.main", "serve", "--port", str(port), "--cache", str(cache),
                                "--workers", "1", "--no-seed", "--log-level", "warning"],
                               cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)
     try:
-        _wait_http(f"http://127.0.0.1:{port}/readyz")
+        wait_http(f"http://127.0.0.1:{port}/readyz")
         client = httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=600)
         before = disk_bytes(cache)
         r = client.post("/assets", files={"file": (args.folder.name + ".zip", upload)})

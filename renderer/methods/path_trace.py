@@ -67,6 +67,7 @@ from renderer.methods.optics import (
     refract,
     sample_rough_dielectric,
 )
+from renderer.methods.trace_scene import EPSILON, hit_material, intersect_front, pixel_shift
 
 FIREFLY = 16.0        # max-RGB clamp of indirect contributions (linear radiance)
 ROUGH_ALPHA = 0.1     # lobes at least this wide count as rough for the clamp
@@ -251,7 +252,7 @@ class _Sampler:
     """Uniforms for (pixel, pass, dimension): R2 point `pass` rotated per (pixel, dim)."""
 
     def __init__(self, shift):
-        self.shift = shift  # raytrace._pixel_shift
+        self.shift = shift  # trace_scene.pixel_shift
 
     def __call__(self, pix: np.ndarray, s: int, dim: int) -> tuple[np.ndarray, np.ndarray]:
         a = (self.shift(pix, 5000 + 2 * dim) + _R2[0] * (s + 1)) % 1.0
@@ -269,9 +270,9 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
                pix: np.ndarray, s: int, env_sampler: EnvSampler, stats: dict) -> tuple[np.ndarray, np.ndarray]:
     """One path per camera ray `dirs` (pixel `pix`, pass `s`): (N x 3 radiance, N bool: the
     camera ray hit the object)."""
-    from renderer.methods import raytrace as rt
-    sample = _Sampler(rt._pixel_shift)
-    eps = rt.EPSILON * ts.radius
+
+    sample = _Sampler(pixel_shift)
+    eps = EPSILON * ts.radius
     n = len(dirs)
     out = np.zeros((n, 3))
     origins = np.broadcast_to(eye, dirs.shape).astype(np.float64)
@@ -295,7 +296,7 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
             out[slot] += _clamp(add, clamp_esc)
             break
         u_alpha, _ = sample(pix[slot], s, 100 + depth)
-        prim, u, v, t = rt._intersect_front(ts, origins, d, u_alpha)
+        prim, u, v, t = intersect_front(ts, origins, d, u_alpha)
         stats["rays"] += len(d)
         miss = prim < 0
         if depth == 0:
@@ -313,7 +314,7 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         hit = np.flatnonzero(~miss)
         if not len(hit):
             break
-        hits = rt._hit_material(ts, origins[hit], d[hit], prim[hit], u[hit], v[hit], t[hit])
+        hits = hit_material(ts, origins[hit], d[hit], prim[hit], u[hit], v[hit], t[hit])
         origins, d, w, slot, medium = origins[hit], d[hit], w[hit], slot[hit], medium[hit]
         clamp_esc, n_rough, prim, t = clamp_esc[hit], n_rough[hit], prim[hit], t[hit]
         px = pix[slot]
@@ -488,10 +489,10 @@ def _light(lights, i: int, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
 def _unoccluded(ts, o: np.ndarray, wi: np.ndarray, dist: np.ndarray, pix: np.ndarray,
                 s: int, depth: int) -> np.ndarray:
     """1 where nothing (alpha cut-outs and culled back faces excepted) lies within dist."""
-    from renderer.methods import raytrace as rt
-    u_alpha, _ = _Sampler(rt._pixel_shift)(pix, s, 200 + depth)
-    prim, _, _, t = rt._intersect_front(ts, o, wi, u_alpha)
-    eps = rt.EPSILON * ts.radius
+
+    u_alpha, _ = _Sampler(pixel_shift)(pix, s, 200 + depth)
+    prim, _, _, t = intersect_front(ts, o, wi, u_alpha)
+    eps = EPSILON * ts.radius
     return ((prim < 0) | (np.asarray(t, np.float64) >= dist - 2 * eps)).astype(np.float64)
 
 
@@ -499,7 +500,7 @@ def trace(ts, sky, options: RenderOptions, camera, first_near: np.ndarray,
           stats: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
     """Progressive passes over the pixels `first_near` (flat indices): (mean radiance per
     pixel, N x 3; coverage per pixel, N). Fills stats with passes, samples and timings."""
-    from renderer.methods import raytrace as rt
+
     t0 = time.perf_counter()
     env_sampler = EnvSampler(sky.baked.specular[0], sky.to_env)
     pixels = np.asarray(first_near, np.int64)
@@ -522,7 +523,7 @@ def trace(ts, sky, options: RenderOptions, camera, first_near: np.ndarray,
     for s in range(max_passes):
         ps = time.perf_counter()
         idx = np.flatnonzero(active)
-        jx, jy = _Sampler(rt._pixel_shift)(pixels[idx], s, 0)
+        jx, jy = _Sampler(pixel_shift)(pixels[idx], s, 0)
         sx = ((cols[idx] + jx) / camera.width * 2 - 1) * th * camera.aspect
         sy = (1 - (rows[idx] + jy) / camera.height * 2) * th
         dirs = f_ + sx[:, None] * r_ + sy[:, None] * u_

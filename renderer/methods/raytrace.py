@@ -73,8 +73,6 @@ import dataclasses
 import logging
 import math
 import time
-from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -86,20 +84,22 @@ from core.options import RenderOptions, apply_override, background_rgb
 from renderer.frame import Frame, FrameTimings, alpha_is_mask, tonemap_srgb8
 from renderer.methods import trace_lights, trace_material
 from renderer.methods.optics import fresnel_dielectric, reflect, refract, sample_rough_dielectric
-from renderer.methods.trace_material import Surface
+from renderer.methods.trace_scene import (
+    EPSILON,
+    TraceScene,
+    hit_material,
+    intersect_front,
+    pixel_shift,
+)
 from renderer.raster.final import GRADIENT
 from renderer.view.camera import Camera
 from renderer.view.framing import asset_camera
 
 log = logging.getLogger(__name__)
 
-MAX_CULLED = 8         # back faces of single-sided materials a ray may pass through
 MIN_WEIGHT = 1e-3      # children below this throughput (max over RGB) are not traced
 ROULETTE = 0.1         # fresnel_split="roulette": weaker children go on with P = weight / this
-EPSILON = 1e-4         # ray offset off a surface, relative to the scene's bounding radius
 CHUNK_PIXELS = 1 << 18  # supersampled pixels traced together: bounds memory at any size
-_THREADS = 2           # Embree releases the GIL: two halves of a batch run in parallel
-_pool: ThreadPoolExecutor | None = None
 KERNEL = True          # shade hits with the compiled trace_kernel (False: the numpy twin)
 
 
@@ -110,28 +110,6 @@ def _kernel():
         return None
     from renderer.methods import trace_kernel
     return trace_kernel
-
-
-@dataclass
-class TraceScene:
-    """The world-space triangle soup with per-triangle shading data."""
-    embree: Any                  # embreex EmbreeScene
-    normals: np.ndarray          # T x 3 x 3 float32 world vertex normals per corner
-    geo_normals: np.ndarray      # T x 3 float32 unit geometric normals (winding order)
-    material: np.ndarray         # T int32 index into the material tables
-    base: np.ndarray             # K x 3 linear base colour
-    metallic: np.ndarray         # K
-    roughness: np.ndarray        # K
-    transmission: np.ndarray     # K
-    ior: np.ndarray              # K
-    sigma: np.ndarray            # K x 3 absorption coefficient per scene unit (0: none)
-    culled: np.ndarray           # K bool: single-sided and opaque (back faces let rays through)
-    emission: np.ndarray         # K x 3 emissive factor x strength (linear radiance)
-    radius: float
-    surface: Surface | None = None  # UVs, tangents, colours, textures (trace_material)
-    eye: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
-    spread: float = 0.0          # ray cone angle per unit length (a camera ray's pixel share)
-    lights: trace_lights.Lights | None = None  # punctual lights (next-event estimation)
 
 
 def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> TraceScene:
@@ -187,65 +165,6 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
         sigma=np.asarray(col[5], np.float64).reshape(-1, 3), culled=np.asarray(col[6], bool),
         emission=np.asarray(col[7], np.float64).reshape(-1, 3),
         radius=max(float(np.linalg.norm(hi - lo)) / 2, 1e-6), surface=surface)
-
-
-def _intersect(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray):
-    """(triangle index or -1, u, v, t) for each ray, the batch split over threads."""
-    global _pool
-    o = np.ascontiguousarray(origins, np.float32)
-    d = np.ascontiguousarray(dirs, np.float32)
-    n = len(o)
-    if n < 20000:
-        r = ts.embree.run(o, d, output=1)
-        return r["primID"], r["u"], r["v"], r["tfar"]
-    if _pool is None:
-        _pool = ThreadPoolExecutor(_THREADS, thread_name_prefix="embree")
-    cuts = np.linspace(0, n, _THREADS + 1).astype(int)
-    parts = list(_pool.map(lambda ab: ts.embree.run(o[ab[0]:ab[1]], d[ab[0]:ab[1]], output=1),
-                           zip(cuts[:-1], cuts[1:])))
-    return tuple(np.concatenate([p[k] for p in parts]) for k in ("primID", "u", "v", "tfar"))
-
-
-def _intersect_front(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray,
-                     draw: np.ndarray | None = None):
-    """_intersect, passing through the back faces of single-sided opaque materials and
-    where alpha says so (MASK: below the cut-off; BLEND: where `draw`, a uniform per ray,
-    is at or above alpha; draw None: 0, so that any alpha above 0 is found, as the first
-    pass that finds the object's pixels needs)."""
-    prim, u, v, t = _intersect(ts, origins, dirs)
-    surf = ts.surface
-    tested = surf is not None and surf.alpha_tested.any()
-    if not ts.culled.any() and not tested:
-        return prim, u, v, t
-    prim, u, v, t = prim.copy(), u.copy(), v.copy(), t.astype(np.float64)
-    eps = EPSILON * ts.radius
-    fresh = np.ones(len(prim), bool)  # rays whose current hit is not yet accepted
-    for layer in range(MAX_CULLED):
-        hit = np.flatnonzero((prim >= 0) & fresh)
-        k = ts.material[prim[hit]]
-        back = np.einsum("ij,ij->i", dirs[hit], ts.geo_normals[prim[hit]]) > 0
-        through = ts.culled[k] & back
-        if surf is not None and tested:
-            at = np.flatnonzero(surf.alpha_tested[k] & ~through)
-            if len(at):
-                ray = hit[at]
-                width = ts.spread * (np.linalg.norm(origins[ray] - ts.eye, axis=-1) + t[ray])
-                cos_d = np.abs(np.einsum("ij,ij->i", dirs[ray], ts.geo_normals[prim[ray]]))
-                # each layer behind another draws anew (golden-ratio shift of the same draw)
-                u_draw = (np.zeros(len(ray)) if draw is None
-                          else (draw[ray] + 0.6180339887 * layer) % 1.0)
-                through[at] = trace_material.passes_through(
-                    surf, k[at], prim[ray], u[ray], v[ray], width, cos_d, u_draw)
-        sel = hit[through]
-        if not len(sel):
-            break
-        fresh[:] = False
-        fresh[sel] = True
-        start = t[sel] + eps
-        p2, u2, v2, t2 = _intersect(ts, origins[sel] + dirs[sel] * start[:, None], dirs[sel])
-        prim[sel], u[sel], v[sel] = p2, u2, v2
-        t[sel] = np.where(p2 >= 0, t2 + start, t2)
-    return prim, u, v, t
 
 
 class _Environment:
@@ -408,7 +327,7 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     first = np.zeros(npix, bool)
     for chunk in _chunks(np.arange(npix), 4 * CHUNK_PIXELS):
         d, _ = _subpixel_rays(camera, chunk, 1)
-        first[chunk] = _intersect_front(ts, np.broadcast_to(camera.position, d.shape), d)[0] >= 0
+        first[chunk] = intersect_front(ts, np.broadcast_to(camera.position, d.shape), d)[0] >= 0
     near = _near(first.reshape(camera.height, camera.width)).reshape(-1)
     if show_env:
         for chunk in _chunks(np.flatnonzero(~near), 4 * CHUNK_PIXELS):
@@ -494,18 +413,6 @@ def _chunks(indices: np.ndarray, size: int):
         yield indices[start:start + size]
 
 
-def _pixel_shift(pix: np.ndarray, depth: int) -> np.ndarray:
-    """A uniform number in [0, 1) per (pixel, bounce), the same every frame (splitmix64)."""
-    with np.errstate(over="ignore"):
-        h = pix.astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15) + np.uint64(depth + 1) * np.uint64(0xBF58476D1CE4E5B9)
-        h ^= h >> np.uint64(30)
-        h *= np.uint64(0xBF58476D1CE4E5B9)
-        h ^= h >> np.uint64(27)
-        h *= np.uint64(0x94D049BB133111EB)
-        h ^= h >> np.uint64(31)
-    return (h >> np.uint64(11)).astype(np.float64) / float(1 << 53)
-
-
 def _reverse_bits(x: np.ndarray) -> np.ndarray:
     """Bit reversal of uint32 values."""
     for shift, mask in ((1, 0x55555555), (2, 0x33333333), (4, 0x0F0F0F0F), (8, 0x00FF00FF)):
@@ -531,7 +438,7 @@ def _pixel_samples(pix: np.ndarray, sub: np.ndarray, depth: int) -> tuple[np.nda
     """Two uniforms per ray for a rough lobe: sample `sub` of a shuffled, Owen-scrambled 2-D
     Sobol set seeded by pixel and bounce (Burley 2020): a pixel's rays stratify the lobe at
     each bounce and the bounces are independent; the same frame each time."""
-    seed = (_pixel_shift(pix, 1000 + depth) * 4294967296.0).astype(np.uint32)
+    seed = (pixel_shift(pix, 1000 + depth) * 4294967296.0).astype(np.uint32)
     index = _owen_scramble(sub.astype(np.uint32), seed)
     x = _reverse_bits(index)
     y = np.zeros_like(index)
@@ -565,7 +472,7 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
         slot = pix
 
     if options.bounces <= 0:  # no surfaces: every camera ray reads the environment
-        hit = _intersect_front(ts, origins, dirs, _alpha_draw(pix, sub, n_sub, 0))[0] >= 0
+        hit = intersect_front(ts, origins, dirs, _alpha_draw(pix, sub, n_sub, 0))[0] >= 0
         image.coverage += np.bincount(slot[hit], share[hit], minlength=image.npix)
         add(env.radiance(dirs, np.zeros(len(dirs))) * share[:, None], slot)
         return
@@ -576,7 +483,7 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
             # ... as if it left the medium it is in, without a Fresnel loss
             add((weight * (share * medium ** 2)[:, None]) * env.radiance(dirs, blur ** 0.25), slot)
             break
-        prim, u, v, t = _intersect_front(ts, origins, dirs, _alpha_draw(pix, sub, n_sub, depth))
+        prim, u, v, t = intersect_front(ts, origins, dirs, _alpha_draw(pix, sub, n_sub, depth))
         stats["rays"] += len(dirs)
         if depth < len(stats["bounces"]):
             stats["bounces"][depth] += len(dirs)
@@ -588,7 +495,7 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
             if show_env:
                 bg = np.full(miss.sum(), options.background_blur)
                 add(env.radiance(dirs[miss], bg) * share[miss, None], slot[miss])
-        hits = _hit_material(ts, origins, dirs, prim, u, v, t)
+        hits = hit_material(ts, origins, dirs, prim, u, v, t)
         if ts.lights is not None and len(ts.lights):
             _light_hits(ts, ts.lights, env, options, origins, dirs, prim, t, hits,
                         weight * share[:, None], slot, add)
@@ -653,7 +560,7 @@ def _light_hits(ts: TraceScene, lights: trace_lights.Lights, env: _Environment,
         start, dist = o + eps * normal, dist.copy()
         todo = np.arange(len(o))
         for _ in range(trace_lights.MAX_LAYERS):
-            hp, _, _, ht = _intersect_front(ts, start[todo], ldir[todo])
+            hp, _, _, ht = intersect_front(ts, start[todo], ldir[todo])
             ht = np.asarray(ht, np.float64)
             blocked = (hp >= 0) & (ht < dist[todo] - 2 * eps)
             idx = todo[blocked]
@@ -681,24 +588,7 @@ def _light_hits(ts: TraceScene, lights: trace_lights.Lights, env: _Environment,
 
 def _alpha_draw(pix: np.ndarray, sub: np.ndarray, n_sub: int, depth: int) -> np.ndarray:
     """The uniform per ray that alpha BLEND compares with: stratified over a pixel's rays."""
-    return ((sub + 0.5) / n_sub + _pixel_shift(pix, depth + 900)) % 1.0
-
-
-def _hit_material(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray, prim: np.ndarray,
-                  u: np.ndarray, v: np.ndarray, t: np.ndarray) -> trace_material.Hits:
-    """The material at every ray's hit (trace_material.evaluate; rows of misses are zeros)."""
-    n = len(prim)
-    full = trace_material.Hits(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n), np.zeros(n),
-                               np.zeros(n), np.zeros((n, 3)), np.ones(n))
-    sel = np.flatnonzero(prim >= 0)
-    if not len(sel) or ts.surface is None:
-        return full
-    width = ts.spread * (np.linalg.norm(origins[sel] - ts.eye, axis=-1) + t[sel])
-    got = trace_material.evaluate(ts.surface, ts.normals, ts.material[prim[sel]], prim[sel],
-                                  u[sel], v[sel], dirs[sel], width)
-    for f in dataclasses.fields(trace_material.Hits):
-        getattr(full, f.name)[sel] = getattr(got, f.name)
-    return full
+    return ((sub + 0.5) / n_sub + pixel_shift(pix, depth + 900)) % 1.0
 
 
 def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, depth: int,
@@ -791,7 +681,7 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
         p_r = np.where(keep_r, refl_w.max(axis=1) * n_in ** 2, 0.0)
         p_t = np.where(keep_t, trans_w.max(axis=1) * n_t ** 2, 0.0)
         p_r = p_r / np.maximum(p_r + p_t, 1e-30)
-        take_r = ((sb + 0.5) / n_sub + _pixel_shift(px, depth)) % 1.0 < p_r
+        take_r = ((sb + 0.5) / n_sub + pixel_shift(px, depth)) % 1.0 < p_r
         keep_r, keep_t = keep_r & take_r, keep_t & ~take_r
         refl_w = refl_w / np.maximum(p_r, 1e-30)[:, None]
         trans_w = trans_w / np.maximum(1.0 - p_r, 1e-30)[:, None]
@@ -799,7 +689,7 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
         for keep, cw, n2, salt in ((keep_r, refl_w, n_in ** 2, 500), (keep_t, trans_w, n_t ** 2, 700)):
             carried = cw.max(axis=1) * n2
             weak = keep & (carried < ROULETTE)
-            draw = ((sb + 0.5) / n_sub + _pixel_shift(px, depth + salt)) % 1.0
+            draw = ((sb + 0.5) / n_sub + pixel_shift(px, depth + salt)) % 1.0
             keep &= ~weak | (draw < carried / ROULETTE)
             cw[weak] *= (ROULETTE / np.maximum(carried[weak], 1e-30))[:, None]
     # Each child starts off the surface on the side it leaves toward (a reflection about

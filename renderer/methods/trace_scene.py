@@ -1,0 +1,129 @@
+"""What both integrators of method raytrace (renderer.methods.raytrace's Fresnel tree and
+renderer.methods.path_trace) trace against: the world-space scene, its ray casts (Embree, through
+culled back faces and alpha), the material at a hit, and the per-pixel hash their samples use."""
+from __future__ import annotations
+
+import dataclasses
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from renderer.methods import trace_lights, trace_material
+from renderer.methods.trace_material import Surface
+
+MAX_CULLED = 8         # back faces of single-sided materials a ray may pass through
+EPSILON = 1e-4         # ray offset off a surface, relative to the scene's bounding radius
+_THREADS = 2           # Embree releases the GIL: two halves of a batch run in parallel
+_pool: ThreadPoolExecutor | None = None
+
+
+@dataclass
+class TraceScene:
+    """The world-space triangle soup with per-triangle shading data."""
+    embree: Any                  # embreex EmbreeScene
+    normals: np.ndarray          # T x 3 x 3 float32 world vertex normals per corner
+    geo_normals: np.ndarray      # T x 3 float32 unit geometric normals (winding order)
+    material: np.ndarray         # T int32 index into the material tables
+    base: np.ndarray             # K x 3 linear base colour
+    metallic: np.ndarray         # K
+    roughness: np.ndarray        # K
+    transmission: np.ndarray     # K
+    ior: np.ndarray              # K
+    sigma: np.ndarray            # K x 3 absorption coefficient per scene unit (0: none)
+    culled: np.ndarray           # K bool: single-sided and opaque (back faces let rays through)
+    emission: np.ndarray         # K x 3 emissive factor x strength (linear radiance)
+    radius: float
+    surface: Surface | None = None  # UVs, tangents, colours, textures (trace_material)
+    eye: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
+    spread: float = 0.0          # ray cone angle per unit length (a camera ray's pixel share)
+    lights: trace_lights.Lights | None = None  # punctual lights (next-event estimation)
+
+
+def intersect(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray):
+    """(triangle index or -1, u, v, t) for each ray, the batch split over threads."""
+    global _pool
+    o = np.ascontiguousarray(origins, np.float32)
+    d = np.ascontiguousarray(dirs, np.float32)
+    n = len(o)
+    if n < 20000:
+        r = ts.embree.run(o, d, output=1)
+        return r["primID"], r["u"], r["v"], r["tfar"]
+    if _pool is None:
+        _pool = ThreadPoolExecutor(_THREADS, thread_name_prefix="embree")
+    cuts = np.linspace(0, n, _THREADS + 1).astype(int)
+    parts = list(_pool.map(lambda ab: ts.embree.run(o[ab[0]:ab[1]], d[ab[0]:ab[1]], output=1),
+                           zip(cuts[:-1], cuts[1:])))
+    return tuple(np.concatenate([p[k] for p in parts]) for k in ("primID", "u", "v", "tfar"))
+
+
+def intersect_front(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray,
+                     draw: np.ndarray | None = None):
+    """intersect, passing through the back faces of single-sided opaque materials and
+    where alpha says so (MASK: below the cut-off; BLEND: where `draw`, a uniform per ray,
+    is at or above alpha; draw None: 0, so that any alpha above 0 is found, as the first
+    pass that finds the object's pixels needs)."""
+    prim, u, v, t = intersect(ts, origins, dirs)
+    surf = ts.surface
+    tested = surf is not None and surf.alpha_tested.any()
+    if not ts.culled.any() and not tested:
+        return prim, u, v, t
+    prim, u, v, t = prim.copy(), u.copy(), v.copy(), t.astype(np.float64)
+    eps = EPSILON * ts.radius
+    fresh = np.ones(len(prim), bool)  # rays whose current hit is not yet accepted
+    for layer in range(MAX_CULLED):
+        hit = np.flatnonzero((prim >= 0) & fresh)
+        k = ts.material[prim[hit]]
+        back = np.einsum("ij,ij->i", dirs[hit], ts.geo_normals[prim[hit]]) > 0
+        through = ts.culled[k] & back
+        if surf is not None and tested:
+            at = np.flatnonzero(surf.alpha_tested[k] & ~through)
+            if len(at):
+                ray = hit[at]
+                width = ts.spread * (np.linalg.norm(origins[ray] - ts.eye, axis=-1) + t[ray])
+                cos_d = np.abs(np.einsum("ij,ij->i", dirs[ray], ts.geo_normals[prim[ray]]))
+                # each layer behind another draws anew (golden-ratio shift of the same draw)
+                u_draw = (np.zeros(len(ray)) if draw is None
+                          else (draw[ray] + 0.6180339887 * layer) % 1.0)
+                through[at] = trace_material.passes_through(
+                    surf, k[at], prim[ray], u[ray], v[ray], width, cos_d, u_draw)
+        sel = hit[through]
+        if not len(sel):
+            break
+        fresh[:] = False
+        fresh[sel] = True
+        start = t[sel] + eps
+        p2, u2, v2, t2 = intersect(ts, origins[sel] + dirs[sel] * start[:, None], dirs[sel])
+        prim[sel], u[sel], v[sel] = p2, u2, v2
+        t[sel] = np.where(p2 >= 0, t2 + start, t2)
+    return prim, u, v, t
+
+
+def pixel_shift(pix: np.ndarray, depth: int) -> np.ndarray:
+    """A uniform number in [0, 1) per (pixel, bounce), the same every frame (splitmix64)."""
+    with np.errstate(over="ignore"):
+        h = pix.astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15) + np.uint64(depth + 1) * np.uint64(0xBF58476D1CE4E5B9)
+        h ^= h >> np.uint64(30)
+        h *= np.uint64(0xBF58476D1CE4E5B9)
+        h ^= h >> np.uint64(27)
+        h *= np.uint64(0x94D049BB133111EB)
+        h ^= h >> np.uint64(31)
+    return (h >> np.uint64(11)).astype(np.float64) / float(1 << 53)
+
+
+def hit_material(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray, prim: np.ndarray,
+                  u: np.ndarray, v: np.ndarray, t: np.ndarray) -> trace_material.Hits:
+    """The material at every ray's hit (trace_material.evaluate; rows of misses are zeros)."""
+    n = len(prim)
+    full = trace_material.Hits(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n), np.zeros(n),
+                               np.zeros(n), np.zeros((n, 3)), np.ones(n))
+    sel = np.flatnonzero(prim >= 0)
+    if not len(sel) or ts.surface is None:
+        return full
+    width = ts.spread * (np.linalg.norm(origins[sel] - ts.eye, axis=-1) + t[sel])
+    got = trace_material.evaluate(ts.surface, ts.normals, ts.material[prim[sel]], prim[sel],
+                                  u[sel], v[sel], dirs[sel], width)
+    for f in dataclasses.fields(trace_material.Hits):
+        getattr(full, f.name)[sel] = getattr(got, f.name)
+    return full
