@@ -58,6 +58,7 @@ import numpy as np
 
 from core.cubemap import direction_to_face
 from core.options import RenderOptions
+from renderer.methods import trace_lights
 from renderer.methods.optics import (
     fresnel_dielectric,
     ggx_smith_g1,
@@ -468,21 +469,7 @@ def lobes_eval(lobes: _Lobes, rows: np.ndarray, wi: np.ndarray) -> tuple[np.ndar
 def _light(lights, i: int, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(direction to light i, distance, incident radiance x attenuation) at points p (as
     renderer.methods.trace_lights, the raster's falloffs)."""
-    if lights.kind[i] == 0:
-        ldir = np.broadcast_to(-lights.axis[i], p.shape).copy()
-        return ldir, np.full(len(p), np.inf), np.broadcast_to(lights.color[i], p.shape).copy()
-    dv = lights.position[i] - p
-    dist2 = np.maximum(_dot(dv, dv), 1e-12)
-    dist = np.sqrt(dist2)
-    ldir = dv / dist[:, None]
-    atten = 1.0 / dist2
-    if math.isfinite(lights.range[i]) and lights.range[i] > 0:
-        r = dist2 / lights.range[i] ** 2
-        atten *= np.clip(1.0 - r * r, 0.0, 1.0)
-    if lights.kind[i] == 2:
-        cd = -ldir @ lights.axis[i]
-        sc = np.clip(cd * lights.cone[i, 0] + lights.cone[i, 1], 0.0, 1.0)
-        atten *= sc * sc
+    ldir, dist, atten = trace_lights.falloff(lights, i, p)
     return ldir, dist, lights.color[i] * atten[:, None]
 
 

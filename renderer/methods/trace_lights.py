@@ -60,6 +60,27 @@ def _ggx_spec(f0, alpha, n_v, n_l, n_h, v_h):
     return f * (d * vis)[:, None]
 
 
+def falloff(lights: Lights, i: int, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(unit direction to light i, distance, attenuation) at points p: inverse square with
+    glTF's range window and the spot cone's smooth edge, as the raster's lights fall off;
+    a directional light is at infinity, unattenuated."""
+    if lights.kind[i] == 0:
+        return np.broadcast_to(-lights.axis[i], p.shape).copy(), np.full(len(p), np.inf), np.ones(len(p))
+    d = lights.position[i] - p
+    dist2 = np.maximum(np.einsum("ij,ij->i", d, d), 1e-12)
+    dist = np.sqrt(dist2)
+    ldir = d / dist[:, None]
+    atten = 1.0 / dist2
+    if math.isfinite(lights.range[i]) and lights.range[i] > 0:
+        r = dist2 / lights.range[i] ** 2
+        atten *= np.clip(1.0 - r * r, 0.0, 1.0)
+    if lights.kind[i] == 2:
+        cd = -ldir @ lights.axis[i]
+        s = np.clip(cd * lights.cone[i, 0] + lights.cone[i, 1], 0.0, 1.0)
+        atten *= s * s
+    return ldir, dist, atten
+
+
 def direct(lights: Lights, occlusion_test, p: np.ndarray, n: np.ndarray, ng: np.ndarray,
            v: np.ndarray, base: np.ndarray, metallic: np.ndarray, roughness: np.ndarray,
            transmission: np.ndarray, ior: np.ndarray, spec_albedo) -> np.ndarray:
@@ -79,23 +100,7 @@ def direct(lights: Lights, occlusion_test, p: np.ndarray, n: np.ndarray, ng: np.
     diffuse = base * ((1 - metallic) * (1 - transmission))[:, None] / math.pi * (1 - e_spec)
     alpha = np.maximum(roughness * roughness, 1e-3)
     for i in range(len(lights)):
-        if lights.kind[i] == 0:
-            ldir = np.broadcast_to(-lights.axis[i], p.shape).copy()
-            dist = np.full(len(p), np.inf)
-            atten = np.ones(len(p))
-        else:
-            d = lights.position[i] - p
-            dist2 = np.maximum(np.einsum("ij,ij->i", d, d), 1e-12)
-            dist = np.sqrt(dist2)
-            ldir = d / dist[:, None]
-            atten = 1.0 / dist2
-            if math.isfinite(lights.range[i]) and lights.range[i] > 0:
-                r = dist2 / lights.range[i] ** 2
-                atten *= np.clip(1.0 - r * r, 0.0, 1.0)
-            if lights.kind[i] == 2:
-                cd = -ldir @ lights.axis[i]
-                s = np.clip(cd * lights.cone[i, 0] + lights.cone[i, 1], 0.0, 1.0)
-                atten *= s * s
+        ldir, dist, atten = falloff(lights, i, p)
         n_l = np.einsum("ij,ij->i", n, ldir)
         lit = np.flatnonzero((n_l > 0) & (atten > 0) & (np.einsum("ij,ij->i", ng, ldir) > 0))
         if not len(lit):
