@@ -47,7 +47,12 @@ SCENES = ([f"glass_{m}_ior{i}" for m in GLASS_MESHES for i in IORS]
           + [f"frosted_{m}_ior{i}_r0.3" for m in GLASS_MESHES for i in IORS]
           + ["mirror_sphere", "steel_sphere", "rough_metal_sphere", "dielectric_sphere",
              "glass_duck_ior1.5", "glass_teapot_ior1.5",
-             "glass_sphere_ior1.5_pisa", "mirror_sphere_pisa"])
+             "glass_sphere_ior1.5_pisa", "mirror_sphere_pisa",
+             "textured_glass_sphere_ior1.5", "attenuation_vase_ior1.5"])
+# issue 26's front: the glass of real assets (a textured sphere, an absorbing vase) and the
+# chart's own glass, where the defaults of `method=raytrace` are picked
+FRONT_SCENES = ("textured_glass_sphere_ior1.5", "attenuation_vase_ior1.5", "glass_sphere_ior1.5",
+                "glass_torus_ior1.5", "glass_bunny_ior1.5", "frosted_sphere_ior1.5_r0.3")
 QUICK_SCENES = ("glass_sphere_ior1.5", "glass_torus_ior1.5", "steel_sphere")
 RAYTRACE_BOUNCES = (1, 2, 4, 8)
 SAMPLED_BOUNCES = (4, 8)  # raytrace with fresnel_split=sample (transmissive scenes)
@@ -57,6 +62,11 @@ SAMPLED_BOUNCES = (4, 8)  # raytrace with fresnel_split=sample (transmissive sce
 ROULETTE_METHODS = ("raytrace-12/split=roulette/ss=2", "raytrace-12/split=roulette/ss=3",
                     "raytrace-12/split=roulette", "raytrace-12/split=roulette/ss=6")
 ROUGH_METHODS = ("raytrace-8/lobes=prefilter/ss=2", "raytrace-24/split=roulette/ss=8")
+# the tree at the old default's depth on smaller grids, and the path integrator (issue 26): at
+# most `spp` paths a pixel, stopping at its default noise target
+DEFAULT_METHODS = ("raytrace-8/split=both/ss=2", "raytrace-8/split=both/ss=3",
+                   "raytrace-8/split=roulette/ss=3")
+PATH_METHODS = ("raytrace-8/int=path/spp=16", "raytrace-8/int=path/spp=64")
 # Environment faces for every method. Mitsuba reads the 1024 x 512 panorama itself; resampled
 # to 256 px faces it alone left a floor of ~0.05 FLIP on low-IOR glass (sphere at IOR 1.15,
 # raytrace-8: 0.053 at 256, 0.027 at 512), above Mitsuba's own 16 spp error.
@@ -77,6 +87,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--peer-spp", default="4,16", help="Mitsuba peer runs (comma-separated spp; "
                    "empty: none)")
     p.add_argument("--cache", default=None, help="bake cache (default: a temporary folder)")
+    p.add_argument("--front", action="store_true",
+                   help=f"issue 26's front: the {len(FRONT_SCENES)} FRONT_SCENES with Mitsuba at 4/16/64 spp")
     p.add_argument("--quick", action="store_true",
                    help=f"{len(QUICK_SCENES)} scenes at 64 px, one timed run, no peer")
     p.add_argument("--replot", action="store_true",
@@ -114,7 +126,8 @@ def methods_for(spec) -> list[str]:
         out = ["single", "wyman/tir=paper", "wyman/tir=reflect",
                *(f"raytrace-{b}" for b in RAYTRACE_BOUNCES),
                *(f"raytrace-{b}/split=sample" for b in SAMPLED_BOUNCES), *ROULETTE_METHODS,
-               *(ROUGH_METHODS if rough else ()), "auto"]
+               *DEFAULT_METHODS, *PATH_METHODS, *(ROUGH_METHODS if rough else ()),
+               "raytrace", "auto"]
     else:
         out = ["opaque", "raytrace-1", "auto"]
     return out + (["auto/prefilter=paper"] if rough else [])
@@ -122,13 +135,16 @@ def methods_for(spec) -> list[str]:
 
 def options_for(method: str, base, budget_ms: float = BUDGET_MS):
     """(RenderOptions, prefilter) for a method name of the chart (also bench.stability's)."""
-    if method.startswith("raytrace-"):  # raytrace-N[/split=S][/lobes=L][/ss=K]
+    if method.startswith("raytrace-"):  # raytrace-N[/split=S][/lobes=L][/ss=K][/int=I][/spp=S]
         depth, *mods = method.split("/")
         kw = dict(m.split("=") for m in mods)
         return replace(base, method="raytrace", bounces=int(depth.split("-")[1]),
                        fresnel_split=kw.get("split", "both"),
                        rough_lobes=kw.get("lobes", "sample"),
+                       integrator=kw.get("int", "tree"),
+                       samples=int(kw.get("spp", base.samples)),
                        supersample=int(kw["ss"]) if "ss" in kw else None), "ggx"
+    # "raytrace" alone: RenderOptions' defaults, whatever they are (the point issue 26 places)
     if method.startswith("wyman/tir="):
         return replace(base, method="wyman", tir=method.split("=")[1]), "ggx"
     if method == "auto/prefilter=paper":
@@ -140,6 +156,8 @@ def options_for(method: str, base, budget_ms: float = BUDGET_MS):
 
 def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.WARNING)
+    if args.front:
+        args.scenes, args.peer_spp = ",".join(FRONT_SCENES), "4,16,64"
     if args.quick:
         args.scenes, args.size, args.repeat, args.rt_repeat = ",".join(QUICK_SCENES), 64, 1, 1
         args.peer_spp = ""
@@ -212,11 +230,18 @@ def measure(names: list[str], size: int, repeat: int, rt_repeat: int, cache: Pat
 
 
 def _peer(spec, size: int, spp: int, ref, repeat: int = 1) -> dict:
-    """Mitsuba at `spp`, timed as the ray tracer is: median of `repeat` cold runs."""
-    from bench.metrics import errors, median_ms
+    """Mitsuba at `spp`, timed as the ray tracer is: median of `repeat` cold runs, each its
+    scene load (mi.load_dict) plus render (bench.reference.render_reference's `timing`); ours
+    is render(), which builds its Embree scene from the baked arrays every frame."""
+    from bench.metrics import errors
     from bench.reference import render_reference
 
-    ms, img = median_ms(lambda: render_reference(spec, size, spp), repeat, warm=False)
+    times, img = [], None
+    for _ in range(max(1, repeat)):
+        t: dict = {}
+        img = render_reference(spec, size, spp, timing=t)
+        times.append(t["ms"])
+    ms = statistics.median(times)
     return {"scene": spec.name, "method": f"mitsuba-{spp}spp", "size": size, "time_ms": ms,
             **errors(img, ref)}
 

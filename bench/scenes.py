@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from bench.shapes import mesh_arrays
+from bench.shapes import mesh_arrays, mesh_uvs
 from core.scene import Material
 
 log = logging.getLogger(__name__)
@@ -39,6 +39,7 @@ class SceneSpec:
     pitch: float = 0.0
     fov: float = 40.0
     distance: float | None = None   # camera distance from the bounds centre; None: auto-frame
+    texture: str | None = None      # a TEXTURES name: the material's baseColorTexture (TEXCOORD_0)
 
     @property
     def matrix(self) -> np.ndarray:
@@ -58,6 +59,39 @@ def glass(ior: float, roughness: float = 0.0, **kw) -> Material:
     """Clear glass: fully transmissive dielectric, white (transmission is tinted by base colour)."""
     return Material(name=f"glass_{ior}", base_color=(1.0, 1.0, 1.0, 1.0), metallic=0.0,
                     roughness=roughness, transmission=1.0, ior=ior, **kw)
+
+
+def label_texture(size: int = 256) -> np.ndarray:
+    """A stained-glass label (sRGB uint8, size/2 x size x 3) for the lat-long UV sphere: a grid
+    of coloured panes with dark leading over u 0.3-0.7, v 0.25-0.75 (the hemisphere facing the
+    camera), white elsewhere. White behind: glTF tints transmission once, on the way in
+    (renderer.methods.raytrace), Mitsuba's dielectric at every crossing; with the back white the
+    two differ only on paths that reflect inside and leave through the label. The panes are
+    16+ texels wide so that texture filtering (our mips, Mitsuba's bilinear) hardly matters."""
+    h, w = size // 2, size
+    img = np.full((h, w, 3), 255, np.uint8)
+    panes = np.array([[230, 60, 50], [250, 190, 40], [60, 110, 230], [70, 190, 90],
+                      [200, 80, 200], [240, 140, 60]], np.uint8)
+    u0, u1, v0, v1 = int(0.3 * w), int(0.7 * w), int(0.25 * h), int(0.75 * h)
+    nu, nv = 5, 4
+    for a in range(nu):
+        for b in range(nv):
+            x0, x1 = u0 + (u1 - u0) * a // nu, u0 + (u1 - u0) * (a + 1) // nu
+            y0, y1 = v0 + (v1 - v0) * b // nv, v0 + (v1 - v0) * (b + 1) // nv
+            img[y0:y1, x0:x1] = 60  # leading
+            img[y0 + 2:y1 - 2, x0 + 2:x1 - 2] = panes[(a + 2 * b) % len(panes)]
+    return img
+
+
+TEXTURES = {"label": label_texture}
+
+
+def texture_srgb(name: str) -> np.ndarray:
+    """A TEXTURES image (sRGB uint8 H x W x 3), as written into the .glb."""
+    try:
+        return TEXTURES[name]()
+    except KeyError:
+        raise KeyError(f"unknown texture {name!r}; known: {', '.join(TEXTURES)}") from None
 
 
 def metal(color, roughness: float, name: str) -> Material:
@@ -115,6 +149,14 @@ SCENES.update({s.name: s for s in [
     SceneSpec("case_degenerate_triangles", "degenerate_sphere", glass(1.5)),
     SceneSpec("case_flipped_normals", "flipped_sphere", glass(1.5)),
 ]})
+# Real-asset glass for the chart (issue 26): a glass sphere with a stained-glass label as its
+# baseColorTexture, and a hollow vase of green glass (KHR_materials_volume attenuation).
+SCENES.update({s.name: s for s in [
+    SceneSpec("textured_glass_sphere_ior1.5", "uvsphere", glass(1.5), texture="label"),
+    SceneSpec("attenuation_vase_ior1.5", "vase",
+              glass(1.5, attenuation_color=(0.35, 0.75, 0.55), attenuation_distance=0.15),
+              pitch=20.0),
+]})
 
 
 def scene(name: str, **changes) -> SceneSpec:
@@ -131,7 +173,13 @@ def write_glb(spec: SceneSpec, path: str | Path) -> Path:
     import pygltflib as g
 
     pos, nrm, idx = mesh_arrays(spec.mesh)
-    blob = pos.tobytes() + nrm.tobytes() + idx.tobytes()
+    uv = mesh_uvs(spec.mesh)
+    if spec.texture and uv is None:
+        raise ValueError(f"scene {spec.name!r}: texture {spec.texture!r} on mesh {spec.mesh!r}, "
+                         "which has no UVs (bench.shapes.mesh_uvs)")
+    png = _png(texture_srgb(spec.texture)) if spec.texture else b""
+    uv_bytes = uv.tobytes() if uv is not None else b""
+    blob = pos.tobytes() + nrm.tobytes() + idx.tobytes() + uv_bytes + png
     mat = spec.material
     extensions: dict[str, dict[str, Any]] = {}
     if mat.transmission > 0:
@@ -155,31 +203,52 @@ def write_glb(spec: SceneSpec, path: str | Path) -> Path:
     if mat.uses("sheen"):
         extensions["KHR_materials_sheen"] = {"sheenColorFactor": list(mat.sheen_color),
                                              "sheenRoughnessFactor": mat.sheen_roughness}
+    views = [
+        g.BufferView(buffer=0, byteOffset=0, byteLength=pos.nbytes, target=g.ARRAY_BUFFER),
+        g.BufferView(buffer=0, byteOffset=pos.nbytes, byteLength=nrm.nbytes, target=g.ARRAY_BUFFER),
+        g.BufferView(buffer=0, byteOffset=pos.nbytes + nrm.nbytes, byteLength=idx.nbytes,
+                     target=g.ELEMENT_ARRAY_BUFFER),
+    ]
+    accessors = [
+        g.Accessor(bufferView=0, componentType=g.FLOAT, count=len(pos), type=g.VEC3,
+                   min=pos.min(0).tolist(), max=pos.max(0).tolist()),
+        g.Accessor(bufferView=1, componentType=g.FLOAT, count=len(nrm), type=g.VEC3),
+        g.Accessor(bufferView=2, componentType=g.UNSIGNED_INT, count=idx.size, type=g.SCALAR),
+    ]
+    attributes = g.Attributes(POSITION=0, NORMAL=1)
+    offset = pos.nbytes + nrm.nbytes + idx.nbytes
+    if uv is not None:
+        views.append(g.BufferView(buffer=0, byteOffset=offset, byteLength=len(uv_bytes),
+                                  target=g.ARRAY_BUFFER))
+        accessors.append(g.Accessor(bufferView=3, componentType=g.FLOAT, count=len(uv), type=g.VEC2))
+        attributes.TEXCOORD_0 = 3
+        offset += len(uv_bytes)
+    images: list = []
+    textures: list = []
+    samplers: list = []
+    base_tex = None
+    if png:
+        views.append(g.BufferView(buffer=0, byteOffset=offset, byteLength=len(png)))
+        images = [g.Image(bufferView=len(views) - 1, mimeType="image/png", name=spec.texture)]
+        # linear, repeat around the seam (u), clamped at the poles (v)
+        samplers = [g.Sampler(magFilter=9729, minFilter=9987, wrapS=10497, wrapT=33071)]
+        textures = [g.Texture(source=0, sampler=0)]
+        base_tex = g.TextureInfo(index=0)
     gltf = g.GLTF2(
         asset=g.Asset(version="2.0", generator="asset-preview bench.scenes"),
         scene=0,
         scenes=[g.Scene(nodes=[0])],
         nodes=[g.Node(mesh=0, name=spec.name, scale=list(map(float, spec.scale)))],
         meshes=[g.Mesh(name=spec.mesh, primitives=[g.Primitive(
-            attributes=g.Attributes(POSITION=0, NORMAL=1), indices=2, material=0)])],
+            attributes=attributes, indices=2, material=0)])],
         materials=[g.Material(
             name=mat.name, doubleSided=False, extensions=extensions,
             pbrMetallicRoughness=g.PbrMetallicRoughness(
-                baseColorFactor=list(mat.base_color), metallicFactor=mat.metallic,
-                roughnessFactor=mat.roughness))],
-        accessors=[
-            g.Accessor(bufferView=0, componentType=g.FLOAT, count=len(pos), type=g.VEC3,
-                       min=pos.min(0).tolist(), max=pos.max(0).tolist()),
-            g.Accessor(bufferView=1, componentType=g.FLOAT, count=len(nrm), type=g.VEC3),
-            g.Accessor(bufferView=2, componentType=g.UNSIGNED_INT, count=idx.size, type=g.SCALAR),
-        ],
-        bufferViews=[
-            g.BufferView(buffer=0, byteOffset=0, byteLength=pos.nbytes, target=g.ARRAY_BUFFER),
-            g.BufferView(buffer=0, byteOffset=pos.nbytes, byteLength=nrm.nbytes,
-                         target=g.ARRAY_BUFFER),
-            g.BufferView(buffer=0, byteOffset=pos.nbytes + nrm.nbytes, byteLength=idx.nbytes,
-                         target=g.ELEMENT_ARRAY_BUFFER),
-        ],
+                baseColorFactor=list(mat.base_color), baseColorTexture=base_tex,
+                metallicFactor=mat.metallic, roughnessFactor=mat.roughness))],
+        accessors=accessors,
+        bufferViews=views,
+        images=images, samplers=samplers, textures=textures,
         buffers=[g.Buffer(byteLength=len(blob))],
         extensionsUsed=sorted(extensions),
     )
@@ -188,6 +257,16 @@ def write_glb(spec: SceneSpec, path: str | Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     gltf.save_binary(str(path))
     return path
+
+
+def _png(rgb: np.ndarray) -> bytes:
+    import io
+
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(rgb).save(buf, format="PNG")
+    return buf.getvalue()
 
 
 def baked_asset(spec: SceneSpec, cache_dir: str | Path | None = None):
@@ -202,6 +281,10 @@ def baked_asset(spec: SceneSpec, cache_dir: str | Path | None = None):
         return bake_asset(glb, cache_dir)
     from core.baked import BakedAsset, BakedMesh
     from core.scene import transformed_bounds
+
+    if spec.texture:
+        raise ValueError(f"scene {spec.name!r} is textured: bake it through a cache folder "
+                         "(baked_asset(spec, cache_dir))")
 
     pos, nrm, idx = mesh_arrays(spec.mesh)
     mesh = BakedMesh(name=spec.mesh, positions=pos, normals=nrm, indices=idx,

@@ -22,6 +22,8 @@ SLAB_THICKNESS = 0.1     # of a 2 x 2 plate: thickness / width = 1/20
 BOWL_WALL = 0.15         # wall thickness of the hemispherical bowl (outer radius 1)
 DEGENERATE_EXTRA = 200   # zero-area triangles added to the sphere
 MESH_FILES = {"bunny": "bunny.ply", "torus": "torus.STL"}
+UV_SPHERE_LAT, UV_SPHERE_LON = 96, 192  # textured sphere: ~36k triangles, as smooth as the icosphere
+VASE_WALL, VASE_BASE = 0.06, 0.15  # before normalising (vase height 2)
 ICOSPHERE_SUBDIVISIONS = 5  # 20480 triangles: the smooth-normal error is far below the errors measured
 
 
@@ -80,6 +82,52 @@ def bowl(sections: int = 96, steps: int = 24):
     return _out(pos, m.vertex_normals, m.faces)
 
 
+def uv_sphere(lat: int = UV_SPHERE_LAT, lon: int = UV_SPHERE_LON):
+    """A latitude-longitude sphere of radius 1 (y up) with a UV seam at the back (-z), for
+    textured scenes: u = 0.5 + azimuth / 2pi (0.5 faces the default camera, +z), v = polar
+    angle / pi (0 at the top, as glTF's v runs down the image). Returns the three arrays of
+    every kind and the N x 2 float32 UVs (see `mesh_uvs`)."""
+    theta = np.linspace(0.0, np.pi, lat + 1)
+    phi = np.linspace(-np.pi, np.pi, lon + 1)  # the seam column is duplicated
+    t, f = np.meshgrid(theta, phi, indexing="ij")
+    pos = np.stack([np.sin(t) * np.sin(f), np.cos(t), np.sin(t) * np.cos(f)], -1).reshape(-1, 3)
+    uv = np.stack([0.5 + f / (2 * np.pi), t / np.pi], -1).reshape(-1, 2)
+    i, j = np.meshgrid(np.arange(lat), np.arange(lon), indexing="ij")
+    a = (i * (lon + 1) + j).ravel()
+    b, c, d = a + lon + 1, a + 1, a + lon + 2
+    # counter-clockwise seen from outside; the pole rows keep only their non-degenerate half
+    top = np.stack([a, b, c], 1)[i.ravel() > 0]
+    bottom = np.stack([c, b, d], 1)[i.ravel() < lat - 1]
+    return (*_out(pos, pos, np.concatenate([top, bottom])), uv.astype(np.float32))
+
+
+def vase(sections: int = 128, steps: int = 48):
+    """A hollow glass vase (closed surface: outer wall, rounded lip, inner wall, thick base),
+    y up, normalised to radius 1: walls ~VASE_WALL thick, so light crosses glass twice through
+    each wall and a longer way through the base and the silhouette's edges."""
+    import trimesh
+    from scipy.interpolate import CubicSpline
+
+    h = np.linspace(0.0, 1.0, steps)
+    # outer radius along the height: foot, belly, neck, flared lip
+    knots_h, knots_r = [0.0, 0.25, 0.55, 0.8, 1.0], [0.42, 0.62, 0.42, 0.26, 0.36]
+    r_out = CubicSpline(knots_h, knots_r)(h) * 1.0
+    heights = h * 2.0
+    base = VASE_BASE
+    inner_h = heights[heights > base]
+    r_in = np.interp(inner_h, heights, r_out) - VASE_WALL
+    outer = np.stack([r_out, heights], 1)
+    inner = np.stack([r_in, inner_h], 1)[::-1]
+    profile = np.concatenate([[[0.0, 0.0]], outer, inner, [[0.0, inner_h[0]]]])
+    m = trimesh.creation.revolve(profile[::-1], sections=sections)
+    m.merge_vertices()
+    m.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, [1, 0, 0]))  # Z up -> Y up
+    if m.volume < 0:
+        m.invert()
+    pos, _, _ = _normalise(np.asarray(m.vertices))
+    return _out(pos, m.vertex_normals, m.faces)
+
+
 def _sphere():
     return mesh_arrays("sphere")
 
@@ -134,9 +182,14 @@ def real_asset(kind: str):
 
 BUILDERS = {
     "cube": cube, "slab": slab, "bowl": bowl, "open_sphere": open_sphere,
-    "degenerate_sphere": degenerate_sphere, "flipped_sphere": flipped_sphere,
+    "degenerate_sphere": degenerate_sphere, "uvsphere": lambda: uv_sphere()[:3], "vase": vase, "flipped_sphere": flipped_sphere,
     "duck": lambda: real_asset("duck"), "teapot": lambda: real_asset("teapot"),
 }
+
+
+def mesh_uvs(kind: str) -> np.ndarray | None:
+    """TEXCOORD_0 (N x 2 float32, glTF orientation) of a kind that has UVs, else None."""
+    return uv_sphere()[3] if kind == "uvsphere" else None
 
 
 @lru_cache(maxsize=None)

@@ -16,7 +16,10 @@ to be within tolerance of the best raster method:
 - `raytrace` for the whole frame only when the request gives a time budget
   (RenderOptions.budget_ms), the estimated ray-trace time fits it, and some object is in
   a case where the raster methods fail (genus > 0 at IOR >= RAYTRACE_MIN_IOR, an open mesh,
-  diamond-like IOR, the camera inside).
+  diamond-like IOR, the camera inside) or glass whose look the raster only approximates
+  (`raster_approximates`: Beer-Lambert attenuation, which the raster takes from the thickness
+  factor instead of the path through the glass; dispersion; textured glass, whose texels the
+  raster reads at the front face only: `bench accuracy`'s vase and textured sphere).
 
 `environment_face_size` sizes the environment bake for a request the same way: from the
 output size and the smoothest material present. The decisions go into Frame.plan["auto"]
@@ -272,6 +275,25 @@ def raster_fails(f: ObjectFacts) -> str | None:
     return None
 
 
+def raster_approximates(mat: Material) -> str | None:
+    """Why the ray tracer shows this transmissive material better than raster can, though
+    the raster does not fail on it, or None. The real assets of issue 26: absorbing glass
+    (vases, bottles), dispersive glass, textured glass (stained glass, labels, normal-mapped)."""
+    if math.isfinite(mat.attenuation_distance) and any(c < 1.0 for c in mat.attenuation_color):
+        return (f"attenuation (colour {', '.join(f'{c:g}' for c in mat.attenuation_color)} at "
+                f"{mat.attenuation_distance:g}): the raster reads the thickness factor, not the "
+                "path through the glass")
+    if mat.uses("dispersion"):
+        return f"dispersion {mat.dispersion:g}: one IOR per colour channel"
+    slots = [n for n, t in (("base colour", mat.base_color_texture),
+                            ("transmission", mat.transmission_texture),
+                            ("normal", mat.normal_texture)) if t is not None]
+    if slots:
+        return (f"textured glass ({', '.join(slots)} texture): what is seen through it crosses "
+                "the texels again at the back")
+    return None
+
+
 def choose_raster(f: ObjectFacts, available: list[str]) -> tuple[str, str]:
     """The raster method for a transmissive object and why."""
     if "single" in available:
@@ -349,7 +371,7 @@ def plan_request(asset: BakedAsset, options: RenderOptions, available: list[str]
         f = object_facts(mesh, mat, camera)
         method, why = choose_raster(f, available)
         decisions.append(Decision(mesh.name, method, why, f))
-        reason = raster_fails(f)
+        reason = raster_fails(f) or raster_approximates(mat)
         if reason:
             failing.append((mesh.name, reason))
             r_px = min(f.screen_px, max(options.width, options.height)) / 2
