@@ -23,6 +23,7 @@ BENCHMARKS = {
     "scale": ("bench.scale", "bake a few hundred assets: 1 and 2 local workers vs Ray; 100k projection"),
     "refraction": ("bench.refraction", "refraction methods: time and error vs Mitsuba per scene"),
     "accuracy": ("bench.accuracy", "speed-vs-accuracy chart: every scene x method vs Mitsuba, Pareto front, auto"),
+    "raycost": ("bench.raycost", "ray tracer (tree, path) timed over assets, sizes, settings; the cost model fitted"),
     "stability": ("bench.stability", "stability suite: every hard case x method, finite, TIR, error, verdict"),
     "fidelity": ("bench.fidelity", "Khronos samples: ours and raytrace vs Blender Cycles (FLIP per model)"),
     "usd": ("bench.usd", "USD stages: ours vs Hydra Storm (usdview), FLIP, cold and warm first image"),
