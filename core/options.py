@@ -118,8 +118,11 @@ class RenderOptions:
         "coverage: the object's coverage whatever the background"))
     tir: Literal["paper", "reflect"] | None = Field(default=None, description=(
         "wyman: total internal reflection treatment (default: reflect)"))
-    bounces: int = Field(default=8, ge=0, le=64, description="raytrace: path depth (0: the environment along each primary ray)")
-    fresnel_split: Literal["both", "sample", "roulette"] = Field(default="both", description=(
+    # Defaults from issue 26's front (`bench accuracy --front`, bench/RESULTS.md): 12 bounces
+    # with roulette at 3 x 3 rays sit on each scene's Pareto front at ~0.4x the old default's
+    # (8, both, 4 x 4) time and dominate more of Mitsuba's 4/16/64 spp points.
+    bounces: int = Field(default=12, ge=0, le=64, description="raytrace: path depth (0: the environment along each primary ray)")
+    fresnel_split: Literal["both", "sample", "roulette"] = Field(default="roulette", description=(
         "raytrace: at each interface trace both the reflected and the refracted ray (both: "
         "no noise) or, past the first surface a camera ray meets, one of them chosen with "
         "probability proportional to its throughput and reweighted (sample: unbiased, about "
@@ -140,8 +143,8 @@ class RenderOptions:
         "raytrace integrator path: a pixel stops when the relative standard error of its "
         "luminance is below this (0: run all samples or the budget)"))
     supersample: int | None = Field(default=None, ge=1, le=16, description=(
-        "raytrace: rays per pixel side on and around the object (default: 4 below 256 px, "
-        "3 below 384, else 2)"))
+        "raytrace: rays per pixel side on and around the object (default: 3 below 384 px, "
+        "else 2)"))
     aa_threshold: float = Field(default=0.0, ge=0, le=1, description=(
         "raytrace: adaptive anti-aliasing: with supersample above 2, pixels near the object "
         "get 2 x 2 rays first and the full grid only where those differ in coverage or in "

@@ -210,7 +210,8 @@ class ThumbnailService:
                                                         and rec.transmissive)
         frame = estimate_request_ms(rec.triangles, options.width, options.height, options.method,
                                     transmissive, options.budget_ms, options.bounces,
-                                    options.supersample, options.integrator, options.samples)
+                                    options.supersample, options.integrator, options.samples,
+                                    options.fresnel_split)
         frames = MAX_FRAMES if options.animate else max(options.turntable, 1)
         return frame * frames
 

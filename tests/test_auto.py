@@ -239,3 +239,29 @@ def test_textured_glass_scene_is_ray_traced_with_a_budget(cache):
     o = RenderOptions(background="env", width=64, height=64, budget_ms=6e4)
     p = auto.plan_request(asset, o, RASTER)
     assert p.frame_method == "raytrace" and "base colour texture" in p.why
+
+
+def test_raytrace_estimate_grows_with_size_samples_bounces_and_rays():
+    """The service's upper estimate (the fitted model, bench raycost) never drops when a request
+    asks for more: pixels, paths, bounces, rays a pixel, triangles; the path tracer's stays
+    under its budget."""
+    est = auto.estimate_request_ms
+    sizes = [est(5000, s, s, "raytrace", True, None) for s in (32, 64, 128, 256, 383, 384, 512, 1024)]
+    # 383 -> 384 px: the default grid drops from 3 x 3 to 2 x 2 rays, but never below 2 x 2
+    assert all(a < b for a, b in zip(sizes[:5], sizes[1:5])), sizes
+    assert all(a < b for a, b in zip(sizes[5:], sizes[6:])), sizes
+    for ss in (2, 3, 4):
+        fixed = [est(5000, s, s, "raytrace", True, None, supersample=ss) for s in (64, 383, 384, 1024)]
+        assert all(a < b for a, b in zip(fixed, fixed[1:])), (ss, fixed)
+    paths = [est(5000, 256, 256, "raytrace", True, None, integrator="path", samples=n)
+             for n in (1, 4, 16, 64, 256)]
+    assert all(a < b for a, b in zip(paths, paths[1:])), paths
+    assert est(5000, 256, 256, "raytrace", True, 2000.0, integrator="path", samples=256) <= 2000.0
+    depth = [est(5000, 128, 128, "raytrace", True, None, bounces=b) for b in (1, 2, 4, 8, 12, 24)]
+    assert all(a < b for a, b in zip(depth, depth[1:])), depth
+    rays = [est(5000, 128, 128, "raytrace", True, None, supersample=k) for k in (1, 2, 3, 4, 8)]
+    assert all(a < b for a, b in zip(rays, rays[1:])), rays
+    assert est(100, 128, 128, "raytrace", True, None) < est(100000, 128, 128, "raytrace", True, None)
+    # the full tree costs more than roulette at the same depth
+    assert (est(5000, 128, 128, "raytrace", True, None, fresnel_split="both")
+            > est(5000, 128, 128, "raytrace", True, None, fresnel_split="roulette"))

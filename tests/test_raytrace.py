@@ -60,7 +60,8 @@ def test_matches_mitsuba_reference(name, limit, reference_env, scene_cache):
     ("glass_torus_ior1.5", 0.05),       # [0.032] genus 1
     ("glass_torus_ior2.4", 0.05),       # [0.035]
     ("glass_bunny_ior1.5", 0.13),       # [0.088] open mesh, sub-pixel detail at 128 px
-    ("frosted_sphere_ior1.5_r0.3", 0.16),  # [0.128] sampled rough lobes, 16 rays a pixel (noise)
+    ("frosted_sphere_ior1.5_r0.3", 0.21),  # [0.173] sampled rough lobes, 9 rays a pixel (noise;
+    #                                    0.128 at the 4 x 4 grid the default was before issue 26)
 ])
 def test_hard_cases_finite_and_error_recorded(name, limit, reference_env, scene_cache):
     frame = render(name, reference_env, scene_cache)
@@ -80,7 +81,9 @@ def test_ior_one_sphere_is_invisible(reference_env, scene_cache):
 def test_more_bounces_converge_to_the_reference(reference_env, scene_cache):
     """One bounce is the single-refraction method, two the exact two-interface result."""
     ref = load_reference("glass_sphere_ior1.5")
-    errs = [relative_mae(render("glass_sphere_ior1.5", reference_env, scene_cache, bounces=b).linear, ref)
+    # the full tree on 4 x 4 rays (the defaults before issue 26), where the ratios were measured
+    errs = [relative_mae(render("glass_sphere_ior1.5", reference_env, scene_cache, bounces=b,
+                                fresnel_split="both", supersample=4).linear, ref)
             for b in (1, 2, 8)]
     assert errs[0] > 5 * errs[1] and errs[1] > 2 * errs[2], errs  # [0.92, 0.052, 0.022]
 
@@ -96,8 +99,9 @@ def test_orientation_matters(reference_env, scene_cache):
                                   "glass_torus_ior2.4"])
 def test_furnace_energy_conserved(name, scene_cache):
     """Under a uniform white sky, lossless glass and a perfect mirror vanish: Fresnel splits
-    every ray's energy between its children and all of it reaches the sky."""
-    frame = render(name, uniform_env(), scene_cache, size=48)
+    every ray's energy between its children and all of it reaches the sky (the full tree:
+    roulette, the default, is exact only on average, test_roulette_split_is_unbiased_and_cheaper)."""
+    frame = render(name, uniform_env(), scene_cache, size=48, fresnel_split="both")
     rgb = frame.linear[..., :3]
     assert np.abs(rgb - 1.0).max() < 0.01, rgb.min()
 
@@ -115,7 +119,7 @@ def test_sampled_fresnel_split_is_cheaper_and_close(reference_env, scene_cache):
     reference (noise, not bias: [0.057] against [0.032] with both children, 4 x 4 rays a pixel
     at the reference's 128 px)."""
     ref = load_reference("glass_torus_ior1.5")
-    both = render("glass_torus_ior1.5", reference_env, scene_cache)
+    both = render("glass_torus_ior1.5", reference_env, scene_cache, fresnel_split="both")
     sampled = render("glass_torus_ior1.5", reference_env, scene_cache, fresnel_split="sample")
     again = render("glass_torus_ior1.5", reference_env, scene_cache, fresnel_split="sample")
     np.testing.assert_array_equal(sampled.linear, again.linear)
@@ -161,9 +165,9 @@ def test_frame_and_transparent_background(reference_env, scene_cache):
     alpha = frame.linear[..., 3]
     assert alpha[0, 0] == 0 and alpha[32, 32] == 1
     assert 0 < alpha.mean() < 1
-    assert frame.plan["method"] == "raytrace" and frame.plan["bounces"] == 8
+    assert frame.plan["method"] == "raytrace" and frame.plan["bounces"] == 12
     assert set(frame.timings.stages_ms) >= {"build", "trace"} and frame.timings.total_ms > 0
-    assert frame.plan["supersample"] == 4  # small frames get more rays per pixel
+    assert frame.plan["supersample"] == 3  # small frames get more rays per pixel
 
 
 def test_every_instance_is_traced(reference_env):
@@ -234,7 +238,8 @@ def test_furnace_seen_from_inside_the_glass_is_n_squared(ior):
     spec = scenes.scene("glass_sphere_ior1.5")
     spec = replace(spec, material=replace(spec.material, ior=ior))
     frame = render_raytrace(scenes.baked_asset(spec), uniform_env(),
-                            RenderOptions(background="env", yaw=0.0, pitch=0.0, width=24, height=24, distance=0.4))
+                            RenderOptions(background="env", yaw=0.0, pitch=0.0, width=24, height=24,
+                                          distance=0.4, fresnel_split="both"))
     np.testing.assert_allclose(frame.linear[..., :3], ior * ior, rtol=0.01)
 
 
@@ -297,7 +302,7 @@ def test_roulette_split_is_unbiased_and_cheaper(reference_env, scene_cache):
     rgb = white.linear[..., :3]
     assert abs(rgb.mean() - 1.0) < 0.005 and np.abs(rgb - 1.0).max() < 0.25, (rgb.mean(), rgb.min(), rgb.max())
     ref = load_reference("glass_torus_ior1.5")
-    both = render("glass_torus_ior1.5", reference_env, scene_cache)
+    both = render("glass_torus_ior1.5", reference_env, scene_cache, fresnel_split="both")
     rr = render("glass_torus_ior1.5", reference_env, scene_cache, fresnel_split="roulette")
     assert rr.plan["rays"] < 0.8 * both.plan["rays"], (rr.plan["rays"], both.plan["rays"])
     e_both, e_rr = relative_mae(both.linear, ref), relative_mae(rr.linear, ref)
@@ -310,7 +315,8 @@ def test_rough_glass_furnace_loses_only_what_microfacets_mask():
     spec = scenes.scene("frosted_sphere_ior1.5_r0.3")
     frame = render_raytrace(scenes.baked_asset(spec), uniform_env(),
                             RenderOptions(background="env", width=48, height=48,
-                                          distance=spec.camera_distance(48, 48), supersample=4))
+                                          distance=spec.camera_distance(48, 48), supersample=4,
+                                          fresnel_split="both"))
     rgb = frame.linear[..., :3]
     centre = rgb[18:30, 18:30]
     assert 0.95 < centre.mean() <= 1.0 + 1e-3, centre.mean()

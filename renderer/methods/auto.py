@@ -61,15 +61,19 @@ RAYTRACE_MIN_IOR = 1.4       # genus > 0 at or above: wyman's torus FLIP 0.13-0.
 #                              torus at 1.2, the paper's Fig. 11 failure: 0.048)
 DIAMOND_IOR = 2.0            # above it most exit rays are totally internally reflected
 CONCAVE_CONVEXITY = 0.6      # bowl (0.4) degrades raster refraction; bunny, duck (> 0.8) do not
-RAYTRACE_BOUNCES = 8         # enough for the torus and diamond cases (stability suite)
-# Ray-trace time model, fitted to the chart's raytrace-1..8 times (128 px, 2 shared cores):
-# fixed + per triangle (BVH build) + per frame pixel (centre rays, environment) + per covered
-# pixel per bounce (2 x 2 rays). Conservative: IOR 1.5 sphere, 8 bounces, 1.0 s predicted,
-# 0.38-1.25 s measured as the shared machine's load varied.
-RT_FIXED_MS = 100.0
-RT_MS_PER_TRIANGLE = 0.01
-RT_MS_PER_FRAME_PIXEL = 0.01
-RT_MS_PER_PIXEL_BOUNCE = 0.04
+RAYTRACE_BOUNCES = 12        # RenderOptions' default (issue 26's front); the torus and diamond
+#                              cases of the stability suite need 8
+# Ray-trace time model (`asset-preview bench raycost`, bench/RESULTS.md "cost model"): fixed +
+# per triangle (Embree build, material tables) + per frame pixel (centre rays, environment) +
+# per traced pixel x rays a pixel x depth(bounces), by Fresnel split; the path integrator per
+# traced pixel x path x depth. depth(b) = K (1 - exp(-b / K)): paths leave the glass, so late
+# bounces carry fewer rays. Fitted over 5 glass scenes and the Duck at 64-256 px, tree and path.
+RT_FIXED_MS = __FIXED__
+RT_MS_PER_TRIANGLE = __TRI__
+RT_MS_PER_FRAME_PIXEL = __PIX__
+RT_DEPTH_K = __K__
+RT_MS_PER_RAY_DEPTH = {"both": __BOTH__, "roulette": __RR__, "sample": __RR__}
+RT_MS_PER_PATH_DEPTH = __PATH__
 # Raster time model (the service's cost estimate for scheduling and its ceiling): fixed + per
 # frame pixel by method (MSAA 4x; wyman adds the back-face and refraction passes) + per
 # triangle. Measured warm on the Duck, 2 shared cores: 1024 px opaque 0.38 s, wyman 1.09 s;
@@ -311,41 +315,45 @@ def choose_raster(f: ObjectFacts, available: list[str]) -> tuple[str, str]:
     return "opaque", "no refraction method installed: transmission ignored"
 
 
-def rays_factor(supersample: int | None) -> float:
-    """The per-bounce term's scale for an explicit RenderOptions.supersample: the model was
-    fitted to the default grids, counted as 2 x 2 rays a pixel."""
-    return 1.0 if supersample is None else max(supersample, 2) ** 2 / 4.0
+def rt_depth(bounces: int) -> float:
+    """The model's effective depth of `bounces` (at most bounces, saturating at RT_DEPTH_K)."""
+    b = max(int(bounces), 1)
+    return K * (1.0 - math.exp(-b / K)) if (K := RT_DEPTH_K) < 1e8 else float(b)
+
+
+def rt_ms(triangles: int, width: int, height: int, traced_px: float, bounces: int,
+          supersample: int | None, fresnel_split: str = "roulette", integrator: str = "tree",
+          samples: int = 64) -> float:
+    """The ray-trace time model: `traced_px` pixels on and next to the object (the whole frame
+    for an upper estimate), `supersample` None for the tracer's size-dependent default."""
+    from renderer.methods.raytrace import default_supersample  # (a cycle at import time)
+
+    per_px = (RT_MS_PER_PATH_DEPTH * max(samples, 1) if integrator == "path" else
+              RT_MS_PER_RAY_DEPTH[fresnel_split]
+              * (supersample or default_supersample(width, height)) ** 2)
+    return (RT_FIXED_MS + RT_MS_PER_TRIANGLE * triangles + RT_MS_PER_FRAME_PIXEL * width * height
+            + per_px * traced_px * rt_depth(bounces))
 
 
 def estimate_raytrace_ms(asset: BakedAsset, options: RenderOptions, coverage_px: float,
                          bounces: int) -> float:
-    return (RT_FIXED_MS + RT_MS_PER_TRIANGLE * asset.triangle_count
-            + RT_MS_PER_FRAME_PIXEL * options.width * options.height
-            + RT_MS_PER_PIXEL_BOUNCE * coverage_px * max(bounces, 1)
-            * rays_factor(options.supersample))
-
-
-# The path tracer (integrator path) against the tree at its default: about 3.6 x the tree's time
-# for 64 paths a pixel on Duck at 128 px (bench/RESULTS.md, "raytrace (path tracer)"), so a path a
-# pixel costs about a sixteenth of a tree pixel.
-TREE_PATHS_EQUIVALENT = 16
+    return rt_ms(asset.triangle_count, options.width, options.height, coverage_px, bounces,
+                 options.supersample, options.fresnel_split, options.integrator, options.samples)
 
 
 def estimate_request_ms(triangles: int, width: int, height: int, method: str, transmissive: bool,
                         budget_ms: float | None, bounces: int = RAYTRACE_BOUNCES,
                         supersample: int | None = None, integrator: str = "tree",
-                        samples: int = 64) -> float:
+                        samples: int = 64, fresnel_split: str = "roulette") -> float:
     """Upper estimate of one render's time from what is known before loading the asset
     (its triangle count, whether anything transmits): the ray-trace model above with the
     whole frame covered, or the raster model. `auto` with a budget ray traces only when its
     estimate fits the budget, so its cost is at most the larger of raster and budget."""
     pixels = width * height
-    raytrace = (RT_FIXED_MS + RT_MS_PER_TRIANGLE * triangles + RT_MS_PER_FRAME_PIXEL * pixels
-                + RT_MS_PER_PIXEL_BOUNCE * pixels * max(bounces, 1) * rays_factor(supersample))
-    if integrator == "path":  # passes stop before budget_ms is spent (renderer.methods.path_trace)
-        raytrace *= samples / TREE_PATHS_EQUIVALENT
-        if budget_ms:
-            raytrace = min(raytrace, budget_ms)
+    raytrace = rt_ms(triangles, width, height, pixels, bounces, supersample, fresnel_split,
+                     integrator, samples)
+    if integrator == "path" and budget_ms:  # passes stop before budget_ms is spent
+        raytrace = min(raytrace, budget_ms)
     if method == "raytrace":
         return raytrace
     raster_method = method if method in RASTER_MS_PER_PIXEL else ("wyman" if transmissive else "opaque")
