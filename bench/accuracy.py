@@ -119,14 +119,17 @@ def _interleaved(jobs: dict, repeat: int) -> dict:
     return {m: (statistics.median(times[m]), results[m]) for m in jobs}
 
 
-def methods_for(spec) -> list[str]:
+def methods_for(spec, extended: bool = True) -> list[str]:
+    """The chart's methods for a scene; `extended` adds issue 26's grids and the path
+    integrator (off in --quick)."""
     mat = spec.material
     rough = mat.roughness > 0
     if mat.material_class == "transmissive":
         out = ["single", "wyman/tir=paper", "wyman/tir=reflect",
                *(f"raytrace-{b}" for b in RAYTRACE_BOUNCES),
                *(f"raytrace-{b}/split=sample" for b in SAMPLED_BOUNCES), *ROULETTE_METHODS,
-               *DEFAULT_METHODS, *PATH_METHODS, *(ROUGH_METHODS if rough else ()),
+               *((*DEFAULT_METHODS, *PATH_METHODS) if extended else ()),
+               *(ROUGH_METHODS if rough else ()),
                "raytrace", "auto"]
     else:
         out = ["opaque", "raytrace-1", "auto"]
@@ -171,7 +174,8 @@ def run(args: argparse.Namespace) -> int:
         peer_table(rows)
         return 0
     rows = measure(args.scenes.split(","), args.size, args.repeat, args.rt_repeat, cache,
-                   [int(s) for s in args.peer_spp.split(",") if s.strip()], args.budget_ms)
+                   [int(s) for s in args.peer_spp.split(",") if s.strip()], args.budget_ms,
+                   extended=not args.quick)
     mark_fronts(rows)
     write_csv(rows, out / "accuracy.csv")
     chart(rows, out / "speed_accuracy.png", args.size)
@@ -182,7 +186,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def measure(names: list[str], size: int, repeat: int, rt_repeat: int, cache: Path,
-            peer_spp: list[int], budget_ms: float = BUDGET_MS) -> list[dict]:
+            peer_spp: list[int], budget_ms: float = BUDGET_MS, extended: bool = True) -> list[dict]:
     from bench import scenes
     from bench.metrics import errors, median_ms, reference_at, with_linear
     from core.options import RenderOptions
@@ -201,7 +205,7 @@ def measure(names: list[str], size: int, repeat: int, rt_repeat: int, cache: Pat
                 for p in ("ggx", "paper")}
         base = RenderOptions(background="env", width=size, height=size, yaw=spec.yaw, pitch=spec.pitch,
                              fov=spec.fov, distance=spec.camera_distance(size, size))
-        methods = [m for m in methods_for(spec)
+        methods = [m for m in methods_for(spec, extended)
                    if m.split("/")[0].split("-")[0] in (*available, "raytrace", "auto")]
         from renderer.methods.auto import plan_request
         if plan_request(asset, replace(base, budget_ms=budget_ms), available).frame_method:
@@ -242,6 +246,7 @@ def _peer(spec, size: int, spp: int, ref, repeat: int = 1) -> dict:
         img = render_reference(spec, size, spp, timing=t)
         times.append(t["ms"])
     ms = statistics.median(times)
+    assert img is not None  # repeat >= 1
     return {"scene": spec.name, "method": f"mitsuba-{spp}spp", "size": size, "time_ms": ms,
             **errors(img, ref)}
 
