@@ -175,7 +175,8 @@ class RenderOptions:
         "its whole duration (at most 120 frames); with turntable the camera also turns once"))
     budget_ms: float | None = Field(default=None, gt=0, le=MAX_BUDGET_MS, description=(
         "time budget in milliseconds: lets method auto ray trace objects where raster "
-        "refraction fails, when the estimate fits; raytrace integrator path stops its passes "
+        "refraction fails or only approximates (attenuation, dispersion, textured glass), when "
+        "the estimate fits; raytrace integrator path stops its passes "
         "before this is spent (granularity: one pass)"))
     # USD stage population: bake options (pipeline.bake.asset_options), so in the bake key too
     variant_set: tuple[str, ...] = Field(default=(), max_length=MAX_VARIANT_SELECTIONS, description=(
