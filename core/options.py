@@ -143,8 +143,8 @@ class RenderOptions:
         "raytrace integrator path: a pixel stops when the relative standard error of its "
         "luminance is below this (0: run all samples or the budget)"))
     supersample: int | None = Field(default=None, ge=1, le=16, description=(
-        "raytrace: rays per pixel side on and around the object (default: 3 below 384 px, "
-        "else 2)"))
+        "raytrace: rays per pixel side on and around the object (default: 4 below 128 px, "
+        "3 below 384, else 2)"))
     aa_threshold: float = Field(default=0.0, ge=0, le=1, description=(
         "raytrace: adaptive anti-aliasing: with supersample above 2, pixels near the object "
         "get 2 x 2 rays first and the full grid only where those differ in coverage or in "

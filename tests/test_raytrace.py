@@ -167,7 +167,7 @@ def test_frame_and_transparent_background(reference_env, scene_cache):
     assert 0 < alpha.mean() < 1
     assert frame.plan["method"] == "raytrace" and frame.plan["bounces"] == 12
     assert set(frame.timings.stages_ms) >= {"build", "trace"} and frame.timings.total_ms > 0
-    assert frame.plan["supersample"] == 3  # small frames get more rays per pixel
+    assert frame.plan["supersample"] == 4  # small frames get more rays per pixel
 
 
 def test_every_instance_is_traced(reference_env):

@@ -75,7 +75,7 @@ def test_clearcoat_lobe_against_mitsuba_roughplastic(cc_roughness, env, tmp_path
     coat = {"type": "roughplastic", "distribution": "ggx", "alpha": max(cc_roughness, 0.03) ** 2,
             "int_ior": 1.5, "ext_ior": 1.0, "nonlinear": False,
             "diffuse_reflectance": {"type": "rgb", "value": [0.0] * 3}}
-    monkeypatch.setattr(ref_mod, "_bsdf", lambda m: coat)
+    monkeypatch.setattr(ref_mod, "_bsdf", lambda m, texture=None: coat)
     ref = render_reference(spec, SIZE, SPP)
     err = relative_mae(ours(spec, env, "opaque", tmp_path), ref)
     print(f"clearcoat r={cc_roughness}: {err:.4f}")

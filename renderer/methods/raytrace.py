@@ -290,11 +290,13 @@ class _Image:
 
 
 def default_supersample(width: int, height: int) -> int:
-    """Rays per pixel side near the object: 2 from 384 px up, 3 below. Smaller frames minify
-    the refracted environment more per pixel, and cost little more. (4 below 256 px was the
-    default until issue 26's front: at 128 px it costs 1.8x the 3 x 3 grid for 0.054 mean
-    FLIP against 0.064, bench/RESULTS.md.)"""
-    return int(min(3, max(2, math.ceil(768 / max(width, height, 1)))))
+    """Rays per pixel side near the object: 2 from 384 px up, 3 from 128, 4 below. Smaller
+    frames minify the refracted environment more per pixel, and cost little more. (4 up to
+    255 px was the default until issue 26's front: at 128 px it costs 1.8x the 3 x 3 grid for
+    0.054 mean FLIP against 0.064, bench/RESULTS.md; below 128 px a frame is cheap anyway and
+    sampled rough lobes need the rays.)"""
+    px = max(width, height, 1)
+    return 4 if px < 128 else 3 if px < 384 else 2
 
 
 def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
