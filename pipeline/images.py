@@ -9,7 +9,7 @@ import warnings
 
 import numpy as np
 import OpenEXR
-from PIL import Image
+from PIL import Image, JpegImagePlugin, PngImagePlugin, TgaImagePlugin, WebPImagePlugin  # noqa: F401  (FORMATS)
 
 from core.errors import LimitExceeded, MalformedAsset
 from core.scene import Sampler, Texture
@@ -18,9 +18,9 @@ from pipeline.limits import Limits
 log = logging.getLogger(__name__)
 
 FORMATS = ("PNG", "JPEG", "WEBP", "TGA")  # TGA: USD textures (UsdUVTexture reads it)
-# Register every plugin now: with a `formats` list naming one not yet registered (WEBP),
-# Image.open would re-run Image.init() on every call (over 100 us each).
-Image.init()
+# Their plugins are imported above, which registers them: with a `formats` list naming one not
+# registered (WEBP), Image.open would re-run Image.init() on every call (over 100 us each), and
+# Image.init() imports every plugin Pillow has, a cost each cold process paid.
 
 
 def decode_image(data: bytes | memoryview, source: str, limits: Limits) -> np.ndarray:
