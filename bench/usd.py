@@ -137,12 +137,15 @@ def over_grey(rgba8: np.ndarray) -> np.ndarray:
 
 def compile_sources() -> None:
     """Byte-compile the project's modules (into their __pycache__, ignored by git), as
-    installing a wheel does: with PYTHONDONTWRITEBYTECODE set, or a read-only checkout, every
-    cold process would compile them again (0.2-0.3 s of CPU), which neither an installed
-    package nor Storm's interpreter (bpy ships its .pyc) pays."""
+    installing a wheel does, and fill numba's kernel cache, as `make install` does: with
+    PYTHONDONTWRITEBYTECODE set, or a read-only checkout, every cold process would compile our
+    modules again (0.2-0.3 s of CPU), and the first stage with an interior bake would JIT the
+    kernels (a minute), which neither an installed package nor Storm (bpy ships its .pyc) pays."""
     import compileall
     for package in ("core", "gl", "pipeline", "renderer", "service", "cli", "bench", "shaders"):
         compileall.compile_dir(str(REPO / package), quiet=1)
+    for module in ("renderer.methods.trace_kernel", "pipeline.interior.vectors"):
+        subprocess.run([sys.executable, "-m", module], cwd=REPO, check=True, capture_output=True)
 
 
 def run(args: argparse.Namespace) -> int:
