@@ -222,6 +222,70 @@ def test_usd_time_sampled_xform_between_samples(tmp_path):
     assert load_scene(path, moment=Moment("poster")).bounds[0, 0] == pytest.approx(1.0)
 
 
+def _quat_matrix(q) -> np.ndarray:
+    """Row-vector 3 x 3 rotation of a unit quaternion (w, x, y, z), as USD's GfQuat writes it."""
+    w, x, y, z = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)],
+                     [2 * (x * y - w * z), 1 - 2 * (x * x + z * z), 2 * (y * z + w * x)],
+                     [2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)]])
+
+
+def test_usd_skel_posed_between_samples_matches_numpy_lbs(assets):
+    """tests/assets/usd/skel/bending_arm.usda: the elbow turns 0 -> 90 degrees over time codes
+    0 -> 10 and a blend shape lifts the hand by 0.5 m. At 0.25 s (time code 2.5, a quarter of
+    the way) the elbow is at 22.5 degrees and the shape at weight 0.25: the points are the blend
+    shape's, then linear blend skinning by the skeleton's joints (evaluated here in numpy from
+    the file's raw bind transforms, influences and offsets), then the skeleton's translate;
+    the authored normals follow the joints (inverse-transpose, renormalised)."""
+    from pxr import Usd
+    path = assets / "usd/skel/bending_arm.usda"
+    stage = Usd.Stage.Open(str(path))
+    mesh, skel = stage.GetPrimAtPath("/Arm/Skin"), stage.GetPrimAtPath("/Arm/Skel")
+    points = np.array(mesh.GetAttribute("points").Get(), np.float64)
+    normals = np.array(mesh.GetAttribute("normals").Get(), np.float64)
+    index = np.array(mesh.GetAttribute("primvars:skel:jointIndices").Get()).reshape(-1, 2)
+    weight = np.array(mesh.GetAttribute("primvars:skel:jointWeights").Get()).reshape(-1, 2)
+    shape = stage.GetPrimAtPath("/Arm/Skin/Lift")
+    offsets = np.array(shape.GetAttribute("offsets").Get(), np.float64)
+    points[list(shape.GetAttribute("pointIndices").Get())] += 0.25 * offsets
+    bind = [np.array(m) for m in skel.GetAttribute("bindTransforms").Get()]
+    # joint locals at code 2.5: the elbow's rotation slerped a quarter of the way to 90 degrees
+    half = math.radians(22.5) / 2
+    elbow = np.eye(4)
+    elbow[:3, :3] = _quat_matrix((math.cos(half), 0.0, 0.0, math.sin(half)))
+    elbow[3, :3] = (1.0, 0.0, 0.0)
+    world = [np.eye(4), elbow @ np.eye(4)]  # the elbow's parent is the shoulder (identity)
+    skinning = [np.linalg.inv(b) @ w for b, w in zip(bind, world)]  # row vectors
+    homogeneous = np.c_[points, np.ones(len(points))]
+    expected = sum(weight[:, k, None] * np.einsum("ni,nij->nj", homogeneous,
+                                                  np.stack([skinning[j] for j in index[:, k]]))
+                   for k in range(2))[:, :3] + (0.0, 0.0, 2.0)
+    turned = sum(weight[:, k, None] * np.einsum("ni,nij->nj", normals, np.stack(
+        [np.linalg.inv(skinning[j][:3, :3]).T for j in index[:, k]])) for k in range(2))
+    turned /= np.linalg.norm(turned, axis=1, keepdims=True)
+    # by hand, the hand's inner corner: the elbow (1, 0) plus (1, 0.125) turned 22.5 degrees
+    c, s = math.cos(math.radians(22.5)), math.sin(math.radians(22.5))
+    np.testing.assert_allclose(expected[2], (1 + c - 0.125 * s, s + 0.125 * c, 2.0), atol=1e-9)
+
+    scene = load_scene(path, moment=Moment(0.25))
+    assert scene.moment == {"time_code": 2.5} and not scene.warnings
+    (inst,) = scene.instances
+    m = scene.meshes[inst.mesh]
+    got = m.positions @ inst.matrix[:3, :3].T + inst.matrix[:3, 3]
+    got_n = m.normals @ inst.matrix[:3, :3].T
+    assert len(got) == len(expected)
+    for p, n in zip(got, got_n):  # ingest may reorder vertices: match each to its point
+        k = int(np.argmin(np.linalg.norm(expected - p, axis=1)))
+        np.testing.assert_allclose(p, expected[k], atol=1e-5)
+        np.testing.assert_allclose(n, turned[k], atol=1e-5)
+    # at the start the arm is straight and flat: the skin is the bind pose itself
+    rest = load_scene(path, moment=Moment(0.0))
+    r = rest.meshes[rest.instances[0].mesh]
+    assert r.positions[:, 1].max() == pytest.approx(0.0, abs=1e-6)
+    np.testing.assert_allclose(r.normals @ rest.instances[0].matrix[:3, :3].T,
+                               np.tile((0.0, 1.0, 0.0), (len(r.normals), 1)), atol=1e-6)
+
+
 # -- the CLI: --time, poster, --animate ---------------------------------------------------------
 
 def _sample(assets: Path, name: str) -> Path:

@@ -22,14 +22,17 @@ Conventions: USD `st` has v up (0 at the image bottom); the scene holds glTF UVs
 so v' = 1 - v (texture transforms are converted to match). World matrices come from an
 XformCache and are converted to the scene's +Y-up metres: upAxis Z is turned to Y by a -90
 degree rotation about X, and metersPerUnit scales (USD's fallback is 0.01, centimetres,
-when the stage does not author it). Time-varying values are read at the stage's start time
-code (or the earliest sample). Subdivision surfaces (catmullClark, loop) are read as their control cage
+when the stage does not author it). Time-varying values (xforms, points, normals, skeletal
+animation, camera and light attributes) are read at the requested moment's time code
+(pipeline.usd.time), else at the stage's start time code (or the earliest sample). Subdivision surfaces (catmullClark, loop) are read as their control cage
 with smooth normals, marked for refinement at bake (`subdivision`) when the scheme is
 authored; `model:drawMode` cards are viewport stand-ins and are not drawn. Implicit
 shapes (Sphere, Cube, Cylinder, Cone, Capsule, Plane) are tessellated (`usd_shapes`).
 Meshes bound to a UsdSkel skeleton are skinned (UsdSkel.Cache / SkinningQuery, linear blend
 or dual quaternion as authored) and posed by the skeleton's animation at that time code, or
-at its rest transforms without one, as usdview shows them. PointInstancers place their prototypes (one Mesh each, an Instance per unmasked point);
+at its rest transforms without one, as usdview shows them: the animation's blend shape
+weights first (UsdSkel.BlendShapeQuery, inbetweens included), then the joints; authored
+normals are skinned too (UsdSkel.SkinNormals), so that they follow the pose. PointInstancers place their prototypes (one Mesh each, an Instance per unmasked point);
 nested ones, curves, points and NURBS are skipped with a warning. UsdLux distant / sphere /
 rect / disk lights become KHR_lights_punctual lights (`_light`), a dome light's texture the
 scene's environment; UsdGeomCameras are listed (`Scene.cameras`) for `render --camera PATH`.
@@ -43,7 +46,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from pxr import Ar, Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade, UsdSkel, UsdUtils
+from pxr import Ar, Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade, UsdSkel, UsdUtils, Vt
 
 from core.animation import Moment
 from core.errors import LimitExceeded, MalformedAsset, MissingFile, NotInAsset, UnsafeReference
@@ -269,7 +272,7 @@ class _StageReader:
             if prim.IsA(UsdGeom.Mesh) or str(prim.GetTypeName()) in SHAPES:
                 skinned = self._skinned(prim) if placements is None and self._skel else None
                 if skinned is not None:
-                    self._gprim(prim, skinned[0], skinned[1])
+                    self._gprim(prim, *skinned)
                 else:
                     self._gprim(prim, self._matrices(prim, root, placements))
             elif prim.IsA(UsdGeom.PointInstancer):
@@ -408,8 +411,9 @@ class _StageReader:
                             Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate))
 
     def _skinned(self, prim: Usd.Prim):
-        """(world matrices, skinned points or None) of a mesh bound to a skeleton, posed by
-        its animation at the read time, else at the skeleton's rest transforms; None when
+        """(world matrices, skinned points or None, the skin of its normals or None) of a mesh
+        bound to a skeleton, posed by its animation at the read time (blend shapes, then the
+        joints, as UsdSkel orders them), else at the skeleton's rest transforms; None when
         `prim` is not skinned. Skinned points are in the skeleton's space (the gprim's own
         transform does not apply, as UsdSkel specifies)."""
         assert self._skel is not None  # _walk calls this only once a SkelRoot was seen
@@ -426,12 +430,60 @@ class _StageReader:
         skel_world = np.array(self.xforms.GetLocalToWorldTransform(skeleton.GetPrim()))
         if query.IsRigidlyDeformed():
             rows = np.array(query.ComputeSkinnedTransform(xforms, self.time)) @ skel_world
-            return self.to_scene @ rows.T[None], None
+            return self.to_scene @ rows.T[None], None, None
         points = UsdGeom.Mesh(prim).GetPointsAttr().Get(self.time)
+        if points is not None:
+            self._blend_shapes(prim, query, skel_query, points)
         if points is None or not query.ComputeSkinnedPoints(xforms, points, self.time):
             self._warn(f"{prim.GetPath()}: skinning failed; drawn unskinned")
             return None
-        return (self.to_scene @ skel_world.T)[None], np.asarray(points, np.float32).reshape(-1, 3)
+        return ((self.to_scene @ skel_world.T)[None], np.asarray(points, np.float32).reshape(-1, 3),
+                self._normal_skin(query, xforms))
+
+    def _blend_shapes(self, prim: Usd.Prim, query, skel_query, points) -> None:
+        """Apply the animation's blend shape weights at the read time to `points` in place
+        (UsdSkel.BlendShapeQuery: inbetweens included; normal offsets are not read)."""
+        anim = skel_query.GetAnimQuery()
+        if not query.HasBlendShapes() or not anim:
+            return
+        weights = anim.ComputeBlendShapeWeights(self.time)
+        mapper = query.GetBlendShapeMapper()
+        if mapper and not mapper.IsNull() and not mapper.IsIdentity():
+            weights = mapper.Remap(weights)
+        if not weights:
+            return
+        shapes = UsdSkel.BlendShapeQuery(UsdSkel.BindingAPI(prim))
+        sub_weights, shape_indices, sub_indices = shapes.ComputeSubShapeWeights(weights)
+        if not shapes.ComputeDeformedPoints(sub_weights, shape_indices, sub_indices,
+                                            shapes.ComputeBlendShapePointIndices(),
+                                            shapes.ComputeSubShapePointOffsets(), points):
+            self._warn(f"{prim.GetPath()}: blend shapes do not fit its points; not applied")
+
+    def _normal_skin(self, query, xforms):
+        """A function (normals E x 3, the point of each) -> the normals skinned as the points
+        were: UsdSkel.SkinNormals with each joint's inverse-transpose 3 x 3, so that a bound
+        mesh's authored normals follow its pose instead of staying in the bind pose."""
+        mapper = query.GetJointMapper()
+        if mapper and not mapper.IsNull() and not mapper.IsIdentity():
+            xforms = mapper.RemapTransforms(xforms)
+        normal_xforms = Vt.Matrix3dArray([m.ExtractRotationMatrix().GetInverse().GetTranspose()
+                                          for m in xforms])
+        bind = query.GetGeomBindTransform(self.time).ExtractRotationMatrix().GetInverse().GetTranspose()
+        indices, weights = query.ComputeJointInfluences(self.time)
+        k = query.GetNumInfluencesPerComponent()
+        indices = np.asarray(indices, np.int32).reshape(-1, k)
+        weights = np.asarray(weights, np.float32).reshape(-1, k)
+        method = query.GetSkinningMethod()
+
+        def skin(normals: np.ndarray, point_of: np.ndarray) -> np.ndarray | None:
+            if len(point_of) and point_of.max() >= len(indices):
+                return None
+            out = Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(normals[:, :3], np.float32))
+            ok = UsdSkel.SkinNormals(method, bind, normal_xforms,
+                                     Vt.IntArray.FromNumpy(indices[point_of].reshape(-1)),
+                                     Vt.FloatArray.FromNumpy(weights[point_of].reshape(-1)), k, out)
+            return np.asarray(out, np.float32) if ok else None
+        return skin
 
     def _matrices(self, prim: Usd.Prim, root: Usd.Prim, placements) -> np.ndarray:
         """World matrices (column vectors, scene space) of `prim`, once per placement."""
@@ -469,7 +521,7 @@ class _StageReader:
                 self._walk(proto, rows[chosen] @ world)
 
     # -- one mesh or implicit shape ----------------------------------------------------------
-    def _gprim(self, prim: Usd.Prim, matrices: np.ndarray, points=None) -> None:
+    def _gprim(self, prim: Usd.Prim, matrices: np.ndarray, points=None, skin=None) -> None:
         mesh = UsdGeom.Mesh(prim) if prim.IsA(UsdGeom.Mesh) else None
         source = prim.GetPrimInPrototype() if prim.IsInstanceProxy() else prim
         groups = self._groups(prim, mesh)
@@ -490,7 +542,7 @@ class _StageReader:
         topo_key = (str(source.GetPath() if points is None else prim.GetPath()), tuple(needed))
         if topo_key not in self._topology:
             deadline.check()
-            self._topology[topo_key] = self._triangulate(prim, mesh, needed, points) if mesh \
+            self._topology[topo_key] = self._triangulate(prim, mesh, needed, points, skin) if mesh \
                 else self._shape(prim, needed)
         topo = self._topology[topo_key]
         if topo is None:
@@ -541,7 +593,7 @@ class _StageReader:
 
     # -- geometry --------------------------------------------------------------------------------
     def _triangulate(self, prim: Usd.Prim, mesh: UsdGeom.Mesh, names: list[str],
-                     skinned: np.ndarray | None = None) -> _Topology | None:
+                     skinned: np.ndarray | None = None, skin=None) -> _Topology | None:
         where = f"mesh {prim.GetPath()}"
         counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(self.time) or [], np.int64)
         fvi = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(self.time) or [], np.int64)
@@ -583,6 +635,10 @@ class _StageReader:
         primvars = {n: pv for n in names if (pv := self._primvar(prim, n, counts, fvi,
                                                                  len(points))) is not None}
         normals = self._normals(prim, mesh, counts, fvi, len(points))
+        if normals is not None and skin is not None:
+            normals = _skinned_normals(normals, skin, counts, fvi, len(points))
+            if normals is None:
+                self._warn(f"{where}: its normals could not be skinned; computed from the pose")
         if normals is None and mesh.GetSubdivisionSchemeAttr().Get() != UsdGeom.Tokens.none:
             normals = _Primvar(smooth_normals(points, fvi[corners]), "vertex", None)
         if "displayColor" in primvars:
@@ -776,6 +832,21 @@ def _orthonormal(m: np.ndarray) -> np.ndarray:
         if n > 0:
             out[:3, i] /= n
     return out
+
+
+def _skinned_normals(pv: _Primvar, skin, counts, fvi, n_points) -> _Primvar | None:
+    """Normals posed by `skin` (stage._normal_skin): per point for vertex / varying ones,
+    else per face-vertex (each by its point's influences), indices resolved first."""
+    if pv.interpolation in ("vertex", "varying"):
+        point_of = np.arange(n_points)
+        values = pv.values[point_of if pv.indices is None else pv.indices[point_of]]
+        interpolation = pv.interpolation
+    else:
+        corners = np.arange(len(fvi))
+        values = pv.values[_elements(pv, fvi, np.repeat(np.arange(len(counts)), counts), corners)]
+        point_of, interpolation = fvi, "faceVarying"
+    posed = skin(values, point_of)
+    return None if posed is None else _Primvar(posed, interpolation, None)
 
 
 def _elements(pv: _Primvar, fvi, face_of_corner, corners) -> np.ndarray:
