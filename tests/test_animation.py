@@ -286,6 +286,66 @@ def test_usd_skel_posed_between_samples_matches_numpy_lbs(assets):
                                np.tile((0.0, 1.0, 0.0), (len(r.normals), 1)), atol=1e-6)
 
 
+CAMERA_AND_LIGHT = """#usda 1.0
+(
+    startTimeCode = 0
+    endTimeCode = 10
+    timeCodesPerSecond = 10
+    metersPerUnit = 1
+    upAxis = "Y"
+)
+def Xform "World"
+{
+    def Camera "Shot"
+    {
+        float focalLength.timeSamples = { 0: 50, 10: 25 }
+        float verticalAperture = 24
+        float2 clippingRange = (0.1, 100)
+        double3 xformOp:translate.timeSamples = { 0: (0, 0, 10), 10: (4, 0, 10) }
+        uniform token[] xformOpOrder = ["xformOp:translate"]
+    }
+    def DistantLight "Sun"
+    {
+        float inputs:angle = 0
+        float inputs:intensity.timeSamples = { 0: 1, 10: 3 }
+        color3f inputs:color.timeSamples = { 0: (1, 0, 0), 10: (0, 0, 1) }
+        float xformOp:rotateY.timeSamples = { 0: 0, 10: 90 }
+        uniform token[] xformOpOrder = ["xformOp:rotateY"]
+    }
+    def Mesh "Floor"
+    {
+        int[] faceVertexCounts = [3]
+        int[] faceVertexIndices = [0, 1, 2]
+        point3f[] points = [(0, 0, 0), (1, 0, 0), (0, 0, -1)]
+    }
+}
+"""
+
+
+def test_usd_camera_and_light_attributes_between_samples(tmp_path):
+    """A camera's focal length and translate and a light's intensity, colour and rotation
+    are read at the moment's time code: 0.25 s is code 2.5, a quarter of the way, so the
+    focal length is 50 - 25 / 4 = 43.75 mm (vertical field of view 2 atan(12 / 43.75)), the
+    camera at x = 1, the light's intensity 1.5, its colour (0.75, 0, 0.25), and it is turned
+    22.5 degrees about +Y (it shines down its -Z: towards (-sin, 0, -cos))."""
+    path = tmp_path / "shot.usda"
+    path.write_text(CAMERA_AND_LIGHT)
+    scene = load_scene(path, moment=Moment(0.25))
+    (cam,) = scene.cameras
+    assert cam.yfov == pytest.approx(2 * math.atan(12 / 43.75), rel=1e-6)
+    np.testing.assert_allclose(cam.matrix[:3, 3], (1.0, 0.0, 10.0), atol=1e-9)
+    (sun,) = scene.lights
+    assert sun.type == "directional" and sun.intensity == pytest.approx(1.5)
+    np.testing.assert_allclose(sun.color, (0.75, 0.0, 0.25), atol=1e-6)
+    a = math.radians(22.5)
+    np.testing.assert_allclose(-sun.matrix[:3, 2], (-math.sin(a), 0.0, -math.cos(a)), atol=1e-6)
+    # the start, for contrast: the authored first samples
+    start = load_scene(path)
+    assert start.cameras[0].yfov == pytest.approx(2 * math.atan(12 / 50), rel=1e-6)
+    assert start.lights[0].intensity == pytest.approx(1.0)
+    np.testing.assert_allclose(start.lights[0].color, (1.0, 0.0, 0.0), atol=1e-6)
+
+
 # -- the CLI: --time, poster, --animate ---------------------------------------------------------
 
 def _sample(assets: Path, name: str) -> Path:

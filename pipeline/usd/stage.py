@@ -328,7 +328,7 @@ class _StageReader:
             light = UsdLux.SphereLight(prim)
             r = get(light.GetRadiusAttr(), 0.5) * float(np.mean(axis_m))
             kind = "point"
-            area = 1.0 if light.GetTreatAsPointAttr().Get() else math.pi * r * r
+            area = 1.0 if light.GetTreatAsPointAttr().Get(self.time) else math.pi * r * r
         elif prim.IsA(UsdLux.RectLight):
             light = UsdLux.RectLight(prim)
             kind = "rect"
