@@ -286,6 +286,32 @@ def test_usd_skel_posed_between_samples_matches_numpy_lbs(assets):
                                np.tile((0.0, 1.0, 0.0), (len(r.normals), 1)), atol=1e-6)
 
 
+def test_usd_skel_face_varying_normals_follow_their_points(assets, tmp_path):
+    """The same arm with its normals authored per face-vertex (indexed): each is skinned by
+    its point's influences; at code 10 the elbow is at 90 degrees, so the hand's normals
+    (all on the elbow joint) turn from +Y to -X, the shoulder's stay +Y."""
+    text = (assets / "usd/skel/bending_arm.usda").read_text()
+    vertex = text[text.index("        normal3f[] normals"):text.index("        int[] primvars:skel:jointIndices")]
+    face_varying = """        normal3f[] primvars:normals = [(0, 1, 0)] (
+            interpolation = "faceVarying"
+        )
+        int[] primvars:normals:indices = [0, 0, 0, 0, 0, 0, 0, 0]
+"""
+    path = tmp_path / "arm.usda"
+    path.write_text(text.replace(vertex, face_varying))
+    scene = load_scene(path, moment=Moment(1.0))
+    assert not scene.warnings
+    (inst,) = scene.instances
+    m = scene.meshes[inst.mesh]
+    p = m.positions @ inst.matrix[:3, :3].T + inst.matrix[:3, 3]
+    n = m.normals @ inst.matrix[:3, :3].T
+    hand = p[:, 1] > 0.9  # bound at x = 2, lifted 0.5, turned about the elbow: (0.5, 1)
+    shoulder = np.isclose(p[:, 0], 0.0, atol=1e-6)
+    assert hand.sum() == 2 and shoulder.sum() == 2
+    np.testing.assert_allclose(n[hand], [[-1.0, 0.0, 0.0]] * 2, atol=1e-6)
+    np.testing.assert_allclose(n[shoulder], [[0.0, 1.0, 0.0]] * 2, atol=1e-6)
+
+
 CAMERA_AND_LIGHT = """#usda 1.0
 (
     startTimeCode = 0
