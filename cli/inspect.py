@@ -86,8 +86,11 @@ def run(args: argparse.Namespace) -> int:
     for c in info["cameras"]:
         print(f"  camera {c['index']} {c['name']!r}: {c['type']} (render --camera {c['index']})")
     for i, a in enumerate(info["animations"]):
+        nodes = len({t["node"] for t in a["targets"] if "pointer" not in t})
+        pointers = sum("pointer" in t for t in a["targets"])  # KHR_animation_pointer
+        also = f" and {pointers} material / light / camera values" if pointers else ""
         print(f"  animation {i} {a['name']!r}: {a['duration']:.3g} s, {a['channels']} channels "
-              f"driving {len({t['node'] for t in a['targets']})} nodes (render --animation {i})")
+              f"driving {nodes} nodes{also} (render --animation {i})")
     if info["time_range"]:
         r = info["time_range"]
         print(f"  time codes {r['start']:g} .. {r['end']:g} at {r['time_codes_per_second']:g} "
