@@ -425,6 +425,26 @@ def test_animate_with_turntable_as_apng(assets, cache, tmp_path):
     assert getattr(im, "n_frames", 1) == 8  # 1.96 s at 4 fps
 
 
+def test_usd_animate_through_its_animated_camera(cache, tmp_path):
+    """--animate --camera PRIM on a stage whose camera dollies and zooms out and whose only
+    light turns from red to blue: each frame is seen through the camera at its own time code
+    (nothing else moves), so the triangle shifts left, shrinks, and its red falls."""
+    path = tmp_path / "shot.usda"
+    path.write_text(CAMERA_AND_LIGHT.replace("(0, 0, 0), (1, 0, 0), (0, 0, -1)",
+                                             "(-1, -1, 0), (1, -1, 0), (0, 1, 0)"))
+    out = tmp_path / "shot.png"
+    assert main(["render", str(path), "--out", str(out), "--size", "64", "--cache", cache,
+                 "--camera", "/World/Shot", "--animate", "2"]) == 0
+    frames = [np.asarray(f.convert("RGB"), np.int32) for f in ImageSequence.Iterator(Image.open(out))]
+    assert len(frames) == 2  # 0 and 0.5 s of the 1 s range
+    covered = [(f.max(axis=2) - f.min(axis=2)) > 40 for f in frames]  # the coloured triangle
+    cols = [np.nonzero(c.any(axis=0))[0] for c in covered]
+    assert covered[1].sum() < 0.8 * covered[0].sum()  # focal length 50 -> 37.5 mm
+    assert cols[1].mean() < cols[0].mean() - 2  # the camera moved +x: the triangle left
+    red = [f[c][:, 0].mean() for f, c in zip(frames, covered)]
+    assert red[1] < red[0]
+
+
 def test_animate_needs_an_animation(assets, cache, tmp_path, capsys):
     out = tmp_path / "box.webp"
     assert main(["render", str(assets / "gltf/BoxTextured.glb"), "--out", str(out), "--size", "32",
