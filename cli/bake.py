@@ -5,8 +5,8 @@ object per line with --json; a progress bar on stderr when it is a terminal; a s
 stderr. Exit status 0 when everything baked, 3 when anything failed (the rest is still baked).
 --workers N bakes in N spawned processes (not forked: EGL and Embree state do not survive fork);
 --executor ray runs the same jobs as Ray tasks on a cluster (pipeline/executors.py).
-Sandbox: an asset found under a folder argument may read files anywhere in that folder (a
-library's shared parts); a file argument only inside its own folder; --root DIR widens both.
+Local files read their neighbours freely (a library's shared parts anywhere); --sandbox DIR
+confines every asset to DIR (cli/sandbox.py).
 --thumbnails DIR then renders every baked asset with the render options into DIR, in this
 process through one GL context, resumable, with DIR/manifest.json (cli/thumbnails.py).
 """
@@ -20,6 +20,7 @@ import sys
 import time
 from pathlib import Path
 
+from cli import sandbox
 from pipeline.bake import bake_one
 
 log = logging.getLogger(__name__)
@@ -52,9 +53,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-size", default=None, metavar="SIZE",
                         help="cap the cache at SIZE (e.g. 2G), evicting least recently used "
                              "entries (default: $ASSET_PREVIEW_CACHE_MAX_BYTES, else no cap)")
-    parser.add_argument("--root", default=None, metavar="DIR",
-                        help="folder every asset's references may read from (default: the folder "
-                             "argument an asset was found under, else the asset's own folder)")
+    sandbox.add_argument(parser)
     parser.add_argument("--force", action="store_true", help="bake again even when cached")
     parser.add_argument("--json", action="store_true", help="one JSON object per input")
     parser.add_argument("--thumbnails", metavar="DIR", default=None,
@@ -115,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"error: {exc}", file=sys.stderr)
             return 2
     cache = str(args.cache) if args.cache else None
-    jobs, failures, roots = _collect(args.paths, cache, args.root)
+    jobs, failures, roots = _collect(args.paths, cache, sandbox.root(args))
     library = tuple(src for kind, src in jobs if src in roots)
     from pipeline.library import usd_parts
     parts = usd_parts([Path(p) for p in library])
@@ -173,22 +172,21 @@ def main(argv: list[str] | None = None) -> int:
         return 141
 
 
-def _collect(paths: list[str], cache: str | None, root: str | None = None):
+def _collect(paths: list[str], cache: str | None, root: Path):
     """Asset jobs for the given files and folders, failures for paths that are neither, and
-    each asset's sandbox root (`root`, else the folder argument it was found under)."""
+    each asset's sandbox root (`root`, as text: it travels to bake processes and Ray tasks)."""
     from pipeline.cache import default_cache_dir
     from pipeline.ingest import READERS
 
     cache_root = Path(cache or default_cache_dir()).resolve()
     jobs, failures, seen, roots = [], [], set(), {}
 
-    def add(path: Path, folder: Path | None = None) -> None:
+    def add(path: Path) -> None:
         key = path.resolve()
         if key not in seen:
             seen.add(key)
             jobs.append(("asset", str(path)))
-            if root or folder:
-                roots[str(path)] = str(root or folder)
+            roots[str(path)] = str(root)
 
     for raw in paths:
         path = Path(raw)
@@ -200,7 +198,7 @@ def _collect(paths: list[str], cache: str | None, root: str | None = None):
                                  and Path(folder, d).resolve() != cache_root)
                 for name in sorted(files):
                     if Path(name).suffix.lower() in READERS and not name.startswith("."):
-                        add(Path(folder, name), path)
+                        add(Path(folder, name))
                         found += 1
             if not found:
                 failures.append({"kind": "asset", "path": raw, "status": "failed",
