@@ -237,7 +237,8 @@ def test_usd_skel_posed_between_samples_matches_numpy_lbs(assets):
     the way) the elbow is at 22.5 degrees and the shape at weight 0.25: the points are the blend
     shape's, then linear blend skinning by the skeleton's joints (evaluated here in numpy from
     the file's raw bind transforms, influences and offsets), then the skeleton's translate;
-    the authored normals follow the joints (inverse-transpose, renormalised)."""
+    the authored normals plus the shape's normalOffsets follow the joints (inverse-transpose,
+    renormalised)."""
     from pxr import Usd
     path = assets / "usd/skel/bending_arm.usda"
     stage = Usd.Stage.Open(str(path))
@@ -248,7 +249,9 @@ def test_usd_skel_posed_between_samples_matches_numpy_lbs(assets):
     weight = np.array(mesh.GetAttribute("primvars:skel:jointWeights").Get()).reshape(-1, 2)
     shape = stage.GetPrimAtPath("/Arm/Skin/Lift")
     offsets = np.array(shape.GetAttribute("offsets").Get(), np.float64)
-    points[list(shape.GetAttribute("pointIndices").Get())] += 0.25 * offsets
+    hand = list(shape.GetAttribute("pointIndices").Get())
+    points[hand] += 0.25 * offsets
+    normals[hand] += 0.25 * np.array(shape.GetAttribute("normalOffsets").Get(), np.float64)
     bind = [np.array(m) for m in skel.GetAttribute("bindTransforms").Get()]
     # joint locals at code 2.5: the elbow's rotation slerped a quarter of the way to 90 degrees
     half = math.radians(22.5) / 2
@@ -290,7 +293,8 @@ def test_usd_skel_posed_between_samples_matches_numpy_lbs(assets):
 def test_usd_skel_face_varying_normals_follow_their_points(assets, tmp_path):
     """The same arm with its normals authored per face-vertex (indexed): each is skinned by
     its point's influences; at code 10 the elbow is at 90 degrees, so the hand's normals
-    (all on the elbow joint) turn from +Y to -X, the shoulder's stay +Y."""
+    (all on the elbow joint) turn from +Y to -X, the shoulder's stay +Y. The blend shape's
+    normalOffsets apply to vertex normals only (as UsdSkel has it): not to these."""
     text = (assets / "usd/skel/bending_arm.usda").read_text()
     vertex = text[text.index("        normal3f[] normals"):text.index("        int[] primvars:skel:jointIndices")]
     face_varying = """        normal3f[] primvars:normals = [(0, 1, 0)] (

@@ -31,8 +31,9 @@ shapes (Sphere, Cube, Cylinder, Cone, Capsule, Plane) are tessellated (`usd_shap
 Meshes bound to a UsdSkel skeleton are skinned (UsdSkel.Cache / SkinningQuery, linear blend
 or dual quaternion as authored) and posed by the skeleton's animation at that time code, or
 at its rest transforms without one, as usdview shows them: the animation's blend shape
-weights first (UsdSkel.BlendShapeQuery, inbetweens included), then the joints; authored
-normals are skinned too (UsdSkel.SkinNormals), so that they follow the pose. PointInstancers place their prototypes (one Mesh each, an Instance per unmasked point);
+weights first (UsdSkel.BlendShapeQuery, inbetweens included; normalOffsets of shapes without
+inbetweens on vertex normals), then the joints; authored normals are skinned too
+(UsdSkel.SkinNormals), so that they follow the pose. PointInstancers place their prototypes (one Mesh each, an Instance per unmasked point);
 nested ones, curves, points and NURBS are skipped with a warning. UsdLux distant / sphere /
 rect / disk lights become KHR_lights_punctual lights (`_light`), a dome light's texture the
 scene's environment; UsdGeomCameras are listed (`Scene.cameras`) for `render --camera PATH`.
@@ -432,37 +433,58 @@ class _StageReader:
             rows = np.array(query.ComputeSkinnedTransform(xforms, self.time)) @ skel_world
             return self.to_scene @ rows.T[None], None, None
         points = UsdGeom.Mesh(prim).GetPointsAttr().Get(self.time)
+        normal_deltas = None
         if points is not None:
-            self._blend_shapes(prim, query, skel_query, points)
+            normal_deltas = self._blend_shapes(prim, query, skel_query, points)
         if points is None or not query.ComputeSkinnedPoints(xforms, points, self.time):
             self._warn(f"{prim.GetPath()}: skinning failed; drawn unskinned")
             return None
         return ((self.to_scene @ skel_world.T)[None], np.asarray(points, np.float32).reshape(-1, 3),
-                self._normal_skin(query, xforms))
+                self._normal_skin(query, xforms, normal_deltas))
 
-    def _blend_shapes(self, prim: Usd.Prim, query, skel_query, points) -> None:
+    def _blend_shapes(self, prim: Usd.Prim, query, skel_query, points) -> np.ndarray | None:
         """Apply the animation's blend shape weights at the read time to `points` in place
-        (UsdSkel.BlendShapeQuery: inbetweens included; normal offsets are not read)."""
+        (UsdSkel.BlendShapeQuery: inbetweens included). Returns what the shapes'
+        normalOffsets add to each point's normal (shapes without inbetweens; None: nothing),
+        which the normal skin applies to vertex normals before the joints."""
         anim = skel_query.GetAnimQuery()
         if not query.HasBlendShapes() or not anim:
-            return
+            return None
         weights = anim.ComputeBlendShapeWeights(self.time)
         mapper = query.GetBlendShapeMapper()
         if mapper and not mapper.IsNull() and not mapper.IsIdentity():
             weights = mapper.Remap(weights)
         if not weights:
-            return
-        shapes = UsdSkel.BlendShapeQuery(UsdSkel.BindingAPI(prim))
+            return None
+        binding = UsdSkel.BindingAPI(prim)
+        shapes = UsdSkel.BlendShapeQuery(binding)
         sub_weights, shape_indices, sub_indices = shapes.ComputeSubShapeWeights(weights)
         if not shapes.ComputeDeformedPoints(sub_weights, shape_indices, sub_indices,
                                             shapes.ComputeBlendShapePointIndices(),
                                             shapes.ComputeSubShapePointOffsets(), points):
             self._warn(f"{prim.GetPath()}: blend shapes do not fit its points; not applied")
+            return None
+        deltas = None
+        targets = binding.GetBlendShapeTargetsRel().GetTargets()
+        for w, target in zip(weights, targets):
+            shape = UsdSkel.BlendShape(self.stage.GetPrimAtPath(target))
+            offsets = shape.GetNormalOffsetsAttr().Get() if shape and w != 0.0 else None
+            if not offsets or shape.GetInbetweens():  # an inbetween's own normals: not read
+                continue
+            offsets = np.asarray(offsets, np.float64).reshape(-1, 3)
+            which = np.asarray(shape.GetPointIndicesAttr().Get() or range(len(points)), np.int64)
+            if len(which) != len(offsets) or (len(which) and not 0 <= which.min() <= which.max() < len(points)):
+                self._warn(f"{target}: normalOffsets do not fit the points; not applied")
+                continue
+            deltas = np.zeros((len(points), 3)) if deltas is None else deltas
+            np.add.at(deltas, which, float(w) * offsets)
+        return deltas
 
-    def _normal_skin(self, query, xforms):
-        """A function (normals E x 3, the point of each) -> the normals skinned as the points
-        were: UsdSkel.SkinNormals with each joint's inverse-transpose 3 x 3, so that a bound
-        mesh's authored normals follow its pose instead of staying in the bind pose."""
+    def _normal_skin(self, query, xforms, deltas: np.ndarray | None = None):
+        """A function (normals E x 3, the point of each, whether they are per point) -> the
+        normals skinned as the points were: per-point normals plus the blend shapes'
+        `deltas`, then UsdSkel.SkinNormals with each joint's inverse-transpose 3 x 3, so that
+        a bound mesh's authored normals follow its pose instead of staying in the bind pose."""
         mapper = query.GetJointMapper()
         if mapper and not mapper.IsNull() and not mapper.IsIdentity():
             xforms = mapper.RemapTransforms(xforms)
@@ -475,10 +497,13 @@ class _StageReader:
         weights = np.asarray(weights, np.float32).reshape(-1, k)
         method = query.GetSkinningMethod()
 
-        def skin(normals: np.ndarray, point_of: np.ndarray) -> np.ndarray | None:
+        def skin(normals: np.ndarray, point_of: np.ndarray, per_point: bool) -> np.ndarray | None:
             if len(point_of) and point_of.max() >= len(indices):
                 return None
-            out = Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(normals[:, :3], np.float32))
+            normals = normals[:, :3]
+            if deltas is not None and per_point and len(deltas) == len(normals):
+                normals = normals + deltas  # UsdSkel: normalOffsets apply to vertex normals
+            out = Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(normals, np.float32))
             ok = UsdSkel.SkinNormals(method, bind, normal_xforms,
                                      Vt.IntArray.FromNumpy(indices[point_of].reshape(-1)),
                                      Vt.FloatArray.FromNumpy(weights[point_of].reshape(-1)), k, out)
@@ -845,7 +870,7 @@ def _skinned_normals(pv: _Primvar, skin, counts, fvi, n_points) -> _Primvar | No
         corners = np.arange(len(fvi))
         values = pv.values[_elements(pv, fvi, np.repeat(np.arange(len(counts)), counts), corners)]
         point_of, interpolation = fvi, "faceVarying"
-    posed = skin(values, point_of)
+    posed = skin(values, point_of, interpolation != "faceVarying")
     return None if posed is None else _Primvar(posed, interpolation, None)
 
 
