@@ -52,6 +52,7 @@ def summary(scene) -> dict:
                     for i, c in enumerate(scene.cameras)],
         "animations": list(scene.animations),  # core.animation.Animation.summary()
         "time_range": scene.time_range,  # USD: start/end time codes, timeCodesPerSecond
+        "skel_animations": list(scene.skel_animations),  # USD: {path, joints, blend_shapes, samples, first, last}
         "backdrop": sorted({scene.meshes[i.mesh].name for i in scene.instances if i.backdrop}),
         "warnings": list(scene.warnings),
         "files": list(scene.files),
@@ -95,6 +96,10 @@ def run(args: argparse.Namespace) -> int:
         r = info["time_range"]
         print(f"  time codes {r['start']:g} .. {r['end']:g} at {r['time_codes_per_second']:g} "
               f"per second ({r['duration']:.3g} s; render --time SECONDS)")
+    for a in info["skel_animations"]:
+        span = f", codes {a['first']:g} .. {a['last']:g}" if a["samples"] else ""
+        shapes = f", blend shapes {', '.join(map(repr, a['blend_shapes']))}" if a["blend_shapes"] else ""
+        print(f"  skel animation {a['path']}: {a['joints']} joints{shapes}, {a['samples']} time samples{span}")
     if info["backdrop"]:
         print("  backdrop (not framed): " + ", ".join(map(repr, info["backdrop"])))
     for w in info["warnings"]:

@@ -268,6 +268,7 @@ class Scene:
     extensions: dict[str, str] = field(default_factory=dict)  # used -> supported|partial|ignored
     animations: list[dict] = field(default_factory=list)  # core.animation.Animation.summary()s
     time_range: dict | None = None  # USD: start/end time codes and timeCodesPerSecond
+    skel_animations: list[dict] = field(default_factory=list)  # USD: each SkelAnimation's joints, shapes, samples
     moment: dict | None = None  # the animation and time the scene was posed at; None: at rest
 
     @property

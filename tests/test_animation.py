@@ -273,6 +273,8 @@ def test_usd_skel_posed_between_samples_matches_numpy_lbs(assets):
 
     scene = load_scene(path, moment=Moment(0.25))
     assert scene.moment == {"time_code": 2.5} and not scene.warnings
+    assert scene.skel_animations == [{"path": "/Arm/Skel/Bend", "joints": 2, "blend_shapes": ["Lift"],
+                                      "samples": 2, "first": 0.0, "last": 10.0}]  # for inspect
     (inst,) = scene.instances
     m = scene.meshes[inst.mesh]
     got = m.positions @ inst.matrix[:3, :3].T + inst.matrix[:3, 3]

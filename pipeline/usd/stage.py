@@ -243,6 +243,8 @@ class _StageReader:
             if self._nodes % 256 == 0:
                 deadline.check()
             if not prim.IsA(UsdGeom.Imageable):  # shading networks are not: tested only here
+                if prim.IsA(UsdSkel.Animation) and placements is None:
+                    self._skel_animation(UsdSkel.Animation(prim))
                 if any(prim.IsA(t) for t in PRUNED_TYPES):
                     it.PruneChildren()
                 continue
@@ -405,6 +407,18 @@ class _StageReader:
         self.scene.cameras.append(out)
 
     # -- UsdSkel: skinned meshes posed as usdview shows them --------------------------------
+    def _skel_animation(self, anim: UsdSkel.Animation) -> None:
+        """What `inspect` lists of a SkelAnimation: its joints, blend shapes and the time
+        codes its samples span (joint transforms and blend shape weights)."""
+        codes: set[float] = set()
+        for attr in (anim.GetTranslationsAttr(), anim.GetRotationsAttr(), anim.GetScalesAttr(),
+                     anim.GetBlendShapeWeightsAttr()):
+            codes.update(attr.GetTimeSamples())
+        self.scene.skel_animations.append({
+            "path": str(anim.GetPath()), "joints": len(anim.GetJointsAttr().Get() or []),
+            "blend_shapes": [str(b) for b in anim.GetBlendShapesAttr().Get() or []],
+            "samples": len(codes), "first": min(codes, default=None), "last": max(codes, default=None)})
+
     def _skel_root(self, prim: Usd.Prim) -> None:
         if self._skel is None:
             self._skel = UsdSkel.Cache()
