@@ -56,15 +56,19 @@ log = logging.getLogger(__name__)
 # - variant_sets: USD variant selections, "[PRIM:]SET=NAME" in order (pipeline.usd.stage.load).
 # - purposes: USD purposes drawn besides default (render, proxy, guide); other formats have
 #   none, so theirs is always the default (one bake whatever a request asks).
+# - draw_mode: USD model:drawMode stand-ins drawn ("authored") or the geometry ("full");
+#   likewise always the default for other formats.
 ASSET_OPTIONS = {"interior_epsilon": None, "subdivision_levels": None, "thumbnail_size": 1024,
-                 "moment": None, "variant_sets": (), "purposes": ("render",)}
+                 "moment": None, "variant_sets": (), "purposes": ("render",),
+                 "draw_mode": "authored"}
 USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
 
 
 def asset_options(options) -> dict:
     """The bake options a core.options.RenderOptions asks for (which prims a USD stage
     draws); the pose (`moment`) is the caller's, as an animation bakes none."""
-    return {"variant_sets": tuple(options.variant_set), "purposes": tuple(options.purposes)}
+    return {"variant_sets": tuple(options.variant_set), "purposes": tuple(options.purposes),
+            "draw_mode": options.draw_mode}
 PREFILTERS = ("ggx", "paper")
 _MESH_ARRAYS = ("positions", "normals", "indices", "tangents", "uv0", "uv1", "colors", "interior",
                 "edges", "edge_faces", "support")
@@ -98,6 +102,7 @@ def bake_or_load_asset(path, cache_dir=None, *, force: bool = False, limits: Lim
     opts["variant_sets"], opts["purposes"] = tuple(opts["variant_sets"]), tuple(opts["purposes"])
     if Path(path).suffix.lower() not in USD_SUFFIXES:
         opts["purposes"] = ASSET_OPTIONS["purposes"]
+        opts["draw_mode"] = ASSET_OPTIONS["draw_mode"]
     if isinstance(opts["moment"], Moment):
         opts["moment"] = dataclasses.asdict(opts["moment"])
     cache = _cache(cache_dir)
@@ -115,7 +120,8 @@ def bake_or_load_asset(path, cache_dir=None, *, force: bool = False, limits: Lim
         start = time.perf_counter()
         scene = load_scene(path, limits, root,
                            moment=None if opts["moment"] is None else Moment(**opts["moment"]),
-                           variant_sets=opts["variant_sets"], purposes=opts["purposes"])
+                           variant_sets=opts["variant_sets"], purposes=opts["purposes"],
+                           draw_mode=opts["draw_mode"])
         ingest_s = time.perf_counter() - start
         source = SourceFiles.hash(path, scene.files, scene.absent)
     except (FileNotFoundError, PermissionError, IsADirectoryError) as exc:  # changed under us
