@@ -35,7 +35,7 @@ from core.mips import level_shapes, texture_size_for
 from core.scene import Light, Material, Sampler, Scene, SceneCamera, TextureRef, extent, is_srgb
 from pipeline.cache import BAKE_FORMAT_VERSION, Cache, Entry, NotInCache, SourceFiles
 from pipeline.environment import prefilter as environment
-from pipeline.environment import uniform
+from pipeline.environment import scaled, uniform
 from pipeline.environment.panorama import load_panorama, resolve_panorama
 from pipeline.ingest import load_scene
 from pipeline.limits import Limits
@@ -236,6 +236,7 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> Bak
         os.path.relpath(scene.environment, Path(scene.source).resolve().parent),
         "own_lighting": scene.own_lighting,  # pipeline.lighting
         "dome_radiance": None if scene.dome_radiance is None else list(scene.dome_radiance),
+        "dome_scale": None if scene.dome_scale is None else list(scene.dome_scale),
     }
     cap = texture_size_for(opts["thumbnail_size"])
     spaces = _texture_spaces(scene)
@@ -446,6 +447,8 @@ def bake_or_load_environment(source, cache_dir=None, face_size: int = DEFAULT_FA
             "lut": [environment.LUT_SIZE, environment.LUT_SAMPLES]}
     if uniform.parse(source) is not None:  # one module makes every uniform one: the value keys it
         opts["uniform"] = list(uniform.parse(source))  # type: ignore[arg-type]
+    if scaled.parse(source) is not None:  # a textured dome's factor: the file's content and it
+        opts["scale"] = list(scaled.parse(source)[0])  # type: ignore[index]
     source_files = SourceFiles.hash(resolve_panorama(source))
     key = source_files.key("environments", opts)
     if not force:

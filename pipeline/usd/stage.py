@@ -367,8 +367,9 @@ class _StageReader:
         self.scene.lights.append(out)
 
     def _dome(self, prim: Usd.Prim, where: str, radiance: np.ndarray) -> None:
-        """A textured dome's panorama is the environment; an untextured one's radiance
-        (colour x intensity x 2^exposure from every direction, UsdLux) a uniform one."""
+        """A textured dome's panorama, times colour x intensity x 2^exposure (`dome_scale`,
+        UsdLux), is the environment; an untextured one's radiance (that product from every
+        direction) a uniform one."""
         attr = UsdLux.DomeLight(prim).GetTextureFileAttr()
         asset = attr.Get(self.time)
         if not asset or not asset.path:
@@ -387,6 +388,8 @@ class _StageReader:
             return
         if self.scene.environment is None:
             self.scene.environment = identifier
+            # UsdLux: the dome's radiance is its texture x intensity x 2^exposure x colour
+            self.scene.dome_scale = tuple(float(c) for c in np.clip(radiance, 0, None))  # type: ignore[assignment]
             self.graph.files.append(identifier)
             self.scene.own_lighting = True
         else:
