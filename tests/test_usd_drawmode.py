@@ -215,3 +215,51 @@ def test_draw_mode_option_reaches_the_bake_key_cli_and_query(stage, tmp_path):
     add_arguments(parser)
     assert from_arguments(parser.parse_args(["--draw-mode", "full"])).draw_mode == "full"
     assert from_arguments(parser.parse_args([])).draw_mode == "authored"
+
+
+CARDS_ONLY = """#usda 1.0
+(
+    metersPerUnit = 1
+    upAxis = "Y"
+)
+def Xform "Cards" (
+    prepend apiSchemas = ["GeomModelAPI"]
+    kind = "component"
+)
+{
+    uniform token model:drawMode = "cards"
+    uniform token model:cardGeometry = "box"
+    asset model:cardTextureXPos = @./x.png@
+    def Cube "Body"
+    {
+        double size = 2
+    }
+}
+"""
+
+
+@pytest.mark.parametrize("yaw", [90.0, -90.0])
+def test_cards_render_their_texture_from_both_sides(tmp_path, yaw):
+    """Rendered: seen from +X the XPos card shows x.png (its s runs up +Y, so the red half is
+    below); from -X the XNeg card shows the same image seen through, red below too."""
+    from test_render_physics import constant_env
+
+    from core.options import RenderOptions
+    from pipeline.bake import bake_asset
+    from renderer.raster.render import render
+    img = np.full((8, 8, 4), 255, np.uint8)
+    img[:, :4, 1:3] = 0  # s < 0.5 red
+    Image.fromarray(img, "RGBA").save(tmp_path / "x.png")
+    (tmp_path / "cards.usda").write_text(CARDS_ONLY)
+    asset = bake_asset(tmp_path / "cards.usda", tmp_path / "cache")
+    opts = RenderOptions(width=64, height=64, yaw=yaw, pitch=0, tonemap="none",
+                         background="transparent", msaa=0, shadow=0)
+    frame = render(asset, constant_env(1.0), opts).linear
+    covered = frame[..., 3] > 0.5
+    assert covered.mean() > 0.3
+    rows = np.where(covered.any(axis=1))[0]
+    mid = (rows.min() + rows.max()) // 2
+    upper = frame[rows.min():mid - 2][covered[rows.min():mid - 2]][:, :3].mean(axis=0)
+    lower = frame[mid + 3:rows.max() + 1][covered[mid + 3:rows.max() + 1]][:, :3].mean(axis=0)
+    assert lower[0] > 4 * max(lower[1], lower[2])  # red
+    assert min(upper) > 0.5 * max(upper)  # white
