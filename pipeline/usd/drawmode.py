@@ -26,6 +26,7 @@ with a warning; `model:cardVisibility` (new in USD 26) is not read.
 """
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -97,7 +98,9 @@ class StandIns:
     """Builds the stand-ins of one stage into its Scene; `reader` is the _StageReader."""
 
     def __init__(self, reader):
-        self.reader = reader
+        # a proxy: a reader <-> stand-ins cycle would keep the stage, and pxr's registry its
+        # layers, alive until a GC pass (a file rewritten meanwhile would read as it was)
+        self.reader = weakref.proxy(reader)
         self.lines: list[Lines] = []
         self._bbox = UsdGeom.BBoxCache(reader.time, [UsdGeom.Tokens.default_, UsdGeom.Tokens.proxy,
                                                      UsdGeom.Tokens.render], useExtentsHint=True)
