@@ -9,15 +9,15 @@ import argparse
 import json
 from pathlib import Path
 
+from cli import sandbox
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("path", type=Path, metavar="PATH", help="asset file (glTF, USD, OBJ/PLY/STL)")
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     parser.add_argument("--variant-set", action="append", default=[], metavar="[PRIM:]SET=NAME",
                         help="USD: select a variant (repeatable; no PRIM: the default prim's set)")
-    parser.add_argument("--root", type=Path, default=None, metavar="DIR",
-                        help="folder the asset's references may read from (default: the "
-                             "asset's folder); widen it for libraries that share parts")
+    sandbox.add_argument(parser)
 
 
 def summary(scene) -> dict:
@@ -61,7 +61,7 @@ def summary(scene) -> dict:
 def run(args: argparse.Namespace) -> int:
     from pipeline.ingest import load_scene
 
-    info = summary(load_scene(args.path, root=args.root, variant_sets=tuple(args.variant_set)))
+    info = summary(load_scene(args.path, root=sandbox.root(args), variant_sets=tuple(args.variant_set)))
     if args.json:
         print(json.dumps(info))
         return 0
