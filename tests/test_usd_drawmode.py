@@ -263,3 +263,42 @@ def test_cards_render_their_texture_from_both_sides(tmp_path, yaw):
     lower = frame[mid + 3:rows.max() + 1][covered[mid + 3:rows.max() + 1]][:, :3].mean(axis=0)
     assert lower[0] > 4 * max(lower[1], lower[2])  # red
     assert min(upper) > 0.5 * max(upper)  # white
+
+
+BOUNDS_ONLY = """#usda 1.0
+(
+    metersPerUnit = 1
+    upAxis = "Y"
+)
+def Xform "Model" (
+    prepend apiSchemas = ["GeomModelAPI"]
+    kind = "component"
+)
+{
+    uniform token model:drawMode = "bounds"
+    float3 model:drawModeColor = (1, 0, 0)
+    def Sphere "Ball"
+    {
+        double radius = 1
+    }
+}
+"""
+
+
+def test_draw_mode_over_http(server):
+    """The query's draw_mode reaches the worker's bake: the red bounds box by default, the
+    sphere itself with draw_mode=full; an unknown value is a 422."""
+    from test_service import decode, upload
+    r = upload(server, "bounds.usda", BOUNDS_ONLY.encode())
+    assert r.status_code in (200, 201), r.text
+    rec = server.wait_status(r.json()["id"])
+    assert rec["status"] == "ready", rec
+    url = f"/assets/{rec['id']}/thumbnail"
+    q = {"size": 48, "msaa": 0, "shadow": 0}
+    box = server.client.get(url, params=q)
+    full = server.client.get(url, params={**q, "draw_mode": "full"})
+    assert box.status_code == 200 and full.status_code == 200, full.text
+    box_img, full_img = decode(box.content).astype(float), decode(full.content).astype(float)
+    red = lambda im: ((im[..., 0] > 150) & (im[..., 1] < 80) & (im[..., 2] < 80)).sum()  # noqa: E731
+    assert red(box_img) > 20 and red(full_img) == 0
+    assert server.client.get(url, params={**q, "draw_mode": "cards"}).status_code == 422
