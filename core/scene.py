@@ -259,6 +259,7 @@ class Scene:
     # it, not by the studio (pipeline.lighting); an untextured dome's uniform radiance (linear)
     own_lighting: bool = False
     dome_radiance: tuple[float, float, float] | None = None
+    dome_scale: tuple[float, float, float] | None = None  # a textured dome's factor on its texture
     warnings: list[str] = field(default_factory=list)
     files: list[str] = field(default_factory=list)  # every file read (the asset and what it references)
     absent: list[str] = field(default_factory=list)  # files it looked for and did not find (cache key)

@@ -26,7 +26,8 @@ when the stage does not author it). Time-varying values (xforms, points, normals
 animation, camera and light attributes) are read at the requested moment's time code
 (pipeline.usd.time), else at the stage's start time code (or the earliest sample). Subdivision surfaces (catmullClark, loop) are read as their control cage
 with smooth normals, marked for refinement at bake (`subdivision`) when the scheme is
-authored; `model:drawMode` cards are viewport stand-ins and are not drawn. Implicit
+authored. `model:drawMode` origin / bounds / cards stand-ins replace the subtrees they apply
+to, as usdview draws them (`usd_drawmode`; draw_mode="full" draws the geometry). Implicit
 shapes (Sphere, Cube, Cylinder, Cone, Capsule, Plane) are tessellated (`usd_shapes`).
 Meshes bound to a UsdSkel skeleton are skinned (UsdSkel.Cache / SkinningQuery, linear blend
 or dual quaternion as authored) and posed by the skeleton's animation at that time code, or
@@ -55,6 +56,7 @@ from core.scene import Creases, Instance, Light, Mesh, Scene, SceneCamera
 from pipeline import deadline
 from pipeline.limits import Limits
 from pipeline.normals import smooth_normals
+from pipeline.usd import drawmode
 from pipeline.usd.layers import LayerGraph
 from pipeline.usd.materials import Binding, MaterialReader, authoring_layer
 from pipeline.usd.shapes import SHAPES, tessellate
@@ -69,12 +71,13 @@ PURPOSES = (UsdGeom.Tokens.render, UsdGeom.Tokens.proxy, UsdGeom.Tokens.guide)
 
 def load(path: Path, limits: Limits, root: Path | None = None,
          moment: Moment | None = None, variant_sets: tuple[str, ...] = (),
-         purposes: tuple[str, ...] = ("render",)) -> Scene:
+         purposes: tuple[str, ...] = ("render",), draw_mode: str = "authored") -> Scene:
     """Read a USD file (any of its four forms) into a Scene; AssetError on bad input.
     Files it references must lie inside `root` (default: its folder; `paths.sandbox_root`).
     `variant_sets`: "[PRIM:]SET=NAME" selections (no PRIM: the default prim's set), applied
     in order, so a selection may name a set that an earlier one brought in. `purposes`: drawn
-    besides default (usdview's render / proxy / guide toggles; render by default)."""
+    besides default (usdview's render / proxy / guide toggles; render by default). `draw_mode`:
+    "authored" draws model:drawMode stand-ins as usdview does, "full" the geometry instead."""
     path = Path(path)
     graph = LayerGraph(path, limits, root)
     # pxr's own diagnostics (`Warning: in _ReportErrors at line ... of stage.cpp`) would go to
@@ -87,7 +90,7 @@ def load(path: Path, limits: Limits, root: Path | None = None,
         scene.variant_sets = list_variant_sets(stage)
         scene.warnings.extend(graph.warnings)
         scene.time_range = time_range(stage)
-        _StageReader(stage, graph, scene, limits, moment, purposes).read()
+        _StageReader(stage, graph, scene, limits, moment, purposes, draw_mode).read()
         scene.files = list(graph.files)
         scene.absent = list(graph.absent)
         _take_diagnostics(diagnostics, scene.warnings, (*graph.absent, *graph.unreadable))
@@ -200,8 +203,10 @@ class _Topology:
 
 class _StageReader:
     def __init__(self, stage: Usd.Stage, graph: LayerGraph, scene: Scene, limits: Limits,
-                 moment: Moment | None = None, purposes: tuple[str, ...] = ("render",)):
+                 moment: Moment | None = None, purposes: tuple[str, ...] = ("render",),
+                 draw_mode: str = "authored"):
         self.stage, self.graph, self.scene, self.limits = stage, graph, scene, limits
+        self.draw_mode = draw_mode
         self.drawn = (UsdGeom.Tokens.default_, *(p for p in PURPOSES if p in purposes))
         self.time = time_code(stage, moment)  # pipeline.usd.time
         if moment is not None:
@@ -212,6 +217,7 @@ class _StageReader:
             raise MalformedAsset(graph.path, f"metersPerUnit = {meters} is not a positive number")
         self.to_scene = stage_matrix(stage)
         self.materials = MaterialReader(graph, scene, limits, self.time)
+        self.standins = drawmode.StandIns(self)
         self._meshes: dict[tuple, int] = {}
         self._topology: dict[tuple, _Topology | None] = {}
         self.triangles = 0
@@ -224,6 +230,7 @@ class _StageReader:
 
     def read(self) -> None:
         self._walk(self.stage.GetPseudoRoot(), None)
+        self.standins.finish()
         for kind in sorted(self._skipped):
             self._warn(f"{kind} prims are not read; skipped")
 
@@ -263,6 +270,10 @@ class _StageReader:
             if purpose not in self.drawn:
                 if prim.IsA(UsdGeom.PointInstancer):
                     it.PruneChildren()  # its prototypes are not drawn in their own right
+                continue
+            if self.draw_mode == "authored" and (mode := drawmode.applies(prim)):
+                it.PruneChildren()  # the stand-in is drawn in place of the subtree
+                self.standins.add(prim, mode, self._matrices(prim, root, placements))
                 continue
             if prim.IsA(UsdSkel.Root):
                 self._skel_root(prim)
@@ -362,8 +373,9 @@ class _StageReader:
         self.scene.lights.append(out)
 
     def _dome(self, prim: Usd.Prim, where: str, radiance: np.ndarray) -> None:
-        """A textured dome's panorama is the environment; an untextured one's radiance
-        (colour x intensity x 2^exposure from every direction, UsdLux) a uniform one."""
+        """A textured dome's panorama, times colour x intensity x 2^exposure (`dome_scale`,
+        UsdLux), is the environment; an untextured one's radiance (that product from every
+        direction) a uniform one."""
         attr = UsdLux.DomeLight(prim).GetTextureFileAttr()
         asset = attr.Get(self.time)
         if not asset or not asset.path:
@@ -382,6 +394,8 @@ class _StageReader:
             return
         if self.scene.environment is None:
             self.scene.environment = identifier
+            # UsdLux: the dome's radiance is its texture x intensity x 2^exposure x colour
+            self.scene.dome_scale = tuple(float(c) for c in np.clip(radiance, 0, None))  # type: ignore[assignment]
             self.graph.files.append(identifier)
             self.scene.own_lighting = True
         else:
