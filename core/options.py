@@ -119,8 +119,8 @@ class RenderOptions:
     tir: Literal["paper", "reflect"] | None = Field(default=None, description=(
         "wyman: total internal reflection treatment (default: reflect)"))
     # Defaults from issue 26's front (`bench accuracy --front`, bench/RESULTS.md): 12 bounces
-    # with roulette at 3 x 3 rays sit on each scene's Pareto front at ~0.4x the old default's
-    # (8, both, 4 x 4) time and dominate more of Mitsuba's 4/16/64 spp points.
+    # with roulette (3 x 3 rays at 128-383 px) at ~0.4x the old default's (8, both, 4 x 4) time
+    # for +0.011 mean FLIP, on most scenes' Pareto front, at about Mitsuba 16 spp's time.
     bounces: int = Field(default=12, ge=0, le=64, description="raytrace: path depth (0: the environment along each primary ray)")
     fresnel_split: Literal["both", "sample", "roulette"] = Field(default="roulette", description=(
         "raytrace: at each interface trace both the reflected and the refracted ray (both: "
