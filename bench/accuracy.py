@@ -122,12 +122,13 @@ def methods_for(spec) -> list[str]:
 
 def options_for(method: str, base, budget_ms: float = BUDGET_MS):
     """(RenderOptions, prefilter) for a method name of the chart (also bench.stability's)."""
-    if method.startswith("raytrace-"):  # raytrace-N[/split=S][/lobes=L][/ss=K]
+    if method.startswith("raytrace-"):  # raytrace-N[/split=S][/lobes=L][/ss=K][/integrator=path]
         depth, *mods = method.split("/")
         kw = dict(m.split("=") for m in mods)
         return replace(base, method="raytrace", bounces=int(depth.split("-")[1]),
                        fresnel_split=kw.get("split", "both"),
                        rough_lobes=kw.get("lobes", "sample"),
+                       integrator=kw.get("integrator", "tree"),
                        supersample=int(kw["ss"]) if "ss" in kw else None), "ggx"
     if method.startswith("wyman/tir="):
         return replace(base, method="wyman", tir=method.split("=")[1]), "ggx"

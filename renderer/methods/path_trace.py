@@ -28,9 +28,12 @@ Plastic by the power heuristic (Veach 1995); rays that escape after Glass or a s
 take the environment at full weight. Punctual lights are deltas: next-event estimation
 alone, with an occlusion-only shadow ray (a glass occluder blocks them: its caustic is not
 a path BSDF sampling can find). Emissive surfaces add their emission where a path meets
-them. Russian roulette from the fourth surface on (survival = the path's throughput, at
-most 0.95); a path still alive after `bounces` surfaces reads the environment along its
-direction, as the tree does.
+them. Russian roulette from the fourth surface on (survival = the path's throughput in
+max-RGB x eta^2, at most 1: a survivor's throughput is raised to 1 and never above what it
+carried, so no sample of a lossless glass outshines the environment; a cap below 1 would
+kill full-throughput paths and boost the rest, measured +11% on single pixels of the
+stability suite's TIR prism at 128 passes); a path still alive after `bounces` surfaces
+reads the environment along its direction, as the tree does.
 
 Samples: one path per pixel per pass, the camera ray jittered within the pixel; every
 dimension pair of pass s is the R2 low-discrepancy point s (Roberts 2018) rotated by a hash
@@ -325,7 +328,7 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
             stats["tir"] += int(np.sum(tir))
         # Russian roulette
         if depth >= RR_START:
-            q = np.clip(new_w.max(axis=1) * new_medium ** 2, 0.0, 0.95)
+            q = np.clip(new_w.max(axis=1) * new_medium ** 2, 0.0, 1.0)
             u_rr, _ = sample(px, s, 10 * depth + 5)
             survive = u_rr < q
             alive &= survive
