@@ -102,10 +102,11 @@ def test_tir_prism_in_a_white_furnace(integrator, tmp_path):
     lossless glass leaves it (TIR loses nothing), so every pixel is finite and at most 1
     (Russian roulette never raises a path above the throughput it carries), and the prism's
     face reads close to 1."""
+    from test_render_physics import constant_env
+
     from bench import scenes
     from core.options import RenderOptions
     from renderer.methods.raytrace import render_raytrace
-    from test_render_physics import constant_env
 
     spec = scenes.scene("case_tir_prism")
     asset = scenes.baked_asset(spec, tmp_path)
