@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
+from pathlib import Path
 
 import numpy as np
 
@@ -113,29 +114,54 @@ def sheen_dv(n_v, n_l, n_h, roughness):
     return d * np.clip(v, 0.0, 1e4)
 
 
-_SHEEN_E: np.ndarray | None = None
+# The BSDF's directional albedos, tabulated by quadrature of the very lobes this module
+# samples (_sheen_table, _ggx_tables, _aniso_table: ~25 s of numpy together), stored in
+# path_bsdf_tables.npz beside this file (`python -m renderer.methods.path_bsdf` rewrites it;
+# tests/test_raytrace_lobes.py checks cells against fresh quadrature) and loaded on first use.
+TABLES = Path(__file__).with_name("path_bsdf_tables.npz")
+_TABLES: dict[str, np.ndarray] = {}
+
+
+def _table(name: str) -> np.ndarray:
+    if not _TABLES:
+        if TABLES.is_file():
+            with np.load(TABLES) as z:
+                _TABLES.update({k: z[k].astype(np.float64) for k in z.files})
+        else:  # a checkout without the file: build (and keep) them in this process
+            _TABLES.update(build_tables())
+    return _TABLES[name]
+
+
+def build_tables() -> dict[str, np.ndarray]:
+    ggx_e, ggx_b = _ggx_tables()
+    return {"ggx_e": ggx_e, "ggx_b": ggx_b, "aniso_e": _aniso_table(), "sheen_e": _sheen_table()}
 
 
 def sheen_albedo(cos_v, roughness):
-    """E_sheen(n.v, roughness) of a white sheen lobe: stratified quadrature over the
-    hemisphere, tabulated 32 x 32 once, bilinear."""
-    global _SHEEN_E
-    if _SHEEN_E is None:
-        k = 96
-        g = (np.arange(k) + 0.5) / k
-        ct, ph = (a.reshape(-1) for a in np.meshgrid(g, g * 2 * math.pi, indexing="ij"))
-        st = np.sqrt(1 - ct * ct)
-        table = np.zeros((_TABLE_N, _TABLE_N))
-        for i, mu in enumerate(np.linspace(0.02, 1.0, _TABLE_N)):
-            wo = np.array([math.sqrt(1 - mu * mu), 0.0, mu])
-            wi = np.stack([st * np.cos(ph), st * np.sin(ph), ct], -1)
-            h = wi + wo
-            h /= np.linalg.norm(h, axis=-1, keepdims=True)
-            for j, r in enumerate(np.linspace(0.0, 1.0, _TABLE_N)):
-                f = sheen_dv(np.full(len(ct), mu), ct, h[:, 2], np.full(len(ct), r)) * ct
-                table[i, j] = 2 * math.pi * f.mean()
-        _SHEEN_E = table
-    return _bilinear(_SHEEN_E, cos_v, 0.02, roughness, 0.0)
+    """E_sheen(n.v, roughness) of a white sheen lobe, bilinear in a 32 x 32 table (_sheen_table)."""
+    return _bilinear(_table("sheen_e"), cos_v, 0.02, roughness, 0.0)
+
+
+def _sheen_table() -> np.ndarray:
+    """E_sheen by stratified quadrature over the hemisphere (48 x 48 points, denser toward
+    grazing where the Charlie lobe lives), 32 x 32 over (n.v, roughness)."""
+    k = 48
+    g = (np.arange(k) + 0.5) / k
+    # cos(theta_i) = 1 - (1 - g)^2... as g^2 puts half the points below cos 0.25
+    q, ph = (a.reshape(-1) for a in np.meshgrid(g, g * 2 * math.pi, indexing="ij"))
+    ct, jac = q * q, 2 * q                     # d cos = 2 q dq
+    st = np.sqrt(1 - ct * ct)
+    wi = np.stack([st * np.cos(ph), st * np.sin(ph), ct], -1)
+    rough = np.linspace(0.0, 1.0, _TABLE_N)
+    table = np.zeros((_TABLE_N, _TABLE_N))
+    for i, mu in enumerate(np.linspace(0.02, 1.0, _TABLE_N)):
+        h = wi + np.array([math.sqrt(1 - mu * mu), 0.0, mu])
+        n_h = h[:, 2] / np.linalg.norm(h, axis=-1)
+        m = len(ct)
+        f = sheen_dv(np.full(m * _TABLE_N, mu), np.tile(ct, _TABLE_N), np.tile(n_h, _TABLE_N),
+                     np.repeat(rough, m)) * np.tile(ct * jac, _TABLE_N)
+        table[i] = 2 * math.pi * f.reshape(_TABLE_N, m).mean(axis=1)
+    return table
 
 
 def _bilinear(t, x, x_lo, y, y_lo):
@@ -148,75 +174,49 @@ def _bilinear(t, x, x_lo, y, y_lo):
             + (t[x0, y0 + 1] * (1 - fx) + t[x0 + 1, y0 + 1] * fx) * fy)
 
 
-_GGX_E: np.ndarray | None = None
-_GGX_B: np.ndarray | None = None
-
-
 def ggx_albedo(cos_v, alpha):
     """Single-scattering albedo E_ss of the GGX lobe at F = 1 (height-correlated G2), bilinear
-    in a 32 x 32 table over (cos_v, alpha) computed once by stratified VNDF quadrature (E =
-    mean of G2 / G1): the same lobe the paths sample, so that the multiple-scattering scale
-    1 / E_ss makes a white lobe lossless at wo."""
-    global _GGX_E, _GGX_B
-    if _GGX_E is None:
-        k = 32
-        g = (np.arange(k) + 0.5) / k
-        u1, u2 = (np.tile(a.reshape(-1), _TABLE_N) for a in np.meshgrid(g, g, indexing="ij"))
-        a = np.repeat(np.linspace(ALPHA_MIN, 1.0, _TABLE_N), k * k)
-        table = np.zeros((_TABLE_N, _TABLE_N))
-        share = np.zeros((_TABLE_N, _TABLE_N))
-        for i, mu in enumerate(np.linspace(0.02, 1.0, _TABLE_N)):
-            wo = np.tile([math.sqrt(1 - mu * mu), 0.0, mu], (len(a), 1))
-            wi = reflect(-wo, ggx_vndf(wo, a, a, u1, u2))
-            lv = ggx_lambda(wo[:, 0], wo[:, 1], wo[:, 2], a, a)
-            ll = ggx_lambda(wi[:, 0], wi[:, 1], np.maximum(wi[:, 2], 1e-7), a, a)
-            ratio = np.where(wi[:, 2] > 0, (1 + lv) / (1 + lv + ll), 0.0)
-            table[i] = ratio.reshape(_TABLE_N, k * k).mean(axis=1)
-            v_h = np.clip(np.einsum("ij,ij->i", wo, (wo + wi) / np.linalg.norm(wo + wi, axis=-1, keepdims=True)), 0, 1)
-            share[i] = (ratio * (1 - v_h) ** 5).reshape(_TABLE_N, k * k).mean(axis=1)
-        _GGX_E, _GGX_B = table, share
-    return _bilinear(_GGX_E, cos_v, 0.02, alpha, ALPHA_MIN)
+    in a 32 x 32 table over (cos_v, alpha) (_ggx_tables): the same lobe the paths sample, so
+    that the multiple-scattering scale 1 / E_ss makes a white lobe lossless at wo."""
+    return _bilinear(_table("ggx_e"), cos_v, 0.02, alpha, ALPHA_MIN)
+
+
+def _ggx_tables() -> tuple[np.ndarray, np.ndarray]:
+    """E and B (ggx_schlick_share) by stratified VNDF quadrature (E = mean of G2 / G1)."""
+    k = 32
+    g = (np.arange(k) + 0.5) / k
+    u1, u2 = (np.tile(a.reshape(-1), _TABLE_N) for a in np.meshgrid(g, g, indexing="ij"))
+    a = np.repeat(np.linspace(ALPHA_MIN, 1.0, _TABLE_N), k * k)
+    table = np.zeros((_TABLE_N, _TABLE_N))
+    share = np.zeros((_TABLE_N, _TABLE_N))
+    for i, mu in enumerate(np.linspace(0.02, 1.0, _TABLE_N)):
+        wo = np.tile([math.sqrt(1 - mu * mu), 0.0, mu], (len(a), 1))
+        wi = reflect(-wo, ggx_vndf(wo, a, a, u1, u2))
+        lv = ggx_lambda(wo[:, 0], wo[:, 1], wo[:, 2], a, a)
+        ll = ggx_lambda(wi[:, 0], wi[:, 1], np.maximum(wi[:, 2], 1e-7), a, a)
+        ratio = np.where(wi[:, 2] > 0, (1 + lv) / (1 + lv + ll), 0.0)
+        table[i] = ratio.reshape(_TABLE_N, k * k).mean(axis=1)
+        v_h = np.clip(np.einsum("ij,ij->i", wo, (wo + wi) / np.linalg.norm(wo + wi, axis=-1, keepdims=True)), 0, 1)
+        share[i] = (ratio * (1 - v_h) ** 5).reshape(_TABLE_N, k * k).mean(axis=1)
+    return table, share
 
 
 def ggx_schlick_share(cos_v, alpha):
     """B of the split sum: the GGX lobe's albedo weighted by Schlick's (1 - v.h)^5, so that
     E_spec = f0 (E - B) + f90 B (tabulated with ggx_albedo)."""
-    ggx_albedo(np.zeros(1), np.zeros(1))
-    assert _GGX_B is not None
-    return _bilinear(_GGX_B, cos_v, 0.02, alpha, ALPHA_MIN)
+    return _bilinear(_table("ggx_b"), cos_v, 0.02, alpha, ALPHA_MIN)
 
 
-_ANISO_E: np.ndarray | None = None
 _AN = (12, 7, 12, 12)  # grid of the anisotropic albedo: n.v, azimuth to the grain, sqrt(ax), sqrt(ay)
 
 
 def ggx_albedo_aniso(cos_v, azimuth, ax, ay):
     """E_ss of the anisotropic GGX lobe at F = 1: `azimuth` of wo from the grain t (folded
-    into 0..pi/2 by the lobe's symmetry), alphas ax along t and ay along b. A 12 x 7 x 12 x 12
-    table over (n.v, azimuth, sqrt(ax), sqrt(ay)) by 16 x 16 stratified VNDF quadrature per
-    cell, built on the first anisotropic hit of a process, interpolated multilinearly: the
-    isotropic table at any single alpha misses the grain's share by up to 0.1."""
-    global _ANISO_E
+    into 0..pi/2 by the lobe's symmetry), alphas ax along t and ay along b, multilinear in the
+    table of _aniso_table: the isotropic table at any single alpha misses the grain's share by
+    up to 0.1."""
     n_mu, n_phi, n_a, _ = _AN
-    if _ANISO_E is None:
-        k = 16
-        g = (np.arange(k) + 0.5) / k
-        u1, u2 = (a.reshape(-1) for a in np.meshgrid(g, g, indexing="ij"))
-        ra = np.linspace(math.sqrt(ALPHA_MIN), 1.0, n_a)
-        axg, ayg = (a.reshape(-1) for a in np.meshgrid(ra * ra, ra * ra, indexing="ij"))
-        ax_s, ay_s = np.repeat(axg, k * k), np.repeat(ayg, k * k)
-        uu1, uu2 = np.tile(u1, len(axg)), np.tile(u2, len(axg))
-        table = np.zeros(_AN)
-        for i, mu in enumerate(np.linspace(0.02, 1.0, n_mu)):
-            for j, phi in enumerate(np.linspace(0.0, math.pi / 2, n_phi)):
-                st = math.sqrt(1 - mu * mu)
-                wo = np.tile([st * math.cos(phi), st * math.sin(phi), mu], (len(ax_s), 1))
-                wi = reflect(-wo, ggx_vndf(wo, ax_s, ay_s, uu1, uu2))
-                lv = ggx_lambda(wo[:, 0], wo[:, 1], wo[:, 2], ax_s, ay_s)
-                ll = ggx_lambda(wi[:, 0], wi[:, 1], np.maximum(wi[:, 2], 1e-7), ax_s, ay_s)
-                ratio = np.where(wi[:, 2] > 0, (1 + lv) / (1 + lv + ll), 0.0)
-                table[i, j] = ratio.reshape(n_a, n_a, k * k).mean(axis=-1)
-        _ANISO_E = table
+    table = _table("aniso_e")
     coords = [np.clip((np.asarray(cos_v) - 0.02) / 0.98, 0, 1) * (n_mu - 1),
               np.clip(np.asarray(azimuth) / (math.pi / 2), 0, 1) * (n_phi - 1),
               np.clip((np.sqrt(ax) - math.sqrt(ALPHA_MIN)) / (1 - math.sqrt(ALPHA_MIN)), 0, 1) * (n_a - 1),
@@ -230,8 +230,32 @@ def ggx_albedo_aniso(cos_v, azimuth, ax, ay):
             bit = (corner >> axis) & 1
             idx.append(lo[axis] + bit)
             wgt = wgt * (fr[axis] if bit else 1 - fr[axis])
-        out += wgt * _ANISO_E[tuple(idx)]
+        out += wgt * table[tuple(idx)]
     return out
+
+
+def _aniso_table() -> np.ndarray:
+    """12 x 7 x 12 x 12 over (n.v, azimuth 0..pi/2, sqrt(ax), sqrt(ay)), 16 x 16 stratified
+    VNDF quadrature per cell."""
+    n_mu, n_phi, n_a, _ = _AN
+    k = 16
+    g = (np.arange(k) + 0.5) / k
+    u1, u2 = (a.reshape(-1) for a in np.meshgrid(g, g, indexing="ij"))
+    ra = np.linspace(math.sqrt(ALPHA_MIN), 1.0, n_a)
+    axg, ayg = (a.reshape(-1) for a in np.meshgrid(ra * ra, ra * ra, indexing="ij"))
+    ax_s, ay_s = np.repeat(axg, k * k), np.repeat(ayg, k * k)
+    uu1, uu2 = np.tile(u1, len(axg)), np.tile(u2, len(axg))
+    table = np.zeros(_AN)
+    for i, mu in enumerate(np.linspace(0.02, 1.0, n_mu)):
+        for j, phi in enumerate(np.linspace(0.0, math.pi / 2, n_phi)):
+            st = math.sqrt(1 - mu * mu)
+            wo = np.tile([st * math.cos(phi), st * math.sin(phi), mu], (len(ax_s), 1))
+            wi = reflect(-wo, ggx_vndf(wo, ax_s, ay_s, uu1, uu2))
+            lv = ggx_lambda(wo[:, 0], wo[:, 1], wo[:, 2], ax_s, ay_s)
+            ll = ggx_lambda(wi[:, 0], wi[:, 1], np.maximum(wi[:, 2], 1e-7), ax_s, ay_s)
+            ratio = np.where(wi[:, 2] > 0, (1 + lv) / (1 + lv + ll), 0.0)
+            table[i, j] = ratio.reshape(n_a, n_a, k * k).mean(axis=-1)
+    return table
 
 
 def ms_scale(f0, e_ss):
@@ -536,7 +560,11 @@ def build(hits, ns, ng, wo, ior, multiscatter: bool) -> Bsdf:
     fc_v = COAT_F0 + (1 - COAT_F0) * (1 - np.clip(dot(cn, wo), 0.0, 1.0)) ** 5
     w_sheen = 1.0 - coat * fc_v
     peak = hits.sheen_color.max(axis=1)
-    e_sheen = np.where(peak > 0, sheen_albedo(n_v, hits.sheen_roughness), 0.0)
+    e_sheen = np.zeros(n)
+    sh = np.flatnonzero(peak > 0)
+    if len(sh):
+        # the Charlie lobe's albedo passes 1 at grazing: the base never goes negative
+        e_sheen[sh] = np.minimum(sheen_albedo(n_v[sh], hits.sheen_roughness[sh]), 1.0)
     w_base = w_sheen * (1.0 - peak * e_sheen)
     p_coat = np.where(coat > 0, np.clip(coat * np.maximum(fc_v, 0.1), 0.0, 0.9), 0.0)
     p_sheen = np.where(peak > 0, (1 - p_coat) * np.clip(peak * np.maximum(e_sheen, 0.1), 0.0, 0.9), 0.0)
@@ -545,3 +573,9 @@ def build(hits, ns, ng, wo, ior, multiscatter: bool) -> Bsdf:
                 hits.iridescence, hits.iridescence_ior, hits.iridescence_thickness,
                 coat, cn, np.maximum(hits.clearcoat_roughness ** 2, ALPHA_MIN), hits.sheen_color,
                 hits.sheen_roughness, kd_t, w_sheen, w_base, p_coat, p_sheen)
+
+
+if __name__ == "__main__":
+    arrays = {k: v.astype(np.float32) for k, v in build_tables().items()}
+    np.savez_compressed(TABLES, **arrays)  # type: ignore[arg-type]  # numpy's stub: allow_pickle
+    print(f"wrote {TABLES}")

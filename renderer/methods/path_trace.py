@@ -60,7 +60,7 @@ import numpy as np
 
 from core.cubemap import direction_to_face
 from core.options import RenderOptions
-from renderer.methods import path_bsdf, trace_lights
+from renderer.methods import path_bsdf, trace_lights, trace_material
 from renderer.methods.optics import (
     fresnel_dielectric,
     reflect,
@@ -192,7 +192,7 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
             out[slot] += _clamp(add, clamp_esc)
             break
         u_alpha, _ = sample(pix[slot], s, 100 + depth)
-        prim, u, v, t = intersect_front(ts, origins, d, u_alpha)
+        prim, u, v, t = _timed(stats, "traversal", intersect_front, ts, origins, d, u_alpha)
         stats["rays"] += len(d)
         miss = prim < 0
         if depth == 0:
@@ -210,7 +210,9 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         hit = np.flatnonzero(~miss)
         if not len(hit):
             break
-        hits = hit_material(ts, origins[hit], d[hit], prim[hit], u[hit], v[hit], t[hit])
+        fetch0 = trace_material.FETCH_MS[0]
+        hits = _timed(stats, "material", hit_material, ts, origins[hit], d[hit], prim[hit], u[hit], v[hit], t[hit])
+        stats["split_ms"]["textures"] += trace_material.FETCH_MS[0] - fetch0
         origins, d, w, slot, medium = origins[hit], d[hit], w[hit], slot[hit], medium[hit]
         clamp_esc, n_rough, prim, t = clamp_esc[hit], n_rough[hit], prim[hit], t[hit]
         px = pix[slot]
@@ -250,7 +252,7 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
             good = fcos.max(axis=1) > 0
             ls, wi, fcos, p_b, p_l = ls[good], wi[good], fcos[good], p_b[good], p_l[good]
             if len(ls):
-                vis = _unoccluded(ts, _off(p[ls], ng[ls], wi, eps), wi, np.full(len(ls), np.inf), px[ls], s, depth)
+                vis = _timed(stats, "traversal", _unoccluded, ts, _off(p[ls], ng[ls], wi, eps), wi, np.full(len(ls), np.inf), px[ls], s, depth)
                 mis = p_l ** 2 / (p_l ** 2 + p_b ** 2)
                 contrib = w[ls] * fcos * (vis * mis / np.maximum(p_l, 1e-300))[:, None] \
                     * env.radiance(wi, np.zeros(len(wi)))
@@ -268,7 +270,7 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
                 if not len(live):
                     continue
                 sel = ls[live]
-                vis = _unoccluded(ts, _off(p[sel], ng[sel], ldir[live], eps), ldir[live], dist[live], px[sel], s, depth)
+                vis = _timed(stats, "traversal", _unoccluded, ts, _off(p[sel], ng[sel], ldir[live], eps), ldir[live], dist[live], px[sel], s, depth)
                 out[slot[sel]] += _clamp(w[sel] * fcos[live] * radiance[live] * vis[:, None], nee_clamp[sel])
         # --- BSDF sampling: a layer (coat, sheen, base), then Metal, Plastic or Glass
         u_pick, u_lobe = sample(px, s, 10 * depth + 3)
@@ -344,6 +346,15 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
     return out, hit0
 
 
+def _timed(stats: dict, key: str, fn, *args):
+    """fn(*args), its wall time added to stats["split_ms"][key]."""
+    t0 = time.perf_counter()
+    try:
+        return fn(*args)
+    finally:
+        stats["split_ms"][key] += (time.perf_counter() - t0) * 1e3
+
+
 def _off(p: np.ndarray, ng: np.ndarray, wi: np.ndarray, eps: float) -> np.ndarray:
     """Shadow-ray origins off the surface on wi's side (diffuse transmission looks behind)."""
     return p + (np.where(_dot(wi, ng) >= 0, eps, -eps))[:, None] * ng
@@ -384,6 +395,11 @@ def trace(ts, sky, options: RenderOptions, camera, first_near: np.ndarray,
     budget = options.budget_ms
     max_passes = int(options.samples)
     stats.update(rays=stats.get("rays", 0), tir=stats.get("tir", 0))
+    # where a pass's time goes: ray casts (camera, bounce and shadow rays: Embree and the
+    # alpha / back-face walk), the material at hits (textures: of which the texel fetches),
+    # and the rest: BSDF, environment sampling, bookkeeping ("shading", filled in below)
+    split = stats.setdefault("split_ms", {"traversal": 0.0, "material": 0.0, "textures": 0.0, "shading": 0.0})
+    before = split["traversal"] + split["material"]  # a dispersive frame calls trace once per channel
     pass_ms: list[float] = []
     lum_w = np.array([0.2126, 0.7152, 0.0722])
     stop = "samples"
@@ -416,7 +432,7 @@ def trace(ts, sky, options: RenderOptions, camera, first_near: np.ndarray,
             mean = lum_sum[idx] / c
             var = np.maximum(lum_sq[idx] / c - mean * mean, 0.0) * c / np.maximum(c - 1, 1)
             rel = np.sqrt(var / c) / np.maximum(mean, 1e-3)
-            active[idx[rel <= options.noise]] = False
+            active[idx[rel < options.noise]] = False  # under: noise 0 runs every pass
             if not active.any():
                 stop = "noise"
                 break
@@ -425,6 +441,7 @@ def trace(ts, sky, options: RenderOptions, camera, first_near: np.ndarray,
             if elapsed + pass_ms[-1] > budget:
                 stop = "budget"
                 break
+    split["shading"] += sum(pass_ms) - (split["traversal"] + split["material"] - before)
     stats.update(passes=len(pass_ms), samples_mean=float(count.mean()) if npix else 0.0,
                  stop=stop, pass_ms_max=max(pass_ms, default=0.0),
                  path_ms=(time.perf_counter() - t0) * 1e3)

@@ -16,6 +16,7 @@ unbiased and deterministic per ray).
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -31,6 +32,9 @@ NEAREST_MIPMAP_NEAREST, LINEAR_MIPMAP_NEAREST, NEAREST_MIPMAP_LINEAR = 9984, 998
 SLOTS = tuple(s.name for row in ("core", "transmission", "specular", "clearcoat", "sheen",
                                  "iridescence", "anisotropy", "diffuse_transmission")
               for s in BY_NAME[row].slots)
+
+
+FETCH_MS = [0.0]  # wall time in texel fetches, summed over the process (the path tracer's split)
 
 
 @dataclass
@@ -57,11 +61,14 @@ class TextureChain:
         min_nearest = self.min in (NEAREST, NEAREST_MIPMAP_NEAREST, NEAREST_MIPMAP_LINEAR)
         # numba's import costs ~0.6 s, which a process that never ray traces skips
         from renderer.methods import trace_kernel
-        return trace_kernel.sample_texture(
+        t0 = time.perf_counter()
+        out = trace_kernel.sample_texture(
             self.texels, self.offsets, self.heights, self.widths,
             np.ascontiguousarray(uv, np.float64), np.ascontiguousarray(lod, np.float64),
             self.srgb, int(self.wrap[0]), int(self.wrap[1]), self.mag == NEAREST, min_nearest,
             mip_mode)
+        FETCH_MS[0] += (time.perf_counter() - t0) * 1e3
+        return out
 
 
 @dataclass
