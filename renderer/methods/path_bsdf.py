@@ -366,6 +366,8 @@ class Bsdf:
         return self.p_coat + self.p_sheen + self.p_base * (self.p_metal + self.p_plastic)
 
     def rows(self, sel: np.ndarray) -> "Bsdf":
+        if len(sel) == len(self.wo) and (len(sel) == 0 or (sel[0] == 0 and sel[-1] == len(sel) - 1)):
+            return self  # every row, in order (sel from flatnonzero): no copies
         return Bsdf(*(getattr(self, f.name)[sel] for f in fields(self)))
 
     def _local(self, w):
@@ -397,12 +399,18 @@ class Bsdf:
         h = wi + self.wo
         h /= np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-12)
         v_h = np.clip(dot(self.wo, h), 0.0, 1.0)
-        hx, hy, hz = self._local(h)
-        vx, vy, vz = self._local(self.wo)
-        lx, ly, lz = self._local(wi)
-        d = ggx_d(hx, hy, hz, self.ax, self.ay)
-        lam_v = ggx_lambda(vx, vy, np.maximum(vz, 1e-6), self.ax, self.ay)
-        lam_l = ggx_lambda(lx, ly, cl, self.ax, self.ay)
+        if np.array_equal(self.ax, self.ay):  # isotropic everywhere: no frame needed
+            hz = dot(self.n, h)
+            d = ggx_d(np.sqrt(np.maximum(1 - hz * hz, 0.0)), 0.0, hz, self.ax, self.ay)
+            lam_v = ggx_lambda(np.sqrt(np.maximum(1 - n_v * n_v, 0.0)), 0.0, n_v, self.ax, self.ay)
+            lam_l = ggx_lambda(np.sqrt(np.maximum(1 - cl * cl, 0.0)), 0.0, cl, self.ax, self.ay)
+        else:
+            hx, hy, hz = self._local(h)
+            vx, vy, vz = self._local(self.wo)
+            lx, ly, _ = self._local(wi)
+            d = ggx_d(hx, hy, hz, self.ax, self.ay)
+            lam_v = ggx_lambda(vx, vy, np.maximum(vz, 1e-6), self.ax, self.ay)
+            lam_l = ggx_lambda(lx, ly, cl, self.ax, self.ay)
         spec = d / (1.0 + lam_v + lam_l) / (4 * n_v)             # x cos(n, wi) already
         pdf_ggx = d / (1.0 + lam_v) / (4 * n_v)
         f_m, f_d = self._fresnel(v_h)
