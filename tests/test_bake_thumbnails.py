@@ -57,18 +57,34 @@ def test_library_thumbnails_manifest_and_resume(assets, tmp_path, capsys, monkey
     assert {rows[p]["thumbnail"]["status"] for p in good} == {"kept"}
     assert {n: (th / n).stat().st_mtime_ns for n in good.values()} == stamp
 
-    # a changed asset, a deleted thumbnail: only those two are rendered again
+    # a changed asset is rendered again; a deleted thumbnail comes back from the cache, the
+    # same bytes, without a render
+    torus = (th / "mesh" / "torus.STL.png").read_bytes()
     shutil.copyfile(assets / "gltf" / "CesiumMilkTruck.glb", lib / "gltf" / "Duck.glb")
     (th / "mesh" / "torus.STL.png").unlink()
     code, rows = _run(lib, tmp_path, capsys)
     status = {p: rows[p]["thumbnail"]["status"] for p in good}
     assert status == {str(lib / "gltf" / "Duck.glb"): "rendered", str(lib / "gltf" / "BoxTextured.glb"): "kept",
-                      str(lib / "mesh" / "torus.STL"): "rendered"}
-    assert (th / "mesh" / "torus.STL.png").is_file()
+                      str(lib / "mesh" / "torus.STL"): "cached"}
+    assert (th / "mesh" / "torus.STL.png").read_bytes() == torus
+    # each render once in the cache, whole: the Duck's old one and new one, and the others
+    thumbs = sorted((tmp_path / "cache" / "thumbnails").iterdir())
+    assert len(thumbs) == 4
+    for entry in thumbs:
+        listed = json.loads((entry / "manifest.json").read_bytes())["files"]
+        assert {f.name for f in entry.iterdir()} == {"manifest.json", *listed} == {"manifest.json", "thumbnail.png"}
+    assert not list(th.rglob("*.tmp*"))
 
-    # other render options: every thumbnail again
-    code, rows = _run(lib, tmp_path, capsys, "--yaw", "90")
+    # the local pool renders in its worker processes, into the same cache: nothing new to render
+    code, rows = _run(lib, tmp_path, capsys, "--workers", "2", "--force")
+    assert {rows[p]["thumbnail"]["status"] for p in good} == {"kept"}
+
+    # other render options: every thumbnail again, here in two worker processes
+    code, rows = _run(lib, tmp_path, capsys, "--yaw", "90", "--workers", "2")
     assert {rows[p]["thumbnail"]["status"] for p in good} == {"rendered"}
+    manifest = json.loads((th / "manifest.json").read_text())["assets"]
+    assert all(manifest[p]["status"] == "rendered" and (th / manifest[p]["files"][0]).is_file() for p in good)
+    assert len(list((tmp_path / "cache" / "thumbnails").iterdir())) == 7
 
 
 def test_turntable_thumbnails_and_bad_options(assets, tmp_path, capsys):
