@@ -16,8 +16,9 @@ the entry's file where the filesystem allows, else a copy; written under a tempo
 renamed), so a lost worker node cannot leave half a thumbnail in DIR either.
 
 Files go to DIR under the asset's path relative to the folder it was found in (`gltf/Duck.glb`
--> `DIR/gltf/Duck.glb.png`). `DIR/manifest.json` records per asset its cache key, the
-thumbnail's key, the files, the asset's warnings and the seconds its render took. A re-run
+-> `DIR/gltf/Duck.glb.png`). `DIR/manifest.json` records the render settings once, and per asset its
+cache key, the thumbnail's key, the digest of the settings, the files, the asset's warnings,
+the seconds its render took and which process (and Ray node) rendered it. A re-run
 renders only assets whose key (their content) or options changed: an unchanged asset whose
 file is in DIR is `kept` (not even loaded), one whose file is gone but whose render is in
 the cache is `cached` (put back from there), the rest are `rendered`. (`kept` compares the
@@ -173,12 +174,14 @@ class Thumbnails:
             self.entries = {}
         except (ValueError, KeyError, TypeError):  # unreadable: start over rather than trust it
             self.entries = {}
-        # JSON round-trip: the manifest stores what it compares (tuples come back as lists)
         from renderer import RENDERER_VERSION
 
-        self.signature = json.loads(json.dumps({"options": dataclasses.asdict(options), "format": fmt,
-                                                "env": env, "quality": quality,
-                                                "renderer": str(RENDERER_VERSION)}, default=str))
+        # The settings in full once at the top of the manifest (the last run's); each entry
+        # holds their digest, which is what a re-run compares.
+        self.settings = json.loads(json.dumps({"options": dataclasses.asdict(options), "format": fmt,
+                                               "env": env, "quality": quality,
+                                               "renderer": str(RENDERER_VERSION)}, default=str))
+        self.signature = hashlib.sha256(json.dumps(self.settings, sort_keys=True).encode()).hexdigest()[:16]
         self._written = 0.0
         self._sweep()
 
@@ -266,5 +269,6 @@ class Thumbnails:
         """Write the manifest now (whole, under a temporary name, renamed over)."""
         self._written = time.monotonic()
         tmp = self.manifest_path.with_name(MANIFEST + ".tmp")
-        tmp.write_text(json.dumps({"assets": self.entries}, indent=1, sort_keys=True))
+        tmp.write_text(json.dumps({"settings": {**self.settings, "signature": self.signature},
+                                   "assets": self.entries}, indent=1, sort_keys=True))
         os.replace(tmp, self.manifest_path)

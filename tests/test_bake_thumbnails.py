@@ -3,6 +3,7 @@ manifest, and resuming: a re-run renders only what changed."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
 
 import moderngl
@@ -84,6 +85,7 @@ def test_library_thumbnails_manifest_and_resume(assets, tmp_path, capsys, monkey
     assert {rows[p]["thumbnail"]["status"] for p in good} == {"rendered"}
     manifest = json.loads((th / "manifest.json").read_text())["assets"]
     assert all(manifest[p]["status"] == "rendered" and (th / manifest[p]["files"][0]).is_file() for p in good)
+    assert os.getpid() not in {manifest[p]["by"]["pid"] for p in good}  # rendered where baked: the pool
     assert len(list((tmp_path / "cache" / "thumbnails").iterdir())) == 7
 
 
