@@ -18,6 +18,14 @@ overhead per task, d = the driver's cost per task, b = cache bytes per asset. As
 W = cores per machine, e = parallel efficiency on dedicated cores (the 2-worker efficiency
 measured here is printed but not used: this machine's 2 cores are shared with other work),
 B = filesystem bandwidth. A = 100k assets with this corpus's mix of sizes.
+
+--cluster: the library job (`asset-bake --thumbnails --size 64 --executor ray`, every asset baked
+and rendered in one Ray task) over 300+ assets (the corpus above) on a fresh loopback cluster
+(bench/cluster.py) with 1 and with 2 worker nodes of 1 CPU each (--repeat rounds, rotating), then
+with 2 of which one is SIGKILLed once a quarter is done: exit status, assets per minute, every
+asset exactly once in the result lines and the manifest, every cache entry whole, no temporary
+file in DIR. Then the local job in one process (cold, and again with the bakes cached) against
+f3d rendering the same files in one process (its Python module, EGL), 64 px PNGs each.
 """
 from __future__ import annotations
 
