@@ -90,11 +90,14 @@ def test_library_job_survives_a_lost_worker_node(assets, tmp_path):
         rows = _rows(out)
         paths = [r["path"] for r in rows]
         assert sorted(paths) == sorted(map(str, files))  # each asset exactly once
-        assert {r["status"] for r in rows} == {"baked"}
+        # `cached`: a task of the lost node that had stored its bake (and maybe its render)
+        # before the node died; its retry finds them in the cache. Only those in flight then.
+        assert {r["status"] for r in rows} <= {"baked", "cached"}
+        assert sum(r["status"] == "cached" for r in rows) <= 8  # Ray's window: 4 per CPU
         manifest = _manifest(th)
         assert sorted(manifest) == sorted(map(str, files))
         for entry in manifest.values():
-            assert entry["status"] == "rendered", entry
+            assert entry["status"] in ("rendered", "cached"), entry
             assert entry["by"]["node"], entry  # rendered in a Ray task, not in the driver
             [name] = entry["files"]
             with Image.open(th / name) as im:
