@@ -82,7 +82,7 @@ def ldr_flip(ours: np.ndarray, ref: np.ndarray) -> tuple[float, np.ndarray]:
 def _ours_cold(wrapper, out: Path, cache: Path, size: int, root: Path, timeout: float) -> dict:
     cmd = [sys.executable, "-m", "bench.usd_cold", str(wrapper.path), "--camera", CAMERA, "--out", str(out),
            "--cache", str(cache), "--tonemap", "none", "--background", "transparent", "--size", str(size),
-           "--shadow", "0", "--root", str(root)]
+           "--shadow", "0", "--sandbox", str(root)]
     if wrapper.black_env:
         cmd += ["--env", str(wrapper.black_env)]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}

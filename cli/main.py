@@ -40,11 +40,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 def cli_message(exc) -> str:
     """The error as a command line says it: a reference refused for leaving the root names the
-    flag that widens it (the service says the same of the upload in its own words)."""
+    flag that set it (the service says the same of the upload in its own words)."""
     from core.errors import UnsafeReference
     text = str(exc)
     if isinstance(exc, UnsafeReference) and ("outside the root" in text or "leaves the root" in text):
-        text += " (widen it with --root DIR)"
+        text += " (the folder of --sandbox DIR: widen it, or leave it out for a trusted file)"
     return text
 
 

@@ -203,13 +203,13 @@ class Thumbnails:
             return {"key": old["key"], "thumbnail": old["thumbnail"]}
         return None
 
-    def name_for(self, path: str, root: str | None) -> str:
-        rel = os.path.relpath(path, root) if root else os.path.basename(path)
+    def name_for(self, path: str, folder: str | None) -> str:
+        rel = os.path.relpath(path, folder) if folder else os.path.basename(path)
         if rel.startswith(".."):
             rel = os.path.basename(path)
         return Path(rel).as_posix() + "." + self.renderer.fmt
 
-    def add(self, result: dict, root: str | None) -> dict:
+    def add(self, result: dict, folder: str | None) -> dict:
         """The manifest entry for one result (status `rendered`, `cached`, `kept`, or `failed`
         with the reason), its file in DIR. A result without a `render` record (a failed bake,
         or a bake that ran without the renderer) is rendered here."""
@@ -230,7 +230,7 @@ class Thumbnails:
         if record["status"] == "failed":
             entry.update(status="failed", error=record["error"], files=[], warnings=[])
         else:
-            name = self.name_for(path, root)
+            name = self.name_for(path, folder)
             try:
                 self._place(record["key"], name)
                 entry.update(status=record["status"], files=[name], warnings=record.get("warnings", []))
