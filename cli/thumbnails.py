@@ -183,6 +183,7 @@ class Thumbnails:
                                                "renderer": str(RENDERER_VERSION)}, default=str))
         self.signature = hashlib.sha256(json.dumps(self.settings, sort_keys=True).encode()).hexdigest()[:16]
         self._written = 0.0
+        self._owners = {f: p for p, e in self.entries.items() for f in e.get("files", [])}
         self._sweep()
 
     def _sweep(self) -> None:
@@ -204,10 +205,18 @@ class Thumbnails:
         return None
 
     def name_for(self, path: str, folder: str | None) -> str:
+        """DIR-relative name: the path under its folder argument, else the file's name; when
+        another asset already has that name (two file arguments `a/x.glb b/x.glb`), the
+        name gets a digest of the asset's path, so no thumbnail overwrites another's."""
         rel = os.path.relpath(path, folder) if folder else os.path.basename(path)
         if rel.startswith(".."):
             rel = os.path.basename(path)
-        return Path(rel).as_posix() + "." + self.renderer.fmt
+        name = Path(rel).as_posix() + "." + self.renderer.fmt
+        if self._owners.setdefault(name, path) != path:
+            digest = hashlib.sha256(os.path.abspath(path).encode()).hexdigest()[:8]
+            name = Path(rel).as_posix() + f".{digest}." + self.renderer.fmt
+            self._owners[name] = path
+        return name
 
     def add(self, result: dict, folder: str | None) -> dict:
         """The manifest entry for one result (status `rendered`, `cached`, `kept`, or `failed`

@@ -89,6 +89,28 @@ def test_library_thumbnails_manifest_and_resume(assets, tmp_path, capsys, monkey
     assert len(list((tmp_path / "cache" / "thumbnails").iterdir())) == 7
 
 
+def test_same_file_names_do_not_overwrite(assets, tmp_path, capsys):
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    shutil.copyfile(assets / "gltf" / "Duck.glb", tmp_path / "a" / "x.glb")
+    shutil.copyfile(assets / "gltf" / "BoxTextured.glb", tmp_path / "b" / "x.glb")
+    args = [str(tmp_path / "a" / "x.glb"), str(tmp_path / "b" / "x.glb")]
+    code = bake_cmd.main([*args, "--cache", str(tmp_path / "cache"), "--thumbnails", str(tmp_path / "th"),
+                          "--json", "--size", "32"])
+    assert code == 0, capsys.readouterr().err
+    manifest = json.loads((tmp_path / "th" / "manifest.json").read_text())["assets"]
+    names = [manifest[p]["files"][0] for p in args]
+    assert names[0] == "x.glb.png" and names[1] != names[0] and names[1].startswith("x.glb.")
+    first, second = (np.asarray(Image.open(tmp_path / "th" / n)) for n in names)
+    assert first.shape == second.shape and not np.array_equal(first, second)  # the duck and the box
+    capsys.readouterr()
+    # a re-run keeps both names (and both files)
+    code = bake_cmd.main([*args, "--cache", str(tmp_path / "cache"), "--thumbnails", str(tmp_path / "th"),
+                          "--json", "--size", "32"])
+    rows = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert [r["thumbnail"]["status"] for r in rows] == ["kept", "kept"]
+
+
 def test_turntable_thumbnails_and_bad_options(assets, tmp_path, capsys):
     lib = tmp_path / "LIB"
     lib.mkdir()
