@@ -35,7 +35,6 @@ from core.scene import Mesh, Scene
 from pipeline import deadline
 from pipeline import mesh as plain_mesh
 from pipeline.framing import mark_backdrops
-from pipeline.gltf import reader as gltf
 from pipeline.limits import Limits
 from pipeline.normals import compute_tangents, smooth_normals
 
@@ -49,6 +48,7 @@ READERS = {".gltf": "gltf", ".glb": "gltf",
 def _reader(kind: str):
     """The format's reader module."""
     if kind == "gltf":
+        from pipeline.gltf import reader as gltf  # as usd below: each format's reader when it reads
         return gltf
     if kind == "usd":
         from pipeline.usd import stage as usd  # usd-core is heavy: imported by USD reads only

@@ -196,7 +196,7 @@ class Rig:
                     lo, hi = np.minimum(lo, a), np.maximum(hi, b)
         bounds = np.stack([lo, hi]) if np.all(np.isfinite(lo)) else np.zeros((2, 3))
         lights, cameras = self._lights(placed) if self.has_lights else ([], [])
-        hull = hull_points(meshes)
+        hull = hull_points(meshes, qhull=True)
         return dataclasses.replace(
             self.template, key=key, meshes=meshes, bounds=bounds, lights=lights, cameras=cameras,
             hull=np.zeros((0, 3)) if hull is None else hull, gpu_key=self.template.key,

@@ -23,7 +23,6 @@ import math
 from dataclasses import dataclass, field
 from functools import lru_cache
 
-import MaterialX as mx
 import numpy as np
 from pxr import Sdf, UsdShade
 
@@ -40,6 +39,7 @@ SRGB = ("srgb_texture", "srgb_displayp3", "gamma22", "gamma24")
 @lru_cache(maxsize=1)
 def library():
     """MaterialX's standard node definitions (defaults and categories), loaded once: slow to load."""
+    import MaterialX as mx  # here and below: only stages with MaterialX pay its import
     lib = mx.createDocument()
     mx.loadLibraries(mx.getDefaultDataLibraryFolders(), mx.getDefaultDataSearchPath(), lib)
     return lib
@@ -650,6 +650,7 @@ def find_references(stage, target, graph) -> list[tuple[str, str]]:
 
 def read_document(data: bytes, where: str):
     """A parsed .mtlx document; XIncludes are not followed (they would read files unchecked)."""
+    import MaterialX as mx
     doc = mx.createDocument()
     options = mx.XmlReadOptions()
     options.readXIncludeFunction = None
@@ -665,6 +666,7 @@ def document_surface(doc, material: str):
     node = doc.getNode(material)
     if node is None or node.getType() != "material":
         return None
+    import MaterialX as mx
     shaders = [s for s in mx.getShaderNodes(node) if s.getType() == "surfaceshader"]
     return shaders[0] if shaders else None
 
