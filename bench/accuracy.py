@@ -138,13 +138,14 @@ def methods_for(spec, extended: bool = True) -> list[str]:
 
 def options_for(method: str, base, budget_ms: float = BUDGET_MS):
     """(RenderOptions, prefilter) for a method name of the chart (also bench.stability's)."""
-    if method.startswith("raytrace-"):  # raytrace-N[/split=S][/lobes=L][/ss=K][/int=I][/spp=S]
+    # raytrace-N[/split=S][/lobes=L][/ss=K][/int=I or /integrator=I][/spp=S]
+    if method.startswith("raytrace-"):
         depth, *mods = method.split("/")
         kw = dict(m.split("=") for m in mods)
         return replace(base, method="raytrace", bounces=int(depth.split("-")[1]),
                        fresnel_split=kw.get("split", "both"),
                        rough_lobes=kw.get("lobes", "sample"),
-                       integrator=kw.get("int", "tree"),
+                       integrator=kw.get("integrator", kw.get("int", "tree")),
                        samples=int(kw.get("spp", base.samples)),
                        supersample=int(kw["ss"]) if "ss" in kw else None), "ggx"
     # "raytrace" alone: RenderOptions' defaults, whatever they are (the point issue 26 places)

@@ -18,6 +18,14 @@ overhead per task, d = the driver's cost per task, b = cache bytes per asset. As
 W = cores per machine, e = parallel efficiency on dedicated cores (the 2-worker efficiency
 measured here is printed but not used: this machine's 2 cores are shared with other work),
 B = filesystem bandwidth. A = 100k assets with this corpus's mix of sizes.
+
+--cluster: the library job (`asset-bake --thumbnails --size 64 --executor ray`, every asset baked
+and rendered in one Ray task) over 300+ assets (the corpus above) on a fresh loopback cluster
+(bench/cluster.py) with 1 and with 2 worker nodes of 1 CPU each (--repeat rounds, rotating), then
+with 2 of which one is SIGKILLed once a quarter is done: exit status, assets per minute, every
+asset exactly once in the result lines and the manifest, every cache entry whole, no temporary
+file in DIR. Then the local job in one process (cold, and again with the bakes cached) against
+f3d rendering the same files in one process (its Python module, EGL), 64 px PNGs each.
 """
 from __future__ import annotations
 
@@ -36,13 +44,15 @@ from pathlib import Path
 from bench.ingest import DEFAULT_ASSETS, sample_files
 
 CATALOGUE = 100_000
+CLUSTER_MIN_ASSETS = 300
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--assets", type=Path, default=DEFAULT_ASSETS,
                         help="sample asset folder (default: %(default)s)")
-    parser.add_argument("--copies", type=int, default=18,
-                        help="perturbed copies of each sample (default 18: ~200 assets)")
+    parser.add_argument("--copies", type=int, default=None,
+                        help="perturbed copies of each sample (default 18: ~200 assets; with --cluster, "
+                             f"enough for {CLUSTER_MIN_ASSETS})")
     parser.add_argument("--repeat", type=int, default=3,
                         help="cold bakes per executor, in rotating order (the CPU is shared); medians")
     parser.add_argument("--cores", type=int, default=16, help="cores per machine in the projection")
@@ -52,7 +62,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="shared filesystem write bandwidth in the projection, MB/s")
     parser.add_argument("--cluster", action="store_true",
                         help="instead: the library job (--thumbnails) on a local loopback Ray cluster "
-                             "with 1 and 2 worker nodes, and with 2 that lose one mid-run")
+                             "with 1 and 2 worker nodes, and with 2 that lose one mid-run; then the "
+                             "local job against f3d in one process")
     parser.add_argument("--keep", type=Path, default=None, help="build corpus and caches here and keep them")
 
 
@@ -119,7 +130,7 @@ def bake_run(files: list[Path], cache: Path, *extra: str) -> dict:
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=3600)
     wall = time.perf_counter() - start
     rows = [json.loads(line) for line in proc.stdout.splitlines() if line.strip()]
-    m = re.search(r"(\d+) baked, (\d+) cached, (\d+) failed in ([\d.]+) s", proc.stderr)
+    m = re.search(r"(\d+) baked, (\d+) cached, \d+ skipped, (\d+) failed in ([\d.]+) s", proc.stderr)
     if not m or len(rows) != len(files):
         raise RuntimeError(f"asset-bake {' '.join(extra)} failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
     size = sum(f.stat().st_size for f in (cache / "assets").rglob("*") if f.is_file())
@@ -183,7 +194,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace, work: Path) -> int:
     work.mkdir(parents=True, exist_ok=True)
-    files = build_corpus(args.assets, work / "corpus", args.copies)
+    files = build_corpus(args.assets, work / "corpus", 18 if args.copies is None else args.copies)
     cores = os.cpu_count() or 1
     print(f"corpus: {len(files)} assets ({len(sample_files(args.assets))} samples + perturbed copies), "
           f"{cores} cores; cold bakes, fresh cache each")
@@ -241,11 +252,48 @@ def _run(args: argparse.Namespace, work: Path) -> int:
 
 # -- the library job on a cluster that loses a node ----------------------------------------------
 
+PEER_SUFFIXES = (".glb", ".gltf", ".ply", ".stl", ".obj")  # what f3d 4.0's wheel reads (no USD plugin)
+
+
+def _summary_seconds(err: str) -> float | None:
+    """The job's own time (after Ray connected) from asset-bake's summary line."""
+    m = re.search(r"failed(?:; thumbnails: [^\n]*?)? in ([\d.]+) s", err)
+    return float(m.group(1)) if m else None
+
+
+def _check_job(files: list[Path], cache: Path, th: Path, out: str) -> dict:
+    """What a finished library job left: result lines, manifest, cache entries, DIR."""
+    from pipeline.cache import MANIFEST, Cache
+
+    rows, stray = [], []
+    for line in filter(str.strip, out.splitlines()):
+        try:
+            rows.append(json.loads(line))
+        except ValueError:
+            stray.append(line)  # stdout is for result lines only: counted as a failure
+    paths = [r["path"] for r in rows]
+    manifest = json.loads((th / "manifest.json").read_text())["assets"]
+    store = Cache(cache)
+    entries = [e for kind in ("assets", "thumbnails") for e in (cache / kind).iterdir()]
+    whole = all(store.load(e.parent.name, e.name) is not None
+                and {f.name for f in e.iterdir()} == {MANIFEST, *json.loads((e / MANIFEST).read_bytes())["files"]}
+                for e in entries)
+    placed = all(all((th / f).is_file() for f in e["files"]) for e in manifest.values())
+    renderers = {(e.get("by") or {}).get("node") or (e.get("by") or {}).get("pid") for e in manifest.values()
+                 if e["status"] == "rendered"}
+    return {"once": sorted(paths) == sorted(map(str, files)) and sorted(manifest) == sorted(paths),
+            "rendered": sum(e["status"] == "rendered" for e in manifest.values()),
+            # a render a lost node stored in the cache before it died: its retry finds it there
+            "cached": sum(e["status"] == "cached" for e in manifest.values()),
+            "whole": whole and placed and not list(th.rglob("*.tmp*")),
+            "entries": len(list((cache / "assets").iterdir())), "thumbs": len(list((cache / "thumbnails").iterdir())),
+            "renderers": len(renderers), "stray": stray}
+
+
 def _cluster_job(files: list[Path], work: Path, label: str, workers: int, kill: bool) -> dict:
     """One cold `asset-bake --thumbnails --executor ray` on a fresh loopback cluster; with
     `kill`, worker node 0's raylet is SIGKILLed once a quarter of the library is done."""
     from bench.cluster import LocalCluster
-    from pipeline.cache import MANIFEST, Cache
 
     cache, th = work / f"cache-{label}", work / f"th-{label}"
     cmd = [sys.executable, "-m", "cli.bake", "--cache", str(cache), "--thumbnails", str(th), "--size", "64",
@@ -268,42 +316,126 @@ def _cluster_job(files: list[Path], work: Path, label: str, workers: int, kill: 
                 time.sleep(0.05)
         out, err = proc.communicate(timeout=3600)
         wall = time.perf_counter() - start
-    rows, stray = [], []
-    for line in filter(str.strip, out.splitlines()):
-        try:
-            rows.append(json.loads(line))
-        except ValueError:
-            stray.append(line)  # stdout is for result lines only: counted as a failure
-    paths = [r["path"] for r in rows]
-    manifest = json.loads((th / "manifest.json").read_text())["assets"]
-    store = Cache(cache)
-    whole = all(store.load("assets", e.name) is not None
-                and {f.name for f in e.iterdir()} == {MANIFEST, *json.loads((e / MANIFEST).read_bytes())["files"]}
-                for e in (cache / "assets").iterdir())
-    return {"label": label, "code": proc.returncode, "wall": wall, "killed_at": killed_at,
-            "once": sorted(paths) == sorted(map(str, files)) and sorted(manifest) == sorted(paths),
-            "rendered": sum(e["status"] == "rendered" for e in manifest.values()), "whole": whole,
-            "entries": len(list((cache / "assets").iterdir())), "err": err[-1500:], "stray": stray}
+    return {"label": label, "code": proc.returncode, "wall": wall, "job": _summary_seconds(err),
+            "killed_at": killed_at, "err": err[-1500:], **_check_job(files, cache, th, out)}
+
+
+def _local_job(files: list[Path], cache: Path, th: Path, label: str, *extra: str) -> dict:
+    """One local `asset-bake --thumbnails` in a fresh process."""
+    cmd = [sys.executable, "-m", "cli.bake", "--cache", str(cache), "--thumbnails", str(th), "--size", "64",
+           "--json", *extra, *map(str, files)]
+    start = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=3600)
+    wall = time.perf_counter() - start
+    return {"label": label, "code": proc.returncode, "wall": wall, "job": _summary_seconds(proc.stderr),
+            "err": proc.stderr[-1500:], **_check_job(files, cache, th, proc.stdout)}
+
+
+F3D_LIBRARY = """
+import json, sys, time
+start = time.perf_counter()
+import f3d
+job = json.load(sys.stdin)
+f3d.Engine.autoload_plugins()
+engine = f3d.Engine.create_egl()
+engine.options["ui.loader_progress"] = False
+engine.window.size = (job["size"], job["size"])
+rows = []
+for i, path in enumerate(job["files"]):
+    t = time.perf_counter()
+    try:
+        engine.scene.clear()
+        engine.scene.add(path)
+        engine.window.camera.reset_to_bounds()
+        engine.window.render_to_image().save(f"{job['out']}/{i:05d}.png")
+        rows.append({"path": path, "ok": True, "seconds": time.perf_counter() - t})
+    except Exception as exc:
+        rows.append({"path": path, "ok": False, "error": str(exc)[:300], "seconds": time.perf_counter() - t})
+with open(job["out"] + "/f3d.json", "w") as f:
+    json.dump({"rows": rows, "in_process": time.perf_counter() - start}, f)
+"""
+
+
+def _f3d_library(files: list[Path], work: Path, size: int = 64) -> dict:
+    """f3d rendering the library in ONE process (its Python module, EGL, its default look:
+    no environment lighting), each file loaded, framed and written as a PNG."""
+    out = work / "th-f3d"
+    out.mkdir(parents=True, exist_ok=True)
+    start = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-c", F3D_LIBRARY], capture_output=True, text=True, timeout=3600,
+                          input=json.dumps({"files": list(map(str, files)), "size": size, "out": str(out)}))
+    wall = time.perf_counter() - start
+    if proc.returncode or not (out / "f3d.json").is_file():
+        return {"label": "f3d, 1 process", "code": proc.returncode or 1, "wall": wall, "err": proc.stderr[-1500:],
+                "rendered": 0, "failed": len(files)}
+    rows = json.loads((out / "f3d.json").read_text())["rows"]
+    return {"label": "f3d, 1 process", "code": 0, "wall": wall, "rendered": sum(r["ok"] for r in rows),
+            "failed": sum(not r["ok"] for r in rows), "errors": [r for r in rows if not r["ok"]][:3]}
 
 
 def _run_cluster(args: argparse.Namespace, work: Path) -> int:
     work.mkdir(parents=True, exist_ok=True)
-    files = build_corpus(args.assets, work / "corpus", args.copies)
+    samples = len(sample_files(args.assets))
+    copies = args.copies if args.copies is not None else -(-CLUSTER_MIN_ASSETS // samples) - 1
+    files = build_corpus(args.assets, work / "corpus", copies)
+    cores = os.cpu_count() or 1
     print(f"library job on a loopback Ray cluster (head: 0 CPUs; worker nodes: 1 CPU each; token auth): "
-          f"{len(files)} assets, --size 64 PNG thumbnails rendered in the driver, {os.cpu_count()} cores")
-    runs = [_cluster_job(files, work, "1 worker node", 1, False),
-            _cluster_job(files, work, "2 worker nodes", 2, False),
-            _cluster_job(files, work, "2, one killed", 2, True)]
-    print(f"{'cluster':16} {'exit':>4} {'wall s':>7} {'assets/min':>10} {'killed at':>9} {'exactly once':>12} "
-          f"{'rendered':>8} {'entries':>7} {'cache whole':>11}")
+          f"{len(files)} assets ({samples} samples + perturbed copies), --size 64 PNG thumbnails, each "
+          f"rendered in the Ray task that baked it; {cores} cores on this machine, load before: "
+          f"{os.getloadavg()[0]:.1f}")
+    # 1 and 2 worker nodes --repeat times in rotating order (the cores are shared with other
+    # work), then the lost node once; every run on a fresh cluster and an empty cache
+    configs = [("1 worker node", 1), ("2 worker nodes", 2)]
+    runs = []
+    for round_ in range(args.repeat):
+        for label, n in configs[round_ % 2:] + configs[:round_ % 2]:
+            runs.append(_cluster_job(files, work / f"r{round_}", label, n, False))
+            runs[-1]["load"] = os.getloadavg()[0]
+    runs.append(_cluster_job(files, work / "kill", "2, one killed", 2, True))
+    runs[-1]["load"] = os.getloadavg()[0]
+    print(f"{'cluster':16} {'exit':>4} {'wall s':>7} {'job s':>6} {'assets/min':>10} {'killed at':>9} "
+          f"{'exactly once':>12} {'rendered':>8} {'cached':>6} {'by':>3} {'entries':>7} {'thumbs':>6} "
+          f"{'cache whole':>11} {'load':>5}")
     for r in runs:
-        print(f"{r['label']:16} {r['code']:4d} {r['wall']:7.1f} {60 * len(files) / r['wall']:10.1f} "
+        rate = 60 * len(files) / r["job"] if r["job"] else float("nan")
+        print(f"{r['label']:16} {r['code']:4d} {r['wall']:7.1f} {r['job'] or 0:6.1f} {rate:10.1f} "
               f"{r['killed_at'] if r['killed_at'] is not None else '-':>9} {str(r['once']):>12} "
-              f"{r['rendered']:8d} {r['entries']:7d} {str(r['whole']):>11}")
+              f"{r['rendered']:8d} {r['cached']:6d} {r['renderers']:3d} {r['entries']:7d} {r['thumbs']:6d} "
+              f"{str(r['whole']):>11} {r['load']:5.1f}")
         if r["code"]:
             print(r["err"], file=sys.stderr)
         for line in r["stray"]:
             print(f"  not a result line on stdout: {line[:300]!r}")
-    ok = all(r["code"] == 0 and r["once"] and r["whole"] and r["rendered"] == len(files)
+    for label, _ in configs:
+        jobs = [r["job"] for r in runs if r["label"] == label and r["job"]]
+        if jobs:
+            print(f"median of {len(jobs)}, {label}: {60 * len(files) / statistics.median(jobs):.1f} assets/min")
+    print("job s: asset-bake's own time after Ray connected (assets/min from it); wall: from the driver's "
+          "start, cluster up; cached: rendered by the lost node, stored before it died, found by the "
+          "retry; by: distinct Ray nodes that rendered; load: 1-min load average after the run")
+    ok = all(r["code"] == 0 and r["once"] and r["whole"] and r["rendered"] + r["cached"] == len(files)
              and not r["stray"] for r in runs)
+
+    # The peer: f3d in one process over the files it reads, against our local job on the same files.
+    peer = [f for f in files if f.suffix.lower() in PEER_SUFFIXES]
+    cache, th = work / "cache-ours", work / "th-ours"
+    ours = _local_job(peer, cache, th, "ours, cold")
+    shutil.rmtree(cache / "thumbnails")  # the bakes stay: the same job again renders only
+    shutil.rmtree(th)
+    warm = _local_job(peer, cache, th, "ours, bakes cached")
+    theirs = _f3d_library(peer, work)
+    print(f"\nlocal library job against f3d, one process each, {len(peer)} assets (the corpus less USD, "
+          f"which f3d 4.0's wheel does not read), 64 px PNGs, cold (ours bakes too: an empty cache)")
+    print(f"{'tool':18} {'exit':>4} {'wall s':>7} {'assets/min':>10} {'rendered':>8} {'failed':>6}")
+    for r in (ours, warm, theirs):
+        failed = r.get("failed", len(peer) - r["rendered"])
+        print(f"{r['label']:18} {r['code']:4d} {r['wall']:7.1f} {60 * r['rendered'] / r['wall']:10.1f} "
+              f"{r['rendered']:8d} {failed:6d}")
+        if r["code"]:
+            print(r["err"], file=sys.stderr)
+    for e in theirs.get("errors", []):
+        print(f"  f3d failed: {e['path']}: {e['error']}")
+    print("wall: the process from its start (imports, GL context, every file) to its exit; ours: "
+          "bake + render + manifest; f3d: load + render + PNG, its default look (no environment lighting)")
+    ok = ok and all(r["code"] == 0 and r["once"] and r["rendered"] == len(peer) for r in (ours, warm))
     return 0 if ok else 1

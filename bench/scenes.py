@@ -141,6 +141,8 @@ SCENES.update({s.name: s for s in [
     SceneSpec("mirror_sphere_pisa", "sphere", metal((1.0, 1.0, 1.0), 0.0, "mirror"), env="pisa"),
     SceneSpec("case_thin_slab", "slab", glass(1.5), yaw=20.0, pitch=15.0),
     SceneSpec("case_grazing", "slab", glass(1.5), yaw=80.0, pitch=5.0),
+    # total internal reflection twice inside a Porro prism, seen a little from above
+    SceneSpec("case_tir_prism", "prism", glass(1.5), yaw=0.0, pitch=10.0),
     SceneSpec("case_open_mesh", "open_sphere", glass(1.5), pitch=40.0),
     SceneSpec("case_concave_bowl", "bowl", glass(1.5), pitch=35.0),
     SceneSpec("case_tiny", "sphere", glass(1.5), distance=60.0),

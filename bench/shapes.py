@@ -63,6 +63,23 @@ def slab():
     return _out(pos, nrm, idx)
 
 
+def prism():
+    """A right-angle glass prism (faceted): its hypotenuse face looks along +z and the two
+    legs meet behind it at 90 degrees, 2 long along y; normalised to radius 1. A ray through
+    the hypotenuse meets each leg at 45 degrees, beyond the critical angle of any IOR above
+    1.414: total internal reflection twice, and out the way it came (a Porro prism)."""
+    import trimesh
+
+    xz = [(-1.0, 0.5), (1.0, 0.5), (0.0, -0.5)]  # hypotenuse at z = 0.5, right angle at z = -0.5
+    v = np.array([(x, y, z) for y in (-1.0, 1.0) for x, z in xz])
+    faces = [(0, 1, 2), (3, 5, 4), (0, 3, 4), (0, 4, 1), (1, 4, 5), (1, 5, 2), (2, 5, 3), (2, 3, 0)]
+    m = trimesh.Trimesh(v, faces, process=False)
+    m.fix_normals()  # outward winding
+    pos, nrm, idx = _faceted(m)
+    pos, _, _ = _normalise(pos)
+    return _out(pos, nrm, idx)
+
+
 def bowl(sections: int = 96, steps: int = 24):
     """A closed hemispherical bowl (outer radius 1, wall BOWL_WALL, opening up): concave inside."""
     import trimesh
@@ -181,8 +198,9 @@ def real_asset(kind: str):
 
 
 BUILDERS = {
-    "cube": cube, "slab": slab, "bowl": bowl, "open_sphere": open_sphere,
-    "degenerate_sphere": degenerate_sphere, "uvsphere": lambda: uv_sphere()[:3], "vase": vase, "flipped_sphere": flipped_sphere,
+    "cube": cube, "slab": slab, "prism": prism, "bowl": bowl, "open_sphere": open_sphere,
+    "degenerate_sphere": degenerate_sphere, "flipped_sphere": flipped_sphere,
+    "uvsphere": lambda: uv_sphere()[:3], "vase": vase,
     "duck": lambda: real_asset("duck"), "teapot": lambda: real_asset("teapot"),
 }
 

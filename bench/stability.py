@@ -5,7 +5,11 @@ method at 64 px and compared with its committed Mitsuba reference. Per case x me
 finite output (no NaN/Inf), the fraction of the object's pixels where Wyman's exit refraction
 met total internal reflection and fell back (the `tir` debug view against the normal frame;
 `single` refracts only on entry and the ray tracer follows TIR, so theirs is empty), the error
-(bench.metrics: object HDR-FLIP and relative MSE) and a verdict from the thresholds below.
+(bench.metrics: object HDR-FLIP and relative MSE), the peak (the object's brightest pixel,
+max-RGB, over the environment's brightest texel: a clear lossless glass cannot exceed 1 in
+expectation; a path tracer's mean of few paths may by Russian roulette's boost, at most
+PEAK_CLAMP) and a verdict from the thresholds below. Both integrators of the ray tracer run:
+the Fresnel tree (raytrace-8) and the path tracer (raytrace-8/integrator=path).
 Writes stability.csv and stability.png (a contact sheet: reference, then one column per
 method; one row per case).
 
@@ -42,10 +46,14 @@ CASES = {
     "huge_1e4": ("case_huge", "case_huge"),
     "camera_inside": ("case_camera_inside", "case_camera_inside"),
     "grazing": ("case_grazing", "case_grazing"),
+    "tir_prism": ("case_tir_prism", "case_tir_prism"),
     "degenerate_triangles": ("case_degenerate_triangles", "glass_sphere_ior1.5"),
     "flipped_normals": ("case_flipped_normals", "glass_sphere_ior1.5"),
 }
-METHODS = ("single", "wyman/tir=paper", "wyman/tir=reflect", "raytrace-8", "auto", "auto+budget")
+METHODS = ("single", "wyman/tir=paper", "wyman/tir=reflect", "raytrace-8", "raytrace-8/integrator=path",
+           "auto", "auto+budget")
+TRACERS = ("raytrace-8", "raytrace-8/integrator=path")
+PEAK_CLAMP = 1.25      # the stated clamp of `peak` for the ray tracer (fireflies above it fail)
 BUDGET_MS = MAX_BUDGET_MS  # auto+budget: ray tracing allowed wherever auto judges the raster methods fail
 SIZE = 64
 FACE = 256
@@ -56,16 +64,19 @@ FINE_FLIP = 0.25       # fine: at most this
 FAILED_FLIP = 0.45     # failed: above this (between: degraded)
 DEGRADED_TIR = 0.20    # degraded (at best) when more of the object fell back on TIR than this
 COLUMNS = ["case", "scene", "method", "finite", "nonfinite_px", "tir_fallback", "flip",
-           "rel_mse", "verdict", "reason"]
+           "rel_mse", "peak", "verdict", "reason"]
 
 
 def verdict(finite: bool, flip: float, tir_fallback: float | None,
-            error: str | None = None) -> tuple[str, str]:
-    """(fine | degraded | failed, why) from the thresholds above, nothing else."""
+            error: str | None = None, peak: float | None = None) -> tuple[str, str]:
+    """(fine | degraded | failed, why) from the thresholds above, nothing else (`peak`: the
+    ray tracer's, held to PEAK_CLAMP)."""
     if error:
         return "failed", error
     if not finite:
         return "failed", "NaN/Inf pixels"
+    if peak is not None and not peak <= PEAK_CLAMP:
+        return "failed", f"peak {peak:.2f} > {PEAK_CLAMP} (a firefly)"
     if not math.isfinite(flip) or flip > FAILED_FLIP:
         return "failed", f"FLIP {flip:.3f} > {FAILED_FLIP}"
     if flip > FINE_FLIP:
@@ -121,9 +132,10 @@ def run_case(case: str, cache: Path, quick: bool = False) -> tuple[list[dict], d
         asset = scenes.baked_asset(spec, cache)
     except AssetError as exc:  # a rejected input is an answer, not a crash
         return [{"case": case, "scene": scene_name, "method": m, "finite": True,
-                 "nonfinite_px": 0, "tir_fallback": "", "flip": math.nan, "rel_mse": math.nan,
+                 "nonfinite_px": 0, "tir_fallback": "", "flip": math.nan, "rel_mse": math.nan, "peak": math.nan,
                  "verdict": "failed", "reason": f"bake rejected: {exc}"} for m in METHODS], images
     env = bake_environment(spec.env, cache, face_size=FACE)
+    env_peak = float(np.asarray(env.specular[0])[..., :3].max())
     base = RenderOptions(background="env", width=SIZE, height=SIZE, yaw=spec.yaw, pitch=spec.pitch, fov=spec.fov,
                          distance=spec.camera_distance(SIZE, SIZE))
     for method in METHODS:
@@ -135,13 +147,16 @@ def run_case(case: str, cache: Path, quick: bool = False) -> tuple[list[dict], d
         tir = _tir_fraction(asset, env, opts, frame, mask)
         err = {k: round(v, 4) for k, v in errors(frame.linear, ref).items()}
         tir = None if tir is None else round(tir, 4)
-        v, why = verdict(not bad.any(), err["flip"], tir)  # on the figures the CSV holds
+        obj = np.nan_to_num(frame.linear[..., :3], nan=0.0, posinf=0.0)[mask]
+        peak = round(float(obj.max(initial=0.0)) / max(env_peak, 1e-12), 4)
+        # on the figures the CSV holds; the peak clamp is the ray tracer's promise
+        v, why = verdict(not bad.any(), err["flip"], tir, peak=peak if method in TRACERS else None)
         if method.startswith("auto"):
             why += " | " + "; ".join(o["method"] for o in frame.plan.get("auto", {}).get("objects", []))
         rows.append({"case": case, "scene": scene_name, "method": method,
                      "finite": not bad.any(), "nonfinite_px": int(bad.sum()),
                      "tir_fallback": "" if tir is None else tir,
-                     "flip": err["flip"], "rel_mse": err["rel_mse"],
+                     "flip": err["flip"], "rel_mse": err["rel_mse"], "peak": peak,
                      "verdict": v, "reason": why, "time_ms": round(ms, 1)})
         images[method] = frame.linear
         print(f"{case:22s} {method:18s} {v:9s} {why}", flush=True)

@@ -7,8 +7,9 @@ stderr. Exit status 0 when everything baked, 3 when anything failed (the rest is
 --executor ray runs the same jobs as Ray tasks on a cluster (pipeline/executors.py).
 Local files read their neighbours freely (a library's shared parts anywhere); --sandbox DIR
 confines every asset to DIR (cli/sandbox.py).
---thumbnails DIR then renders every baked asset with the render options into DIR, in this
-process through one GL context, resumable, with DIR/manifest.json (cli/thumbnails.py).
+--thumbnails DIR also renders every baked asset with the render options, where it was baked
+(this process, a pool process or a Ray task: one GL context each, kept across assets),
+through the cache into DIR, resumable, with DIR/manifest.json (cli/thumbnails.py).
 """
 from __future__ import annotations
 
@@ -133,15 +134,18 @@ def run(args: argparse.Namespace) -> int:
     for result in failures:
         report.add(result)
     start = time.perf_counter()
+    # With thumbnails, each job renders its asset right after baking it, in the same process.
+    then = thumbs.renderer if thumbs is not None else None
+    hint = thumbs.known if thumbs is not None else None
     try:
         if args.executor == "ray":
             from pipeline.executors import run_ray
-            run_ray(jobs, common, report)
+            run_ray(jobs, common, report, then=then, hint=hint)
         elif args.workers == 1 or len(jobs) <= 1:
-            for kind, source in jobs:
+            for kind, source in jobs:  # thumbnails: Report.add renders them in this process
                 report.add(bake_one(kind, source, **common))
         else:
-            _run_pool(jobs, common, args.workers, report)
+            _run_pool(jobs, common, args.workers, report, then, hint)
     except KeyboardInterrupt:
         report.close()
         print("interrupted", file=sys.stderr)
@@ -151,6 +155,7 @@ def run(args: argparse.Namespace) -> int:
     thumbed = ""
     if thumbs is not None:
         thumbed = (f"; thumbnails: {report.thumb_counts['rendered']} rendered, "
+                   f"{report.thumb_counts['cached']} from the cache, "
                    f"{report.thumb_counts['kept']} kept, {report.thumb_counts['failed']} failed")
     print(f"{counts['baked']} baked, {counts['cached']} cached, {counts['skipped']} skipped, "
           f"{counts['failed']} failed{thumbed} "
@@ -211,14 +216,17 @@ def _collect(paths: list[str], cache: str | None):
     return jobs, failures, folders
 
 
-def _run_pool(jobs, common: dict, workers: int, report: "_Report") -> None:
+def _run_pool(jobs, common: dict, workers: int, report: "_Report", then=None, hint=None) -> None:
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
     from concurrent.futures.process import BrokenProcessPool
 
+    from pipeline.executors import run_job
+
     ctx = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx) as pool:
-        futures = {pool.submit(bake_one, kind, source, **common): (kind, source) for kind, source in jobs}
+        futures = {pool.submit(run_job, kind, source, common, then, hint(source) if hint else None):
+                   (kind, source) for kind, source in jobs}
         try:
             for future in as_completed(futures):
                 kind, source = futures[future]
@@ -239,15 +247,15 @@ class _Report:
         from tqdm import tqdm
 
         self.as_json, self.thumbs, self.folders = as_json, thumbs, folders or {}
-        self.thumb_counts = {"rendered": 0, "kept": 0, "failed": 0}
+        self.thumb_counts = {"rendered": 0, "cached": 0, "kept": 0, "failed": 0}
         self.out = sys.stdout  # held: the Ray executor moves other writers' stdout to stderr
         self.counts = {"baked": 0, "cached": 0, "skipped": 0, "failed": 0}
         self.bar = tqdm(total=total, file=sys.stderr, unit="file", leave=False,
                         disable=not (sys.stderr.isatty() and total > 1))
 
     def add(self, result: dict) -> None:
-        """One bake result (as it arrives from any executor); with --thumbnails, rendered here
-        in this process, so every thumbnail shares its one GL context."""
+        """One result (as it arrives from any executor); with --thumbnails, its thumbnail
+        (rendered where it was baked; here when it was baked here) put into DIR."""
         self.counts[result["status"]] += 1
         if self.thumbs is not None and result["kind"] == "asset" and result["status"] != "skipped":
             entry = self.thumbs.add(result, self.folders.get(result["path"]))
@@ -272,6 +280,8 @@ class _Report:
 
     def close(self) -> None:
         self.bar.close()
+        if self.thumbs is not None:
+            self.thumbs.flush()
 
 
 if __name__ == "__main__":

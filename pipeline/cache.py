@@ -4,6 +4,7 @@ Layout under the cache root (default `$ASSET_PREVIEW_CACHE`, else `./.cache`):
 
     assets/<key>/        manifest.json + *.npz     one baked asset
     environments/<key>/  manifest.json + *.npz     one baked environment
+    thumbnails/<key>/    manifest.json + an image  one rendered thumbnail (cli/thumbnails.py)
     sources/<id>.json    source index (below)
     tmp/                 entries being built, and entries being deleted
 
@@ -69,7 +70,8 @@ log = logging.getLogger(__name__)
 # edges for edge anti-aliasing (core.adjacency), support and hull points (core.hull)
 BAKE_FORMAT_VERSION = 5
 ZSTD_LEVEL = 9  # texture chains: written once at bake, read by every process (see README figures)
-KINDS = ("assets", "environments")
+KINDS = ("assets", "environments", "thumbnails")
+IMAGE_SUFFIXES = (".png", ".jpg", ".webp", ".gif")  # stored as they are (thumbnails' encoded files)
 MANIFEST = "manifest.json"
 _KEY = re.compile(r"[0-9a-f]{64}")
 _RECORDS_PER_SOURCE = 8
@@ -418,12 +420,16 @@ def _encode(name: str, value) -> bytes:
     elif name.endswith(".zst"):
         raw = b"".join(np.ascontiguousarray(a).tobytes() for a in value)
         return zstandard.ZstdCompressor(level=ZSTD_LEVEL).compress(raw)
+    elif name.endswith(IMAGE_SUFFIXES):
+        return bytes(value)
     else:
-        raise ValueError(f"cache files are .npy, .npz or .zst, not {name!r}")
+        raise ValueError(f"cache files are .npy, .npz, .zst or encoded images, not {name!r}")
     return buf.getvalue()
 
 
 def _decode(name: str, data: bytearray):
+    if name.endswith(IMAGE_SUFFIXES):
+        return data
     if name.endswith(".zst"):
         return data  # still compressed: the reader decompresses what it needs (bake._read_chain)
     if name.endswith(".npz"):

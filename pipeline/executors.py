@@ -21,7 +21,7 @@ import socket
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from pipeline.bake import bake_one
 from pipeline.cache import default_cache_dir
@@ -104,15 +104,24 @@ def disconnect() -> None:
         _connected_here = False
 
 
-def _bake_task(kind: str, source: str, cwd: str, common: dict) -> dict:
-    """One bake job in a Ray worker, in the driver's working directory when this node has it."""
+def run_job(kind: str, source: str, common: dict, then: Callable[[dict, Any], dict] | None = None,
+            hint: Any = None) -> dict:
+    """One job where it runs (this process, a pool process, a Ray task): the bake, then
+    `then(result, hint)` on its result in the same process (asset-bake --thumbnails renders
+    there, next to the bake entry it just wrote); neither raises."""
+    result = bake_one(kind, source, **common)
+    return then(result, hint) if then is not None else result
+
+
+def _bake_task(kind: str, source: str, cwd: str, common: dict, then=None, hint=None) -> dict:
+    """One job in a Ray worker, in the driver's working directory when this node has it."""
     if os.path.isdir(cwd):
         os.chdir(cwd)
     elif not os.path.isabs(source) and kind == "asset":
         return {"kind": kind, "path": source, "status": "failed", "seconds": 0.0,
                 "error": f"{source}: relative path, and the driver's working directory {cwd} "
                          f"is not mounted on Ray node {_node()}"}
-    return bake_one(kind, source, **common)
+    return run_job(kind, source, common, then, hint)
 
 
 def _node() -> str:
@@ -123,10 +132,15 @@ def _node() -> str:
 
 
 def run_ray(jobs: list[tuple[str, str]], common: dict, report, *, address: str | None = None,
-            max_retries: int = MAX_RETRIES) -> None:
+            max_retries: int = MAX_RETRIES, then: Callable[[dict, Any], dict] | None = None,
+            hint: Callable[[str], Any] | None = None) -> None:
     """Bake `jobs` ((kind, source) pairs) as Ray tasks, passing each result to `report.add`
-    as it arrives; `common` holds `bake_one`'s keyword arguments. Connects (see `connect`)
-    unless connected already, and disconnects when done if it connected."""
+    as it arrives; `common` holds `bake_one`'s keyword arguments. With `then` (picklable),
+    each task also runs `then(result, hint(source))` after its bake, on the same node and in
+    the same worker process (see `run_job`); a retried task (its node lost) runs both again
+    elsewhere, and the content-addressed cache makes what the first attempt finished a hit.
+    Connects (see `connect`) unless connected already, and disconnects when done if it
+    connected."""
     ray = require_ray()
     # Ray prints its own notices ("a worker died...", a node lost while disconnecting) to
     # sys.stdout; the report holds the real stdout, so from connecting to disconnecting they go
@@ -147,6 +161,7 @@ def run_ray(jobs: list[tuple[str, str]], common: dict, report, *, address: str |
     remote = ray.remote(_bake_task).options(**options)
     cwd = os.getcwd()
     window = max(8, int(IN_FLIGHT_PER_CPU * ray.cluster_resources().get("CPU", 1)))
+    shared = ray.put(then) if then is not None else None  # sent once, not with every task
     todo = list(reversed(jobs))
     running: dict = {}
     start = time.perf_counter()
@@ -154,7 +169,8 @@ def run_ray(jobs: list[tuple[str, str]], common: dict, report, *, address: str |
         while todo or running:
             while todo and len(running) < window:
                 kind, source = todo.pop()
-                running[remote.remote(kind, source, cwd, common)] = (kind, source, time.perf_counter())
+                extra = (shared, hint(source) if hint else None) if then is not None else ()
+                running[remote.remote(kind, source, cwd, common, *extra)] = (kind, source, time.perf_counter())
             done, _ = ray.wait(list(running), num_returns=1)
             for ref in done:
                 kind, source, t0 = running.pop(ref)

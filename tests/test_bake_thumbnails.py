@@ -3,6 +3,7 @@ manifest, and resuming: a re-run renders only what changed."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
 
 import moderngl
@@ -57,18 +58,57 @@ def test_library_thumbnails_manifest_and_resume(assets, tmp_path, capsys, monkey
     assert {rows[p]["thumbnail"]["status"] for p in good} == {"kept"}
     assert {n: (th / n).stat().st_mtime_ns for n in good.values()} == stamp
 
-    # a changed asset, a deleted thumbnail: only those two are rendered again
+    # a changed asset is rendered again; a deleted thumbnail comes back from the cache, the
+    # same bytes, without a render
+    torus = (th / "mesh" / "torus.STL.png").read_bytes()
     shutil.copyfile(assets / "gltf" / "CesiumMilkTruck.glb", lib / "gltf" / "Duck.glb")
     (th / "mesh" / "torus.STL.png").unlink()
     code, rows = _run(lib, tmp_path, capsys)
     status = {p: rows[p]["thumbnail"]["status"] for p in good}
     assert status == {str(lib / "gltf" / "Duck.glb"): "rendered", str(lib / "gltf" / "BoxTextured.glb"): "kept",
-                      str(lib / "mesh" / "torus.STL"): "rendered"}
-    assert (th / "mesh" / "torus.STL.png").is_file()
+                      str(lib / "mesh" / "torus.STL"): "cached"}
+    assert (th / "mesh" / "torus.STL.png").read_bytes() == torus
+    # each render once in the cache, whole: the Duck's old one and new one, and the others
+    thumbs = sorted((tmp_path / "cache" / "thumbnails").iterdir())
+    assert len(thumbs) == 4
+    for entry in thumbs:
+        listed = json.loads((entry / "manifest.json").read_bytes())["files"]
+        assert {f.name for f in entry.iterdir()} == {"manifest.json", *listed} == {"manifest.json", "thumbnail.png"}
+    assert not list(th.rglob("*.tmp*"))
 
-    # other render options: every thumbnail again
-    code, rows = _run(lib, tmp_path, capsys, "--yaw", "90")
+    # the local pool renders in its worker processes, into the same cache: nothing new to render
+    code, rows = _run(lib, tmp_path, capsys, "--workers", "2", "--force")
+    assert {rows[p]["thumbnail"]["status"] for p in good} == {"kept"}
+
+    # other render options: every thumbnail again, here in two worker processes
+    code, rows = _run(lib, tmp_path, capsys, "--yaw", "90", "--workers", "2")
     assert {rows[p]["thumbnail"]["status"] for p in good} == {"rendered"}
+    manifest = json.loads((th / "manifest.json").read_text())["assets"]
+    assert all(manifest[p]["status"] == "rendered" and (th / manifest[p]["files"][0]).is_file() for p in good)
+    assert os.getpid() not in {manifest[p]["by"]["pid"] for p in good}  # rendered where baked: the pool
+    assert len(list((tmp_path / "cache" / "thumbnails").iterdir())) == 7
+
+
+def test_same_file_names_do_not_overwrite(assets, tmp_path, capsys):
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    shutil.copyfile(assets / "gltf" / "Duck.glb", tmp_path / "a" / "x.glb")
+    shutil.copyfile(assets / "gltf" / "BoxTextured.glb", tmp_path / "b" / "x.glb")
+    args = [str(tmp_path / "a" / "x.glb"), str(tmp_path / "b" / "x.glb")]
+    code = bake_cmd.main([*args, "--cache", str(tmp_path / "cache"), "--thumbnails", str(tmp_path / "th"),
+                          "--json", "--size", "32"])
+    assert code == 0, capsys.readouterr().err
+    manifest = json.loads((tmp_path / "th" / "manifest.json").read_text())["assets"]
+    names = [manifest[p]["files"][0] for p in args]
+    assert names[0] == "x.glb.png" and names[1] != names[0] and names[1].startswith("x.glb.")
+    first, second = (np.asarray(Image.open(tmp_path / "th" / n)) for n in names)
+    assert first.shape == second.shape and not np.array_equal(first, second)  # the duck and the box
+    capsys.readouterr()
+    # a re-run keeps both names (and both files)
+    code = bake_cmd.main([*args, "--cache", str(tmp_path / "cache"), "--thumbnails", str(tmp_path / "th"),
+                          "--json", "--size", "32"])
+    rows = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert [r["thumbnail"]["status"] for r in rows] == ["kept", "kept"]
 
 
 def test_turntable_thumbnails_and_bad_options(assets, tmp_path, capsys):

@@ -144,3 +144,14 @@ def test_finite_at_total_internal_reflection_and_grazing(ior, distance):
     assert np.isfinite(frame.linear).all() and frame.linear.min() >= 0
     assert frame.plan["nonfinite"] == 0
     assert frame.plan["passes"] == 8
+
+
+def test_compiled_sampler_matches_its_numpy_twin():
+    """trace_kernel.r2_pair (the compiled per-pass uniforms) draws the very numbers of the
+    numpy expression it replaced, for every pass and dimension: renders do not move."""
+    from renderer.methods.trace_scene import pixel_shift
+    sampler = path_trace._Sampler(pixel_shift)
+    pix = np.arange(0, 50_000, 7)
+    for s, dim in ((0, 0), (3, 11), (63, 205)):
+        for got, want in zip(sampler(pix, s, dim), sampler.numpy(pix, s, dim)):
+            assert np.array_equal(got, want)

@@ -28,9 +28,12 @@ Plastic by the power heuristic (Veach 1995); rays that escape after Glass or a s
 take the environment at full weight. Punctual lights are deltas: next-event estimation
 alone, with an occlusion-only shadow ray (a glass occluder blocks them: its caustic is not
 a path BSDF sampling can find). Emissive surfaces add their emission where a path meets
-them. Russian roulette from the fourth surface on (survival = the path's throughput, at
-most 0.95); a path still alive after `bounces` surfaces reads the environment along its
-direction, as the tree does.
+them. Russian roulette from the fourth surface on (survival = the path's throughput in
+max-RGB x eta^2, at most 1: a survivor's throughput is raised to 1 and never above what it
+carried, so no sample of a lossless glass outshines the environment; a cap below 1 would
+kill full-throughput paths and boost the rest, measured +11% on single pixels of the
+stability suite's TIR prism at 128 passes); a path still alive after `bounces` surfaces
+reads the environment along its direction, as the tree does.
 
 Samples: one path per pixel per pass, the camera ray jittered within the pixel; every
 dimension pair of pass s is the R2 low-discrepancy point s (Roberts 2018) rotated by a hash
@@ -51,28 +54,23 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from core.cubemap import direction_to_face
 from core.options import RenderOptions
-from renderer.methods import trace_lights
+from renderer.methods import path_bsdf, trace_lights, trace_material
 from renderer.methods.optics import (
     fresnel_dielectric,
-    ggx_smith_g1,
-    ggx_visible_normal,
-    orthonormal_basis,
     reflect,
     refract,
     sample_rough_dielectric,
 )
+from renderer.methods.path_bsdf import ALPHA_MIN, ROUGH_ALPHA, ggx_albedo  # noqa: F401  # ggx_albedo: re-exported
 from renderer.methods.trace_scene import EPSILON, hit_material, intersect_front, pixel_shift
 
 FIREFLY = 16.0        # max-RGB clamp of indirect contributions (linear radiance)
-ROUGH_ALPHA = 0.1     # lobes at least this wide count as rough for the clamp
-ALPHA_MIN = 1e-3      # GGX alpha floor: a smooth metal stays finite (1e-6 of D's peak width)
 UNIFORM_SHARE = 0.1   # of environment samples drawn uniformly over the sphere
 RR_START = 3          # Russian roulette from this surface index on
 MIN_PASSES = 4        # before the noise target is tested
@@ -146,109 +144,6 @@ class EnvSampler:
         return d if self.to_env is None else d @ self.to_env
 
 
-def _lambda(cos_v, alpha):
-    c2 = np.clip(cos_v * cos_v, 1e-12, 1.0)
-    return 0.5 * (np.sqrt(1.0 + alpha * alpha * (1.0 - c2) / c2) - 1.0)
-
-
-def _ggx_d(cos_h, alpha):
-    a2 = alpha * alpha
-    return a2 / (math.pi * (cos_h * cos_h * (a2 - 1.0) + 1.0) ** 2)
-
-
-def _schlick(f0, cos):
-    return f0 + (1.0 - f0) * ((1.0 - np.clip(cos, 0.0, 1.0)) ** 5)[:, None]
-
-
-@dataclass
-class _Lobes:
-    """Per-hit Metal + Plastic parameters (Glass is sampled separately)."""
-    n: np.ndarray        # shading normal on the side of wo
-    ng: np.ndarray       # geometric normal on the side of wo
-    wo: np.ndarray
-    base: np.ndarray
-    alpha: np.ndarray
-    p_metal: np.ndarray  # mixture weight m
-    p_plastic: np.ndarray  # (1 - m)(1 - tr)
-    f0_d: np.ndarray     # dielectric F0 (N x 1)
-    p_spec: np.ndarray   # within Plastic: probability of sampling the GGX lobe
-    ms_m: np.ndarray     # N x 3 multiple-scattering scale of the Metal lobe (1: off)
-    ms_d: np.ndarray     # N x 1 the same for Plastic's GGX lobe
-
-    def eval(self, wi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(f * cos(n, wi), pdf of wi under Metal + Plastic sampling, both unconditioned on
-        choosing them): the pdf is sum_c P_c pdf_c."""
-        n_l = _dot(self.n, wi)
-        n_v = np.maximum(_dot(self.n, self.wo), 1e-6)
-        ok = (n_l > 1e-7) & (_dot(self.ng, wi) > 0)
-        n_l = np.maximum(n_l, 1e-7)
-        h = wi + self.wo
-        h /= np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-12)
-        n_h = np.clip(_dot(self.n, h), 0.0, 1.0)
-        v_h = np.clip(_dot(self.wo, h), 0.0, 1.0)
-        d = _ggx_d(n_h, self.alpha)
-        g2 = 1.0 / (1.0 + _lambda(n_v, self.alpha) + _lambda(n_l, self.alpha))
-        spec = d * g2 / (4 * n_v)                               # x cos(n, wi) already
-        f_m = _schlick(self.base, v_h)
-        f_d = _schlick(self.f0_d, v_h)
-        fcos = (self.p_metal[:, None] * f_m * self.ms_m * spec[:, None]
-                + self.p_plastic[:, None] * ((1 - f_d) * self.base * (n_l / math.pi)[:, None]
-                                             + f_d * self.ms_d * spec[:, None]))
-        pdf_ggx = ggx_smith_g1(n_v, self.alpha) * d / (4 * n_v)
-        pdf = (self.p_metal * pdf_ggx
-               + self.p_plastic * (self.p_spec * pdf_ggx + (1 - self.p_spec) * n_l / math.pi))
-        return np.where(ok[:, None], fcos, 0.0), np.where(ok, pdf, 0.0)
-
-
-_E_TABLE: np.ndarray | None = None
-_E_N = 32
-
-
-def ggx_albedo(cos_v: np.ndarray, alpha: np.ndarray) -> np.ndarray:
-    """Single-scattering albedo E_ss of this module's GGX lobe at F = 1 (height-correlated
-    G2), bilinear in a 32 x 32 table over (cos_v, alpha) computed once by stratified VNDF
-    quadrature (E = mean of G2 / G1): the same lobe the paths sample, so that the
-    multiple-scattering scale 1 / E_ss makes a white lobe exactly lossless at wo."""
-    global _E_TABLE
-    if _E_TABLE is None:
-        k = 32
-        g = (np.arange(k) + 0.5) / k
-        u1, u2 = (np.tile(a.reshape(-1), _E_N) for a in np.meshgrid(g, g, indexing="ij"))
-        a = np.repeat(np.linspace(ALPHA_MIN, 1.0, _E_N), k * k)
-        nn = np.tile([0.0, 0.0, 1.0], (len(a), 1))
-        table = np.zeros((_E_N, _E_N))
-        for i, mu in enumerate(np.linspace(0.02, 1.0, _E_N)):
-            wo = np.tile([math.sqrt(1 - mu * mu), 0.0, mu], (len(a), 1))
-            n_l = reflect(-wo, ggx_visible_normal(wo, nn, a, u1, u2))[:, 2]
-            g2 = 1.0 / (1.0 + _lambda(np.full(len(a), mu), a) + _lambda(np.maximum(n_l, 1e-7), a))
-            ratio = np.where(n_l > 0, g2 / ggx_smith_g1(mu, a), 0.0)
-            table[i] = ratio.reshape(_E_N, k * k).mean(axis=1)
-        _E_TABLE = table
-    x = np.clip((np.asarray(cos_v) - 0.02) / 0.98 * (_E_N - 1), 0, _E_N - 1)
-    y = np.clip((np.asarray(alpha) - ALPHA_MIN) / (1 - ALPHA_MIN) * (_E_N - 1), 0, _E_N - 1)
-    x0, y0 = np.minimum(x.astype(int), _E_N - 2), np.minimum(y.astype(int), _E_N - 2)
-    fx, fy = x - x0, y - y0
-    t = _E_TABLE
-    return ((t[x0, y0] * (1 - fx) + t[x0 + 1, y0] * fx) * (1 - fy)
-            + (t[x0, y0 + 1] * (1 - fx) + t[x0 + 1, y0 + 1] * fx) * fy)
-
-
-def _ms_scale(f0: np.ndarray, e_ss: np.ndarray) -> np.ndarray:
-    """The multiply-scattered share over the single-scattered one, as the raster's
-    Fdez-Aguera 2019 term: 1 + E_ms F_avg / (1 - E_ms F_avg), E_ms = 1 - E_ss; 1 / E_ss for
-    a white lobe."""
-    e_ms = 1.0 - e_ss
-    f_avg = f0 + (1.0 - f0) / 21.0
-    return 1.0 + e_ms * f_avg / (1.0 - e_ms * f_avg)
-
-
-def _cosine(n, u1, u2):
-    t, b = orthonormal_basis(n)
-    r, phi = np.sqrt(u1), 2 * math.pi * u2
-    z = np.sqrt(np.maximum(0.0, 1 - u1))
-    return (r * np.cos(phi))[:, None] * t + (r * np.sin(phi))[:, None] * b + z[:, None] * n
-
-
 class _Sampler:
     """Uniforms for (pixel, pass, dimension): R2 point `pass` rotated per (pixel, dim)."""
 
@@ -256,6 +151,12 @@ class _Sampler:
         self.shift = shift  # trace_scene.pixel_shift
 
     def __call__(self, pix: np.ndarray, s: int, dim: int) -> tuple[np.ndarray, np.ndarray]:
+        # compiled (trace_kernel.r2_pair, the same hash): numpy's took ~7% of a warm frame
+        from renderer.methods import trace_kernel
+        return trace_kernel.r2_pair(np.ascontiguousarray(pix, np.int64), s, dim, _R2[0], _R2[1])
+
+    def numpy(self, pix: np.ndarray, s: int, dim: int) -> tuple[np.ndarray, np.ndarray]:
+        """The same uniforms in numpy (the compiled loop's twin, for tests)."""
         a = (self.shift(pix, 5000 + 2 * dim) + _R2[0] * (s + 1)) % 1.0
         b = (self.shift(pix, 5001 + 2 * dim) + _R2[1] * (s + 1)) % 1.0
         return a, b
@@ -297,7 +198,7 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
             out[slot] += _clamp(add, clamp_esc)
             break
         u_alpha, _ = sample(pix[slot], s, 100 + depth)
-        prim, u, v, t = intersect_front(ts, origins, d, u_alpha)
+        prim, u, v, t = _timed(stats, "traversal", intersect_front, ts, origins, d, u_alpha)
         stats["rays"] += len(d)
         miss = prim < 0
         if depth == 0:
@@ -315,7 +216,9 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         hit = np.flatnonzero(~miss)
         if not len(hit):
             break
-        hits = hit_material(ts, origins[hit], d[hit], prim[hit], u[hit], v[hit], t[hit])
+        fetch0 = trace_material.FETCH_MS[0]
+        hits = _timed(stats, "material", hit_material, ts, origins[hit], d[hit], prim[hit], u[hit], v[hit], t[hit])
+        stats["split_ms"]["textures"] += trace_material.FETCH_MS[0] - fetch0
         origins, d, w, slot, medium = origins[hit], d[hit], w[hit], slot[hit], medium[hit]
         clamp_esc, n_rough, prim, t = clamp_esc[hit], n_rough[hit], prim[hit], t[hit]
         px = pix[slot]
@@ -328,7 +231,7 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         ns = hits.normal * side
         flip = _dot(d, ns) >= 0
         ns[flip] = ng[flip]
-        trans, metal = hits.transmission, hits.metallic
+        trans = hits.transmission
         # Beer-Lambert over the segment just travelled inside a volume
         inside = ~entering & (trans > 0)
         if np.any(inside) and ts.sigma.any():
@@ -339,79 +242,65 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         ior = ts.ior[k]
         wo = -d
         alpha = np.maximum(hits.roughness ** 2, ALPHA_MIN)
-        f0_d = (((ior - 1) / (ior + 1)) ** 2)[:, None]
-        n_v = np.clip(_dot(ns, wo), 1e-6, 1.0)
-        p_metal = metal
-        p_plastic = (1 - metal) * (1 - trans)
-        p_spec = np.clip(_schlick(f0_d, n_v)[:, 0], 0.1, 0.9)
-        if options.multiscatter:  # energy lost between microfacets, put back (Turquin 2019)
-            e_ss = np.clip(ggx_albedo(n_v, alpha), 0.05, 1.0)[:, None]
-            ms_m, ms_d = _ms_scale(hits.base, e_ss), _ms_scale(f0_d, e_ss)
-        else:
-            ms_m, ms_d = np.ones((len(d), 3)), np.ones((len(d), 1))
-        lobes = _Lobes(ns, ng, wo, hits.base, alpha, p_metal, p_plastic, f0_d, p_spec, ms_m, ms_d)
+        bsdf = path_bsdf.build(hits, ns, ng, wo, ior, options.multiscatter)
         # hits from inside a transmissive object see only Glass (light reaches them refracted)
         surface_lit = entering | (trans <= 0)
+        reflective = surface_lit & (bsdf.p_reflective > 0)
         nee_clamp = n_rough > 0
         # --- next-event estimation: the environment, MIS with BSDF sampling
         ua, ub = sample(px, s, 10 * depth + 1)
         uc, _ = sample(px, s, 10 * depth + 2)
-        ls = np.flatnonzero(surface_lit & (p_metal + p_plastic > 0))
+        ls = np.flatnonzero(reflective)
         if len(ls):
             wi = env_sampler.sample(ua[ls], ub[ls], uc[ls])
-            fcos, p_b = lobes_eval(lobes, ls, wi)
+            fcos, p_b = bsdf.rows(ls).eval(wi)
             p_l = env_sampler.pdf(wi)
-            good = (p_b > 0) | (fcos.max(axis=1) > 0)
+            good = fcos.max(axis=1) > 0
             ls, wi, fcos, p_b, p_l = ls[good], wi[good], fcos[good], p_b[good], p_l[good]
             if len(ls):
-                vis = _unoccluded(ts, p[ls] + eps * ng[ls], wi, np.full(len(ls), np.inf), px[ls], s, depth)
+                vis = _timed(stats, "traversal", _unoccluded, ts, _off(p[ls], ng[ls], wi, eps), wi, np.full(len(ls), np.inf), px[ls], s, depth)
                 mis = p_l ** 2 / (p_l ** 2 + p_b ** 2)
                 contrib = w[ls] * fcos * (vis * mis / np.maximum(p_l, 1e-300))[:, None] \
                     * env.radiance(wi, np.zeros(len(wi)))
                 out[slot[ls]] += _clamp(contrib, nee_clamp[ls])
         # --- next-event estimation: punctual lights (deltas: no MIS)
         if ts.lights is not None and len(ts.lights):
-            ls = np.flatnonzero(surface_lit & (p_metal + p_plastic > 0))
+            ls = np.flatnonzero(reflective)
+            sub = bsdf.rows(ls)
             for i in range(len(ts.lights)):
                 if not len(ls):
                     break
                 ldir, dist, radiance = _light(ts.lights, i, p[ls])
-                fcos, _ = lobes_eval(lobes, ls, ldir)
+                fcos, _ = sub.eval(ldir)
                 live = np.flatnonzero((fcos.max(axis=1) > 0) & (radiance.max(axis=1) > 0))
                 if not len(live):
                     continue
                 sel = ls[live]
-                vis = _unoccluded(ts, p[sel] + eps * ng[sel], ldir[live], dist[live], px[sel], s, depth)
+                vis = _timed(stats, "traversal", _unoccluded, ts, _off(p[sel], ng[sel], ldir[live], eps), ldir[live], dist[live], px[sel], s, depth)
                 out[slot[sel]] += _clamp(w[sel] * fcos[live] * radiance[live] * vis[:, None], nee_clamp[sel])
-        # --- BSDF sampling: choose Metal, Plastic or Glass by their mixture weights
+        # --- BSDF sampling: a layer (coat, sheen, base), then Metal, Plastic or Glass
         u_pick, u_lobe = sample(px, s, 10 * depth + 3)
         u1, u2 = sample(px, s, 10 * depth + 4)
-        glass = (u_pick >= p_metal + p_plastic) | ~surface_lit
+        u_layer, _ = sample(px, s, 10 * depth + 6)
+        base_pick = u_layer >= bsdf.p_coat + bsdf.p_sheen
+        glass = (base_pick & (u_pick >= bsdf.p_metal + bsdf.p_plastic)) | ~surface_lit
         new_d = np.zeros_like(d)
         new_w = w.copy()
         new_pdf = np.zeros(len(d))
         rough = np.zeros(len(d), bool)
         new_medium = medium.copy()
         alive = np.ones(len(d), bool)
-        # Metal / Plastic
+        # the reflective components (and diffuse transmission)
         mp = np.flatnonzero(~glass)
         if len(mp):
-            use_ggx = (u_pick[mp] < p_metal[mp]) | (u_lobe[mp] < p_spec[mp])
-            wi = np.empty((len(mp), 3))
-            g = np.flatnonzero(use_ggx)
-            if len(g):
-                m = ggx_visible_normal(wo[mp[g]], ns[mp[g]], alpha[mp[g]], u1[mp[g]], u2[mp[g]])
-                wi[g] = reflect(d[mp[g]], m)
-            c = np.flatnonzero(~use_ggx)
-            if len(c):
-                wi[c] = _cosine(ns[mp[c]], u1[mp[c]], u2[mp[c]])
-            fcos, p_b = lobes_eval(lobes, mp, wi)
-            ok = p_b > 0
+            sub = bsdf.rows(mp)
+            wi, rough[mp], valid = sub.sample(u_layer[mp], u_pick[mp], u_lobe[mp], u1[mp], u2[mp])
+            fcos, p_b = sub.eval(wi)
+            ok = (p_b > 0) & valid
             new_w[mp] = w[mp] * np.where(ok[:, None], fcos / np.maximum(p_b, 1e-300)[:, None], 0.0)
             new_d[mp] = wi
             # a near-delta lobe's pdf is huge and the environment pdf negligible: no MIS needed
             new_pdf[mp] = np.where(ok, p_b, 0.0)
-            rough[mp] = ~use_ggx | (alpha[mp] >= ROUGH_ALPHA)
             alive[mp] = ok
         # Glass: exact dielectric, conditioned on the choice (weight (1 - m) tr / P = 1)
         gl = np.flatnonzero(glass)
@@ -438,6 +327,8 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
             # a surface seen from inside with no transmission still refracts out as glass
             new_d[gl] = np.where(take_r[:, None], r_dir, t_dir)
             factor = np.where(take_r, g_r, g_t * eta * eta)
+            # what the coat and sheen over it leave (from outside), over the choice's odds
+            factor *= np.where(surface_lit[gl], bsdf.glass_w[gl], 1.0)
             new_w[gl] = w[gl] * tint * factor[:, None]
             new_medium[gl] = np.where(take_r, medium[gl], np.where(entering[gl], ior[gl], 1.0))
             new_pdf[gl] = 0.0
@@ -445,7 +336,7 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
             stats["tir"] += int(np.sum(tir))
         # Russian roulette
         if depth >= RR_START:
-            q = np.clip(new_w.max(axis=1) * new_medium ** 2, 0.0, 0.95)
+            q = np.clip(new_w.max(axis=1) * new_medium ** 2, 0.0, 1.0)
             u_rr, _ = sample(px, s, 10 * depth + 5)
             survive = u_rr < q
             alive &= survive
@@ -461,9 +352,18 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
     return out, hit0
 
 
-def lobes_eval(lobes: _Lobes, rows: np.ndarray, wi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    sub = _Lobes(*(getattr(lobes, f)[rows] for f in lobes.__dataclass_fields__))
-    return sub.eval(wi)
+def _timed(stats: dict, key: str, fn, *args):
+    """fn(*args), its wall time added to stats["split_ms"][key]."""
+    t0 = time.perf_counter()
+    try:
+        return fn(*args)
+    finally:
+        stats["split_ms"][key] += (time.perf_counter() - t0) * 1e3
+
+
+def _off(p: np.ndarray, ng: np.ndarray, wi: np.ndarray, eps: float) -> np.ndarray:
+    """Shadow-ray origins off the surface on wi's side (diffuse transmission looks behind)."""
+    return p + (np.where(_dot(wi, ng) >= 0, eps, -eps))[:, None] * ng
 
 
 def _light(lights, i: int, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -501,6 +401,11 @@ def trace(ts, sky, options: RenderOptions, camera, first_near: np.ndarray,
     budget = options.budget_ms
     max_passes = int(options.samples)
     stats.update(rays=stats.get("rays", 0), tir=stats.get("tir", 0))
+    # where a pass's time goes: ray casts (camera, bounce and shadow rays: Embree and the
+    # alpha / back-face walk), the material at hits (textures: of which the texel fetches),
+    # and the rest: BSDF, environment sampling, bookkeeping ("shading", filled in below)
+    split = stats.setdefault("split_ms", {"traversal": 0.0, "material": 0.0, "textures": 0.0, "shading": 0.0})
+    before = split["traversal"] + split["material"]  # a dispersive frame calls trace once per channel
     pass_ms: list[float] = []
     lum_w = np.array([0.2126, 0.7152, 0.0722])
     stop = "samples"
@@ -533,7 +438,7 @@ def trace(ts, sky, options: RenderOptions, camera, first_near: np.ndarray,
             mean = lum_sum[idx] / c
             var = np.maximum(lum_sq[idx] / c - mean * mean, 0.0) * c / np.maximum(c - 1, 1)
             rel = np.sqrt(var / c) / np.maximum(mean, 1e-3)
-            active[idx[rel <= options.noise]] = False
+            active[idx[rel < options.noise]] = False  # under: noise 0 runs every pass
             if not active.any():
                 stop = "noise"
                 break
@@ -542,6 +447,7 @@ def trace(ts, sky, options: RenderOptions, camera, first_near: np.ndarray,
             if elapsed + pass_ms[-1] > budget:
                 stop = "budget"
                 break
+    split["shading"] += sum(pass_ms) - (split["traversal"] + split["material"] - before)
     stats.update(passes=len(pass_ms), samples_mean=float(count.mean()) if npix else 0.0,
                  stop=stop, pass_ms_max=max(pass_ms, default=0.0),
                  path_ms=(time.perf_counter() - t0) * 1e3)

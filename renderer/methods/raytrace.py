@@ -733,7 +733,8 @@ def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOpt
     if options.integrator == "path":
         plan.update(passes=stats["passes"], samples_mean=round(stats["samples_mean"], 2),
                     stop=stats["stop"], nonfinite=stats.get("nonfinite", 0),
-                    path_ms=round(stats["path_ms"], 1), pass_ms_max=round(stats["pass_ms_max"], 1))
+                    path_ms=round(stats["path_ms"], 1), pass_ms_max=round(stats["pass_ms_max"], 1),
+                    split_ms={k: round(v, 1) for k, v in stats["split_ms"].items()})
     total = (t1 - t0) * 1e3
     timings = FrameTimings(total, {"build": stats["build_ms"], "trace": stats["trace_ms"],
                                    "tonemap": total - stats["build_ms"] - stats["trace_ms"]})

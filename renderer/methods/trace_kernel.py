@@ -445,6 +445,21 @@ def sample_texture(texels, offsets, heights, widths, uv, lod, srgb, wrap_s, wrap
     return out
 
 
+@njit(cache=True)
+def r2_pair(pix, s, dim, a1, a2):
+    """The path tracer's two uniforms of (pixel, pass s, dimension pair `dim`) for every pixel:
+    the R2 point s+1 (a1, a2 its generators) rotated by the splitmix hash of (pixel, 5000 +
+    2 dim) and (pixel, 5001 + 2 dim): renderer.methods.path_trace._Sampler in one loop."""
+    n = len(pix)
+    a = np.empty(n)
+    b = np.empty(n)
+    oa, ob = a1 * (s + 1), a2 * (s + 1)
+    for i in range(n):
+        a[i] = (_pixel_shift(pix[i], 5000 + 2 * dim) + oa) % 1.0
+        b[i] = (_pixel_shift(pix[i], 5001 + 2 * dim) + ob) % 1.0
+    return a, b
+
+
 def warm() -> None:
     """Compile (or load from numba's cache) every signature the tracer calls, on empty
     arrays: `python -m renderer.methods.trace_kernel`, run by `make install` and `make test` so that
@@ -460,6 +475,7 @@ def warm() -> None:
     sample_cube(np.zeros((6, 2, 2, 3), f32), e3, _S_AXIS, _S_SIGN, _T_AXIS, _T_SIGN)
     sample_texture(np.zeros((1, 4), np.uint8), np.zeros(1, i64), np.ones(1, i64), np.ones(1, i64),
                    np.zeros((0, 2)), e, True, 10497, 10497, False, False, 2)
+    r2_pair(np.zeros(0, i64), 0, 0, 0.5, 0.5)
 
 
 if __name__ == "__main__":

@@ -16,6 +16,7 @@ unbiased and deterministic per ray).
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -26,8 +27,14 @@ from core.scene import LINEAR, LINEAR_MIPMAP_LINEAR, NEAREST, Material, TextureR
 
 MIRRORED_REPEAT, CLAMP_TO_EDGE = 33648, 33071
 NEAREST_MIPMAP_NEAREST, LINEAR_MIPMAP_NEAREST, NEAREST_MIPMAP_LINEAR = 9984, 9985, 9986
-# The texture slots the tracer samples: the core model's and transmission's (core/lobes.py).
-SLOTS = tuple(s.name for row in ("core", "transmission") for s in BY_NAME[row].slots)
+# The texture slots the tracer samples: every lobe's but volume thickness (the tracer
+# measures the distance travelled inside) (core/lobes.py).
+SLOTS = tuple(s.name for row in ("core", "transmission", "specular", "clearcoat", "sheen",
+                                 "iridescence", "anisotropy", "diffuse_transmission")
+              for s in BY_NAME[row].slots)
+
+
+FETCH_MS = [0.0]  # wall time in texel fetches, summed over the process (the path tracer's split)
 
 
 @dataclass
@@ -54,11 +61,14 @@ class TextureChain:
         min_nearest = self.min in (NEAREST, NEAREST_MIPMAP_NEAREST, NEAREST_MIPMAP_LINEAR)
         # numba's import costs ~0.6 s, which a process that never ray traces skips
         from renderer.methods import trace_kernel
-        return trace_kernel.sample_texture(
+        t0 = time.perf_counter()
+        out = trace_kernel.sample_texture(
             self.texels, self.offsets, self.heights, self.widths,
             np.ascontiguousarray(uv, np.float64), np.ascontiguousarray(lod, np.float64),
             self.srgb, int(self.wrap[0]), int(self.wrap[1]), self.mag == NEAREST, min_nearest,
             mip_mode)
+        FETCH_MS[0] += (time.perf_counter() - t0) * 1e3
+        return out
 
 
 @dataclass
@@ -85,6 +95,7 @@ class Surface:
     colors: np.ndarray | None            # T x 3 x 4 linear (1 where a mesh has none)
     materials: list[SurfaceMaterial]
     alpha_tested: np.ndarray             # K bool: MASK or BLEND (rays may pass through)
+    corners: np.ndarray | None = None    # T x 3 x 3 world corners (tangents from UVs)
 
 
 def build_surface(asset: BakedAsset, materials: list[Material], parts: list[tuple[int, np.ndarray, np.ndarray]],
@@ -153,7 +164,8 @@ def build_surface(asset: BakedAsset, materials: list[Material], parts: list[tupl
         surf_mats.append(sm)
     alpha_tested = np.asarray([m.alpha_mode in ("MASK", "BLEND") for m in materials], bool)
     return Surface(uvs, density, np.concatenate(tangents) if have_tan and tangents else None,
-                   np.concatenate(colors) if have_col and colors else None, surf_mats, alpha_tested)
+                   np.concatenate(colors) if have_col and colors else None, surf_mats, alpha_tested,
+                   np.asarray(world, np.float64))
 
 
 def _interp(corners: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -208,7 +220,8 @@ def passes_through(surf: Surface, material: np.ndarray, prim, u, v, width, cos_d
 
 @dataclass
 class Hits:
-    """The material at each hit, as the shading kernel reads it."""
+    """The material at each hit, as the shading kernel (the core model) and the path
+    tracer's BSDF (every lobe, renderer.methods.path_bsdf) read it."""
     normal: np.ndarray     # N x 3 shading normal (front side, before facing the ray)
     base: np.ndarray       # N x 3 linear
     metallic: np.ndarray   # N
@@ -216,6 +229,69 @@ class Hits:
     transmission: np.ndarray  # N
     emission: np.ndarray   # N x 3
     occlusion: np.ndarray  # N
+    # the Khronos lobes (their glTF defaults where a material has none)
+    specular: np.ndarray = field(default_factory=lambda: np.zeros(0))          # N factor
+    specular_color: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    clearcoat: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    clearcoat_roughness: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    clearcoat_normal: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # front side
+    sheen_color: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    sheen_roughness: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    iridescence: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    iridescence_ior: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    iridescence_thickness: np.ndarray = field(default_factory=lambda: np.zeros(0))  # nm
+    anisotropy: np.ndarray = field(default_factory=lambda: np.zeros(0))        # strength
+    anisotropy_t: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # grain (0: none)
+    diffuse_transmission: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    diffuse_transmission_color: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+
+    @classmethod
+    def empty(cls, n: int) -> "Hits":
+        """N rows of a black, diffuse, default-extension material."""
+        return cls(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n), np.zeros(n), np.zeros(n),
+                   np.zeros((n, 3)), np.ones(n), *_lobe_defaults(n, np.zeros((n, 3))))
+
+
+def _lobe_defaults(n: int, normal: np.ndarray) -> tuple[np.ndarray, ...]:
+    return (np.ones(n), np.ones((n, 3)), np.zeros(n), np.zeros(n), normal.copy(), np.zeros((n, 3)),
+            np.zeros(n), np.zeros(n), np.full(n, 1.3), np.zeros(n), np.zeros(n), np.zeros((n, 3)),
+            np.zeros(n), np.ones((n, 3)))
+
+
+def _perturb(t: np.ndarray, tan: np.ndarray, ng: np.ndarray, scale: float) -> np.ndarray:
+    """The normal map's texels t (N x 4, 0..1) in the tangent frame `tan` (N x 4, w the
+    handedness) about ng, xy scaled by `scale` (as shaders/material_info.glsl)."""
+    tt = tan[:, :3] - ng * np.einsum("ij,ij->i", ng, tan[:, :3])[:, None]
+    tt /= np.maximum(np.linalg.norm(tt, axis=-1, keepdims=True), 1e-20)
+    bt = np.cross(ng, tt) * np.sign(tan[:, 3])[:, None]
+    tn = t[:, :3] * 2.0 - 1.0
+    tn[:, :2] *= scale
+    pert = tn[:, :1] * tt + tn[:, 1:2] * bt + tn[:, 2:3] * ng
+    pert /= np.maximum(np.linalg.norm(pert, axis=-1, keepdims=True), 1e-20)
+    return np.where(np.isfinite(pert).all(axis=1, keepdims=True), pert, ng)
+
+
+def _tangents(surf: Surface, p: np.ndarray, u: np.ndarray, v: np.ndarray, ng: np.ndarray) -> np.ndarray:
+    """N x 4 tangent frames at hits: the baked tangents, else the triangle's dP/du from UV
+    set 0 (as the raster derives them from derivatives), else w = 0 (none)."""
+    out = np.zeros((len(p), 4))
+    if surf.tangents is not None:
+        out = _interp(surf.tangents[p], u, v)
+    need = np.flatnonzero(np.abs(out[:, 3]) <= 0.5)
+    if len(need) and surf.uv[0] is not None and surf.corners is not None:
+        c, uv = surf.corners[p[need]], surf.uv[0][p[need]]
+        e1, e2 = c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]
+        d1, d2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+        det = d1[:, 0] * d2[:, 1] - d2[:, 0] * d1[:, 1]
+        ok = np.abs(det) > 1e-12
+        safe = np.where(ok, det, 1.0)[:, None]
+        t = (d2[:, 1:2] * e1 - d1[:, 1:2] * e2) / safe
+        bvec = (d1[:, 0:1] * e2 - d2[:, 0:1] * e1) / safe
+        hand = np.where(np.einsum("ij,ij->i", np.cross(ng[need], t), bvec) < 0, -1.0, 1.0)
+        good = ok & (np.linalg.norm(t, axis=-1) > 0)
+        out[need[good], :3] = t[good]
+        out[need[good], 3] = hand[good]
+    return out
 
 
 def evaluate(surf: Surface, normals: np.ndarray, material: np.ndarray, prim: np.ndarray,
@@ -230,6 +306,7 @@ def evaluate(surf: Surface, normals: np.ndarray, material: np.ndarray, prim: np.
     base = np.empty((n, 3))
     metal, rough, trans, occ = np.empty(n), np.empty(n), np.empty(n), np.ones(n)
     emis = np.empty((n, 3))
+    lobe = Hits(ns, base, metal, rough, trans, emis, occ, *_lobe_defaults(n, ns))
     for k in np.unique(material):
         sm = surf.materials[k]
         m = sm.material
@@ -264,19 +341,75 @@ def evaluate(surf: Surface, normals: np.ndarray, material: np.ndarray, prim: np.
         t = tex("occlusion")
         if t is not None:
             occ[sel] = 1.0 + m.occlusion_strength * (t[:, 0] - 1.0)
+        interp_n = ns[sel].copy()  # before the normal map: the clearcoat's and the grain's
+        lazy_tan: list[np.ndarray] = []
+
+        def tangent(p=p, uu=uu, vv=vv, ng=interp_n, lazy=lazy_tan) -> np.ndarray:
+            if not lazy:
+                lazy.append(_tangents(surf, p, uu, vv, ng))
+            return lazy[0]
         t = tex("normal")
-        if t is not None and surf.tangents is not None:
-            tan = _interp(surf.tangents[p], uu, vv)
+        if t is not None and (surf.tangents is not None or surf.uv[0] is not None):
+            tan = tangent()
             ok = np.abs(tan[:, 3]) > 0.5
             if np.any(ok):
-                ng = ns[sel][ok]
-                tt = tan[ok, :3] - ng * np.einsum("ij,ij->i", ng, tan[ok, :3])[:, None]
-                tt /= np.maximum(np.linalg.norm(tt, axis=-1, keepdims=True), 1e-20)
-                bt = np.cross(ng, tt) * np.sign(tan[ok, 3])[:, None]
-                tn = t[ok, :3] * 2.0 - 1.0
-                tn[:, :2] *= m.normal_scale
-                pert = tn[:, :1] * tt + tn[:, 1:2] * bt + tn[:, 2:3] * ng
-                pert /= np.maximum(np.linalg.norm(pert, axis=-1, keepdims=True), 1e-20)
-                rows = sel[ok]
-                ns[rows] = np.where(np.isfinite(pert).all(axis=1, keepdims=True), pert, ng)
-    return Hits(ns, base, metal, rough, trans, emis, occ)
+                ns[sel[ok]] = _perturb(t[ok], tan[ok], interp_n[ok], m.normal_scale)
+        _lobes(m, lobe, sel, tex, tangent, interp_n, ns)
+    return lobe
+
+
+def _lobes(m: Material, h: Hits, sel: np.ndarray, tex, tangent, ng: np.ndarray, ns: np.ndarray) -> None:
+    """The Khronos lobes of material m at rows `sel` of h: factors x textures, with the
+    channels shaders/material_info.glsl reads."""
+    def times(factor, name: str, channels) -> np.ndarray:
+        f = np.broadcast_to(np.asarray(factor, np.float64), (len(sel),) + np.shape(factor)).copy()
+        t = tex(name)
+        return f if t is None else f * t[:, channels]
+    if m.uses("specular"):
+        h.specular[sel] = times(m.specular, "specular", 3)
+        h.specular_color[sel] = times(m.specular_color, "specular_color", slice(0, 3))
+    if m.uses("clearcoat"):
+        h.clearcoat[sel] = np.clip(times(m.clearcoat, "clearcoat", 0), 0, 1)
+        h.clearcoat_roughness[sel] = np.clip(times(m.clearcoat_roughness, "clearcoat_roughness", 1), 0, 1)
+        h.clearcoat_normal[sel] = ng  # the base's normal map lies under the coat
+        t = tex("clearcoat_normal")
+        if t is not None:
+            tan = tangent()
+            ok = np.abs(tan[:, 3]) > 0.5
+            if np.any(ok):
+                h.clearcoat_normal[sel[ok]] = _perturb(t[ok], tan[ok], ng[ok], m.clearcoat_normal_scale)
+    if m.uses("sheen"):
+        h.sheen_color[sel] = times(m.sheen_color, "sheen_color", slice(0, 3))
+        h.sheen_roughness[sel] = np.clip(times(m.sheen_roughness, "sheen_roughness", 3), 0, 1)
+    if m.uses("iridescence"):
+        h.iridescence[sel] = np.clip(times(m.iridescence, "iridescence", 0), 0, 1)
+        h.iridescence_ior[sel] = m.iridescence_ior
+        lo, hi = m.iridescence_thickness_range
+        t = tex("iridescence_thickness")
+        h.iridescence_thickness[sel] = hi if t is None else lo + (hi - lo) * t[:, 1]
+    if m.uses("anisotropy"):
+        d = np.tile([1.0, 0.0], (len(sel), 1))
+        strength = np.full(len(sel), m.anisotropy_strength)
+        t = tex("anisotropy")
+        if t is not None:
+            d = t[:, :2] * 2.0 - 1.0
+            d /= np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-12)
+            strength = strength * t[:, 2]
+        c, s = math.cos(m.anisotropy_rotation), math.sin(m.anisotropy_rotation)
+        d = np.stack([c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1]], -1)
+        tan = tangent()
+        ok = np.abs(tan[:, 3]) > 0.5
+        tt = tan[:, :3] - ng * np.einsum("ij,ij->i", ng, tan[:, :3])[:, None]
+        tt /= np.maximum(np.linalg.norm(tt, axis=-1, keepdims=True), 1e-20)
+        bt = np.cross(ng, tt) * np.sign(tan[:, 3])[:, None]
+        grain = tt * d[:, :1] + bt * d[:, 1:2]
+        n = ns[sel]
+        grain -= n * np.einsum("ij,ij->i", n, grain)[:, None]  # onto the shading normal's plane
+        grain /= np.maximum(np.linalg.norm(grain, axis=-1, keepdims=True), 1e-20)
+        h.anisotropy[sel] = np.clip(strength, 0, 1)
+        h.anisotropy_t[sel] = np.where(ok[:, None], grain, 0.0)  # no frame: isotropic
+    if m.uses("diffuse_transmission"):
+        share = times(m.diffuse_transmission, "diffuse_transmission", 3)
+        h.diffuse_transmission[sel] = np.clip(share, 0, 1)  # of the dielectric's diffuse
+        h.diffuse_transmission_color[sel] = times(m.diffuse_transmission_color, "diffuse_transmission_color",
+                                                  slice(0, 3))

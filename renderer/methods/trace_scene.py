@@ -116,8 +116,7 @@ def hit_material(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray, prim: np
                   u: np.ndarray, v: np.ndarray, t: np.ndarray) -> trace_material.Hits:
     """The material at every ray's hit (trace_material.evaluate; rows of misses are zeros)."""
     n = len(prim)
-    full = trace_material.Hits(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n), np.zeros(n),
-                               np.zeros(n), np.zeros((n, 3)), np.ones(n))
+    full = trace_material.Hits.empty(n)
     sel = np.flatnonzero(prim >= 0)
     if not len(sel) or ts.surface is None:
         return full
