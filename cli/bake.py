@@ -5,8 +5,8 @@ object per line with --json; a progress bar on stderr when it is a terminal; a s
 stderr. Exit status 0 when everything baked, 3 when anything failed (the rest is still baked).
 --workers N bakes in N spawned processes (not forked: EGL and Embree state do not survive fork);
 --executor ray runs the same jobs as Ray tasks on a cluster (pipeline/executors.py).
-Sandbox: an asset found under a folder argument may read files anywhere in that folder (a
-library's shared parts); a file argument only inside its own folder; --root DIR widens both.
+Local files read their neighbours freely (a library's shared parts anywhere); --sandbox DIR
+confines every asset to DIR (cli/sandbox.py).
 --thumbnails DIR then renders every baked asset with the render options into DIR, in this
 process through one GL context, resumable, with DIR/manifest.json (cli/thumbnails.py).
 """
@@ -20,6 +20,7 @@ import sys
 import time
 from pathlib import Path
 
+from cli import sandbox
 from pipeline.bake import bake_one
 
 log = logging.getLogger(__name__)
@@ -52,9 +53,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-size", default=None, metavar="SIZE",
                         help="cap the cache at SIZE (e.g. 2G), evicting least recently used "
                              "entries (default: $ASSET_PREVIEW_CACHE_MAX_BYTES, else no cap)")
-    parser.add_argument("--root", default=None, metavar="DIR",
-                        help="folder every asset's references may read from (default: the folder "
-                             "argument an asset was found under, else the asset's own folder)")
+    sandbox.add_argument(parser)
     parser.add_argument("--force", action="store_true", help="bake again even when cached")
     parser.add_argument("--json", action="store_true", help="one JSON object per input")
     parser.add_argument("--thumbnails", metavar="DIR", default=None,
@@ -115,8 +114,9 @@ def run(args: argparse.Namespace) -> int:
             print(f"error: {exc}", file=sys.stderr)
             return 2
     cache = str(args.cache) if args.cache else None
-    jobs, failures, roots = _collect(args.paths, cache, args.root)
-    library = tuple(src for kind, src in jobs if src in roots)
+    jobs, failures, folders = _collect(args.paths, cache)
+    roots = {src: str(sandbox.root(args)) for _, src in jobs}  # as text: it travels to Ray tasks
+    library = tuple(folders)  # found under a folder argument: one may be a part of another
     from pipeline.library import usd_parts
     parts = usd_parts([Path(p) for p in library])
     skipped = [{"kind": "asset", "path": src, "status": "skipped", "seconds": 0.0,
@@ -127,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
     common = {"cache": cache, "max_bytes": max_bytes, "force": args.force,
               "face_size": args.face_size, "prefilter": args.prefilter, "roots": roots,
               "library": library}
-    report = _Report(len(jobs) + len(failures) + len(skipped), args.json, thumbs, roots)
+    report = _Report(len(jobs) + len(failures) + len(skipped), args.json, thumbs, folders)
     for result in skipped:
         report.add(result)
     for result in failures:
@@ -173,22 +173,22 @@ def main(argv: list[str] | None = None) -> int:
         return 141
 
 
-def _collect(paths: list[str], cache: str | None, root: str | None = None):
+def _collect(paths: list[str], cache: str | None):
     """Asset jobs for the given files and folders, failures for paths that are neither, and
-    each asset's sandbox root (`root`, else the folder argument it was found under)."""
+    the folder argument each asset was found under (its thumbnail is named relative to it)."""
     from pipeline.cache import default_cache_dir
     from pipeline.ingest import READERS
 
     cache_root = Path(cache or default_cache_dir()).resolve()
-    jobs, failures, seen, roots = [], [], set(), {}
+    jobs, failures, seen, folders = [], [], set(), {}
 
     def add(path: Path, folder: Path | None = None) -> None:
         key = path.resolve()
         if key not in seen:
             seen.add(key)
             jobs.append(("asset", str(path)))
-            if root or folder:
-                roots[str(path)] = str(root or folder)
+            if folder is not None:
+                folders[str(path)] = str(folder)
 
     for raw in paths:
         path = Path(raw)
@@ -208,7 +208,7 @@ def _collect(paths: list[str], cache: str | None, root: str | None = None):
                                           f"({', '.join(sorted(READERS))})", "seconds": 0.0})
         else:
             add(path)  # a missing or unsupported file fails in bake_one, with the reason
-    return jobs, failures, roots
+    return jobs, failures, folders
 
 
 def _run_pool(jobs, common: dict, workers: int, report: "_Report") -> None:
@@ -235,10 +235,10 @@ def _run_pool(jobs, common: dict, workers: int, report: "_Report") -> None:
 class _Report:
     """Result lines on stdout, and a tqdm progress bar on stderr when it is a terminal."""
 
-    def __init__(self, total: int, as_json: bool, thumbs=None, roots: dict | None = None):
+    def __init__(self, total: int, as_json: bool, thumbs=None, folders: dict | None = None):
         from tqdm import tqdm
 
-        self.as_json, self.thumbs, self.roots = as_json, thumbs, roots or {}
+        self.as_json, self.thumbs, self.folders = as_json, thumbs, folders or {}
         self.thumb_counts = {"rendered": 0, "kept": 0, "failed": 0}
         self.out = sys.stdout  # held: the Ray executor moves other writers' stdout to stderr
         self.counts = {"baked": 0, "cached": 0, "skipped": 0, "failed": 0}
@@ -250,7 +250,7 @@ class _Report:
         in this process, so every thumbnail shares its one GL context."""
         self.counts[result["status"]] += 1
         if self.thumbs is not None and result["kind"] == "asset" and result["status"] != "skipped":
-            entry = self.thumbs.add(result, self.roots.get(result["path"]))
+            entry = self.thumbs.add(result, self.folders.get(result["path"]))
             self.thumb_counts[entry["status"]] += 1
             result = {**result, "thumbnail": {k: entry[k] for k in ("status", "files") if k in entry}}
             if entry["status"] == "failed" and result["status"] != "failed":

@@ -9,15 +9,15 @@ import argparse
 import json
 from pathlib import Path
 
+from cli import sandbox
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("path", type=Path, metavar="PATH", help="asset file (glTF, USD, OBJ/PLY/STL)")
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     parser.add_argument("--variant-set", action="append", default=[], metavar="[PRIM:]SET=NAME",
                         help="USD: select a variant (repeatable; no PRIM: the default prim's set)")
-    parser.add_argument("--root", type=Path, default=None, metavar="DIR",
-                        help="folder the asset's references may read from (default: the "
-                             "asset's folder); widen it for libraries that share parts")
+    sandbox.add_argument(parser)
 
 
 def summary(scene) -> dict:
@@ -52,6 +52,7 @@ def summary(scene) -> dict:
                     for i, c in enumerate(scene.cameras)],
         "animations": list(scene.animations),  # core.animation.Animation.summary()
         "time_range": scene.time_range,  # USD: start/end time codes, timeCodesPerSecond
+        "skel_animations": list(scene.skel_animations),  # USD: {path, joints, blend_shapes, samples, first, last}
         "backdrop": sorted({scene.meshes[i.mesh].name for i in scene.instances if i.backdrop}),
         "warnings": list(scene.warnings),
         "files": list(scene.files),
@@ -61,7 +62,7 @@ def summary(scene) -> dict:
 def run(args: argparse.Namespace) -> int:
     from pipeline.ingest import load_scene
 
-    info = summary(load_scene(args.path, root=args.root, variant_sets=tuple(args.variant_set)))
+    info = summary(load_scene(args.path, root=sandbox.root(args), variant_sets=tuple(args.variant_set)))
     if args.json:
         print(json.dumps(info))
         return 0
@@ -86,12 +87,19 @@ def run(args: argparse.Namespace) -> int:
     for c in info["cameras"]:
         print(f"  camera {c['index']} {c['name']!r}: {c['type']} (render --camera {c['index']})")
     for i, a in enumerate(info["animations"]):
+        nodes = len({t["node"] for t in a["targets"] if "pointer" not in t})
+        pointers = sum("pointer" in t for t in a["targets"])  # KHR_animation_pointer
+        also = f" and {pointers} material / light / camera values" if pointers else ""
         print(f"  animation {i} {a['name']!r}: {a['duration']:.3g} s, {a['channels']} channels "
-              f"driving {len({t['node'] for t in a['targets']})} nodes (render --animation {i})")
+              f"driving {nodes} nodes{also} (render --animation {i})")
     if info["time_range"]:
         r = info["time_range"]
         print(f"  time codes {r['start']:g} .. {r['end']:g} at {r['time_codes_per_second']:g} "
               f"per second ({r['duration']:.3g} s; render --time SECONDS)")
+    for a in info["skel_animations"]:
+        span = f", codes {a['first']:g} .. {a['last']:g}" if a["samples"] else ""
+        shapes = f", blend shapes {', '.join(map(repr, a['blend_shapes']))}" if a["blend_shapes"] else ""
+        print(f"  skel animation {a['path']}: {a['joints']} joints{shapes}, {a['samples']} time samples{span}")
     if info["backdrop"]:
         print("  backdrop (not framed): " + ", ".join(map(repr, info["backdrop"])))
     for w in info["warnings"]:

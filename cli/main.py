@@ -10,6 +10,7 @@ import importlib
 import logging
 import os
 import sys
+from collections.abc import Collection
 
 COMMANDS = {
     "inspect": ("cli.inspect", "print what an asset holds (meshes, materials, bounds)"),
@@ -21,30 +22,38 @@ COMMANDS = {
 
 
 def add_commands(parser: argparse.ArgumentParser, table: dict[str, tuple[str, str]],
-                 dest: str, run_attr: str) -> None:
-    """One subcommand per (module, help) entry; the module's `run` lands in `args.<run_attr>`."""
+                 dest: str, run_attr: str, only: Collection[str] | None = None) -> None:
+    """One subcommand per (module, help) entry; the module's `run` lands in `args.<run_attr>`.
+    With `only`, the other entries are listed (for --help) but their modules not imported."""
     sub = parser.add_subparsers(dest=dest, required=True, metavar=dest.upper())
     for name, (module, help_text) in table.items():
-        mod = importlib.import_module(module)
         p = sub.add_parser(name, help=help_text, description=help_text)
+        if only is not None and name not in only:
+            continue
+        mod = importlib.import_module(module)
         mod.configure(p)
         p.set_defaults(**{run_attr: mod.run})
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """The parser for `argv`: only the command it names is configured, so a cold `render`
+    does not import the service's settings and every benchmark to build options it never
+    parses (the top-level options take no values: the first other word is the command)."""
     parser = argparse.ArgumentParser(prog="asset-preview", description=__doc__.splitlines()[0])
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
-    add_commands(parser, COMMANDS, "command", "_run")
+    words = sys.argv[1:] if argv is None else argv
+    command = next((w for w in words if not w.startswith("-")), None)
+    add_commands(parser, COMMANDS, "command", "_run", only=[command] if command else [])
     return parser
 
 
 def cli_message(exc) -> str:
     """The error as a command line says it: a reference refused for leaving the root names the
-    flag that widens it (the service says the same of the upload in its own words)."""
+    flag that set it (the service says the same of the upload in its own words)."""
     from core.errors import UnsafeReference
     text = str(exc)
     if isinstance(exc, UnsafeReference) and ("outside the root" in text or "leaves the root" in text):
-        text += " (widen it with --root DIR)"
+        text += " (the folder of --sandbox DIR: widen it, or leave it out for a trusted file)"
     return text
 
 
@@ -63,7 +72,7 @@ def run_guarded(run, args) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    args = build_parser(argv).parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     return run_guarded(args._run, args)

@@ -9,6 +9,8 @@ import sys
 
 from pydantic import ValidationError
 
+from cli import sandbox
+
 log = logging.getLogger(__name__)
 
 _IMAGE_EXT = (".png", ".jpg", ".jpeg", ".webp", ".gif", ".npy", ".exr")
@@ -25,8 +27,7 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quality", type=int, default=None, help="JPEG / WebP quality")
     p.add_argument("--linear", help="also write the linear frame (.exr or .npy)")
     p.add_argument("--cache", default=None, help="cache directory (default $ASSET_PREVIEW_CACHE or ./.cache)")
-    p.add_argument("--root", default=None, metavar="DIR",
-                   help="folder the asset's references may read from (default: the asset's folder)")
+    sandbox.add_argument(p)
     p.add_argument("--json", action="store_true", help="print the plan and timings as JSON")
     p.add_argument("--explain", action="store_true", help="print the method chosen for each "
                    "object and why (auto's decisions, renderer/methods/auto.py)")
@@ -66,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     if out_ext == ".gif" and not (options.turntable or options.animate):
         return _fail(f"{args.out}: .gif is for --turntable; use .png .jpg or .webp")
     from core.animation import requested
-    asset = bake_asset(args.path, args.cache, root=args.root,
+    asset = bake_asset(args.path, args.cache, root=sandbox.root(args),
                        moment=None if options.animate else requested(options), **asset_options(options))
     face, env_why = environment_face_size(asset, options)
     env_source = environment_source(asset, args.path, args.env, DEFAULT_ENVIRONMENT, options.lights)
@@ -75,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         if options.animate:  # one pose per frame, one camera over the whole motion
             from pipeline.animate import poses_for
-            posed_assets, motion = poses_for(args.path, asset, options, args.root)
+            posed_assets, motion = poses_for(args.path, asset, options, sandbox.root(args))
             frames = render_animation(posed_assets, env, options, motion or {})
             frame = frames[0]
         elif options.turntable:  # N frames from this one bake and one upload

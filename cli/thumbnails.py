@@ -57,13 +57,13 @@ class Thumbnails:
                                                 "env": env}, default=str))
         self._envs: dict[int, Any] = {}
 
-    def name_for(self, path: str, root: str | None) -> str:
-        rel = os.path.relpath(path, root) if root else os.path.basename(path)
+    def name_for(self, path: str, folder: str | None) -> str:
+        rel = os.path.relpath(path, folder) if folder else os.path.basename(path)
         if rel.startswith(".."):
             rel = os.path.basename(path)
         return Path(rel).as_posix() + "." + self.fmt
 
-    def add(self, result: dict, root: str | None) -> dict:
+    def add(self, result: dict, folder: str | None) -> dict:
         """Thumbnail the asset of one bake result; returns the manifest entry (status
         `rendered`, `kept` when nothing changed, or `failed` with the reason)."""
         path = result["path"]
@@ -73,7 +73,7 @@ class Thumbnails:
                      "files": [], "warnings": [], "seconds": 0.0}
             self._store(path, entry)
             return entry
-        name = self.name_for(path, root)
+        name = self.name_for(path, folder)
         old = self.entries.get(path)
         if (old and old.get("status") != "failed" and old.get("key") == result["key"]
                 and old.get("signature") == self.signature

@@ -3,7 +3,10 @@
 A `Channel` is a glTF animation channel with its sampler folded in: the node it drives, the
 property (`translation`, `rotation`, `scale` or morph `weights`), the interpolation and the
 keyframes. `Animation.pose(t)` evaluates every channel at `t` seconds into per-node values
-that a reader composes in place of the node's own (pipeline.gltf.reader). Interpolation is
+that a reader composes in place of the node's own (pipeline.gltf.reader); a
+KHR_animation_pointer channel on anything else (a material factor, a texture transform, a
+light's colour, a camera's yfov) keeps its JSON pointer, and `Animation.pointers(t)` gives
+their values, which the reader writes into the document before it reads those objects. Interpolation is
 as the glTF 2.0 specification defines it (Appendix C): STEP holds the previous key, LINEAR
 lerps (rotations by shortest-arc slerp), CUBICSPLINE is the Hermite spline over the
 in-tangent / value / out-tangent triplets, tangents scaled by the key interval; before the
@@ -18,7 +21,7 @@ import numpy as np
 
 from core.errors import NotInAsset
 
-Path = Literal["translation", "rotation", "scale", "weights"]
+Path = Literal["translation", "rotation", "scale", "weights", "pointer"]
 Interpolation = Literal["LINEAR", "STEP", "CUBICSPLINE"]
 POSTER = "poster"
 
@@ -40,6 +43,7 @@ class Channel:
     times: np.ndarray   # K, float64, strictly increasing
     values: np.ndarray  # K x W (K x 3 x W for CUBICSPLINE: in-tangent, value, out-tangent)
     node_name: str = ""  # for people: what inspect lists
+    pointer: str = ""  # path "pointer": the JSON pointer it drives (KHR_animation_pointer; node -1)
 
     def sample(self, t: float) -> np.ndarray:
         """The channel's value at `t` seconds (W,), float64."""
@@ -68,16 +72,23 @@ class Animation:
         """node -> {path: value at t} for every node a channel drives."""
         out: dict[int, dict[str, np.ndarray]] = {}
         for c in self.channels:
-            out.setdefault(c.node, {})[c.path] = c.sample(t)
+            if not c.pointer:
+                out.setdefault(c.node, {})[c.path] = c.sample(t)
         return out
+
+    def pointers(self, t: float) -> dict[str, np.ndarray]:
+        """JSON pointer -> value at t, for every KHR_animation_pointer channel that does
+        not drive a node's TRS or weights (those are ordinary channels)."""
+        return {c.pointer: c.sample(t) for c in self.channels if c.pointer}
 
     def summary(self) -> dict:
         """What `inspect` lists: name, time range, channels and what they drive."""
         return {"name": self.name, "start": round(self.start, 6), "duration": round(self.duration, 6),
                 "channels": len(self.channels),
                 "targets": [{"node": c.node, "name": c.node_name, "path": c.path,
-                             "interpolation": c.interpolation, "keys": len(c.times)}
-                            for c in sorted(self.channels, key=lambda c: (c.node, c.path))]}
+                             "interpolation": c.interpolation, "keys": len(c.times),
+                             **({"pointer": c.pointer} if c.pointer else {})}
+                            for c in sorted(self.channels, key=lambda c: (c.node, c.path, c.pointer))]}
 
 
 def poster_time(animation: Animation) -> float:

@@ -182,6 +182,9 @@ class RenderOptions:
     purposes: tuple[Purpose, ...] = Field(default=("render",), description=(
         "USD: the purposes drawn besides default, comma-separated from render, proxy, guide "
         "(usdview's toggles; default render; empty: default only)"))
+    draw_mode: Literal["authored", "full"] = Field(default="authored", description=(
+        "USD: authored draws the model:drawMode stand-ins a stage asks for (origin axes, "
+        "bounds box, cards), as usdview does; full draws those models' geometry instead"))
 
     @field_validator("background", mode="before")
     @classmethod

@@ -259,6 +259,7 @@ class Scene:
     # it, not by the studio (pipeline.lighting); an untextured dome's uniform radiance (linear)
     own_lighting: bool = False
     dome_radiance: tuple[float, float, float] | None = None
+    dome_scale: tuple[float, float, float] | None = None  # a textured dome's factor on its texture
     warnings: list[str] = field(default_factory=list)
     files: list[str] = field(default_factory=list)  # every file read (the asset and what it references)
     absent: list[str] = field(default_factory=list)  # files it looked for and did not find (cache key)
@@ -268,6 +269,7 @@ class Scene:
     extensions: dict[str, str] = field(default_factory=dict)  # used -> supported|partial|ignored
     animations: list[dict] = field(default_factory=list)  # core.animation.Animation.summary()s
     time_range: dict | None = None  # USD: start/end time codes and timeCodesPerSecond
+    skel_animations: list[dict] = field(default_factory=list)  # USD: each SkelAnimation's joints, shapes, samples
     moment: dict | None = None  # the animation and time the scene was posed at; None: at rest
 
     @property

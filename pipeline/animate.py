@@ -47,7 +47,8 @@ def posed(path, base: BakedAsset, moment: Moment, root=None, limits: Limits | No
     opts = (base.manifest or {}).get("options", {})  # the same variants and purposes as base
     scene = load_scene(Path(path), limits, root, moment=moment,
                        variant_sets=tuple(opts.get("variant_sets", ())),
-                       purposes=tuple(opts.get("purposes", ("render",))))
+                       purposes=tuple(opts.get("purposes", ("render",))),
+                       draw_mode=opts.get("draw_mode", "authored"))
     scene.textures = []  # not decoded again: no pose changes them, base's are used
     key = f"{base.key}@{moment.animation or ''}:{float(moment.time):.6f}"
     baked = build_baked(scene, key, {**opts,

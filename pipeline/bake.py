@@ -35,7 +35,7 @@ from core.mips import level_shapes, texture_size_for
 from core.scene import Light, Material, Sampler, Scene, SceneCamera, TextureRef, extent, is_srgb
 from pipeline.cache import BAKE_FORMAT_VERSION, Cache, Entry, NotInCache, SourceFiles
 from pipeline.environment import prefilter as environment
-from pipeline.environment import uniform
+from pipeline.environment import scaled, uniform
 from pipeline.environment.panorama import load_panorama, resolve_panorama
 from pipeline.ingest import load_scene
 from pipeline.limits import Limits
@@ -56,15 +56,19 @@ log = logging.getLogger(__name__)
 # - variant_sets: USD variant selections, "[PRIM:]SET=NAME" in order (pipeline.usd.stage.load).
 # - purposes: USD purposes drawn besides default (render, proxy, guide); other formats have
 #   none, so theirs is always the default (one bake whatever a request asks).
+# - draw_mode: USD model:drawMode stand-ins drawn ("authored") or the geometry ("full");
+#   likewise always the default for other formats.
 ASSET_OPTIONS = {"interior_epsilon": None, "subdivision_levels": None, "thumbnail_size": 1024,
-                 "moment": None, "variant_sets": (), "purposes": ("render",)}
+                 "moment": None, "variant_sets": (), "purposes": ("render",),
+                 "draw_mode": "authored"}
 USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
 
 
 def asset_options(options) -> dict:
     """The bake options a core.options.RenderOptions asks for (which prims a USD stage
     draws); the pose (`moment`) is the caller's, as an animation bakes none."""
-    return {"variant_sets": tuple(options.variant_set), "purposes": tuple(options.purposes)}
+    return {"variant_sets": tuple(options.variant_set), "purposes": tuple(options.purposes),
+            "draw_mode": options.draw_mode}
 PREFILTERS = ("ggx", "paper")
 _MESH_ARRAYS = ("positions", "normals", "indices", "tangents", "uv0", "uv1", "colors", "interior",
                 "edges", "edge_faces", "support")
@@ -98,6 +102,7 @@ def bake_or_load_asset(path, cache_dir=None, *, force: bool = False, limits: Lim
     opts["variant_sets"], opts["purposes"] = tuple(opts["variant_sets"]), tuple(opts["purposes"])
     if Path(path).suffix.lower() not in USD_SUFFIXES:
         opts["purposes"] = ASSET_OPTIONS["purposes"]
+        opts["draw_mode"] = ASSET_OPTIONS["draw_mode"]
     if isinstance(opts["moment"], Moment):
         opts["moment"] = dataclasses.asdict(opts["moment"])
     cache = _cache(cache_dir)
@@ -115,7 +120,8 @@ def bake_or_load_asset(path, cache_dir=None, *, force: bool = False, limits: Lim
         start = time.perf_counter()
         scene = load_scene(path, limits, root,
                            moment=None if opts["moment"] is None else Moment(**opts["moment"]),
-                           variant_sets=opts["variant_sets"], purposes=opts["purposes"])
+                           variant_sets=opts["variant_sets"], purposes=opts["purposes"],
+                           draw_mode=opts["draw_mode"])
         ingest_s = time.perf_counter() - start
         source = SourceFiles.hash(path, scene.files, scene.absent)
     except (FileNotFoundError, PermissionError, IsADirectoryError) as exc:  # changed under us
@@ -230,6 +236,7 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> Bak
         os.path.relpath(scene.environment, Path(scene.source).resolve().parent),
         "own_lighting": scene.own_lighting,  # pipeline.lighting
         "dome_radiance": None if scene.dome_radiance is None else list(scene.dome_radiance),
+        "dome_scale": None if scene.dome_scale is None else list(scene.dome_scale),
     }
     cap = texture_size_for(opts["thumbnail_size"])
     spaces = _texture_spaces(scene)
@@ -440,6 +447,8 @@ def bake_or_load_environment(source, cache_dir=None, face_size: int = DEFAULT_FA
             "lut": [environment.LUT_SIZE, environment.LUT_SAMPLES]}
     if uniform.parse(source) is not None:  # one module makes every uniform one: the value keys it
         opts["uniform"] = list(uniform.parse(source))  # type: ignore[arg-type]
+    if scaled.parse(source) is not None:  # a textured dome's factor: the file's content and it
+        opts["scale"] = list(scaled.parse(source)[0])  # type: ignore[index]
     source_files = SourceFiles.hash(resolve_panorama(source))
     key = source_files.key("environments", opts)
     if not force:

@@ -8,8 +8,7 @@ import struct
 import warnings
 
 import numpy as np
-import OpenEXR
-from PIL import Image
+from PIL import Image, JpegImagePlugin, PngImagePlugin, TgaImagePlugin, WebPImagePlugin  # noqa: F401  (FORMATS)
 
 from core.errors import LimitExceeded, MalformedAsset
 from core.scene import Sampler, Texture
@@ -18,9 +17,9 @@ from pipeline.limits import Limits
 log = logging.getLogger(__name__)
 
 FORMATS = ("PNG", "JPEG", "WEBP", "TGA")  # TGA: USD textures (UsdUVTexture reads it)
-# Register every plugin now: with a `formats` list naming one not yet registered (WEBP),
-# Image.open would re-run Image.init() on every call (over 100 us each).
-Image.init()
+# Their plugins are imported above, which registers them: with a `formats` list naming one not
+# registered (WEBP), Image.open would re-run Image.init() on every call (over 100 us each), and
+# Image.init() imports every plugin Pillow has, a cost each cold process paid.
 
 
 def decode_image(data: bytes | memoryview, source: str, limits: Limits) -> np.ndarray:
@@ -76,6 +75,7 @@ EXR_MAGIC = b"\x76\x2f\x31\x01"
 
 def _exr_size(data: bytes | memoryview, source: str, limits: Limits) -> tuple[int, int]:
     """An OpenEXR image's data window (header only), checked against the limits."""
+    import OpenEXR  # here and in _decode_exr: only EXR textures need it
     try:
         header = OpenEXR.File(io.BytesIO(bytes(data)), header_only=True).header()
         (x0, y0), (x1, y1) = header["dataWindow"]
@@ -93,6 +93,7 @@ def _decode_exr(data: bytes | memoryview, source: str, limits: Limits) -> np.nda
     clipped to 0..1): textures are held as 8-bit, and an EXR texture is mostly a colour map,
     which the renderer samples as sRGB; a data EXR (roughness, normals) reads off-curve."""
     w, h = _exr_size(data, source, limits)
+    import OpenEXR
     try:
         channels = OpenEXR.File(io.BytesIO(bytes(data)), separate_channels=True).channels()
     except Exception as exc:

@@ -35,7 +35,6 @@ from core.scene import Mesh, Scene
 from pipeline import deadline
 from pipeline import mesh as plain_mesh
 from pipeline.framing import mark_backdrops
-from pipeline.gltf import reader as gltf
 from pipeline.limits import Limits
 from pipeline.normals import compute_tangents, smooth_normals
 
@@ -49,6 +48,7 @@ READERS = {".gltf": "gltf", ".glb": "gltf",
 def _reader(kind: str):
     """The format's reader module."""
     if kind == "gltf":
+        from pipeline.gltf import reader as gltf  # as usd below: each format's reader when it reads
         return gltf
     if kind == "usd":
         from pipeline.usd import stage as usd  # usd-core is heavy: imported by USD reads only
@@ -57,12 +57,14 @@ def _reader(kind: str):
 
 
 def load_scene(path, limits: Limits | None = None, root=None, moment: Moment | None = None,
-               variant_sets: tuple[str, ...] = (), purposes: tuple[str, ...] = ("render",)) -> Scene:
+               variant_sets: tuple[str, ...] = (), purposes: tuple[str, ...] = ("render",),
+               draw_mode: str = "authored") -> Scene:
     """Read any supported asset into a finished Scene; bad input raises an AssetError.
     Files it references must lie inside `root` (default: its folder; `paths.sandbox_root`).
     `moment`: the animation time to pose it at (glTF, USD; core.animation), None at rest.
     `variant_sets`: USD variant selections, "[PRIM:]SET=NAME" (pipeline.usd.stage.load);
-    `purposes`: the USD purposes drawn besides default (other formats have none)."""
+    `purposes`: the USD purposes drawn besides default (other formats have none); `draw_mode`:
+    USD model:drawMode stand-ins ("authored") or the geometry ("full")."""
     path = Path(path)
     limits = limits or Limits.from_env()
     try:
@@ -92,6 +94,8 @@ def load_scene(path, limits: Limits | None = None, root=None, moment: Moment | N
             extra: dict = {"variant_sets": tuple(variant_sets)} if variant_sets else {}
             if kind == "usd" and tuple(purposes) != ("render",):
                 extra["purposes"] = tuple(purposes)
+            if kind == "usd" and draw_mode != "authored":
+                extra["draw_mode"] = draw_mode
             if moment is None:
                 scene = reader.load(path, limits, root, **extra)
             elif kind == "mesh":

@@ -1,7 +1,7 @@
 """Which environment lights a render when the request names none.
 
 A USD stage with its own lights is lit by them, as Hydra Storm (usdview) lights it: its
-textured DomeLight's panorama, an untextured dome's uniform radiance, or, with only
+textured DomeLight's panorama (times its intensity x 2^exposure x colour), an untextured dome's uniform radiance, or, with only
 distant / sphere / rect / disk lights, no environment light at all (`dark`: the background
 option still draws, and reflections show only the lights' highlights). The studio
 environment lights everything else (glTF's KHR_lights_punctual lights are added to it, as
@@ -13,7 +13,7 @@ from __future__ import annotations
 import logging
 import os
 
-from pipeline.environment import uniform
+from pipeline.environment import scaled, uniform
 
 log = logging.getLogger(__name__)
 
@@ -36,9 +36,10 @@ def environment_source(asset, path, requested: str | None, default: str, lights:
     if requested:
         return requested
     dome = dome_texture(asset, path)
-    if dome:
-        return dome
     manifest = asset.manifest or {}
+    if dome:  # its intensity x exposure x colour on the texture (UsdLux)
+        factor = manifest.get("dome_scale")
+        return scaled.name(factor, dome) if factor is not None else dome
     if not (lights and manifest.get("own_lighting")):
         return default
     if manifest.get("dome_radiance") is not None:

@@ -1,5 +1,5 @@
 """Limits on untrusted input and the pipeline's own knobs: flags, then ASSET_PREVIEW_* variables,
-then defaults (pydantic-settings; one declaration per knob, read once per process)."""
+then defaults (core.config.FromEnv; one declaration per knob, read once per process)."""
 from __future__ import annotations
 
 from functools import lru_cache

@@ -1,11 +1,12 @@
 """Resolving file references found inside an asset, refusing anything unsafe.
 
-An asset may only read files inside its sandbox root: no network, no absolute paths, no `..`
-escapes, no symlinks that lead out. The root is one rule for every format (`sandbox_root`):
-the asset's own folder by default; the CLI passes the folder given on its command line
-(`asset-bake LIB/`: LIB, so assets of a library may share LIB/parts) or `--root DIR`; the
-service passes the upload (or unpacked zip) folder. `data:` URIs are not paths; the glTF
-reader decodes them before it would call this.
+Untrusted input may only read files inside its sandbox root: no network, no absolute paths,
+no `..` escapes, no symlinks that lead out. The root is one rule for every format
+(`sandbox_root`): the asset's own folder by default (the library call); the service passes the
+upload (or unpacked zip) folder, always. Files a user names on the command line are trusted as
+usdview, Blender and f3d trust them: the CLI passes `UNCONFINED` (any local file, absolute
+paths included; still no URLs: nothing is downloaded), or the folder of `--sandbox DIR`.
+`data:` URIs are not paths; the glTF reader decodes them before it would call this.
 """
 from __future__ import annotations
 
@@ -17,6 +18,9 @@ from core.errors import MissingFile, UnsafeReference
 
 # "scheme:" per RFC 3986; a single letter is a Windows drive ("C:"), refused as absolute.
 _SCHEME = re.compile(r"^([A-Za-z][A-Za-z0-9+.\-]*):")
+
+# The root that holds every local path: a trusted local file reads its neighbours anywhere.
+UNCONFINED = Path("/")
 
 
 def sandbox_root(asset, root=None) -> Path:
@@ -41,8 +45,8 @@ def resolve_reference(asset: Path, uri: str, base_dir: Path | None = None,
     """
     asset = Path(asset)
     base = Path(base_dir) if base_dir is not None else asset.parent
-    path_text = relative_path_text(asset, uri)
     top_real = sandbox_root(asset, root)
+    path_text = relative_path_text(asset, uri, absolute_ok=top_real == UNCONFINED)
     candidate = base / path_text
     # Lexical check first (catches `..` even when the target is missing), then the real one
     # (catches symlinks whose target lies outside).
@@ -59,12 +63,12 @@ def resolve_reference(asset: Path, uri: str, base_dir: Path | None = None,
     return real
 
 
-def relative_path_text(asset, uri: str) -> str:
+def relative_path_text(asset, uri: str, absolute_ok: bool = False) -> str:
     """The relative path `uri` (found inside `asset`) spells, `/`-separated and unquoted.
 
-    Raises UnsafeReference for an empty reference, a URL of any scheme, a NUL byte and an
-    absolute path. Where the path leads is the caller's to check (`resolve_reference` on
-    disk, `usd_layers` inside a package)."""
+    Raises UnsafeReference for an empty reference, a URL of any scheme, a NUL byte, a drive
+    path and (unless `absolute_ok`: an unconfined local file) an absolute path. Where the path
+    leads is the caller's to check (`resolve_reference` on disk, `usd_layers` inside a package)."""
     if not uri or not uri.strip():
         raise UnsafeReference(asset, "empty file reference")
     m = _SCHEME.match(uri)
@@ -74,7 +78,8 @@ def relative_path_text(asset, uri: str) -> str:
     path_text = unquote(uri).replace("\\", "/")
     if "\x00" in path_text:
         raise UnsafeReference(asset, f"refusing reference {uri!r}: NUL byte in path")
-    if (m and len(m.group(1)) == 1) or path_text.startswith("/") or PurePosixPath(path_text).is_absolute():
+    posix_absolute = path_text.startswith("/") or PurePosixPath(path_text).is_absolute()
+    if (m and len(m.group(1)) == 1) or (posix_absolute and not absolute_ok):
         raise UnsafeReference(asset, f"refusing absolute path {uri!r}: references must be "
                                      "relative to the asset")
     return path_text

@@ -1,6 +1,6 @@
 """Service configuration: command-line flags, then ASSET_PREVIEW_* variables, then defaults.
 
-One declaration per knob (pydantic-settings): `asset-preview serve --help`, the environment
+One declaration per knob (core.config.FromEnv): `asset-preview serve --help`, the environment
 and README's table all come from the fields below. Defaults work with nothing set: cache in
 ./.cache, one render worker per core, no API key (and then loopback only).
 """

@@ -102,9 +102,9 @@ def _animated(path: Path) -> Path:
                                  "componentType": 5121},
                      "values": {"bufferView": b.view(np.array([1.0], np.float32).tobytes())}}
     # the skinned cube: one joint, node `joint`, identity inverse bind
-    skinned = b.mesh(CUBE_POSITIONS + np.float32([10, 0, 0]), CUBE_INDICES,
+    skinned = b.mesh(CUBE_POSITIONS + np.array([10, 0, 0], np.float32), CUBE_INDICES,
                      JOINTS_0=np.zeros((8, 4), np.uint8),
-                     WEIGHTS_0=np.tile(np.float32([1, 0, 0, 0]), (8, 1)))
+                     WEIGHTS_0=np.tile(np.array([1, 0, 0, 0], np.float32), (8, 1)))
     joint = b.node(None, translation=[0.0, 0.0, 0.0])
     b.node(skinned, skin=0)
     b.doc["skins"] = [{"joints": [joint]}]
@@ -164,7 +164,8 @@ def test_unknown_animation_names_what_there_is(tmp_path):
     path = _animated(tmp_path / "anim.glb")
     with pytest.raises(NotInAsset, match="no animation 'run'.*'all'"):
         load_scene(path, moment=Moment(0.0, "run"))
-    assert load_scene(path, moment=Moment(0.5, "0")).moment["animation"] == "all"
+    moment = load_scene(path, moment=Moment(0.5, "0")).moment
+    assert moment is not None and moment["animation"] == "all"
 
 
 def test_cesium_man_skin_against_numpy(assets):
@@ -222,6 +223,162 @@ def test_usd_time_sampled_xform_between_samples(tmp_path):
     assert load_scene(path, moment=Moment("poster")).bounds[0, 0] == pytest.approx(1.0)
 
 
+def _quat_matrix(q) -> np.ndarray:
+    """Row-vector 3 x 3 rotation of a unit quaternion (w, x, y, z), as USD's GfQuat writes it."""
+    w, x, y, z = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)],
+                     [2 * (x * y - w * z), 1 - 2 * (x * x + z * z), 2 * (y * z + w * x)],
+                     [2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)]])
+
+
+def test_usd_skel_posed_between_samples_matches_numpy_lbs(assets):
+    """tests/assets/usd/skel/bending_arm.usda: the elbow turns 0 -> 90 degrees over time codes
+    0 -> 10 and a blend shape lifts the hand by 0.5 m. At 0.25 s (time code 2.5, a quarter of
+    the way) the elbow is at 22.5 degrees and the shape at weight 0.25: the points are the blend
+    shape's, then linear blend skinning by the skeleton's joints (evaluated here in numpy from
+    the file's raw bind transforms, influences and offsets), then the skeleton's translate;
+    the authored normals plus the shape's normalOffsets follow the joints (inverse-transpose,
+    renormalised)."""
+    from pxr import Usd
+    path = assets / "usd/skel/bending_arm.usda"
+    stage = Usd.Stage.Open(str(path))
+    mesh, skel = stage.GetPrimAtPath("/Arm/Skin"), stage.GetPrimAtPath("/Arm/Skel")
+    points = np.array(mesh.GetAttribute("points").Get(), np.float64)
+    normals = np.array(mesh.GetAttribute("normals").Get(), np.float64)
+    index = np.array(mesh.GetAttribute("primvars:skel:jointIndices").Get()).reshape(-1, 2)
+    weight = np.array(mesh.GetAttribute("primvars:skel:jointWeights").Get()).reshape(-1, 2)
+    shape = stage.GetPrimAtPath("/Arm/Skin/Lift")
+    offsets = np.array(shape.GetAttribute("offsets").Get(), np.float64)
+    hand = list(shape.GetAttribute("pointIndices").Get())
+    points[hand] += 0.25 * offsets
+    normals[hand] += 0.25 * np.array(shape.GetAttribute("normalOffsets").Get(), np.float64)
+    bind = [np.array(m) for m in skel.GetAttribute("bindTransforms").Get()]
+    # joint locals at code 2.5: the elbow's rotation slerped a quarter of the way to 90 degrees
+    half = math.radians(22.5) / 2
+    elbow = np.eye(4)
+    elbow[:3, :3] = _quat_matrix((math.cos(half), 0.0, 0.0, math.sin(half)))
+    elbow[3, :3] = (1.0, 0.0, 0.0)
+    world = [np.eye(4), elbow @ np.eye(4)]  # the elbow's parent is the shoulder (identity)
+    skinning = [np.linalg.inv(b) @ w for b, w in zip(bind, world)]  # row vectors
+    homogeneous = np.c_[points, np.ones(len(points))]
+    expected = sum(weight[:, k, None] * np.einsum("ni,nij->nj", homogeneous,
+                                                  np.stack([skinning[j] for j in index[:, k]]))
+                   for k in range(2))[:, :3] + (0.0, 0.0, 2.0)
+    turned = sum(weight[:, k, None] * np.einsum("ni,nij->nj", normals, np.stack(
+        [np.linalg.inv(skinning[j][:3, :3]).T for j in index[:, k]])) for k in range(2))
+    turned /= np.linalg.norm(turned, axis=1, keepdims=True)
+    # by hand, the hand's inner corner: the elbow (1, 0) plus (1, 0.125) turned 22.5 degrees
+    c, s = math.cos(math.radians(22.5)), math.sin(math.radians(22.5))
+    np.testing.assert_allclose(expected[2], (1 + c - 0.125 * s, s + 0.125 * c, 2.0), atol=1e-9)
+
+    scene = load_scene(path, moment=Moment(0.25))
+    assert scene.moment == {"time_code": 2.5} and not scene.warnings
+    assert scene.skel_animations == [{"path": "/Arm/Skel/Bend", "joints": 2, "blend_shapes": ["Lift"],
+                                      "samples": 2, "first": 0.0, "last": 10.0}]  # for inspect
+    (inst,) = scene.instances
+    m = scene.meshes[inst.mesh]
+    got = m.positions @ inst.matrix[:3, :3].T + inst.matrix[:3, 3]
+    got_n = m.normals @ inst.matrix[:3, :3].T
+    assert len(got) == len(expected)
+    for p, n in zip(got, got_n):  # ingest may reorder vertices: match each to its point
+        k = int(np.argmin(np.linalg.norm(expected - p, axis=1)))
+        np.testing.assert_allclose(p, expected[k], atol=1e-5)
+        np.testing.assert_allclose(n, turned[k], atol=1e-5)
+    # at the start the arm is straight and flat: the skin is the bind pose itself
+    rest = load_scene(path, moment=Moment(0.0))
+    r = rest.meshes[rest.instances[0].mesh]
+    assert r.positions[:, 1].max() == pytest.approx(0.0, abs=1e-6)
+    np.testing.assert_allclose(r.normals @ rest.instances[0].matrix[:3, :3].T,
+                               np.tile((0.0, 1.0, 0.0), (len(r.normals), 1)), atol=1e-6)
+
+
+def test_usd_skel_face_varying_normals_follow_their_points(assets, tmp_path):
+    """The same arm with its normals authored per face-vertex (indexed): each is skinned by
+    its point's influences; at code 10 the elbow is at 90 degrees, so the hand's normals
+    (all on the elbow joint) turn from +Y to -X, the shoulder's stay +Y. The blend shape's
+    normalOffsets apply to vertex normals only (as UsdSkel has it): not to these."""
+    text = (assets / "usd/skel/bending_arm.usda").read_text()
+    vertex = text[text.index("        normal3f[] normals"):text.index("        int[] primvars:skel:jointIndices")]
+    face_varying = """        normal3f[] primvars:normals = [(0, 1, 0)] (
+            interpolation = "faceVarying"
+        )
+        int[] primvars:normals:indices = [0, 0, 0, 0, 0, 0, 0, 0]
+"""
+    path = tmp_path / "arm.usda"
+    path.write_text(text.replace(vertex, face_varying))
+    scene = load_scene(path, moment=Moment(1.0))
+    assert not scene.warnings
+    (inst,) = scene.instances
+    m = scene.meshes[inst.mesh]
+    p = m.positions @ inst.matrix[:3, :3].T + inst.matrix[:3, 3]
+    n = m.normals @ inst.matrix[:3, :3].T
+    hand = p[:, 1] > 0.9  # bound at x = 2, lifted 0.5, turned about the elbow: (0.5, 1)
+    shoulder = np.isclose(p[:, 0], 0.0, atol=1e-6)
+    assert hand.sum() == 2 and shoulder.sum() == 2
+    np.testing.assert_allclose(n[hand], [[-1.0, 0.0, 0.0]] * 2, atol=1e-6)
+    np.testing.assert_allclose(n[shoulder], [[0.0, 1.0, 0.0]] * 2, atol=1e-6)
+
+
+CAMERA_AND_LIGHT = """#usda 1.0
+(
+    startTimeCode = 0
+    endTimeCode = 10
+    timeCodesPerSecond = 10
+    metersPerUnit = 1
+    upAxis = "Y"
+)
+def Xform "World"
+{
+    def Camera "Shot"
+    {
+        float focalLength.timeSamples = { 0: 50, 10: 25 }
+        float verticalAperture = 24
+        float2 clippingRange = (0.1, 100)
+        double3 xformOp:translate.timeSamples = { 0: (0, 0, 10), 10: (4, 0, 10) }
+        uniform token[] xformOpOrder = ["xformOp:translate"]
+    }
+    def DistantLight "Sun"
+    {
+        float inputs:angle = 0
+        float inputs:intensity.timeSamples = { 0: 1, 10: 3 }
+        color3f inputs:color.timeSamples = { 0: (1, 0, 0), 10: (0, 0, 1) }
+        float xformOp:rotateY.timeSamples = { 0: 0, 10: 90 }
+        uniform token[] xformOpOrder = ["xformOp:rotateY"]
+    }
+    def Mesh "Floor"
+    {
+        int[] faceVertexCounts = [3]
+        int[] faceVertexIndices = [0, 1, 2]
+        point3f[] points = [(0, 0, 0), (1, 0, 0), (0, 0, -1)]
+    }
+}
+"""
+
+
+def test_usd_camera_and_light_attributes_between_samples(tmp_path):
+    """A camera's focal length and translate and a light's intensity, colour and rotation
+    are read at the moment's time code: 0.25 s is code 2.5, a quarter of the way, so the
+    focal length is 50 - 25 / 4 = 43.75 mm (vertical field of view 2 atan(12 / 43.75)), the
+    camera at x = 1, the light's intensity 1.5, its colour (0.75, 0, 0.25), and it is turned
+    22.5 degrees about +Y (it shines down its -Z: towards (-sin, 0, -cos))."""
+    path = tmp_path / "shot.usda"
+    path.write_text(CAMERA_AND_LIGHT)
+    scene = load_scene(path, moment=Moment(0.25))
+    (cam,) = scene.cameras
+    assert cam.yfov == pytest.approx(2 * math.atan(12 / 43.75), rel=1e-6)
+    np.testing.assert_allclose(cam.matrix[:3, 3], (1.0, 0.0, 10.0), atol=1e-9)
+    (sun,) = scene.lights
+    assert sun.type == "directional" and sun.intensity == pytest.approx(1.5)
+    np.testing.assert_allclose(sun.color, (0.75, 0.0, 0.25), atol=1e-6)
+    a = math.radians(22.5)
+    np.testing.assert_allclose(-sun.matrix[:3, 2], (-math.sin(a), 0.0, -math.cos(a)), atol=1e-6)
+    # the start, for contrast: the authored first samples
+    start = load_scene(path)
+    assert start.cameras[0].yfov == pytest.approx(2 * math.atan(12 / 50), rel=1e-6)
+    assert start.lights[0].intensity == pytest.approx(1.0)
+    np.testing.assert_allclose(start.lights[0].color, (1.0, 0.0, 0.0), atol=1e-6)
+
+
 # -- the CLI: --time, poster, --animate ---------------------------------------------------------
 
 def _sample(assets: Path, name: str) -> Path:
@@ -274,6 +431,26 @@ def test_animate_with_turntable_as_apng(assets, cache, tmp_path):
     assert getattr(im, "n_frames", 1) == 8  # 1.96 s at 4 fps
 
 
+def test_usd_animate_through_its_animated_camera(cache, tmp_path):
+    """--animate --camera PRIM on a stage whose camera dollies and zooms out and whose only
+    light turns from red to blue: each frame is seen through the camera at its own time code
+    (nothing else moves), so the triangle shifts left, shrinks, and its red falls."""
+    path = tmp_path / "shot.usda"
+    path.write_text(CAMERA_AND_LIGHT.replace("(0, 0, 0), (1, 0, 0), (0, 0, -1)",
+                                             "(-1, -1, 0), (1, -1, 0), (0, 1, 0)"))
+    out = tmp_path / "shot.png"
+    assert main(["render", str(path), "--out", str(out), "--size", "64", "--cache", cache,
+                 "--camera", "/World/Shot", "--animate", "2"]) == 0
+    frames = [np.asarray(f.convert("RGB"), np.int32) for f in ImageSequence.Iterator(Image.open(out))]
+    assert len(frames) == 2  # 0 and 0.5 s of the 1 s range
+    covered = [(f.max(axis=2) - f.min(axis=2)) > 40 for f in frames]  # the coloured triangle
+    cols = [np.nonzero(c.any(axis=0))[0] for c in covered]
+    assert covered[1].sum() < 0.8 * covered[0].sum()  # focal length 50 -> 37.5 mm
+    assert cols[1].mean() < cols[0].mean() - 2  # the camera moved +x: the triangle left
+    red = [f[c][:, 0].mean() for f, c in zip(frames, covered)]
+    assert red[1] < red[0]
+
+
 def test_animate_needs_an_animation(assets, cache, tmp_path, capsys):
     out = tmp_path / "box.webp"
     assert main(["render", str(assets / "gltf/BoxTextured.glb"), "--out", str(out), "--size", "32",
@@ -295,7 +472,7 @@ def test_time_and_animate_over_http(server, assets):
     r = server.client.get(url, params={"size": 48, "animate": 4, "format": "webp"})
     assert r.status_code == 200 and r.headers["content-type"] == "image/webp", r.text
     im = Image.open(io.BytesIO(r.content))
-    assert im.n_frames == 8 and im.size == (48, 48)
+    assert getattr(im, "n_frames", 1) == 8 and im.size == (48, 48)
     plan = json.loads(r.headers["x-render-plan"])
     assert plan["animate"]["frames"] == 8 and plan["animate"]["fps"] == 4
     stills = [server.client.get(url, params={"size": 48, **p}) for p in ({}, {"time": "0.6"})]
@@ -317,7 +494,7 @@ def test_worker_renders_time_and_animate(assets, tmp_path):
     key = state.bake(BakeJob(str(path))).key
     out = state.render(RenderJob(key, "studio", RenderOptions(width=40, height=40, animate=4), "webp"))
     im = Image.open(io.BytesIO(out.image))
-    assert im.n_frames == 8 and out.plan.details["animate"]["frames"] == 8
+    assert getattr(im, "n_frames", 1) == 8 and out.plan.details["animate"]["frames"] == 8
     rest, moved = (state.render(RenderJob(key, "studio", RenderOptions(width=40, height=40, time=t), "png"))
                    for t in (None, "0.6"))
     assert rest.image != moved.image

@@ -452,3 +452,34 @@ def test_brdf_lut_albedo_never_exceeds_one():
     e = lut[..., 0] + lut[..., 1]
     assert e.max() <= 1.0 + 1e-6 and lut[..., :2].min() >= 0.0
     assert e[:, -1].max() > 0.99  # not scaled down wholesale: a smooth lobe at normal view keeps ~1
+
+
+def test_shipped_brdf_lut_is_the_one_the_shader_draws():
+    """pipeline/data ships the LUT for the current PREFILTER_VERSION and LUT constants; a
+    change to the shader or the constants without `make brdf-lut` fails here."""
+    shipped = env.shipped_lut_path()
+    assert shipped.is_file(), f"{shipped} missing: run `make brdf-lut` (constants or version changed)"
+    assert [p.name for p in shipped.parent.glob("brdf_lut.*.npy")] == [shipped.name]  # no stale copies
+    drawn = env.draw_brdf_lut()
+    np.testing.assert_allclose(np.load(shipped), drawn, rtol=0, atol=1e-6)
+    assert np.array_equal(env.brdf_lut(), np.load(shipped))
+
+
+@pytest.mark.parametrize("method", env.METHODS)
+@pytest.mark.parametrize("rgb", [(1.0, 1.0, 1.0), (0.0, 0.0, 0.0), (0.3, 0.7, 0.01), (1234.5, 0.001, 3.14159)])
+def test_uniform_panorama_skips_gl_with_the_same_arrays(rgb, method):
+    """A constant panorama's mips are the constant itself; the GL passes give the same to
+    float rounding, and the SH and LUT are the ones any panorama gets."""
+    pixels = np.broadcast_to(np.float32(rgb), (8, 16, 3)).copy()
+    fast = env.prefilter(pixels, face_size=32, method=method)
+    slow = env._filtered(pixels, 32, cubemap.default_levels(32), method)
+    assert "context" not in fast.timings and "context" in slow.timings  # no GL on the fast path
+    assert [m.shape for m in fast.specular] == [m.shape for m in slow.specular]
+    for a, b in zip(fast.specular, slow.specular):
+        np.testing.assert_allclose(a, b, rtol=3e-6, atol=0)
+        assert np.all(a == np.float32(rgb))
+    np.testing.assert_array_equal(fast.irradiance_sh, slow.irradiance_sh)
+    np.testing.assert_array_equal(fast.brdf_lut, slow.brdf_lut)
+    # one texel off the constant takes the GL passes
+    pixels[3, 5, 0] += 0.5
+    assert "context" in env.prefilter(pixels, face_size=32, method=method).timings

@@ -101,7 +101,7 @@ def test_every_usd_sample_loads_with_pxr_triangle_count(assets):
     samples = usd_samples(assets)
     assert len(samples) >= 8
     for path in samples:
-        scene = load_scene(path)
+        scene = load_scene(path, draw_mode="full")  # every mesh, not draw-mode stand-ins
         assert scene.triangle_count == rendered_triangles(path) > 0, path
         assert np.all(np.isfinite(scene.bounds)), path
         assert all(Path(f).is_file() and Path(f).resolve().is_relative_to(path.parent.resolve())
@@ -130,7 +130,8 @@ def test_teapot_payload_and_variants_resolve(assets):
 
 
 def test_fancy_variant_materials_and_textures(assets):
-    scene = load_scene(assets / "usd/Teapot/DrawModes.usd")
+    # full: the teapots' own geometry and materials, not their draw-mode stand-ins
+    scene = load_scene(assets / "usd/Teapot/DrawModes.usd", draw_mode="full")
     assert len(scene.textures) == 2  # diffuse + ARM, shared by every fancy copy
     assert len(scene.materials) == 2  # PorcelainFlowers and Ceramic (equal copies shared)
     fancy = next(m for m in scene.materials if m.name.endswith("PorcelainFlowers"))

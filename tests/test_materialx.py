@@ -388,3 +388,92 @@ def test_several_documents_each_material_found(tmp_path):
         assert not any("fallback" in w for w in scene.warnings), scene.warnings
         np.testing.assert_allclose(m.base_color[:3], colour, atol=1e-6)
         assert m.metallic == pytest.approx(metallic)
+
+
+# -- MaterialX's UsdPreviewSurface node (ND_UsdPreviewSurface_surfaceshader) ------------------
+
+def test_usd_preview_surface_node_with_nodegraph_outputs(tmp_path):
+    """usd-wg MaterialXTest's `UsdPreviewSurface` node: its inputs, fed by a nodegraph's
+    outputs (an image, a folded multiply), read as the UsdShade UsdPreviewSurface is."""
+    quadrants_png(tmp_path / "q.png")
+    doc = """
+    <nodegraph name="NG">
+      <image name="img" type="color3"><input name="file" type="filename" value="q.png"/></image>
+      <constant name="r" type="float"><input name="value" type="float" value="0.2"/></constant>
+      <multiply name="r2" type="float"><input name="in1" type="float" nodename="r"/>
+        <input name="in2" type="float" value="2"/></multiply>
+      <output name="base_out" type="color3" nodename="img"/>
+      <output name="rough_out" type="float" nodename="r2"/>
+    </nodegraph>
+    """ + surface("UsdPreviewSurface", """
+      <input name="diffuseColor" type="color3" nodegraph="NG" output="base_out"/>
+      <input name="roughness" type="float" nodegraph="NG" output="rough_out"/>
+      <input name="metallic" type="float" value="0.75"/>
+      <input name="emissiveColor" type="color3" value="0.1, 0.2, 0.3"/>
+      <input name="clearcoat" type="float" value="0.5"/>
+    """)
+    scene, m = one(stage(tmp_path, doc, "/World/mtl/M"))
+    assert not [w for w in scene.warnings if "fallback" in w or "not read" in w], scene.warnings
+    assert m.base_color_texture is not None
+    assert scene.textures[m.base_color_texture.texture].source.endswith("q.png")
+    assert m.roughness == pytest.approx(0.4) and m.metallic == pytest.approx(0.75)
+    np.testing.assert_allclose(m.emissive, (0.1, 0.2, 0.3), atol=1e-6)
+    assert m.clearcoat == pytest.approx(0.5) and m.clearcoat_roughness == pytest.approx(0.01)
+    assert m.alpha_mode == "OPAQUE" and m.transmission == 0
+
+
+def test_usd_preview_surface_node_defaults_opacity_and_specular(tmp_path):
+    """Unauthored inputs take the node definition's defaults (diffuse 0.18, roughness 0.5,
+    metallic 0); opacity as the UsdShade reader reads it; the specular workflow."""
+    doc = "\n".join([
+        surface("UsdPreviewSurface", "", name="Plain"),
+        surface("UsdPreviewSurface", '<input name="opacity" type="float" value="0.2"/>'
+                                     '<input name="ior" type="float" value="1.45"/>', name="Glass"),
+        surface("UsdPreviewSurface", '<input name="opacity" type="float" value="0.3"/>', name="Fade"),
+        surface("UsdPreviewSurface", '<input name="opacity" type="float" value="0.8"/>'
+                                     '<input name="opacityThreshold" type="float" value="0.5"/>',
+                name="Cut"),
+        surface("UsdPreviewSurface", '<input name="useSpecularWorkflow" type="integer" value="1"/>'
+                                     '<input name="specularColor" type="color3" value="0.04, 0.2, 0.04"/>'
+                                     '<input name="metallic" type="float" value="1"/>', name="Spec"),
+    ])
+    got = {}
+    for name in ("Plain", "Glass", "Fade", "Cut", "Spec"):
+        _, got[name] = one(stage(tmp_path / name, doc, f"/World/mtl/{name}"))
+    plain = got["Plain"]
+    np.testing.assert_allclose(plain.base_color, (0.18, 0.18, 0.18, 1.0), atol=1e-6)
+    assert plain.roughness == pytest.approx(0.5) and plain.metallic == 0 and plain.ior == 1.5
+    assert got["Glass"].transmission == pytest.approx(0.8) and got["Glass"].alpha_mode == "OPAQUE"
+    assert got["Glass"].ior == pytest.approx(1.45)
+    assert got["Fade"].alpha_mode == "BLEND" and got["Fade"].base_color[3] == pytest.approx(0.3)
+    assert got["Cut"].alpha_mode == "MASK" and got["Cut"].alpha_cutoff == pytest.approx(0.5)
+    spec = got["Spec"]
+    assert spec.metallic == 0 and spec.specular == 1
+    np.testing.assert_allclose(np.array(spec.specular_color) * 0.04, (0.04, 0.2, 0.04), atol=1e-6)
+
+
+def test_usd_preview_surface_node_id_authored_in_usd_renders_as_preview_surface(tmp_path):
+    """info:id ND_UsdPreviewSurface_surfaceshader on outputs:mtlx:surface renders as the
+    UsdShade UsdPreviewSurface with the same inputs (usd-wg MaterialXTest drew grey here)."""
+    materials = """
+    def Material "M"
+    {
+        token outputs:mtlx:surface.connect = </World/M/S.outputs:out>
+        def Shader "S"
+        {
+            uniform token info:id = "ND_UsdPreviewSurface_surfaceshader"
+            color3f inputs:diffuseColor = (0.1047, 0.2419, 0.818)
+            float inputs:roughness = 0.3247
+            token outputs:out
+        }
+    }
+    """
+    mx = _render(stage(tmp_path / "mx", None, "/World/M", materials), tmp_path)
+    preview = PREVIEW.format(inputs='color3f inputs:diffuseColor = (0.1047, 0.2419, 0.818)\n'
+                                    'float inputs:roughness = 0.3247', extra="")
+    ps = _render(stage(tmp_path / "ps", None, "/World/P", preview), tmp_path)
+    covered = mx[..., 3] > 0.5
+    assert covered.mean() > 0.3 and np.array_equal(covered, ps[..., 3] > 0.5)
+    mean_mx, mean_ps = mx[covered, :3].mean(0), ps[covered, :3].mean(0)
+    assert mean_mx[2] > 2 * mean_mx[0]  # blue plastic, not the fallback grey
+    np.testing.assert_allclose(mean_mx, mean_ps, atol=0.01)

@@ -5,12 +5,14 @@ renderer's modules, counted with their package `__init__`s, import no cycle."""
 from __future__ import annotations
 
 import ast
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
 from core.options import RenderOptions
-from renderer.methods import raytrace, refraction, registry
+from renderer.methods import refraction, registry
 from renderer.raster import render as orchestration
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -19,9 +21,17 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_every_method_is_registered_once():
     assert registry.available_methods() == ["auto", "opaque", "single", "wyman", "raytrace"]
     assert registry.METHODS == {"single": refraction.draw_single, "wyman": refraction.draw_wyman}
-    assert registry.FRAME_METHODS == {"raytrace": raytrace.render_raytrace}
+    assert registry.FRAME_METHODS == {"raytrace": registry.render_raytrace}
     for name in registry.available_methods():
         registry.validate_options(RenderOptions(method=name))
+
+
+def test_a_raster_render_does_not_import_the_tracer():
+    """The registry's raytrace entry imports renderer.methods.raytrace when a frame is traced
+    (tests/test_raytrace*.py trace through it)."""
+    code = ("import sys, renderer.raster.render; "
+            "assert 'renderer.methods.raytrace' not in sys.modules, 'the raster path imports the tracer'")
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)
 
 
 def test_an_unregistered_method_is_refused_by_name():

@@ -75,7 +75,8 @@ CHANGED = {"width": 300, "height": 300, "yaw": 1.0, "pitch": 1.0, "fov": 50.0, "
            "debug": "tir", "budget_ms": 10.0, "time": "0.5", "animation": "walk", "animate": 12.0, "variant": "red", "camera": "0",
            "material_debug": "clearcoat", "target": (0.0, 1.0, 0.0), "env_rotation": 90.0,
            "alpha": "coverage", "shadow": 0.2, "turntable": 12, "views": True,
-           "variant_set": ("wheels=big",), "purposes": ("render", "proxy")}
+           "variant_set": ("wheels=big",), "purposes": ("render", "proxy"),
+           "draw_mode": "full"}
 
 
 def test_key_covers_every_field():

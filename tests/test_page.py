@@ -73,6 +73,41 @@ def _alert(b):
         return None
 
 
+def test_zip_with_several_entry_points_offers_them(server, browser, assets, tmp_path):
+    """A zip of two models: the 422's candidates are offered in the form, and the upload that
+    names the chosen one makes a card of that model."""
+    import zipfile
+
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import Select
+
+    b = browser
+    b.get(server.url + "/")
+    find = lambda css: b.find_element(By.CSS_SELECTOR, css)  # noqa: E731
+    kit = tmp_path / "kit.zip"
+    with zipfile.ZipFile(kit, "w") as zf:
+        zf.write(assets / "gltf/Duck.glb", "duck.glb")
+        zf.write(assets / "gltf/BoxTextured.glb", "other.glb")
+    assert not find("#main").is_displayed()
+    find("#key").send_keys(KEY)
+    find("#file").send_keys(str(kit))
+    find("#send").click()
+    wait(lambda: "2 entry points" in find("#msg").text, 30, lambda: f"the choice (page says {find('#msg').text!r})")
+    choice = Select(find("#main"))
+    assert find("#main").is_displayed()
+    assert [o.text for o in choice.options] == ["duck.glb", "other.glb"]
+    choice.select_by_visible_text("other.glb")
+    find("#send").click()
+    wait(lambda: "uploaded" in find("#msg").text, 60, lambda: f"the upload (page says {find('#msg').text!r})")
+    assert not find("#main").is_displayed()
+    listed = server.client.get("/assets").json()["assets"]
+    assert [(a["name"], a["triangles"]) for a in listed] == [("kit.zip", 12)], listed  # the box, not the duck
+    r = server.client.delete(f"/assets/{listed[0]['id']}", headers={"Authorization": f"Bearer {KEY}"})
+    assert r.status_code == 200, r.text
+    wait(lambda: not server.client.get("/assets").json()["assets"], 30, "the kit to be deleted")
+    b.execute_script("sessionStorage.clear()")  # the next test starts without the key
+
+
 def test_upload_watch_open_turn_delete(server, browser, assets, tmp_path):
     from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.by import By

@@ -51,7 +51,10 @@ def page(server):
 def _open(b, find, server, name):
     b.execute_script(f"document.querySelector('.card[data-id=\"{server.ids[name]}\"]').click()")
     wait(lambda: find("#d-name").text == name, 10, f"the detail view of {name}")
-    wait(lambda: find("#canvas").get_attribute("data-state") == "ready", 90, f"the still of {name}")
+    # generous: on a loaded 2-core host the still queues behind the other card's turntable
+    wait(lambda: find("#canvas").get_attribute("data-state") == "ready", 240,
+         lambda: f"the still of {name} (canvas {find('#canvas').get_attribute('data-state')!r}, "
+                 f"page says {find('#hint').text!r} {find('#d-error').text!r})")
 
 
 def _set(b, **values):

@@ -1,6 +1,6 @@
-"""The sandbox root: a library's assets may share parts inside the folder given to asset-bake
-(or --root), a single file only reads inside its own folder, and the root is named when a
-reference leaves it. One rule for USD layers, USD/MaterialX textures and glTF URIs."""
+"""The sandbox root: a file named on the command line reads its neighbours as usdview does,
+--sandbox DIR and the service's uploads confine what an asset reads, and the root is named
+when a reference leaves it. One rule for USD layers, USD/MaterialX textures and glTF URIs."""
 from __future__ import annotations
 
 import json
@@ -77,31 +77,57 @@ def test_library_folder_bakes_with_shared_parts(library, tmp_path, capsys):
     assert rows["box.gltf"]["status"] == "baked" and rows["box.gltf"]["triangles"] == 12
 
 
-def test_single_file_is_refused_naming_its_root_and_root_widens(library, tmp_path, capsys):
+def test_single_file_reads_its_neighbours_and_sandbox_confines(library, tmp_path, capsys):
+    """A file named on the command line reads its neighbours as usdview does; --sandbox DIR
+    confines it to DIR, naming DIR when a reference leaves it."""
     cache = str(tmp_path / "cache")
     for asset in (library / "cars/car/car.usda", library / "gltf/box/box.gltf"):
-        assert bake_cmd.main([str(asset), "--cache", cache, "--json"]) == bake_cmd.EXIT_FAILED
+        assert bake_cmd.main([str(asset), "--cache", cache]) == 0
+        capsys.readouterr()
+        # a bake made unconfined is not handed to a confined call from the cache
+        assert bake_cmd.main([str(asset), "--cache", cache, "--json",
+                              "--sandbox", str(asset.parent)]) == bake_cmd.EXIT_FAILED
         row = _rows(capsys.readouterr().out)[asset.name]
         assert row["status"] == "failed"
         assert f"leaves the root {asset.parent.resolve()}" in row["error"], row["error"]
-        assert bake_cmd.main([str(asset), "--cache", cache, "--root", str(library)]) == 0
+        assert bake_cmd.main([str(asset), "--cache", cache, "--sandbox", str(library)]) == 0
         capsys.readouterr()
-        # a bake made under the wider root is not handed to a narrower call from the cache
-        assert bake_cmd.main([str(asset), "--cache", cache, "--json"]) == bake_cmd.EXIT_FAILED
-        assert "leaves the root" in capsys.readouterr().out
 
 
-def test_root_must_hold_the_asset_and_inspect_takes_it(library, tmp_path, capsys):
+def test_sandbox_must_hold_the_asset_and_inspect_takes_it(library, tmp_path, capsys):
     car = library / "cars/car/car.usda"
     with pytest.raises(UnsafeReference, match="outside the root"):
         load_scene(car, root=library / "parts")
     assert load_scene(car, root=library).triangle_count == 2
+    with pytest.raises(UnsafeReference, match="leaves the root"):
+        load_scene(car)  # the library call's default is the asset's own folder
     parser = __import__("argparse").ArgumentParser()
     inspect_cmd.configure(parser)
-    assert inspect_cmd.run(parser.parse_args([str(car), "--root", str(library), "--json"])) == 0
-    assert json.loads(capsys.readouterr().out)["triangles"] == 2
+    for argv in ([str(car), "--sandbox", str(library), "--json"], [str(car), "--json"]):
+        assert inspect_cmd.run(parser.parse_args(argv)) == 0
+        assert json.loads(capsys.readouterr().out)["triangles"] == 2
     with pytest.raises(UnsafeReference, match="leaves the root"):
-        inspect_cmd.run(parser.parse_args([str(car)]))
+        inspect_cmd.run(parser.parse_args([str(car), "--sandbox", str(car.parent)]))
+
+
+def test_absolute_reference_reads_on_the_cli_only(library, server, capsys):
+    """An absolute path to a local part is a trusted file's right (usdview follows it); under
+    --sandbox and in an upload it is refused, and a URL is refused everywhere."""
+    wheel = (library / "parts" / "wheel.usda").resolve()
+    car = library / "abs.usda"
+    car.write_text(CAR.replace("../../parts/wheel.usda", str(wheel)))
+    parser = __import__("argparse").ArgumentParser()
+    inspect_cmd.configure(parser)
+    assert inspect_cmd.run(parser.parse_args([str(car), "--json"])) == 0
+    assert json.loads(capsys.readouterr().out)["triangles"] == 2
+    with pytest.raises(UnsafeReference, match="absolute path"):
+        inspect_cmd.run(parser.parse_args([str(car), "--sandbox", str(library)]))
+    url = library / "url.usda"
+    url.write_text(CAR.replace("../../parts/wheel.usda", "https://127.0.0.1:9/wheel.usda"))
+    with pytest.raises(UnsafeReference, match="URIs are not followed"):
+        inspect_cmd.run(parser.parse_args([str(url)]))
+    r = server.client.post("/assets", files={"file": ("abs.usda", car.read_bytes())}, timeout=120)
+    assert r.status_code == 422 and "absolute path" in r.json()["detail"], r.text
 
 
 def test_uploaded_zip_refuses_a_reference_leaving_it(server):
@@ -115,8 +141,8 @@ def test_uploaded_zip_refuses_a_reference_leaving_it(server):
         zf.writestr("car/car.usda", CAR)  # ../../parts is outside what the zip holds
     r = server.client.post("/assets", files={"file": ("car.zip", buf.getvalue())}, timeout=120)
     assert r.status_code == 422, r.text
-    detail = r.json()["detail"]  # spoken of the upload, not of the CLI's --root (issue 29)
-    assert "leaves the upload" in detail and "wheel.usda" in detail and "--root" not in detail
+    detail = r.json()["detail"]  # spoken of the upload, not of the CLI's --sandbox (issue 29)
+    assert "leaves the upload" in detail and "wheel.usda" in detail and "--sandbox" not in detail
 
 
 def test_uploaded_zip_shares_parts_anywhere_inside_it(server):

@@ -116,13 +116,13 @@ def test_messages_name_the_users_files_never_server_paths(hostile):
         if r.status_code == 201:  # the reference is dropped with a warning naming it
             warnings = " ".join(r.json()["warnings"])
             assert "secret.png" in warnings and str(hostile.cache) not in warnings
-            # the surface that asked: the upload and its files, not the CLI's --root flag
-            assert "--root" not in warnings and "leaves the upload" in warnings, warnings
+            # the surface that asked: the upload and its files, not the CLI's --sandbox flag
+            assert "--sandbox" not in warnings and "leaves the upload" in warnings, warnings
             hostile.client.delete(f"/assets/{r.json()['id']}")
         else:
             # named as uploaded: the file itself, or its path inside the zip
             assert r.status_code == 422 and r.json()["detail"].startswith(shown + ": "), text
-            assert "secret.png" in text and "--root" not in text and "the upload" in text, text
+            assert "secret.png" in text and "--sandbox" not in text and "the upload" in text, text
 
 
 def test_unreferenced_zip_members_are_dropped(hostile, assets):

@@ -59,7 +59,8 @@ def test_every_usd_sample_matches_a_direct_pxr_traversal(assets):
     samples = sorted(p for p in (assets / "usd").rglob("*") if p.suffix in USD_SUFFIXES)
     assert len(samples) >= 8
     for path in samples:
-        assert load_scene(path).triangle_count == pxr_triangles(path) > 0, path
+        # full: every mesh (the Teapot's DrawModes stage replaces most with stand-ins)
+        assert load_scene(path, draw_mode="full").triangle_count == pxr_triangles(path) > 0, path
 
 
 QUAD = """
@@ -469,6 +470,35 @@ def test_untextured_dome_is_a_uniform_environment(tmp_path):
                     .replace("LIGHT", "float inputs:intensity = 0.2\nbool inputs:normalize = 1"))
     expect = 0.5 * np.array([1.0, 0.5, 0.25]) + 0.5 / math.pi * 0.2
     np.testing.assert_allclose(_card_shot(path, tmp_path), np.broadcast_to(expect, (8, 8, 3)), rtol=0.02)
+
+
+def test_textured_dome_intensity_exposure_and_colour_scale_its_texture(tmp_path):
+    """A textured DomeLight's radiance is its texture x intensity x 2^exposure x colour
+    (UsdLux): doubling the intensity doubles what a Lambertian card reflects, and the
+    environment baked for it is the file's, scaled (pipeline/environment/scaled.py)."""
+    from PIL import Image
+
+    from core.colour import srgb_to_linear
+    Image.new("RGB", (16, 8), (188, 188, 188)).save(tmp_path / "sky.png")
+    texel = float(srgb_to_linear(np.array([188], np.uint8))[0])
+    shots = {}
+    for label, inputs, factor in (("one", "", (1.0, 1.0, 1.0)),
+                                  ("two", "float inputs:intensity = 2", (2.0, 2.0, 2.0)),
+                                  ("tinted", "float inputs:intensity = 0.5\nfloat inputs:exposure = 1\n"
+                                             "color3f inputs:color = (1, 0.5, 0.25)", (1.0, 0.5, 0.25))):
+        path = tmp_path / label / "card.usda"
+        path.parent.mkdir()
+        (path.parent / "sky.png").write_bytes((tmp_path / "sky.png").read_bytes())
+        path.write_text(GREY_CARD.replace('def DistantLight "Sun"\n    {\nLIGHT\n    }',
+                                          'def DomeLight "Sky"\n    {\n' + inputs +
+                                          '\n        asset inputs:texture:file = @sky.png@\n    }'))
+        shots[label] = _card_shot(path, tmp_path)
+        np.testing.assert_allclose(shots[label], np.broadcast_to(0.5 * texel * np.array(factor),
+                                                                 (8, 8, 3)), rtol=0.03)
+    np.testing.assert_allclose(shots["two"] / shots["one"], 2.0, rtol=1e-3)
+    from pipeline.environment import scaled
+    assert scaled.parse(scaled.name((2, 2, 2), "/a/sky.png")) == ((2.0, 2.0, 2.0), "/a/sky.png")
+    assert scaled.name((1, 1, 1), "/a/sky.png") == "/a/sky.png"
 
 
 def test_area_lights_in_metres(tmp_path):

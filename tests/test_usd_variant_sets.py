@@ -153,7 +153,8 @@ def test_variant_set_and_purposes_are_in_the_one_schema(kit, tmp_path, capsys):
     assert o.variant_set == ("wheels=big", "/Kit/Car:rim=spoked")
     assert o.purposes == ("render", "proxy")  # one order, one key
     assert o.key_dict() != from_request({"variant_set": ["wheels=big"]}).key_dict()
-    assert asset_options(o) == {"variant_sets": o.variant_set, "purposes": ("render", "proxy")}
+    assert asset_options(o) == {"variant_sets": o.variant_set, "purposes": ("render", "proxy"),
+                                "draw_mode": "authored"}
     with pytest.raises(ValueError, match="SET=NAME"):
         from_request({"variant_set": ["wheels"]})
     with pytest.raises(ValueError, match="unknown other"):

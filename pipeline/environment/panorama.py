@@ -18,7 +18,7 @@ from core.colour import srgb_to_linear
 from core.cubemap import equirect_direction
 from core.errors import AssetError, LimitExceeded, MalformedAsset, MissingFile, UnsupportedFormat
 from pipeline.deadline import check, within
-from pipeline.environment import studio, uniform
+from pipeline.environment import scaled, studio, uniform
 from pipeline.images import decode_image
 from pipeline.limits import Limits
 
@@ -47,6 +47,11 @@ def load_panorama(source: str | Path, limits: Limits | None = None) -> Panorama:
     """Read a panorama file, or a bundled one by bare name (`studio`, `footprint_court`, see
     `list_bundled`). Raises an `AssetError` subclass naming the file on bad input."""
     limits = limits or Limits.from_env()
+    factor = scaled.parse(source)
+    if factor is not None:  # a textured dome's intensity x exposure x colour
+        inner = load_panorama(factor[1], limits)
+        pixels = np.clip(inner.pixels * np.asarray(factor[0], np.float32), 0.0, uniform.MAX_RADIANCE)
+        return Panorama(name=inner.name, pixels=pixels.astype(np.float32), files=inner.files)
     path = resolve_panorama(source)
     if path == studio.SOURCE:
         return Panorama(name=studio.NAME, pixels=studio.studio_panorama().copy(), files=[path])
@@ -85,6 +90,9 @@ def load_panorama(source: str | Path, limits: Limits | None = None) -> Panorama:
 def resolve_panorama(source: str | Path) -> Path:
     """The file a panorama source names: an existing path, else a bundled name's JPEG; the
     name `studio` resolves to the module that generates it (its hash keys the bake)."""
+    factor = scaled.parse(source)
+    if factor is not None:  # `scaled:R,G,B:PATH` (pipeline/environment/scaled.py): its file
+        return resolve_panorama(factor[1])
     if source == studio.NAME:
         return studio.SOURCE
     if uniform.parse(source) is not None:  # `dark`, `uniform:R,G,B` (pipeline/environment/uniform.py)

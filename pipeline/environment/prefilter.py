@@ -24,6 +24,7 @@ import math
 import time
 from dataclasses import dataclass, field
 from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
 
@@ -70,8 +71,6 @@ def prefilter(pixels: np.ndarray, face_size: int = DEFAULT_FACE_SIZE, method: st
               levels: int | None = None) -> EnvironmentArrays:
     """Bake a linear H x W x 3 panorama into the specular mip chain, SH and BRDF LUT (see the
     module docstring for the methods and their LOD mapping)."""
-    from gl import context as gl  # EGL and moderngl: not for processes that only load bakes
-
     if method not in METHODS:
         raise ValueError(f"unknown prefilter method {method!r}; one of {METHODS}")
     check_face_size(face_size)
@@ -81,6 +80,15 @@ def prefilter(pixels: np.ndarray, face_size: int = DEFAULT_FACE_SIZE, method: st
     pixels = np.ascontiguousarray(pixels, dtype=np.float32)
     if pixels.ndim != 3 or pixels.shape[2] != 3 or pixels.shape[0] < 2 or pixels.shape[1] < 4:
         raise ValueError(f"panorama must be H x W x 3, got {pixels.shape}")
+    if (pixels == pixels[0, 0]).all():
+        return _uniform(pixels, face_size, levels, method)
+    return _filtered(pixels, face_size, levels, method)
+
+
+def _filtered(pixels: np.ndarray, face_size: int, levels: int, method: str) -> EnvironmentArrays:
+    """The GL passes (the module docstring)."""
+    from gl import context as gl  # EGL and moderngl: not for processes that only load bakes
+
     timings: dict[str, float] = {}
     t_start = t = time.perf_counter()
     ctx = gl.get_context()
@@ -108,6 +116,26 @@ def prefilter(pixels: np.ndarray, face_size: int = DEFAULT_FACE_SIZE, method: st
              pixels.shape[0], face_size, levels, timings["total"])
     return EnvironmentArrays(specular=specular, irradiance_sh=sh, brdf_lut=lut,
                              timings=timings, method=method)
+
+
+def _uniform(pixels: np.ndarray, face_size: int, levels: int, method: str) -> EnvironmentArrays:
+    """A constant panorama's arrays without GL: any normalized filter of a constant (either
+    method's mips, the cube resampling) is that constant, which the GL passes reproduce only to
+    float rounding (a relative 1e-6); SH and LUT as for any panorama."""
+    t_start = time.perf_counter()
+    value = pixels[0, 0]
+    specular = [np.broadcast_to(value, (6, face_size >> m, face_size >> m, 3)).copy() for m in range(levels)]
+    t = time.perf_counter()
+    timings = {"specular": t - t_start}
+    sh = project_sh(pixels)
+    timings["sh"] = time.perf_counter() - t
+    t = time.perf_counter()
+    lut = brdf_lut()
+    timings["brdf_lut"] = time.perf_counter() - t
+    timings["total"] = time.perf_counter() - t_start
+    log.info("prefilter: uniform panorama %s -> %d px x %d mips in %.3f s", value.tolist(), face_size,
+             levels, timings["total"])
+    return EnvironmentArrays(specular=specular, irradiance_sh=sh, brdf_lut=lut, timings=timings, method=method)
 
 
 # GL passes ------------------------------------------------------------------------------------
@@ -248,8 +276,26 @@ def ggx_samples(roughness: float, count: int, source_size: int, max_lod: float) 
     return np.concatenate([light, lod[:, None]], axis=1)[keep]
 
 
+DATA = Path(__file__).resolve().parent.parent / "data"
+
+
+def shipped_lut_path(size: int = LUT_SIZE, samples: int = LUT_SAMPLES) -> Path:
+    """Where the package ships the LUT for these constants: it depends on nothing but them
+    and the shader, so a cold process loads it instead of drawing it (`make brdf-lut` writes
+    it; tests/test_environment.py checks it against a fresh drawing)."""
+    return DATA / f"brdf_lut.v{PREFILTER_VERSION}.{size}x{samples}.npy"
+
+
 @lru_cache(maxsize=4)
 def _brdf_lut_cached(size: int, samples: int) -> np.ndarray:
+    shipped = shipped_lut_path(size, samples)
+    lut = np.load(shipped) if shipped.is_file() else draw_brdf_lut(size, samples)
+    lut.flags.writeable = False
+    return lut
+
+
+def draw_brdf_lut(size: int = LUT_SIZE, samples: int = LUT_SAMPLES) -> np.ndarray:
+    """The LUT drawn now by shaders/brdf_lut.frag (what the shipped file must equal)."""
     from gl import context as gl  # as in prefilter_panorama
     ctx = gl.get_context()
     tex = ctx.texture((size, size), 4, dtype="f4")
@@ -260,14 +306,14 @@ def _brdf_lut_cached(size: int, samples: int) -> np.ndarray:
     lut = np.frombuffer(tex.read(), dtype=np.float32).reshape(size, size, 4)[..., :3].copy()
     fbo.release()
     tex.release()
-    lut.flags.writeable = False
     return lut
 
 
 def brdf_lut(size: int = LUT_SIZE, samples: int = LUT_SAMPLES) -> np.ndarray:
     """The split-sum LUT (size x size x 3; row j: roughness (j+.5)/size, column i: N.V
     (i+.5)/size; values (scale, bias) for F0 and the sheen lobe's directional albedo at sheen
-    roughness (j+.5)/size), drawn once per process by shaders/brdf_lut.frag."""
+    roughness (j+.5)/size), drawn by shaders/brdf_lut.frag: loaded from the package's data for
+    the default constants, else drawn once per process."""
     return _brdf_lut_cached(int(size), int(samples)).copy()
 
 
@@ -323,3 +369,10 @@ def sh_irradiance(sh: np.ndarray, normals: np.ndarray) -> np.ndarray:
     shaders/sh.glsl computes it."""
     band = np.array([1.0] + [2 / 3] * 3 + [1 / 4] * 5)
     return (sh_basis(np.asarray(normals, dtype=np.float64)) * band) @ np.asarray(sh, np.float64)
+
+
+if __name__ == "__main__":  # `make brdf-lut`: (re)write the shipped LUT for the current constants
+    for old in DATA.glob("brdf_lut.*.npy"):
+        old.unlink()
+    np.save(shipped_lut_path(), draw_brdf_lut())
+    print(f"wrote {shipped_lut_path()}")

@@ -19,7 +19,7 @@ from core.errors import UnsupportedFormat
 from core.scene import Instance, Scene, default_material
 from pipeline import deadline
 from pipeline.gltf.accessors import Document
-from pipeline.gltf.animation import read_animations
+from pipeline.gltf.animation import read_animations, write_pointers
 from pipeline.gltf.materials import MATERIAL_EXTENSIONS, Textures, read_material
 from pipeline.gltf.nodes import NodeGraph, camera, light
 from pipeline.gltf.primitives import TRIANGLES, primitive, thicken
@@ -36,6 +36,7 @@ SUPPORTED_EXTENSIONS = frozenset({
 # Read, with a documented approximation (README, "glTF extensions").
 PARTIAL_EXTENSIONS = frozenset({
     "KHR_materials_pbrSpecularGlossiness",  # converted to metallic-roughness at ingest
+    "KHR_animation_pointer",  # node TRS / weights, material, light and camera numbers
 })
 
 
@@ -97,6 +98,7 @@ class Assembly:
             anim = select(animations, moment.animation, str(d.path))
             t = seconds(moment, anim)
             self.nodes.pose = anim.pose(t)
+            write_pointers(d, anim.pointers(t))  # materials, lights, cameras: read below
             scene.moment = {"animation": anim.name, "time": round(t, 6)}
         placed = self.nodes.world_matrices()
         worlds = dict(placed)

@@ -9,6 +9,10 @@ primitive's own attributes (read once) through pipeline.gltf.skin. Every other a
 posed BakedAsset is the template's own object, which renderer.raster.gpu uses to rewrite only
 the moved vertex buffers and the instance matrices of one upload (BakedAsset.gpu_key).
 
+KHR_animation_pointer: the materials it drives are read again per pose from the document
+with the pointers' values written in (factors, texture transforms), as are lights and
+cameras (colour, intensity, yfov); node TRS through it are ordinary channels.
+
 Glass: interior vectors are object-space (the vertex shader turns them with the model
 matrix), so a rigidly moving glass part keeps the template's; a deforming one has them traced
 again for its posed surface.
@@ -28,8 +32,10 @@ import numpy as np
 from core.animation import Animation, select
 from core.baked import BakedAsset
 from core.hull import hull_points, hull_support_points
-from core.scene import Scene, transformed_bounds
+from core.scene import Material, Scene, transformed_bounds
 from pipeline.bake import build_baked, instance_groups
+from pipeline.gltf.animation import write_pointers
+from pipeline.gltf.materials import read_material
 from pipeline.gltf.nodes import NodeGraph, camera, light
 from pipeline.gltf.primitives import attribute
 from pipeline.gltf.reader import Assembly, open_document
@@ -110,6 +116,13 @@ class Rig:
                     for inst in scene.instances):
                 raise RigUnsupported(f"mesh {mesh.name!r} was rebuilt at ingest (points or lines)")
         self.has_lights = bool(scene.lights) or bool(scene.cameras)
+        # KHR_animation_pointer on materials: each pose reads those materials again from the
+        # document with the pointers' values written in (lights and cameras are read per pose)
+        self.asm = asm
+        animated = {int(c.pointer.split("/")[2]) for c in self.animation.channels
+                    if c.pointer.startswith("/materials/")}
+        self.animated_materials = {scene_index: index for index, scene_index in asm.materials.items()
+                                   if index is not None and index in animated}
 
     def _deformer(self, recipe: tuple, animated_weights: frozenset[int]) -> _Deformer | None:
         d = self.d
@@ -149,6 +162,7 @@ class Rig:
         are the template's own."""
         pose = self.animation.pose(t)
         self.nodes.pose = pose
+        materials = self._materials(t)
         placed = self.nodes.world_matrices()
         worlds = dict(placed)
         joint_cache: dict[int, np.ndarray] = {}
@@ -162,8 +176,10 @@ class Rig:
             node, skinned, local = cast(tuple, inst.placement)
             matrices.append(local if skinned else worlds[node] @ local)
         meshes, lo, hi = [], np.full(3, np.inf), np.full(3, -np.inf)
-        for tm, (mi, _, _), members in zip(self.template.meshes, self.groups, self.groups.values()):
+        for tm, (mi, mat, _), members in zip(self.template.meshes, self.groups, self.groups.values()):
             transforms = np.stack([matrices[k] for k in members])
+            if mat in materials:
+                tm = dataclasses.replace(tm, material=materials[mat])
             if mi in moved:
                 positions, normals, tangents = moved[mi]
                 interior = None if tm.interior is None else _interior(
@@ -180,12 +196,27 @@ class Rig:
                     lo, hi = np.minimum(lo, a), np.maximum(hi, b)
         bounds = np.stack([lo, hi]) if np.all(np.isfinite(lo)) else np.zeros((2, 3))
         lights, cameras = self._lights(placed) if self.has_lights else ([], [])
-        hull = hull_points(meshes)
+        hull = hull_points(meshes, qhull=True)
         return dataclasses.replace(
             self.template, key=key, meshes=meshes, bounds=bounds, lights=lights, cameras=cameras,
             hull=np.zeros((0, 3)) if hull is None else hull, gpu_key=self.template.key,
             manifest={**self.template.manifest,
                       "moment": {"animation": self.animation.name, "time": round(t, 6)}})
+
+    def _materials(self, t: float) -> dict[int, Material]:
+        """Scene material index -> the material at `t`, for those KHR_animation_pointer drives;
+        the pointers' values are written into the document first (lights and cameras, read
+        after this by _lights, see them too)."""
+        pointers = self.animation.pointers(t)
+        if not pointers:
+            return {}
+        d = self.d
+        write_pointers(d, pointers)
+        said = len(d.warnings)
+        out = {mat: read_material(d, self.asm.textures, index)
+               for mat, index in self.animated_materials.items()}
+        del d.warnings[said:]  # the template's reading said them once
+        return out
 
     def _deform(self, df: _Deformer, mi: int, pose: dict, joints: np.ndarray | None) -> tuple:
         weights = pose.get(df.node, {}).get("weights", df.rest_weights)

@@ -20,7 +20,7 @@ from pxr import Ar, Sdf, Tf, UsdUtils
 from core.errors import LimitExceeded, MalformedAsset, MissingFile, UnsafeReference
 from pipeline import deadline
 from pipeline.limits import Limits
-from pipeline.paths import relative_path_text, resolve_reference, sandbox_root
+from pipeline.paths import UNCONFINED, relative_path_text, resolve_reference, sandbox_root
 
 log = logging.getLogger(__name__)
 
@@ -165,7 +165,8 @@ class LayerGraph:
         try:
             return str(resolve_reference(Path(referrer), uri, root=self.root))
         except MissingFile:
-            self._absent(str(Path(referrer).parent / relative_path_text(referrer, uri)))
+            self._absent(str(Path(referrer).parent / relative_path_text(
+                referrer, uri, absolute_ok=self.root == UNCONFINED)))
             raise
 
     def _absent(self, path: str) -> None:

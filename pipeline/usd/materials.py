@@ -253,6 +253,10 @@ class MaterialReader:
     def pack(self, parts: dict[int, tuple[int, int]]) -> int:
         return self._pack(parts)
 
+    def add_material(self, mat: Material) -> int:
+        """Index of `mat` in the scene (pipeline.usd.drawmode's stand-in materials)."""
+        return self._add(mat)
+
     def _preview_surface(self, name: str, shader: UsdShade.Shader):
         mat = Material(name=name, metallic=METALLIC, roughness=ROUGHNESS, ior=IOR)
         uv_names: list[str] = []

@@ -14,7 +14,8 @@ unauthored), an `image` / `tiledimage` (a texture, with `texcoord` / `geompropva
 `multiply`, `add`, `subtract`, `divide`, `mix`, `extract`, `convert`, `dot` nodes, folded to a
 constant (or a texture times a factor, as glTF multiplies). A `normalmap` node feeds the normal
 texture. Any other node is a warning naming it, and that input keeps its default. The mapping
-of the three surfaces' inputs onto Material is the README's table (and `_SURFACES` below).
+of the surfaces' inputs onto Material is the README's table (and the SurfaceReader
+methods below); MaterialX's `UsdPreviewSurface` node reads as the UsdShade one does.
 """
 from __future__ import annotations
 
@@ -22,14 +23,13 @@ import math
 from dataclasses import dataclass, field
 from functools import lru_cache
 
-import MaterialX as mx
 import numpy as np
 from pxr import Sdf, UsdShade
 
 from core.errors import AssetError, MalformedAsset
 from core.scene import Material, TextureRef
 
-SURFACES = ("standard_surface", "open_pbr_surface", "gltf_pbr")
+SURFACES = ("standard_surface", "open_pbr_surface", "gltf_pbr", "UsdPreviewSurface")
 RENDER_CONTEXT = "mtlx"  # UsdShade render context of MaterialX surfaces (outputs:mtlx:surface)
 MAX_DEPTH = 64  # node chain length: a cycle or a hostile graph ends here
 WRAPS = {"periodic": "repeat", "clamp": "clamp", "mirror": "mirror", "constant": "black"}
@@ -39,6 +39,7 @@ SRGB = ("srgb_texture", "srgb_displayp3", "gamma22", "gamma24")
 @lru_cache(maxsize=1)
 def library():
     """MaterialX's standard node definitions (defaults and categories), loaded once: slow to load."""
+    import MaterialX as mx  # here and below: only stages with MaterialX pay its import
     lib = mx.createDocument()
     mx.loadLibraries(mx.getDefaultDataLibraryFolders(), mx.getDefaultDataSearchPath(), lib)
     return lib
@@ -571,6 +572,51 @@ class SurfaceReader:
             m.alpha_mode, m.alpha_cutoff = "MASK", _num(self.eval.input(self.node, "alpha_cutoff"), 0.5)
 
 
+    def _UsdPreviewSurface(self):  # noqa: N802  # named after its node category
+        """ND_UsdPreviewSurface_surfaceshader: the UsdPreviewSurface spec's inputs, read as
+        pipeline/usd/materials.py reads the UsdShade one (opacityThreshold > 0 a cut-out; a
+        constant opacity under 1 with an authored ior other than 1 on a dielectric a
+        refractive transmission, else a blend; the specular workflow's specularColor as
+        KHR_materials_specular's F0 colour)."""
+        m = self.mat
+        m.ior = _ior(self.scalar("ior", 1.5)[0], self.warn)
+        m.clearcoat = _unit(self.untextured("clearcoat", self.scalar("clearcoat", 0.0)))
+        m.clearcoat_roughness = _unit(self.untextured("clearcoatRoughness",
+                                                      self.scalar("clearcoatRoughness", 0.01)))
+        metallic = self.scalar("metallic", 0.0)
+        opacity = self.scalar("opacity", 1.0)
+        threshold = _num(self.eval.input(self.node, "opacityThreshold"), 0.0)
+        transmission: tuple[float, Tex | None] = (0.0, None)
+        if threshold <= 0 and opacity[1] is None and opacity[0] < 1.0 and \
+                self.node.get("ior") is not None and abs(m.ior - 1.0) > 1e-3 and \
+                metallic[1] is None and metallic[0] < 1.0:
+            transmission, opacity = (1.0 - _unit(opacity[0]), None), (1.0, None)
+        if _num(self.eval.input(self.node, "displacement"), 0.0) != 0.0:
+            self.warn("displacement is not supported; ignored")
+        self.finish(self.color("diffuseColor", (0.18, 0.18, 0.18)), metallic,
+                    self.scalar("roughness", 0.5), self.eval.input(self.node, "normal"),
+                    self.color("emissiveColor", (0.0, 0.0, 0.0)), opacity, transmission,
+                    occlusion=self.scalar("occlusion", 1.0))
+        if threshold > 0:
+            m.alpha_mode, m.alpha_cutoff = "MASK", threshold
+        if int(_num(self.eval.input(self.node, "useSpecularWorkflow"), 0)):
+            # F0 = specularColor, F90 = 1, metallic unused (Storm's previewSurface); as
+            # KHR_materials_specular: specular_color = specularColor / F0(ior), factor 1
+            # metallic factor 0: a metallic texture channel then counts for nothing
+            m.metallic, m.specular = 0.0, 1.0
+            f0 = ((m.ior - 1.0) / (m.ior + 1.0)) ** 2
+            if f0 < 1e-4:
+                self.warn(f"specular workflow with ior {m.ior}: specularColor read over ior "
+                          "1.5's reflectance, the refraction keeps ior 1.5")
+                m.ior, f0 = 1.5, 0.04
+            rgb, tex = self.color("specularColor", (0.0, 0.0, 0.0))
+            if tex is not None:
+                packed = None if tex.channels == (0, 1, 2) else \
+                    self.pack({c: tex.channel(c) for c in range(3)})
+                m.specular_color_texture = self.ref(tex, packed, expect_srgb=True)
+            m.specular_color = tuple(max(float(c), 0.0) / f0 for c in rgb)  # type: ignore[assignment]
+
+
 # -- .mtlx documents referenced from USD ------------------------------------------------------
 
 def find_references(stage, target, graph) -> list[tuple[str, str]]:
@@ -604,6 +650,7 @@ def find_references(stage, target, graph) -> list[tuple[str, str]]:
 
 def read_document(data: bytes, where: str):
     """A parsed .mtlx document; XIncludes are not followed (they would read files unchecked)."""
+    import MaterialX as mx
     doc = mx.createDocument()
     options = mx.XmlReadOptions()
     options.readXIncludeFunction = None
@@ -619,6 +666,7 @@ def document_surface(doc, material: str):
     node = doc.getNode(material)
     if node is None or node.getType() != "material":
         return None
+    import MaterialX as mx
     shaders = [s for s in mx.getShaderNodes(node) if s.getType() == "surfaceshader"]
     return shaders[0] if shaders else None
 

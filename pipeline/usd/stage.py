@@ -22,14 +22,19 @@ Conventions: USD `st` has v up (0 at the image bottom); the scene holds glTF UVs
 so v' = 1 - v (texture transforms are converted to match). World matrices come from an
 XformCache and are converted to the scene's +Y-up metres: upAxis Z is turned to Y by a -90
 degree rotation about X, and metersPerUnit scales (USD's fallback is 0.01, centimetres,
-when the stage does not author it). Time-varying values are read at the stage's start time
-code (or the earliest sample). Subdivision surfaces (catmullClark, loop) are read as their control cage
+when the stage does not author it). Time-varying values (xforms, points, normals, skeletal
+animation, camera and light attributes) are read at the requested moment's time code
+(pipeline.usd.time), else at the stage's start time code (or the earliest sample). Subdivision surfaces (catmullClark, loop) are read as their control cage
 with smooth normals, marked for refinement at bake (`subdivision`) when the scheme is
-authored; `model:drawMode` cards are viewport stand-ins and are not drawn. Implicit
+authored. `model:drawMode` origin / bounds / cards stand-ins replace the subtrees they apply
+to, as usdview draws them (`usd_drawmode`; draw_mode="full" draws the geometry). Implicit
 shapes (Sphere, Cube, Cylinder, Cone, Capsule, Plane) are tessellated (`usd_shapes`).
 Meshes bound to a UsdSkel skeleton are skinned (UsdSkel.Cache / SkinningQuery, linear blend
 or dual quaternion as authored) and posed by the skeleton's animation at that time code, or
-at its rest transforms without one, as usdview shows them. PointInstancers place their prototypes (one Mesh each, an Instance per unmasked point);
+at its rest transforms without one, as usdview shows them: the animation's blend shape
+weights first (UsdSkel.BlendShapeQuery, inbetweens included; normalOffsets of shapes without
+inbetweens on vertex normals), then the joints; authored normals are skinned too
+(UsdSkel.SkinNormals), so that they follow the pose. PointInstancers place their prototypes (one Mesh each, an Instance per unmasked point);
 nested ones, curves, points and NURBS are skipped with a warning. UsdLux distant / sphere /
 rect / disk lights become KHR_lights_punctual lights (`_light`), a dome light's texture the
 scene's environment; UsdGeomCameras are listed (`Scene.cameras`) for `render --camera PATH`.
@@ -43,7 +48,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from pxr import Ar, Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade, UsdSkel, UsdUtils
+from pxr import Ar, Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade, UsdSkel, UsdUtils, Vt
 
 from core.animation import Moment
 from core.errors import LimitExceeded, MalformedAsset, MissingFile, NotInAsset, UnsafeReference
@@ -51,6 +56,7 @@ from core.scene import Creases, Instance, Light, Mesh, Scene, SceneCamera
 from pipeline import deadline
 from pipeline.limits import Limits
 from pipeline.normals import smooth_normals
+from pipeline.usd import drawmode
 from pipeline.usd.layers import LayerGraph
 from pipeline.usd.materials import Binding, MaterialReader, authoring_layer
 from pipeline.usd.shapes import SHAPES, tessellate
@@ -65,12 +71,13 @@ PURPOSES = (UsdGeom.Tokens.render, UsdGeom.Tokens.proxy, UsdGeom.Tokens.guide)
 
 def load(path: Path, limits: Limits, root: Path | None = None,
          moment: Moment | None = None, variant_sets: tuple[str, ...] = (),
-         purposes: tuple[str, ...] = ("render",)) -> Scene:
+         purposes: tuple[str, ...] = ("render",), draw_mode: str = "authored") -> Scene:
     """Read a USD file (any of its four forms) into a Scene; AssetError on bad input.
     Files it references must lie inside `root` (default: its folder; `paths.sandbox_root`).
     `variant_sets`: "[PRIM:]SET=NAME" selections (no PRIM: the default prim's set), applied
     in order, so a selection may name a set that an earlier one brought in. `purposes`: drawn
-    besides default (usdview's render / proxy / guide toggles; render by default)."""
+    besides default (usdview's render / proxy / guide toggles; render by default). `draw_mode`:
+    "authored" draws model:drawMode stand-ins as usdview does, "full" the geometry instead."""
     path = Path(path)
     graph = LayerGraph(path, limits, root)
     # pxr's own diagnostics (`Warning: in _ReportErrors at line ... of stage.cpp`) would go to
@@ -83,7 +90,7 @@ def load(path: Path, limits: Limits, root: Path | None = None,
         scene.variant_sets = list_variant_sets(stage)
         scene.warnings.extend(graph.warnings)
         scene.time_range = time_range(stage)
-        _StageReader(stage, graph, scene, limits, moment, purposes).read()
+        _StageReader(stage, graph, scene, limits, moment, purposes, draw_mode).read()
         scene.files = list(graph.files)
         scene.absent = list(graph.absent)
         _take_diagnostics(diagnostics, scene.warnings, (*graph.absent, *graph.unreadable))
@@ -196,8 +203,10 @@ class _Topology:
 
 class _StageReader:
     def __init__(self, stage: Usd.Stage, graph: LayerGraph, scene: Scene, limits: Limits,
-                 moment: Moment | None = None, purposes: tuple[str, ...] = ("render",)):
+                 moment: Moment | None = None, purposes: tuple[str, ...] = ("render",),
+                 draw_mode: str = "authored"):
         self.stage, self.graph, self.scene, self.limits = stage, graph, scene, limits
+        self.draw_mode = draw_mode
         self.drawn = (UsdGeom.Tokens.default_, *(p for p in PURPOSES if p in purposes))
         self.time = time_code(stage, moment)  # pipeline.usd.time
         if moment is not None:
@@ -208,6 +217,7 @@ class _StageReader:
             raise MalformedAsset(graph.path, f"metersPerUnit = {meters} is not a positive number")
         self.to_scene = stage_matrix(stage)
         self.materials = MaterialReader(graph, scene, limits, self.time)
+        self.standins = drawmode.StandIns(self)
         self._meshes: dict[tuple, int] = {}
         self._topology: dict[tuple, _Topology | None] = {}
         self.triangles = 0
@@ -220,6 +230,7 @@ class _StageReader:
 
     def read(self) -> None:
         self._walk(self.stage.GetPseudoRoot(), None)
+        self.standins.finish()
         for kind in sorted(self._skipped):
             self._warn(f"{kind} prims are not read; skipped")
 
@@ -239,6 +250,8 @@ class _StageReader:
             if self._nodes % 256 == 0:
                 deadline.check()
             if not prim.IsA(UsdGeom.Imageable):  # shading networks are not: tested only here
+                if prim.IsA(UsdSkel.Animation) and placements is None:
+                    self._skel_animation(UsdSkel.Animation(prim))
                 if any(prim.IsA(t) for t in PRUNED_TYPES):
                     it.PruneChildren()
                 continue
@@ -258,6 +271,10 @@ class _StageReader:
                 if prim.IsA(UsdGeom.PointInstancer):
                     it.PruneChildren()  # its prototypes are not drawn in their own right
                 continue
+            if self.draw_mode == "authored" and (mode := drawmode.applies(prim)):
+                it.PruneChildren()  # the stand-in is drawn in place of the subtree
+                self.standins.add(prim, mode, self._matrices(prim, root, placements))
+                continue
             if prim.IsA(UsdSkel.Root):
                 self._skel_root(prim)
             if placements is None and prim.HasAPI(UsdLux.LightAPI) and not prim.IsA(UsdGeom.Gprim):
@@ -269,7 +286,7 @@ class _StageReader:
             if prim.IsA(UsdGeom.Mesh) or str(prim.GetTypeName()) in SHAPES:
                 skinned = self._skinned(prim) if placements is None and self._skel else None
                 if skinned is not None:
-                    self._gprim(prim, skinned[0], skinned[1])
+                    self._gprim(prim, *skinned)
                 else:
                     self._gprim(prim, self._matrices(prim, root, placements))
             elif prim.IsA(UsdGeom.PointInstancer):
@@ -325,7 +342,7 @@ class _StageReader:
             light = UsdLux.SphereLight(prim)
             r = get(light.GetRadiusAttr(), 0.5) * float(np.mean(axis_m))
             kind = "point"
-            area = 1.0 if light.GetTreatAsPointAttr().Get() else math.pi * r * r
+            area = 1.0 if light.GetTreatAsPointAttr().Get(self.time) else math.pi * r * r
         elif prim.IsA(UsdLux.RectLight):
             light = UsdLux.RectLight(prim)
             kind = "rect"
@@ -356,8 +373,9 @@ class _StageReader:
         self.scene.lights.append(out)
 
     def _dome(self, prim: Usd.Prim, where: str, radiance: np.ndarray) -> None:
-        """A textured dome's panorama is the environment; an untextured one's radiance
-        (colour x intensity x 2^exposure from every direction, UsdLux) a uniform one."""
+        """A textured dome's panorama, times colour x intensity x 2^exposure (`dome_scale`,
+        UsdLux), is the environment; an untextured one's radiance (that product from every
+        direction) a uniform one."""
         attr = UsdLux.DomeLight(prim).GetTextureFileAttr()
         asset = attr.Get(self.time)
         if not asset or not asset.path:
@@ -376,6 +394,8 @@ class _StageReader:
             return
         if self.scene.environment is None:
             self.scene.environment = identifier
+            # UsdLux: the dome's radiance is its texture x intensity x 2^exposure x colour
+            self.scene.dome_scale = tuple(float(c) for c in np.clip(radiance, 0, None))  # type: ignore[assignment]
             self.graph.files.append(identifier)
             self.scene.own_lighting = True
         else:
@@ -401,6 +421,18 @@ class _StageReader:
         self.scene.cameras.append(out)
 
     # -- UsdSkel: skinned meshes posed as usdview shows them --------------------------------
+    def _skel_animation(self, anim: UsdSkel.Animation) -> None:
+        """What `inspect` lists of a SkelAnimation: its joints, blend shapes and the time
+        codes its samples span (joint transforms and blend shape weights)."""
+        codes: set[float] = set()
+        for attr in (anim.GetTranslationsAttr(), anim.GetRotationsAttr(), anim.GetScalesAttr(),
+                     anim.GetBlendShapeWeightsAttr()):
+            codes.update(attr.GetTimeSamples())
+        self.scene.skel_animations.append({
+            "path": str(anim.GetPath()), "joints": len(anim.GetJointsAttr().Get() or []),
+            "blend_shapes": [str(b) for b in anim.GetBlendShapesAttr().Get() or []],
+            "samples": len(codes), "first": min(codes, default=None), "last": max(codes, default=None)})
+
     def _skel_root(self, prim: Usd.Prim) -> None:
         if self._skel is None:
             self._skel = UsdSkel.Cache()
@@ -408,8 +440,9 @@ class _StageReader:
                             Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate))
 
     def _skinned(self, prim: Usd.Prim):
-        """(world matrices, skinned points or None) of a mesh bound to a skeleton, posed by
-        its animation at the read time, else at the skeleton's rest transforms; None when
+        """(world matrices, skinned points or None, the skin of its normals or None) of a mesh
+        bound to a skeleton, posed by its animation at the read time (blend shapes, then the
+        joints, as UsdSkel orders them), else at the skeleton's rest transforms; None when
         `prim` is not skinned. Skinned points are in the skeleton's space (the gprim's own
         transform does not apply, as UsdSkel specifies)."""
         assert self._skel is not None  # _walk calls this only once a SkelRoot was seen
@@ -426,12 +459,84 @@ class _StageReader:
         skel_world = np.array(self.xforms.GetLocalToWorldTransform(skeleton.GetPrim()))
         if query.IsRigidlyDeformed():
             rows = np.array(query.ComputeSkinnedTransform(xforms, self.time)) @ skel_world
-            return self.to_scene @ rows.T[None], None
+            return self.to_scene @ rows.T[None], None, None
         points = UsdGeom.Mesh(prim).GetPointsAttr().Get(self.time)
+        normal_deltas = None
+        if points is not None:
+            normal_deltas = self._blend_shapes(prim, query, skel_query, points)
         if points is None or not query.ComputeSkinnedPoints(xforms, points, self.time):
             self._warn(f"{prim.GetPath()}: skinning failed; drawn unskinned")
             return None
-        return (self.to_scene @ skel_world.T)[None], np.asarray(points, np.float32).reshape(-1, 3)
+        return ((self.to_scene @ skel_world.T)[None], np.asarray(points, np.float32).reshape(-1, 3),
+                self._normal_skin(query, xforms, normal_deltas))
+
+    def _blend_shapes(self, prim: Usd.Prim, query, skel_query, points) -> np.ndarray | None:
+        """Apply the animation's blend shape weights at the read time to `points` in place
+        (UsdSkel.BlendShapeQuery: inbetweens included). Returns what the shapes'
+        normalOffsets add to each point's normal (shapes without inbetweens; None: nothing),
+        which the normal skin applies to vertex normals before the joints."""
+        anim = skel_query.GetAnimQuery()
+        if not query.HasBlendShapes() or not anim:
+            return None
+        weights = anim.ComputeBlendShapeWeights(self.time)
+        mapper = query.GetBlendShapeMapper()
+        if mapper and not mapper.IsNull() and not mapper.IsIdentity():
+            weights = mapper.Remap(weights)
+        if not weights:
+            return None
+        binding = UsdSkel.BindingAPI(prim)
+        shapes = UsdSkel.BlendShapeQuery(binding)
+        sub_weights, shape_indices, sub_indices = shapes.ComputeSubShapeWeights(weights)
+        if not shapes.ComputeDeformedPoints(sub_weights, shape_indices, sub_indices,
+                                            shapes.ComputeBlendShapePointIndices(),
+                                            shapes.ComputeSubShapePointOffsets(), points):
+            self._warn(f"{prim.GetPath()}: blend shapes do not fit its points; not applied")
+            return None
+        deltas = None
+        targets = binding.GetBlendShapeTargetsRel().GetTargets()
+        for w, target in zip(weights, targets):
+            shape = UsdSkel.BlendShape(self.stage.GetPrimAtPath(target))
+            offsets = shape.GetNormalOffsetsAttr().Get() if shape and w != 0.0 else None
+            if not offsets or shape.GetInbetweens():  # an inbetween's own normals: not read
+                continue
+            offsets = np.asarray(offsets, np.float64).reshape(-1, 3)
+            which = np.asarray(shape.GetPointIndicesAttr().Get() or range(len(points)), np.int64)
+            if len(which) != len(offsets) or (len(which) and not 0 <= which.min() <= which.max() < len(points)):
+                self._warn(f"{target}: normalOffsets do not fit the points; not applied")
+                continue
+            deltas = np.zeros((len(points), 3)) if deltas is None else deltas
+            np.add.at(deltas, which, float(w) * offsets)
+        return deltas
+
+    def _normal_skin(self, query, xforms, deltas: np.ndarray | None = None):
+        """A function (normals E x 3, the point of each, whether they are per point) -> the
+        normals skinned as the points were: per-point normals plus the blend shapes'
+        `deltas`, then UsdSkel.SkinNormals with each joint's inverse-transpose 3 x 3, so that
+        a bound mesh's authored normals follow its pose instead of staying in the bind pose."""
+        mapper = query.GetJointMapper()
+        if mapper and not mapper.IsNull() and not mapper.IsIdentity():
+            xforms = mapper.RemapTransforms(xforms)
+        normal_xforms = Vt.Matrix3dArray([m.ExtractRotationMatrix().GetInverse().GetTranspose()
+                                          for m in xforms])
+        bind = query.GetGeomBindTransform(self.time).ExtractRotationMatrix().GetInverse().GetTranspose()
+        indices, weights = query.ComputeJointInfluences(self.time)
+        k = query.GetNumInfluencesPerComponent()
+        indices = np.asarray(indices, np.int32).reshape(-1, k)
+        weights = np.asarray(weights, np.float32).reshape(-1, k)
+        method = query.GetSkinningMethod()
+
+        def skin(normals: np.ndarray, point_of: np.ndarray, per_point: bool) -> np.ndarray | None:
+            if len(point_of) and point_of.max() >= len(indices):
+                return None
+            normals = normals[:, :3]
+            if deltas is not None and per_point and len(deltas) == len(normals):
+                normals = normals + deltas  # UsdSkel: normalOffsets apply to vertex normals
+            out = Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(normals, np.float32))
+            ok = UsdSkel.SkinNormals(method, bind, normal_xforms,
+                                     Vt.IntArray.FromNumpy(indices[point_of].reshape(-1)),
+                                     Vt.FloatArray.FromNumpy(weights[point_of].reshape(-1)), k, out)
+            return np.asarray(out, np.float32) if ok else None
+        return skin
 
     def _matrices(self, prim: Usd.Prim, root: Usd.Prim, placements) -> np.ndarray:
         """World matrices (column vectors, scene space) of `prim`, once per placement."""
@@ -469,7 +574,7 @@ class _StageReader:
                 self._walk(proto, rows[chosen] @ world)
 
     # -- one mesh or implicit shape ----------------------------------------------------------
-    def _gprim(self, prim: Usd.Prim, matrices: np.ndarray, points=None) -> None:
+    def _gprim(self, prim: Usd.Prim, matrices: np.ndarray, points=None, skin=None) -> None:
         mesh = UsdGeom.Mesh(prim) if prim.IsA(UsdGeom.Mesh) else None
         source = prim.GetPrimInPrototype() if prim.IsInstanceProxy() else prim
         groups = self._groups(prim, mesh)
@@ -490,7 +595,7 @@ class _StageReader:
         topo_key = (str(source.GetPath() if points is None else prim.GetPath()), tuple(needed))
         if topo_key not in self._topology:
             deadline.check()
-            self._topology[topo_key] = self._triangulate(prim, mesh, needed, points) if mesh \
+            self._topology[topo_key] = self._triangulate(prim, mesh, needed, points, skin) if mesh \
                 else self._shape(prim, needed)
         topo = self._topology[topo_key]
         if topo is None:
@@ -541,7 +646,7 @@ class _StageReader:
 
     # -- geometry --------------------------------------------------------------------------------
     def _triangulate(self, prim: Usd.Prim, mesh: UsdGeom.Mesh, names: list[str],
-                     skinned: np.ndarray | None = None) -> _Topology | None:
+                     skinned: np.ndarray | None = None, skin=None) -> _Topology | None:
         where = f"mesh {prim.GetPath()}"
         counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(self.time) or [], np.int64)
         fvi = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(self.time) or [], np.int64)
@@ -583,6 +688,10 @@ class _StageReader:
         primvars = {n: pv for n in names if (pv := self._primvar(prim, n, counts, fvi,
                                                                  len(points))) is not None}
         normals = self._normals(prim, mesh, counts, fvi, len(points))
+        if normals is not None and skin is not None:
+            normals = _skinned_normals(normals, skin, counts, fvi, len(points))
+            if normals is None:
+                self._warn(f"{where}: its normals could not be skinned; computed from the pose")
         if normals is None and mesh.GetSubdivisionSchemeAttr().Get() != UsdGeom.Tokens.none:
             normals = _Primvar(smooth_normals(points, fvi[corners]), "vertex", None)
         if "displayColor" in primvars:
@@ -776,6 +885,21 @@ def _orthonormal(m: np.ndarray) -> np.ndarray:
         if n > 0:
             out[:3, i] /= n
     return out
+
+
+def _skinned_normals(pv: _Primvar, skin, counts, fvi, n_points) -> _Primvar | None:
+    """Normals posed by `skin` (stage._normal_skin): per point for vertex / varying ones,
+    else per face-vertex (each by its point's influences), indices resolved first."""
+    if pv.interpolation in ("vertex", "varying"):
+        point_of = np.arange(n_points)
+        values = pv.values[point_of if pv.indices is None else pv.indices[point_of]]
+        interpolation = pv.interpolation
+    else:
+        corners = np.arange(len(fvi))
+        values = pv.values[_elements(pv, fvi, np.repeat(np.arange(len(counts)), counts), corners)]
+        point_of, interpolation = fvi, "faceVarying"
+    posed = skin(values, point_of, interpolation != "faceVarying")
+    return None if posed is None else _Primvar(posed, interpolation, None)
 
 
 def _elements(pv: _Primvar, fvi, face_of_corner, corners) -> np.ndarray:

@@ -10,18 +10,26 @@ from typing import Callable
 from core.baked import BakedAsset, BakedEnvironment
 from core.options import RenderOptions
 from renderer.frame import Frame
-from renderer.methods import raytrace, refraction
+from renderer.methods import refraction
 from renderer.raster.passes import DrawItem, Pass
 
 Method = Callable[[Pass, list[DrawItem]], None]
 FrameMethod = Callable[[BakedAsset, BakedEnvironment, RenderOptions], Frame]
+
+
+def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions) -> Frame:
+    """renderer.methods.raytrace.render_raytrace, imported when a frame is traced: the tracer's
+    modules are a tenth of a cold raster render's own imports."""
+    from renderer.methods import raytrace
+    return raytrace.render_raytrace(asset, env, options)
+
 
 METHODS: dict[str, Method] = {
     "single": refraction.draw_single,  # one refraction at the front face
     "wyman": refraction.draw_wyman,    # two, with Wyman's exit estimate
 }
 FRAME_METHODS: dict[str, FrameMethod] = {
-    "raytrace": raytrace.render_raytrace,  # Embree rays through the glass
+    "raytrace": render_raytrace,  # Embree rays through the glass
 }
 
 

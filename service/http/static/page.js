@@ -92,6 +92,15 @@ setInterval(poll, POLL_MS);
 poll();
 
 // --- upload -----------------------------------------------------------------------------------
+// A zip with several entry points is answered 422 with `candidates`: the page offers them in the
+// form's `main` field, and the next upload names the one chosen.
+function offerEntryPoints(candidates) {
+  const select = $("main");
+  select.replaceChildren(...candidates.map(c => new Option(c, c)));
+  select.hidden = candidates.length === 0;
+}
+$("file").onchange = () => offerEntryPoints([]);
+
 $("upload").onsubmit = e => {
   e.preventDefault();
   const file = $("file").files[0];
@@ -108,6 +117,10 @@ $("upload").onsubmit = e => {
       msg.textContent = `${body.name}: ${xhr.status === 201 ? "uploaded, " + body.status : "already here"}`;
       card(body);
       $("upload").reset();
+      offerEntryPoints([]);
+    } else if (xhr.status === 422 && body && Array.isArray(body.candidates) && body.candidates.length) {
+      offerEntryPoints(body.candidates);
+      msg.textContent = `${file.name} holds ${body.candidates.length} entry points: choose one, then Upload`;
     } else {
       const detail = body && body.detail ? (typeof body.detail === "string" ? body.detail : JSON.stringify(body.detail)) : xhr.statusText;
       msg.textContent = `error ${xhr.status}: ${detail}`;
