@@ -1,5 +1,6 @@
-"""Runs inside Blender (`blender -b --factory-startup --python-exit-code 3 -P THIS -- JOB.json`):
-imports one glTF with Blender's own importer and renders it with Cycles on the CPU under the
+"""Runs inside Blender: either Debian's `blender -b --factory-startup --python-exit-code 3 -P
+THIS -- JOB.json` or, with the bpy wheel (Blender as a Python module), `PYTHON THIS -- JOB.json`
+in that wheel's interpreter (bench.fidelity picks). It imports one glTF with Blender's own importer and renders it with Cycles on the CPU under the
 camera and panorama bench.fidelity computed, into a linear float RGBA OpenEXR (film
 transparent: alpha is coverage, RGB premultiplied, as our `background=transparent` frame).
 
@@ -28,7 +29,8 @@ def _importer_extensions() -> list[str]:
     names = set(re.findall(r"'(KHR_[A-Za-z_]+|EXT_[A-Za-z_]+)'", source))
     imp = os.path.join(os.path.dirname(io_scene_gltf2.__file__), "blender", "imp")
     for f in os.listdir(imp):
-        m = re.match(r"gltf2_blender_((?:KHR|EXT)_[A-Za-z_]+)\.py$", f)
+        # 3.x/4.x: gltf2_blender_KHR_*.py; 4.3+ (5.0): KHR_*.py
+        m = re.match(r"(?:gltf2_blender_)?((?:KHR|EXT)_[A-Za-z_]+)\.py$", f)
         if m:
             names.add(m.group(1))
     return sorted(names)
@@ -48,7 +50,10 @@ def main(job: dict) -> None:
         numpy.bool = bool  # type: ignore[misc,assignment]
     # A still, like ours: the importer is kept from creating and applying animations, so
     # nodes, skins and morph weights keep the file's own values.
-    from io_scene_gltf2.blender.imp.gltf2_blender_animation import BlenderAnimation
+    try:  # the importer's modules lost their gltf2_blender_ prefix in Blender 4.3
+        from io_scene_gltf2.blender.imp.animation import BlenderAnimation
+    except ImportError:
+        from io_scene_gltf2.blender.imp.gltf2_blender_animation import BlenderAnimation
     BlenderAnimation.anim = staticmethod(lambda gltf, anim_idx: None)  # type: ignore[method-assign]
     BlenderAnimation.restore_animation = staticmethod(lambda gltf, name: None)  # type: ignore[method-assign]
     bpy.ops.import_scene.gltf(filepath=job["gltf"])
@@ -88,6 +93,12 @@ def main(job: dict) -> None:
     scene.render.film_transparent = True
     scene.render.pixel_aspect_x = scene.render.pixel_aspect_y = 1
     scene.render.filter_size = 0.5  # close to our box-filtered MSAA
+    # The EXR holds scene-linear radiance whatever the view transform; Standard (not Filmic or
+    # AgX, the defaults of 3.x and 4.x+) keeps any display-referred use of the render plain.
+    scene.view_settings.view_transform = "Standard"
+    scene.view_settings.look = "None"
+    scene.view_settings.exposure = 0.0
+    scene.view_settings.gamma = 1.0
     scene.render.image_settings.file_format = "OPEN_EXR"
     scene.render.image_settings.color_depth = "32"
     scene.render.image_settings.color_mode = "RGBA"

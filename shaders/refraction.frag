@@ -21,6 +21,7 @@ uniform float u_transmission;
 uniform vec3 u_sigma;            // Beer-Lambert absorption per scene unit (KHR_materials_volume)
 uniform float u_thickness;       // path length without baked interior vectors
 uniform float u_trace_length;
+uniform float u_pixel_angle;     // a pixel's height over its distance from the camera
 #ifdef MATERIAL_DISPERSION
 uniform float u_dispersion;      // half the IOR spread between the red and blue channels
 #endif    // the scene's bounding diameter: how far rays are marched
@@ -127,7 +128,7 @@ bool refine_exit(sampler2D positions, sampler2D normals, float side, vec3 p, vec
         t = (next >= lo && next <= hi) ? next : (hi < 1e30 ? 0.5 * (lo + hi) : 2.0 * t);
     }
     return surface_gap(positions, normals, side, p + r * t, gap, ray)
-        && abs(gap) < 0.02 * t + 1e-6;
+        && abs(gap) < 0.02 * t + PIXEL_TOL * u_pixel_angle * distance(p + r * t, u_camera_position);
 }
 
 #ifdef TIR_REFLECT
