@@ -301,6 +301,7 @@ def apply_override(mat: "Material", ov: MaterialOverride | None) -> "Material":
         changes["metallic_roughness_texture"] = None
     if ov.transmission is not None:
         changes["transmission_texture"] = None
+        changes["thin_walled"] = False  # "preview as glass" means a solid of the mesh's shape
     return dataclasses.replace(mat, **changes)
 
 

@@ -90,6 +90,9 @@ class Material:
     transmission_texture: TextureRef | None = None  # R channel
     ior: float = 1.5
     thickness: float = 0.0
+    # glTF: no KHR_materials_volume, or thicknessFactor 0, is a thin-walled sheet: light
+    # crosses it unbent and unabsorbed, tinted by base colour (renderer/methods/refraction.py)
+    thin_walled: bool = False
     thickness_texture: TextureRef | None = None  # G channel
     attenuation_color: tuple[float, float, float] = (1.0, 1.0, 1.0)
     attenuation_distance: float = math.inf

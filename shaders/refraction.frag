@@ -9,6 +9,7 @@
 // back-face normal there; TIR_REFLECT reflects a totally internally reflected ray and
 // marches it between the front- and back-face layers to a second exit. SCREEN_OPAQUE:
 // rays that reach opaque geometry drawn before take its colour (screen-space march).
+// THIN_WALLED (glTF: no volume or thickness 0): straight through, no absorption.
 #include "material_info.glsl"
 #include "ibl.glsl"
 #include "punctual.glsl"
@@ -294,8 +295,16 @@ vec3 transmitted(vec3 v, vec3 n, float ior, float roughness, float d_interior, o
     float alpha = roughness * roughness;
     float variance = pow(alpha * abs(1.0 - eta) * 0.5, 2.0);
     float variance_reflected = variance;
-    path = d_interior;
     tir = false;
+#ifdef THIN_WALLED
+    // glTF's thin-walled case (no volume, or thickness 0): a sheet with no inside, so the ray
+    // leaves unbent where it entered (the Khronos viewer's refraction over a length of 0) and
+    // nothing is absorbed; the roughness still blurs what is seen through it.
+    path = 0.0;
+    D = 0.0;
+    return outside_radiance(v_world, d, variance);
+#endif
+    path = d_interior;
     D = d_interior;
     vec3 through;
 #ifdef WYMAN

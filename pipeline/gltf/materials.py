@@ -197,6 +197,7 @@ def read_material(d: Document, tex: Textures, index: int) -> Material:
         out.thickness_texture = tex.ref(v.get("thicknessTexture"), f"{slot} thickness")
         out.attenuation_color = d.numbers(v, "attenuationColor", (1.0, 1.0, 1.0))
         out.attenuation_distance = d.number(v, "attenuationDistance", math.inf, 1e-9)
+    out.thin_walled = out.thickness <= 0.0  # the spec's thin-walled case, with or without volume
     read_lobes(d, tex, ext, out, slot)
     return out
 

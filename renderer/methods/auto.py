@@ -11,6 +11,8 @@ to be within tolerance of the best raster method:
   camera inside (no front face to refract at); nowhere else on the chart's set. Thin objects
   keep `wyman`: the exit face undoes the entry refraction, which single misses (stability
   suite, slab: single FLIP 0.31, wyman 0.06);
+- thin-walled transmissive (glTF: no volume, or thickness 0): `single`, exact for a sheet that
+  light crosses unbent (renderer/methods/refraction.py THIN_WALLED), never a raster failure;
 - transmissive otherwise: `wyman`, with the request's TIR treatment or else `reflect` when a
   wyman object has flat faces (exit TIR is common there) and the cheaper `paper` otherwise;
 - `raytrace` for the whole frame only when the request gives a time budget
@@ -384,6 +386,12 @@ def plan_request(asset: BakedAsset, options: RenderOptions, available: list[str]
         if camera is None:
             camera = asset_camera(asset, options)[0]
         f = object_facts(mesh, mat, camera)
+        if mat.thin_walled and "single" in available:
+            # a sheet with no inside: light crosses it unbent, so there is no exit to find
+            # and no shape-dependent failure; both raster methods draw it the same
+            decisions.append(Decision(mesh.name, "single", "thin-walled (glTF: no volume or "
+                                      "thickness 0): light passes unbent, single is exact", f))
+            continue
         method, why = choose_raster(f, available)
         decisions.append(Decision(mesh.name, method, why, f))
         reason = raster_fails(f) or raster_approximates(mat)

@@ -232,6 +232,8 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         flip = _dot(d, ns) >= 0
         ns[flip] = ng[flip]
         trans = hits.transmission
+        thin = ts.thin[k]
+        entering = entering | thin  # a thin-walled sheet has no inside
         # Beer-Lambert over the segment just travelled inside a volume
         inside = ~entering & (trans > 0)
         if np.any(inside) and ts.sigma.any():
@@ -320,17 +322,22 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
                 r_dir[rs], t_dir[rs], tir[rs], fres[rs] = r_m, t_m, tir_m, f_m
                 g_r[rs] = wr_m / np.maximum(f_m, 1e-30)
                 g_t[rs] = wt_m / np.maximum(1 - f_m, 1e-30)
+            sheet = thin[gl]
+            if np.any(sheet):  # out through the sheet's parallel back face: unbent where smooth
+                t_dir[sheet], tir_out = refract(t_dir[sheet], ng_g[sheet], ior[gl][sheet])
+                t_dir[sheet & smooth] = dg[sheet & smooth]
+                tir[sheet] |= tir_out
             fres = np.where(tir, 1.0, fres)
             # what is not transmitted of this component is the dielectric's reflection
             take_r = u_lobe[gl] < fres
             tint = np.where((entering[gl] & ~take_r)[:, None], hits.base[gl], 1.0)
             # a surface seen from inside with no transmission still refracts out as glass
             new_d[gl] = np.where(take_r[:, None], r_dir, t_dir)
-            factor = np.where(take_r, g_r, g_t * eta * eta)
+            factor = np.where(take_r, g_r, g_t * np.where(sheet, 1.0, eta * eta))
             # what the coat and sheen over it leave (from outside), over the choice's odds
             factor *= np.where(surface_lit[gl], bsdf.glass_w[gl], 1.0)
             new_w[gl] = w[gl] * tint * factor[:, None]
-            new_medium[gl] = np.where(take_r, medium[gl], np.where(entering[gl], ior[gl], 1.0))
+            new_medium[gl] = np.where(take_r | sheet, medium[gl], np.where(entering[gl], ior[gl], 1.0))
             new_pdf[gl] = 0.0
             rough[gl] = ~smooth & (alpha[gl] >= ROUGH_ALPHA)
             stats["tir"] += int(np.sum(tir))

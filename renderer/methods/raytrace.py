@@ -37,6 +37,11 @@ refraction keeps its mirror direction and, at escape, reads the prefiltered mip 
 width gathered along the path (as the raster path's split-sum does; refraction lobes are
 narrower by |1 - eta| / 2): no noise, but biased. Inside a volume, Beer-Lambert
 attenuation exp(-sigma t) with sigma = -ln(attenuation_color) / attenuation_distance.
+Thin-walled materials (glTF: no KHR_materials_volume, or thickness 0) have no inside: every
+hit counts as from outside (Fresnel at 1 / IOR, tinted by base colour, nothing absorbed, the
+medium unchanged) and the transmitted ray leaves as through a slab of parallel faces: unbent
+on a smooth sheet; refracted in about the sampled microfacet and out through the surface on a
+rough one.
 Single-sided opaque materials are invisible from behind (rays pass through their back faces,
 as raster culling does); transmissive ones keep both sides (rays inside glass meet back
 faces). Emissive surfaces add their emission wherever a path meets them.
@@ -125,7 +130,8 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
         # with no transmission leaves no reflection or diffuse share
         tables.append((mat.base_color[:3], mat.metallic, mat.roughness, mat.transmission,
                        1.0 if mat.unlit else mat.ior, mat.absorption(), not mat.double_sided and mat.transmission <= 0,
-                       np.asarray(mat.emissive, np.float64) * mat.emissive_strength))
+                       np.asarray(mat.emissive, np.float64) * mat.emissive_strength,
+                       mat.thin_walled and mat.transmission > 0))
         idx = mesh.indices.astype(np.int64)
         for m in mesh.transforms:
             m = np.asarray(m, np.float64)
@@ -153,7 +159,7 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
     if len(tri):
         TriangleMesh(scene, tri.astype(np.float32))
     lo, hi = np.asarray(asset.bounds, np.float64)
-    col = list(zip(*tables)) if tables else [[]] * 8
+    col = list(zip(*tables)) if tables else [[]] * 9
     surface = trace_material.build_surface(asset, materials, parts, tri,
                                            texture_size_for(max(options.width, options.height)))
     return TraceScene(
@@ -163,7 +169,7 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
         metallic=np.asarray(col[1], np.float64), roughness=np.asarray(col[2], np.float64),
         transmission=np.asarray(col[3], np.float64), ior=np.asarray(col[4], np.float64),
         sigma=np.asarray(col[5], np.float64).reshape(-1, 3), culled=np.asarray(col[6], bool),
-        emission=np.asarray(col[7], np.float64).reshape(-1, 3),
+        emission=np.asarray(col[7], np.float64).reshape(-1, 3), thin=np.asarray(col[8], bool),
         radius=max(float(np.linalg.norm(hi - lo)) / 2, 1e-6), surface=surface)
 
 
@@ -508,7 +514,7 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
             out = kernel.shade(
                 np.ascontiguousarray(origins), dirs, prim, u, v, t, weight, pix, sub, slot, blur,
                 share, medium, hits.normal, ts.geo_normals, ts.material, hits.base, hits.metallic,
-                hits.roughness, hits.transmission, ts.ior, ts.sigma, hits.emission, hits.occlusion,
+                hits.roughness, hits.transmission, ts.ior, ts.sigma, ts.thin, hits.emission, hits.occlusion,
                 np.asarray(env.baked.brdf_lut, np.float64), depth, n_sub, eps,
                 options.rough_lobes == "sample", options.fresnel_split == "sample",
                 options.multiscatter, MIN_WEIGHT, kernel._SOBOL_DIM1,
@@ -549,7 +555,7 @@ def _light_hits(ts: TraceScene, lights: trace_lights.Lights, env: _Environment,
     d = dirs[sel].astype(np.float64)
     ng = ts.geo_normals[prim[sel]].astype(np.float64)
     entering = np.einsum("ij,ij->i", d, ng) < 0
-    keep = entering | (ts.transmission[k] <= 0)
+    keep = entering | (ts.transmission[k] <= 0) | ts.thin[k]
     sel, k, d, ng = sel[keep], k[keep], d[keep], ng[keep]
     if not len(sel):
         return
@@ -609,6 +615,8 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
     flip = np.einsum("ij,ij->i", d, ns) >= 0      # shading normal behind the ray
     ns[flip] = ng[flip]
     k = ts.material[prim]
+    thin = ts.thin[k]
+    entering = entering | thin  # a thin sheet has no inside: every side is the outside
     base, metal = hits.base, hits.metallic
     rough_k, trans, ior = hits.roughness, hits.transmission, ts.ior[k]
     # Beer-Lambert over the segment just travelled inside the volume.
@@ -661,7 +669,7 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
     e_ss = _lut_albedo(env.baked, cos_i, rough_k) if np.any(rough_k > 0) else 1.0
     if g_t is not None:  # sampled lobes: G1 instead of the lobe's mean albedo
         e_ss = np.where(lobe, g_t, e_ss)
-    trans_w = ((1 - metal) * (1 - fres) * trans * eta * eta * e_ss)[:, None] * tint * w
+    trans_w = ((1 - metal) * (1 - fres) * trans * np.where(thin, 1.0, eta * eta) * e_ss)[:, None] * tint * w
     diffuse_w = ((1 - metal) * (1 - fres) * (1 - trans) * hits.occlusion)[:, None] * base * w
     # Lobe widths add as variances. A rough refraction bends directions by
     # |1 - eta| per unit of microfacet tilt where a reflection bends them by 2, so its
@@ -676,8 +684,12 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
     tdir, tir = refract(d, ns, eta)
     if g_r is not None:
         rdir[lsel], tdir[lsel], tir[lsel] = r_m, t_m, tir_m
+    if np.any(thin):  # out through the sheet's parallel back face: unbent where it is smooth
+        tdir[thin], tir_out = refract(tdir[thin], ns[thin], ior[thin])
+        tdir[thin & ~lobe] = d[thin & ~lobe]
+        tir[thin] |= tir_out
     stats["tir"] += int(np.sum(tir & (trans > 0)))
-    n_t = np.where(entering, ior, 1.0)
+    n_t = np.where(thin, n_in, np.where(entering, ior, 1.0))
     # Culling compares what a child would carry back out into the air.
     keep_r = refl_w.max(axis=1) * n_in ** 2 > MIN_WEIGHT
     keep_t = (trans_w.max(axis=1) * n_t ** 2 > MIN_WEIGHT) & ~tir

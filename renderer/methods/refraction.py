@@ -13,6 +13,10 @@ Total internal reflection at the exit: `tir="paper"` keeps the first refraction;
 faces and the nearest front faces (one more pass, drawn only in this mode) to a second exit,
 refracting out by the normal of the layer it crossed. DEFAULT_TIR has the lower error.
 
+Thin-walled materials (glTF: no KHR_materials_volume, or thicknessFactor 0) are sheets with
+no inside: both methods let their rays through unbent and unabsorbed (THIN_WALLED), tinted by
+base colour and blurred by roughness, and `wyman` draws no back faces for them.
+
 Both methods see the asset's own opaque parts: when the frame already holds opaque geometry,
 its colour and depth are copied to textures and refracted rays march across them in screen
 space before falling back to the environment.
@@ -177,6 +181,8 @@ def _draw_front(p: Pass, items: list[DrawItem], back: _Targets | None,
         extra = dict(defines)
         if "interior" in it.mesh.buffers:
             extra["HAS_INTERIOR"] = 1
+        if it.material.thin_walled:
+            extra["THIN_WALLED"] = 1
         prog, state = p.program(it, fragment="refraction.frag", extra_defines=extra)
         mat = it.material
         values = {
@@ -209,9 +215,14 @@ def _draw_front(p: Pass, items: list[DrawItem], back: _Targets | None,
 
 def _draw(p: Pass, items: list[DrawItem], wyman: bool) -> None:
     opaque = _opaque_copy(p, any(_rough(it.material) for it in items)) if p.opaque_drawn else None
-    back = _surface_pass(p, items, "back") if wyman else None
-    front = _surface_pass(p, items, "front") if wyman and tir_mode(p.options) == "reflect" else None
-    _draw_front(p, items, back, front, opaque)
+    thin = [it for it in items if it.material.thin_walled]  # no inside: no faces to find
+    solid = [it for it in items if not it.material.thin_walled]
+    if thin:
+        _draw_front(p, thin, None, None, opaque)
+    if solid:
+        back = _surface_pass(p, solid, "back") if wyman else None
+        front = _surface_pass(p, solid, "front") if wyman and tir_mode(p.options) == "reflect" else None
+        _draw_front(p, solid, back, front, opaque)
 
 
 def draw_single(p: Pass, items: list[DrawItem]) -> None:

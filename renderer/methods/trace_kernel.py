@@ -181,7 +181,7 @@ def _refract(dx, dy, dz, nx, ny, nz, eta):
 @njit(cache=True)
 def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in,
           normals, geo_normals, material, base, metallic, roughness, transmission, ior, sigma,
-          emission, occlusion, lut, depth, n_sub, eps, sample_lobes, split_sample, ms, min_weight,
+          thin, emission, occlusion, lut, depth, n_sub, eps, sample_lobes, split_sample, ms, min_weight,
           sobol, roulette):
     """One bounce's rays (prim < 0: missed) -> (children: origin, dir, weight, pix, sub,
     slot, blur, share, medium; the misses' dir, weight x share, blur and slot; emission to
@@ -226,6 +226,8 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in,
             sx, sy, sz = gx, gy, gz
         k = material[tri]
         metal, rough, trans, n_k = metallic[i], roughness[i], transmission[i], ior[k]
+        sheet = thin[k]
+        entering = entering or sheet  # a thin sheet has no inside
         w0, w1, w2 = w[i, 0], w[i, 1], w[i, 2]
         if not entering and trans > 0:
             w0 *= math.exp(-sigma[k, 0] * t[i])
@@ -266,6 +268,11 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in,
             c2 = dx * sx + dy * sy + dz * sz
             rx, ry, rz = dx - 2 * c2 * sx, dy - 2 * c2 * sy, dz - 2 * c2 * sz
             tx, ty, tz, tir = _refract(dx, dy, dz, sx, sy, sz, eta)
+        if sheet and not tir:  # out through the parallel back face: unbent where smooth
+            if lobe:
+                tx, ty, tz, tir = _refract(tx, ty, tz, sx, sy, sz, n_k)
+            else:
+                tx, ty, tz = dx, dy, dz
         if tir:
             tx, ty, tz = rx, ry, rz
         # reflected and transmitted throughput
@@ -277,7 +284,7 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in,
             r1 += metal * _spec_albedo(base[i, 1], a, b, ms) * w1
             r2 += metal * _spec_albedo(base[i, 2], a, b, ms) * w2
         e_ss = g_t if lobe else _lut_albedo(lut, cos_i, rough)
-        ft = (1 - metal) * (1 - fres) * trans * eta * eta * e_ss
+        ft = (1 - metal) * (1 - fres) * trans * (1.0 if sheet else eta * eta) * e_ss
         if entering:
             q0, q1, q2 = ft * base[i, 0] * w0, ft * base[i, 1] * w1, ft * base[i, 2] * w2
         else:
@@ -295,7 +302,7 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in,
         v_refr = v_in[i] + (alpha_b * abs(1.0 - eta) / 2) ** 2
         if tir and trans > 0:
             tir_events += 1
-        n_t = n_k if entering else 1.0
+        n_t = n_in[i] if sheet else (n_k if entering else 1.0)
         pr = max(r0, r1, r2) * n_in[i] ** 2
         pt = max(q0, q1, q2) * n_t ** 2
         keep_r = pr > min_weight

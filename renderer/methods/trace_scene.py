@@ -34,6 +34,7 @@ class TraceScene:
     sigma: np.ndarray            # K x 3 absorption coefficient per scene unit (0: none)
     culled: np.ndarray           # K bool: single-sided and opaque (back faces let rays through)
     emission: np.ndarray         # K x 3 emissive factor x strength (linear radiance)
+    thin: np.ndarray             # K bool: thin-walled (glTF: no volume): crossed unbent, no inside
     radius: float
     surface: Surface | None = None  # UVs, tangents, colours, textures (trace_material)
     eye: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
