@@ -23,7 +23,7 @@ SIZE = 96
 BOX = (slice(34, 68), slice(28, 58))  # pixels the sheet covers (96 px, the view _draw fixes)
 
 
-def _quad(x0, x1, y0, y1, z):
+def _quad(x0: float, x1: float, y0: float, y1: float, z: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     pos = np.array([[x0, y0, z], [x1, y0, z], [x1, y1, z], [x0, y1, z]], np.float32)
     nrm = np.tile(np.array([[0, 0, 1]], np.float32), (4, 1))
     return pos, nrm, np.array([[0, 1, 2], [0, 2, 3]], np.uint32)
@@ -36,11 +36,12 @@ def _scene(sheet: Material | None) -> BakedAsset:
     meshes = []
     for i in range(12):
         x0 = -1.5 + 0.25 * i
-        meshes.append(BakedMesh(f"stripe{i}", *_quad(x0, x0 + 0.25, -1.5, 1.5, -1.0),
-                                white if i % 2 else black, np.eye(4)[None]))
+        pos, nrm, idx = _quad(x0, x0 + 0.25, -1.5, 1.5, -1.0)
+        meshes.append(BakedMesh(f"stripe{i}", pos, nrm, idx, white if i % 2 else black, np.eye(4)[None]))
     key = "none"
     if sheet is not None:
-        meshes.append(BakedMesh("sheet", *_quad(-0.8, 0.8, -0.8, 0.8, 0.0), sheet, np.eye(4)[None]))
+        pos, nrm, idx = _quad(-0.8, 0.8, -0.8, 0.8, 0.0)
+        meshes.append(BakedMesh("sheet", pos, nrm, idx, sheet, np.eye(4)[None]))
         key = f"{sheet.thin_walled}:{sheet.roughness}"
     # the key names the scene: the renderer keeps uploads per asset key
     return BakedAsset(f"test:thin_sheet:{key}", "test", "generated", meshes, [],
@@ -57,7 +58,7 @@ def _draw(asset: BakedAsset, env, method: str) -> np.ndarray:
     # the view fixed: fitted, it would frame the scene with and without the sheet differently
     opts = RenderOptions(width=SIZE, height=SIZE, yaw=30.0, pitch=10.0, background="env",
                          distance=5.0, target=(0.0, 0.0, -0.5),
-                         method="raytrace" if method.startswith("raytrace") else method,
+                         method="raytrace" if method.startswith("raytrace") else method,  # type: ignore[arg-type]
                          integrator="path" if method == "raytrace-path" else "tree")
     frame = render_raytrace(asset, env, opts) if opts.method == "raytrace" else render(asset, env, opts)
     assert np.isfinite(frame.linear).all()
@@ -85,7 +86,6 @@ def test_thin_sheet_shows_the_backdrop_unshifted_and_tinted(method, reference_en
 
 
 def test_rough_thin_sheet_blurs_the_backdrop_in_place(reference_env):
-    bare = _draw(_scene(None), reference_env, "single")
     sharp = _draw(_scene(_glass(True)), reference_env, "single")
     rough = _draw(_scene(_glass(True, roughness=0.6)), reference_env, "single")
     assert rough[..., 2].std() < 0.5 * sharp[..., 2].std()   # the stripes blur

@@ -477,7 +477,7 @@ def warm() -> None:
         shade(e3, e3, np.zeros(0, np.int32), np.zeros(0, f32), np.zeros(0, f32),
               np.zeros(0, t_type), e3, np.zeros(0, i64), np.zeros(0, i64), np.zeros(0, i64),
               e, e, e, e3, np.zeros((0, 3), f32), np.zeros(0, np.int32),
-              e3, e, e, e, e, e3, e3, e, np.zeros((2, 2, 2)), 0, 1, 1e-4, True, False, True,
+              e3, e, e, e, e, e3, np.zeros(0, np.bool_), e3, e, np.zeros((2, 2, 2)), 0, 1, 1e-4, True, False, True,
               1e-3, _SOBOL_DIM1, 0.0)
     sample_cube(np.zeros((6, 2, 2, 3), f32), e3, _S_AXIS, _S_SIGN, _T_AXIS, _T_SIGN)
     sample_texture(np.zeros((1, 4), np.uint8), np.zeros(1, i64), np.ones(1, i64), np.ones(1, i64),
