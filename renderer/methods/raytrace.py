@@ -32,7 +32,7 @@ Sobol set, and reflects and refracts about it with Walter et al.'s weights, exac
 the microfacet (TIR included) times the Smith G1 of the way out (tests/test_rough_dielectric.py
 checks them against quadrature of the BSDF): it converges to Mitsuba's rough dielectric. With
 `rough_lobes="prefilter"`, and always for metals and the diffuse share, lobes are not traced:
-the diffuse share reads the roughest mip along the normal and a rough reflection or
+the diffuse share reads the baked SH irradiance about the normal (the raster's ambient) and a rough reflection or
 refraction keeps its mirror direction and, at escape, reads the prefiltered mip for the lobe
 width gathered along the path (as the raster path's split-sum does; refraction lobes are
 narrower by |1 - eta| / 2): no noise, but biased. Inside a volume, Beer-Lambert
@@ -81,6 +81,7 @@ from core.baked import BakedAsset, BakedEnvironment
 from core.cubemap import env_rotation_matrix, sample_cube
 from core.mips import texture_size_for
 from core.options import RenderOptions, apply_override, background_rgb
+from pipeline.environment.prefilter import sh_irradiance
 from renderer.frame import Frame, FrameTimings, alpha_is_mask, tonemap_srgb8
 from renderer.methods import trace_lights, trace_material
 from renderer.methods.optics import fresnel_dielectric, reflect, refract, sample_rough_dielectric
@@ -180,6 +181,15 @@ class _Environment:
         if self.to_env is not None:
             d = d @ self.to_env.T
         return _env(self.baked, d, roughness)
+
+    def irradiance(self, n: np.ndarray) -> np.ndarray:
+        """Irradiance / pi about unit normals n: what a white Lambertian surface reflects, from
+        the baked SH as the raster's ambient term (shaders/sh.glsl). The roughest GGX mip is not
+        this: its lobe is narrower than the cosine and, under a blue sky, gave flat boards
+        facing the horizon a blue cast (+14% blue on footprint_court, red equal)."""
+        if self.to_env is not None:
+            n = n @ self.to_env.T
+        return sh_irradiance(self.baked.irradiance_sh, n)
 
     def split_sum(self, cos_v: np.ndarray, roughness: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(scale, bias) for F0, bilinear in the LUT (texel centres at (i + 0.5) / N)."""
@@ -520,7 +530,7 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
             if len(glow):
                 add(direct, glow)
             if len(matte):
-                add(diffuse * env.radiance(dnorm, np.ones(len(matte))), matte)
+                add(diffuse * env.irradiance(dnorm), matte)
             out = out[:9]
         else:
             if depth > 0:
@@ -671,7 +681,7 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
     v_refr = v_in + (alpha * np.abs(1.0 - eta) / 2) ** 2
     if np.any(diffuse_w > 0):
         dsel = diffuse_w.max(axis=1) > 0
-        add(diffuse_w[dsel] * sh[dsel, None] * env.radiance(ns[dsel], np.ones(dsel.sum())), sl[dsel])
+        add(diffuse_w[dsel] * sh[dsel, None] * env.irradiance(ns[dsel]), sl[dsel])
     rdir = reflect(d, ns)
     tdir, tir = refract(d, ns, eta)
     if g_r is not None:
