@@ -12,6 +12,7 @@ for a board facing +z against quadrature of the panorama) and by about 1% on the
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 import pytest
@@ -53,7 +54,7 @@ def _quad(normal: str, textured: bool) -> BakedAsset:
         pos = np.stack([corners[:, 0], np.zeros(4, np.float32), -corners[:, 1]], -1)
     n = np.array([0, 0, 1] if normal == "+z" else [0, 1, 0], np.float32)
     uv = np.array([[0, 1], [1, 1], [1, 0], [0, 0]], np.float32)
-    textures = []
+    textures: list[Any] = []  # a plain Texture: BakedAsset accepts it as tests elsewhere do
     # IOR 1: no specular layer, so all three integrate the Lambert lobe alone
     mat = Material(base_color=(0.8, 0.8, 0.8, 1.0), metallic=0.0, roughness=1.0, ior=1.0)
     if textured:
@@ -76,9 +77,10 @@ def test_tree_diffuse_matches_raster_and_path(coloured_env, normal, textured):
     asset = _quad(normal, textured)
     o = RenderOptions(width=48, height=48, tonemap="none", background="transparent", yaw=35.0,
                       pitch=25.0 if normal == "+z" else 60.0, shadow=0.0, samples=32, noise=0.0)
-    frames = {k: render(asset, env, dataclasses.replace(o, **kw)).linear for k, kw in [
-        ("raster", dict(method="opaque")), ("tree", dict(method="raytrace")),
-        ("path", dict(method="raytrace", integrator="path"))]}
+    options = {"raster": dataclasses.replace(o, method="opaque"),
+               "tree": dataclasses.replace(o, method="raytrace"),
+               "path": dataclasses.replace(o, method="raytrace", integrator="path")}
+    frames = {k: render(asset, env, ok).linear for k, ok in options.items()}
     covered = np.logical_and.reduce([f[..., 3] > 0.99 for f in frames.values()])
     assert covered.sum() > 0.2 * covered.size
     mean = {k: f[covered, :3].mean(0) for k, f in frames.items()}
