@@ -93,3 +93,37 @@ def test_tree_diffuse_matches_raster_and_path(coloured_env, normal, textured):
     if textured:  # same texels
         assert np.corrcoef(frames["raster"][covered, :3].ravel(),
                            frames["tree"][covered, :3].ravel())[0, 1] > 0.95
+
+
+def _plain_quad(key: str, **material) -> BakedAsset:
+    pos = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], np.float32)
+    mesh = BakedMesh("quad", pos, np.tile([0, 0, 1], (4, 1)).astype(np.float32),
+                     np.array([[0, 1, 2], [0, 2, 3]], np.uint32),
+                     Material(metallic=0.0, roughness=0.3, **material), np.eye(4)[None])
+    return BakedAsset(key=key, source="quad", format="test", meshes=[mesh], textures=[],
+                      bounds=np.array([[-1.0, -1, 0], [1, 1, 0]]))
+
+
+def test_tree_reads_khr_materials_specular(tmp_path):
+    """KHR_materials_specular in the tree (optics.specular_tint): specular 0 leaves the Lambert
+    base alone (as IOR 1 does), and a red specular colour over a black base reflects red."""
+    env = bake_environment("footprint_court", tmp_path, face_size=128)
+    o = RenderOptions(width=48, height=48, tonemap="none", background="transparent", yaw=35.0,
+                      pitch=25.0, shadow=0.0, samples=32, noise=0.0)
+
+    def mean(asset, **kw) -> np.ndarray:
+        f = render(asset, env, dataclasses.replace(o, **kw)).linear
+        return f[f[..., 3] > 0.99, :3].mean(0)
+
+    grey = (0.8, 0.8, 0.8, 1.0)
+    no_spec = mean(_plain_quad("spec0", base_color=grey, specular=0.0), method="raytrace")
+    ior_one = mean(_plain_quad("ior1", base_color=grey, ior=1.0), method="raytrace")
+    plain = mean(_plain_quad("plain", base_color=grey), method="raytrace")
+    assert np.all(np.abs(no_spec / ior_one - 1) < 0.005), (no_spec, ior_one)
+    assert np.all(no_spec > plain * 1.005)  # the specular layer's share went to the base
+    red = _plain_quad("red-spec", base_color=(0.0, 0.0, 0.0, 1.0), specular_color=(1.0, 0.2, 0.2))
+    tree, path = mean(red, method="raytrace"), mean(red, method="raytrace", integrator="path")
+    assert tree[0] > 3 * tree[1] and tree[0] > 3 * tree[2], tree  # untinted: grey
+    # measured 0.0062 against the path's 0.0050: the tree keeps the mirror direction of a
+    # rough lobe and reads the prefiltered mip (see renderer/methods/raytrace.py)
+    assert abs(tree[0] / path[0] - 1) < 0.3, (tree, path)

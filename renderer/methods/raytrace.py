@@ -84,7 +84,13 @@ from core.options import RenderOptions, apply_override, background_rgb
 from pipeline.environment.prefilter import sh_irradiance
 from renderer.frame import Frame, FrameTimings, alpha_is_mask, tonemap_srgb8
 from renderer.methods import trace_lights, trace_material
-from renderer.methods.optics import fresnel_dielectric, reflect, refract, sample_rough_dielectric
+from renderer.methods.optics import (
+    fresnel_dielectric,
+    reflect,
+    refract,
+    sample_rough_dielectric,
+    specular_tint,
+)
 from renderer.methods.trace_scene import (
     EPSILON,
     TraceScene,
@@ -519,6 +525,8 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
                 np.ascontiguousarray(origins), dirs, prim, u, v, t, weight, pix, sub, slot, blur,
                 share, medium, hits.normal, ts.geo_normals, ts.material, hits.base, hits.metallic,
                 hits.roughness, hits.transmission, ts.ior, ts.sigma, hits.emission, hits.occlusion,
+                np.ascontiguousarray(hits.specular, np.float64),
+                np.ascontiguousarray(hits.specular_color, np.float64),
                 np.asarray(env.baked.brdf_lut, np.float64), depth, n_sub, eps,
                 options.rough_lobes == "sample", options.fresnel_split == "sample",
                 options.multiscatter, MIN_WEIGHT, kernel._SOBOL_DIM1,
@@ -632,6 +640,7 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
     cos_i = -np.einsum("ij,ij->i", d, ns)
     eta = np.where(entering, 1.0 / ior, ior)
     fres = fresnel_dielectric(cos_i, eta)
+    f_smooth = fres  # before the rough lobe's albedo: KHR_materials_specular's tint reads it
     ms = options.multiscatter
     cos_c = np.clip(cos_i, 1e-4, 1.0)
     rough_out = entering & (rough_k > 0) & ~((trans > 0) & (options.rough_lobes == "sample"))
@@ -654,10 +663,16 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
             d[lsel], ns[lsel], rough_k[lsel] ** 2, eta[lsel], u1, u2)
         fres = fres.copy()
         fres[lsel] = f_m
+        f_smooth = f_smooth.copy()
+        f_smooth[lsel] = f_m
         g_r, g_t = np.ones(len(d)), np.ones(len(d))
         g_r[lsel] = wr_m / np.maximum(f_m, 1e-30)        # G1 (0: leaves below the surface)
         g_t[lsel] = wt_m / np.maximum(1.0 - f_m, 1e-30)
-    refl_w = ((1 - metal) * fres * (1.0 if g_r is None else g_r))[:, None] * w
+    # KHR_materials_specular: the reflected share per channel; what passes under it loses
+    # its largest channel (glTF's fresnel_mix)
+    fres_c = specular_tint(fres, f_smooth, ior, hits.specular, hits.specular_color, entering)
+    fres = fres_c.max(axis=1)
+    refl_w = ((1 - metal)[:, None] * fres_c * (1.0 if g_r is None else g_r[:, None])) * w
     if np.any(metal > 0):  # the metallic share's lobe albedo (a LUT read: only for metals)
         sel = np.flatnonzero(metal > 0)
         refl_w[sel] += (metal[sel, None] * env.specular_albedo(
