@@ -48,9 +48,10 @@ the baked mips at the ray cone's footprint, times vertex colours; alpha MASK cut
 through, BLEND lets them through with probability 1 - alpha (stratified per pixel). Occlusion
 scales the diffuse share, which reads the environment without visibility (as the raster's
 ambient term). The asset's punctual lights are added by next-event estimation at every
-surface a path meets (renderer.methods.trace_lights). Not yet traced: the specular,
-clearcoat, sheen, iridescence, anisotropy and diffuse-transmission lobes (their factors and
-textures are ignored here; the raster has them).
+surface a path meets (renderer.methods.trace_lights). KHR_materials_specular tints and scales
+the dielectric's Fresnel on the way in (optics.specular_tint, factor and colour textures
+included). Not yet traced: the clearcoat, sheen, iridescence, anisotropy and
+diffuse-transmission lobes (their factors and textures are ignored here; the raster has them).
 
 Anti-aliasing: `supersample` x `supersample` stratified rays per pixel (box filter) on and
 around the object, so silhouettes and the strongly minified refracted environment average
