@@ -5,7 +5,6 @@ upload, and every frame the same as the stage read whole at that time."""
 from __future__ import annotations
 
 import logging
-from pathlib import Path
 
 import numpy as np
 import pytest

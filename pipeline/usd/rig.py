@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 from pxr import Usd, UsdGeom, UsdLux, UsdSkel
@@ -28,7 +29,7 @@ from pxr import Usd, UsdGeom, UsdLux, UsdSkel
 from core.animation import Moment
 from core.baked import BakedAsset
 from core.errors import AssetError
-from core.hull import hull_points, hull_support_points
+from core.hull import SUPPORT_BLOCK, hull_points, hull_support_points, support_points
 from core.scene import Scene, transformed_bounds
 from pipeline.bake import build_baked, instance_groups
 from pipeline.ingest import finish
@@ -169,7 +170,7 @@ class UsdRig:
                 out = dataclasses.replace(tm, positions=mesh.positions, normals=mesh.normals,
                                           tangents=mesh.tangents if tm.tangents is not None else None,
                                           transforms=transforms, interior=interior,
-                                          support=hull_support_points(mesh.positions))
+                                          support=_support(mesh.positions))
             else:
                 out = dataclasses.replace(tm, transforms=transforms)
             meshes.append(out)
@@ -178,7 +179,7 @@ class UsdRig:
                     a, b = transformed_bounds(out.positions, tr)
                     lo, hi = np.minimum(lo, a), np.maximum(hi, b)
         bounds = np.stack([lo, hi]) if np.all(np.isfinite(lo)) else np.zeros((2, 3))
-        hull = hull_points(meshes, qhull=True)
+        hull = hull_points(meshes)  # as the whole read's bake: scipy only for big meshes
         moment = Moment(t)
         manifest = {**self.template.manifest, "moment": {"time_code": r.time.GetValue()},
                     "options": {**self.options, "moment": dataclasses.asdict(moment)}}
@@ -224,7 +225,7 @@ class UsdRig:
         # the re-read instances, per prim in the order read: the template's of that prim
         fresh: dict[str, list] = {}
         for inst in scene.instances:
-            fresh.setdefault(inst.placement[0], []).append(inst.matrix)
+            fresh.setdefault(cast(tuple, inst.placement)[0], []).append(inst.matrix)
         for k, moving in enumerate(self.moving):
             if moving is not None and moving[1]:
                 if not fresh.get(moving[0]):
@@ -250,6 +251,12 @@ def _moves(prim: Usd.Prim) -> bool:
             return False
         prim = prim.GetParent()
     return False
+
+
+def _support(points: np.ndarray) -> np.ndarray:
+    """The bake's support points; over the hull's vertices for a big mesh (qhull, whose scipy
+    import a short preview of small meshes should not pay, beats N x 256 dot products there)."""
+    return hull_support_points(points) if len(points) > SUPPORT_BLOCK else support_points(points)
 
 
 def _interior(positions: np.ndarray, normals: np.ndarray, indices: np.ndarray,
