@@ -209,3 +209,46 @@ def test_usd_frames_share_one_upload_and_match_separate_frames(mixed):
     for i, (a, b) in enumerate(zip(fast, slow)):
         assert np.abs(a.rgba8.astype(int) - b.rgba8.astype(int)).max() <= 2, i
     assert np.abs(fast[0].rgba8.astype(int) - fast[5].rgba8.astype(int)).max() > 50
+
+
+INSTANCED = """#usda 1.0
+(
+    startTimeCode = 0
+    endTimeCode = 10
+    timeCodesPerSecond = 10
+    metersPerUnit = 1
+    upAxis = "Y"
+)
+def PointInstancer "Crowd"
+{
+    point3f[] positions = [(0, 0, 0), (2, 0, 0)]
+    int[] protoIndices = [0, 0]
+    rel prototypes = [</Crowd/Protos/Pebble>]
+    def Xform "Protos"
+    {
+        def Mesh "Pebble"
+        {
+            int[] faceVertexCounts = [3]
+            int[] faceVertexIndices = [0, 1, 2]
+            point3f[] points.timeSamples = {
+                0: [(0, 0, 0), (1, 0, 0), (0, 1, 0)],
+                10: [(0, 0, 0), (1, 0, 0), (0, 2, 0)],
+            }
+        }
+    }
+}
+"""
+
+
+def test_usd_rig_falls_back_for_a_point_instanced_prototype_that_deforms(tmp_path, caplog):
+    """A PointInstancer's instances do not record the prim that placed them: a prototype
+    whose points vary is read whole per frame, and those frames follow the points."""
+    path = tmp_path / "crowd.usda"
+    path.write_text(INSTANCED)
+    base = bake_asset(path, str(tmp_path / "cache"))
+    with pytest.raises(RigUnsupported, match="PointInstancers"):
+        UsdRig(path, base, 0.0)
+    with caplog.at_level(logging.INFO, logger="pipeline.animate"):
+        out = frames(path, base, [0.0, 0.5])
+    assert "each frame read whole" in caplog.text
+    assert out[1].bounds[1, 1] == pytest.approx(1.5)  # halfway from 1 to 2

@@ -24,13 +24,14 @@ from pathlib import Path
 from typing import cast
 
 import numpy as np
-from pxr import Usd, UsdGeom, UsdLux, UsdSkel
+from pxr import Usd, UsdGeom, UsdLux, UsdSkel, UsdUtils
 
 from core.animation import Moment
 from core.baked import BakedAsset
 from core.errors import AssetError
 from core.hull import SUPPORT_BLOCK, hull_points, hull_support_points, support_points
 from core.scene import Scene, transformed_bounds
+from pipeline import deadline
 from pipeline.bake import build_baked, instance_groups
 from pipeline.ingest import finish
 from pipeline.limits import Limits
@@ -62,15 +63,14 @@ class UsdRig:
         self.limits = limits
         self.reads = 0  # meshes read again by poses (tests count them)
         try:
-            scene, reader = read_composed(self.graph, Moment(first), tuple(opts.get("variant_sets", ())),
-                                          self.purposes, self.draw_mode)
-            finish(scene, limits)
-        except AssetError as exc:
+            with deadline.within(limits.ingest_seconds, str(path)):  # as load_scene's read
+                scene, reader = read_composed(self.graph, Moment(first),
+                                              tuple(opts.get("variant_sets", ())),
+                                              self.purposes, self.draw_mode)
+                finish(scene, limits)
+        except Exception as exc:  # the whole read reports it as load_scene does
             self.close()
             raise RigUnsupported(f"the first frame does not read: {exc}") from None
-        except BaseException:
-            self.close()
-            raise
         self.stage: Usd.Stage = reader.stage
         self.scene: Scene = scene
         self.light_prims = list(reader.light_prims)
@@ -108,8 +108,9 @@ class UsdRig:
                 else:
                     raise RigUnsupported(f"{prim.GetPath()}.{name} varies in time")
         instances = self.scene.instances
-        if any_xform and any(inst.placement is None for inst in instances):
-            raise RigUnsupported("transforms vary on a stage with PointInstancers or draw-mode stand-ins")
+        if (any_xform or deforming) and any(inst.placement is None for inst in instances):
+            raise RigUnsupported("transforms or points vary on a stage with PointInstancers or "
+                                 "draw-mode stand-ins")
         # per instance: its prim path, and whether a pose re-reads it (deforming, skinned) or
         # only places it again (a moving transform); None: it stays
         self.moving: list[tuple[str, bool] | None] = []
@@ -192,25 +193,30 @@ class UsdRig:
         """Template mesh index -> the mesh read again at `r`'s time (finished as ingest
         finishes it); the re-read prims' instance matrices written into `matrices`."""
         stage = self.stage
-        roots: set[str] = set()
-        for prim in (stage.GetPrimAtPath(p) for p in self.reread):
-            parent = prim
-            while parent and not parent.IsA(UsdSkel.Root):
-                parent = parent.GetParent()
-            if parent and str(parent.GetPath()) not in roots:  # as the walk met it
-                roots.add(str(parent.GetPath()))
-                r._skel_root(parent)
-            skinned = r._skinned(prim) if r._skel else None
-            r._placing = (str(prim.GetPath()), skinned is not None)
-            if skinned is not None:
-                r._gprim(prim, *skinned)
-            else:
-                r._gprim(prim, r._matrices(prim, stage.GetPseudoRoot(), None))
-        scene = r.scene
+        # pxr's diagnostics were the rest read's to report, once
+        diagnostics = UsdUtils.CoalescingDiagnosticDelegate()
         try:
+            roots: set[str] = set()
+            for prim in (stage.GetPrimAtPath(p) for p in self.reread):
+                parent = prim
+                while parent and not parent.IsA(UsdSkel.Root):
+                    parent = parent.GetParent()
+                if parent and str(parent.GetPath()) not in roots:  # as the walk met it
+                    roots.add(str(parent.GetPath()))
+                    r._skel_root(parent)
+                skinned = r._skinned(prim) if r._skel else None
+                r._placing = (str(prim.GetPath()), skinned is not None)
+                if skinned is not None:
+                    r._gprim(prim, *skinned)
+                else:
+                    r._gprim(prim, r._matrices(prim, stage.GetPseudoRoot(), None))
+            scene = r.scene
             finish(scene, self.limits)
         except AssetError as exc:
             raise RigUnsupported(f"a frame's moving meshes do not read: {exc}") from None
+        finally:
+            diagnostics.TakeUncoalescedDiagnostics()
+            del diagnostics
         self.reads += len(scene.meshes)
         by_name = {m.name: i for i, m in enumerate(self.scene.meshes) if i in self.reread_meshes}
         out = {}
