@@ -137,13 +137,13 @@ def test_usd_rig_rereads_only_what_varies(mixed, monkeypatch):
     path, _, base = mixed
     rig = UsdRig(path, base, 0.0)
     read: list[str] = []
-    original = usd_stage._StageReader._gprim
+    original = usd_stage.StageReader._gprim
 
     def counting(self, prim, *args, **kwargs):
         read.append(str(prim.GetPath()))
         return original(self, prim, *args, **kwargs)
 
-    monkeypatch.setattr(usd_stage._StageReader, "_gprim", counting)
+    monkeypatch.setattr(usd_stage.StageReader, "_gprim", counting)
     try:
         poses = [rig.pose(t, f"k{t}") for t in (0.25, 0.5, 1.5)]
     finally:

@@ -36,7 +36,7 @@ from pipeline.bake import build_baked, instance_groups
 from pipeline.ingest import finish
 from pipeline.limits import Limits
 from pipeline.usd.layers import LayerGraph
-from pipeline.usd.stage import _StageReader, read_composed
+from pipeline.usd.stage import StageReader, read_composed
 
 # attributes a Mesh may vary in time that a re-read of the mesh alone follows (extent,
 # velocities and accelerations are not read)
@@ -141,9 +141,9 @@ class UsdRig:
     def close(self) -> None:
         self.graph.close()
 
-    def _reader(self, t: float) -> _StageReader:
+    def _reader(self, t: float) -> StageReader:
         scene = Scene(source=self.scene.source, format=self.scene.format)
-        return _StageReader(self.stage, self.graph, scene, self.limits, Moment(t), self.purposes,
+        return StageReader(self.stage, self.graph, scene, self.limits, Moment(t), self.purposes,
                             self.draw_mode)
 
     def pose(self, t: float, key: str) -> BakedAsset:
@@ -189,7 +189,7 @@ class UsdRig:
             hull=np.zeros((0, 3)) if hull is None else hull, gpu_key=self.template.key,
             manifest=manifest)
 
-    def _reread(self, r: _StageReader, matrices: list) -> dict:
+    def _reread(self, r: StageReader, matrices: list) -> dict:
         """Template mesh index -> the mesh read again at `r`'s time (finished as ingest
         finishes it); the re-read prims' instance matrices written into `matrices`."""
         stage = self.stage
@@ -239,7 +239,7 @@ class UsdRig:
                 matrices[k] = fresh[moving[0]].pop(0)
         return out
 
-    def _lights(self, r: _StageReader) -> tuple[list, list]:
+    def _lights(self, r: StageReader) -> tuple[list, list]:
         if not self.light_prims:
             return [], []
         for path in self.light_prims:

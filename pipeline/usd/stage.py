@@ -102,7 +102,7 @@ def read_composed(graph: LayerGraph, moment: Moment | None = None, variant_sets:
         scene.variant_sets = list_variant_sets(stage)
         scene.warnings.extend(graph.warnings)
         scene.time_range = time_range(stage)
-        reader = _StageReader(stage, graph, scene, limits=graph.limits, moment=moment,
+        reader = StageReader(stage, graph, scene, limits=graph.limits, moment=moment,
                               purposes=purposes, draw_mode=draw_mode)
         reader.read()
         scene.files = list(graph.files)
@@ -214,7 +214,7 @@ class _Topology:
     creases: Creases | None = None
 
 
-class _StageReader:
+class StageReader:
     def __init__(self, stage: Usd.Stage, graph: LayerGraph, scene: Scene, limits: Limits,
                  moment: Moment | None = None, purposes: tuple[str, ...] = ("render",),
                  draw_mode: str = "authored"):

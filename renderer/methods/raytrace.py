@@ -82,7 +82,7 @@ from core.baked import BakedAsset, BakedEnvironment
 from core.cubemap import env_rotation_matrix, sample_cube
 from core.mips import texture_size_for
 from core.options import RenderOptions, apply_override, background_rgb
-from pipeline.environment.prefilter import sh_irradiance
+from core.sh import sh_irradiance
 from renderer.frame import Frame, FrameTimings, alpha_is_mask, tonemap_srgb8
 from renderer.methods import trace_lights, trace_material
 from renderer.methods.optics import (
@@ -266,7 +266,7 @@ def _lut_albedo(env: BakedEnvironment, cos_v: np.ndarray, roughness: np.ndarray)
     return np.where(roughness > 0, top * (1 - fy) + bottom * fy, 1.0)
 
 
-def _subpixel_rays(camera: Camera, pixels: np.ndarray, ss: int) -> tuple[np.ndarray, np.ndarray]:
+def subpixel_rays(camera: Camera, pixels: np.ndarray, ss: int) -> tuple[np.ndarray, np.ndarray]:
     """Directions on an ss x ss stratified grid inside each of `pixels` (flat indices), and the
     pixel of each ray: the rays renderer.view.camera would give a camera of ss times the size."""
     r, u, f = camera.basis()
@@ -282,7 +282,7 @@ def _subpixel_rays(camera: Camera, pixels: np.ndarray, ss: int) -> tuple[np.ndar
     return d / np.linalg.norm(d, axis=-1, keepdims=True), np.repeat(pixels, ss * ss)
 
 
-def _near(mask: np.ndarray) -> np.ndarray:
+def grown_by_one(mask: np.ndarray) -> np.ndarray:
     """`mask` grown by one pixel in all eight directions."""
     out = mask.copy()
     out[1:] |= mask[:-1]
@@ -347,12 +347,12 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     # Pixels go through in chunks so that memory stays bounded at any image size.
     first = np.zeros(npix, bool)
     for chunk in _chunks(np.arange(npix), 4 * CHUNK_PIXELS):
-        d, _ = _subpixel_rays(camera, chunk, 1)
+        d, _ = subpixel_rays(camera, chunk, 1)
         first[chunk] = intersect_front(ts, np.broadcast_to(camera.position, d.shape), d)[0] >= 0
-    near = _near(first.reshape(camera.height, camera.width)).reshape(-1)
+    near = grown_by_one(first.reshape(camera.height, camera.width)).reshape(-1)
     if show_env:
         for chunk in _chunks(np.flatnonzero(~near), 4 * CHUNK_PIXELS):
-            d, _ = _subpixel_rays(camera, chunk, 1)
+            d, _ = subpixel_rays(camera, chunk, 1)
             for img in images:
                 img.add(sky.radiance(d, np.full(len(d), options.background_blur)), chunk)
     if options.integrator == "path":  # progressive path tracing (renderer.methods.path_trace)
@@ -392,7 +392,7 @@ def _trace_tree(ts: TraceScene, sky: _Environment, options: RenderOptions, camer
         if adaptive:  # 2 x 2 first; the full grid only where those disagree
             chunk = _coarse_pass(ts, sky, options, camera, chunk, image, stats)
             stats["refined"] += len(chunk)
-        dirs, pix = _subpixel_rays(camera, chunk, supersample)
+        dirs, pix = subpixel_rays(camera, chunk, supersample)
         for scene, img in zip(passes, images):
             _trace_paths(scene, sky, options, camera.position, dirs, pix, 1.0 / supersample ** 2,
                          img, stats)
@@ -404,7 +404,7 @@ def _coarse_pass(ts: TraceScene, sky: _Environment, options: RenderOptions, came
     """Trace 2 x 2 rays in each of `pixels`; add the pixels whose four samples agree (object
     coverage equal, tone-mapped luminance L / (1 + L) within options.aa_threshold) to
     `image` and return the others, to be traced again with the full grid."""
-    dirs, pix = _subpixel_rays(camera, pixels, 2)
+    dirs, pix = subpixel_rays(camera, pixels, 2)
     per_ray = _Image(len(dirs))
     _trace_paths(ts, sky, options, camera.position, dirs, pix, 0.25, per_ray, stats,
                  slot=np.arange(len(dirs)))
