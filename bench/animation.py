@@ -4,8 +4,9 @@
 
 A: one `--animate` preview: the rest bake once, a Rig (pipeline.gltf.rig: the document read
 and the scene baked once, "setup"), then per frame a pose (only what moves recomputed) and
-one draw on one GPU upload whose moved buffers are rewritten, every frame by one camera.
-With --whole, A reads each frame whole instead (the path before the rig, and USD's): a
+one draw on one GPU upload whose moved buffers are rewritten, every frame by one camera. A
+USD stage: a UsdRig (pipeline.usd.rig: the stage composed and read once, per frame only its
+time-varying prims). With --whole, A reads each frame whole instead (the path before the rigs): a
 pose ingested and built in memory, and uploaded, per frame.
 B: the same times as separate stills: per frame a `--time` bake into a fresh cache (ingest,
 build, store) and a render, as a client asking for each moment would cause.
@@ -30,6 +31,7 @@ from core.options import RenderOptions
 from pipeline.animate import frame_times, posed
 from pipeline.bake import bake_asset, bake_environment
 from pipeline.gltf.rig import Rig
+from pipeline.usd.rig import UsdRig
 from renderer.raster import gpu
 from renderer.raster.render import render
 from renderer.sequence import render_animation
@@ -53,7 +55,13 @@ def main(argv=None) -> None:
         render(base, env, RenderOptions(width=args.size, height=args.size))  # warm-up
         times, motion = frame_times(base, args.fps, args.animation)
         t0 = time.perf_counter()
-        rig = None if args.whole else Rig(args.asset, base, args.animation)
+        rig: Rig | UsdRig | None = None
+        if args.whole:
+            pass
+        elif args.asset.lower().endswith((".usd", ".usda", ".usdc", ".usdz")):
+            rig = UsdRig(args.asset, base, times[0])  # pipeline.usd.rig: the stage read once
+        else:
+            rig = Rig(args.asset, base, args.animation)
         ts = time.perf_counter()
         poses = ([rig.pose(t, f"{base.key}:{t}") for t in times] if rig is not None else
                  [posed(args.asset, base, Moment(t, args.animation)) for t in times])

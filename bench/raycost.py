@@ -142,15 +142,15 @@ def measure(cache: Path, quick: bool) -> list[dict]:
 def _near_px(asset, options) -> int:
     """Pixels the tracer traces at full rate: the centre rays' hits grown by one pixel, as
     renderer.methods.raytrace.trace's `near` mask."""
-    from renderer.methods.raytrace import _near, _subpixel_rays, build_scene
+    from renderer.methods.raytrace import build_scene, grown_by_one, subpixel_rays
     from renderer.methods.trace_scene import intersect_front
     from renderer.view.framing import asset_camera
 
     cam = asset_camera(asset, options)[0]
     ts = build_scene(asset, options)
-    d, _ = _subpixel_rays(cam, np.arange(cam.width * cam.height), 1)
+    d, _ = subpixel_rays(cam, np.arange(cam.width * cam.height), 1)
     hit = intersect_front(ts, np.broadcast_to(cam.position, d.shape), d)[0] >= 0
-    return int(_near(hit.reshape(cam.height, cam.width)).sum())
+    return int(grown_by_one(hit.reshape(cam.height, cam.width)).sum())
 
 
 def rt_upper(r: dict, f: dict) -> float:

@@ -60,8 +60,8 @@ def posed(path, base: BakedAsset, moment: Moment, root=None, limits: Limits | No
 def frames(path, base: BakedAsset, times: list[float], animation: str | None = None, root=None,
            limits: Limits | None = None) -> list[BakedAsset]:
     """`path` posed at each of `times` (seconds of `animation`). glTF: one Rig (pipeline.gltf.rig)
-    read once and posed per frame, the frames sharing one GPU upload; USD, or a glTF the rig
-    cannot pose: each frame read whole (posed)."""
+    read once and posed per frame, the frames sharing one GPU upload; USD likewise through one
+    UsdRig (pipeline.usd.rig); a stage or glTF its rig cannot pose: each frame read whole (posed)."""
     if Path(path).suffix.lower() in (".gltf", ".glb"):
         from pipeline.gltf.rig import Rig, RigUnsupported
         try:
@@ -70,6 +70,20 @@ def frames(path, base: BakedAsset, times: list[float], animation: str | None = N
             log.info("%s: each frame read whole: %s", path, exc)
         else:
             return [rig.pose(t, f"{base.key}@{animation or ''}:{t:.6f}") for t in times]
+    elif Path(path).suffix.lower() in (".usd", ".usda", ".usdc", ".usdz") and times:
+        from pipeline.usd.rig import RigUnsupported as UsdRigUnsupported
+        from pipeline.usd.rig import UsdRig
+        try:
+            usd_rig = UsdRig(path, base, times[0], root, limits)
+        except UsdRigUnsupported as exc:
+            log.info("%s: each frame read whole: %s", path, exc)
+        else:
+            try:
+                return [usd_rig.pose(t, f"{base.key}@:{t:.6f}") for t in times]
+            except UsdRigUnsupported as exc:  # found at a later frame (its triangles changed)
+                log.info("%s: each frame read whole: %s", path, exc)
+            finally:
+                usd_rig.close()
     return [posed(path, base, Moment(t, animation), root, limits) for t in times]
 
 

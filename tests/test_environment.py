@@ -9,6 +9,7 @@ import pytest
 from core import cubemap
 from core.colour import srgb_to_linear
 from core.errors import AssetError, IngestTimeout, LimitExceeded, MalformedAsset, MissingFile, UnsupportedFormat
+from core.sh import sh_irradiance
 from pipeline.environment import prefilter as env
 from pipeline.environment.panorama import write_rgbe
 from pipeline.limits import Limits
@@ -231,7 +232,7 @@ def test_furnace(method):
     for mip in result.specular:
         np.testing.assert_allclose(mip, 1.0, atol=2e-3)
     normals = cubemap.face_directions(8).reshape(-1, 3)
-    np.testing.assert_allclose(env.sh_irradiance(result.irradiance_sh, normals), 1.0, atol=1e-5)
+    np.testing.assert_allclose(sh_irradiance(result.irradiance_sh, normals), 1.0, atol=1e-5)
 
 
 def test_energy_is_preserved_across_mips(court):
@@ -322,7 +323,7 @@ def test_sh_of_a_constant_environment_is_exact():
     sh = env.project_sh(np.full((64, 128, 3), 2.5, np.float32))
     normals = np.random.default_rng(0).normal(size=(500, 3))
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-    np.testing.assert_allclose(env.sh_irradiance(sh, normals), 2.5, rtol=1e-5)
+    np.testing.assert_allclose(sh_irradiance(sh, normals), 2.5, rtol=1e-5)
     np.testing.assert_allclose(sh[1:], 0, atol=1e-5)
 
 
@@ -337,7 +338,7 @@ def test_sh_irradiance_matches_cosine_convolution(court):
     normals = cubemap.face_directions(4).reshape(-1, 3)
     cos = np.maximum(normals @ dirs.T, 0) * dw
     brute = cos @ pixels.reshape(-1, 3) / np.pi
-    sh = env.sh_irradiance(env.project_sh(court.pixels), normals)
+    sh = sh_irradiance(env.project_sh(court.pixels), normals)
     assert np.abs(sh - brute).mean() / brute.mean() < 0.03
 
 
@@ -365,7 +366,7 @@ def test_glsl_sh_irradiance_equals_numpy(court):
     got = np.frombuffer(tex.read(), np.float32).reshape(16, 4)[:, :3]
     fbo.release()
     tex.release()
-    np.testing.assert_allclose(got, env.sh_irradiance(sh, normals), rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(got, sh_irradiance(sh, normals), rtol=1e-4, atol=1e-5)
 
 
 # BRDF LUT -----------------------------------------------------------------------------------

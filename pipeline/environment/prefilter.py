@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from core.cubemap import DEFAULT_FACE_SIZE, check_face_size, default_levels
+from core.sh import SH_C0, SH_C1, SH_C2, SH_C3, SH_C4
 from pipeline.environment.panorama import DEFAULT_ENVIRONMENT, Panorama, list_bundled, load_panorama, synthetic_panorama  # noqa: F401
 
 log = logging.getLogger(__name__)
@@ -40,14 +41,6 @@ GGX_MAX_SAMPLES = 512
 LUT_SIZE = 64
 LUT_SAMPLES = 256
 
-# Real SH basis l <= 2, standard order, in world coordinates (x, y, z):
-# Y00; Y1-1 = c1 y, Y10 = c1 z, Y11 = c1 x; Y2-2 = c2 xy, Y2-1 = c2 yz, Y20 = c3 (3z^2 - 1),
-# Y21 = c2 xz, Y22 = c4 (x^2 - y^2).
-_SH_C0 = 0.5 / math.sqrt(math.pi)
-_SH_C1 = math.sqrt(3 / (4 * math.pi))
-_SH_C2 = 0.5 * math.sqrt(15 / math.pi)
-_SH_C3 = 0.25 * math.sqrt(5 / math.pi)
-_SH_C4 = 0.25 * math.sqrt(15 / math.pi)
 
 
 @dataclass
@@ -338,37 +331,21 @@ def project_sh(pixels: np.ndarray) -> np.ndarray:
     cols = cols[1:] - cols[:-1]                           # W x 6
     per_row = np.tensordot(pixels.astype(np.float64), cols, axes=([1], [0]))  # H x 3 x 6
     terms = [  # (constant, [(factor, row function, column function)]) per basis function
-        (_SH_C0, [(1, "1", "1")]),
-        (_SH_C1, [(1, "c", "1")]),                        # y
-        (_SH_C1, [(1, "s", "cos")]),                      # z
-        (_SH_C1, [(-1, "s", "sin")]),                     # x
-        (_SH_C2, [(-1, "sc", "sin")]),                    # xy
-        (_SH_C2, [(1, "sc", "cos")]),                     # yz
-        (_SH_C3, [(3, "ss", "cos2"), (-1, "1", "1")]),    # 3z^2 - 1
-        (_SH_C2, [(-1, "ss", "sincos")]),                 # xz
-        (_SH_C4, [(1, "ss", "sin2"), (-1, "cc", "1")]),   # x^2 - y^2
+        (SH_C0, [(1, "1", "1")]),
+        (SH_C1, [(1, "c", "1")]),                        # y
+        (SH_C1, [(1, "s", "cos")]),                      # z
+        (SH_C1, [(-1, "s", "sin")]),                     # x
+        (SH_C2, [(-1, "sc", "sin")]),                    # xy
+        (SH_C2, [(1, "sc", "cos")]),                     # yz
+        (SH_C3, [(3, "ss", "cos2"), (-1, "1", "1")]),    # 3z^2 - 1
+        (SH_C2, [(-1, "ss", "sincos")]),                 # xz
+        (SH_C4, [(1, "ss", "sin2"), (-1, "cc", "1")]),   # x^2 - y^2
     ]
     sh = np.zeros((9, 3))
     for k, (c, parts) in enumerate(terms):
         for factor, rf, cf in parts:
             sh[k] += c * factor * (rows[rf] @ per_row[:, :, col_keys.index(cf)])
     return sh.astype(np.float32)
-
-
-def sh_basis(d: np.ndarray) -> np.ndarray:
-    """The 9 basis functions at unit directions (..., 3) -> (..., 9)."""
-    x, y, z = d[..., 0], d[..., 1], d[..., 2]
-    return np.stack([np.full_like(x, _SH_C0), _SH_C1 * y, _SH_C1 * z, _SH_C1 * x,
-                     _SH_C2 * x * y, _SH_C2 * y * z, _SH_C3 * (3 * z * z - 1),
-                     _SH_C2 * x * z, _SH_C4 * (x * x - y * y)], axis=-1)
-
-
-def sh_irradiance(sh: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """Irradiance / pi at unit normals (..., 3) -> (..., 3): the radiance a white Lambertian
-    surface reflects (Ramamoorthi & Hanrahan 2001: A0 = pi, A1 = 2pi/3, A2 = pi/4), as
-    shaders/sh.glsl computes it."""
-    band = np.array([1.0] + [2 / 3] * 3 + [1 / 4] * 5)
-    return (sh_basis(np.asarray(normals, dtype=np.float64)) * band) @ np.asarray(sh, np.float64)
 
 
 if __name__ == "__main__":  # `make brdf-lut`: (re)write the shipped LUT for the current constants

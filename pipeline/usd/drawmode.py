@@ -95,7 +95,7 @@ class Lines:
 
 
 class StandIns:
-    """Builds the stand-ins of one stage into its Scene; `reader` is the _StageReader."""
+    """Builds the stand-ins of one stage into its Scene; `reader` is the StageReader."""
 
     def __init__(self, reader):
         # a proxy: a reader <-> stand-ins cycle would keep the stage, and pxr's registry its

@@ -80,24 +80,37 @@ def load(path: Path, limits: Limits, root: Path | None = None,
     "authored" draws model:drawMode stand-ins as usdview does, "full" the geometry instead."""
     path = Path(path)
     graph = LayerGraph(path, limits, root)
+    try:
+        return read_composed(graph, moment, variant_sets, purposes, draw_mode)[0]
+    finally:
+        graph.close()
+
+
+def read_composed(graph: LayerGraph, moment: Moment | None = None, variant_sets: tuple[str, ...] = (),
+                  purposes: tuple[str, ...] = ("render",), draw_mode: str = "authored"):
+    """(scene, reader): `graph`'s stage composed (once: graph.stage) and read at `moment`;
+    the graph stays open (pipeline.usd.rig reads the same stage again at other times)."""
+    path = graph.path
     # pxr's own diagnostics (`Warning: in _ReportErrors at line ... of stage.cpp`) would go to
     # stderr, once per process and out of order; caught here they become the scene's warnings
     diagnostics = UsdUtils.CoalescingDiagnosticDelegate()
     try:
-        root_layer = graph.open()
-        stage = graph.stage = _compose(root_layer, graph, variant_sets)
+        if graph.stage is None:
+            graph.stage = _compose(graph.open(), graph, variant_sets)
+        stage = graph.stage
         scene = Scene(source=str(path), format=path.suffix.lower().lstrip("."))
         scene.variant_sets = list_variant_sets(stage)
         scene.warnings.extend(graph.warnings)
         scene.time_range = time_range(stage)
-        _StageReader(stage, graph, scene, limits, moment, purposes, draw_mode).read()
+        reader = StageReader(stage, graph, scene, limits=graph.limits, moment=moment,
+                              purposes=purposes, draw_mode=draw_mode)
+        reader.read()
         scene.files = list(graph.files)
         scene.absent = list(graph.absent)
         _take_diagnostics(diagnostics, scene.warnings, (*graph.absent, *graph.unreadable))
-        return scene
+        return scene, reader
     finally:
         del diagnostics  # unregisters the delegate
-        graph.close()
 
 
 _PXR_CONTEXT = re.compile(r"\s*\((?:instantiating stage|in file|on stage) [^()]*(?:\([^()]*\)[^()]*)*\)\s*$")
@@ -201,7 +214,7 @@ class _Topology:
     creases: Creases | None = None
 
 
-class _StageReader:
+class StageReader:
     def __init__(self, stage: Usd.Stage, graph: LayerGraph, scene: Scene, limits: Limits,
                  moment: Moment | None = None, purposes: tuple[str, ...] = ("render",),
                  draw_mode: str = "authored"):
@@ -225,6 +238,10 @@ class _StageReader:
         self._nodes = 0
         self._skipped: set[str] = set()
         self._skel: UsdSkel.Cache | None = None  # made at the first SkelRoot
+        # (prim path, skinned) of the stage prim _gprim is placing (None: a PointInstancer's
+        # prototype), kept on its Instances for pipeline.usd.rig to place them again
+        self._placing: tuple | None = None
+        self.light_prims: list[str] = []  # the lights and cameras read, in order (rig)
         if not stage.HasAuthoredMetadata(UsdGeom.Tokens.metersPerUnit):
             self._warn("metersPerUnit not authored: USD's fallback 0.01 (centimetres) used")
 
@@ -279,12 +296,16 @@ class _StageReader:
                 self._skel_root(prim)
             if placements is None and prim.HasAPI(UsdLux.LightAPI) and not prim.IsA(UsdGeom.Gprim):
                 self._light(prim)
+                self.light_prims.append(str(prim.GetPath()))
                 continue
             if placements is None and prim.IsA(UsdGeom.Camera):
                 self._camera(prim)
+                self.light_prims.append(str(prim.GetPath()))
                 continue
             if prim.IsA(UsdGeom.Mesh) or str(prim.GetTypeName()) in SHAPES:
                 skinned = self._skinned(prim) if placements is None and self._skel else None
+                self._placing = None if placements is not None else \
+                    (str(prim.GetPath()), skinned is not None)
                 if skinned is not None:
                     self._gprim(prim, *skinned)
                 else:
@@ -613,7 +634,8 @@ class _StageReader:
                 self.scene.meshes.append(built)
                 self._meshes[key] = len(self.scene.meshes) - 1
             if self._meshes[key] >= 0:
-                self.scene.instances.extend(Instance(self._meshes[key], binding.material, m)
+                self.scene.instances.extend(Instance(self._meshes[key], binding.material, m,
+                                                     placement=self._placing)
                                             for m in matrices)
 
     def _groups(self, prim: Usd.Prim, mesh: UsdGeom.Mesh | None):

@@ -71,6 +71,32 @@ def f0_from_ior(n1, n2=1.0) -> np.ndarray:
     return ((n1 - n2) / (n1 + n2)) ** 2
 
 
+def specular_tint(fres, f_smooth, ior, specular, specular_color, entering) -> np.ndarray:
+    """N x 3 reflectance of a dielectric under KHR_materials_specular from its N untinted one
+    `fres` (`f_smooth`: the same before any rough-lobe albedo). glTF's Schlick curve
+    F = s (f0' + (1 - f0')(1 - cos)^5), f0' = min(f0 x specular colour, 1) (as path_bsdf), keeps
+    the exact Fresnel's shape: F' = s (f0' + (1 - f0') x) with x = (F - f0) / (1 - f0), so the
+    default (s = 1, white) is untouched. On the way out of a volume (not `entering`) the
+    interface is left untinted: TIR stays total."""
+    fres = np.asarray(fres, np.float64)
+    out = np.repeat(fres[:, None], 3, axis=1)
+    spec = np.asarray(specular, np.float64)
+    col = np.asarray(specular_color, np.float64)
+    if spec.size == 0:
+        return out
+    tinted = entering & ((spec != 1.0) | np.any(col != 1.0, axis=1))
+    if not np.any(tinted):
+        return out
+    sel = np.flatnonzero(tinted)
+    f0 = (((ior[sel] - 1) / (ior[sel] + 1)) ** 2)[:, None]
+    f0c = np.minimum(f0 * col[sel], 1.0)
+    x = np.clip((f_smooth[sel, None] - f0) / np.maximum(1 - f0, 1e-12), 0.0, 1.0)
+    smooth_c = spec[sel, None] * (f0c + (1 - f0c) * x)
+    ratio = fres[sel, None] / np.maximum(f_smooth[sel, None], 1e-12)  # the rough lobe's share
+    out[sel] = np.clip(smooth_c * ratio, 0.0, 1.0)
+    return out
+
+
 def schlick(cos_i, f0) -> np.ndarray:
     """Schlick's approximation F0 + (1 - F0)(1 - cos)^5 (the raster path's Fresnel).
 

@@ -32,7 +32,7 @@ Sobol set, and reflects and refracts about it with Walter et al.'s weights, exac
 the microfacet (TIR included) times the Smith G1 of the way out (tests/test_rough_dielectric.py
 checks them against quadrature of the BSDF): it converges to Mitsuba's rough dielectric. With
 `rough_lobes="prefilter"`, and always for metals and the diffuse share, lobes are not traced:
-the diffuse share reads the roughest mip along the normal and a rough reflection or
+the diffuse share reads the baked SH irradiance about the normal (the raster's ambient) and a rough reflection or
 refraction keeps its mirror direction and, at escape, reads the prefiltered mip for the lobe
 width gathered along the path (as the raster path's split-sum does; refraction lobes are
 narrower by |1 - eta| / 2): no noise, but biased. Inside a volume, Beer-Lambert
@@ -53,9 +53,10 @@ the baked mips at the ray cone's footprint, times vertex colours; alpha MASK cut
 through, BLEND lets them through with probability 1 - alpha (stratified per pixel). Occlusion
 scales the diffuse share, which reads the environment without visibility (as the raster's
 ambient term). The asset's punctual lights are added by next-event estimation at every
-surface a path meets (renderer.methods.trace_lights). Not yet traced: the specular,
-clearcoat, sheen, iridescence, anisotropy and diffuse-transmission lobes (their factors and
-textures are ignored here; the raster has them).
+surface a path meets (renderer.methods.trace_lights). KHR_materials_specular tints and scales
+the dielectric's Fresnel on the way in (optics.specular_tint, factor and colour textures
+included). Not yet traced: the clearcoat, sheen, iridescence, anisotropy and
+diffuse-transmission lobes (their factors and textures are ignored here; the raster has them).
 
 Anti-aliasing: `supersample` x `supersample` stratified rays per pixel (box filter) on and
 around the object, so silhouettes and the strongly minified refracted environment average
@@ -86,9 +87,16 @@ from core.baked import BakedAsset, BakedEnvironment
 from core.cubemap import env_rotation_matrix, sample_cube
 from core.mips import texture_size_for
 from core.options import RenderOptions, apply_override, background_rgb
+from core.sh import sh_irradiance
 from renderer.frame import Frame, FrameTimings, alpha_is_mask, tonemap_srgb8
 from renderer.methods import trace_lights, trace_material
-from renderer.methods.optics import fresnel_dielectric, reflect, refract, sample_rough_dielectric
+from renderer.methods.optics import (
+    fresnel_dielectric,
+    reflect,
+    refract,
+    sample_rough_dielectric,
+    specular_tint,
+)
 from renderer.methods.trace_scene import (
     EPSILON,
     TraceScene,
@@ -187,6 +195,15 @@ class _Environment:
             d = d @ self.to_env.T
         return _env(self.baked, d, roughness)
 
+    def irradiance(self, n: np.ndarray) -> np.ndarray:
+        """Irradiance / pi about unit normals n: what a white Lambertian surface reflects, from
+        the baked SH as the raster's ambient term (shaders/sh.glsl). The roughest GGX mip is not
+        this: its lobe is narrower than the cosine and, under a blue sky, gave flat boards
+        facing the horizon a blue cast (+14% blue on footprint_court, red equal)."""
+        if self.to_env is not None:
+            n = n @ self.to_env.T
+        return sh_irradiance(self.baked.irradiance_sh, n)
+
     def split_sum(self, cos_v: np.ndarray, roughness: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(scale, bias) for F0, bilinear in the LUT (texel centres at (i + 0.5) / N)."""
         lut = np.asarray(self.baked.brdf_lut, np.float64)
@@ -255,7 +272,7 @@ def _lut_albedo(env: BakedEnvironment, cos_v: np.ndarray, roughness: np.ndarray)
     return np.where(roughness > 0, top * (1 - fy) + bottom * fy, 1.0)
 
 
-def _subpixel_rays(camera: Camera, pixels: np.ndarray, ss: int) -> tuple[np.ndarray, np.ndarray]:
+def subpixel_rays(camera: Camera, pixels: np.ndarray, ss: int) -> tuple[np.ndarray, np.ndarray]:
     """Directions on an ss x ss stratified grid inside each of `pixels` (flat indices), and the
     pixel of each ray: the rays renderer.view.camera would give a camera of ss times the size."""
     r, u, f = camera.basis()
@@ -271,7 +288,7 @@ def _subpixel_rays(camera: Camera, pixels: np.ndarray, ss: int) -> tuple[np.ndar
     return d / np.linalg.norm(d, axis=-1, keepdims=True), np.repeat(pixels, ss * ss)
 
 
-def _near(mask: np.ndarray) -> np.ndarray:
+def grown_by_one(mask: np.ndarray) -> np.ndarray:
     """`mask` grown by one pixel in all eight directions."""
     out = mask.copy()
     out[1:] |= mask[:-1]
@@ -336,12 +353,12 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     # Pixels go through in chunks so that memory stays bounded at any image size.
     first = np.zeros(npix, bool)
     for chunk in _chunks(np.arange(npix), 4 * CHUNK_PIXELS):
-        d, _ = _subpixel_rays(camera, chunk, 1)
+        d, _ = subpixel_rays(camera, chunk, 1)
         first[chunk] = intersect_front(ts, np.broadcast_to(camera.position, d.shape), d)[0] >= 0
-    near = _near(first.reshape(camera.height, camera.width)).reshape(-1)
+    near = grown_by_one(first.reshape(camera.height, camera.width)).reshape(-1)
     if show_env:
         for chunk in _chunks(np.flatnonzero(~near), 4 * CHUNK_PIXELS):
-            d, _ = _subpixel_rays(camera, chunk, 1)
+            d, _ = subpixel_rays(camera, chunk, 1)
             for img in images:
                 img.add(sky.radiance(d, np.full(len(d), options.background_blur)), chunk)
     if options.integrator == "path":  # progressive path tracing (renderer.methods.path_trace)
@@ -381,7 +398,7 @@ def _trace_tree(ts: TraceScene, sky: _Environment, options: RenderOptions, camer
         if adaptive:  # 2 x 2 first; the full grid only where those disagree
             chunk = _coarse_pass(ts, sky, options, camera, chunk, image, stats)
             stats["refined"] += len(chunk)
-        dirs, pix = _subpixel_rays(camera, chunk, supersample)
+        dirs, pix = subpixel_rays(camera, chunk, supersample)
         for scene, img in zip(passes, images):
             _trace_paths(scene, sky, options, camera.position, dirs, pix, 1.0 / supersample ** 2,
                          img, stats)
@@ -393,7 +410,7 @@ def _coarse_pass(ts: TraceScene, sky: _Environment, options: RenderOptions, came
     """Trace 2 x 2 rays in each of `pixels`; add the pixels whose four samples agree (object
     coverage equal, tone-mapped luminance L / (1 + L) within options.aa_threshold) to
     `image` and return the others, to be traced again with the full grid."""
-    dirs, pix = _subpixel_rays(camera, pixels, 2)
+    dirs, pix = subpixel_rays(camera, pixels, 2)
     per_ray = _Image(len(dirs))
     _trace_paths(ts, sky, options, camera.position, dirs, pix, 0.25, per_ray, stats,
                  slot=np.arange(len(dirs)))
@@ -515,6 +532,8 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
                 np.ascontiguousarray(origins), dirs, prim, u, v, t, weight, pix, sub, slot, blur,
                 share, medium, hits.normal, ts.geo_normals, ts.material, hits.base, hits.metallic,
                 hits.roughness, hits.transmission, ts.ior, ts.sigma, ts.thin, hits.emission, hits.occlusion,
+                np.ascontiguousarray(hits.specular, np.float64),
+                np.ascontiguousarray(hits.specular_color, np.float64),
                 np.asarray(env.baked.brdf_lut, np.float64), depth, n_sub, eps,
                 options.rough_lobes == "sample", options.fresnel_split == "sample",
                 options.multiscatter, MIN_WEIGHT, kernel._SOBOL_DIM1,
@@ -526,7 +545,7 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
             if len(glow):
                 add(direct, glow)
             if len(matte):
-                add(diffuse * env.radiance(dnorm, np.ones(len(matte))), matte)
+                add(diffuse * env.irradiance(dnorm), matte)
             out = out[:9]
         else:
             if depth > 0:
@@ -630,6 +649,7 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
     cos_i = -np.einsum("ij,ij->i", d, ns)
     eta = np.where(entering, 1.0 / ior, ior)
     fres = fresnel_dielectric(cos_i, eta)
+    f_smooth = fres  # before the rough lobe's albedo: KHR_materials_specular's tint reads it
     ms = options.multiscatter
     cos_c = np.clip(cos_i, 1e-4, 1.0)
     rough_out = entering & (rough_k > 0) & ~((trans > 0) & (options.rough_lobes == "sample"))
@@ -652,10 +672,16 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
             d[lsel], ns[lsel], rough_k[lsel] ** 2, eta[lsel], u1, u2)
         fres = fres.copy()
         fres[lsel] = f_m
+        f_smooth = f_smooth.copy()
+        f_smooth[lsel] = f_m
         g_r, g_t = np.ones(len(d)), np.ones(len(d))
         g_r[lsel] = wr_m / np.maximum(f_m, 1e-30)        # G1 (0: leaves below the surface)
         g_t[lsel] = wt_m / np.maximum(1.0 - f_m, 1e-30)
-    refl_w = ((1 - metal) * fres * (1.0 if g_r is None else g_r))[:, None] * w
+    # KHR_materials_specular: the reflected share per channel; what passes under it loses
+    # its largest channel (glTF's fresnel_mix)
+    fres_c = specular_tint(fres, f_smooth, ior, hits.specular, hits.specular_color, entering)
+    fres = fres_c.max(axis=1)
+    refl_w = ((1 - metal)[:, None] * fres_c * (1.0 if g_r is None else g_r[:, None])) * w
     if np.any(metal > 0):  # the metallic share's lobe albedo (a LUT read: only for metals)
         sel = np.flatnonzero(metal > 0)
         refl_w[sel] += (metal[sel, None] * env.specular_albedo(
@@ -679,7 +705,7 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
     v_refr = v_in + (alpha * np.abs(1.0 - eta) / 2) ** 2
     if np.any(diffuse_w > 0):
         dsel = diffuse_w.max(axis=1) > 0
-        add(diffuse_w[dsel] * sh[dsel, None] * env.radiance(ns[dsel], np.ones(dsel.sum())), sl[dsel])
+        add(diffuse_w[dsel] * sh[dsel, None] * env.irradiance(ns[dsel]), sl[dsel])
     rdir = reflect(d, ns)
     tdir, tir = refract(d, ns, eta)
     if g_r is not None:

@@ -181,7 +181,7 @@ def _refract(dx, dy, dz, nx, ny, nz, eta):
 @njit(cache=True)
 def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in,
           normals, geo_normals, material, base, metallic, roughness, transmission, ior, sigma,
-          thin, emission, occlusion, lut, depth, n_sub, eps, sample_lobes, split_sample, ms, min_weight,
+          thin, emission, occlusion, spec, spec_col, lut, depth, n_sub, eps, sample_lobes, split_sample, ms, min_weight,
           sobol, roulette):
     """One bounce's rays (prim < 0: missed) -> (children: origin, dir, weight, pix, sub,
     slot, blur, share, medium; the misses' dir, weight x share, blur and slot; emission to
@@ -242,6 +242,7 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in,
         cos_i = -(dx * sx + dy * sy + dz * sz)
         eta = 1.0 / n_k if entering else n_k
         fres = _fresnel(cos_i, eta)
+        f_s = fres
         cos_c = min(max(cos_i, 1e-4), 1.0)
         lobe = sample_lobes and rough > 0 and trans > 0
         if entering and rough > 0 and not lobe:
@@ -258,6 +259,7 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in,
             mx, my, mz = _visible_normal(-dx, -dy, -dz, sx, sy, sz, alpha, u1, u2)
             cos_m = min(max(-(dx * mx + dy * my + dz * mz), 0.0), 1.0)
             fres = _fresnel(cos_m, eta)
+            f_s = fres
             rx, ry, rz = dx + 2 * cos_m * mx, dy + 2 * cos_m * my, dz + 2 * cos_m * mz
             tx, ty, tz, tir = _refract(dx, dy, dz, mx, my, mz, eta)
             cr = rx * sx + ry * sy + rz * sz
@@ -276,8 +278,23 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in,
         if tir:
             tx, ty, tz = rx, ry, rz
         # reflected and transmitted throughput
-        fr = (1 - metal) * fres * g_r
-        r0, r1, r2 = fr * w0, fr * w1, fr * w2
+        fc0, fc1, fc2 = fres, fres, fres
+        s_k = spec[i]
+        if entering and (s_k != 1.0 or spec_col[i, 0] != 1.0 or spec_col[i, 1] != 1.0
+                         or spec_col[i, 2] != 1.0):  # KHR_materials_specular: optics.specular_tint
+            f0 = ((n_k - 1) / (n_k + 1)) ** 2
+            x = min(max((f_s - f0) / max(1 - f0, 1e-12), 0.0), 1.0)
+            ratio = fres / max(f_s, 1e-12)
+            f0c = min(f0 * spec_col[i, 0], 1.0)
+            fc0 = min(max(s_k * (f0c + (1 - f0c) * x) * ratio, 0.0), 1.0)
+            f0c = min(f0 * spec_col[i, 1], 1.0)
+            fc1 = min(max(s_k * (f0c + (1 - f0c) * x) * ratio, 0.0), 1.0)
+            f0c = min(f0 * spec_col[i, 2], 1.0)
+            fc2 = min(max(s_k * (f0c + (1 - f0c) * x) * ratio, 0.0), 1.0)
+            fres = max(fc0, fc1, fc2)
+        r0 = (1 - metal) * fc0 * g_r * w0
+        r1 = (1 - metal) * fc1 * g_r * w1
+        r2 = (1 - metal) * fc2 * g_r * w2
         if metal > 0:
             a, b = _split_sum(lut, cos_c, rough)
             r0 += metal * _spec_albedo(base[i, 0], a, b, ms) * w0
@@ -477,7 +494,7 @@ def warm() -> None:
         shade(e3, e3, np.zeros(0, np.int32), np.zeros(0, f32), np.zeros(0, f32),
               np.zeros(0, t_type), e3, np.zeros(0, i64), np.zeros(0, i64), np.zeros(0, i64),
               e, e, e, e3, np.zeros((0, 3), f32), np.zeros(0, np.int32),
-              e3, e, e, e, e, e3, np.zeros(0, np.bool_), e3, e, np.zeros((2, 2, 2)), 0, 1, 1e-4, True, False, True,
+              e3, e, e, e, e, e3, np.zeros(0, np.bool_), e3, e, e, e3, np.zeros((2, 2, 2)), 0, 1, 1e-4, True, False, True,
               1e-3, _SOBOL_DIM1, 0.0)
     sample_cube(np.zeros((6, 2, 2, 3), f32), e3, _S_AXIS, _S_SIGN, _T_AXIS, _T_SIGN)
     sample_texture(np.zeros((1, 4), np.uint8), np.zeros(1, i64), np.ones(1, i64), np.ones(1, i64),
