@@ -138,7 +138,7 @@ LOBES: tuple[Lobe, ...] = (
     Lobe("transmission", "KHR_materials_transmission", ("transmission",),
          (Slot("transmission", "transmissionTexture"),), None, (), _transmissive),
     Lobe("volume", "KHR_materials_volume",
-         ("thickness", "attenuation_color", "attenuation_distance"),
+         ("thickness", "attenuation_color", "attenuation_distance", "thin_walled"),  # thin: thickness 0
          (Slot("thickness", "thicknessTexture"),), None, (), _transmissive),
     Lobe("iridescence", "KHR_materials_iridescence",
          ("iridescence", "iridescence_ior", "iridescence_thickness_range"),
