@@ -110,12 +110,16 @@ class LocalCluster:
     def alive_nodes(self) -> int:
         """Nodes the GCS counts alive (asked in a fresh process: this one may hold another Ray)."""
         code = ("import ray; ray.init(address='auto', logging_level='ERROR'); "
-                "print(sum(n['Alive'] for n in ray.nodes()))")
+                "print('alive-nodes', sum(n['Alive'] for n in ray.nodes()))")
         out = subprocess.run([sys.executable, "-c", code], env=self.driver_env(), capture_output=True,
                              text=True, timeout=self.timeout, cwd=REPO)
         if out.returncode:
             raise ClusterError(f"cannot ask the cluster at {self.address}: {out.stderr[-800:]}")
-        return int(out.stdout.split()[-1])
+        # Ray may print its own notices on stdout (one ends "...workload."): read the marked line
+        counts = [line.split()[1] for line in out.stdout.splitlines() if line.startswith("alive-nodes ")]
+        if not counts:
+            raise ClusterError(f"the cluster at {self.address} gave no node count: {out.stdout[-800:]}")
+        return int(counts[-1])
 
     def wait_nodes(self, n: int) -> None:
         end = time.monotonic() + self.timeout
