@@ -101,7 +101,7 @@ def main(argv: list[str]) -> int:
         rc = e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
     run_s = time.perf_counter() - t
     cpu_run = time.process_time() - cpu_run
-    out = {"python": python_s, "pxr_import": pxr_s, "our_import": ours_s,
+    out: dict[str, object] = {"python": python_s, "pxr_import": pxr_s, "our_import": ours_s,
            **{k: phases.seconds.get(k, 0.0) for k in
               ("composition", "materialx", "bake", "environment", "first_frame")}}
     out["other"] = max(run_s - sum(phases.seconds.values()), 0.0)
