@@ -19,6 +19,7 @@ Each phase's time is exclusive: a MaterialX read inside the bake counts once, as
 from __future__ import annotations
 
 import functools
+import gc
 import json
 import os
 import runpy
@@ -26,7 +27,8 @@ import sys
 import time
 
 _T0 = time.perf_counter()
-# As cli/__init__.py does (bench may not import cli): set before our modules build their models.
+# The process settings cli/__init__.py makes (bench may not import cli), before any import.
+gc.set_threshold(20_000, 10, 10)
 os.environ.setdefault("PYDANTIC_DISABLE_PLUGINS", "__all__")
 
 
