@@ -19,7 +19,6 @@ Each phase's time is exclusive: a MaterialX read inside the bake counts once, as
 from __future__ import annotations
 
 import functools
-import gc
 import json
 import os
 import runpy
@@ -27,9 +26,6 @@ import sys
 import time
 
 _T0 = time.perf_counter()
-# The process settings cli/__init__.py makes (bench may not import cli), before any import.
-gc.set_threshold(20_000, 10, 10)
-os.environ.setdefault("PYDANTIC_DISABLE_PLUGINS", "__all__")
 
 
 def _process_age() -> float:

@@ -432,9 +432,9 @@ def _canonical(name: str) -> str:
 def installed_versions(names) -> dict[str, str]:
     """Installed versions of the distributions `names`, as importlib.metadata.version gives them
     (the first on sys.path wins). A wheel's `<name>-<version>.dist-info` folder name carries
-    the version (the wheel spec); reading folder names spares each bake the import of
-    importlib.metadata (email, zipfile, csv ...) and its parse of every METADATA file. A name
-    found nowhere that way (an egg, a zip) is left to importlib.metadata."""
+    the version (the wheel spec): reading folder names spares a cold bake importlib.metadata's
+    search and parse of each METADATA file (and its import, where nothing else needs it). A
+    name found nowhere that way (an egg, a zip) is left to importlib.metadata."""
     wanted = {_canonical(n): n for n in names}
     found: dict[str, str] = {}
     for folder in sys.path:
