@@ -15,11 +15,10 @@ import logging
 import math
 import os
 import platform
-import re
-import sys
 import time
 from datetime import datetime, timezone
 from functools import lru_cache, partial
+from importlib import metadata
 from pathlib import Path
 from typing import Any, cast
 
@@ -415,51 +414,15 @@ def _light_from_json(d: dict) -> Light:
     return Light(**d)
 
 
-_RECORDED = ("asset-preview", "numpy", "embreex", "usd-core", "trimesh", "moderngl")
-
-
 @lru_cache(maxsize=1)
 def _versions() -> dict:
     out = {"bake_format": BAKE_FORMAT_VERSION, "python": platform.python_version()}
-    out.update(installed_versions(_RECORDED))
-    return out
-
-
-def _canonical(name: str) -> str:
-    return re.sub(r"[-_.]+", "_", name).lower()
-
-
-def installed_versions(names) -> dict[str, str]:
-    """Installed versions of the distributions `names`, as importlib.metadata.version gives them
-    (the first on sys.path wins). A wheel's `<name>-<version>.dist-info` folder name carries
-    the version (the wheel spec): reading folder names spares a cold bake importlib.metadata's
-    search and parse of each METADATA file (and its import, where nothing else needs it). A
-    name found nowhere that way (an egg, a zip) is left to importlib.metadata."""
-    wanted = {_canonical(n): n for n in names}
-    found: dict[str, str] = {}
-    for folder in sys.path:
+    for dist in ("asset-preview", "numpy", "embreex", "usd-core", "trimesh", "moderngl"):
         try:
-            entries = os.listdir(folder or ".")
-        except OSError:
-            continue
-        for entry in entries:
-            if not entry.endswith(".dist-info") or entry.count("-") != 1:
-                continue
-            dist, version = entry[:-len(".dist-info")].split("-")
-            name = wanted.get(_canonical(dist))
-            if name is not None and name not in found:
-                found[name] = version
-        if len(found) == len(wanted):
-            break
-    missing = [n for n in names if n not in found]
-    if missing:
-        from importlib import metadata
-        for name in missing:
-            try:
-                found[name] = metadata.version(name)
-            except metadata.PackageNotFoundError:
-                pass
-    return {n: found[n] for n in names if n in found}
+            out[dist] = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            pass
+    return out
 
 
 # -- environments ------------------------------------------------------------------------------
