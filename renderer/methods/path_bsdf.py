@@ -365,6 +365,15 @@ class Bsdf:
         """Probability of choosing a reflective component (not Glass)."""
         return self.p_coat + self.p_sheen + self.p_base * (self.p_metal + self.p_plastic)
 
+    def packed(self) -> np.ndarray:
+        """The parameters as one N x path_kernel.WIDTH float64 matrix, the fields in order (a
+        vector field three columns): what the compiled eval / sample read."""
+        cols = []
+        for f in fields(self):
+            a = np.asarray(getattr(self, f.name), np.float64)
+            cols.append(a[:, None] if a.ndim == 1 else a)
+        return np.ascontiguousarray(np.concatenate(cols, axis=1))
+
     def rows(self, sel: np.ndarray) -> "Bsdf":
         if len(sel) == len(self.wo) and (len(sel) == 0 or (sel[0] == 0 and sel[-1] == len(sel) - 1)):
             return self  # every row, in order (sel from flatnonzero): no copies

@@ -75,6 +75,35 @@ UNIFORM_SHARE = 0.1   # of environment samples drawn uniformly over the sphere
 RR_START = 3          # Russian roulette from this surface index on
 MIN_PASSES = 4        # before the noise target is tested
 _R2 = (0.7548776662466927, 0.5698402909980532)  # 1/phi2, 1/phi2^2 (Roberts' R2)
+KERNEL = True         # the BSDF compiled (path_kernel, numba); False: path_bsdf's numpy twin
+
+
+class _Lobes:
+    """The BSDF at a bounce's hits, evaluated and sampled by rows (indices into the hits):
+    compiled (path_kernel over Bsdf.packed) or, with KERNEL off, the numpy Bsdf."""
+
+    def __init__(self, bsdf: path_bsdf.Bsdf):
+        self.bsdf = bsdf
+        self.packed = bsdf.packed() if KERNEL else None
+        if KERNEL:
+            from renderer.methods import path_kernel
+            self.kernel = path_kernel
+
+    def eval(self, rows: np.ndarray, wi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        if self.packed is None:
+            return self.bsdf.rows(rows).eval(wi)
+        return self.kernel.eval_rows(self.packed, np.ascontiguousarray(rows, np.int64),
+                                     np.ascontiguousarray(wi, np.float64))
+
+    def sample(self, rows, u_layer, u_pick, u_lobe, u1, u2):
+        """(wi, rough, valid, f |cos|, pdf) drawn at rows."""
+        if self.packed is None:
+            sub = self.bsdf.rows(rows)
+            wi, rough, valid = sub.sample(u_layer, u_pick, u_lobe, u1, u2)
+            return (wi, rough, valid, *sub.eval(wi))
+        c = np.ascontiguousarray
+        return self.kernel.sample_rows(self.packed, c(rows, np.int64), c(u_layer), c(u_pick),
+                                       c(u_lobe), c(u1), c(u2))
 
 
 def _dot(a, b):
@@ -245,6 +274,7 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         wo = -d
         alpha = np.maximum(hits.roughness ** 2, ALPHA_MIN)
         bsdf = path_bsdf.build(hits, ns, ng, wo, ior, options.multiscatter)
+        lobes = _Lobes(bsdf)
         # hits from inside a transmissive object see only Glass (light reaches them refracted)
         surface_lit = entering | (trans <= 0)
         reflective = surface_lit & (bsdf.p_reflective > 0)
@@ -255,7 +285,7 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         ls = np.flatnonzero(reflective)
         if len(ls):
             wi = env_sampler.sample(ua[ls], ub[ls], uc[ls])
-            fcos, p_b = bsdf.rows(ls).eval(wi)
+            fcos, p_b = lobes.eval(ls, wi)
             p_l = env_sampler.pdf(wi)
             good = fcos.max(axis=1) > 0
             ls, wi, fcos, p_b, p_l = ls[good], wi[good], fcos[good], p_b[good], p_l[good]
@@ -268,12 +298,11 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         # --- next-event estimation: punctual lights (deltas: no MIS)
         if ts.lights is not None and len(ts.lights):
             ls = np.flatnonzero(reflective)
-            sub = bsdf.rows(ls)
             for i in range(len(ts.lights)):
                 if not len(ls):
                     break
                 ldir, dist, radiance = _light(ts.lights, i, p[ls])
-                fcos, _ = sub.eval(ldir)
+                fcos, _ = lobes.eval(ls, ldir)
                 live = np.flatnonzero((fcos.max(axis=1) > 0) & (radiance.max(axis=1) > 0))
                 if not len(live):
                     continue
@@ -295,9 +324,8 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         # the reflective components (and diffuse transmission)
         mp = np.flatnonzero(~glass)
         if len(mp):
-            sub = bsdf.rows(mp)
-            wi, rough[mp], valid = sub.sample(u_layer[mp], u_pick[mp], u_lobe[mp], u1[mp], u2[mp])
-            fcos, p_b = sub.eval(wi)
+            wi, rough[mp], valid, fcos, p_b = lobes.sample(mp, u_layer[mp], u_pick[mp], u_lobe[mp],
+                                                          u1[mp], u2[mp])
             ok = (p_b > 0) & valid
             new_w[mp] = w[mp] * np.where(ok[:, None], fcos / np.maximum(p_b, 1e-300)[:, None], 0.0)
             new_d[mp] = wi

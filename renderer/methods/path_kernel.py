@@ -1,0 +1,326 @@
+"""The path tracer's BSDF compiled (numba): evaluation and sampling of path_bsdf's layered
+material, one ray per loop iteration, rows spread over the cores (prange).
+
+The per-hit parameters travel as one float64 matrix, a row per hit (path_bsdf.Bsdf.packed,
+columns below); `rows` selects which hits a call reads, so the integrator never copies a
+subset of the matrix. path_bsdf's numpy Bsdf.eval / Bsdf.sample are the twins these are
+tested against (tests/test_path_kernel.py): the same formulas in the same order, so the two
+agree to rounding (the isotropic shortcut is taken per row here, per batch there).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+# columns of the packed parameters (path_bsdf.Bsdf, in its field order)
+N, NG, T, B, WO, BASE = 0, 3, 6, 9, 12, 15
+AX, AY, P_METAL, P_PLASTIC = 18, 19, 20, 21
+F0_D, F90_D, P_SPEC, MS_M, MS_D = 22, 25, 26, 27, 30
+DT, DT_COLOR, IRID, IRID_IOR, IRID_THICK = 33, 34, 37, 38, 39
+COAT, COAT_N, COAT_ALPHA, SHEEN, SHEEN_ROUGH = 40, 41, 44, 45, 48
+KD_T, W_SHEEN, W_BASE, P_COAT, P_SHEEN = 49, 50, 51, 52, 53
+WIDTH = 54
+
+_PI = math.pi
+_SHEEN_MIN = 0.07     # path_bsdf.SHEEN_MIN_ROUGHNESS
+_COAT_F0 = 0.04       # path_bsdf.COAT_F0
+_ROUGH_ALPHA = 0.1    # path_bsdf.ROUGH_ALPHA
+_XYZ = np.array([[3.2404542, -0.9692660, 0.0556434],
+                 [-1.5371385, 1.8760108, -0.2040259],
+                 [-0.4985314, 0.0415560, 1.0572252]])
+_FILM_VAL = np.array([5.4856e-13, 4.4201e-13, 5.2481e-13])
+_FILM_POS = np.array([1.6810e+06, 1.7953e+06, 2.2084e+06])
+_FILM_VAR = np.array([4.3278e+09, 9.3046e+09, 6.6121e+09])
+
+
+@njit(cache=True, inline="always")
+def _dot(p, i, c, x, y, z):
+    return p[i, c] * x + p[i, c + 1] * y + p[i, c + 2] * z
+
+
+@njit(cache=True, inline="always")
+def _ggx_d(x, y, z, ax, ay):
+    if z <= 0:
+        return 0.0
+    k = (x / ax) ** 2 + (y / ay) ** 2 + z * z
+    return 1.0 / (_PI * ax * ay * max(k, 1e-30) ** 2)
+
+
+@njit(cache=True, inline="always")
+def _ggx_lambda(x, y, z, ax, ay):
+    z2 = max(z * z, 1e-12)
+    return 0.5 * (math.sqrt(1.0 + ((ax * x) ** 2 + (ay * y) ** 2) / z2) - 1.0)
+
+
+@njit(cache=True, inline="always")
+def _sheen_l(x, a):
+    t = (1.0 - a) ** 2
+    ca = 21.5473 + (25.3245 - 21.5473) * t
+    cb = 3.82987 + (3.32435 - 3.82987) * t
+    cc = 0.19823 + (0.16801 - 0.19823) * t
+    cd = -1.97760 + (-1.27393 + 1.97760) * t
+    ce = -4.32054 + (-4.85967 + 4.32054) * t
+    return ca / (1.0 + cb * max(x, 0.0) ** cc) + cd * x + ce
+
+
+@njit(cache=True, inline="always")
+def _sheen_lambda(c, a):
+    if c < 0.5:
+        return math.exp(_sheen_l(c, a))
+    return math.exp(2.0 * _sheen_l(0.5, a) - _sheen_l(1.0 - c, a))
+
+
+@njit(cache=True, inline="always")
+def _sheen_dv(n_v, n_l, n_h, roughness):
+    a = max(roughness, _SHEEN_MIN) ** 2
+    sin2 = max(1.0 - n_h * n_h, 0.0)
+    d = (2.0 + 1.0 / a) * sin2 ** (0.5 / a) / (2.0 * _PI)
+    v = 1.0 / ((1.0 + _sheen_lambda(n_v, a) + _sheen_lambda(n_l, a)) * max(4.0 * n_v * n_l, 1e-6))
+    return d * min(max(v, 0.0), 1e4)
+
+
+@njit(cache=True)
+def _thin_film(cos1, film_ior, thickness, f0, out):
+    """path_bsdf.thin_film_fresnel for one hit: reflectance into out (3) over base F0 f0 (3)."""
+    t = min(max(thickness / 30.0, 0.0), 1.0)
+    n2 = 1.0 + (film_ior - 1.0) * t * t * (3 - 2 * t)
+    cos2_sq = 1.0 - (1.0 - cos1 * cos1) / (n2 * n2)
+    if cos2_sq < 0:
+        out[:] = 1.0
+        return
+    cos2 = math.sqrt(cos2_sq)
+    r12 = ((n2 - 1.0) / (n2 + 1.0)) ** 2
+    big_r12 = r12 + (1.0 - r12) * (1.0 - cos1) ** 5
+    t121 = 1.0 - big_r12
+    phi21 = 0.0 if n2 < 1.0 else _PI
+    opd = 2.0 * n2 * thickness * cos2
+    phi, cm, r123 = np.empty(3), np.empty(3), np.empty(3)
+    for c in range(3):
+        s = math.sqrt(min(max(f0[c], 0.0), 0.9999))
+        n3 = (1.0 + s) / (1.0 - s)
+        r23 = ((n3 - n2) / (n3 + n2)) ** 2
+        big_r23 = r23 + (1.0 - r23) * (1.0 - cos2) ** 5
+        phi[c] = phi21 + (_PI if n3 < n2 else 0.0)
+        r123_sq = min(max(big_r12 * big_r23, 1e-5), 0.9999)
+        r123[c] = math.sqrt(r123_sq)
+        rs = t121 ** 2 * big_r23 / (1.0 - r123_sq)
+        out[c] = big_r12 + rs
+        cm[c] = rs - t121
+    for k in (1, 2):
+        phase = 2.0 * _PI * 1e-9 * (k * opd)
+        # the film's XYZ sensitivity, component j shifted by channel j's phase (as the raster)
+        x0 = _FILM_VAL[0] * math.sqrt(2.0 * _PI * _FILM_VAR[0]) \
+            * math.cos(_FILM_POS[0] * phase + k * phi[0]) * math.exp(-phase * phase * _FILM_VAR[0])
+        x0 += 9.7470e-14 * math.sqrt(2.0 * _PI * 4.5282e+09) \
+            * math.cos(2.2399e+06 * phase + k * phi[0]) * math.exp(-4.5282e+09 * phase * phase)
+        x1 = _FILM_VAL[1] * math.sqrt(2.0 * _PI * _FILM_VAR[1]) \
+            * math.cos(_FILM_POS[1] * phase + k * phi[1]) * math.exp(-phase * phase * _FILM_VAR[1])
+        x2 = _FILM_VAL[2] * math.sqrt(2.0 * _PI * _FILM_VAR[2]) \
+            * math.cos(_FILM_POS[2] * phase + k * phi[2]) * math.exp(-phase * phase * _FILM_VAR[2])
+        for c in range(3):
+            cm[c] = cm[c] * r123[c]
+            rgb = (x0 * _XYZ[0, c] + x1 * _XYZ[1, c] + x2 * _XYZ[2, c]) / 1.0685e-7
+            out[c] = out[c] + cm[c] * 2.0 * rgb
+    for c in range(3):
+        out[c] = min(max(out[c], 0.0), 1.0)
+
+
+@njit(cache=True, inline="always")
+def _onb(nx, ny, nz):
+    """optics.orthonormal_basis (Duff et al. 2017) for one normal."""
+    sign = 1.0 if nz >= 0 else -1.0
+    a = -1.0 / (sign + nz)
+    b = nx * ny * a
+    return 1.0 + sign * nx * nx * a, sign * b, -sign * nx, b, sign + ny * ny * a, -ny
+
+
+@njit(cache=True, inline="always")
+def _vndf(wx, wy, wz, ax, ay, u1, u2):
+    """path_bsdf.ggx_vndf for one local wo: the local visible normal."""
+    vx, vy, vz = ax * wx, ay * wy, max(wz, 1e-7)
+    ln = math.sqrt(vx * vx + vy * vy + vz * vz)
+    vx, vy, vz = vx / ln, vy / ln, vz / ln
+    lensq = vx * vx + vy * vy
+    if lensq > 0:
+        inv = 1.0 / math.sqrt(max(lensq, 1e-30))
+        t1x, t1y, t1z = -vy * inv, vx * inv, 0.0
+    else:
+        t1x, t1y, t1z = 1.0, 0.0, 0.0
+    t2x, t2y, t2z = vy * t1z - vz * t1y, vz * t1x - vx * t1z, vx * t1y - vy * t1x
+    r, phi = math.sqrt(u1), 2.0 * _PI * u2
+    p1, p2 = r * math.cos(phi), r * math.sin(phi)
+    s = 0.5 * (1.0 + vz)
+    p2 = (1.0 - s) * math.sqrt(max(1.0 - p1 * p1, 0.0)) + s * p2
+    q = math.sqrt(max(1.0 - p1 * p1 - p2 * p2, 0.0))
+    hx, hy, hz = p1 * t1x + p2 * t2x + q * vx, p1 * t1y + p2 * t2y + q * vy, p1 * t1z + p2 * t2z + q * vz
+    mx, my, mz = ax * hx, ay * hy, max(hz, 1e-7)
+    ln = math.sqrt(mx * mx + my * my + mz * mz)
+    return mx / ln, my / ln, mz / ln
+
+
+@njit(cache=True)
+def _eval_row(p, i, lx, ly, lz, fm, fd, film, out):
+    """Bsdf.eval for row i of p and direction (lx, ly, lz): f |cos| into out (3), the pdf returned."""
+    n_l = _dot(p, i, N, lx, ly, lz)
+    n_v = max(_dot(p, i, N, p[i, WO], p[i, WO + 1], p[i, WO + 2]), 1e-6)
+    g_l = _dot(p, i, NG, lx, ly, lz)
+    up = n_l > 1e-7 and g_l > 0
+    down = n_l < -1e-7 and g_l < 0
+    cl = max(n_l, 1e-7)
+    hx, hy, hz = lx + p[i, WO], ly + p[i, WO + 1], lz + p[i, WO + 2]
+    hl = max(math.sqrt(hx * hx + hy * hy + hz * hz), 1e-12)
+    hx, hy, hz = hx / hl, hy / hl, hz / hl
+    v_h = min(max(_dot(p, i, WO, hx, hy, hz), 0.0), 1.0)
+    ax, ay = p[i, AX], p[i, AY]
+    h_n = _dot(p, i, N, hx, hy, hz)
+    if ax == ay:  # isotropic: no frame needed
+        d = _ggx_d(math.sqrt(max(1 - h_n * h_n, 0.0)), 0.0, h_n, ax, ay)
+        lam_v = _ggx_lambda(math.sqrt(max(1 - n_v * n_v, 0.0)), 0.0, n_v, ax, ay)
+        lam_l = _ggx_lambda(math.sqrt(max(1 - cl * cl, 0.0)), 0.0, cl, ax, ay)
+    else:
+        d = _ggx_d(_dot(p, i, T, hx, hy, hz), _dot(p, i, B, hx, hy, hz), h_n, ax, ay)
+        wx, wy, wz = p[i, WO], p[i, WO + 1], p[i, WO + 2]
+        lam_v = _ggx_lambda(_dot(p, i, T, wx, wy, wz), _dot(p, i, B, wx, wy, wz),
+                            max(_dot(p, i, N, wx, wy, wz), 1e-6), ax, ay)
+        lam_l = _ggx_lambda(_dot(p, i, T, lx, ly, lz), _dot(p, i, B, lx, ly, lz), cl, ax, ay)
+    spec = d / (1.0 + lam_v + lam_l) / (4 * n_v)
+    pdf_ggx = d / (1.0 + lam_v) / (4 * n_v)
+    x5 = (1.0 - v_h) ** 5
+    f90 = p[i, F90_D]
+    for c in range(3):
+        fm[c] = p[i, BASE + c] + (1.0 - p[i, BASE + c]) * x5
+        fd[c] = p[i, F0_D + c] + (f90 - p[i, F0_D + c]) * x5
+    k_ir = p[i, IRID]
+    if k_ir > 0:
+        _thin_film(v_h, p[i, IRID_IOR], p[i, IRID_THICK], p[i, BASE:BASE + 3], film)
+        for c in range(3):
+            fm[c] += k_ir * (film[c] - fm[c])
+        _thin_film(v_h, p[i, IRID_IOR], p[i, IRID_THICK], p[i, F0_D:F0_D + 3], film)
+        for c in range(3):
+            fd[c] += k_ir * (film[c] * f90 - fd[c])
+    kd = 1.0 - max(fd[0], max(fd[1], fd[2]))
+    dt, pm, pp, ps = p[i, DT], p[i, P_METAL], p[i, P_PLASTIC], p[i, P_SPEC]
+    p_base = 1.0 - p[i, P_COAT] - p[i, P_SHEEN]
+    pdf = 0.0
+    for c in range(3):
+        out[c] = 0.0
+    if up:
+        for c in range(3):
+            diffuse_r = (1 - dt) * kd * p[i, BASE + c] * (cl / _PI)
+            out[c] = p[i, W_BASE] * (pm * fm[c] * p[i, MS_M + c] * spec
+                                     + pp * (diffuse_r + fd[c] * p[i, MS_D + c] * spec))
+        pdf = p_base * (pm * pdf_ggx + pp * (ps * pdf_ggx + (1 - ps) * (1 - dt) * cl / _PI))
+    elif down and dt > 0 and pp > 0:  # diffuse transmission: thin-walled Lambert behind
+        c_t = -n_l
+        for c in range(3):
+            out[c] = p[i, W_BASE] * pp * dt * p[i, KD_T] * c_t / _PI * p[i, DT_COLOR + c]
+        pdf = p_base * pp * (1 - ps) * dt * c_t / _PI
+    if up and p[i, P_SHEEN] > 0:
+        n_h = min(max(h_n, 0.0), 1.0)
+        dv = _sheen_dv(n_v, cl, n_h, p[i, SHEEN_ROUGH])
+        for c in range(3):
+            out[c] += p[i, W_SHEEN] * dv * cl * p[i, SHEEN + c]
+        pdf += p[i, P_SHEEN] / (2 * _PI)
+    if p[i, P_COAT] > 0 and g_l > 0:
+        c_l = _dot(p, i, COAT_N, lx, ly, lz)
+        if c_l > 1e-7:
+            a = p[i, COAT_ALPHA]
+            c_v = max(_dot(p, i, COAT_N, p[i, WO], p[i, WO + 1], p[i, WO + 2]), 1e-6)
+            c_h = min(max(_dot(p, i, COAT_N, hx, hy, hz), 0.0), 1.0)
+            dc = _ggx_d(math.sqrt(max(1 - c_h * c_h, 0.0)), 0.0, c_h, a, a)
+            lv = _ggx_lambda(math.sqrt(max(1 - c_v * c_v, 0.0)), 0.0, c_v, a, a)
+            ll = _ggx_lambda(math.sqrt(max(1 - c_l * c_l, 0.0)), 0.0, c_l, a, a)
+            fc = _COAT_F0 + (1 - _COAT_F0) * x5
+            f_coat = p[i, COAT] * fc * dc / (1 + lv + ll) / (4 * c_v)
+            for c in range(3):
+                out[c] += f_coat
+            pdf += p[i, P_COAT] * dc / (1 + lv) / (4 * c_v)
+    return pdf
+
+
+@njit(cache=True, parallel=True)
+def eval_rows(p, rows, wi):
+    """(f |cos(n, wi)| (len(rows) x 3), pdf) at hits p[rows] toward wi (len(rows) x 3):
+    path_bsdf.Bsdf.eval compiled."""
+    m = len(rows)
+    fcos = np.empty((m, 3))
+    pdf = np.empty(m)
+    for j in prange(m):
+        fm, fd, film, out = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+        pdf[j] = _eval_row(p, rows[j], wi[j, 0], wi[j, 1], wi[j, 2], fm, fd, film, out)
+        fcos[j, 0], fcos[j, 1], fcos[j, 2] = out[0], out[1], out[2]
+    return fcos, pdf
+
+
+@njit(cache=True, parallel=True)
+def sample_rows(p, rows, u_layer, u_pick, u_lobe, u1, u2):
+    """Bsdf.sample then Bsdf.eval at its directions, compiled: (wi, rough, valid, f |cos|, pdf)
+    for hits p[rows] (the uniforms one per row of `rows`)."""
+    m = len(rows)
+    wi = np.empty((m, 3))
+    fcos = np.empty((m, 3))
+    pdf = np.empty(m)
+    rough = np.ones(m, np.bool_)
+    valid = np.ones(m, np.bool_)
+    for j in prange(m):
+        i = rows[j]
+        wx, wy, wz = p[i, WO], p[i, WO + 1], p[i, WO + 2]
+        p_coat, p_sheen = p[i, P_COAT], p[i, P_SHEEN]
+        if u_layer[j] < p_coat:  # the clearcoat's GGX about its own normal
+            ncx, ncy, ncz = p[i, COAT_N], p[i, COAT_N + 1], p[i, COAT_N + 2]
+            a = p[i, COAT_ALPHA]
+            tx, ty, tz, bx, by, bz = _onb(ncx, ncy, ncz)
+            mx, my, mz = _vndf(wx * tx + wy * ty + wz * tz, wx * bx + wy * by + wz * bz,
+                               wx * ncx + wy * ncy + wz * ncz, a, a, u1[j], u2[j])
+            hx = mx * tx + my * bx + mz * ncx
+            hy = mx * ty + my * by + mz * ncy
+            hz = mx * tz + my * bz + mz * ncz
+            k = 2.0 * (wx * hx + wy * hy + wz * hz)
+            lx, ly, lz = -wx + k * hx, -wy + k * hy, -wz + k * hz
+            rough[j] = a >= _ROUGH_ALPHA
+            valid[j] = lx * ncx + ly * ncy + lz * ncz > 0
+        elif u_layer[j] < p_coat + p_sheen:  # sheen: uniform over the hemisphere
+            z = u1[j]
+            r = math.sqrt(max(0.0, 1 - z * z))
+            phi = 2 * _PI * u2[j]
+            c, s = r * math.cos(phi), r * math.sin(phi)
+            lx = c * p[i, T] + s * p[i, B] + z * p[i, N]
+            ly = c * p[i, T + 1] + s * p[i, B + 1] + z * p[i, N + 1]
+            lz = c * p[i, T + 2] + s * p[i, B + 2] + z * p[i, N + 2]
+        elif u_pick[j] < p[i, P_METAL] or u_lobe[j] < p[i, P_SPEC]:  # Metal or Plastic's GGX
+            ax, ay = p[i, AX], p[i, AY]
+            mx, my, mz = _vndf(_dot(p, i, T, wx, wy, wz), _dot(p, i, B, wx, wy, wz),
+                               _dot(p, i, N, wx, wy, wz), ax, ay, u1[j], u2[j])
+            hx = mx * p[i, T] + my * p[i, B] + mz * p[i, N]
+            hy = mx * p[i, T + 1] + my * p[i, B + 1] + mz * p[i, N + 1]
+            hz = mx * p[i, T + 2] + my * p[i, B + 2] + mz * p[i, N + 2]
+            k = 2.0 * (wx * hx + wy * hy + wz * hz)
+            lx, ly, lz = -wx + k * hx, -wy + k * hy, -wz + k * hz
+            rough[j] = math.sqrt(ax * ay) >= _ROUGH_ALPHA
+            valid[j] = _dot(p, i, N, lx, ly, lz) > 0
+        else:  # diffuse: reflected, or with probability dt transmitted (cosine-weighted)
+            ps = p[i, P_SPEC]
+            u_t = (u_lobe[j] - ps) / max(1 - ps, 1e-12)
+            side = -1.0 if u_t < p[i, DT] else 1.0
+            nx, ny, nz = p[i, N] * side, p[i, N + 1] * side, p[i, N + 2] * side
+            tx, ty, tz, bx, by, bz = _onb(nx, ny, nz)
+            r, phi = math.sqrt(u1[j]), 2 * _PI * u2[j]
+            z = math.sqrt(max(0.0, 1 - u1[j]))
+            c, s = r * math.cos(phi), r * math.sin(phi)
+            lx = c * tx + s * bx + z * nx
+            ly = c * ty + s * by + z * ny
+            lz = c * tz + s * bz + z * nz
+        wi[j, 0], wi[j, 1], wi[j, 2] = lx, ly, lz
+        fm, fd, film, out = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+        pdf[j] = _eval_row(p, i, lx, ly, lz, fm, fd, film, out)
+        fcos[j, 0], fcos[j, 1], fcos[j, 2] = out[0], out[1], out[2]
+    return wi, rough, valid, fcos, pdf
+
+
+def warm() -> None:
+    """Compile (or load from numba's cache) both kernels on empty arrays."""
+    p, rows, e = np.zeros((0, WIDTH)), np.zeros(0, np.int64), np.zeros(0)
+    eval_rows(p, rows, np.zeros((0, 3)))
+    sample_rows(p, rows, e, e, e, e, e)
