@@ -319,8 +319,84 @@ def sample_rows(p, rows, u_layer, u_pick, u_lobe, u1, u2):
     return wi, rough, valid, fcos, pdf
 
 
+@njit(cache=True, inline="always")
+def _texel_pdf(p_texel, n, x, y, z, s_axis, s_sign, t_axis, t_sign):
+    ax, ay, az = abs(x), abs(y), abs(z)
+    major = 0  # np.argmax: the first of equal maxima
+    if ay > ax and ay >= az:
+        major = 1
+    elif az > ax and az > ay:
+        major = 2
+    m = x if major == 0 else (y if major == 1 else z)
+    face = major * 2 + (1 if m < 0 else 0)
+    ma = abs(m)
+    d = (x, y, z)
+    s = (s_sign[face] * d[s_axis[face]] / ma + 1) / 2
+    t = (t_sign[face] * d[t_axis[face]] / ma + 1) / 2
+    ix = min(max(int(s * n), 0), n - 1)
+    iy = min(max(int(t * n), 0), n - 1)
+    sc, tc = s * 2 - 1, t * 2 - 1
+    return p_texel[(face * n + iy) * n + ix] * n * n / 4.0 * (1 + sc * sc + tc * tc) ** 1.5
+
+
+@njit(cache=True, parallel=True)
+def env_pdf(p_texel, n, d, to_env, uniform, s_axis, s_sign, t_axis, t_sign):
+    """path_trace.EnvSampler.pdf compiled: world directions d, to_env the world-to-environment
+    rotation (rows: d_env = to_env @ d), `uniform` the share drawn over the sphere."""
+    m = len(d)
+    out = np.empty(m)
+    for i in prange(m):
+        x = to_env[0, 0] * d[i, 0] + to_env[0, 1] * d[i, 1] + to_env[0, 2] * d[i, 2]
+        y = to_env[1, 0] * d[i, 0] + to_env[1, 1] * d[i, 1] + to_env[1, 2] * d[i, 2]
+        z = to_env[2, 0] * d[i, 0] + to_env[2, 1] * d[i, 1] + to_env[2, 2] * d[i, 2]
+        out[i] = (1 - uniform) * _texel_pdf(p_texel, n, x, y, z, s_axis, s_sign, t_axis, t_sign) \
+            + uniform / (4 * _PI)
+    return out
+
+
+@njit(cache=True, parallel=True)
+def env_sample(cdf, p_texel, n, u1, u2, u3, to_env, uniform, s_axis, s_sign, t_axis, t_sign):
+    """path_trace.EnvSampler.sample compiled: world directions (d_world = d_env @ to_env)."""
+    m = len(u1)
+    out = np.empty((m, 3))
+    last = len(cdf) - 1
+    for i in prange(m):
+        if u3[i] < uniform:  # uniform on the sphere from (u1, u2)
+            z = 1 - 2 * u1[i]
+            r = math.sqrt(max(0.0, 1 - z * z))
+            phi = 2 * _PI * u2[i]
+            e0, e1, e2 = r * math.cos(phi), r * math.sin(phi), z
+        else:
+            lo_i, hi_i = 0, len(cdf)  # searchsorted(cdf, u1, side="right")
+            while lo_i < hi_i:
+                mid = (lo_i + hi_i) // 2
+                if cdf[mid] <= u1[i]:
+                    lo_i = mid + 1
+                else:
+                    hi_i = mid
+            idx = min(lo_i, last)
+            face, rest = idx // (n * n), idx % (n * n)
+            y, x = rest // n, rest % n
+            lo = cdf[idx - 1] if idx > 0 else 0.0
+            fx = min(max((u1[i] - lo) / max(p_texel[idx], 1e-300), 0.0), 1.0 - 1e-9)
+            sc = (x + fx) / n * 2 - 1
+            tc = (y + u2[i]) / n * 2 - 1
+            v = np.zeros(3)
+            v[face // 2] = 1.0 if face % 2 == 0 else -1.0
+            v[s_axis[face]] = s_sign[face] * sc
+            v[t_axis[face]] = t_sign[face] * tc
+            ln = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+            e0, e1, e2 = v[0] / ln, v[1] / ln, v[2] / ln
+        for k in range(3):
+            out[i, k] = e0 * to_env[0, k] + e1 * to_env[1, k] + e2 * to_env[2, k]
+    return out
+
+
 def warm() -> None:
     """Compile (or load from numba's cache) both kernels on empty arrays."""
     p, rows, e = np.zeros((0, WIDTH)), np.zeros(0, np.int64), np.zeros(0)
     eval_rows(p, rows, np.zeros((0, 3)))
     sample_rows(p, rows, e, e, e, e, e)
+    i64, eye = np.zeros(6, np.int64), np.eye(3)
+    env_pdf(np.ones(6), 1, np.zeros((0, 3)), eye, 0.1, i64, e, i64, e)
+    env_sample(np.ones(6), np.ones(6), 1, e, e, e, eye, 0.1, i64, e, i64, e)

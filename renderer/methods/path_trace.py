@@ -141,12 +141,36 @@ class EnvSampler:
         sc, tc = s * 2 - 1, t * 2 - 1
         return p * n * n / 4.0 * (1 + sc * sc + tc * tc) ** 1.5
 
+    def _kernel_args(self):
+        from core import cubemap
+        from renderer.methods import path_kernel
+        rot = np.eye(3) if self.to_env is None else np.ascontiguousarray(self.to_env, np.float64)
+        axes = (cubemap._S_AXIS.astype(np.int64), cubemap._S_SIGN.astype(np.float64),
+                cubemap._T_AXIS.astype(np.int64), cubemap._T_SIGN.astype(np.float64))
+        return path_kernel, rot, axes
+
     def pdf(self, d_world: np.ndarray) -> np.ndarray:
-        d = d_world if self.to_env is None else d_world @ self.to_env.T
-        return (1 - UNIFORM_SHARE) * self._texel_pdf(d) + UNIFORM_SHARE / (4 * math.pi)
+        if KERNEL:
+            kernel, rot, axes = self._kernel_args()
+            return kernel.env_pdf(self.p_texel, self.size, np.ascontiguousarray(d_world, np.float64),
+                                  rot, UNIFORM_SHARE, *axes)
+        return self.pdf_numpy(d_world)
 
     def sample(self, u1: np.ndarray, u2: np.ndarray, u3: np.ndarray) -> np.ndarray:
         """World directions; u3 picks uniform (below UNIFORM_SHARE) or the CDF."""
+        if KERNEL:
+            kernel, rot, axes = self._kernel_args()
+            c = np.ascontiguousarray
+            return kernel.env_sample(self.cdf, self.p_texel, self.size, c(u1), c(u2), c(u3), rot,
+                                     UNIFORM_SHARE, *axes)
+        return self.sample_numpy(u1, u2, u3)
+
+    def pdf_numpy(self, d_world: np.ndarray) -> np.ndarray:
+        d = d_world if self.to_env is None else d_world @ self.to_env.T
+        return (1 - UNIFORM_SHARE) * self._texel_pdf(d) + UNIFORM_SHARE / (4 * math.pi)
+
+    def sample_numpy(self, u1: np.ndarray, u2: np.ndarray, u3: np.ndarray) -> np.ndarray:
+        """sample in numpy (path_kernel.env_sample's twin)."""
         n = self.size
         idx = np.minimum(np.searchsorted(self.cdf, u1, side="right"), self.cdf.size - 1)
         face, rest = np.divmod(idx, n * n)
