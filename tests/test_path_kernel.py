@@ -98,7 +98,7 @@ def test_thin_film_matches_its_numpy_twin():
 _DUCK = Path(__file__).parent / "assets" / "gltf-samples" / "Duck" / "glTF-Binary" / "Duck.glb"
 
 
-@pytest.mark.parametrize("case", ["layered", "duck"])
+@pytest.mark.parametrize("case", ["layered", "duck", "smooth_glass", "rough_glass"])
 def test_compiled_paths_render_the_twins_frame(case, tmp_path, monkeypatch):
     """A frame with path_kernel and the same frame with path_bsdf's numpy: the same rays and
     the same pixels up to float rounding (coat, sheen, iridescence, anisotropy and diffuse
@@ -107,6 +107,11 @@ def test_compiled_paths_render_the_twins_frame(case, tmp_path, monkeypatch):
         asset = _sphere("kernel-layered", metallic=0.3, roughness=0.4, clearcoat=0.7,
                         clearcoat_roughness=0.2, sheen_color=(0.6, 0.3, 0.2), sheen_roughness=0.5,
                         iridescence=0.8, anisotropy_strength=0.6, diffuse_transmission=0.3)
+        env = make_env(lambda d: np.where(d[..., 1:2] > 0.5, 4.0, 0.2) * np.ones(3), key="kernel-sky")
+        options = _path(samples=6, size=32)
+    elif case.endswith("glass"):  # Glass: smooth or Walter's rough, TIR inside, roulette
+        asset = _sphere("kernel-" + case, roughness=0.0 if case == "smooth_glass" else 0.3,
+                        transmission=1.0, ior=1.5, base_color=(0.9, 0.8, 1.0, 1.0))
         env = make_env(lambda d: np.where(d[..., 1:2] > 0.5, 4.0, 0.2) * np.ones(3), key="kernel-sky")
         options = _path(samples=6, size=32)
     else:

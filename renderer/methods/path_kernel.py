@@ -81,7 +81,7 @@ def _sheen_dv(n_v, n_l, n_h, roughness):
     return d * min(max(v, 0.0), 1e4)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _thin_film(cos1, film_ior, thickness, f0, out):
     """path_bsdf.thin_film_fresnel for one hit: reflectance into out (3) over base F0 f0 (3)."""
     t = min(max(thickness / 30.0, 0.0), 1.0)
@@ -160,7 +160,7 @@ def _vndf(wx, wy, wz, ax, ay, u1, u2):
     return mx / ln, my / ln, mz / ln
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _eval_row(p, i, lx, ly, lz, fm, fd, film, out):
     """Bsdf.eval for row i of p and direction (lx, ly, lz): f |cos| into out (3), the pdf returned."""
     n_l = _dot(p, i, N, lx, ly, lz)
@@ -240,7 +240,7 @@ def _eval_row(p, i, lx, ly, lz, fm, fd, film, out):
     return pdf
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, error_model="numpy")
 def eval_rows(p, rows, wi):
     """(f |cos(n, wi)| (len(rows) x 3), pdf) at hits p[rows] toward wi (len(rows) x 3):
     path_bsdf.Bsdf.eval compiled."""
@@ -254,7 +254,60 @@ def eval_rows(p, rows, wi):
     return fcos, pdf
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, error_model="numpy")
+def _sample_row(p, i, u_layer, u_pick, u_lobe, u1, u2):
+    """Bsdf.sample for row i: (wi x, y, z, from a rough lobe, valid)."""
+    wx, wy, wz = p[i, WO], p[i, WO + 1], p[i, WO + 2]
+    p_coat, p_sheen = p[i, P_COAT], p[i, P_SHEEN]
+    rough, valid = True, True
+    if u_layer < p_coat:  # the clearcoat's GGX about its own normal
+        ncx, ncy, ncz = p[i, COAT_N], p[i, COAT_N + 1], p[i, COAT_N + 2]
+        a = p[i, COAT_ALPHA]
+        tx, ty, tz, bx, by, bz = _onb(ncx, ncy, ncz)
+        mx, my, mz = _vndf(wx * tx + wy * ty + wz * tz, wx * bx + wy * by + wz * bz,
+                           wx * ncx + wy * ncy + wz * ncz, a, a, u1, u2)
+        hx = mx * tx + my * bx + mz * ncx
+        hy = mx * ty + my * by + mz * ncy
+        hz = mx * tz + my * bz + mz * ncz
+        k = 2.0 * (wx * hx + wy * hy + wz * hz)
+        lx, ly, lz = -wx + k * hx, -wy + k * hy, -wz + k * hz
+        rough = a >= _ROUGH_ALPHA
+        valid = lx * ncx + ly * ncy + lz * ncz > 0
+    elif u_layer < p_coat + p_sheen:  # sheen: uniform over the hemisphere
+        z = u1
+        r = math.sqrt(max(0.0, 1 - z * z))
+        phi = 2 * _PI * u2
+        c, s = r * math.cos(phi), r * math.sin(phi)
+        lx = c * p[i, T] + s * p[i, B] + z * p[i, N]
+        ly = c * p[i, T + 1] + s * p[i, B + 1] + z * p[i, N + 1]
+        lz = c * p[i, T + 2] + s * p[i, B + 2] + z * p[i, N + 2]
+    elif u_pick < p[i, P_METAL] or u_lobe < p[i, P_SPEC]:  # Metal or Plastic's GGX
+        ax, ay = p[i, AX], p[i, AY]
+        mx, my, mz = _vndf(_dot(p, i, T, wx, wy, wz), _dot(p, i, B, wx, wy, wz),
+                           _dot(p, i, N, wx, wy, wz), ax, ay, u1, u2)
+        hx = mx * p[i, T] + my * p[i, B] + mz * p[i, N]
+        hy = mx * p[i, T + 1] + my * p[i, B + 1] + mz * p[i, N + 1]
+        hz = mx * p[i, T + 2] + my * p[i, B + 2] + mz * p[i, N + 2]
+        k = 2.0 * (wx * hx + wy * hy + wz * hz)
+        lx, ly, lz = -wx + k * hx, -wy + k * hy, -wz + k * hz
+        rough = math.sqrt(ax * ay) >= _ROUGH_ALPHA
+        valid = _dot(p, i, N, lx, ly, lz) > 0
+    else:  # diffuse: reflected, or with probability dt transmitted (cosine-weighted)
+        ps = p[i, P_SPEC]
+        u_t = (u_lobe - ps) / max(1 - ps, 1e-12)
+        side = -1.0 if u_t < p[i, DT] else 1.0
+        nx, ny, nz = p[i, N] * side, p[i, N + 1] * side, p[i, N + 2] * side
+        tx, ty, tz, bx, by, bz = _onb(nx, ny, nz)
+        r, phi = math.sqrt(u1), 2 * _PI * u2
+        z = math.sqrt(max(0.0, 1 - u1))
+        c, s = r * math.cos(phi), r * math.sin(phi)
+        lx = c * tx + s * bx + z * nx
+        ly = c * ty + s * by + z * ny
+        lz = c * tz + s * bz + z * nz
+    return lx, ly, lz, rough, valid
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
 def sample_rows(p, rows, u_layer, u_pick, u_lobe, u1, u2):
     """Bsdf.sample then Bsdf.eval at its directions, compiled: (wi, rough, valid, f |cos|, pdf)
     for hits p[rows] (the uniforms one per row of `rows`)."""
@@ -266,57 +319,146 @@ def sample_rows(p, rows, u_layer, u_pick, u_lobe, u1, u2):
     valid = np.ones(m, np.bool_)
     for j in prange(m):
         i = rows[j]
-        wx, wy, wz = p[i, WO], p[i, WO + 1], p[i, WO + 2]
-        p_coat, p_sheen = p[i, P_COAT], p[i, P_SHEEN]
-        if u_layer[j] < p_coat:  # the clearcoat's GGX about its own normal
-            ncx, ncy, ncz = p[i, COAT_N], p[i, COAT_N + 1], p[i, COAT_N + 2]
-            a = p[i, COAT_ALPHA]
-            tx, ty, tz, bx, by, bz = _onb(ncx, ncy, ncz)
-            mx, my, mz = _vndf(wx * tx + wy * ty + wz * tz, wx * bx + wy * by + wz * bz,
-                               wx * ncx + wy * ncy + wz * ncz, a, a, u1[j], u2[j])
-            hx = mx * tx + my * bx + mz * ncx
-            hy = mx * ty + my * by + mz * ncy
-            hz = mx * tz + my * bz + mz * ncz
-            k = 2.0 * (wx * hx + wy * hy + wz * hz)
-            lx, ly, lz = -wx + k * hx, -wy + k * hy, -wz + k * hz
-            rough[j] = a >= _ROUGH_ALPHA
-            valid[j] = lx * ncx + ly * ncy + lz * ncz > 0
-        elif u_layer[j] < p_coat + p_sheen:  # sheen: uniform over the hemisphere
-            z = u1[j]
-            r = math.sqrt(max(0.0, 1 - z * z))
-            phi = 2 * _PI * u2[j]
-            c, s = r * math.cos(phi), r * math.sin(phi)
-            lx = c * p[i, T] + s * p[i, B] + z * p[i, N]
-            ly = c * p[i, T + 1] + s * p[i, B + 1] + z * p[i, N + 1]
-            lz = c * p[i, T + 2] + s * p[i, B + 2] + z * p[i, N + 2]
-        elif u_pick[j] < p[i, P_METAL] or u_lobe[j] < p[i, P_SPEC]:  # Metal or Plastic's GGX
-            ax, ay = p[i, AX], p[i, AY]
-            mx, my, mz = _vndf(_dot(p, i, T, wx, wy, wz), _dot(p, i, B, wx, wy, wz),
-                               _dot(p, i, N, wx, wy, wz), ax, ay, u1[j], u2[j])
-            hx = mx * p[i, T] + my * p[i, B] + mz * p[i, N]
-            hy = mx * p[i, T + 1] + my * p[i, B + 1] + mz * p[i, N + 1]
-            hz = mx * p[i, T + 2] + my * p[i, B + 2] + mz * p[i, N + 2]
-            k = 2.0 * (wx * hx + wy * hy + wz * hz)
-            lx, ly, lz = -wx + k * hx, -wy + k * hy, -wz + k * hz
-            rough[j] = math.sqrt(ax * ay) >= _ROUGH_ALPHA
-            valid[j] = _dot(p, i, N, lx, ly, lz) > 0
-        else:  # diffuse: reflected, or with probability dt transmitted (cosine-weighted)
-            ps = p[i, P_SPEC]
-            u_t = (u_lobe[j] - ps) / max(1 - ps, 1e-12)
-            side = -1.0 if u_t < p[i, DT] else 1.0
-            nx, ny, nz = p[i, N] * side, p[i, N + 1] * side, p[i, N + 2] * side
-            tx, ty, tz, bx, by, bz = _onb(nx, ny, nz)
-            r, phi = math.sqrt(u1[j]), 2 * _PI * u2[j]
-            z = math.sqrt(max(0.0, 1 - u1[j]))
-            c, s = r * math.cos(phi), r * math.sin(phi)
-            lx = c * tx + s * bx + z * nx
-            ly = c * ty + s * by + z * ny
-            lz = c * tz + s * bz + z * nz
+        lx, ly, lz, rough[j], valid[j] = _sample_row(p, i, u_layer[j], u_pick[j], u_lobe[j], u1[j], u2[j])
         wi[j, 0], wi[j, 1], wi[j, 2] = lx, ly, lz
         fm, fd, film, out = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
         pdf[j] = _eval_row(p, i, lx, ly, lz, fm, fd, film, out)
         fcos[j, 0], fcos[j, 1], fcos[j, 2] = out[0], out[1], out[2]
     return wi, rough, valid, fcos, pdf
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _fresnel(cos_i, eta):
+    """optics.fresnel_dielectric for one cosine."""
+    cos_i = min(max(cos_i, 0.0), 1.0)
+    cos2_t = (1.0 - eta * eta) + eta * eta * cos_i * cos_i
+    if cos2_t <= 0.0:
+        return 1.0
+    cos_t = math.sqrt(cos2_t)
+    rs = (eta * cos_i - cos_t) / (eta * cos_i + cos_t)
+    rp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t)
+    rs2, rp2 = rs * rs, rp * rp
+    return 0.5 * ((1.0 if math.isnan(rs2) else rs2) + (1.0 if math.isnan(rp2) else rp2))
+
+
+@njit(cache=True, inline="always")
+def _refract(dx, dy, dz, nx, ny, nz, eta):
+    """optics.refract for one ray: (unit direction x, y, z, tir)."""
+    cos_i = min(max(-(dx * nx + dy * ny + dz * nz), 0.0), 1.0)
+    k = (1.0 - eta * eta) + eta * eta * cos_i * cos_i
+    if k < 0.0:
+        c = 2.0 * (dx * nx + dy * ny + dz * nz)
+        tx, ty, tz = dx - c * nx, dy - c * ny, dz - c * nz
+        tir = True
+    else:
+        c = eta * cos_i - math.sqrt(k)
+        tx, ty, tz = eta * dx + c * nx, eta * dy + c * ny, eta * dz + c * nz
+        tir = False
+    ln = math.sqrt(tx * tx + ty * ty + tz * tz)
+    return tx / ln, ty / ln, tz / ln, tir
+
+
+@njit(cache=True, inline="always")
+def _g1(cos_v, alpha):
+    c2 = min(max(cos_v * cos_v, 1e-12), 1.0)
+    return 2.0 / (1.0 + math.sqrt(1.0 + alpha * alpha * (1.0 - c2) / c2))
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def scatter(p, d, pos, ng, ns, entering, lit, thin, ior, roughness, alpha, base, w, medium,
+            u_layer, u_pick, u_lobe, u1, u2, u_rr, roulette, eps):
+    """path_trace's BSDF-sampling step for every hit of a bounce (row i of p is hit i): a
+    reflective component (Bsdf.sample) or Glass (the exact dielectric, smooth or Walter's
+    rough, thin-walled sheets crossed), Russian roulette when `roulette`, and the next ray's
+    origin off the surface. Returns (origins, directions, throughput, BSDF pdf for MIS, medium
+    IOR, alive, rough, tir)."""
+    m = len(d)
+    o_new = np.empty((m, 3))
+    d_new = np.empty((m, 3))
+    w_new = np.empty((m, 3))
+    pdf_new = np.zeros(m)
+    med_new = np.empty(m)
+    alive = np.ones(m, np.bool_)
+    rough = np.zeros(m, np.bool_)
+    tir_out = np.zeros(m, np.bool_)
+    for i in prange(m):
+        dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
+        med = medium[i]
+        glass = (u_layer[i] >= p[i, P_COAT] + p[i, P_SHEEN]
+                 and u_pick[i] >= p[i, P_METAL] + p[i, P_PLASTIC]) or not lit[i]
+        if not glass:
+            lx, ly, lz, rough[i], valid = _sample_row(p, i, u_layer[i], u_pick[i], u_lobe[i], u1[i], u2[i])
+            fm, fd, film, out = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+            pdf = _eval_row(p, i, lx, ly, lz, fm, fd, film, out)
+            ok = pdf > 0 and valid
+            for c in range(3):
+                w_new[i, c] = w[i, c] * out[c] / max(pdf, 1e-300) if ok else 0.0
+            pdf_new[i] = pdf if ok else 0.0
+            alive[i] = ok
+        else:
+            nx, ny, nz = ns[i, 0], ns[i, 1], ns[i, 2]
+            eta = 1.0 / ior[i] if entering[i] else ior[i]
+            smooth = roughness[i] <= 0
+            g_r, g_t = 1.0, 1.0
+            if smooth:
+                c = 2.0 * (dx * nx + dy * ny + dz * nz)
+                rx, ry, rz = dx - c * nx, dy - c * ny, dz - c * nz
+                tx, ty, tz, tir = _refract(dx, dy, dz, nx, ny, nz, eta)
+                fres = _fresnel(-(dx * nx + dy * ny + dz * nz), eta)
+            else:  # a visible microfacet normal (optics.sample_rough_dielectric)
+                a = alpha[i]
+                bx_, by_, bz_, cx_, cy_, cz_ = _onb(nx, ny, nz)
+                vx, vy, vz = -dx, -dy, -dz
+                mx, my, mz = _vndf(vx * bx_ + vy * by_ + vz * bz_, vx * cx_ + vy * cy_ + vz * cz_,
+                                   max(vx * nx + vy * ny + vz * nz, 1e-7), a, a, u1[i], u2[i])
+                hx = mx * bx_ + my * cx_ + mz * nx
+                hy = mx * by_ + my * cy_ + mz * ny
+                hz = mx * bz_ + my * cz_ + mz * nz
+                fres = _fresnel(-(dx * hx + dy * hy + dz * hz), eta)
+                c = 2.0 * (dx * hx + dy * hy + dz * hz)
+                rx, ry, rz = dx - c * hx, dy - c * hy, dz - c * hz
+                tx, ty, tz, tir = _refract(dx, dy, dz, hx, hy, hz, eta)
+                cr, ct = rx * nx + ry * ny + rz * nz, tx * nx + ty * ny + tz * nz
+                w_r = fres * _g1(cr, a) if (cr > 0 and rx * hx + ry * hy + rz * hz > 0) else 0.0
+                w_t = (1.0 - fres) * _g1(-ct, a) if (ct < 0 and not tir) else 0.0
+                g_r = w_r / max(fres, 1e-30)
+                g_t = w_t / max(1 - fres, 1e-30)
+            if thin[i]:  # out through the sheet's parallel back face: unbent where smooth
+                tx, ty, tz, tir2 = _refract(tx, ty, tz, nx, ny, nz, ior[i])
+                if smooth:
+                    tx, ty, tz = dx, dy, dz
+                tir = tir or tir2
+            if tir:
+                fres = 1.0
+            take_r = u_lobe[i] < fres
+            factor = g_r if take_r else g_t * (1.0 if thin[i] else eta * eta)
+            if lit[i]:  # what the coat and sheen over it leave, over the choice's odds
+                factor *= p[i, W_BASE] / max(1.0 - p[i, P_COAT] - p[i, P_SHEEN], 1e-12)
+            tinted = entering[i] and not take_r
+            for c in range(3):
+                w_new[i, c] = w[i, c] * (base[i, c] if tinted else 1.0) * factor
+            if take_r:
+                lx, ly, lz = rx, ry, rz
+            else:
+                lx, ly, lz = tx, ty, tz
+            if not (take_r or thin[i]):
+                med = ior[i] if entering[i] else 1.0
+            rough[i] = not smooth and alpha[i] >= _ROUGH_ALPHA
+            tir_out[i] = tir
+        if roulette:
+            q = min(max(max(w_new[i, 0], max(w_new[i, 1], w_new[i, 2])) * med * med, 0.0), 1.0)
+            if not u_rr[i] < q:
+                alive[i] = False
+            for c in range(3):
+                w_new[i, c] = w_new[i, c] / max(q, 1e-30)
+        if not max(w_new[i, 0], max(w_new[i, 1], w_new[i, 2])) > 0:
+            alive[i] = False
+        off = eps if lx * ng[i, 0] + ly * ng[i, 1] + lz * ng[i, 2] > 0 else -eps
+        for c in range(3):
+            o_new[i, c] = pos[i, c] + off * ng[i, c]
+        d_new[i, 0], d_new[i, 1], d_new[i, 2] = lx, ly, lz
+        med_new[i] = med
+    return o_new, d_new, w_new, pdf_new, med_new, alive, rough, tir_out
 
 
 @njit(cache=True, inline="always")
@@ -397,6 +539,8 @@ def warm() -> None:
     p, rows, e = np.zeros((0, WIDTH)), np.zeros(0, np.int64), np.zeros(0)
     eval_rows(p, rows, np.zeros((0, 3)))
     sample_rows(p, rows, e, e, e, e, e)
+    e3, b = np.zeros((0, 3)), np.zeros(0, np.bool_)
+    scatter(p, e3, e3, e3, e3, b, b, b, e, e, e, e3, e3, e, e, e, e, e, e, e, True, 1e-4)
     i64, eye = np.zeros(6, np.int64), np.eye(3)
     env_pdf(np.ones(6), 1, np.zeros((0, 3)), eye, 0.1, i64, e, i64, e)
     env_sample(np.ones(6), np.ones(6), 1, e, e, e, eye, 0.1, i64, e, i64, e)

@@ -337,78 +337,106 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         u_pick, u_lobe = sample(px, s, 10 * depth + 3)
         u1, u2 = sample(px, s, 10 * depth + 4)
         u_layer, _ = sample(px, s, 10 * depth + 6)
-        base_pick = u_layer >= bsdf.p_coat + bsdf.p_sheen
-        glass = (base_pick & (u_pick >= bsdf.p_metal + bsdf.p_plastic)) | ~surface_lit
-        new_d = np.zeros_like(d)
-        new_w = w.copy()
-        new_pdf = np.zeros(len(d))
-        rough = np.zeros(len(d), bool)
-        new_medium = medium.copy()
-        alive = np.ones(len(d), bool)
-        # the reflective components (and diffuse transmission)
-        mp = np.flatnonzero(~glass)
-        if len(mp):
-            wi, rough[mp], valid, fcos, p_b = lobes.sample(mp, u_layer[mp], u_pick[mp], u_lobe[mp],
-                                                          u1[mp], u2[mp])
-            ok = (p_b > 0) & valid
-            new_w[mp] = w[mp] * np.where(ok[:, None], fcos / np.maximum(p_b, 1e-300)[:, None], 0.0)
-            new_d[mp] = wi
-            # a near-delta lobe's pdf is huge and the environment pdf negligible: no MIS needed
-            new_pdf[mp] = np.where(ok, p_b, 0.0)
-            alive[mp] = ok
-        # Glass: exact dielectric, conditioned on the choice (weight (1 - m) tr / P = 1)
-        gl = np.flatnonzero(glass)
-        if len(gl):
-            eta = np.where(entering[gl], 1.0 / ior[gl], ior[gl])
-            dg, ng_g = d[gl], ns[gl]
-            smooth = hits.roughness[gl] <= 0
-            r_dir = reflect(dg, ng_g)
-            t_dir, tir = refract(dg, ng_g, eta)
-            fres = fresnel_dielectric(np.clip(_dot(-dg, ng_g), 0.0, 1.0), eta)
-            g_r = np.ones(len(gl))
-            g_t = np.ones(len(gl))
-            rs = np.flatnonzero(~smooth)
-            if len(rs):
-                _, f_m, r_m, wr_m, t_m, wt_m, tir_m = sample_rough_dielectric(
-                    dg[rs], ng_g[rs], alpha[gl[rs]], eta[rs], u1[gl[rs]], u2[gl[rs]])
-                r_dir[rs], t_dir[rs], tir[rs], fres[rs] = r_m, t_m, tir_m, f_m
-                g_r[rs] = wr_m / np.maximum(f_m, 1e-30)
-                g_t[rs] = wt_m / np.maximum(1 - f_m, 1e-30)
-            sheet = thin[gl]
-            if np.any(sheet):  # out through the sheet's parallel back face: unbent where smooth
-                t_dir[sheet], tir_out = refract(t_dir[sheet], ng_g[sheet], ior[gl][sheet])
-                t_dir[sheet & smooth] = dg[sheet & smooth]
-                tir[sheet] |= tir_out
-            fres = np.where(tir, 1.0, fres)
-            # what is not transmitted of this component is the dielectric's reflection
-            take_r = u_lobe[gl] < fres
-            tint = np.where((entering[gl] & ~take_r)[:, None], hits.base[gl], 1.0)
-            # a surface seen from inside with no transmission still refracts out as glass
-            new_d[gl] = np.where(take_r[:, None], r_dir, t_dir)
-            factor = np.where(take_r, g_r, g_t * np.where(sheet, 1.0, eta * eta))
-            # what the coat and sheen over it leave (from outside), over the choice's odds
-            factor *= np.where(surface_lit[gl], bsdf.glass_w[gl], 1.0)
-            new_w[gl] = w[gl] * tint * factor[:, None]
-            new_medium[gl] = np.where(take_r | sheet, medium[gl], np.where(entering[gl], ior[gl], 1.0))
-            new_pdf[gl] = 0.0
-            rough[gl] = ~smooth & (alpha[gl] >= ROUGH_ALPHA)
-            stats["tir"] += int(np.sum(tir))
-        # Russian roulette
-        if depth >= RR_START:
-            q = np.clip(new_w.max(axis=1) * new_medium ** 2, 0.0, 1.0)
-            u_rr, _ = sample(px, s, 10 * depth + 5)
-            survive = u_rr < q
-            alive &= survive
-            new_w = new_w / np.maximum(q, 1e-30)[:, None]
-        alive &= new_w.max(axis=1) > 0
+        u_rr = sample(px, s, 10 * depth + 5)[0] if depth >= RR_START else u1
+        args = (d, p, ng, ns, entering, surface_lit, thin, ior, alpha, w, medium,
+                u_layer, u_pick, u_lobe, u1, u2, u_rr, depth >= RR_START, eps)
+        if KERNEL:
+            f8 = _f64
+            nxt = lobes.kernel.scatter(lobes.packed, f8(d), f8(p), f8(ng), f8(ns), _b(entering), _b(surface_lit),
+                                       _b(thin), f8(ior), f8(hits.roughness), f8(alpha), f8(hits.base), f8(w),
+                                       f8(medium), f8(u_layer), f8(u_pick), f8(u_lobe), f8(u1), f8(u2), f8(u_rr),
+                                       depth >= RR_START, eps)
+        else:
+            nxt = _scatter_numpy(bsdf, hits, *args, lobes)
+        o_all, new_d, new_w, new_pdf, new_medium, alive, rough, tir = nxt
+        stats["tir"] += int(np.sum(tir))
         clamp_esc = n_rough > 0
         n_rough = n_rough + rough
-        side_t = np.where(_dot(new_d, ng) > 0, eps, -eps)
         keep = np.flatnonzero(alive)
-        origins = (p + side_t[:, None] * ng)[keep]
+        origins = o_all[keep]
         d, w, slot, medium = new_d[keep], new_w[keep], slot[keep], new_medium[keep]
         mis_pdf, clamp_esc, n_rough = new_pdf[keep], clamp_esc[keep], n_rough[keep]
     return out, hit0
+
+
+def _scatter_numpy(bsdf, hits, d, p, ng, ns, entering, surface_lit, thin, ior, alpha, w, medium,
+                   u_layer, u_pick, u_lobe, u1, u2, u_rr, roulette: bool, eps: float, lobes):
+    """path_kernel.scatter's numpy twin: the BSDF-sampling step of a bounce."""
+    tir_all = np.zeros(len(d), bool)
+
+    base_pick = u_layer >= bsdf.p_coat + bsdf.p_sheen
+    glass = (base_pick & (u_pick >= bsdf.p_metal + bsdf.p_plastic)) | ~surface_lit
+    new_d = np.zeros_like(d)
+    new_w = w.copy()
+    new_pdf = np.zeros(len(d))
+    rough = np.zeros(len(d), bool)
+    new_medium = medium.copy()
+    alive = np.ones(len(d), bool)
+    # the reflective components (and diffuse transmission)
+    mp = np.flatnonzero(~glass)
+    if len(mp):
+        wi, rough[mp], valid, fcos, p_b = lobes.sample(mp, u_layer[mp], u_pick[mp], u_lobe[mp],
+                                                      u1[mp], u2[mp])
+        ok = (p_b > 0) & valid
+        new_w[mp] = w[mp] * np.where(ok[:, None], fcos / np.maximum(p_b, 1e-300)[:, None], 0.0)
+        new_d[mp] = wi
+        # a near-delta lobe's pdf is huge and the environment pdf negligible: no MIS needed
+        new_pdf[mp] = np.where(ok, p_b, 0.0)
+        alive[mp] = ok
+    # Glass: exact dielectric, conditioned on the choice (weight (1 - m) tr / P = 1)
+    gl = np.flatnonzero(glass)
+    if len(gl):
+        eta = np.where(entering[gl], 1.0 / ior[gl], ior[gl])
+        dg, ng_g = d[gl], ns[gl]
+        smooth = hits.roughness[gl] <= 0
+        r_dir = reflect(dg, ng_g)
+        t_dir, tir = refract(dg, ng_g, eta)
+        fres = fresnel_dielectric(np.clip(_dot(-dg, ng_g), 0.0, 1.0), eta)
+        g_r = np.ones(len(gl))
+        g_t = np.ones(len(gl))
+        rs = np.flatnonzero(~smooth)
+        if len(rs):
+            _, f_m, r_m, wr_m, t_m, wt_m, tir_m = sample_rough_dielectric(
+                dg[rs], ng_g[rs], alpha[gl[rs]], eta[rs], u1[gl[rs]], u2[gl[rs]])
+            r_dir[rs], t_dir[rs], tir[rs], fres[rs] = r_m, t_m, tir_m, f_m
+            g_r[rs] = wr_m / np.maximum(f_m, 1e-30)
+            g_t[rs] = wt_m / np.maximum(1 - f_m, 1e-30)
+        sheet = thin[gl]
+        if np.any(sheet):  # out through the sheet's parallel back face: unbent where smooth
+            t_dir[sheet], tir_out = refract(t_dir[sheet], ng_g[sheet], ior[gl][sheet])
+            t_dir[sheet & smooth] = dg[sheet & smooth]
+            tir[sheet] |= tir_out
+        fres = np.where(tir, 1.0, fres)
+        # what is not transmitted of this component is the dielectric's reflection
+        take_r = u_lobe[gl] < fres
+        tint = np.where((entering[gl] & ~take_r)[:, None], hits.base[gl], 1.0)
+        # a surface seen from inside with no transmission still refracts out as glass
+        new_d[gl] = np.where(take_r[:, None], r_dir, t_dir)
+        factor = np.where(take_r, g_r, g_t * np.where(sheet, 1.0, eta * eta))
+        # what the coat and sheen over it leave (from outside), over the choice's odds
+        factor *= np.where(surface_lit[gl], bsdf.glass_w[gl], 1.0)
+        new_w[gl] = w[gl] * tint * factor[:, None]
+        new_medium[gl] = np.where(take_r | sheet, medium[gl], np.where(entering[gl], ior[gl], 1.0))
+        new_pdf[gl] = 0.0
+        rough[gl] = ~smooth & (alpha[gl] >= ROUGH_ALPHA)
+        tir_all[gl] = tir
+    # Russian roulette
+    if roulette:
+        q = np.clip(new_w.max(axis=1) * new_medium ** 2, 0.0, 1.0)
+        survive = u_rr < q
+        alive &= survive
+        new_w = new_w / np.maximum(q, 1e-30)[:, None]
+    alive &= new_w.max(axis=1) > 0
+    side_t = np.where(_dot(new_d, ng) > 0, eps, -eps)
+    return p + side_t[:, None] * ng, new_d, new_w, new_pdf, new_medium, alive, rough, tir_all
+
+
+def _f64(a) -> np.ndarray:
+    return np.ascontiguousarray(a, np.float64)
+
+
+def _b(a) -> np.ndarray:
+    return np.ascontiguousarray(a, np.bool_)
 
 
 def _timed(stats: dict, key: str, fn, *args):
