@@ -217,7 +217,7 @@ def measure(names: list[str], size: int, repeat: int, rt_repeat: int, cache: Pat
                 for m in methods}
         for m in methods:  # every ray-traced frame builds its Embree scene, as Mitsuba loads its own
             if m.startswith(("raytrace", "auto")):
-                jobs[m] = (lambda job=jobs[m]: (clear_scene_cache(), job())[1])
+                jobs[m] = _uncached(jobs[m], clear_scene_cache)
         raster = [m for m in methods if not (m.startswith("raytrace") or m == "auto+budget")]
         timed = _interleaved({m: jobs[m] for m in raster}, repeat)
         for m in methods:
@@ -236,6 +236,13 @@ def measure(names: list[str], size: int, repeat: int, rt_repeat: int, cache: Pat
             rows.append(_peer(spec, size, spp, ref, rt_repeat))
             _print(rows[-1])
     return rows
+
+
+def _uncached(job, clear):
+    def run():
+        clear()
+        return job()
+    return run
 
 
 def _peer(spec, size: int, spp: int, ref, repeat: int = 1) -> dict:

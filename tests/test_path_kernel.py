@@ -144,3 +144,14 @@ def test_compiled_environment_sampling_matches_its_numpy_twin(rotated, tmp_path)
     d = np.concatenate([got, _unit(rng.normal(size=(5000, 3))), np.eye(3), -np.eye(3)])
     np.testing.assert_allclose(sampler.pdf(d), sampler.pdf_numpy(d), rtol=1e-12)
     assert sampler.pdf(got).std() > 0  # importance: not a uniform pdf
+
+
+@pytest.mark.parametrize("multiscatter", [True, False])
+def test_compiled_build_matches_its_numpy_twin(multiscatter):
+    """path_bsdf.build_packed (path_kernel.build_rows) is build(...).packed(): every column,
+    the albedo tables' lookups (isotropic, anisotropic, sheen, Schlick share) included."""
+    rng = np.random.default_rng(11)
+    hits, ns, ng, wo, ior = _hits(rng)
+    want = path_bsdf.build(hits, ns, ng, wo, ior, multiscatter).packed()
+    got = path_bsdf.build_packed(hits, ns, ng, wo, ior, multiscatter)
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12)

@@ -534,6 +534,23 @@ def frame(n: np.ndarray, grain: np.ndarray | None) -> tuple[np.ndarray, np.ndarr
     return t, b
 
 
+def build_packed(hits, ns, ng, wo, ior, multiscatter: bool) -> np.ndarray:
+    """build's packed matrix (Bsdf.packed), compiled (path_kernel.build_rows)."""
+    from renderer.methods import path_kernel
+
+    def f8(a):
+        return np.ascontiguousarray(a, np.float64)
+
+    return path_kernel.build_rows(
+        f8(ns), f8(ng), f8(wo), f8(ior), f8(hits.base), f8(hits.metallic), f8(hits.transmission),
+        f8(hits.roughness), f8(hits.anisotropy), f8(hits.anisotropy_t), f8(hits.specular),
+        f8(hits.specular_color), f8(hits.diffuse_transmission), f8(hits.diffuse_transmission_color),
+        f8(hits.iridescence), f8(hits.iridescence_ior), f8(hits.iridescence_thickness),
+        f8(hits.clearcoat), f8(hits.clearcoat_normal), f8(hits.clearcoat_roughness),
+        f8(hits.sheen_color), f8(hits.sheen_roughness), bool(multiscatter),
+        _table("ggx_e"), _table("ggx_b"), _table("aniso_e"), _table("sheen_e"))
+
+
 def build(hits, ns, ng, wo, ior, multiscatter: bool) -> Bsdf:
     """The BSDF at hits (trace_material.Hits rows) with shading normal ns and geometric ng
     on wo's side, IOR per hit."""

@@ -461,6 +461,147 @@ def scatter(p, d, pos, ng, ns, entering, lit, thin, ior, roughness, alpha, base,
     return o_new, d_new, w_new, pdf_new, med_new, alive, rough, tir_out
 
 
+_ALPHA_MIN = 1e-3     # path_bsdf.ALPHA_MIN
+
+
+@njit(cache=True, inline="always")
+def _bilinear(t, x, x_lo, y, y_lo):
+    """path_bsdf._bilinear at one point."""
+    n = t.shape[0]
+    x = min(max((x - x_lo) / (1 - x_lo) * (n - 1), 0.0), n - 1.0)
+    y = min(max((y - y_lo) / (1 - y_lo) * (n - 1), 0.0), n - 1.0)
+    x0, y0 = min(int(x), n - 2), min(int(y), n - 2)
+    fx, fy = x - x0, y - y0
+    return ((t[x0, y0] * (1 - fx) + t[x0 + 1, y0] * fx) * (1 - fy)
+            + (t[x0, y0 + 1] * (1 - fx) + t[x0 + 1, y0 + 1] * fx) * fy)
+
+
+@njit(cache=True)
+def _aniso_albedo(table, cos_v, azimuth, ax, ay):
+    """path_bsdf.ggx_albedo_aniso at one point (multilinear over the 4-D table)."""
+    sizes = table.shape
+    sa = math.sqrt(_ALPHA_MIN)
+    c = (min(max((cos_v - 0.02) / 0.98, 0.0), 1.0) * (sizes[0] - 1),
+         min(max(azimuth / (_PI / 2), 0.0), 1.0) * (sizes[1] - 1),
+         min(max((math.sqrt(ax) - sa) / (1 - sa), 0.0), 1.0) * (sizes[2] - 1),
+         min(max((math.sqrt(ay) - sa) / (1 - sa), 0.0), 1.0) * (sizes[3] - 1))
+    lo = (min(int(c[0]), sizes[0] - 2), min(int(c[1]), sizes[1] - 2),
+          min(int(c[2]), sizes[2] - 2), min(int(c[3]), sizes[3] - 2))
+    fr = (c[0] - lo[0], c[1] - lo[1], c[2] - lo[2], c[3] - lo[3])
+    out = 0.0
+    for corner in range(16):
+        b0, b1, b2, b3 = corner & 1, (corner >> 1) & 1, (corner >> 2) & 1, (corner >> 3) & 1
+        wgt = (fr[0] if b0 else 1 - fr[0]) * (fr[1] if b1 else 1 - fr[1]) \
+            * (fr[2] if b2 else 1 - fr[2]) * (fr[3] if b3 else 1 - fr[3])
+        out += wgt * table[lo[0] + b0, lo[1] + b1, lo[2] + b2, lo[3] + b3]
+    return out
+
+
+@njit(cache=True, inline="always")
+def _ms_scale(f0, e_ss):
+    e_ms = 1.0 - e_ss
+    f_avg = f0 + (1.0 - f0) / 21.0
+    return 1.0 + e_ms * f_avg / (1.0 - e_ms * f_avg)
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def build_rows(ns, ng, wo, ior, base, metallic, transmission, roughness, anisotropy, grain,
+               specular, specular_color, diffuse_t, diffuse_t_color, irid, irid_ior, irid_thick,
+               clearcoat, clearcoat_normal, clearcoat_roughness, sheen_color, sheen_roughness,
+               multiscatter, ggx_e, ggx_b, aniso_e, sheen_e):
+    """path_bsdf.build compiled, straight to the packed matrix (Bsdf.packed's columns)."""
+    m = len(ns)
+    p = np.empty((m, WIDTH))
+    for i in prange(m):
+        nx, ny, nz = ns[i, 0], ns[i, 1], ns[i, 2]
+        for c in range(3):
+            p[i, N + c] = ns[i, c]
+            p[i, NG + c] = ng[i, c]
+            p[i, WO + c] = wo[i, c]
+            p[i, BASE + c] = base[i, c]
+            p[i, DT_COLOR + c] = diffuse_t_color[i, c]
+            p[i, SHEEN + c] = sheen_color[i, c]
+        alpha = max(roughness[i] ** 2, _ALPHA_MIN)
+        an = min(max(anisotropy[i], 0.0), 1.0)
+        ax = alpha + (1.0 - alpha) * an * an
+        tx, ty, tz, bx, by, bz = _onb(nx, ny, nz)
+        gd = grain[i, 0] * nx + grain[i, 1] * ny + grain[i, 2] * nz
+        gx, gy, gz = grain[i, 0] - nx * gd, grain[i, 1] - ny * gd, grain[i, 2] - nz * gd
+        ln = math.sqrt(gx * gx + gy * gy + gz * gz)
+        if ln > 1e-6:  # the grain projected onto the shading plane
+            tx, ty, tz = gx / ln, gy / ln, gz / ln
+            bx, by, bz = ny * tz - nz * ty, nz * tx - nx * tz, nx * ty - ny * tx
+        p[i, T], p[i, T + 1], p[i, T + 2] = tx, ty, tz
+        p[i, B], p[i, B + 1], p[i, B + 2] = bx, by, bz
+        p[i, AX], p[i, AY] = ax, alpha
+        metal, trans = metallic[i], transmission[i]
+        p[i, P_METAL], p[i, P_PLASTIC] = metal, (1 - metal) * (1 - trans)
+        f0_ior = ((ior[i] - 1) / (ior[i] + 1)) ** 2
+        f90 = specular[i]
+        n_v = min(max(nx * wo[i, 0] + ny * wo[i, 1] + nz * wo[i, 2], 1e-6), 1.0)
+        x5 = (1.0 - n_v) ** 5
+        top = 0.0
+        for c in range(3):
+            f0 = min(f0_ior * specular_color[i, c], 1.0) * f90
+            p[i, F0_D + c] = f0
+            top = max(top, f0 + (f90 - f0) * x5)
+        p[i, F90_D] = f90
+        p[i, P_SPEC] = min(max(top, 0.1), 0.9)
+        if multiscatter:  # energy lost between microfacets, put back (Turquin 2019)
+            if ax > alpha:
+                wx, wy, wz = wo[i, 0], wo[i, 1], wo[i, 2]
+                az = math.atan2(abs(wx * bx + wy * by + wz * bz), abs(wx * tx + wy * ty + wz * tz))
+                e = _aniso_albedo(aniso_e, n_v, az, ax, alpha)
+            else:
+                e = _bilinear(ggx_e, n_v, 0.02, alpha, _ALPHA_MIN)
+            e_ss = min(max(e, 0.05), 1.0)
+            for c in range(3):
+                p[i, MS_M + c] = _ms_scale(base[i, c], e_ss)
+                p[i, MS_D + c] = _ms_scale(p[i, F0_D + c], e_ss)
+        else:
+            for c in range(3):
+                p[i, MS_M + c] = 1.0
+                p[i, MS_D + c] = 1.0
+        dt = min(max(diffuse_t[i], 0.0), 1.0)
+        p[i, DT] = dt
+        kd_t = 1.0
+        if dt > 0:  # the GGX lobe's directional albedo E_spec = f0 (E - B) + f90 B, x its ms scale
+            e_f1 = _bilinear(ggx_e, n_v, 0.02, alpha, _ALPHA_MIN)
+            e_b = _bilinear(ggx_b, n_v, 0.02, alpha, _ALPHA_MIN)
+            top = 0.0
+            for c in range(3):
+                e_spec = p[i, F0_D + c] * (e_f1 - e_b) + f90 * e_b
+                if multiscatter:
+                    e_spec *= p[i, MS_D + c]
+                top = max(top, e_spec)
+            kd_t = min(max(1.0 - top, 0.0), 1.0)
+        p[i, KD_T] = kd_t
+        p[i, IRID], p[i, IRID_IOR], p[i, IRID_THICK] = irid[i], irid_ior[i], irid_thick[i]
+        coat = min(max(clearcoat[i], 0.0), 1.0)
+        cx, cy, cz = clearcoat_normal[i, 0], clearcoat_normal[i, 1], clearcoat_normal[i, 2]
+        if cx * ng[i, 0] + cy * ng[i, 1] + cz * ng[i, 2] < 0:
+            cx, cy, cz = -cx, -cy, -cz
+        if cx * wo[i, 0] + cy * wo[i, 1] + cz * wo[i, 2] <= 0:
+            cx, cy, cz = ng[i, 0], ng[i, 1], ng[i, 2]
+        p[i, COAT_N], p[i, COAT_N + 1], p[i, COAT_N + 2] = cx, cy, cz
+        c_v = min(max(cx * wo[i, 0] + cy * wo[i, 1] + cz * wo[i, 2], 0.0), 1.0)
+        fc_v = _COAT_F0 + (1 - _COAT_F0) * (1 - c_v) ** 5
+        w_sheen = 1.0 - coat * fc_v
+        peak = max(sheen_color[i, 0], max(sheen_color[i, 1], sheen_color[i, 2]))
+        e_sheen = 0.0
+        if peak > 0:  # the Charlie lobe's albedo passes 1 at grazing: the base never goes negative
+            e_sheen = min(_bilinear(sheen_e, n_v, 0.02, sheen_roughness[i], 0.0), 1.0)
+        p[i, COAT] = coat
+        p[i, COAT_ALPHA] = max(clearcoat_roughness[i] ** 2, _ALPHA_MIN)
+        p[i, SHEEN_ROUGH] = sheen_roughness[i]
+        p[i, W_SHEEN] = w_sheen
+        p[i, W_BASE] = w_sheen * (1.0 - peak * e_sheen)
+        p_coat = min(max(coat * max(fc_v, 0.1), 0.0), 0.9) if coat > 0 else 0.0
+        p[i, P_COAT] = p_coat
+        p[i, P_SHEEN] = (1 - p_coat) * min(max(peak * max(e_sheen, 0.1), 0.0), 0.9) if peak > 0 else 0.0
+    return p
+
+
 @njit(cache=True, inline="always")
 def _texel_pdf(p_texel, n, x, y, z, s_axis, s_sign, t_axis, t_sign):
     ax, ay, az = abs(x), abs(y), abs(z)
@@ -540,6 +681,8 @@ def warm() -> None:
     eval_rows(p, rows, np.zeros((0, 3)))
     sample_rows(p, rows, e, e, e, e, e)
     e3, b = np.zeros((0, 3)), np.zeros(0, np.bool_)
+    t2, t4 = np.zeros((2, 2)), np.zeros((2, 2, 2, 2))
+    build_rows(e3, e3, e3, e, e3, e, e, e, e, e3, e, e3, e, e3, e, e, e, e, e3, e, e3, e, True, t2, t2, t4, t2)
     scatter(p, e3, e3, e3, e3, b, b, b, e, e, e, e3, e3, e, e, e, e, e, e, e, True, 1e-4)
     i64, eye = np.zeros(6, np.int64), np.eye(3)
     env_pdf(np.ones(6), 1, np.zeros((0, 3)), eye, 0.1, i64, e, i64, e)

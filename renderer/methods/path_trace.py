@@ -80,24 +80,32 @@ KERNEL = True         # the BSDF compiled (path_kernel, numba); False: path_bsdf
 
 class _Lobes:
     """The BSDF at a bounce's hits, evaluated and sampled by rows (indices into the hits):
-    compiled (path_kernel over Bsdf.packed) or, with KERNEL off, the numpy Bsdf."""
+    compiled (path_kernel over the packed parameters, built compiled too) or, with KERNEL
+    off, path_bsdf's numpy Bsdf."""
 
-    def __init__(self, bsdf: path_bsdf.Bsdf):
-        self.bsdf = bsdf
-        self.packed = bsdf.packed() if KERNEL else None
+    def __init__(self, hits, ns, ng, wo, ior, multiscatter: bool):
         if KERNEL:
-            from renderer.methods import path_kernel
-            self.kernel = path_kernel
+            from renderer.methods import path_kernel as k
+            self.kernel = k
+            self.bsdf: path_bsdf.Bsdf | None = None
+            p = path_bsdf.build_packed(hits, ns, ng, wo, ior, multiscatter)
+            self.packed: np.ndarray | None = p
+            layers = p[:, k.P_COAT] + p[:, k.P_SHEEN]
+            self.p_reflective = layers + (1 - layers) * (p[:, k.P_METAL] + p[:, k.P_PLASTIC])
+        else:
+            self.bsdf = path_bsdf.build(hits, ns, ng, wo, ior, multiscatter)
+            self.packed = None
+            self.p_reflective = self.bsdf.p_reflective
 
     def eval(self, rows: np.ndarray, wi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        if self.packed is None:
+        if self.bsdf is not None:
             return self.bsdf.rows(rows).eval(wi)
         return self.kernel.eval_rows(self.packed, np.ascontiguousarray(rows, np.int64),
                                      np.ascontiguousarray(wi, np.float64))
 
     def sample(self, rows, u_layer, u_pick, u_lobe, u1, u2):
         """(wi, rough, valid, f |cos|, pdf) drawn at rows."""
-        if self.packed is None:
+        if self.bsdf is not None:
             sub = self.bsdf.rows(rows)
             wi, rough, valid = sub.sample(u_layer, u_pick, u_lobe, u1, u2)
             return (wi, rough, valid, *sub.eval(wi))
@@ -297,11 +305,10 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         ior = ts.ior[k]
         wo = -d
         alpha = np.maximum(hits.roughness ** 2, ALPHA_MIN)
-        bsdf = path_bsdf.build(hits, ns, ng, wo, ior, options.multiscatter)
-        lobes = _Lobes(bsdf)
+        lobes = _Lobes(hits, ns, ng, wo, ior, options.multiscatter)
         # hits from inside a transmissive object see only Glass (light reaches them refracted)
         surface_lit = entering | (trans <= 0)
-        reflective = surface_lit & (bsdf.p_reflective > 0)
+        reflective = surface_lit & (lobes.p_reflective > 0)
         nee_clamp = n_rough > 0
         # --- next-event estimation: the environment, MIS with BSDF sampling
         ua, ub = sample(px, s, 10 * depth + 1)
@@ -347,7 +354,7 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
                                        f8(medium), f8(u_layer), f8(u_pick), f8(u_lobe), f8(u1), f8(u2), f8(u_rr),
                                        depth >= RR_START, eps)
         else:
-            nxt = _scatter_numpy(bsdf, hits, *args, lobes)
+            nxt = _scatter_numpy(lobes.bsdf, hits, *args, lobes)
         o_all, new_d, new_w, new_pdf, new_medium, alive, rough, tir = nxt
         stats["tir"] += int(np.sum(tir))
         clamp_esc = n_rough > 0

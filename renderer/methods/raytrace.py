@@ -201,7 +201,7 @@ def clear_scene_cache() -> None:
 def _embree_scene(tri: np.ndarray, rtcs, mesh_type) -> tuple[Any, bool]:
     """(EmbreeScene of the float32 T x 3 x 3 triangles, whether it came from the cache)."""
     tri = np.ascontiguousarray(tri, np.float32)
-    key = hashlib.blake2b(tri.view(np.uint8).reshape(-1), digest_size=16).digest() + repr(tri.shape).encode()
+    key = hashlib.blake2b(tri.tobytes(), digest_size=16).digest() + repr(tri.shape).encode()
     with _embree_lock:
         scene = _embree_cache.get(key)
         if scene is not None:
