@@ -88,9 +88,9 @@ def test_thin_film_matches_its_numpy_twin():
     cos1[:20] = 0.05
     f0 = rng.random((n, 3))
     want = path_bsdf.thin_film_fresnel(cos1, ior, thick, f0)
-    out = np.empty(3)
+    out, tmp = np.empty(3), np.empty(9)
     for i in range(n):
-        path_kernel._thin_film(cos1[i], ior[i], thick[i], f0[i], out)
+        path_kernel._thin_film(cos1[i], ior[i], thick[i], f0[i], out, tmp)
         np.testing.assert_allclose(out, want[i], rtol=1e-9, atol=1e-12)
     assert (want[:20] == 1.0).any()
 

@@ -22,6 +22,8 @@ DT, DT_COLOR, IRID, IRID_IOR, IRID_THICK = 33, 34, 37, 38, 39
 COAT, COAT_N, COAT_ALPHA, SHEEN, SHEEN_ROUGH = 40, 41, 44, 45, 48
 KD_T, W_SHEEN, W_BASE, P_COAT, P_SHEEN = 49, 50, 51, 52, 53
 WIDTH = 54
+SCRATCH = 18          # floats of scratch _eval_row works in (one allocation per chunk of rows)
+CHUNKS = 64           # the rows of a call, cut into this many parallel chunks
 
 _PI = math.pi
 _SHEEN_MIN = 0.07     # path_bsdf.SHEEN_MIN_ROUGHNESS
@@ -82,8 +84,9 @@ def _sheen_dv(n_v, n_l, n_h, roughness):
 
 
 @njit(cache=True, error_model="numpy")
-def _thin_film(cos1, film_ior, thickness, f0, out):
-    """path_bsdf.thin_film_fresnel for one hit: reflectance into out (3) over base F0 f0 (3)."""
+def _thin_film(cos1, film_ior, thickness, f0, out, tmp):
+    """path_bsdf.thin_film_fresnel for one hit: reflectance into out (3) over base F0 f0 (3);
+    tmp: 9 floats of scratch (no allocation per ray)."""
     t = min(max(thickness / 30.0, 0.0), 1.0)
     n2 = 1.0 + (film_ior - 1.0) * t * t * (3 - 2 * t)
     cos2_sq = 1.0 - (1.0 - cos1 * cos1) / (n2 * n2)
@@ -96,7 +99,7 @@ def _thin_film(cos1, film_ior, thickness, f0, out):
     t121 = 1.0 - big_r12
     phi21 = 0.0 if n2 < 1.0 else _PI
     opd = 2.0 * n2 * thickness * cos2
-    phi, cm, r123 = np.empty(3), np.empty(3), np.empty(3)
+    phi, cm, r123 = tmp[0:3], tmp[3:6], tmp[6:9]
     for c in range(3):
         s = math.sqrt(min(max(f0[c], 0.0), 0.9999))
         n3 = (1.0 + s) / (1.0 - s)
@@ -161,8 +164,10 @@ def _vndf(wx, wy, wz, ax, ay, u1, u2):
 
 
 @njit(cache=True, error_model="numpy")
-def _eval_row(p, i, lx, ly, lz, fm, fd, film, out):
-    """Bsdf.eval for row i of p and direction (lx, ly, lz): f |cos| into out (3), the pdf returned."""
+def _eval_row(p, i, lx, ly, lz, tmp, out):
+    """Bsdf.eval for row i of p and direction (lx, ly, lz): f |cos| into out (3), the pdf
+    returned; tmp: SCRATCH floats (a thread's, no allocation per ray)."""
+    fm, fd, film, film_tmp = tmp[0:3], tmp[3:6], tmp[6:9], tmp[9:18]
     n_l = _dot(p, i, N, lx, ly, lz)
     n_v = max(_dot(p, i, N, p[i, WO], p[i, WO + 1], p[i, WO + 2]), 1e-6)
     g_l = _dot(p, i, NG, lx, ly, lz)
@@ -194,10 +199,10 @@ def _eval_row(p, i, lx, ly, lz, fm, fd, film, out):
         fd[c] = p[i, F0_D + c] + (f90 - p[i, F0_D + c]) * x5
     k_ir = p[i, IRID]
     if k_ir > 0:
-        _thin_film(v_h, p[i, IRID_IOR], p[i, IRID_THICK], p[i, BASE:BASE + 3], film)
+        _thin_film(v_h, p[i, IRID_IOR], p[i, IRID_THICK], p[i, BASE:BASE + 3], film, film_tmp)
         for c in range(3):
             fm[c] += k_ir * (film[c] - fm[c])
-        _thin_film(v_h, p[i, IRID_IOR], p[i, IRID_THICK], p[i, F0_D:F0_D + 3], film)
+        _thin_film(v_h, p[i, IRID_IOR], p[i, IRID_THICK], p[i, F0_D:F0_D + 3], film, film_tmp)
         for c in range(3):
             fd[c] += k_ir * (film[c] * f90 - fd[c])
     kd = 1.0 - max(fd[0], max(fd[1], fd[2]))
@@ -247,10 +252,11 @@ def eval_rows(p, rows, wi):
     m = len(rows)
     fcos = np.empty((m, 3))
     pdf = np.empty(m)
-    for j in prange(m):
-        fm, fd, film, out = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
-        pdf[j] = _eval_row(p, rows[j], wi[j, 0], wi[j, 1], wi[j, 2], fm, fd, film, out)
-        fcos[j, 0], fcos[j, 1], fcos[j, 2] = out[0], out[1], out[2]
+    nch = min(CHUNKS, m)
+    for ch in prange(nch):
+        tmp = np.empty(SCRATCH)
+        for j in range(ch * m // nch, (ch + 1) * m // nch):
+            pdf[j] = _eval_row(p, rows[j], wi[j, 0], wi[j, 1], wi[j, 2], tmp, fcos[j])
     return fcos, pdf
 
 
@@ -317,13 +323,14 @@ def sample_rows(p, rows, u_layer, u_pick, u_lobe, u1, u2):
     pdf = np.empty(m)
     rough = np.ones(m, np.bool_)
     valid = np.ones(m, np.bool_)
-    for j in prange(m):
-        i = rows[j]
-        lx, ly, lz, rough[j], valid[j] = _sample_row(p, i, u_layer[j], u_pick[j], u_lobe[j], u1[j], u2[j])
-        wi[j, 0], wi[j, 1], wi[j, 2] = lx, ly, lz
-        fm, fd, film, out = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
-        pdf[j] = _eval_row(p, i, lx, ly, lz, fm, fd, film, out)
-        fcos[j, 0], fcos[j, 1], fcos[j, 2] = out[0], out[1], out[2]
+    nch = min(CHUNKS, m)
+    for ch in prange(nch):
+        tmp = np.empty(SCRATCH)
+        for j in range(ch * m // nch, (ch + 1) * m // nch):
+            i = rows[j]
+            lx, ly, lz, rough[j], valid[j] = _sample_row(p, i, u_layer[j], u_pick[j], u_lobe[j], u1[j], u2[j])
+            wi[j, 0], wi[j, 1], wi[j, 2] = lx, ly, lz
+            pdf[j] = _eval_row(p, i, lx, ly, lz, tmp, fcos[j])
     return wi, rough, valid, fcos, pdf
 
 
@@ -381,83 +388,86 @@ def scatter(p, d, pos, ng, ns, entering, lit, thin, ior, roughness, alpha, base,
     alive = np.ones(m, np.bool_)
     rough = np.zeros(m, np.bool_)
     tir_out = np.zeros(m, np.bool_)
-    for i in prange(m):
-        dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
-        med = medium[i]
-        glass = (u_layer[i] >= p[i, P_COAT] + p[i, P_SHEEN]
-                 and u_pick[i] >= p[i, P_METAL] + p[i, P_PLASTIC]) or not lit[i]
-        if not glass:
-            lx, ly, lz, rough[i], valid = _sample_row(p, i, u_layer[i], u_pick[i], u_lobe[i], u1[i], u2[i])
-            fm, fd, film, out = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
-            pdf = _eval_row(p, i, lx, ly, lz, fm, fd, film, out)
-            ok = pdf > 0 and valid
-            for c in range(3):
-                w_new[i, c] = w[i, c] * out[c] / max(pdf, 1e-300) if ok else 0.0
-            pdf_new[i] = pdf if ok else 0.0
-            alive[i] = ok
-        else:
-            nx, ny, nz = ns[i, 0], ns[i, 1], ns[i, 2]
-            eta = 1.0 / ior[i] if entering[i] else ior[i]
-            smooth = roughness[i] <= 0
-            g_r, g_t = 1.0, 1.0
-            if smooth:
-                c = 2.0 * (dx * nx + dy * ny + dz * nz)
-                rx, ry, rz = dx - c * nx, dy - c * ny, dz - c * nz
-                tx, ty, tz, tir = _refract(dx, dy, dz, nx, ny, nz, eta)
-                fres = _fresnel(-(dx * nx + dy * ny + dz * nz), eta)
-            else:  # a visible microfacet normal (optics.sample_rough_dielectric)
-                a = alpha[i]
-                bx_, by_, bz_, cx_, cy_, cz_ = _onb(nx, ny, nz)
-                vx, vy, vz = -dx, -dy, -dz
-                mx, my, mz = _vndf(vx * bx_ + vy * by_ + vz * bz_, vx * cx_ + vy * cy_ + vz * cz_,
-                                   max(vx * nx + vy * ny + vz * nz, 1e-7), a, a, u1[i], u2[i])
-                hx = mx * bx_ + my * cx_ + mz * nx
-                hy = mx * by_ + my * cy_ + mz * ny
-                hz = mx * bz_ + my * cz_ + mz * nz
-                fres = _fresnel(-(dx * hx + dy * hy + dz * hz), eta)
-                c = 2.0 * (dx * hx + dy * hy + dz * hz)
-                rx, ry, rz = dx - c * hx, dy - c * hy, dz - c * hz
-                tx, ty, tz, tir = _refract(dx, dy, dz, hx, hy, hz, eta)
-                cr, ct = rx * nx + ry * ny + rz * nz, tx * nx + ty * ny + tz * nz
-                w_r = fres * _g1(cr, a) if (cr > 0 and rx * hx + ry * hy + rz * hz > 0) else 0.0
-                w_t = (1.0 - fres) * _g1(-ct, a) if (ct < 0 and not tir) else 0.0
-                g_r = w_r / max(fres, 1e-30)
-                g_t = w_t / max(1 - fres, 1e-30)
-            if thin[i]:  # out through the sheet's parallel back face: unbent where smooth
-                tx, ty, tz, tir2 = _refract(tx, ty, tz, nx, ny, nz, ior[i])
-                if smooth:
-                    tx, ty, tz = dx, dy, dz
-                tir = tir or tir2
-            if tir:
-                fres = 1.0
-            take_r = u_lobe[i] < fres
-            factor = g_r if take_r else g_t * (1.0 if thin[i] else eta * eta)
-            if lit[i]:  # what the coat and sheen over it leave, over the choice's odds
-                factor *= p[i, W_BASE] / max(1.0 - p[i, P_COAT] - p[i, P_SHEEN], 1e-12)
-            tinted = entering[i] and not take_r
-            for c in range(3):
-                w_new[i, c] = w[i, c] * (base[i, c] if tinted else 1.0) * factor
-            if take_r:
-                lx, ly, lz = rx, ry, rz
+    nch = min(CHUNKS, m)
+    for ch in prange(nch):
+        tmp = np.empty(SCRATCH + 3)
+        out = tmp[SCRATCH:]
+        for i in range(ch * m // nch, (ch + 1) * m // nch):
+            dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
+            med = medium[i]
+            glass = (u_layer[i] >= p[i, P_COAT] + p[i, P_SHEEN]
+                     and u_pick[i] >= p[i, P_METAL] + p[i, P_PLASTIC]) or not lit[i]
+            if not glass:
+                lx, ly, lz, rough[i], valid = _sample_row(p, i, u_layer[i], u_pick[i], u_lobe[i], u1[i], u2[i])
+                pdf = _eval_row(p, i, lx, ly, lz, tmp, out)
+                ok = pdf > 0 and valid
+                for c in range(3):
+                    w_new[i, c] = w[i, c] * out[c] / max(pdf, 1e-300) if ok else 0.0
+                pdf_new[i] = pdf if ok else 0.0
+                alive[i] = ok
             else:
-                lx, ly, lz = tx, ty, tz
-            if not (take_r or thin[i]):
-                med = ior[i] if entering[i] else 1.0
-            rough[i] = not smooth and alpha[i] >= _ROUGH_ALPHA
-            tir_out[i] = tir
-        if roulette:
-            q = min(max(max(w_new[i, 0], max(w_new[i, 1], w_new[i, 2])) * med * med, 0.0), 1.0)
-            if not u_rr[i] < q:
+                nx, ny, nz = ns[i, 0], ns[i, 1], ns[i, 2]
+                eta = 1.0 / ior[i] if entering[i] else ior[i]
+                smooth = roughness[i] <= 0
+                g_r, g_t = 1.0, 1.0
+                if smooth:
+                    c = 2.0 * (dx * nx + dy * ny + dz * nz)
+                    rx, ry, rz = dx - c * nx, dy - c * ny, dz - c * nz
+                    tx, ty, tz, tir = _refract(dx, dy, dz, nx, ny, nz, eta)
+                    fres = _fresnel(-(dx * nx + dy * ny + dz * nz), eta)
+                else:  # a visible microfacet normal (optics.sample_rough_dielectric)
+                    a = alpha[i]
+                    bx_, by_, bz_, cx_, cy_, cz_ = _onb(nx, ny, nz)
+                    vx, vy, vz = -dx, -dy, -dz
+                    mx, my, mz = _vndf(vx * bx_ + vy * by_ + vz * bz_, vx * cx_ + vy * cy_ + vz * cz_,
+                                       max(vx * nx + vy * ny + vz * nz, 1e-7), a, a, u1[i], u2[i])
+                    hx = mx * bx_ + my * cx_ + mz * nx
+                    hy = mx * by_ + my * cy_ + mz * ny
+                    hz = mx * bz_ + my * cz_ + mz * nz
+                    fres = _fresnel(-(dx * hx + dy * hy + dz * hz), eta)
+                    c = 2.0 * (dx * hx + dy * hy + dz * hz)
+                    rx, ry, rz = dx - c * hx, dy - c * hy, dz - c * hz
+                    tx, ty, tz, tir = _refract(dx, dy, dz, hx, hy, hz, eta)
+                    cr, ct = rx * nx + ry * ny + rz * nz, tx * nx + ty * ny + tz * nz
+                    w_r = fres * _g1(cr, a) if (cr > 0 and rx * hx + ry * hy + rz * hz > 0) else 0.0
+                    w_t = (1.0 - fres) * _g1(-ct, a) if (ct < 0 and not tir) else 0.0
+                    g_r = w_r / max(fres, 1e-30)
+                    g_t = w_t / max(1 - fres, 1e-30)
+                if thin[i]:  # out through the sheet's parallel back face: unbent where smooth
+                    tx, ty, tz, tir2 = _refract(tx, ty, tz, nx, ny, nz, ior[i])
+                    if smooth:
+                        tx, ty, tz = dx, dy, dz
+                    tir = tir or tir2
+                if tir:
+                    fres = 1.0
+                take_r = u_lobe[i] < fres
+                factor = g_r if take_r else g_t * (1.0 if thin[i] else eta * eta)
+                if lit[i]:  # what the coat and sheen over it leave, over the choice's odds
+                    factor *= p[i, W_BASE] / max(1.0 - p[i, P_COAT] - p[i, P_SHEEN], 1e-12)
+                tinted = entering[i] and not take_r
+                for c in range(3):
+                    w_new[i, c] = w[i, c] * (base[i, c] if tinted else 1.0) * factor
+                if take_r:
+                    lx, ly, lz = rx, ry, rz
+                else:
+                    lx, ly, lz = tx, ty, tz
+                if not (take_r or thin[i]):
+                    med = ior[i] if entering[i] else 1.0
+                rough[i] = not smooth and alpha[i] >= _ROUGH_ALPHA
+                tir_out[i] = tir
+            if roulette:
+                q = min(max(max(w_new[i, 0], max(w_new[i, 1], w_new[i, 2])) * med * med, 0.0), 1.0)
+                if not u_rr[i] < q:
+                    alive[i] = False
+                for c in range(3):
+                    w_new[i, c] = w_new[i, c] / max(q, 1e-30)
+            if not max(w_new[i, 0], max(w_new[i, 1], w_new[i, 2])) > 0:
                 alive[i] = False
+            off = eps if lx * ng[i, 0] + ly * ng[i, 1] + lz * ng[i, 2] > 0 else -eps
             for c in range(3):
-                w_new[i, c] = w_new[i, c] / max(q, 1e-30)
-        if not max(w_new[i, 0], max(w_new[i, 1], w_new[i, 2])) > 0:
-            alive[i] = False
-        off = eps if lx * ng[i, 0] + ly * ng[i, 1] + lz * ng[i, 2] > 0 else -eps
-        for c in range(3):
-            o_new[i, c] = pos[i, c] + off * ng[i, c]
-        d_new[i, 0], d_new[i, 1], d_new[i, 2] = lx, ly, lz
-        med_new[i] = med
+                o_new[i, c] = pos[i, c] + off * ng[i, c]
+            d_new[i, 0], d_new[i, 1], d_new[i, 2] = lx, ly, lz
+            med_new[i] = med
     return o_new, d_new, w_new, pdf_new, med_new, alive, rough, tir_out
 
 
