@@ -176,7 +176,9 @@ def shadow_views(ctx: moderngl.Context, key: str, lights, meshes, bounds: np.nda
     cols = math.ceil(math.sqrt(views))
     rows = math.ceil(views / cols)
     atlas = (cols * tile, rows * tile)
-    matrices, tiles, texels = [], [], []
+    matrices: list[tuple[np.ndarray, np.ndarray, tuple[int, int]]] = []
+    tiles: list[tuple[float, float, float, float]] = []
+    texels: list[tuple[float, float]] = []
     light_index = np.zeros((len(lights), 2), np.float32)
     for i in chosen:
         light_index[i] = (len(matrices), per_light[i])
