@@ -375,7 +375,7 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     ts.eye = np.asarray(camera.position, np.float64)
     ts.spread = 2 * math.tan(math.radians(camera.fov) / 2) / camera.height / supersample
     if options.lights and asset.lights:
-        ts.lights = trace_lights.lights_of(asset.lights)
+        ts.lights = trace_lights.lights_of(asset.lights, options.light_shadows)
     sky = _Environment(env, options.env_rotation)
     t_build = time.perf_counter()
     npix = camera.width * camera.height
