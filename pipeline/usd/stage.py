@@ -922,8 +922,8 @@ class StageReader:
             return None
         used, local = np.unique(tri, return_inverse=True)
         cage_corners = None
-        if topo.cage is not None and topo.cage_order is not None and \
-                topo.corner_vertex is not None and topo.face_drawn is not None:
+        if topo.cage is not None and topo.cage_order is not None and topo.corner_face is not None \
+                and topo.corner_vertex is not None and topo.face_drawn is not None:
             own = topo.face_drawn.copy()
             if faces is not None:
                 own &= ~np.isin(np.arange(len(own)), faces[1]) if isinstance(faces, tuple) \

@@ -508,9 +508,10 @@ def _cage_mesh(rc: RefinedCage, mesh: Mesh) -> Mesh:
                           boundary="edgeOnly" if mode == "none" else "edgeAndCorner",
                           smooth_triangles=cage.triangle_rule == "smooth" and step is first,
                           extra_corners=_fv_corners(mode, lv.ids, step.ids[step_own], lv.counts))
-        rows, vertex = np.unique(np.stack([pos_ids, lv.ids], axis=1), axis=0, return_inverse=True)
-        vertex = vertex.reshape(-1)
-        weld, attr_rows = rows[:, 0], lv.values[rows[:, 1]]
+        vertex = lv.ids  # a face-varying vertex lies on one point: it is the drawn vertex
+        weld = np.zeros(len(lv.values), np.int64)
+        weld[vertex] = pos_ids
+        attr_rows = lv.values
     else:
         weld, vertex = np.unique(pos_ids, return_inverse=True)
         vertex = vertex.reshape(-1)
