@@ -520,7 +520,8 @@ def _cage_mesh(rc: RefinedCage, mesh: Mesh) -> Mesh:
     tri = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
     pos = final.values[weld]
     normals = rc.normals[weld]
-    attrs, col = {}, 0
+    attrs: dict[str, np.ndarray] = {}
+    col = 0
     for k in names:
         width = getattr(mesh, k).shape[1]
         attrs[k] = attr_rows[:, col:col + width]
@@ -534,8 +535,9 @@ def _cage_mesh(rc: RefinedCage, mesh: Mesh) -> Mesh:
                                                       final.values, sharp_points)
     out = dataclasses.replace(mesh, positions=pos.astype(np.float32), normals=normals,
                               indices=tri.astype(np.uint32), subdivision=None, creases=None,
-                              cage=None, cage_corners=None,
-                              **{k: v.astype(np.float32) for k, v in attrs.items()})
+                              cage=None, cage_corners=None)
+    for k, v in attrs.items():
+        setattr(out, k, v.astype(np.float32))
     if mesh.tangents is not None:
         uv = out.uv0 if out.uv0 is not None else out.uv1
         out.tangents = None if uv is None else compute_tangents(out.positions, normals, uv,
