@@ -269,6 +269,10 @@ class Light:
     inner_cone: float = 0.0
     outer_cone: float = math.pi / 4
     matrix: np.ndarray = field(default_factory=lambda: np.eye(4, dtype=np.float64))
+    # UsdLux ShadowAPI: whether the light casts shadows (glTF lights always do), and the
+    # colour that shadowed light is multiplied by instead of black
+    shadow: bool = True
+    shadow_color: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
 @dataclass
