@@ -51,6 +51,9 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=REPO / "bench" / "results",
                    help="folder for usd_storm.csv, usd_storm.json and usd_storm.png")
     p.add_argument("--timeout", type=float, default=300.0, help="seconds per render before giving up")
+    p.add_argument("--storm-complexity", type=float, default=1.0,
+                   help="usdview's complexity for Storm: 1.0 (its default) draws subdivision cages "
+                        "unrefined, 1.2 refines them two levels as ours does a small cage")
 
 
 def entry_points(folder: Path) -> list[Path]:
@@ -193,7 +196,8 @@ def run(args: argparse.Namespace) -> int:
                 except Exception as exc:
                     row["ours_error"] = f"warm: {exc}"
             if python:
-                storm = render_storm(python, wrapper.path, storm_png, args.size, timeout=args.timeout)
+                storm = render_storm(python, wrapper.path, storm_png, args.size, timeout=args.timeout,
+                                     complexity=args.storm_complexity)
                 row.update({"storm_cold_s": None if math.isnan(storm.first_image_s) else storm.first_image_s,
                             "storm_cold_cpu_s": storm.first_image_cpu_s, "storm_warm_s": storm.warm_s, "storm_error": storm.error})
             if storm_png.is_file():

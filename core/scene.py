@@ -191,6 +191,26 @@ class Creases:
 
 
 @dataclass
+class Cage:
+    """A Catmull-Clark or bilinear subdivision surface's control cage as USD authors it: its
+    polygons over its points, whole (every face of the USD mesh, holes and every GeomSubset's
+    faces included: they shape their neighbours), with the creases and the rules that
+    refine it (pipeline/usd/subdivision.py). Several Meshes (one per subset) share one Cage;
+    each says which corners it draws (`Mesh.cage_corners`)."""
+    scheme: str                   # catmullClark / bilinear
+    counts: np.ndarray            # F polygon sizes (>= 3)
+    corners: np.ndarray           # sum(counts) point indices, counter-clockwise (right-handed)
+    points: np.ndarray            # P x 3
+    crease_edges: np.ndarray      # K x 2 point indices
+    crease_sharpness: np.ndarray  # K, as OpenSubdiv counts it (10 or more: for ever)
+    corner_points: np.ndarray     # C point indices
+    corner_sharpness: np.ndarray  # C
+    interpolate_boundary: str = "edgeAndCorner"    # none / edgeOnly / edgeAndCorner
+    face_varying: str = "cornersPlus1"             # faceVaryingLinearInterpolation
+    triangle_rule: str = "catmullClark"            # triangleSubdivisionRule: or smooth
+
+
+@dataclass
 class Mesh:
     """Triangle geometry of one primitive (one material). Arrays are float32 / uint32."""
     name: str
@@ -203,6 +223,8 @@ class Mesh:
     colors: np.ndarray | None = None  # N x 4 linear
     subdivision: str | None = None  # a subdivision cage ("catmullClark", "loop"): refined at bake
     creases: Creases | None = None  # the cage's sharp edges and corners, used by that refinement
+    cage: Cage | None = None  # catmullClark / bilinear: the polygon cage refined at bake
+    cage_corners: np.ndarray | None = None  # per cage corner: this mesh's vertex, -1 off its faces
 
     @property
     def triangle_count(self) -> int:
