@@ -51,6 +51,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=REPO / "bench" / "results",
                    help="folder for usd_storm.csv, usd_storm.json and usd_storm.png")
     p.add_argument("--timeout", type=float, default=300.0, help="seconds per render before giving up")
+    p.add_argument("--keep-images", type=Path, default=None,
+                   help="copy each stage's ours/Storm PNGs here (to look at them or compare runs)")
 
 
 def entry_points(folder: Path) -> list[Path]:
@@ -206,6 +208,12 @@ def run(args: argparse.Namespace) -> int:
                 row["_images"] = (_over_grey(ours_png, args.size), None, None)
             elif storm_png.is_file():
                 row["_images"] = (None, _over_grey(storm_png, args.size), None)
+            if args.keep_images:
+                import shutil
+                args.keep_images.mkdir(parents=True, exist_ok=True)
+                for png in (ours_png, storm_png):
+                    if png.is_file():
+                        shutil.copy2(png, args.keep_images / png.name)
             rows.append(row)
             print(f"[{i + 1}/{len(stages)}] {name}: flip {_fmt(row.get('flip'))} ours {_fmt(row.get('ours_cold_s'))}/"
                   f"{_fmt(row.get('ours_warm_s'))} s storm {_fmt(row.get('storm_cold_s'))}/"
