@@ -72,7 +72,7 @@ class Pass:
                 tex.use(unit)
         self.env.cube.use(0)
         self.env.lut.use(1)
-        cull = (not item.material.double_sided) if cull is None else cull
+        cull = not (item.material.double_sided or item.material.show_back_faces) if cull is None else cull
         for mirrored, _, count in item.mesh.instances:
             # A mirroring transform turns the winding clockwise (glTF 2.0, "Instantiation"):
             # the front face follows it for culling and for gl_FrontFacing, which flips a
