@@ -187,7 +187,8 @@ def run(args: argparse.Namespace) -> int:
             cache = work / "cache" / slug
             ours = _ours_cold(wrapper, ours_png, cache, args.size, root, args.timeout)
             row.update({"ours_cold_s": ours.get("cold_s"), "ours_cold_cpu_s": ours.get("cold_cpu_s"), "ours_error": ours.get("error", ""),
-                        **{f"phase_{k}": ours.get("phases", {}).get(k) for k in PHASES}})
+                        **{f"phase_{k}": ours.get("phases", {}).get(k) for k in PHASES},
+                        **{f"cpu_phase_{k}": ours.get("phases", {}).get("cpu", {}).get(k) for k in PHASES}})
             if "cold_s" in ours:
                 try:
                     row["ours_warm_s"] = _ours_warm(wrapper, cache, args.size, root)
@@ -262,6 +263,10 @@ def summary(rows: list[dict]) -> str:
     ph = {k: _median(timed, f"phase_{k}") for k in PHASES}
     if any(v is not None for v in ph.values()):
         lines.append("our cold time over those stages, median per phase (s): " +
+                     ", ".join(f"{k} {v:.3f}" for k, v in ph.items() if v is not None))
+    ph = {k: _median(timed, f"cpu_phase_{k}") for k in PHASES}
+    if any(v is not None for v in ph.values()):
+        lines.append("the same in CPU seconds (all threads): " +
                      ", ".join(f"{k} {v:.3f}" for k, v in ph.items() if v is not None))
     worst = sorted(both, key=lambda r: -r["flip"])[:10]
     lines.append("largest FLIP: " + "; ".join(f"{r['stage']} {r['flip']:.3f}" for r in worst))

@@ -391,6 +391,14 @@ class StageReader:
             soft = min(max(get(shaping.GetShapingConeSoftnessAttr(), 0.0), 0.0), 1.0)
             out.type, out.outer_cone = "spot", math.radians(cone)
             out.inner_cone = out.outer_cone * (1.0 - soft)
+        # ShadowAPI's inputs, read whether or not the API is applied (Hydra reads them by
+        # name): shadow:enable falls back to true, shadow:color to black
+        enable = prim.GetAttribute("inputs:shadow:enable")
+        if enable and enable.HasAuthoredValue():
+            out.shadow = bool(enable.Get(self.time))
+        shade = prim.GetAttribute("inputs:shadow:color")
+        if shade and shade.HasAuthoredValue() and shade.Get(self.time) is not None:
+            out.shadow_color = tuple(float(c) for c in np.clip(shade.Get(self.time), 0, 1))  # type: ignore[assignment]
         self.scene.lights.append(out)
 
     def _dome(self, prim: Usd.Prim, where: str, radiance: np.ndarray) -> None:
