@@ -54,6 +54,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--storm-complexity", type=float, default=1.0,
                    help="usdview's complexity for Storm: 1.0 (its default) draws subdivision cages "
                         "unrefined, 1.2 refines them two levels as ours does a small cage")
+    p.add_argument("--keep-images", type=Path, default=None,
+                   help="copy each stage's ours/Storm PNGs here (to look at them or compare runs)")
 
 
 def entry_points(folder: Path) -> list[Path]:
@@ -211,6 +213,12 @@ def run(args: argparse.Namespace) -> int:
                 row["_images"] = (_over_grey(ours_png, args.size), None, None)
             elif storm_png.is_file():
                 row["_images"] = (None, _over_grey(storm_png, args.size), None)
+            if args.keep_images:
+                import shutil
+                args.keep_images.mkdir(parents=True, exist_ok=True)
+                for png in (ours_png, storm_png):
+                    if png.is_file():
+                        shutil.copy2(png, args.keep_images / png.name)
             rows.append(row)
             print(f"[{i + 1}/{len(stages)}] {name}: flip {_fmt(row.get('flip'))} ours {_fmt(row.get('ours_cold_s'))}/"
                   f"{_fmt(row.get('ours_warm_s'))} s storm {_fmt(row.get('storm_cold_s'))}/"

@@ -85,6 +85,10 @@ class Material:
     alpha_mode: AlphaMode = "OPAQUE"
     alpha_cutoff: float = 0.5
     double_sided: bool = False
+    # A single-sided surface whose back faces are drawn (not culled) and shaded with the
+    # normal as it is, unflipped: a USD gprim with doubleSided = 0, as usdview draws it by
+    # default (no backface culling; Storm flips the normal only of a double-sided gprim).
+    show_back_faces: bool = False
     unlit: bool = False
     # KHR_materials_transmission / _ior / _volume
     transmission: float = 0.0

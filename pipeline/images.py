@@ -228,3 +228,35 @@ class DeferredTexture(Texture):
     def __repr__(self) -> str:
         state = "decoded" if self._image is not None else "not decoded yet"
         return f"DeferredTexture({self.name!r}, {self.size[0]}x{self.size[1]}, {state})"
+
+
+# The names Hio's OpenEXR reader (the one Storm has without OpenImageIO) answers to a
+# request for "worldtoscreen": the OpenEXR standard attribute is worldToNDC; the others are
+# older spellings it also accepts (hio/OpenEXRImage.cpp, isWorldToNDC).
+WORLD_TO_SCREEN_NAMES = ("worldtoscreen", "worldToScreen", "NP", "worldToNDC")
+
+
+def world_to_screen(data: bytes | memoryview, source: str) -> tuple[np.ndarray | None, str]:
+    """(the 4x4 `worldtoscreen` matrix of an image's metadata, row-major as USD's GfMatrix4d
+    reads it, or None; why not when None). model:cardGeometry "fromTexture" places each card
+    with it. Only OpenEXR headers carry it here, as for Storm built without OpenImageIO (its
+    PNG/JPEG reader has no metadata); a matrix that does not invert is refused."""
+    if bytes(data[:4]) != EXR_MAGIC:
+        return None, "not an OpenEXR image (only EXR headers carry a worldtoscreen matrix here)"
+    import OpenEXR
+    try:
+        header = OpenEXR.File(io.BytesIO(bytes(data)), header_only=True).header()
+    except Exception as exc:  # the bindings raise RuntimeError / ValueError for broken files
+        return None, f"EXR header does not decode: {exc}"
+    for name in WORLD_TO_SCREEN_NAMES:
+        value = header.get(name)
+        if value is None:
+            continue
+        m = np.asarray(value, np.float64)
+        if m.size != 16:
+            return None, f"EXR attribute {name!r} holds {m.size} values, not a 4x4 matrix"
+        m = m.reshape(4, 4)
+        if not np.all(np.isfinite(m)) or abs(np.linalg.det(m)) < 1e-12:
+            return None, f"EXR attribute {name!r} is not an invertible matrix"
+        return m, ""
+    return None, "its EXR header has no worldtoscreen (worldToNDC) matrix"

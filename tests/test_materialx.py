@@ -477,3 +477,36 @@ def test_usd_preview_surface_node_id_authored_in_usd_renders_as_preview_surface(
     mean_mx, mean_ps = mx[covered, :3].mean(0), ps[covered, :3].mean(0)
     assert mean_mx[2] > 2 * mean_mx[0]  # blue plastic, not the fallback grey
     np.testing.assert_allclose(mean_mx, mean_ps, atol=0.01)
+
+
+def test_coat_colour_tints_the_base_under_it(tmp_path):
+    """standard_surface / OpenPBR: coat_color tints what lies under the coat, mixed in by the
+    coat's weight (usd-wg's tiled brass: a white metal under a brass-coloured coat, usdview's
+    screenshot gold). Constant: base x mix(1, coat_color, weight); from an image: that image
+    becomes the base colour texture of an untextured base."""
+    doc = surface("standard_surface", """
+        <input name="base_color" type="color3" value="1, 1, 1"/>
+        <input name="metalness" type="float" value="1"/>
+        <input name="coat" type="float" value="0.5"/>
+        <input name="coat_color" type="color3" value="0.8, 0.6, 0.2"/>""")
+    _, mat = one(stage(tmp_path / "a", doc, "/World/mtl/M"))
+    np.testing.assert_allclose(mat.base_color[:3], (0.9, 0.8, 0.6), atol=1e-6)
+    (tmp_path / "b").mkdir()
+    quadrants_png(tmp_path / "b" / "coat.png")
+    doc = ('<nodegraph name="NG"><image name="img" type="color3">'
+           '<input name="file" type="filename" value="coat.png"/></image>'
+           '<output name="out" type="color3" nodename="img"/></nodegraph>') + surface("open_pbr_surface", """
+        <input name="base_color" type="color3" value="1, 1, 1"/>
+        <input name="base_metalness" type="float" value="1"/>
+        <input name="coat_weight" type="float" value="1"/>
+        <input name="coat_color" type="color3" nodegraph="NG" output="out"/>""")
+    scene, mat = one(stage(tmp_path / "b", doc, "/World/mtl/M"))
+    assert mat.base_color_texture is not None
+    assert scene.textures[mat.base_color_texture.texture].source.endswith("coat.png")
+    np.testing.assert_allclose(mat.base_color[:3], (1, 1, 1))
+    # no coat: the coat colour says nothing
+    doc = surface("standard_surface", """
+        <input name="base_color" type="color3" value="0.5, 0.5, 0.5"/>
+        <input name="coat_color" type="color3" value="1, 0, 0"/>""")
+    _, mat = one(stage(tmp_path / "c", doc, "/World/mtl/M"))
+    np.testing.assert_allclose(mat.base_color[:3], (0.5, 0.5, 0.5), atol=1e-6)

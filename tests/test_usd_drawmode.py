@@ -302,3 +302,164 @@ def test_draw_mode_over_http(server):
     red = lambda im: ((im[..., 0] > 150) & (im[..., 1] < 80) & (im[..., 2] < 80)).sum()  # noqa: E731
     assert red(box_img) > 20 and red(full_img) == 0
     assert server.client.get(url, params={**q, "draw_mode": "cards"}).status_code == 422
+
+
+FROM_TEXTURE = """#usda 1.0
+(
+    metersPerUnit = 1
+    upAxis = "Y"
+)
+def Xform "Model" (
+    prepend apiSchemas = ["GeomModelAPI"]
+    kind = "component"
+)
+{
+    uniform token model:drawMode = "cards"
+    uniform token model:cardGeometry = "fromTexture"
+    asset model:cardTextureZPos = @./zpos.exr@
+    asset model:cardTextureXPos = @./xpos.exr@
+    asset model:cardTextureYPos = @./ypos.png@
+    def Cube "Body"
+    {
+        double size = 2
+    }
+}
+"""
+
+
+def _card_image() -> np.ndarray:
+    """16 x 16 linear RGBA: top half blue, bottom-left red, bottom-right white."""
+    a = np.ones((16, 16, 4), np.float32)
+    a[:8, :, :2] = 0.05
+    a[8:, :8, 1:3] = 0.05
+    return a
+
+
+def _write_exr(path: Path, world_to_screen: np.ndarray | None, a: np.ndarray) -> None:
+    import OpenEXR
+    header = {} if world_to_screen is None else {"worldToNDC": world_to_screen.astype(np.float32)}
+    OpenEXR.File(header, {c: a[..., i].copy() for i, c in enumerate("RGBA")}).write(str(path))
+
+
+@pytest.fixture
+def from_texture(tmp_path) -> Path:
+    # screen = world @ W (row vectors, y down as the image's rows): z = 1 plane seen from +Z
+    wz = np.diag([1.0, -1.0, 1.0, 1.0])
+    wz[3, 2] = -1.0
+    # x = 1 plane seen from +X: screen x = -z, screen y = -y
+    wx = np.zeros((4, 4))
+    wx[2, 0], wx[1, 1], wx[0, 2], wx[3, 2], wx[3, 3] = -1, -1, 1, -1, 1
+    _write_exr(tmp_path / "zpos.exr", wz, _card_image())
+    _write_exr(tmp_path / "xpos.exr", wx, _card_image())
+    Image.fromarray((_card_image() * 255).astype(np.uint8)).save(tmp_path / "ypos.png")
+    (tmp_path / "fromtex.usda").write_text(FROM_TEXTURE)
+    return tmp_path / "fromtex.usda"
+
+
+def test_from_texture_cards_are_placed_by_each_textures_worldtoscreen(from_texture):
+    """cardGeometry fromTexture: a quad per texture with a worldtoscreen matrix (EXR
+    worldToNDC), at the screen square taken back through its inverse; a PNG has no such
+    metadata: no card there and a warning naming it (Storm skips it too). Checked against
+    Storm by eye and FLIP 0.034 (bench usd on this stage, docs/usd.md)."""
+    scene = load_scene(from_texture)
+    names = _names(scene)
+    assert {"/Model:cardsZPos", "/Model:cardsXPos"} <= names
+    assert not any("YPos" in n or "Neg" in n for n in names if ":cards" in n)
+    assert "/Model/Body" not in names
+    assert any("ypos.png" in w and "worldtoscreen" in w for w in scene.warnings)
+    z = next(m for m in scene.meshes if m.name == "/Model:cardsZPos")
+    np.testing.assert_allclose(z.positions, [[1, 1, 1], [-1, 1, 1], [-1, -1, 1], [1, -1, 1]], atol=1e-6)
+    np.testing.assert_allclose(z.normals, np.tile([0, 0, 1], (4, 1)), atol=1e-6)
+    tri = z.positions[z.indices[0]]
+    assert np.dot(np.cross(tri[1] - tri[0], tri[2] - tri[0]), [0, 0, 1]) > 0  # faces +Z
+    # st (1,1) at the top right seen from +Z, so the image is upright there (glTF v = 1 - t)
+    np.testing.assert_allclose(z.uv0, [[1, 0], [0, 0], [0, 1], [1, 1]])
+    x = next(m for m in scene.meshes if m.name == "/Model:cardsXPos")
+    np.testing.assert_allclose(x.positions[:, 0], 1.0, atol=1e-6)
+    np.testing.assert_allclose(x.normals[0], [1, 0, 0], atol=1e-6)
+    mat, _ = _material(scene, "/Model:cardsZPos")
+    assert mat.alpha_mode == "MASK"
+    assert scene.textures[mat.base_color_texture.texture].source.endswith("zpos.exr")
+
+
+def test_from_texture_card_renders_upright(from_texture, tmp_path):
+    """Seen from +Z the card shows its image upright: blue on top, red bottom left."""
+    from test_render_physics import constant_env
+
+    from core.options import RenderOptions
+    from pipeline.bake import bake_asset
+    from renderer.raster.render import render
+    asset = bake_asset(from_texture, tmp_path / "cache")
+    opts = RenderOptions(width=64, height=64, yaw=0, pitch=0, tonemap="none",
+                         background="transparent", msaa=0, shadow=0)
+    frame = render(asset, constant_env(1.0), opts).linear
+    covered = frame[..., 3] > 0.5
+    rows, cols = np.where(covered.any(axis=1))[0], np.where(covered.any(axis=0))[0]
+    r0, r1, c0, c1 = rows.min(), rows.max(), cols.min(), cols.max()
+    h, w = r1 - r0, c1 - c0
+    top = frame[r0 + h // 8:r0 + 3 * h // 8, c0 + w // 4:c1 - w // 4, :3].reshape(-1, 3).mean(axis=0)
+    bottom_left = frame[r1 - 3 * h // 8:r1 - h // 8, c0 + w // 8:c0 + 3 * w // 8, :3].reshape(-1, 3).mean(axis=0)
+    bottom_right = frame[r1 - 3 * h // 8:r1 - h // 8, c1 - 3 * w // 8:c1 - w // 8, :3].reshape(-1, 3).mean(axis=0)
+    assert top[2] > 4 * max(top[0], top[1])
+    assert bottom_left[0] > 4 * max(bottom_left[1], bottom_left[2])
+    assert min(bottom_right) > 0.5 * max(bottom_right)
+
+
+def test_from_texture_without_any_matrix_draws_nothing_there(tmp_path):
+    _write_exr(tmp_path / "zpos.exr", None, _card_image())
+    (tmp_path / "m.usda").write_text(FROM_TEXTURE.replace('asset model:cardTextureXPos = @./xpos.exr@\n', "")
+                                     .replace('asset model:cardTextureYPos = @./ypos.png@\n', "")
+                                     + 'def Sphere "Other" {}\n')
+    scene = load_scene(tmp_path / "m.usda")
+    assert not any(":cards" in m.name for m in scene.meshes)
+    assert any("zpos.exr" in w and "worldToNDC" in w for w in scene.warnings)
+    assert any("nothing drawn" in w for w in scene.warnings)
+
+
+CARD_VISIBILITY = """#usda 1.0
+(
+    metersPerUnit = 1
+    upAxis = "%s"
+)
+def Xform "Group" (
+    prepend apiSchemas = ["GeomModelAPI"]
+    kind = "group"
+)
+{
+    uniform token model:cardVisibility = "simple"
+    def Xform "Simple" (
+        prepend apiSchemas = ["GeomModelAPI"]
+        kind = "component"
+    )
+    {
+        uniform token model:drawMode = "cards"
+        uniform token model:cardGeometry = "box"
+        def Cube "Body" {
+            double size = 2
+        }
+    }
+    def Xform "Full" (
+        prepend apiSchemas = ["GeomModelAPI"]
+        kind = "component"
+    )
+    {
+        uniform token model:drawMode = "cards"
+        uniform token model:cardVisibility = "full"
+        def Cube "Body" {
+            double size = 2
+        }
+    }
+}
+"""
+
+
+@pytest.mark.parametrize("up", ["Y", "Z"])
+def test_card_visibility_simple_leaves_out_the_up_axis_cards(tmp_path, up):
+    """model:cardVisibility (USD 26 UsdGeomModelAPI): `simple` drops the cards in the up-axis
+    direction, inherited from an ancestor; `full` (and the fallback) keeps all six."""
+    (tmp_path / "v.usda").write_text(CARD_VISIBILITY % up)
+    names = _names(load_scene(tmp_path / "v.usda"))
+    simple = {n.rpartition(":cards")[2] for n in names if n.startswith("/Group/Simple:cards")}
+    full = {n.rpartition(":cards")[2] for n in names if n.startswith("/Group/Full:cards")}
+    assert simple == {"XPos", "XNeg", "YPos", "YNeg", "ZPos", "ZNeg"} - {f"{up}Pos", f"{up}Neg"}
+    assert len(full) == 6

@@ -20,9 +20,11 @@ no applyDrawMode). Its subtree is replaced by the stand-in, drawn in the prim's 
 
 Deviations, stated: our raster has no line primitive, so origin and bounds lines are thin
 square tubes (LINE_WIDTH of the scene's diagonal wide, unlit) where Storm draws one-pixel
-curves; `cardGeometry = fromTexture` needs each texture's `worldtoscreen` matrix, which
-only OpenImageIO-written metadata carries and we do not read, so it is drawn as `box`
-with a warning; `model:cardVisibility` (new in USD 26) is not read.
+curves. `cardGeometry = fromTexture` reads each texture's `worldtoscreen` matrix from its
+OpenEXR header, as Storm without OpenImageIO does (pipeline.images.world_to_screen; a PNG
+or JPEG has none there, and that card is skipped with a warning, as usdview skips it).
+`model:cardVisibility = "simple"` (USD 26) leaves out the box / cross cards across the
+stage's up axis.
 """
 from __future__ import annotations
 
@@ -34,6 +36,7 @@ from pxr import Kind, Usd, UsdGeom
 
 from core.errors import MissingFile
 from core.scene import Instance, Material, Mesh, TextureRef
+from pipeline.images import world_to_screen
 from pipeline.usd.materials import METALLIC, ROUGHNESS, authoring_layer
 
 MODES = ("origin", "bounds", "cards")
@@ -83,6 +86,21 @@ def applies(prim: Usd.Prim) -> str | None:
         return mode if attr.Get() else None
     kind = Usd.ModelAPI(prim).GetKind()
     return mode if kind and Kind.Registry.IsA(kind, Kind.Tokens.component) else None
+
+
+def card_visibility(prim: Usd.Prim) -> str:
+    """`model:cardVisibility` resolved as model:drawMode is: the prim's own value other than
+    `inherited`, else the nearest ancestor's, else `full`. `simple` leaves out the cards in
+    the stage's up-axis direction (the schema's words; USD 26 adds the attribute)."""
+    p = prim
+    while p and not p.IsPseudoRoot():
+        attr = p.GetAttribute("model:cardVisibility")
+        if attr and attr.HasAuthoredValue():
+            value = str(attr.Get())
+            if value in ("full", "simple"):
+                return value
+        p = p.GetParent()
+    return "full"
 
 
 @dataclass
@@ -138,20 +156,22 @@ class StandIns:
 
     def _cards(self, prim, api, name, lo, hi, color, matrices) -> None:
         geometry = str(api.GetModelCardGeometryAttr().Get() or "cross")
-        if geometry == "fromTexture":
-            self.reader._warn(f"{name}: model:cardGeometry fromTexture needs each texture's "
-                              "worldtoscreen metadata, which is not read; drawn as box")
-            geometry = "box"
         getters = {"XPos": api.GetModelCardTextureXPosAttr, "YPos": api.GetModelCardTextureYPosAttr,
                    "ZPos": api.GetModelCardTextureZPosAttr, "XNeg": api.GetModelCardTextureXNegAttr,
                    "YNeg": api.GetModelCardTextureYNegAttr, "ZNeg": api.GetModelCardTextureZNegAttr}
         attrs = [getters[f[0]]() for f in FACES]
         paths = [a.Get(self.reader.time) if a else None for a in attrs]
         authored = [bool(p and p.path) for p in paths]
+        if geometry == "fromTexture":
+            self._cards_from_texture(name, attrs, paths, authored, color, matrices)
+            return
         if any(authored):
             drawn = [authored[i] or authored[(i + 3) % 6] for i in range(6)]
         else:
             drawn = [True] * 6
+        if card_visibility(prim) == "simple":  # the cards across the up axis are left out
+            up = 2 if UsdGeom.GetStageUpAxis(prim.GetStage()) == UsdGeom.Tokens.z else 1
+            drawn = [d and FACES[i][1] != up for i, d in enumerate(drawn)]
         base = Material(name=f"{name}:card", base_color=(*color, 1.0), metallic=METALLIC,
                         roughness=ROUGHNESS)
         materials = self.reader.materials
@@ -183,6 +203,64 @@ class StandIns:
             index = materials.add_material(mat)
             self.reader.scene.instances.extend(
                 Instance(len(self.reader.scene.meshes) - 1, index, m) for m in matrices)
+
+    def _cards_from_texture(self, name, attrs, paths, authored, color, matrices) -> None:
+        """cardGeometry fromTexture as UsdImaging's draw-mode stand-in builds it: one quad per
+        texture whose metadata has a `worldtoscreen` matrix W, the screen square's corners
+        (1,-1), (-1,-1), (-1,1), (1,1) (z 0) taken back through W^-1 (row vectors, with the
+        projective divide, as GfMatrix4d.Transform) into the prim's space, st (1,1), (0,1),
+        (0,0), (1,0). A texture without the matrix is no card (Storm warns and skips it); no
+        opposite face is borrowed and no untextured box is drawn."""
+        screen = np.array([[1, -1, 0, 1], [-1, -1, 0, 1], [-1, 1, 0, 1], [1, 1, 0, 1]], np.float64)
+        st = np.array([[1, 1], [0, 1], [0, 0], [1, 0]], np.float32)
+        drawn = 0
+        for i, face in enumerate(FACES):
+            if not authored[i]:
+                continue
+            label = f"{name}: model:cardTexture{face[0]}"
+            try:
+                identifier = self.reader.graph.resolve(authoring_layer(attrs[i], self.reader.time),
+                                                       str(paths[i].path))
+            except MissingFile as exc:
+                self.reader._warn(f"{label}: {exc.reason}; no fromTexture card there")
+                continue
+            matrix, why = world_to_screen(self.reader.graph.read_bytes(identifier), identifier)
+            if matrix is None:
+                self.reader._warn(f"{label} {identifier}: {why}; no fromTexture card there "
+                                  "(usdview skips it too)")
+                continue
+            h = screen @ np.linalg.inv(matrix)
+            if np.any(np.abs(h[:, 3]) < 1e-12):
+                self.reader._warn(f"{label} {identifier}: its worldtoscreen matrix sends the card "
+                                  "to infinity; no card there")
+                continue
+            positions = (h[:, :3] / h[:, 3:]).astype(np.float32)
+            normal = np.cross(positions[1] - positions[0], positions[2] - positions[0])
+            length = float(np.linalg.norm(normal))
+            if not np.isfinite(length) or length == 0:
+                self.reader._warn(f"{label} {identifier}: its worldtoscreen matrix gives a "
+                                  "degenerate card; no card there")
+                continue
+            texture = self.reader.materials.texture(identifier, ("clamp", "clamp"))
+            if texture is None:
+                mat = Material(name=f"{name}:card", base_color=(*color, 1.0), metallic=METALLIC,
+                               roughness=ROUGHNESS)
+            else:
+                mat = Material(name=f"{name}:card{face[0]}", base_color_texture=TextureRef(texture),
+                               metallic=METALLIC, roughness=ROUGHNESS, alpha_mode="MASK",
+                               alpha_cutoff=CUTOUT)
+            uv = np.stack([st[:, 0], 1.0 - st[:, 1]], axis=1)  # glTF v down
+            mesh = Mesh(name=f"{name}:cards{face[0]}", positions=positions,
+                        normals=np.tile((normal / length).astype(np.float32), (4, 1)),
+                        indices=np.array([[0, 1, 2], [0, 2, 3]], np.uint32), uv0=uv)
+            self.reader.scene.meshes.append(mesh)
+            index = self.reader.materials.add_material(mat)
+            self.reader.scene.instances.extend(
+                Instance(len(self.reader.scene.meshes) - 1, index, m) for m in matrices)
+            drawn += 1
+        if not drawn:
+            self.reader._warn(f"{name}: model:cardGeometry fromTexture and no card texture with a "
+                              "worldtoscreen matrix: nothing drawn for it, as in usdview")
 
     def _texture(self, name: str, face: str, attr: Usd.Attribute, path: str) -> int | None:
         try:

@@ -147,6 +147,9 @@ class MaterialReader:
         if key not in self._bindings:
             mat, uv_primvars, color_primvar = self._read(material, has_display_color)
             mat.double_sided = double_sided  # a gprim attribute in USD, a material one here
+            # usdview culls no back faces by default (its cullBackfaces setting is off): a
+            # single-sided gprim seen from behind is drawn, lit with its normal unflipped
+            mat.show_back_faces = not double_sided
             self._bindings[key] = Binding(self._add(mat), uv_primvars, color_primvar)
         return self._bindings[key]
 
@@ -343,6 +346,11 @@ class MaterialReader:
                 self._warn(f"{name}: normal texture scale/bias {normal.scale[:3]}/"
                            f"{normal.bias[:3]} are not (2, -1); read as a standard normal map")
             mat.normal_texture = ref(normal)
+
+        displacement = self._input(shader, "displacement")
+        if isinstance(displacement, (_Tex, str)) or _scalar(displacement, 0.0) != 0.0:
+            # Storm moves the surface along its normal; a preview here keeps it where it is
+            self._warn(f"{name}: UsdPreviewSurface displacement is not drawn; ignored")
 
         ior_input = shader.GetInput("ior")
         ior_authored = bool(ior_input) and ior_input.GetAttr().HasAuthoredValue()

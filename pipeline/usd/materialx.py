@@ -449,11 +449,32 @@ class SurfaceReader:
             m.transmission_texture = self.ref(t_tex, self.pack({0: t_tex}), expect_srgb=False)
 
     # -- the three surfaces ---------------------------------------------------------------
+    def coat_tint(self, rgb, tex, weight_name: str):
+        """The base colour seen through the coat: standard_surface and OpenPBR tint all that
+        lies under the coat by coat_color, mixed in by the coat's weight (usd-wg's tiled
+        brass is a white metal under a brass-coloured coat). Folded into the base colour:
+        base x mix(1, coat_color, weight); a textured coat colour becomes the base colour's
+        texture where the base has none."""
+        k = _unit(self.scalar(weight_name, 0.0)[0])
+        c_rgb, c_tex = self.color("coat_color")
+        if k <= 0 or (c_tex is None and all(abs(c - 1.0) < 1e-6 for c in c_rgb)):
+            return rgb, tex
+        if c_tex is None:
+            return tuple(b * (1 - k + k * c) for b, c in zip(rgb, c_rgb)), tex
+        if tex is not None:
+            self.warn("coat_color from a texture over a textured base colour is not supported; "
+                      "the base is drawn untinted")
+            return rgb, tex
+        if k < 1:
+            self.warn(f"coat_color from a texture at coat weight {k:g} is applied at full weight")
+        return tuple(b * c for b, c in zip(rgb, c_rgb)), c_tex
+
     def _standard_surface(self):
         m = self.mat
         weight = self.scalar("base", 1.0)[0]
         rgb, tex = self.color("base_color", (0.8, 0.8, 0.8))
         rgb = tuple(c * weight for c in rgb)
+        rgb, tex = self.coat_tint(rgb, tex, "coat")
         transmission = self.scalar("transmission", 0.0)
         t_color = self.untextured("transmission_color", self.color("transmission_color"))
         depth = self.scalar("transmission_depth", 0.0)[0]
@@ -497,6 +518,7 @@ class SurfaceReader:
         weight = self.scalar("base_weight", 1.0)[0]
         rgb, tex = self.color("base_color", (0.8, 0.8, 0.8))
         rgb = tuple(c * weight for c in rgb)
+        rgb, tex = self.coat_tint(rgb, tex, "coat_weight")
         transmission = self.scalar("transmission_weight", 0.0)
         t_color = self.untextured("transmission_color", self.color("transmission_color"))
         depth = self.scalar("transmission_depth", 0.0)[0]

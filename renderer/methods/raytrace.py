@@ -140,7 +140,7 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
         # unlit (KHR_materials_unlit): its colour is emitted (trace_material), and IOR 1
         # with no transmission leaves no reflection or diffuse share
         tables.append((mat.base_color[:3], mat.metallic, mat.roughness, mat.transmission,
-                       1.0 if mat.unlit else mat.ior, mat.absorption(), not mat.double_sided and mat.transmission <= 0,
+                       1.0 if mat.unlit else mat.ior, mat.absorption(), not (mat.double_sided or mat.show_back_faces) and mat.transmission <= 0,
                        np.asarray(mat.emissive, np.float64) * mat.emissive_strength,
                        mat.thin_walled and mat.transmission > 0))
         idx = mesh.indices.astype(np.int64)

@@ -75,7 +75,7 @@ class Pass:
         self.env.lut.use(1)
         if self.shadow_map is not None:
             self.shadow_map.use(light_shadows.UNIT)
-        cull = (not item.material.double_sided) if cull is None else cull
+        cull = not (item.material.double_sided or item.material.show_back_faces) if cull is None else cull
         for mirrored, _, count in item.mesh.instances:
             # A mirroring transform turns the winding clockwise (glTF 2.0, "Instantiation"):
             # the front face follows it for culling and for gl_FrontFacing, which flips a
