@@ -3,9 +3,10 @@
 A glass slab (a box, or a thin-walled sheet) in front of black and white stripes: the contrast of
 the stripes seen through it, relative to the bare backdrop's, is the blur's transfer at the
 stripes' frequency; it falls with roughness in both renderers and the raster's follows the
-path tracer's within TOLERANCE. An absorbing slab in front of a white wall: the ratio of the
-light through it with and without KHR_materials_volume attenuation is exp(-sigma L) over the
-refracted path's length L = thickness / cos(theta_t), at normal and oblique views."""
+path tracer's within TOLERANCE. An absorbing slab in front of the sky: the ratio of the
+sky seen through it with and without KHR_materials_volume attenuation is exp(-sigma L) over the
+refracted path's length L = thickness / cos(theta_t), at normal and oblique views (the sky, not
+a wall: the tracer's wall behind the slab would lie in its absorbing shadow)."""
 from __future__ import annotations
 
 import math
@@ -24,7 +25,9 @@ STRIPE = 0.25                          # stripe width, scene units (the period i
 SHEET = 0.8                            # the slab's half width
 WINDOW = (slice(24, 41), slice(22, 43))  # pixels well inside the slab at 64 px (the view _options fixes)
 # the raster's transfer (relative to its own smooth slab's) within this of the tracer's
-# (measured: thin 0.3 / 0.5: 0.50 vs 0.48, 0.12 vs 0.09; box 0.43 vs 0.39, 0.07 vs 0.06)
+# (measured at roughness 0.3 / 0.5, ours vs path: thin 0.68 / 0.31 vs 0.69 / 0.31, box 0.50 / 0.16
+# vs 0.54 / 0.15; before this fix a 96 px thin sheet kept 0.97 of its contrast at roughness 0.2
+# where the tracer kept 0.70)
 TOLERANCE = 0.1
 
 
@@ -44,7 +47,9 @@ def _box(half: float, z0: float, z1: float):
         ([[x0, y1, z1], [x1, y1, z1], [x1, y1, z0], [x0, y1, z0]], [0, 1, 0]),
         ([[x0, y0, z0], [x1, y0, z0], [x1, y0, z1], [x0, y0, z1]], [0, -1, 0]),
     ]
-    pos, nrm, idx = [], [], []
+    pos: list = []
+    nrm: list = []
+    idx: list = []
     for corners, n in faces:
         b = len(pos)
         pos += corners
@@ -54,17 +59,16 @@ def _box(half: float, z0: float, z1: float):
 
 
 def _scene(slab: Material | None, kind: str, stripes: bool = True, thickness: float = 0.1) -> BakedAsset:
-    """Stripes (or a white wall) at z = -1; the slab (a box z in [-thickness, 0], or a sheet at
-    z = 0) in front of it."""
+    """Stripes at z = -1 (or, stripes False, only the sky); the slab (a box z in
+    [-thickness, 0], or a sheet at z = 0) in front of them."""
     white = Material(name="white", base_color=(0.9, 0.9, 0.9, 1.0), metallic=0.0, roughness=0.8)
     black = Material(name="black", base_color=(0.02, 0.02, 0.02, 1.0), metallic=0.0, roughness=0.8)
     meshes = []
     n = int(round(3.0 / STRIPE))
-    for i in range(n):
+    for i in range(n if stripes else 0):
         x0 = -1.5 + STRIPE * i
         pos, nrm, idx = _quad(x0, x0 + STRIPE, -1.5, 1.5, -1.0)
-        meshes.append(BakedMesh(f"wall{i}", pos, nrm, idx, white if (i % 2 or not stripes) else black,
-                                np.eye(4)[None]))
+        meshes.append(BakedMesh(f"wall{i}", pos, nrm, idx, white if i % 2 else black, np.eye(4)[None]))
     key = f"{kind}:{stripes}:{thickness}"
     if slab is not None:
         pos, nrm, idx = _quad(-SHEET, SHEET, -SHEET, SHEET, 0.0) if kind == "thin" else _box(SHEET, -thickness, 0.0)
@@ -152,7 +156,8 @@ def test_attenuation_follows_beer_lambert_along_the_refracted_path(reference_env
     sin_t = math.sin(math.radians(yaw)) / ior
     length = thickness / math.sqrt(1.0 - sin_t * sin_t)
     sigma = -np.log(color) / distance
-    # the same light with and without absorption (Fresnel, the wall and the sky cancel)
-    measured = -np.log(tinted.mean(axis=(0, 1)) / clear.mean(axis=(0, 1))) / sigma
+    # the same light with and without absorption (Fresnel and the sky cancel)
+    centre = (slice(5, 12), slice(7, 14))  # of WINDOW: clear of the side faces the oblique view sees
+    measured = -np.log(tinted[centre].mean(axis=(0, 1)) / clear[centre].mean(axis=(0, 1))) / sigma
     # the red channel, most absorbed, is darkest: the reflection on the slab bounds it
     assert np.allclose(measured[1:], length, rtol=0.06), (measured, length)
