@@ -29,6 +29,11 @@ uniform float u_dispersion;      // half the IOR spread between the red and blue
 #ifdef HAS_INTERIOR
 in vec3 v_interior;              // world-space vertex->exit vector (pbr.vert)
 #endif
+// Scale of a rough lobe's angular width over GGX alpha times the deviation a microfacet
+// tilt causes (|ior - 1| through an interface, 2 on reflection): fitted to the path tracer's
+// blur of stripes behind rough slabs (tests/test_rough_transmission.py; 1.0 left every slab
+// sharper than the tracer's, 1.2 matches thin and solid within 0.04 at IOR 1.33, 1.5 and 2).
+#define BLUR_SCALE 1.2
 #ifndef EXIT_REFINE
 #define EXIT_REFINE 0
 #endif
@@ -225,6 +230,13 @@ float lobe_spread(float variance) {
     return 2.0 * sqrt(variance);
 }
 
+// The spread of two rough interfaces crossed in turn. GGX slopes are heavy-tailed, nearer a
+// Cauchy (whose widths add) than a Gaussian (in quadrature): adding in quadrature left a rough
+// box 0.13 sharper than the tracer's at roughness 0.3, adding matches it.
+float add_spread(float a, float b) {
+    return a + b;
+}
+
 #ifdef SCREEN_OPAQUE
 float view_depth(float d) {  // depth buffer value -> distance along the view axis
     float n = u_near_far.x, f = u_near_far.y, z = d * 2.0 - 1.0;
@@ -239,6 +251,27 @@ float footprint_lod(vec3 q, vec3 dir, float dist, float spread) {
     vec2 a, b;
     if (!project(q, a) || !project(q + side * (dist * spread), b)) return 0.0;
     return log2(max(2.0 * length((b - a) * u_viewport), 1.0));
+}
+
+// What a rough lobe of scale `spread` sees of the opaque copy around uv, `dist` beyond where it
+// left the object. A GGX lobe is heavy-tailed (its slopes' radial CDF is s^2 / (alpha^2 + s^2):
+// half within alpha, a fifth beyond 2 alpha), which one box mip of the lobe's width misses: a
+// sharp core that stays sharp too long, then all detail gone at once. So four mips, one per
+// shell of that CDF (radii and weights LOBE_SHELL_*), the tail blurring the most.
+#ifndef LOBE_SHELLS
+#define LOBE_SHELLS 4
+#endif
+const float LOBE_SHELL_R[4] = float[4](0.35, 0.75, 1.5, 3.5);
+const float LOBE_SHELL_W[4] = float[4](0.2, 0.3, 0.3, 0.2);
+vec3 lobe_fetch(vec3 q, vec2 uv, vec3 dir, float dist, float spread) {
+    if (spread <= 0.0) return texelFetch(u_opaque_color, texel_of(uv), 0).rgb;
+    vec3 c = vec3(0.0);
+    for (int k = 0; k < LOBE_SHELLS; ++k) {
+        float lod = footprint_lod(q, dir, dist, spread * LOBE_SHELL_R[k]);
+        c += LOBE_SHELL_W[k] * (lod > 0.0 ? textureLod(u_opaque_color, uv, lod).rgb
+                                          : texelFetch(u_opaque_color, texel_of(uv), 0).rgb);
+    }
+    return c;
 }
 
 // March along the ray; the first point that lands just behind opaque geometry drawn at its
@@ -257,9 +290,7 @@ bool trace_opaque(vec3 origin, vec3 dir, float len, float spread, out vec3 color
         if (depth >= 1.0) continue;
         float behind = dot(q - u_camera_position, u_camera_forward) - view_depth(depth);
         if (behind > 0.0 && behind < 2.0 * step_len) {
-            float lod = footprint_lod(q, dir, step_len * float(i), spread);
-            color = lod > 0.0 ? textureLod(u_opaque_color, uv, lod).rgb
-                              : texelFetch(u_opaque_color, texel_of(uv), 0).rgb;
+            color = lobe_fetch(q, uv, dir, step_len * float(i), spread);
             return true;
         }
     }
@@ -288,12 +319,13 @@ vec3 transmitted(vec3 v, vec3 n, float ior, float roughness, float d_interior, o
     float eta = 1.0 / ior;
     vec3 r1;
     refract_ray(d, n, eta, r1);           // TIR on entry only for IOR < 1, where F = 1
-    // Blur of the refracted lookup as a variance in alpha^2 units (lobes add as variances,
-    // as in renderer/raytrace.py): a microfacet tilt bends a refracted ray by |1 - eta| where
-    // it bends a reflected one by 2, so each interface's lobe is that much narrower than the
+    // Blur of the refracted lookup as a variance in alpha^2 units: a microfacet tilt turns the
+    // ray that leaves into air by |ior - 1| (inside, by |1 - eta|, which the flat exit then
+    // magnifies by ior; the tracer's thin sheet has one rough face and a flat one), where it
+    // turns a reflected one by 2, so each interface's lobe is that much narrower than the
     // reflection lobe the mips were prefiltered for. Looked up at roughness variance^(1/4).
     float alpha = roughness * roughness;
-    float variance = pow(alpha * abs(1.0 - eta) * 0.5, 2.0);
+    float variance = pow(alpha * abs(ior - 1.0) * 0.5 * BLUR_SCALE, 2.0);
     float variance_reflected = variance;
     tir = false;
 #ifdef THIN_WALLED
@@ -334,7 +366,7 @@ vec3 transmitted(vec3 v, vec3 n, float ior, float roughness, float d_interior, o
             && surface_at(u_back_position, u_back_normal, uv0, uv, bpos, n2)) {
         float alpha_back = bpos.w * bpos.w;
         variance_reflected = variance + alpha_back * alpha_back;
-        variance += pow(alpha_back * abs(1.0 - ior) * 0.5, 2.0);
+        variance = pow(0.5 * add_spread(lobe_spread(variance), alpha_back * abs(1.0 - ior) * BLUR_SCALE), 2.0);
         vec3 r2;
         if (refract_ray(r1, -n2, ior, r2)) {
             dir = r2;
@@ -431,6 +463,14 @@ void main() {
     vec3 kr = dielectric * (1.0 - Fv) * transmission * rough_ratio;
     vec3 kd = dielectric * (1.0 - Fv) * (1.0 - transmission);
     vec3 reflected = env_radiance(reflect(d, n), m.roughness);
+#ifdef SCREEN_OPAQUE
+    // The reflection sees the asset's opaque parts before the sky (AttenuationTest's cube tops
+    // mirror the backdrop behind them): the same screen-space march as the refracted ray, a
+    // microfacet tilt turning a reflected ray twice over.
+    vec3 seen;
+    if (trace_opaque(v_world, reflect(d, n), u_trace_length, 2.0 * m.roughness * m.roughness * BLUR_SCALE, seen))
+        reflected = seen;
+#endif
     Lobes lobes = ibl_lobes(m, v);  // sheen and clearcoat over the glass, as on opaque
     // what the debug view shows: the throughput, share x tint x volume attenuation
     lobes.transmission = kr * exp(-u_sigma * max(path, 0.0)) * m.base_color.rgb;
