@@ -20,6 +20,8 @@ import struct
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
+import numpy as np
+
 # A core.scene.Material. Not imported: core.scene reads its colour spaces from this table.
 Material = Any
 
@@ -180,7 +182,6 @@ def ao_multibounce(ao, albedo):
     """Diffuse occlusion from the baked visibility `ao`, lifted by the light interreflection
     brings back on an albedo (Jimenez et al. 2016's cubic fit; never below `ao`). Arrays
     broadcast: ao (N, 1) against albedo (N, 3)."""
-    import numpy as np
     ao, albedo = np.asarray(ao, np.float64), np.asarray(albedo, np.float64)
     a, b, c = 2.0404 * albedo - 0.3324, -4.7951 * albedo + 0.6417, 2.7552 * albedo + 0.6903
     return np.maximum(ao, ((ao * a + b) * ao + c) * ao)
@@ -189,6 +190,5 @@ def ao_multibounce(ao, albedo):
 def specular_occlusion(n_dot_v, ao, roughness):
     """The specular lobe's share left unblocked (Lagarde & de Rousiers 2014, from the
     visibility, N.V and alpha = roughness^2), in [0, 1]."""
-    import numpy as np
     alpha = np.asarray(roughness, np.float64) ** 2
     return np.clip((np.asarray(n_dot_v) + ao) ** np.exp2(-16.0 * alpha - 1.0) - 1.0 + ao, 0.0, 1.0)
