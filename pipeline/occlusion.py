@@ -17,8 +17,10 @@ Decisions:
 - the ray set: s x s strata of the unit square mapped to the cosine-weighted hemisphere
   (Malley), turned per vertex by a fixed pseudo-random rotation (seeded: a bake is
   reproducible) so that neighbouring vertices do not share one pattern's bias;
-- each ray starts a scale-aware epsilon off the surface along the normal (a smooth normal's
-  hemisphere never dips into a convex neighbour, so only real occluders are met);
+- each ray starts a scale-aware epsilon off the surface along the normal and as far toward
+  the middle of the vertex's own triangles (a smooth normal's hemisphere never dips into a
+  convex neighbour, so only real occluders are met; a vertex on a wall's foot or in a
+  corner starts inside the walls and meets them);
 - cost: `AO_RAYS` per vertex while the bake stays under `AO_MAX_RAYS`, fewer (down to
   `AO_MIN_RAYS`) on bigger assets; past that budget at the minimum, the placements per mesh
   drop to one and then vertices are sampled on a stride, the rest taking their sampled
@@ -43,6 +45,7 @@ AO_MAX_RAYS = 4_000_000  # per bake: a few seconds on two cores
 AO_DISTANCE = 1.0       # occluders count within this x the bounds' diagonal (the whole asset)
 AO_INSTANCES = 4        # placements of one mesh averaged
 EPSILON_SCALE = 1e-4    # ray start offset, x the bounds' diagonal
+PASS_THROUGH = 3        # single-sided back faces a ray goes on through
 _CHUNK = 1 << 20        # rays per Embree call (bounds the ray buffers' memory)
 
 
@@ -71,6 +74,15 @@ def _frames(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     t = np.stack([1 + sign * n[:, 0] ** 2 * a, sign * b, -sign * n[:, 0]], axis=1)
     bt = np.stack([b, sign + n[:, 1] ** 2 * a, -n[:, 1]], axis=1)
     return t, bt
+
+
+def _ring_centres(pos: np.ndarray, tris: np.ndarray) -> np.ndarray:
+    """Per vertex, the mean centroid of the triangles around it (itself where it has none)."""
+    centroids = pos[tris].mean(axis=1)
+    count = np.bincount(tris.ravel(), minlength=len(pos)).astype(np.float64)
+    out = np.stack([np.bincount(tris.ravel(), np.repeat(centroids[:, k], 3), minlength=len(pos))
+                    for k in range(3)], axis=1)
+    return np.where(count[:, None] > 0, out / np.maximum(count, 1)[:, None], pos)
 
 
 def _receives(material) -> bool:
@@ -142,12 +154,13 @@ def ambient_occlusion(meshes, bounds: np.ndarray, max_rays: int = AO_MAX_RAYS,
         turn = rng.uniform(0, 2 * np.pi, len(traced))  # per vertex, shared by its placements
         acc = np.zeros((len(traced), 2))
         xs = np.asarray(m.transforms, np.float64).reshape(-1, 4, 4)[:placements[i]]
+        inward = (_ring_centres(pos, np.asarray(m.indices, np.int64).reshape(-1, 3)) - pos)[traced]
         for x in xs:
             lin = x[:3, :3]
             p = pos[traced] @ lin.T + x[:3, 3]
             n = nrm[traced] @ np.linalg.inv(lin)
             for side in range(sides[i]):
-                acc[:, side] += trace(p, -n if side else n, turn)
+                acc[:, side] += trace(p, -n if side else n, inward @ lin.T, turn)
         if sides[i] == 1:
             acc[:, 1] = acc[:, 0]  # never seen: culled from behind
         ao = (acc / len(xs)).astype(np.float32)
@@ -166,27 +179,49 @@ class _Tracer:
         self.scene, self.one_sided, self.directions = scene, one_sided, directions
         self.epsilon, self.reach, self.rays = epsilon, reach, 0
 
-    def __call__(self, p: np.ndarray, n: np.ndarray, turn: np.ndarray) -> np.ndarray:
+    def __call__(self, p: np.ndarray, n: np.ndarray, inward: np.ndarray, turn: np.ndarray) -> np.ndarray:
+        """`inward`: per vertex, toward the middle of its own triangles (unnormalised)."""
         eps, dirs = self.epsilon, self.directions
         length = np.linalg.norm(n, axis=1)
         usable = length > 1e-12
         n = n / np.where(usable, length, 1.0)[:, None]
+        inward = inward / np.maximum(np.linalg.norm(inward, axis=1), 1e-30)[:, None]
+        # The start: off the surface along the normal, and as far toward the middle of the
+        # vertex's own triangles: a vertex on a wall's foot or in a box's corner starts inside
+        # the walls it stands on, so its rays meet them (from a start on their planes, or
+        # past their edges, they slip by).
+        p = p + eps * (n + inward)
         t, b = _frames(n)
         c, s = np.cos(turn)[:, None], np.sin(turn)[:, None]
         t, b = c * t + s * b, c * b - s * t  # the vertex's turn of the set
-        p = p + eps * n
-        visible = np.ones(len(p))
         step = max(1, _CHUNK // len(dirs))
+        visible = np.ones(len(p))
         for a in range(0, len(p), step):
             sl = slice(a, a + step)
             d = (dirs[None, :, 0:1] * t[sl, None] + dirs[None, :, 1:2] * b[sl, None]
-                 + dirs[None, :, 2:3] * n[sl, None]).reshape(-1, 3).astype(np.float32)
+                 + dirs[None, :, 2:3] * n[sl, None]).reshape(-1, 3)
             origins = np.repeat(p[sl], len(dirs), axis=0).astype(np.float32)
-            hit, ng, prim = self.scene.closest(origins, d, np.full(len(d), eps, np.float32),
-                                               np.arange(len(d)), normals=True)
-            self.rays += len(d)
-            met = hit + eps <= self.reach
-            # a single-sided face met from behind lets the ray through
-            met[met] &= ~(self.one_sided[prim[met]] & (np.einsum("ij,ij->i", d[met], ng[met]) > 0))
+            d = d.astype(np.float32)
+            met = self._blocked(origins, d)
             visible[sl] = 1.0 - met.reshape(-1, len(dirs)).mean(axis=1)
         return np.where(usable, visible, 1.0)
+
+    def _blocked(self, origins: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """Whether each ray meets an occluder within reach. A single-sided face met from behind
+        lets the ray through, as the raster culls it and the ray tracer passes it: the ray goes
+        on past it (a few times: then it counts as open)."""
+        blocked = np.zeros(len(d), bool)
+        travelled = np.zeros(len(d), np.float32)
+        live = np.arange(len(d))
+        for _ in range(PASS_THROUGH + 1):
+            hit, ng, prim = self.scene.closest(origins, d, travelled, live, normals=True)
+            self.rays += len(live)
+            met = hit + travelled[live] <= self.reach
+            behind = met.copy()
+            behind[met] = self.one_sided[prim[met]] & (np.einsum("ij,ij->i", d[live[met]], ng[met]) > 0)
+            blocked[live[met & ~behind]] = True
+            travelled[live[behind]] += hit[behind] + np.float32(self.epsilon)
+            live = live[behind]
+            if not len(live):
+                break
+        return blocked
