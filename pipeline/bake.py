@@ -1,7 +1,8 @@
 """Bake assets and environments into the cache, and load them back without their sources.
 
 An asset bake is: ingest -> one BakedMesh per (geometry, material) pair carrying every instance's
-world matrix -> interior vectors for transmissive geometry only -> welded edges for edge
+world matrix -> interior vectors for transmissive geometry only -> per-vertex ambient
+occlusion of the opaque meshes (pipeline.occlusion) -> welded edges for edge
 anti-aliasing (core.adjacency, assets within its triangle cap), the support points the camera
 frames and the points whose convex hull bounds every surface (core.hull) -> a cache entry
 holding the arrays (meshes.npz, hull.npy; per texture and colour space a zstd-compressed mip
@@ -58,6 +59,7 @@ log = logging.getLogger(__name__)
 #   none, so theirs is always the default (one bake whatever a request asks).
 # - draw_mode: USD model:drawMode stand-ins drawn ("authored") or the geometry ("full");
 #   likewise always the default for other formats.
+# - occlusion: bake per-vertex ambient occlusion for the image light (pipeline.occlusion).
 ASSET_OPTIONS = {"interior_epsilon": None, "subdivision_levels": None, "thumbnail_size": 1024,
                  "moment": None, "variant_sets": (), "purposes": ("render",),
                  "draw_mode": "authored", "occlusion": True}
