@@ -189,6 +189,7 @@ def ao_multibounce(ao, albedo):
 
 def specular_occlusion(n_dot_v, ao, roughness):
     """The specular lobe's share left unblocked (Lagarde & de Rousiers 2014, from the
-    visibility, N.V and alpha = roughness^2), in [0, 1]."""
+    visibility, N.V and alpha = roughness^2), in [0, 1]. The raster lifts it by
+    `ao_multibounce(that, F0)`: a metal's blocked directions see lit neighbours."""
     alpha = np.asarray(roughness, np.float64) ** 2
     return np.clip((np.asarray(n_dot_v) + ao) ** np.exp2(-16.0 * alpha - 1.0) - 1.0 + ao, 0.0, 1.0)

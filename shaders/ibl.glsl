@@ -62,7 +62,8 @@ void specular_albedo(vec3 f0, float f90, float NdotV, float roughness, out vec3 
 // cosine-weighted hemisphere, lifted by what interreflection brings back on bright albedos
 // (Jimenez et al. 2016's multi-bounce fit): the references trace those bounces. Specular:
 // Lagarde & de Rousiers 2014's estimate of the share of the lobe the occluded cone blocks,
-// from the visibility, N.V and alpha (a narrow lobe at normal view keeps more of its sky).
+// from the visibility, N.V and alpha (a narrow lobe at normal view keeps more of its sky),
+// lifted by the same multi-bounce fit on F0.
 vec3 ao_multibounce(float ao, vec3 albedo) {
     vec3 a = 2.0404 * albedo - 0.3324;
     vec3 b = -4.7951 * albedo + 0.6417;
@@ -103,7 +104,10 @@ vec3 ibl(MaterialInfo m, vec3 v) {
     // The occlusion texture and the baked visibility usually record the same geometry (a
     // texture is most often an AO bake): the darker of the two, not their product.
     vec3 diffuse_occ = min(vec3(m.occlusion), ao_multibounce(m.ao, m.diffuse_color));
-    float specular_occ = min(m.occlusion, specular_occlusion(NdotV, m.ao, m.roughness));
+    // the specular share too gets back what the blocked directions reflect: on a metal
+    // (F0 bright) the neighbouring surfaces it sees are lit (Filament does the same)
+    vec3 specular_occ = min(vec3(m.occlusion),
+                            ao_multibounce(specular_occlusion(NdotV, m.ao, m.roughness), m.f0));
     return (FssEss * radiance + FmsEms * irradiance) * specular_occ + kD * irradiance * diffuse_occ;
 }
 
