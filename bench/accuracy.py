@@ -192,6 +192,7 @@ def measure(names: list[str], size: int, repeat: int, rt_repeat: int, cache: Pat
     from bench.metrics import errors, median_ms, reference_at, with_linear
     from core.options import RenderOptions
     from pipeline.bake import bake_environment
+    from renderer.methods.raytrace import clear_scene_cache
     from renderer.raster.render import available_methods, render
 
     available = available_methods()
@@ -214,6 +215,9 @@ def measure(names: list[str], size: int, repeat: int, rt_repeat: int, cache: Pat
         # the linear image is what is measured: drawn inside the timing (renderer.raster.render)
         jobs = {m: (lambda o=options_for(m, base, budget_ms): with_linear(render(asset, envs[o[1]], o[0])))
                 for m in methods}
+        for m in methods:  # every ray-traced frame builds its Embree scene, as Mitsuba loads its own
+            if m.startswith(("raytrace", "auto")):
+                jobs[m] = _uncached(jobs[m], clear_scene_cache)
         raster = [m for m in methods if not (m.startswith("raytrace") or m == "auto+budget")]
         timed = _interleaved({m: jobs[m] for m in raster}, repeat)
         for m in methods:
@@ -232,6 +236,13 @@ def measure(names: list[str], size: int, repeat: int, rt_repeat: int, cache: Pat
             rows.append(_peer(spec, size, spp, ref, rt_repeat))
             _print(rows[-1])
     return rows
+
+
+def _uncached(job, clear):
+    def run():
+        clear()
+        return job()
+    return run
 
 
 def _peer(spec, size: int, spp: int, ref, repeat: int = 1) -> dict:

@@ -82,21 +82,13 @@ def prism():
 
 def bowl(sections: int = 96, steps: int = 24):
     """A closed hemispherical bowl (outer radius 1, wall BOWL_WALL, opening up): concave inside."""
-    import trimesh
-
     a = np.linspace(0.0, np.pi / 2, steps)
     r_in = 1.0 - BOWL_WALL
     outer = np.stack([np.cos(a), -np.sin(a)], 1)[::-1]          # bottom centre -> rim, outside
     inner = np.stack([r_in * np.cos(a), -r_in * np.sin(a)], 1)  # rim -> bottom centre, inside
     profile = np.concatenate([outer, inner])  # (radius, height), counter-clockwise: normals out
-    m = trimesh.creation.revolve(profile, sections=sections)
-    m.merge_vertices()
-    m.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, [1, 0, 0]))  # Z up -> Y up
-    if m.volume < 0:
-        m.invert()
     # Smooth normals: the walls are curved; only the narrow rim ring is shaded too softly.
-    pos, _, _ = _normalise(np.asarray(m.vertices))
-    return _out(pos, m.vertex_normals, m.faces)
+    return _revolved(profile, sections)
 
 
 def uv_sphere(lat: int = UV_SPHERE_LAT, lon: int = UV_SPHERE_LON):
@@ -122,7 +114,6 @@ def vase(sections: int = 128, steps: int = 48):
     """A hollow glass vase (closed surface: outer wall, rounded lip, inner wall, thick base),
     y up, normalised to radius 1: walls ~VASE_WALL thick, so light crosses glass twice through
     each wall and a longer way through the base and the silhouette's edges."""
-    import trimesh
     from scipy.interpolate import CubicSpline
 
     h = np.linspace(0.0, 1.0, steps)
@@ -136,7 +127,15 @@ def vase(sections: int = 128, steps: int = 48):
     outer = np.stack([r_out, heights], 1)
     inner = np.stack([r_in, inner_h], 1)[::-1]
     profile = np.concatenate([[[0.0, 0.0]], outer, inner, [[0.0, inner_h[0]]]])
-    m = trimesh.creation.revolve(profile[::-1], sections=sections)
+    return _revolved(profile[::-1], sections)
+
+
+def _revolved(profile: np.ndarray, sections: int):
+    """A closed surface of revolution of (radius, height) `profile` about y, outward-facing,
+    normalised, with smooth normals."""
+    import trimesh
+
+    m = trimesh.creation.revolve(profile, sections=sections)
     m.merge_vertices()
     m.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, [1, 0, 0]))  # Z up -> Y up
     if m.volume < 0:

@@ -130,13 +130,16 @@ class StormFrame:
 
 
 def render_storm(python: str, stage: Path, out: Path, width: int = 256, warm: bool = True,
-                 timeout: float = 300.0) -> StormFrame:
-    """One Storm render of `stage` through CAMERA in a new process (and a warm second one)."""
+                 timeout: float = 300.0, complexity: float = 1.0) -> StormFrame:
+    """One Storm render of `stage` through CAMERA in a new process (and a warm second one);
+    `complexity` as usdview's (1.0 Low: subdivision cages drawn as they are; 1.1, 1.2, 1.3:
+    refined 1, 2, 3 levels)."""
     with tempfile.TemporaryDirectory() as tmp:
         job = Path(tmp) / "job.json"
         warm_out = out.with_name(out.stem + ".warm.png")
         job.write_text(json.dumps({"stage": str(stage), "camera": CAMERA, "out": str(out), "width": width,
-                                   "warm_out": str(warm_out) if warm else None}))
+                                   "warm_out": str(warm_out) if warm else None,
+                                   "complexity": complexity}))
         start = time.perf_counter()
         proc = subprocess.Popen([python, str(WORKER), str(job)], stdout=subprocess.PIPE,
                                 stderr=subprocess.PIPE, text=True)

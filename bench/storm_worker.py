@@ -5,7 +5,8 @@
 Runs under the Python of the bpy wheel (Blender as a module bundles USD with UsdImagingGL
 and UsdAppUtils; usd-core in our venv has no imaging, and two pxr copies must not share a
 process). It imports nothing from this project. JOB: {"stage", "camera" (prim path), "out"
-(PNG), "width", "warm_out" (optional: a second image after the first, in this process)}.
+(PNG), "width", "warm_out" (optional: a second image after the first, in this process),
+"complexity" (optional, usdview's: 1.0 draws subdivision cages, 1.2 refines two levels)}.
 Prints one JSON line: the times of each step and whether each image was written.
 """
 from __future__ import annotations
@@ -56,6 +57,7 @@ def main(job_path: str) -> int:
         t = time.perf_counter()
         rec = UsdAppUtils.FrameRecorder("HdStormRendererPlugin", True)
         rec.SetImageWidth(int(job["width"]))
+        rec.SetComplexity(float(job.get("complexity", 1.0)))  # > 1: subdivision refined
         # The same light as ours: the stage's own lights (or the wrapper's dome), no
         # headlight; sRGB encoding, no tone curve (ours renders with --tonemap none).
         rec.SetCameraLightEnabled(False)

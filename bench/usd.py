@@ -51,6 +51,9 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=REPO / "bench" / "results",
                    help="folder for usd_storm.csv, usd_storm.json and usd_storm.png")
     p.add_argument("--timeout", type=float, default=300.0, help="seconds per render before giving up")
+    p.add_argument("--storm-complexity", type=float, default=1.0,
+                   help="usdview's complexity for Storm: 1.0 (its default) draws subdivision cages "
+                        "unrefined, 1.2 refines them two levels as ours does a small cage")
 
 
 def entry_points(folder: Path) -> list[Path]:
@@ -185,14 +188,16 @@ def run(args: argparse.Namespace) -> int:
             cache = work / "cache" / slug
             ours = _ours_cold(wrapper, ours_png, cache, args.size, root, args.timeout)
             row.update({"ours_cold_s": ours.get("cold_s"), "ours_cold_cpu_s": ours.get("cold_cpu_s"), "ours_error": ours.get("error", ""),
-                        **{f"phase_{k}": ours.get("phases", {}).get(k) for k in PHASES}})
+                        **{f"phase_{k}": ours.get("phases", {}).get(k) for k in PHASES},
+                        **{f"cpu_phase_{k}": ours.get("phases", {}).get("cpu", {}).get(k) for k in PHASES}})
             if "cold_s" in ours:
                 try:
                     row["ours_warm_s"] = _ours_warm(wrapper, cache, args.size, root)
                 except Exception as exc:
                     row["ours_error"] = f"warm: {exc}"
             if python:
-                storm = render_storm(python, wrapper.path, storm_png, args.size, timeout=args.timeout)
+                storm = render_storm(python, wrapper.path, storm_png, args.size, timeout=args.timeout,
+                                     complexity=args.storm_complexity)
                 row.update({"storm_cold_s": None if math.isnan(storm.first_image_s) else storm.first_image_s,
                             "storm_cold_cpu_s": storm.first_image_cpu_s, "storm_warm_s": storm.warm_s, "storm_error": storm.error})
             if storm_png.is_file():
@@ -254,6 +259,10 @@ def summary(rows: list[dict]) -> str:
     ph = {k: _median(timed, f"phase_{k}") for k in PHASES}
     if any(v is not None for v in ph.values()):
         lines.append("our cold time over those stages, median per phase (s): " +
+                     ", ".join(f"{k} {v:.3f}" for k, v in ph.items() if v is not None))
+    ph = {k: _median(timed, f"cpu_phase_{k}") for k in PHASES}
+    if any(v is not None for v in ph.values()):
+        lines.append("the same in CPU seconds (all threads): " +
                      ", ".join(f"{k} {v:.3f}" for k, v in ph.items() if v is not None))
     worst = sorted(both, key=lambda r: -r["flip"])[:10]
     lines.append("largest FLIP: " + "; ".join(f"{r['stage']} {r['flip']:.3f}" for r in worst))

@@ -12,6 +12,8 @@ stdout, a JSON object of seconds per phase:
 - first_frame: render() (GL context, upload, shaders, draw, read back)
 - other: what is left of the time to exit (argument parsing, encoding the PNG ...)
 
+"cpu" holds the same phases in CPU seconds (all threads), steadier than wall time on a loaded machine.
+
 Each phase's time is exclusive: a MaterialX read inside the bake counts once, as MaterialX.
 """
 from __future__ import annotations
@@ -38,32 +40,36 @@ def _process_age() -> float:
 class _Phases:
     def __init__(self) -> None:
         self.seconds: dict[str, float] = {}
-        self._stack: list[list] = []  # [phase, started, seconds of nested phases]
+        self.cpu: dict[str, float] = {}  # the same, in CPU seconds (all threads)
+        self._stack: list[list] = []  # [phase, started, cpu started, seconds, cpu s of nested phases]
 
     def wrap(self, owner, name: str, phase: str, static: bool = False) -> None:
         fn = getattr(owner, name)
 
         @functools.wraps(fn)
         def timed(*args, **kwargs):
-            now = time.perf_counter()
-            self._stack.append([phase, now, 0.0])
+            self._stack.append([phase, time.perf_counter(), time.process_time(), 0.0, 0.0])
             try:
                 return fn(*args, **kwargs)
             finally:
-                ph, start, inner = self._stack.pop()
-                spent = time.perf_counter() - start
+                ph, start, cpu_start, inner, cpu_inner = self._stack.pop()
+                spent, cpu = time.perf_counter() - start, time.process_time() - cpu_start
                 self.seconds[ph] = self.seconds.get(ph, 0.0) + spent - inner
+                self.cpu[ph] = self.cpu.get(ph, 0.0) + cpu - cpu_inner
                 if self._stack:
-                    self._stack[-1][2] += spent
+                    self._stack[-1][3] += spent
+                    self._stack[-1][4] += cpu
         setattr(owner, name, staticmethod(timed) if static else timed)
 
 
 def main(argv: list[str]) -> int:
     python_s = max(_process_age() - (time.perf_counter() - _T0), 0.0)
     phases = _Phases()
+    cpu = {"python": time.process_time()}
     t = time.perf_counter()
     from pxr import Sdf, Usd, UsdGeom, UsdLux, UsdShade  # noqa: F401
     pxr_s = time.perf_counter() - t
+    cpu["pxr_import"] = time.process_time() - cpu["python"]
     t = time.perf_counter()
     import pipeline.bake
     import pipeline.usd.layers
@@ -72,6 +78,8 @@ def main(argv: list[str]) -> int:
     import renderer.raster.render
     import renderer.sequence  # noqa: F401
     ours_s = time.perf_counter() - t
+    cpu["our_import"] = time.process_time() - cpu["python"] - cpu["pxr_import"]
+    cpu_run = time.process_time()
     phases.wrap(Usd.Stage, "Open", "composition", static=True)
     phases.wrap(pipeline.usd.layers.LayerGraph, "open", "composition")  # layers read before composing
     for fn in ("library", "read_document", "find_references"):
@@ -90,10 +98,14 @@ def main(argv: list[str]) -> int:
     except SystemExit as e:
         rc = e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
     run_s = time.perf_counter() - t
-    out = {"python": python_s, "pxr_import": pxr_s, "our_import": ours_s,
+    cpu_run = time.process_time() - cpu_run
+    out: dict[str, object] = {"python": python_s, "pxr_import": pxr_s, "our_import": ours_s,
            **{k: phases.seconds.get(k, 0.0) for k in
               ("composition", "materialx", "bake", "environment", "first_frame")}}
     out["other"] = max(run_s - sum(phases.seconds.values()), 0.0)
+    cpu.update({k: phases.cpu.get(k, 0.0) for k in ("composition", "materialx", "bake", "environment", "first_frame")})
+    cpu["other"] = max(cpu_run - sum(phases.cpu.values()), 0.0)
+    out["cpu"] = cpu  # CPU seconds per phase, as `out`'s wall seconds
     out["rc"] = rc
     out["cpu_s"] = time.process_time()  # all threads, since the process started: less load-bound than wall time
     sys.stdout.flush()

@@ -106,6 +106,9 @@ class RenderOptions:
     msaa: int = Field(default=4, ge=0, le=16, description=(
         "antialias msaa: samples per pixel (0 or 1: no anti-aliasing, with either antialias)"))
     lights: bool = Field(default=True, description="the asset's own KHR_lights_punctual lights")
+    light_shadows: bool = Field(default=True, description=(
+        "the asset's lights cast shadows (shadow maps in the raster; a USD light's "
+        "inputs:shadow:enable false casts none either way)"))
     multiscatter: bool = Field(default=True, description=(
         "multiple-scattering energy compensation of the GGX lobes (Fdez-Aguera 2019), as "
         "reference viewers do; off: single scattering, rough metals darken"))

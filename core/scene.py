@@ -7,6 +7,7 @@ whether they hold sRGB colour (converted to linear when sampled, never here).
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Literal, cast
@@ -190,6 +191,26 @@ class Creases:
 
 
 @dataclass
+class Cage:
+    """A Catmull-Clark or bilinear subdivision surface's control cage as USD authors it: its
+    polygons over its points, whole (every face of the USD mesh, holes and every GeomSubset's
+    faces included: they shape their neighbours), with the creases and the rules that
+    refine it (pipeline/usd/subdivision.py). Several Meshes (one per subset) share one Cage;
+    each says which corners it draws (`Mesh.cage_corners`)."""
+    scheme: str                   # catmullClark / bilinear
+    counts: np.ndarray            # F polygon sizes (>= 3)
+    corners: np.ndarray           # sum(counts) point indices, counter-clockwise (right-handed)
+    points: np.ndarray            # P x 3
+    crease_edges: np.ndarray      # K x 2 point indices
+    crease_sharpness: np.ndarray  # K, as OpenSubdiv counts it (10 or more: for ever)
+    corner_points: np.ndarray     # C point indices
+    corner_sharpness: np.ndarray  # C
+    interpolate_boundary: str = "edgeAndCorner"    # none / edgeOnly / edgeAndCorner
+    face_varying: str = "cornersPlus1"             # faceVaryingLinearInterpolation
+    triangle_rule: str = "catmullClark"            # triangleSubdivisionRule: or smooth
+
+
+@dataclass
 class Mesh:
     """Triangle geometry of one primitive (one material). Arrays are float32 / uint32."""
     name: str
@@ -202,6 +223,8 @@ class Mesh:
     colors: np.ndarray | None = None  # N x 4 linear
     subdivision: str | None = None  # a subdivision cage ("catmullClark", "loop"): refined at bake
     creases: Creases | None = None  # the cage's sharp edges and corners, used by that refinement
+    cage: Cage | None = None  # catmullClark / bilinear: the polygon cage refined at bake
+    cage_corners: np.ndarray | None = None  # per cage corner: this mesh's vertex, -1 off its faces
 
     @property
     def triangle_count(self) -> int:
@@ -246,6 +269,10 @@ class Light:
     inner_cone: float = 0.0
     outer_cone: float = math.pi / 4
     matrix: np.ndarray = field(default_factory=lambda: np.eye(4, dtype=np.float64))
+    # UsdLux ShadowAPI: whether the light casts shadows (glTF lights always do), and the
+    # colour that shadowed light is multiplied by instead of black
+    shadow: bool = True
+    shadow_color: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
 @dataclass
@@ -284,22 +311,20 @@ class Scene:
     def bounds(self) -> np.ndarray:
         """World-space axis-aligned bounds, 2 x 3 (min row, max row), of what the camera
         frames: backdrop instances left out."""
-        lo = np.full(3, np.inf)
-        hi = np.full(3, -np.inf)
         framed = [i for i in self.instances if not i.backdrop] or self.instances
-        for inst in framed:
-            lo_i, hi_i = transformed_bounds(self.meshes[inst.mesh].positions, inst.matrix)
-            lo, hi = np.minimum(lo, lo_i), np.maximum(hi, hi_i)
-        if not np.all(np.isfinite(lo)):
-            return np.zeros((2, 3))
-        return np.stack([lo, hi])
+        return placed_bounds((self.meshes[i.mesh].positions, i.matrix) for i in framed)
 
 
 def extent(scene: "Scene") -> np.ndarray:
     """Bounds of everything drawn, backdrops included (Scene.bounds leaves those out)."""
+    return placed_bounds((scene.meshes[i.mesh].positions, i.matrix) for i in scene.instances)
+
+
+def placed_bounds(placed: Iterable[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """Bounds, 2 x 3, of (positions, matrix) pairs, each placed exactly; zeros when empty."""
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-    for inst in scene.instances:
-        lo_i, hi_i = transformed_bounds(scene.meshes[inst.mesh].positions, inst.matrix)
+    for positions, matrix in placed:
+        lo_i, hi_i = transformed_bounds(positions, matrix)
         lo, hi = np.minimum(lo, lo_i), np.maximum(hi, hi_i)
     return np.stack([lo, hi]) if np.all(np.isfinite(lo)) else np.zeros((2, 3))
 

@@ -17,6 +17,7 @@ import math
 import os
 import platform
 import time
+from collections.abc import Iterable
 from datetime import datetime, timezone
 from functools import lru_cache, partial
 from importlib import metadata
@@ -33,7 +34,7 @@ from core.cubemap import DEFAULT_FACE_SIZE
 from core.errors import AssetError, EmptyScene, MissingFile, UnsupportedFormat
 from core.hull import hull_points, support_points
 from core.mips import level_shapes, texture_size_for
-from core.scene import Light, Material, Sampler, Scene, SceneCamera, TextureRef, extent, is_srgb
+from core.scene import Light, Material, Sampler, Scene, SceneCamera, TextureRef, extent, is_srgb, placed_bounds
 from pipeline.cache import BAKE_FORMAT_VERSION, Cache, Entry, NotInCache, SourceFiles
 from pipeline.environment import prefilter as environment
 from pipeline.environment import scaled, uniform
@@ -164,6 +165,13 @@ def instance_groups(scene: Scene) -> dict[tuple, list[int]]:
     for k, inst in enumerate(scene.instances):
         groups.setdefault((inst.mesh, inst.material, tuple(sorted(inst.variants.items()))), []).append(k)
     return groups
+
+
+def framed_bounds(meshes: list[BakedMesh], groups: Iterable[list[int]], scene: Scene) -> np.ndarray:
+    """Bounds of posed BakedMeshes (made from `scene` in instance_groups' order, one list of
+    instance indices per mesh), backdrops left out as Scene.bounds leaves them out."""
+    return placed_bounds((mesh.positions, tr) for mesh, members in zip(meshes, groups)
+                         for k, tr in zip(members, mesh.transforms) if not scene.instances[k].backdrop)
 
 
 def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> BakedAsset:
@@ -420,7 +428,8 @@ def _light_to_json(light: Light) -> dict:
 
 
 def _light_from_json(d: dict) -> Light:
-    d = dict(d, matrix=np.asarray(d["matrix"], np.float64), color=tuple(d["color"]))
+    d = dict(d, matrix=np.asarray(d["matrix"], np.float64), color=tuple(d["color"]),
+             shadow_color=tuple(d["shadow_color"]))
     if d.get("range") is None:
         d["range"] = math.inf
     return Light(**d)

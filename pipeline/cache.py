@@ -68,8 +68,9 @@ log = logging.getLogger(__name__)
 # 2: glTF skins, morphs, instancing, variants, cameras baked; 3: Material lobes;
 # 4: textures as capped, zstd-compressed mip chains (were full-size .npy); 5: meshes' welded
 # edges for edge anti-aliasing (core.adjacency), support and hull points (core.hull);
-# 6: Material.thin_walled; 7: per-vertex ambient occlusion (pipeline.occlusion)
-BAKE_FORMAT_VERSION = 7
+# 6: Material.thin_walled; 7: Light.shadow / shadow_color (UsdLux ShadowAPI);
+# 8: per-vertex ambient occlusion (pipeline.occlusion)
+BAKE_FORMAT_VERSION = 8
 ZSTD_LEVEL = 9  # texture chains: written once at bake, read by every process (see README figures)
 KINDS = ("assets", "environments", "thumbnails")
 IMAGE_SUFFIXES = (".png", ".jpg", ".webp", ".gif")  # stored as they are (thumbnails' encoded files)

@@ -11,6 +11,50 @@ uniform vec4 u_light_direction[LIGHT_COUNT];  // xyz direction the light travels
 uniform vec3 u_light_color[LIGHT_COUNT];      // colour x intensity
 uniform vec2 u_light_cone[LIGHT_COUNT];       // angle scale, angle offset
 
+#if SHADOW_VIEWS > 0
+// Shadow maps (renderer/raster/light_shadows.py): one depth atlas, a tile per view.
+uniform sampler2DShadow u_shadow_map;
+uniform mat4 u_shadow_matrix[SHADOW_VIEWS];  // world -> atlas (u, v, depth) before the divide
+uniform vec4 u_shadow_tile[SHADOW_VIEWS];    // usable uv rectangle of the view's tile
+uniform vec2 u_shadow_texel[SHADOW_VIEWS];   // world texel size: x + y * distance along the view
+uniform vec2 u_light_shadow[LIGHT_COUNT];    // first view, views (0: casts none; 6: a cube)
+uniform vec3 u_shadow_color[LIGHT_COUNT];    // what blocked light is multiplied by
+uniform vec2 u_shadow_step;                  // one atlas texel in uv
+
+// How much of light i reaches pos (normal n on the light's side, l toward the light).
+vec3 shadow_visibility(int i, vec3 pos, vec3 n, vec3 l) {
+    int count = int(u_light_shadow[i].y);
+    if (count == 0) return vec3(1.0);
+    int view = int(u_light_shadow[i].x);
+    vec3 d = pos - u_light_position[i].xyz;
+    float dist = dot(d, u_light_direction[i].xyz);  // a spot's depth along its axis
+    if (count == 6) {  // the cube face of the major axis
+        vec3 a = abs(d);
+        if (a.x >= a.y && a.x >= a.z) { view += d.x > 0.0 ? 0 : 1; dist = a.x; }
+        else if (a.y >= a.z) { view += d.y > 0.0 ? 2 : 3; dist = a.y; }
+        else { view += d.z > 0.0 ? 4 : 5; dist = a.z; }
+    }
+    float texel = u_shadow_texel[view].x + u_shadow_texel[view].y * max(dist, 0.0);
+    // Slope-scaled bias: the 3 x 3 bilinear footprint spans 2 texels each way, across which a
+    // surface at angle t to the light changes depth by 2 texels x tan t.
+    float c = clamp(dot(n, l), 1e-3, 1.0);
+    float slope = min(sqrt(1.0 - c * c) / c, 8.0);
+    vec3 p = pos + n * texel + l * texel * (1.0 + 2.0 * slope);
+    vec4 s = u_shadow_matrix[view] * vec4(p, 1.0);
+    if (s.w <= 0.0) return vec3(1.0);
+    vec3 uvz = s.xyz / s.w;
+    vec4 tile = u_shadow_tile[view];
+    if (uvz.z >= 1.0 || any(lessThan(uvz.xy, tile.xy)) || any(greaterThan(uvz.xy, tile.zw)))
+        return vec3(1.0);  // outside the map: nothing of the asset lies between
+    float lit = 0.0;
+    for (int y = -1; y <= 1; ++y)
+        for (int x = -1; x <= 1; ++x)
+            lit += texture(u_shadow_map, vec3(clamp(uvz.xy + vec2(x, y) * u_shadow_step,
+                                                    tile.xy, tile.zw), uvz.z));
+    return mix(u_shadow_color[i], vec3(1.0), lit / 9.0);
+}
+#endif
+
 // Adds every light's share of each lobe to `lobes` (shaders/lobes.glsl composes them).
 void punctual(MaterialInfo m, vec3 v, vec3 pos, inout Lobes lobes) {
     vec3 n = m.n;
@@ -45,6 +89,9 @@ void punctual(MaterialInfo m, vec3 v, vec3 pos, inout Lobes lobes) {
         }
         if (atten <= 0.0) continue;
         vec3 radiance = u_light_color[i] * atten;
+#if SHADOW_VIEWS > 0
+        radiance *= shadow_visibility(i, pos, dot(n, l) < 0.0 ? -n : n, l);
+#endif
         vec3 h = normalize(l + v);
         float VdotH = clamp(dot(v, h), 0.0, 1.0);
 #ifdef MATERIAL_CLEARCOAT

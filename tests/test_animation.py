@@ -182,6 +182,28 @@ def test_cesium_man_skin_against_numpy(assets):
     assert not np.allclose(load_scene(path, moment=Moment(0.3)).meshes[0].positions, b)
 
 
+def test_skinned_normals_follow_the_inverse_transpose_and_survive_a_zero_scaled_joint():
+    """Normals under per-vertex matrices: perpendicular to the moved surface under non-uniform
+    scale and a mirror (the inverse transpose, not M), and finite unit vectors where a joint is
+    scaled to zero, which animators use to hide a part (np.linalg.inv raised there)."""
+    from pipeline.gltf.skin import apply_skin
+
+    rng = np.random.default_rng(7)
+    shear = np.diag([3.0, 0.5, -1.0]) @ np.array([[1.0, 0.8, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    blend = np.tile(np.eye(4), (4, 1, 1))
+    blend[:3, :3, :3] = shear
+    blend[3, :3, :3] = 0.0  # a zero-scaled joint
+    tangent = np.array([[1.0, -1.0, 0.0]] * 4, np.float32)  # in the surface: n . t = 0
+    normal = np.array([[1.0, 1.0, 0.0]] * 4, np.float32) / np.sqrt(2.0)
+    _, n, _ = apply_skin(blend, rng.normal(size=(4, 3)).astype(np.float32), normal, None)
+    assert n is not None and np.isfinite(n).all()
+    assert np.allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-6)
+    moved_tangent = tangent[:3] @ shear.T
+    assert np.allclose(np.einsum("vi,vi->v", n[:3], moved_tangent), 0.0, atol=1e-6)
+    expected = normal[0] @ np.linalg.inv(shear)  # (M^-T n) as a row vector
+    assert np.allclose(n[0], expected / np.linalg.norm(expected), atol=1e-6)  # same side, not flipped
+
+
 # -- USD time samples ---------------------------------------------------------------------------
 
 USDA = """#usda 1.0

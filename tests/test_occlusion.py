@@ -261,7 +261,7 @@ def test_punctual_light_is_not_occluded(tmp_path):
 
 
 def test_bake_round_trip(tmp_path):
-    """build_baked bakes it into the meshes and the cache keeps it (format 7)."""
+    """build_baked bakes it into the meshes and the cache keeps it (format 8)."""
     from core.scene import Instance, Mesh, Scene
     plane, ball = _grid(10.0, 11), _sphere(1.0, (0.0, 1.05, 0.0))
     meshes = [Mesh("plane", *plane), Mesh("ball", *ball)]

@@ -69,7 +69,7 @@ def test_options_cross_processes_as_themselves_and_replace_validates():
 CHANGED = {"width": 300, "height": 300, "yaw": 1.0, "pitch": 1.0, "fov": 50.0, "distance": 3.0,
            "method": "wyman", "tonemap": "aces", "exposure": 1.0, "background": "transparent",
            "background_blur": 0.5, "override": MaterialOverride(metallic=1.0), "msaa": 1, "antialias": "msaa",
-           "lights": False, "multiscatter": False, "tir": "paper", "bounces": 2, "fresnel_split": "sample",
+           "lights": False, "light_shadows": False, "multiscatter": False, "tir": "paper", "bounces": 2, "fresnel_split": "sample",
            "rough_lobes": "prefilter", "supersample": 3, "aa_threshold": 0.05,
            "integrator": "path", "samples": 16, "noise": 0.05,
            "debug": "tir", "budget_ms": 10.0, "time": "0.5", "animation": "walk", "animate": 12.0, "variant": "red", "camera": "0",

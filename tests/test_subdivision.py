@@ -161,6 +161,176 @@ def test_a_crease_chain_with_one_sharpness_per_edge(tmp_path):
                                              "    int[] creaseLengths = [5]\n"
                                              "    float[] creaseSharpnesses = [10, 10, 0, 2]\n"
                                              "    uniform token subdivisionScheme"))
-    creases = load_scene(path).meshes[0].creases
-    assert creases is not None and list(creases.edge_sharpness) == [10, 10, 2]  # the 0 is smooth
+    cage = load_scene(path).meshes[0].cage  # catmullClark: the creases are the cage's
+    assert cage is not None and list(cage.crease_sharpness) == [10, 10, 2]  # the 0 is smooth
+    assert cage.crease_edges.tolist() == [[0, 1], [1, 3], [2, 0]]
+    loop = cube(tmp_path, "loop")
+    loop.write_text(path.read_text().replace('"catmullClark"', '"loop"'))
+    creases = load_scene(loop).meshes[0].creases  # loop: by position, on the triangles
+    assert creases is not None and list(creases.edge_sharpness) == [10, 10, 2]
     np.testing.assert_allclose(creases.edges[0], [(-1, -1, 1), (1, -1, 1)])
+
+
+# -- Catmull-Clark on the polygons (OpenSubdiv's rules, as Storm refines) ---------------------
+
+def refined(path, levels=2, **options):
+    return build_baked(load_scene(path), options={"subdivision_levels": levels, **options}).meshes
+
+
+def points_of(mesh) -> np.ndarray:
+    return np.unique(np.round(mesh.positions.astype(np.float64), 5), axis=0)
+
+
+def same_set(a: np.ndarray, b: np.ndarray, tol=1e-5) -> bool:
+    d = np.linalg.norm(a[:, None, :] - b[None, :, :], axis=2)
+    return bool(d.min(axis=1).max() < tol and d.min(axis=0).max() < tol)
+
+
+def test_cube_one_level_is_catmull_clarks_points(tmp_path):
+    """Hand-computed: face points (0, 0, +-1) ...; edge points (a + b + f1 + f2) / 4, e.g.
+    (0, 3/4, 3/4); vertex points (n-2)/n v + (sum of edge neighbours + sum of face points) / n^2
+    with n = 3: 1/3 + 1/9 + 1/9 = 5/9 of each corner."""
+    mesh = refined(cube(tmp_path), 1)[0]
+    assert len(mesh.indices) == 6 * 4 * 2  # each quad into four, two triangles each
+    perms = [(0, 1, 2), (1, 2, 0), (2, 0, 1)]
+    expected = [np.array(c) * 5 / 9 for c in np.stack(np.meshgrid(*[[-1, 1]] * 3), -1).reshape(-1, 3)]
+    expected += [np.array((0, sy * 0.75, sz * 0.75))[list(p)] for p in perms
+                 for sy in (-1, 1) for sz in (-1, 1)]
+    expected += [np.array((s, 0, 0))[list(p)] for p in perms for s in (-1, 1)]
+    assert same_set(points_of(mesh), np.array(expected, float))
+
+
+def test_cube_corner_converges_to_the_limit_point(tmp_path):
+    """The Catmull-Clark limit of a valence-3 corner (Halstead et al.'s mask, as OpenSubdiv's
+    assignSmoothLimitMask: 3/8 itself, 1/6 each edge neighbour, 1/24 each diagonal) is (1/2, 1/2,
+    1/2) for the unit cube's (1, 1, 1); refined points approach it."""
+    far = [float(refined(cube(tmp_path), n)[0].positions.sum(axis=1).max()) / 3 for n in (1, 2, 5)]
+    assert far[0] == pytest.approx(5 / 9, abs=1e-6)
+    assert far[0] > far[1] > far[2] > 0.5
+    assert far[2] == pytest.approx(0.5, abs=2e-4)
+
+
+def test_catmull_clark_keeps_the_cubes_symmetry_that_loop_breaks(tmp_path):
+    """Loop's rules on the triangulated cage lean along each face's diagonal; Catmull-Clark on
+    the quads is symmetric under the cube's mirrors, as Storm (OpenSubdiv) draws it."""
+    mirror = np.array([-1.0, 1.0, 1.0])
+    cc = points_of(refined(cube(tmp_path))[0])
+    loop = points_of(refined(cube(tmp_path, "loop"))[0])
+    assert same_set(cc, cc * mirror) and same_set(cc, cc[:, [1, 0, 2]])
+    assert not same_set(loop, loop * mirror)
+
+
+GRID = """#usda 1.0
+(
+    metersPerUnit = 1
+)
+def Mesh "Grid"
+{{
+    int[] faceVertexCounts = [4, 4, 4, 4, 4, 4, 4, 4, 4]
+    int[] faceVertexIndices = [{indices}]
+    point3f[] points = [{points}]
+    texCoord2f[] primvars:st = [{st}] (interpolation = "vertex")
+    uniform token subdivisionScheme = "catmullClark"
+{extra}}}
+"""
+
+
+def grid(tmp_path, extra="", name="grid", bump=0.0):
+    """A flat open 3 x 3 quad grid over [0, 3]^2, st = xy / 3 (the centre-left inner point's st
+    moved by `bump`)."""
+    pts = [(x, y) for y in range(4) for x in range(4)]
+    idx = [v for y in range(3) for x in range(3)
+           for v in (y * 4 + x, y * 4 + x + 1, y * 4 + x + 5, y * 4 + x + 4)]
+    st = [(x / 3 + (bump if (x, y) == (1, 1) else 0), y / 3) for x, y in pts]
+    path = tmp_path / f"{name}.usda"
+    path.write_text(GRID.format(indices=", ".join(map(str, idx)),
+                                points=", ".join(f"({x}, {y}, 0)" for x, y in pts),
+                                st=", ".join(f"({u}, {v})" for u, v in st), extra=extra))
+    return path
+
+
+def test_boundary_rules_on_an_open_grid(tmp_path):
+    corner = refined(grid(tmp_path))[0]  # edgeAndCorner, USD's fallback
+    np.testing.assert_allclose(corner.positions[:, :2].min(0), (0, 0), atol=1e-6)
+    np.testing.assert_allclose(corner.positions[:, :2].max(0), (3, 3), atol=1e-6)
+    assert ((np.abs(corner.positions[:, :2] - 1.5).max(axis=1) == 1.5).sum() > 4)  # border kept
+    edge = refined(grid(tmp_path, '    uniform token interpolateBoundary = "edgeOnly"\n', "edge"))[0]
+    def nearest_corner(m):
+        return m.positions[np.argmin(np.linalg.norm(m.positions[:, :2], axis=1)), :2]
+    np.testing.assert_allclose(nearest_corner(corner), (0, 0), atol=1e-6)
+    # edgeOnly: the corner is smoothed as a border point, 3/4 v + 1/8 (a + b) = (1/8, 1/8)
+    # after one level, toward the cubic B-spline's limit (v 4 + a + b) / 6 = (1/6, 1/6)
+    assert np.all((nearest_corner(edge) > 0.125) & (nearest_corner(edge) < 1 / 6))
+    # ... along a border that stays on the cage's border line x = 0 (the crease rule)
+    assert np.isclose(edge.positions[:, 0], 0, atol=1e-6).sum() > 4
+    none = refined(grid(tmp_path, '    uniform token interpolateBoundary = "none"\n', "none"))[0]
+    assert len(none.indices) == 4 * 4 * 2  # only the centre face (no border vertex) is drawn
+    assert none.positions[:, :2].min() > 1.0 - 1e-6 and none.positions[:, :2].max() < 2.0 + 1e-6
+
+
+def test_uvs_follow_the_surface_and_face_varying_rules(tmp_path):
+    """st = xy / 3 is affine, which Catmull-Clark reproduces: refined st match refined xy / 3
+    (cornersPlus1, USD's fallback). With the inner point's st moved, `all` (bilinear) keeps the
+    moved st at that point's child, cornersPlus1 smooths it."""
+    mesh = refined(grid(tmp_path))[0]
+    uv = mesh.uv0.astype(np.float64)
+    np.testing.assert_allclose(uv[:, 0], mesh.positions[:, 0] / 3, atol=1e-6)
+    np.testing.assert_allclose(1 - uv[:, 1], mesh.positions[:, 1] / 3, atol=1e-6)  # glTF's v
+    at = {}
+    for rule in ("cornersPlus1", "all"):
+        extra = f'    uniform token faceVaryingLinearInterpolation = "{rule}"\n'
+        m = refined(grid(tmp_path, extra, rule, bump=0.1))[0]
+        # the child of cage point (1, 1): a flat regular grid's points stay put
+        i = np.argmin(np.linalg.norm(m.positions[:, :2] - 1.0, axis=1))
+        np.testing.assert_allclose(m.positions[i, :2], (1, 1), atol=1e-6)
+        at[rule] = float(m.uv0[i, 0]) - 1 / 3
+    assert at["all"] == pytest.approx(0.1, abs=1e-6)
+    # smoothed toward its neighbours: 1/2 of itself + 1/16 of the four face points (which
+    # hold 1/4 of it) after one level = 0.05625, less after two
+    assert 0.0 < at["cornersPlus1"] < 0.05625
+
+
+def test_subsets_are_refined_as_one_surface(tmp_path):
+    """A GeomSubset's faces are refined with the whole cage (OpenSubdiv refines the mesh, Hydra
+    draws the subsets of the result): no border, no crease along the subset's edge."""
+    path = cube(tmp_path)
+    text = path.read_text().rstrip()[:-1] + (
+        '    def GeomSubset "top" (prepend apiSchemas = ["MaterialBindingAPI"])\n    {\n'
+        '        uniform token elementType = "face"\n        uniform token familyName = "materialBind"\n'
+        '        int[] indices = [0, 1, 2]\n    }\n}\n')
+    path.write_text(text)
+    meshes = refined(path)
+    assert len(meshes) == 2 and sum(len(m.indices) for m in meshes) == 12 * 16
+    one = points_of(build_baked(load_scene(cube(tmp_path)), options={"subdivision_levels": 2}).meshes[0])
+    both = np.unique(np.concatenate([points_of(m) for m in meshes]), axis=0)
+    assert same_set(both, one)
+
+
+TETRA = """#usda 1.0
+(
+    metersPerUnit = 1
+)
+def Mesh "Tetra"
+{{
+    int[] faceVertexCounts = [3, 3, 3, 3]
+    int[] faceVertexIndices = [0, 2, 1, 0, 1, 3, 1, 2, 3, 2, 0, 3]
+    point3f[] points = [(1, 1, 1), (1, -1, -1), (-1, 1, -1), (-1, -1, 1)]
+    uniform token subdivisionScheme = "catmullClark"
+{extra}}}
+"""
+
+
+def test_triangle_subdivision_rule_smooth(tmp_path):
+    """Edge points between two triangles: 1/4 of each end and of each face point by default;
+    with triangleSubdivisionRule = smooth, 0.47 of each face point, 0.03 of each end
+    (OpenSubdiv's TRI_SUB_SMOOTH)."""
+    out = {}
+    for rule in ("catmullClark", "smooth"):
+        path = tmp_path / f"{rule}.usda"
+        path.write_text(TETRA.format(extra=f'    uniform token triangleSubdivisionRule = "{rule}"\n'))
+        out[rule] = points_of(refined(path, 1)[0])
+    p = np.array([(1, 1, 1), (1, -1, -1), (-1, 1, -1), (-1, -1, 1)], float)
+    f1, f2 = p[[0, 1, 2]].mean(0), p[[0, 1, 3]].mean(0)  # the faces either side of edge 0-1
+    for rule, vw, fw in (("catmullClark", 0.25, 0.25), ("smooth", 0.03, 0.47)):
+        e = vw * (p[0] + p[1]) + fw * (f1 + f2)
+        assert np.linalg.norm(out[rule] - e, axis=1).min() < 1e-5, rule

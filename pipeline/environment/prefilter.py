@@ -98,17 +98,10 @@ def _filtered(pixels: np.ndarray, face_size: int, levels: int, method: str) -> E
         specular += _paper_mips(ctx, gl, base_tex, face_size, levels)
     base_tex.release()
     timings["specular"] = time.perf_counter() - t
-    t = time.perf_counter()
-    sh = project_sh(pixels)
-    timings["sh"] = time.perf_counter() - t
-    t = time.perf_counter()
-    lut = brdf_lut()
-    timings["brdf_lut"] = time.perf_counter() - t
-    timings["total"] = time.perf_counter() - t_start
+    arrays = _with_sh_and_lut(specular, pixels, timings, t_start, method)
     log.info("prefilter %s %dx%d -> %d px x %d mips in %.3f s", method, pixels.shape[1],
              pixels.shape[0], face_size, levels, timings["total"])
-    return EnvironmentArrays(specular=specular, irradiance_sh=sh, brdf_lut=lut,
-                             timings=timings, method=method)
+    return arrays
 
 
 def _uniform(pixels: np.ndarray, face_size: int, levels: int, method: str) -> EnvironmentArrays:
@@ -118,16 +111,24 @@ def _uniform(pixels: np.ndarray, face_size: int, levels: int, method: str) -> En
     t_start = time.perf_counter()
     value = pixels[0, 0]
     specular = [np.broadcast_to(value, (6, face_size >> m, face_size >> m, 3)).copy() for m in range(levels)]
+    timings = {"specular": time.perf_counter() - t_start}
+    arrays = _with_sh_and_lut(specular, pixels, timings, t_start, method)
+    log.info("prefilter: uniform panorama %s -> %d px x %d mips in %.3f s", value.tolist(), face_size,
+             levels, timings["total"])
+    return arrays
+
+
+def _with_sh_and_lut(specular: list[np.ndarray], pixels: np.ndarray, timings: dict[str, float],
+                     t_start: float, method: str) -> EnvironmentArrays:
+    """The specular mips completed with the panorama's SH irradiance and the BRDF LUT, every
+    panorama's alike; `timings` gains their phases and the total since `t_start`."""
     t = time.perf_counter()
-    timings = {"specular": t - t_start}
     sh = project_sh(pixels)
     timings["sh"] = time.perf_counter() - t
     t = time.perf_counter()
     lut = brdf_lut()
     timings["brdf_lut"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_start
-    log.info("prefilter: uniform panorama %s -> %d px x %d mips in %.3f s", value.tolist(), face_size,
-             levels, timings["total"])
     return EnvironmentArrays(specular=specular, irradiance_sh=sh, brdf_lut=lut, timings=timings, method=method)
 
 

@@ -32,8 +32,8 @@ import numpy as np
 from core.animation import Animation, select
 from core.baked import BakedAsset
 from core.hull import hull_points, hull_support_points
-from core.scene import Material, Scene, transformed_bounds
-from pipeline.bake import build_baked, instance_groups
+from core.scene import Material, Scene
+from pipeline.bake import build_baked, framed_bounds, instance_groups
 from pipeline.gltf.animation import write_pointers
 from pipeline.gltf.materials import read_material
 from pipeline.gltf.nodes import NodeGraph, camera, light
@@ -175,7 +175,7 @@ class Rig:
         for inst in self.scene.instances:
             node, skinned, local = cast(tuple, inst.placement)
             matrices.append(local if skinned else worlds[node] @ local)
-        meshes, lo, hi = [], np.full(3, np.inf), np.full(3, -np.inf)
+        meshes = []
         for tm, (mi, mat, _), members in zip(self.template.meshes, self.groups, self.groups.values()):
             transforms = np.stack([matrices[k] for k in members])
             if mat in materials:
@@ -190,11 +190,7 @@ class Rig:
             else:
                 mesh = dataclasses.replace(tm, transforms=transforms)
             meshes.append(mesh)
-            for k, tr in zip(members, transforms):
-                if not self.scene.instances[k].backdrop:
-                    a, b = transformed_bounds(mesh.positions, tr)
-                    lo, hi = np.minimum(lo, a), np.maximum(hi, b)
-        bounds = np.stack([lo, hi]) if np.all(np.isfinite(lo)) else np.zeros((2, 3))
+        bounds = framed_bounds(meshes, self.groups.values(), self.scene)
         lights, cameras = self._lights(placed) if self.has_lights else ([], [])
         hull = hull_points(meshes, qhull=True)
         return dataclasses.replace(

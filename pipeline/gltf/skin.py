@@ -64,11 +64,21 @@ def apply_skin(blend: np.ndarray, positions: np.ndarray, normals: np.ndarray | N
     p = np.einsum("vij,vj->vi", lin, positions.astype(np.float64)) + blend[:, :3, 3]
     n = t = None
     if normals is not None:
-        # the inverse transpose keeps normals perpendicular under non-uniform joint scale
-        with np.errstate(all="ignore"):
-            cof = np.linalg.inv(lin).transpose(0, 2, 1)
-        cof = np.where(np.isfinite(cof).all(axis=(1, 2))[:, None, None], cof, lin)
-        n = _unit(np.einsum("vij,vj->vi", cof, normals.astype(np.float64)))
+        # The inverse transpose keeps normals perpendicular under non-uniform joint scale; the
+        # cofactor matrix is it times det(M), so its columns (cross products of M's columns)
+        # give the same direction without a per-vertex inverse, det's sign keeping the side.
+        c0, c1, c2 = lin[:, :, 0], lin[:, :, 1], lin[:, :, 2]
+        x01, x12, x20 = np.cross(c0, c1), np.cross(c1, c2), np.cross(c2, c0)
+        nf = normals.astype(np.float64)
+        cof_n = nf[:, :1] * x12 + nf[:, 1:2] * x20 + nf[:, 2:3] * x01
+        sign = np.where(np.einsum("vi,vi->v", c0, x12) < 0, -1.0, 1.0)[:, None]
+        # a joint scaled to zero (a common way to hide a part) leaves no cofactor: the normal
+        # is then moved by M itself, or kept where M is zero too (the vertex is collapsed)
+        lost = ~(np.abs(cof_n).sum(axis=1) > 0)
+        cof_n[lost] = np.einsum("vij,vj->vi", lin[lost], nf[lost])
+        lost = ~(np.abs(cof_n).sum(axis=1) > 0)
+        cof_n[lost] = nf[lost]
+        n = _unit(cof_n * sign)
     if tangents is not None:
         t = tangents.astype(np.float32, copy=True)
         t[:, :3] = _unit(np.einsum("vij,vj->vi", lin, tangents[:, :3].astype(np.float64)))

@@ -30,9 +30,9 @@ from core.animation import Moment
 from core.baked import BakedAsset
 from core.errors import AssetError
 from core.hull import SUPPORT_BLOCK, hull_points, hull_support_points, support_points
-from core.scene import Scene, transformed_bounds
+from core.scene import Scene
 from pipeline import deadline
-from pipeline.bake import build_baked, instance_groups
+from pipeline.bake import build_baked, framed_bounds, instance_groups
 from pipeline.ingest import finish
 from pipeline.limits import Limits
 from pipeline.usd.layers import LayerGraph
@@ -160,7 +160,7 @@ class UsdRig:
                 matrices[k] = placed[moving[0]]
         moved = self._reread(r, matrices) if self.reread else {}
         lights, cameras = self._lights(r)
-        meshes, lo, hi = [], np.full(3, np.inf), np.full(3, -np.inf)
+        meshes = []
         for tm, (mi, _, _), members in zip(self.template.meshes, self.groups, self.groups.values()):
             transforms = tm.transforms if not any(self.moving[k] for k in members) \
                 else np.stack([matrices[k] for k in members])
@@ -175,11 +175,7 @@ class UsdRig:
             else:
                 out = dataclasses.replace(tm, transforms=transforms)
             meshes.append(out)
-            for k, tr in zip(members, transforms):
-                if not self.scene.instances[k].backdrop:
-                    a, b = transformed_bounds(out.positions, tr)
-                    lo, hi = np.minimum(lo, a), np.maximum(hi, b)
-        bounds = np.stack([lo, hi]) if np.all(np.isfinite(lo)) else np.zeros((2, 3))
+        bounds = framed_bounds(meshes, self.groups.values(), self.scene)
         hull = hull_points(meshes)  # as the whole read's bake: scipy only for big meshes
         moment = Moment(t)
         manifest = {**self.template.manifest, "moment": {"time_code": r.time.GetValue()},

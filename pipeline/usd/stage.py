@@ -52,7 +52,7 @@ from pxr import Ar, Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade, UsdSkel, UsdUti
 
 from core.animation import Moment
 from core.errors import LimitExceeded, MalformedAsset, MissingFile, NotInAsset, UnsafeReference
-from core.scene import Creases, Instance, Light, Mesh, Scene, SceneCamera
+from core.scene import Cage, Creases, Instance, Light, Mesh, Scene, SceneCamera
 from pipeline import deadline
 from pipeline.limits import Limits
 from pipeline.normals import smooth_normals
@@ -210,8 +210,13 @@ class _Topology:
     tri_face: np.ndarray         # T, face of each triangle
     normals: np.ndarray | None
     attrs: dict[str, np.ndarray] = field(default_factory=dict)
-    subdivision: str | None = None  # catmullClark / loop: refined at bake (pipeline/usd/subdivision.py)
-    creases: Creases | None = None
+    subdivision: str | None = None  # catmullClark / loop / bilinear: refined at bake (pipeline/usd/subdivision.py)
+    creases: Creases | None = None  # loop's, by position
+    cage: Cage | None = None  # catmullClark / bilinear: the polygons, for every subset
+    cage_order: np.ndarray | None = None  # per cage corner: its face-vertex
+    corner_vertex: np.ndarray | None = None  # per face-vertex: its (split) vertex
+    face_drawn: np.ndarray | None = None  # per USD face: not a hole
+    corner_face: np.ndarray | None = None  # per face-vertex: its face
 
 
 class StageReader:
@@ -391,6 +396,14 @@ class StageReader:
             soft = min(max(get(shaping.GetShapingConeSoftnessAttr(), 0.0), 0.0), 1.0)
             out.type, out.outer_cone = "spot", math.radians(cone)
             out.inner_cone = out.outer_cone * (1.0 - soft)
+        # ShadowAPI's inputs, read whether or not the API is applied (Hydra reads them by
+        # name): shadow:enable falls back to true, shadow:color to black
+        enable = prim.GetAttribute("inputs:shadow:enable")
+        if enable and enable.HasAuthoredValue():
+            out.shadow = bool(enable.Get(self.time))
+        shade = prim.GetAttribute("inputs:shadow:color")
+        if shade and shade.HasAuthoredValue() and shade.Get(self.time) is not None:
+            out.shadow_color = tuple(float(c) for c in np.clip(shade.Get(self.time), 0, 1))  # type: ignore[assignment]
         self.scene.lights.append(out)
 
     def _dome(self, prim: Usd.Prim, where: str, radiance: np.ndarray) -> None:
@@ -742,9 +755,16 @@ class StageReader:
         attr = mesh.GetSubdivisionSchemeAttr()
         scheme = str(attr.Get()) if attr.HasAuthoredValue() else "none"
         topo = _Topology(points[point_of_vertex], tri.astype(np.uint32), tri_face, None,
-                         subdivision=scheme if scheme in ("catmullClark", "loop") else None)
-        if topo.subdivision:
+                         subdivision=scheme if scheme in ("catmullClark", "loop", "bilinear")
+                         else None)
+        if topo.subdivision == "loop":
             topo.creases = self._creases(prim, mesh, points, fvi)
+        elif topo.subdivision:
+            topo.cage, topo.cage_order = self._cage(prim, mesh, scheme, points, counts, fvi)
+            topo.corner_vertex = inverse if len(columns) > 1 else fvi
+            topo.corner_face = face_of_corner
+            topo.face_drawn = np.ones(len(counts), bool)
+            topo.face_drawn[holes[(holes >= 0) & (holes < len(counts))]] = False
         if normals is not None:
             topo.normals = normals.values[elem(normals)][:, :3].astype(np.float32)
         for name, pv in primvars.items():
@@ -753,10 +773,54 @@ class StageReader:
         self.vertices += len(topo.positions)
         return topo
 
+    def _cage(self, prim: Usd.Prim, mesh: UsdGeom.Mesh, scheme: str, points: np.ndarray,
+              counts: np.ndarray, fvi: np.ndarray) -> tuple[Cage, np.ndarray]:
+        """The polygon cage of a catmullClark / bilinear mesh, right-handed (a leftHanded
+        face's corners reversed, its first kept), faces of fewer than 3 corners left out;
+        and per cage corner, its face-vertex."""
+        start = np.repeat(np.cumsum(counts) - counts, counts)
+        size = np.repeat(counts, counts)
+        order = np.arange(len(fvi))
+        if mesh.GetOrientationAttr().Get() == UsdGeom.Tokens.leftHanded:
+            order = start + (start - order) % size
+        order = order[size >= 3]
+        found = self._crease_indices(prim, mesh, len(points))
+        edges, edge_s, c_idx, c_s = found if found is not None else (
+            np.zeros((0, 2), np.int64), np.zeros(0), np.zeros(0, np.int64), np.zeros(0))
+
+        def token(attr, allowed, fallback):
+            value = str(attr.Get()) if attr.HasAuthoredValue() else fallback
+            if value not in allowed:
+                self._warn(f"{prim.GetPath()}: {attr.GetName()} = {value!r} is not one of "
+                           f"{', '.join(allowed)}; {fallback} used")
+                return fallback
+            return value
+        cage = Cage(scheme, counts[counts >= 3].astype(np.int64), fvi[order].astype(np.int64),
+                    np.asarray(points, np.float64), edges, edge_s, c_idx, c_s,
+                    interpolate_boundary=token(mesh.GetInterpolateBoundaryAttr(),
+                                               ("none", "edgeOnly", "edgeAndCorner"),
+                                               "edgeAndCorner"),
+                    face_varying=token(mesh.GetFaceVaryingLinearInterpolationAttr(),
+                                       ("none", "cornersOnly", "cornersPlus1", "cornersPlus2",
+                                        "boundaries", "all"), "cornersPlus1"),
+                    triangle_rule=token(mesh.GetTriangleSubdivisionRuleAttr(),
+                                        ("catmullClark", "smooth"), "catmullClark"))
+        return cage, order
+
     def _creases(self, prim: Usd.Prim, mesh: UsdGeom.Mesh, points: np.ndarray,
                  fvi: np.ndarray) -> Creases | None:
+        """`_crease_indices` as end positions (Loop's refinement welds by position)."""
+        found = self._crease_indices(prim, mesh, len(points))
+        if found is None:
+            return None
+        edges, edge_s, c_idx, c_s = found
+        return Creases(points[edges].astype(np.float32), edge_s.astype(np.float32),
+                       points[c_idx].astype(np.float32), c_s.astype(np.float32))
+
+    def _crease_indices(self, prim: Usd.Prim, mesh: UsdGeom.Mesh, n_points: int):
         """creaseIndices (chains of creaseLengths points; creaseSharpnesses one per chain or
-        one per edge) and cornerIndices / cornerSharpnesses, as end positions."""
+        one per edge) and cornerIndices / cornerSharpnesses: (edges K x 2, sharpness K,
+        corners C, sharpness C) by point index, those of sharpness > 0; None if none."""
         get = lambda a, kind: np.asarray(a.Get(self.time) or [], kind)  # noqa: E731
         idx, lengths = get(mesh.GetCreaseIndicesAttr(), np.int64), get(mesh.GetCreaseLengthsAttr(), np.int64)
         sharp = get(mesh.GetCreaseSharpnessesAttr(), np.float64)
@@ -768,7 +832,7 @@ class StageReader:
         if len(idx):
             n_edges = int(np.maximum(lengths - 1, 0).sum())
             if lengths.min(initial=0) < 0 or int(lengths.sum()) != len(idx) or \
-                    len(sharp) not in (len(lengths), n_edges) or idx.min() < 0 or idx.max() >= len(points):
+                    len(sharp) not in (len(lengths), n_edges) or idx.min() < 0 or idx.max() >= n_points:
                 self._warn(f"{where}: creaseIndices / creaseLengths / creaseSharpnesses do not "
                            "agree; creases ignored")
             else:
@@ -781,14 +845,13 @@ class StageReader:
                 edges = np.stack([idx[first], idx[first + 1]], axis=1)
                 edge_s = sharp[chain] if len(sharp) == len(lengths) and len(sharp) != n_edges \
                     else sharp
-        if len(c_idx) and (len(c_sharp) != len(c_idx) or c_idx.min() < 0 or c_idx.max() >= len(points)):
+        if len(c_idx) and (len(c_sharp) != len(c_idx) or c_idx.min() < 0 or c_idx.max() >= n_points):
             self._warn(f"{where}: cornerIndices / cornerSharpnesses do not agree; corners ignored")
             c_idx, c_sharp = np.zeros(0, np.int64), np.zeros(0)
         keep, keep_c = edge_s > 0, c_sharp > 0
         if not keep.any() and not keep_c.any():
             return None
-        return Creases(points[edges[keep]].astype(np.float32), edge_s[keep].astype(np.float32),
-                       points[c_idx[keep_c]].astype(np.float32), c_sharp[keep_c].astype(np.float32))
+        return edges[keep], edge_s[keep], c_idx[keep_c], c_sharp[keep_c]
 
     def _shape(self, prim: Usd.Prim, names: list[str]) -> _Topology | None:
         """An implicit shape, tessellated; only constant primvars (colours) apply to it."""
@@ -866,6 +929,17 @@ class StageReader:
         if not len(tri):
             return None
         used, local = np.unique(tri, return_inverse=True)
+        cage_corners = None
+        if topo.cage is not None and topo.cage_order is not None and topo.corner_face is not None \
+                and topo.corner_vertex is not None and topo.face_drawn is not None:
+            own = topo.face_drawn.copy()
+            if faces is not None:
+                own &= ~np.isin(np.arange(len(own)), faces[1]) if isinstance(faces, tuple) \
+                    else np.isin(np.arange(len(own)), faces)
+            lut = np.full(len(topo.positions), -1, np.int64)
+            lut[used] = np.arange(len(used))
+            fv = topo.cage_order
+            cage_corners = np.where(own[topo.corner_face[fv]], lut[topo.corner_vertex[fv]], -1)
         whole = len(used) == len(topo.positions)
         pick = (lambda a: a) if whole else (lambda a: a[used])  # noqa: E731
         uvs = [_constant_st(n, len(topo.positions)) if n.startswith("=") else topo.attrs.get(n)
@@ -882,7 +956,7 @@ class StageReader:
                     normals=None if topo.normals is None else pick(topo.normals),  # type: ignore[arg-type]  # None: pipeline.ingest computes them
                     indices=local.reshape(-1, 3).astype(np.uint32),
                     uv0=uvs[0], uv1=uvs[1], colors=colors, subdivision=topo.subdivision,
-                    creases=topo.creases)
+                    creases=topo.creases, cage=topo.cage, cage_corners=cage_corners)
 
     def _warn(self, text: str) -> None:
         if text not in self.scene.warnings:

@@ -27,7 +27,7 @@ import dataclasses
 
 import numpy as np
 
-from core.scene import Creases, Mesh, Scene
+from core.scene import Cage, Creases, Mesh, Scene
 from pipeline.normals import compute_tangents, smooth_normals
 
 INFINITE = 10.0  # OpenSubdiv's Sdc::Crease::SHARPNESS_INFINITE: sharp at every level
@@ -41,21 +41,57 @@ def levels_for(triangles: int) -> int:
 
 def refine_scene(scene: Scene, budget: int, levels: int | None = None) -> int:
     """Refine every marked mesh of `scene` in place (`levels`, or `levels_for` its size),
-    keeping the triangles drawn (instances counted) under `budget`; returns meshes refined."""
+    keeping the triangles drawn (instances counted) under `budget`; returns meshes refined.
+    Meshes that share a Catmull-Clark cage (one per GeomSubset) are refined together, once."""
     uses = np.bincount([i.mesh for i in scene.instances], minlength=len(scene.meshes))
     drawn = sum(int(uses[i]) * m.triangle_count for i, m in enumerate(scene.meshes))
     refined = 0
+    cages: dict[int, RefinedCage] = {}
     for i, mesh in enumerate(scene.meshes):
         if not mesh.subdivision or not uses[i]:
             continue
-        n = levels_for(mesh.triangle_count) if levels is None else levels
-        while n and drawn + int(uses[i]) * mesh.triangle_count * (4 ** n - 1) > budget:
+        n = levels_for(mesh.triangle_count if mesh.cage is None else _cage_triangles(mesh.cage)) \
+            if levels is None else levels
+        while n and drawn + int(uses[i]) * (refined_triangles(mesh, n) - mesh.triangle_count) > budget:
             n -= 1  # each level quadruples the triangles
         if n:
-            drawn += int(uses[i]) * mesh.triangle_count * (4 ** n - 1)
-            scene.meshes[i] = refine(mesh, n)
+            drawn += int(uses[i]) * (refined_triangles(mesh, n) - mesh.triangle_count)
+            if usable_cage(mesh):
+                assert mesh.cage is not None
+                key = id(mesh.cage)
+                if key not in cages or cages[key].levels != n:
+                    users = [m for j, m in enumerate(scene.meshes) if uses[j] and m.cage is mesh.cage]
+                    cages[key] = refine_cage(mesh.cage, n, users)
+                scene.meshes[i] = cages[key].mesh(mesh)
+            else:
+                scene.meshes[i] = refine(mesh, n)
             refined += 1
     return refined
+
+
+def _cage_triangles(cage: Cage) -> int:
+    return int((cage.counts - 2).sum())
+
+
+def usable_cage(mesh: Mesh) -> bool:
+    """A Catmull-Clark / bilinear cage whose corners still name this mesh's vertices (else the
+    triangles are refined by Loop's rules)."""
+    c = mesh.cage_corners
+    return mesh.cage is not None and c is not None and len(c) == len(mesh.cage.corners) and \
+        bool(len(c)) and int(c.max()) < len(mesh.positions) and bool((c >= 0).any())
+
+
+def refined_triangles(mesh: Mesh, levels: int) -> int:
+    """Triangles `mesh` has after `levels` levels: Catmull-Clark's first level makes a quad
+    per polygon corner, each later one four of each quad, two triangles a quad; Loop's
+    makes four triangles of each."""
+    if not levels:
+        return mesh.triangle_count
+    if usable_cage(mesh):
+        assert mesh.cage is not None and mesh.cage_corners is not None
+        corners = int((mesh.cage_corners >= 0).sum())
+        return 2 * corners * 4 ** (levels - 1)
+    return mesh.triangle_count * 4 ** levels
 
 
 def refine(mesh: Mesh, levels: int) -> Mesh:
@@ -238,3 +274,272 @@ def loop_step(pos: np.ndarray, tri: np.ndarray, attrs: dict[str, np.ndarray],
     new_tri = np.concatenate([np.stack(f, 1) for f in ((v0, m0, m2), (m0, v1, m1),
                                                       (m2, m1, v2), (m0, m1, m2))])
     return new_pos, new_tri, new_attrs, sharp
+
+
+# -- Catmull-Clark on the polygon cage --------------------------------------------------------
+# One level (`cc_level`) splits each n-gon into n quads: a face point per face, an edge point
+# per edge, a vertex point per vertex, with OpenSubdiv's masks (Sdc's Catmark scheme):
+# - face point: the mean of the face's corners;
+# - smooth edge point: 1/4 of each end and 1/4 of each face point; where one of the two faces
+#   is a triangle and triangleSubdivisionRule = smooth, face weight w = (w0 + w1) / 2 with
+#   0.470 for a triangle (0.25 for others) and 1/2 - w for each end;
+# - smooth vertex point (n faces): (n-2)/n of itself, 1/n^2 of each edge neighbour and of
+#   each face point; crease rule: 3/4 of itself, 1/8 of each end of its two sharp edges;
+#   corner rule: stays put. Rule by sharpness: a vertex of sharpness > 0 or on three or more
+#   sharp edges is a corner, on two a crease, else smooth (a dart: one sharp edge);
+# - semi-sharp (DeRose, Kass, Truong 1998; OpenSubdiv's uniform decrement): an edge of
+#   sharpness s >= 1 splits at its midpoint, 0 < s < 1 blends midpoint and smooth point by s;
+#   children carry s - 1 (10 or more: for ever). Where a vertex's rule at the next level is
+#   weaker than now, the two rules' points blend by the mean sharpness of what transitions.
+# - borders and non-manifold edges are infinitely sharp; interpolateBoundary edgeAndCorner
+#   makes a border vertex of one face a corner; none drops the faces that touch the border
+#   (they still shape their neighbours, as OpenSubdiv's VTX_BOUNDARY_NONE holes do).
+# Face-varying data (UVs, colours) is refined on its own topology (a corner's vertex there
+# is its point and value: seams are borders) with faceVaryingLinearInterpolation: all =
+# bilinear; boundaries = corners along every seam; cornersOnly = corners where a region has
+# one face; cornersPlus1 (USD's default) also where three or more regions meet at a point;
+# cornersPlus2 as cornersPlus1; none = edgeOnly.
+
+@dataclasses.dataclass
+class Level:
+    counts: np.ndarray  # F face sizes
+    ids: np.ndarray     # per corner: its vertex
+    values: np.ndarray  # N x d
+    esharp: np.ndarray  # per corner: authored sharpness of the edge to the face's next corner
+    vsharp: np.ndarray  # N authored vertex sharpness
+    root: np.ndarray    # F: the cage face each face comes from
+
+
+def _dec(s: np.ndarray) -> np.ndarray:
+    return np.where(s >= INFINITE, s, np.maximum(s - 1.0, 0.0))
+
+
+def _sum(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    """Rows of `values` summed by `index` into n rows (np.bincount per column: fast)."""
+    return np.stack([np.bincount(index, values[:, k], minlength=n)
+                     for k in range(values.shape[1])], axis=1)
+
+
+def _edges(counts: np.ndarray, ids: np.ndarray, n: int):
+    """(face of each corner, first corner of each face, previous corner, edge of each corner
+    (to the next), edge ends e0 < e1)."""
+    face = np.repeat(np.arange(len(counts)), counts)
+    start = np.cumsum(counts) - counts
+    first = start[face]
+    pos = np.arange(len(ids)) - first
+    size = counts[face]
+    nxt, prv = first + (pos + 1) % size, first + (pos - 1) % size
+    a, b = ids, ids[nxt]
+    key, edge_of = np.unique(np.minimum(a, b) * n + np.maximum(a, b), return_inverse=True)
+    return face, start, prv, edge_of.reshape(-1), key // n, key % n
+
+
+def cc_level(lv: Level, bilinear: bool = False, boundary: str = "edgeAndCorner",
+             smooth_triangles: bool = False, extra_corners: np.ndarray | None = None) -> Level:
+    """One level of Catmull-Clark (or bilinear) refinement; `extra_corners`: vertices made
+    corners at this level (face-varying rules)."""
+    counts, ids, p = lv.counts, lv.ids, lv.values
+    n = len(p)
+    face, start, prv, edge_of, e0, e1 = _edges(counts, ids, n)
+    n_edges, n_faces = len(e0), len(counts)
+    nf = np.bincount(edge_of, minlength=n_edges)
+    authored = np.zeros(n_edges)
+    authored[edge_of] = lv.esharp
+    es = np.where(nf != 2, INFINITE, authored)
+    vs = lv.vsharp
+    vf = np.bincount(ids, minlength=n)
+    if boundary == "edgeAndCorner":
+        border = np.zeros(n, bool)
+        border[e0[nf == 1]] = border[e1[nf == 1]] = True
+        vs = np.where(border & (vf == 1), INFINITE, vs)
+    if extra_corners is not None:
+        vs = np.where(extra_corners, INFINITE, vs)
+    if bilinear:
+        es, vs = np.full(n_edges, INFINITE), np.full(n, INFINITE)
+
+    fp = np.add.reduceat(p[ids], start, axis=0) / counts[:, None]
+    a, b = p[e0], p[e1]
+    w = np.where((counts[face] == 3) & smooth_triangles, 0.470, 0.25)
+    fw = (0.5 * np.bincount(edge_of, weights=w, minlength=n_edges))[:, None]
+    smooth_e = (0.5 - fw) * (a + b) + fw * _sum(edge_of, fp[face], n_edges)
+    t = np.clip(es, 0.0, 1.0)[:, None]
+    ep = (1 - t) * smooth_e + t * 0.5 * (a + b)
+
+    ends, other = np.concatenate([e0, e1]), np.concatenate([e1, e0])
+    k = np.maximum(vf, 1)[:, None].astype(np.float64)
+    smooth_v = (k - 2) / k * p + (_sum(ends, p[other], n) + _sum(ids, fp[face], n)) / k ** 2
+
+    def rule(esv, vsv):
+        sharp = np.concatenate([esv > 0, esv > 0])
+        count = np.bincount(ends[sharp], minlength=n)
+        kind = np.where((vsv > 0) | (count > 2), 2, np.where(count == 2, 1, 0))
+        crease = 0.75 * p + 0.125 * _sum(ends[sharp], p[other[sharp]], n)
+        return kind, np.where((kind == 0)[:, None], smooth_v,
+                              np.where((kind == 1)[:, None], crease, p))
+    es_c, vs_c = _dec(es), _dec(vs)
+    kind, now = rule(es, vs)
+    kind_c, then = rule(es_c, vs_c)
+    edge_tr = (es > 0) & (es_c <= 0)
+    vert_tr = (vs > 0) & (vs_c <= 0)
+    tsum = np.bincount(ends, weights=np.tile(np.where(edge_tr, es, 0.0), 2), minlength=n) + \
+        np.where(vert_tr, vs, 0.0)
+    tcount = np.bincount(ends, weights=np.tile(edge_tr, 2).astype(np.float64), minlength=n) + vert_tr
+    weight = np.clip(tsum / np.maximum(tcount, 1), 0.0, 1.0)[:, None]
+    vp = np.where((kind == kind_c)[:, None], now, weight * now + (1 - weight) * then)
+
+    zero = np.zeros(len(ids))
+    half = _dec(authored)
+    return Level(
+        counts=np.full(len(ids), 4, np.int64),
+        ids=np.stack([ids, n + edge_of, n + n_edges + face, n + edge_of[prv]], axis=1).reshape(-1),
+        values=np.concatenate([vp, ep, fp]),
+        esharp=np.stack([half[edge_of], zero, zero, half[edge_of[prv]]], axis=1).reshape(-1),
+        vsharp=np.concatenate([_dec(lv.vsharp), np.zeros(n_edges + n_faces)]),
+        root=np.repeat(lv.root, counts))
+
+
+def _fv_corners(mode: str, ids: np.ndarray, points: np.ndarray, counts: np.ndarray) -> np.ndarray | None:
+    """Face-varying vertices made corners by `mode` at a level: every seam vertex
+    (boundaries), or where three or more regions meet at a point (cornersPlus1/2; the
+    corners of one face are edgeAndCorner's)."""
+    n = int(ids.max()) + 1
+    point_of = np.zeros(n, np.int64)
+    point_of[ids] = points
+    if mode == "boundaries":
+        _, _, _, edge_of, _, _ = _edges(counts, ids, n)
+        once = np.bincount(edge_of) == 1
+        on = np.zeros(n, bool)
+        on[ids[once[edge_of]]] = True
+        return on
+    if mode in ("cornersPlus1", "cornersPlus2"):
+        present = np.zeros(n, bool)
+        present[ids] = True
+        regions = np.bincount(point_of[present], minlength=int(points.max()) + 1)
+        return present & (regions[point_of] >= 3)
+    return None
+
+
+@dataclasses.dataclass
+class RefinedCage:
+    """A cage refined `levels` levels: every level of its points (the face-varying data of
+    each Mesh is refined beside them, on its own faces)."""
+    cage: Cage
+    levels: int
+    steps: list[Level]   # level 0 (the cage) .. levels
+    normals: np.ndarray  # per final point: smooth over every drawn quad
+    drawn: np.ndarray    # per cage face: drawn (not dropped by interpolateBoundary none)
+
+    def mesh(self, mesh: Mesh) -> Mesh:
+        return _cage_mesh(self, mesh)
+
+
+def refine_cage(cage: Cage, levels: int, users: list[Mesh]) -> RefinedCage:
+    points, ids = np.unique(cage.corners, return_inverse=True)  # only points the faces use
+    ids = ids.reshape(-1)
+    n = len(points)
+    lut = np.full(max(int(cage.corners.max()), int(cage.crease_edges.max(initial=0)),
+                      int(cage.corner_points.max(initial=0))) + 1, -1, np.int64)
+    lut[points] = np.arange(n)
+    counts = cage.counts
+    face, _, _, edge_of, e0, e1 = _edges(counts, ids, n)
+    es = np.zeros(len(e0))
+    ce = lut[cage.crease_edges] if len(cage.crease_edges) else np.zeros((0, 2), np.int64)
+    ok = (ce >= 0).all(axis=1)
+    ce, cs = np.sort(ce[ok], axis=1), cage.crease_sharpness[ok]
+    key = e0 * n + e1
+    at = np.searchsorted(key, ce[:, 0] * n + ce[:, 1])
+    hit = at < len(key)
+    hit[hit] &= key[at[hit]] == ce[hit, 0] * n + ce[hit, 1]
+    np.maximum.at(es, at[hit], cs[hit])
+    vs = np.zeros(n)
+    cp = lut[cage.corner_points] if len(cage.corner_points) else np.zeros(0, np.int64)
+    np.maximum.at(vs, cp[cp >= 0], cage.corner_sharpness[cp >= 0])
+    drawn = np.ones(len(counts), bool)
+    if cage.interpolate_boundary == "none":
+        nf = np.bincount(edge_of)
+        border = np.zeros(n, bool)
+        border[e0[nf == 1]] = border[e1[nf == 1]] = True
+        drawn = ~np.logical_or.reduceat(border[ids], np.cumsum(counts) - counts)
+    lv = Level(counts, ids, cage.points[points].astype(np.float64), es[edge_of], vs,
+               np.arange(len(counts)))
+    steps = [lv]
+    for _ in range(levels):
+        lv = cc_level(lv, bilinear=cage.scheme == "bilinear", boundary=cage.interpolate_boundary,
+                      smooth_triangles=cage.triangle_rule == "smooth" and len(steps) == 1)
+        steps.append(lv)
+    used = np.zeros(len(counts), bool)
+    for m in users:
+        if m.cage_corners is not None:
+            used |= np.logical_or.reduceat(m.cage_corners >= 0, np.cumsum(counts) - counts)
+    quads = lv.ids.reshape(-1, 4)[(used & drawn)[lv.root]]
+    normals = smooth_normals(lv.values, np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]]))
+    return RefinedCage(cage, levels, steps, normals, drawn)
+
+
+def _cage_mesh(rc: RefinedCage, mesh: Mesh) -> Mesh:
+    """`mesh`'s own faces of a refined cage, with its UVs and colours refined as
+    faceVaryingLinearInterpolation asks, smooth normals broken along creases still sharp."""
+    assert mesh.cage_corners is not None
+    cage, first = rc.cage, rc.steps[0]
+    starts = np.cumsum(first.counts) - first.counts
+    own = np.logical_or.reduceat(mesh.cage_corners >= 0, starts) & rc.drawn
+    names = [k for k in ("uv0", "uv1", "colors") if getattr(mesh, k) is not None]
+    final = rc.steps[-1]
+    keep_quads = own[final.root]
+    pos_ids = final.ids.reshape(-1, 4)[keep_quads].reshape(-1)
+    if names:
+        corner_own = np.repeat(own, first.counts)
+        values = np.concatenate([getattr(mesh, k).astype(np.float64) for k in names], axis=1)
+        vals = values[mesh.cage_corners[corner_own]]
+        pts = first.ids[corner_own]
+        _, fv = np.unique(np.concatenate([pts[:, None].astype(np.float64), vals], axis=1),
+                          axis=0, return_inverse=True)
+        fv = fv.reshape(-1)
+        mode = "all" if cage.scheme == "bilinear" else cage.face_varying
+        fv_values = np.zeros((int(fv.max()) + 1, values.shape[1]))
+        fv_values[fv] = vals
+        lv = Level(first.counts[own], fv, fv_values, first.esharp[corner_own],
+                   np.zeros(len(fv_values)), np.flatnonzero(own))
+        point_vs = first.vsharp
+        lv.vsharp[fv] = point_vs[pts]
+        for step in rc.steps[:-1]:
+            step_own = np.repeat(own[step.root], step.counts)
+            lv = cc_level(lv, bilinear=mode == "all",
+                          boundary="edgeOnly" if mode == "none" else "edgeAndCorner",
+                          smooth_triangles=cage.triangle_rule == "smooth" and step is first,
+                          extra_corners=_fv_corners(mode, lv.ids, step.ids[step_own], lv.counts))
+        vertex = lv.ids  # a face-varying vertex lies on one point: it is the drawn vertex
+        weld = np.zeros(len(lv.values), np.int64)
+        weld[vertex] = pos_ids
+        attr_rows = lv.values
+    else:
+        weld, vertex = np.unique(pos_ids, return_inverse=True)
+        vertex = vertex.reshape(-1)
+        attr_rows = np.zeros((len(weld), 0))
+    quads = vertex.reshape(-1, 4)
+    tri = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    pos = final.values[weld]
+    normals = rc.normals[weld]
+    attrs: dict[str, np.ndarray] = {}
+    col = 0
+    for k in names:
+        width = getattr(mesh, k).shape[1]
+        attrs[k] = attr_rows[:, col:col + width]
+        col += width
+    sharp_corners = final.esharp > 0
+    if sharp_corners.any():
+        edge_ends = np.stack([final.ids, final.ids.reshape(-1, 4)[:, [1, 2, 3, 0]].reshape(-1)], 1)
+        sharp_points = np.unique(edge_ends[sharp_corners & np.repeat(keep_quads, 4)])
+        if len(sharp_points):
+            pos, tri, attrs, normals = _split_normals(pos, tri, attrs, normals, weld,
+                                                      final.values, sharp_points)
+    out = dataclasses.replace(mesh, positions=pos.astype(np.float32), normals=normals,
+                              indices=tri.astype(np.uint32), subdivision=None, creases=None,
+                              cage=None, cage_corners=None)
+    for k, v in attrs.items():
+        setattr(out, k, v.astype(np.float32))
+    if mesh.tangents is not None:
+        uv = out.uv0 if out.uv0 is not None else out.uv1
+        out.tangents = None if uv is None else compute_tangents(out.positions, normals, uv,
+                                                                out.indices)
+    return out

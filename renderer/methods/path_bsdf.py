@@ -365,6 +365,15 @@ class Bsdf:
         """Probability of choosing a reflective component (not Glass)."""
         return self.p_coat + self.p_sheen + self.p_base * (self.p_metal + self.p_plastic)
 
+    def packed(self) -> np.ndarray:
+        """The parameters as one N x path_kernel.WIDTH float64 matrix, the fields in order (a
+        vector field three columns): what the compiled eval / sample read."""
+        cols = []
+        for f in fields(self):
+            a = np.asarray(getattr(self, f.name), np.float64)
+            cols.append(a[:, None] if a.ndim == 1 else a)
+        return np.ascontiguousarray(np.concatenate(cols, axis=1))
+
     def rows(self, sel: np.ndarray) -> "Bsdf":
         if len(sel) == len(self.wo) and (len(sel) == 0 or (sel[0] == 0 and sel[-1] == len(sel) - 1)):
             return self  # every row, in order (sel from flatnonzero): no copies
@@ -523,6 +532,23 @@ def frame(n: np.ndarray, grain: np.ndarray | None) -> tuple[np.ndarray, np.ndarr
     t[ok] = g[ok] / ln[ok, None]
     b[ok] = np.cross(n[ok], t[ok])
     return t, b
+
+
+def build_packed(hits, ns, ng, wo, ior, multiscatter: bool) -> np.ndarray:
+    """build's packed matrix (Bsdf.packed), compiled (path_kernel.build_rows)."""
+    from renderer.methods import path_kernel
+
+    def f8(a):
+        return np.ascontiguousarray(a, np.float64)
+
+    return path_kernel.build_rows(
+        f8(ns), f8(ng), f8(wo), f8(ior), f8(hits.base), f8(hits.metallic), f8(hits.transmission),
+        f8(hits.roughness), f8(hits.anisotropy), f8(hits.anisotropy_t), f8(hits.specular),
+        f8(hits.specular_color), f8(hits.diffuse_transmission), f8(hits.diffuse_transmission_color),
+        f8(hits.iridescence), f8(hits.iridescence_ior), f8(hits.iridescence_thickness),
+        f8(hits.clearcoat), f8(hits.clearcoat_normal), f8(hits.clearcoat_roughness),
+        f8(hits.sheen_color), f8(hits.sheen_roughness), bool(multiscatter),
+        _table("ggx_e"), _table("ggx_b"), _table("aniso_e"), _table("sheen_e"))
 
 
 def build(hits, ns, ng, wo, ior, multiscatter: bool) -> Bsdf:

@@ -75,6 +75,43 @@ UNIFORM_SHARE = 0.1   # of environment samples drawn uniformly over the sphere
 RR_START = 3          # Russian roulette from this surface index on
 MIN_PASSES = 4        # before the noise target is tested
 _R2 = (0.7548776662466927, 0.5698402909980532)  # 1/phi2, 1/phi2^2 (Roberts' R2)
+KERNEL = True         # the BSDF compiled (path_kernel, numba); False: path_bsdf's numpy twin
+
+
+class _Lobes:
+    """The BSDF at a bounce's hits, evaluated and sampled by rows (indices into the hits):
+    compiled (path_kernel over the packed parameters, built compiled too) or, with KERNEL
+    off, path_bsdf's numpy Bsdf."""
+
+    def __init__(self, hits, ns, ng, wo, ior, multiscatter: bool):
+        if KERNEL:
+            from renderer.methods import path_kernel as k
+            self.kernel = k
+            self.bsdf: path_bsdf.Bsdf | None = None
+            p = path_bsdf.build_packed(hits, ns, ng, wo, ior, multiscatter)
+            self.packed: np.ndarray | None = p
+            layers = p[:, k.P_COAT] + p[:, k.P_SHEEN]
+            self.p_reflective = layers + (1 - layers) * (p[:, k.P_METAL] + p[:, k.P_PLASTIC])
+        else:
+            self.bsdf = path_bsdf.build(hits, ns, ng, wo, ior, multiscatter)
+            self.packed = None
+            self.p_reflective = self.bsdf.p_reflective
+
+    def eval(self, rows: np.ndarray, wi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        if self.bsdf is not None:
+            return self.bsdf.rows(rows).eval(wi)
+        return self.kernel.eval_rows(self.packed, np.ascontiguousarray(rows, np.int64),
+                                     np.ascontiguousarray(wi, np.float64))
+
+    def sample(self, rows, u_layer, u_pick, u_lobe, u1, u2):
+        """(wi, rough, valid, f |cos|, pdf) drawn at rows."""
+        if self.bsdf is not None:
+            sub = self.bsdf.rows(rows)
+            wi, rough, valid = sub.sample(u_layer, u_pick, u_lobe, u1, u2)
+            return (wi, rough, valid, *sub.eval(wi))
+        c = np.ascontiguousarray
+        return self.kernel.sample_rows(self.packed, c(rows, np.int64), c(u_layer), c(u_pick),
+                                       c(u_lobe), c(u1), c(u2))
 
 
 def _dot(a, b):
@@ -112,12 +149,36 @@ class EnvSampler:
         sc, tc = s * 2 - 1, t * 2 - 1
         return p * n * n / 4.0 * (1 + sc * sc + tc * tc) ** 1.5
 
+    def _kernel_args(self):
+        from core import cubemap
+        from renderer.methods import path_kernel
+        rot = np.eye(3) if self.to_env is None else np.ascontiguousarray(self.to_env, np.float64)
+        axes = (cubemap._S_AXIS.astype(np.int64), cubemap._S_SIGN.astype(np.float64),
+                cubemap._T_AXIS.astype(np.int64), cubemap._T_SIGN.astype(np.float64))
+        return path_kernel, rot, axes
+
     def pdf(self, d_world: np.ndarray) -> np.ndarray:
-        d = d_world if self.to_env is None else d_world @ self.to_env.T
-        return (1 - UNIFORM_SHARE) * self._texel_pdf(d) + UNIFORM_SHARE / (4 * math.pi)
+        if KERNEL:
+            kernel, rot, axes = self._kernel_args()
+            return kernel.env_pdf(self.p_texel, self.size, np.ascontiguousarray(d_world, np.float64),
+                                  rot, UNIFORM_SHARE, *axes)
+        return self.pdf_numpy(d_world)
 
     def sample(self, u1: np.ndarray, u2: np.ndarray, u3: np.ndarray) -> np.ndarray:
         """World directions; u3 picks uniform (below UNIFORM_SHARE) or the CDF."""
+        if KERNEL:
+            kernel, rot, axes = self._kernel_args()
+            c = np.ascontiguousarray
+            return kernel.env_sample(self.cdf, self.p_texel, self.size, c(u1), c(u2), c(u3), rot,
+                                     UNIFORM_SHARE, *axes)
+        return self.sample_numpy(u1, u2, u3)
+
+    def pdf_numpy(self, d_world: np.ndarray) -> np.ndarray:
+        d = d_world if self.to_env is None else d_world @ self.to_env.T
+        return (1 - UNIFORM_SHARE) * self._texel_pdf(d) + UNIFORM_SHARE / (4 * math.pi)
+
+    def sample_numpy(self, u1: np.ndarray, u2: np.ndarray, u3: np.ndarray) -> np.ndarray:
+        """sample in numpy (path_kernel.env_sample's twin)."""
         n = self.size
         idx = np.minimum(np.searchsorted(self.cdf, u1, side="right"), self.cdf.size - 1)
         face, rest = np.divmod(idx, n * n)
@@ -244,10 +305,10 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         ior = ts.ior[k]
         wo = -d
         alpha = np.maximum(hits.roughness ** 2, ALPHA_MIN)
-        bsdf = path_bsdf.build(hits, ns, ng, wo, ior, options.multiscatter)
+        lobes = _Lobes(hits, ns, ng, wo, ior, options.multiscatter)
         # hits from inside a transmissive object see only Glass (light reaches them refracted)
         surface_lit = entering | (trans <= 0)
-        reflective = surface_lit & (bsdf.p_reflective > 0)
+        reflective = surface_lit & (lobes.p_reflective > 0)
         nee_clamp = n_rough > 0
         # --- next-event estimation: the environment, MIS with BSDF sampling
         ua, ub = sample(px, s, 10 * depth + 1)
@@ -255,7 +316,7 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         ls = np.flatnonzero(reflective)
         if len(ls):
             wi = env_sampler.sample(ua[ls], ub[ls], uc[ls])
-            fcos, p_b = bsdf.rows(ls).eval(wi)
+            fcos, p_b = lobes.eval(ls, wi)
             p_l = env_sampler.pdf(wi)
             good = fcos.max(axis=1) > 0
             ls, wi, fcos, p_b, p_l = ls[good], wi[good], fcos[good], p_b[good], p_l[good]
@@ -268,12 +329,11 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         # --- next-event estimation: punctual lights (deltas: no MIS)
         if ts.lights is not None and len(ts.lights):
             ls = np.flatnonzero(reflective)
-            sub = bsdf.rows(ls)
             for i in range(len(ts.lights)):
                 if not len(ls):
                     break
                 ldir, dist, radiance = _light(ts.lights, i, p[ls])
-                fcos, _ = sub.eval(ldir)
+                fcos, _ = lobes.eval(ls, ldir)
                 live = np.flatnonzero((fcos.max(axis=1) > 0) & (radiance.max(axis=1) > 0))
                 if not len(live):
                     continue
@@ -284,79 +344,106 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         u_pick, u_lobe = sample(px, s, 10 * depth + 3)
         u1, u2 = sample(px, s, 10 * depth + 4)
         u_layer, _ = sample(px, s, 10 * depth + 6)
-        base_pick = u_layer >= bsdf.p_coat + bsdf.p_sheen
-        glass = (base_pick & (u_pick >= bsdf.p_metal + bsdf.p_plastic)) | ~surface_lit
-        new_d = np.zeros_like(d)
-        new_w = w.copy()
-        new_pdf = np.zeros(len(d))
-        rough = np.zeros(len(d), bool)
-        new_medium = medium.copy()
-        alive = np.ones(len(d), bool)
-        # the reflective components (and diffuse transmission)
-        mp = np.flatnonzero(~glass)
-        if len(mp):
-            sub = bsdf.rows(mp)
-            wi, rough[mp], valid = sub.sample(u_layer[mp], u_pick[mp], u_lobe[mp], u1[mp], u2[mp])
-            fcos, p_b = sub.eval(wi)
-            ok = (p_b > 0) & valid
-            new_w[mp] = w[mp] * np.where(ok[:, None], fcos / np.maximum(p_b, 1e-300)[:, None], 0.0)
-            new_d[mp] = wi
-            # a near-delta lobe's pdf is huge and the environment pdf negligible: no MIS needed
-            new_pdf[mp] = np.where(ok, p_b, 0.0)
-            alive[mp] = ok
-        # Glass: exact dielectric, conditioned on the choice (weight (1 - m) tr / P = 1)
-        gl = np.flatnonzero(glass)
-        if len(gl):
-            eta = np.where(entering[gl], 1.0 / ior[gl], ior[gl])
-            dg, ng_g = d[gl], ns[gl]
-            smooth = hits.roughness[gl] <= 0
-            r_dir = reflect(dg, ng_g)
-            t_dir, tir = refract(dg, ng_g, eta)
-            fres = fresnel_dielectric(np.clip(_dot(-dg, ng_g), 0.0, 1.0), eta)
-            g_r = np.ones(len(gl))
-            g_t = np.ones(len(gl))
-            rs = np.flatnonzero(~smooth)
-            if len(rs):
-                _, f_m, r_m, wr_m, t_m, wt_m, tir_m = sample_rough_dielectric(
-                    dg[rs], ng_g[rs], alpha[gl[rs]], eta[rs], u1[gl[rs]], u2[gl[rs]])
-                r_dir[rs], t_dir[rs], tir[rs], fres[rs] = r_m, t_m, tir_m, f_m
-                g_r[rs] = wr_m / np.maximum(f_m, 1e-30)
-                g_t[rs] = wt_m / np.maximum(1 - f_m, 1e-30)
-            sheet = thin[gl]
-            if np.any(sheet):  # out through the sheet's parallel back face: unbent where smooth
-                t_dir[sheet], tir_out = refract(t_dir[sheet], ng_g[sheet], ior[gl][sheet])
-                t_dir[sheet & smooth] = dg[sheet & smooth]
-                tir[sheet] |= tir_out
-            fres = np.where(tir, 1.0, fres)
-            # what is not transmitted of this component is the dielectric's reflection
-            take_r = u_lobe[gl] < fres
-            tint = np.where((entering[gl] & ~take_r)[:, None], hits.base[gl], 1.0)
-            # a surface seen from inside with no transmission still refracts out as glass
-            new_d[gl] = np.where(take_r[:, None], r_dir, t_dir)
-            factor = np.where(take_r, g_r, g_t * np.where(sheet, 1.0, eta * eta))
-            # what the coat and sheen over it leave (from outside), over the choice's odds
-            factor *= np.where(surface_lit[gl], bsdf.glass_w[gl], 1.0)
-            new_w[gl] = w[gl] * tint * factor[:, None]
-            new_medium[gl] = np.where(take_r | sheet, medium[gl], np.where(entering[gl], ior[gl], 1.0))
-            new_pdf[gl] = 0.0
-            rough[gl] = ~smooth & (alpha[gl] >= ROUGH_ALPHA)
-            stats["tir"] += int(np.sum(tir))
-        # Russian roulette
-        if depth >= RR_START:
-            q = np.clip(new_w.max(axis=1) * new_medium ** 2, 0.0, 1.0)
-            u_rr, _ = sample(px, s, 10 * depth + 5)
-            survive = u_rr < q
-            alive &= survive
-            new_w = new_w / np.maximum(q, 1e-30)[:, None]
-        alive &= new_w.max(axis=1) > 0
+        u_rr = sample(px, s, 10 * depth + 5)[0] if depth >= RR_START else u1
+        args = (d, p, ng, ns, entering, surface_lit, thin, ior, alpha, w, medium,
+                u_layer, u_pick, u_lobe, u1, u2, u_rr, depth >= RR_START, eps)
+        if KERNEL:
+            f8 = _f64
+            nxt = lobes.kernel.scatter(lobes.packed, f8(d), f8(p), f8(ng), f8(ns), _b(entering), _b(surface_lit),
+                                       _b(thin), f8(ior), f8(hits.roughness), f8(alpha), f8(hits.base), f8(w),
+                                       f8(medium), f8(u_layer), f8(u_pick), f8(u_lobe), f8(u1), f8(u2), f8(u_rr),
+                                       depth >= RR_START, eps)
+        else:
+            nxt = _scatter_numpy(lobes.bsdf, hits, *args, lobes)
+        o_all, new_d, new_w, new_pdf, new_medium, alive, rough, tir = nxt
+        stats["tir"] += int(np.sum(tir))
         clamp_esc = n_rough > 0
         n_rough = n_rough + rough
-        side_t = np.where(_dot(new_d, ng) > 0, eps, -eps)
         keep = np.flatnonzero(alive)
-        origins = (p + side_t[:, None] * ng)[keep]
+        origins = o_all[keep]
         d, w, slot, medium = new_d[keep], new_w[keep], slot[keep], new_medium[keep]
         mis_pdf, clamp_esc, n_rough = new_pdf[keep], clamp_esc[keep], n_rough[keep]
     return out, hit0
+
+
+def _scatter_numpy(bsdf, hits, d, p, ng, ns, entering, surface_lit, thin, ior, alpha, w, medium,
+                   u_layer, u_pick, u_lobe, u1, u2, u_rr, roulette: bool, eps: float, lobes):
+    """path_kernel.scatter's numpy twin: the BSDF-sampling step of a bounce."""
+    tir_all = np.zeros(len(d), bool)
+
+    base_pick = u_layer >= bsdf.p_coat + bsdf.p_sheen
+    glass = (base_pick & (u_pick >= bsdf.p_metal + bsdf.p_plastic)) | ~surface_lit
+    new_d = np.zeros_like(d)
+    new_w = w.copy()
+    new_pdf = np.zeros(len(d))
+    rough = np.zeros(len(d), bool)
+    new_medium = medium.copy()
+    alive = np.ones(len(d), bool)
+    # the reflective components (and diffuse transmission)
+    mp = np.flatnonzero(~glass)
+    if len(mp):
+        wi, rough[mp], valid, fcos, p_b = lobes.sample(mp, u_layer[mp], u_pick[mp], u_lobe[mp],
+                                                      u1[mp], u2[mp])
+        ok = (p_b > 0) & valid
+        new_w[mp] = w[mp] * np.where(ok[:, None], fcos / np.maximum(p_b, 1e-300)[:, None], 0.0)
+        new_d[mp] = wi
+        # a near-delta lobe's pdf is huge and the environment pdf negligible: no MIS needed
+        new_pdf[mp] = np.where(ok, p_b, 0.0)
+        alive[mp] = ok
+    # Glass: exact dielectric, conditioned on the choice (weight (1 - m) tr / P = 1)
+    gl = np.flatnonzero(glass)
+    if len(gl):
+        eta = np.where(entering[gl], 1.0 / ior[gl], ior[gl])
+        dg, ng_g = d[gl], ns[gl]
+        smooth = hits.roughness[gl] <= 0
+        r_dir = reflect(dg, ng_g)
+        t_dir, tir = refract(dg, ng_g, eta)
+        fres = fresnel_dielectric(np.clip(_dot(-dg, ng_g), 0.0, 1.0), eta)
+        g_r = np.ones(len(gl))
+        g_t = np.ones(len(gl))
+        rs = np.flatnonzero(~smooth)
+        if len(rs):
+            _, f_m, r_m, wr_m, t_m, wt_m, tir_m = sample_rough_dielectric(
+                dg[rs], ng_g[rs], alpha[gl[rs]], eta[rs], u1[gl[rs]], u2[gl[rs]])
+            r_dir[rs], t_dir[rs], tir[rs], fres[rs] = r_m, t_m, tir_m, f_m
+            g_r[rs] = wr_m / np.maximum(f_m, 1e-30)
+            g_t[rs] = wt_m / np.maximum(1 - f_m, 1e-30)
+        sheet = thin[gl]
+        if np.any(sheet):  # out through the sheet's parallel back face: unbent where smooth
+            t_dir[sheet], tir_out = refract(t_dir[sheet], ng_g[sheet], ior[gl][sheet])
+            t_dir[sheet & smooth] = dg[sheet & smooth]
+            tir[sheet] |= tir_out
+        fres = np.where(tir, 1.0, fres)
+        # what is not transmitted of this component is the dielectric's reflection
+        take_r = u_lobe[gl] < fres
+        tint = np.where((entering[gl] & ~take_r)[:, None], hits.base[gl], 1.0)
+        # a surface seen from inside with no transmission still refracts out as glass
+        new_d[gl] = np.where(take_r[:, None], r_dir, t_dir)
+        factor = np.where(take_r, g_r, g_t * np.where(sheet, 1.0, eta * eta))
+        # what the coat and sheen over it leave (from outside), over the choice's odds
+        factor *= np.where(surface_lit[gl], bsdf.glass_w[gl], 1.0)
+        new_w[gl] = w[gl] * tint * factor[:, None]
+        new_medium[gl] = np.where(take_r | sheet, medium[gl], np.where(entering[gl], ior[gl], 1.0))
+        new_pdf[gl] = 0.0
+        rough[gl] = ~smooth & (alpha[gl] >= ROUGH_ALPHA)
+        tir_all[gl] = tir
+    # Russian roulette
+    if roulette:
+        q = np.clip(new_w.max(axis=1) * new_medium ** 2, 0.0, 1.0)
+        survive = u_rr < q
+        alive &= survive
+        new_w = new_w / np.maximum(q, 1e-30)[:, None]
+    alive &= new_w.max(axis=1) > 0
+    side_t = np.where(_dot(new_d, ng) > 0, eps, -eps)
+    return p + side_t[:, None] * ng, new_d, new_w, new_pdf, new_medium, alive, rough, tir_all
+
+
+def _f64(a) -> np.ndarray:
+    return np.ascontiguousarray(a, np.float64)
+
+
+def _b(a) -> np.ndarray:
+    return np.ascontiguousarray(a, np.bool_)
 
 
 def _timed(stats: dict, key: str, fn, *args):

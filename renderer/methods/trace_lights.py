@@ -27,12 +27,15 @@ class Lights:
     range: np.ndarray      # L (inf: none)
     color: np.ndarray      # L x 3 colour x intensity
     cone: np.ndarray       # L x 2 angle scale, offset (as the raster's u_light_cone)
+    shadow: np.ndarray     # L bool: casts shadows (UsdLux shadow:enable)
+    shadow_color: np.ndarray  # L x 3: what shadowed light is multiplied by
 
     def __len__(self) -> int:
         return len(self.kind)
 
 
-def lights_of(lights: list[Light]) -> Lights:
+def lights_of(lights: list[Light], shadows: bool = True) -> Lights:
+    """The lights as arrays; `shadows` False: none casts a shadow (RenderOptions.light_shadows)."""
     kind, pos, axis, rng, color, cone = [], [], [], [], [], []
     for light in lights:
         mtx = np.asarray(light.matrix, np.float64)
@@ -46,7 +49,9 @@ def lights_of(lights: list[Light]) -> Lights:
         cone.append([scale, -math.cos(light.outer_cone) * scale])
     return Lights(np.asarray(kind, np.int64), np.asarray(pos, np.float64).reshape(-1, 3),
                   np.asarray(axis, np.float64).reshape(-1, 3), np.asarray(rng, np.float64),
-                  np.asarray(color, np.float64).reshape(-1, 3), np.asarray(cone, np.float64).reshape(-1, 2))
+                  np.asarray(color, np.float64).reshape(-1, 3), np.asarray(cone, np.float64).reshape(-1, 2),
+                  np.asarray([shadows and light.shadow for light in lights], bool),
+                  np.asarray([light.shadow_color for light in lights], np.float64).reshape(-1, 3))
 
 
 def _ggx_spec(f0, alpha, n_v, n_l, n_h, v_h):
@@ -105,7 +110,11 @@ def direct(lights: Lights, occlusion_test, p: np.ndarray, n: np.ndarray, ng: np.
         lit = np.flatnonzero((n_l > 0) & (atten > 0) & (np.einsum("ij,ij->i", ng, ldir) > 0))
         if not len(lit):
             continue
-        vis = occlusion_test(p[lit], ldir[lit], dist[lit], ng[lit])
+        if lights.shadow[i]:
+            vis = occlusion_test(p[lit], ldir[lit], dist[lit], ng[lit])
+            vis = vis + (1.0 - vis) * lights.shadow_color[i]  # shadowed light tinted, not black
+        else:
+            vis = np.ones((len(lit), 3))
         h = ldir[lit] + v[lit]
         h /= np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-12)
         n_h = np.clip(np.einsum("ij,ij->i", n[lit], h), 0.0, 1.0)

@@ -12,7 +12,7 @@ from core.cubemap import env_rotation_matrix
 from core.options import RenderOptions
 from core.scene import Material
 from gl import context
-from renderer.raster import edges, gpu
+from renderer.raster import edges, gpu, light_shadows
 from renderer.raster.materials import MaterialState, mat3_bytes, material_state
 from renderer.view.camera import Camera
 
@@ -42,6 +42,7 @@ class Pass:
     frame_defines: dict
     frame_uniforms: dict[str, bytes]
     opaque_drawn: bool = False  # the opaque pass has drawn into fbo (refraction reads it)
+    shadow_map: moderngl.Texture | None = None  # the lights' depth atlas (light_shadows)
     _bound: set = field(default_factory=set)
 
     def program(self, item: DrawItem, fragment: str = "pbr.frag", vertex: str = "pbr.vert",
@@ -54,7 +55,7 @@ class Pass:
             for name, data in self.frame_uniforms.items():
                 if name in prog:
                     prog[name].write(data)  # type: ignore[union-attr]  # a uniform
-            for unit, name in ((0, "u_env"), (1, "u_brdf_lut")):
+            for unit, name in ((0, "u_env"), (1, "u_brdf_lut"), (light_shadows.UNIT, "u_shadow_map")):
                 if name in prog:
                     prog[name].value = unit  # type: ignore[union-attr]  # a uniform
             self._bound.add(prog.glo)
@@ -72,6 +73,8 @@ class Pass:
                 tex.use(unit)
         self.env.cube.use(0)
         self.env.lut.use(1)
+        if self.shadow_map is not None:
+            self.shadow_map.use(light_shadows.UNIT)
         cull = (not item.material.double_sided) if cull is None else cull
         for mirrored, _, count in item.mesh.instances:
             # A mirroring transform turns the winding clockwise (glTF 2.0, "Instantiation"):
@@ -90,8 +93,9 @@ def env_rotated(options: RenderOptions) -> bool:
     return options.env_rotation % 360.0 != 0.0
 
 
-def frame_defines(options: RenderOptions, lights) -> dict:
-    d = {"LIGHT_COUNT": len(lights)}
+def frame_defines(options: RenderOptions, lights,
+                  shadows: light_shadows.ShadowViews | None = None) -> dict:
+    d = {"LIGHT_COUNT": len(lights), "SHADOW_VIEWS": shadows.views if shadows else 0}
     if options.multiscatter:
         d["MULTISCATTER"] = 1
     if options.material_debug:  # shaders/lobes.glsl: one lobe alone
@@ -101,8 +105,8 @@ def frame_defines(options: RenderOptions, lights) -> dict:
     return d
 
 
-def frame_uniforms(camera: Camera, env: gpu.GpuEnvironment, lights,
-                   options: RenderOptions) -> dict[str, bytes]:
+def frame_uniforms(camera: Camera, env: gpu.GpuEnvironment, lights, options: RenderOptions,
+                   shadows: light_shadows.ShadowViews | None = None) -> dict[str, bytes]:
     f4 = np.float32
     view_proj = camera.projection_matrix() @ camera.view_matrix()
     u = {
@@ -129,6 +133,7 @@ def frame_uniforms(camera: Camera, env: gpu.GpuEnvironment, lights,
         u["u_light_direction"] = np.asarray(direction, f4).tobytes()
         u["u_light_color"] = np.asarray(color, f4).tobytes()
         u["u_light_cone"] = np.asarray(cone, f4).tobytes()
+        u.update(light_shadows.uniforms(shadows, lights))
     return u
 
 

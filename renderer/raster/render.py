@@ -22,7 +22,7 @@ from gl import context
 from renderer.frame import Frame, FrameTimings, alpha_is_mask
 from renderer.methods.auto import plan_request, run_frame_method
 from renderer.methods.registry import FRAME_METHODS, METHODS, UnsupportedMethod, available_methods, validate_options
-from renderer.raster import edges, final, gpu, passes, shadow, targets
+from renderer.raster import edges, final, gpu, light_shadows, passes, shadow, targets
 from renderer.raster.passes import DrawItem, Pass
 from renderer.raster.targets import frame_lock
 from renderer.view import regions
@@ -89,12 +89,18 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     camera, shadowed, shadow_why = asset_camera(asset, options)
     items = _plan_items(gasset, options, auto)
     lights = gasset.lights[:passes.MAX_LIGHTS] if options.lights else []
+    t_light_shadows = time.perf_counter()
+    views = (light_shadows.shadow_views(ctx, gasset.key, lights, light_shadows.casters(items),
+                                        asset.bounds, w * supersample, h * supersample)
+             if lights and options.light_shadows else None)
+    t_light_shadows = time.perf_counter() - t_light_shadows
     edge_aa = _edge_antialiasing(asset, options, supersample)
     target = targets.get_target(ctx, w, h, 0 if edge_aa else options.msaa, supersample, edge_aa)
     target.frames += 1
     pass_ = Pass(ctx, target.draw_fbo, camera, genv, gasset, options,
-                 passes.frame_defines(options, lights),
-                 passes.frame_uniforms(camera, genv, lights, options))
+                 passes.frame_defines(options, lights, views),
+                 passes.frame_uniforms(camera, genv, lights, options, views),
+                 shadow_map=views.texture if views else None)
     # The object's bound for the final pass's regions: a rectangle for an edge-smoothed frame,
     # else a polygon marked before the geometry (llvmpipe draws it while Python goes on).
     polygon = rect = None
@@ -118,8 +124,10 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     t_end = time.perf_counter()
     plan = _plan(options, env, items, lights, camera, target, edge_aa, supersample,
                  shadow_why if shadowed else f"none: {shadow_why}", uploads_before, auto)
+    plan["light_shadows"] = views.describe() if views else "none"
     timings = FrameTimings((t_end - t0) * 1e3, {"upload": (t_upload - t0) * 1e3,
-                                                "draw": (t_draw - t_upload) * 1e3,
+                                                "draw": (t_draw - t_upload - t_light_shadows) * 1e3,
+                                                "light_shadows": t_light_shadows * 1e3,
                                                 "shadow": (t_draw_end - t_shadow) * 1e3,
                                                 "finish": (t_end - t_draw_end) * 1e3})
     return Frame(linear, rgba8, plan, timings, alpha_is_mask=alpha_is_mask(options))

@@ -1,0 +1,244 @@
+"""Shadow maps for the asset's punctual lights (KHR_lights_punctual, UsdLux lights mapped to them).
+
+One depth pass per shadow view into a shared atlas: a directional light gets one orthographic
+view fitted to the asset's bounds; a spot light of outer cone up to SPOT_MAX_CONE one
+perspective view along its axis; a point light (and a wider spot: a rect or disk light is a
+hemisphere spot) six 90-degree views, a cube map laid out as six tiles. shaders/punctual.glsl
+picks the view (the cube face by the major axis from the light), offsets the receiver along its
+normal and toward the light by a slope-scaled bias, and filters 3 x 3 bilinear depth
+comparisons (PCF); light that a map says is blocked is multiplied by the light's shadow colour
+(UsdLux shadow:color, black by default).
+
+Bounded cost: at most MAX_SHADOW_LIGHTS lights cast shadows (the first ones, in the asset's
+order, that have shadows on), every tile is `tile_size(w, h, views)` texels across (twice the
+output's larger side as a power of two, 512 to 2048, shrunk so the atlas stays within
+MAX_ATLAS), and the maps depend on the geometry and lights only, not on the camera, so they are
+drawn once per asset and kept (turntable frames look them up). Casters are the opaque and mask
+meshes (a mask's cut-outs are not honoured: it shadows as solid); blend and transmissive meshes
+cast none (the ray tracer lets light through them, scaled).
+"""
+from __future__ import annotations
+
+import math
+from collections import OrderedDict
+from dataclasses import dataclass
+from typing import cast
+
+import moderngl
+import numpy as np
+
+from gl import context
+
+MAX_SHADOW_LIGHTS = 4
+MAX_ATLAS = 4096           # texels across the atlas, at most
+SPOT_MAX_CONE = math.radians(55.0)  # wider spots are shadowed through a cube, as point lights
+UNIT = 31                  # texture unit of the atlas (material textures start at 2)
+CUBE_MARGIN = 3            # texels beyond 90 degrees on each side of a cube face: the PCF
+                           # footprint near a face's edge reads its own tile
+MAX_CACHED = 4             # assets whose atlases stay on the GPU (up to 64 MiB each)
+
+
+@dataclass
+class ShadowViews:
+    """What the shaders need (renderer.raster.passes: uniforms) and the atlas."""
+    texture: moderngl.Texture
+    matrices: np.ndarray      # V x 4 x 4 world -> atlas (u, v, depth, w)
+    tiles: np.ndarray         # V x 4 the tile's usable uv rectangle (x0, y0, x1, y1)
+    texel: np.ndarray         # V x 2 world size of a texel: x + y * distance along the view
+    light_views: np.ndarray   # L x 2 first view, count (0: the light casts none)
+    tile: int
+    atlas: tuple[int, int]
+
+    @property
+    def views(self) -> int:
+        return len(self.matrices)
+
+    def describe(self) -> str:
+        lights = int((self.light_views[:, 1] > 0).sum())
+        return f"{lights} light(s), {self.views} view(s) of {self.tile} px"
+
+
+def tile_size(width: int, height: int, views: int) -> int:
+    """Texels across one view: twice the output's larger side (a power of two, 512..2048),
+    halved until the atlas's columns fit MAX_ATLAS."""
+    side = 1 << max(0, math.ceil(math.log2(max(2 * max(width, height), 1))))
+    side = min(max(side, 512), 2048)
+    cols = math.ceil(math.sqrt(views))
+    while side * cols > MAX_ATLAS and side > 64:
+        side //= 2
+    return side
+
+
+def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """A right-handed view matrix (looking down -Z) from eye toward target."""
+    f = target - eye
+    f = f / max(float(np.linalg.norm(f)), 1e-12)
+    up = np.array([0.0, 1.0, 0.0]) if abs(f[1]) < 0.99 else np.array([1.0, 0.0, 0.0])
+    s = np.cross(f, up)
+    s /= np.linalg.norm(s)
+    u = np.cross(s, f)
+    m = np.eye(4)
+    m[0, :3], m[1, :3], m[2, :3] = s, u, -f
+    m[:3, 3] = -m[:3, :3] @ eye
+    return m
+
+
+def _ortho(x0, x1, y0, y1, n, f) -> np.ndarray:
+    m = np.eye(4)
+    m[0, 0], m[0, 3] = 2 / (x1 - x0), -(x1 + x0) / (x1 - x0)
+    m[1, 1], m[1, 3] = 2 / (y1 - y0), -(y1 + y0) / (y1 - y0)
+    m[2, 2], m[2, 3] = -2 / (f - n), -(f + n) / (f - n)
+    return m
+
+
+def _perspective(tan_half: float, n: float, f: float) -> np.ndarray:
+    m = np.zeros((4, 4))
+    m[0, 0] = m[1, 1] = 1 / tan_half
+    m[2, 2], m[2, 3] = -(f + n) / (f - n), -2 * f * n / (f - n)
+    m[3, 2] = -1.0
+    return m
+
+
+def _corners(bounds: np.ndarray) -> np.ndarray:
+    lo, hi = np.asarray(bounds, np.float64)
+    return np.array([[(lo, hi)[i >> k & 1][k] for k in range(3)] for i in range(8)])
+
+
+def _depth_range(view: np.ndarray, corners: np.ndarray, radius: float) -> tuple[float, float]:
+    """Near and far planes of a perspective view that hold the bounds (a light inside them
+    gets a near plane at 1/500 of the far one)."""
+    z = -(corners @ view[:3, :3].T + view[:3, 3])[:, 2]
+    far = max(float(z.max()) * 1.02, radius * 1e-3, 1e-6)
+    near = max(float(z.min()) * 0.98, far * 2e-3)
+    return near, far
+
+
+def light_views(light, bounds: np.ndarray, tile: int) -> list[tuple[np.ndarray, tuple[float, float]]]:
+    """(projection x view, texel size terms) of each shadow view of `light` (core.scene.Light)."""
+    corners = _corners(bounds)
+    lo, hi = np.asarray(bounds, np.float64)
+    centre = (lo + hi) / 2
+    radius = max(float(np.linalg.norm(hi - lo)) / 2, 1e-9)
+    mtx = np.asarray(light.matrix, np.float64)
+    axis = -mtx[:3, 2] / max(float(np.linalg.norm(mtx[:3, 2])), 1e-12)
+    pos = mtx[:3, 3]
+    if light.type == "directional":
+        view = look_at(centre - axis * 2 * radius, centre)
+        p = corners @ view[:3, :3].T + view[:3, 3]
+        pad = radius * 1e-3
+        (x0, y0, z0), (x1, y1, z1) = p.min(axis=0) - pad, p.max(axis=0) + pad
+        proj = _ortho(x0, x1, y0, y1, -z1, -z0)
+        return [(proj @ view, (max(x1 - x0, y1 - y0) / tile, 0.0))]
+    if light.type == "spot" and light.outer_cone <= SPOT_MAX_CONE:
+        tan_half = math.tan(light.outer_cone) * (1 + 2 * CUBE_MARGIN / tile)
+        view = look_at(pos, pos + axis)
+        near, far = _depth_range(view, corners, radius)
+        return [(_perspective(tan_half, near, far) @ view, (0.0, 2 * tan_half / tile))]
+    tan_half = tile / (tile - 2 * CUBE_MARGIN)
+    out = []
+    for face in np.concatenate([np.eye(3), -np.eye(3)])[[0, 3, 1, 4, 2, 5]]:  # +X -X +Y -Y +Z -Z
+        view = look_at(pos, pos + face)
+        near, far = _depth_range(view, corners, radius)
+        out.append((_perspective(tan_half, near, far) @ view, (0.0, 2 * tan_half / tile)))
+    return out
+
+
+def casters(items) -> list:
+    """The meshes (gpu.GpuMesh) of the frame's draw items that cast shadows."""
+    return [it.mesh for it in items
+            if it.material.alpha_mode != "BLEND" and it.material.material_class != "transmissive"]
+
+
+_cache: OrderedDict = OrderedDict()  # (asset key, ...) -> ShadowViews
+_ctx_id: list = [None]
+
+
+def shadow_views(ctx: moderngl.Context, key: str, lights, meshes, bounds: np.ndarray,
+                 width: int, height: int) -> ShadowViews | None:
+    """The shadow maps of `lights` (those shadowing, up to MAX_SHADOW_LIGHTS) cast by `meshes`,
+    or None when none casts a shadow. Kept per asset: the camera does not change them."""
+    chosen = [i for i, light in enumerate(lights) if light.shadow][:MAX_SHADOW_LIGHTS]
+    if not chosen or not meshes:
+        return None
+    per_light = {i: 1 if (lights[i].type == "directional" or
+                          (lights[i].type == "spot" and lights[i].outer_cone <= SPOT_MAX_CONE)) else 6
+                 for i in chosen}
+    views = sum(per_light.values())
+    tile = tile_size(width, height, views)
+    cache_key = (key, tile, tuple(chosen), tuple(id(m) for m in meshes))
+    if _ctx_id[0] != id(ctx):  # a new context: the old textures are gone with it
+        _cache.clear()
+        _ctx_id[0] = id(ctx)
+    found = _cache.get(cache_key)
+    if found is not None:
+        _cache.move_to_end(cache_key)
+        return found
+    cols = math.ceil(math.sqrt(views))
+    rows = math.ceil(views / cols)
+    atlas = (cols * tile, rows * tile)
+    matrices: list[tuple[np.ndarray, np.ndarray, tuple[int, int]]] = []
+    tiles: list[tuple[float, float, float, float]] = []
+    texels: list[tuple[float, float]] = []
+    light_index = np.zeros((len(lights), 2), np.float32)
+    for i in chosen:
+        light_index[i] = (len(matrices), per_light[i])
+        for view_proj, texel in light_views(lights[i], bounds, tile):
+            v = len(matrices)
+            x0, y0 = (v % cols) * tile, (v // cols) * tile
+            sx, sy = tile / atlas[0], tile / atlas[1]
+            ox, oy = x0 / atlas[0], y0 / atlas[1]
+            # clip -> atlas uv (before the divide): the tile's rectangle; depth as the depth pass writes it
+            b = np.array([[sx / 2, 0, 0, sx / 2 + ox], [0, sy / 2, 0, sy / 2 + oy],
+                          [0, 0, 0.5, 0.5], [0, 0, 0, 1.0]])
+            matrices.append((view_proj, b @ view_proj, (x0, y0)))
+            inset_x, inset_y = 1.5 / atlas[0], 1.5 / atlas[1]  # bilinear taps stay in the tile
+            tiles.append((ox + inset_x, oy + inset_y, ox + sx - inset_x, oy + sy - inset_y))
+            texels.append(texel)
+    texture = _draw(ctx, meshes, matrices, tile, atlas)
+    found = ShadowViews(texture, np.asarray([m for _, m, _ in matrices], np.float64),
+                        np.asarray(tiles, np.float64), np.asarray(texels, np.float64),
+                        light_index, tile, atlas)
+    _cache[cache_key] = found
+    while len(_cache) > MAX_CACHED:
+        _cache.popitem(last=False)[1].texture.release()
+    return found
+
+
+def _draw(ctx: moderngl.Context, meshes, matrices, tile: int, atlas: tuple[int, int]) -> moderngl.Texture:
+    """Every view's depth into its tile of a new depth atlas, set up for sampler2DShadow."""
+    tex = ctx.depth_texture(atlas)
+    tex.repeat_x = tex.repeat_y = False
+    fbo = ctx.framebuffer(depth_attachment=tex)
+    fbo.use()
+    fbo.clear(depth=1.0)
+    ctx.enable(moderngl.DEPTH_TEST)
+    ctx.disable(moderngl.CULL_FACE)  # one-sided surfaces (a ground quad) shadow both ways
+    ctx.disable(moderngl.BLEND)
+    prog = context.program("pbr.vert", "depth.frag", {})
+    u = cast(dict, prog)
+    for view_proj, _, (x0, y0) in matrices:
+        ctx.viewport = (x0, y0, tile, tile)
+        u["u_view_proj"].write(np.ascontiguousarray(view_proj.T, np.float32).tobytes())
+        for mesh in meshes:
+            for mirrored, _, count in mesh.instances:
+                mesh.vao(prog, mirrored).render(moderngl.TRIANGLES, instances=count)
+    fbo.release()
+    tex.compare_func = "<="  # sampler2DShadow: 1 where the receiver is not behind the map
+    tex.filter = (moderngl.LINEAR, moderngl.LINEAR)  # bilinear comparisons
+    return tex
+
+
+def uniforms(views: ShadowViews | None, lights) -> dict[str, bytes]:
+    """The per-frame uniforms shaders/punctual.glsl reads under SHADOW_VIEWS."""
+    f4 = np.float32
+    colors = np.asarray([light.shadow_color for light in lights], f4).reshape(-1, 3)
+    if views is None:
+        return {}
+    return {
+        "u_shadow_matrix": np.ascontiguousarray(views.matrices.transpose(0, 2, 1), f4).tobytes(),
+        "u_shadow_tile": np.asarray(views.tiles, f4).tobytes(),
+        "u_shadow_texel": np.asarray(views.texel, f4).tobytes(),
+        "u_light_shadow": np.asarray(views.light_views[:len(lights)], f4).tobytes(),
+        "u_shadow_color": colors.tobytes(),
+        "u_shadow_step": np.asarray([1.0 / views.atlas[0], 1.0 / views.atlas[1]], f4).tobytes(),
+    }
