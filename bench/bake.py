@@ -18,7 +18,8 @@ Four tables, medians of --repeat runs (after one warm-up) measured in this run:
   peer: re-ingesting, what a hit saves. Target: hit <= 20 ms. Also what the welded edges
   for edge anti-aliasing (core.adjacency), the final pass's hull points and the framing's
   support points (core.hull) add:
-  their bake time (the last cold bake's) and bytes, beside the whole entry's bytes.
+  their bake time (the last cold bake's) and bytes, beside the whole entry's bytes; and the
+  ambient occlusion pass (pipeline.occlusion): its time, rays and rays per vertex.
 - environment: per bundled 1024 x 512 panorama, a cold bake to 256-px faces (decode + cube +
   GGX mip chain + SH + BRDF LUT + cache write), the prefilter alone, and a hit; peer: the paper's
   Gaussian mip chain (`--prefilter paper`). Target: cold bake <= 0.5 s. The first bake in a
@@ -208,7 +209,7 @@ def asset_table(assets: Path, repeat: int, cache: Path) -> list[float]:
     print(f"\nasset bake (target: hit <= {TARGET_HIT_MS:.0f} ms; medians of {repeat})")
     print(f"{'asset':34} {'ingest ms':>9} {'cold ms':>8} {'hit ms':>7} {'hit/ingest':>10} "
           f"{'edges ms':>8} {'edges KB':>8} {'hull ms':>7} {'hull KB':>7} {'supp ms':>7} {'supp KB':>7} "
-          f"{'entry KB':>8}")
+          f"{'entry KB':>8} {'ao ms':>7} {'ao rays':>8} {'ao/vtx':>6}")
     hits = []
     for path in sample_files(assets):
         try:
@@ -231,7 +232,9 @@ def asset_table(assets: Path, repeat: int, cache: Path) -> list[float]:
               f"{edge_bytes / 1024:8.0f} {1000 * baked.manifest['timings']['hull_s']:7.1f} "
               f"{files.get('hull.npy', {}).get('bytes', 0) / 1024:7.1f} "
               f"{1000 * baked.manifest['timings']['support_s']:7.1f} {support_bytes / 1024:7.1f} "
-              f"{entry_bytes / 1024:8.0f}")
+              f"{entry_bytes / 1024:8.0f} {1000 * baked.manifest['timings'].get('occlusion_s', 0):7.1f} "
+              f"{(ao.get('rays', 0) if (ao := baked.manifest['stats'].get('occlusion')) else 0):8d} "
+              f"{ao.get('rays_per_vertex', 0) if ao else 0:6d}")
     return hits
 
 

@@ -81,6 +81,8 @@ class BakedMesh:
     uv1: np.ndarray | None = None
     colors: np.ndarray | None = None
     interior: np.ndarray | None = None  # N x 3 float32 object-space vertex->exit vectors, or None
+    ao: np.ndarray | None = None        # N x 2 float32 ambient visibility (pipeline.occlusion) of
+    #                                    the front and back sides, or None
     # welded edges (core.adjacency.welded_edges), baked for assets within its MAX_TRIANGLES:
     edges: np.ndarray | None = None       # E x 2 uint32 vertex indices
     edge_faces: np.ndarray | None = None  # E x 2 int32 face indices (second -1: boundary)
@@ -94,7 +96,7 @@ class BakedMesh:
     def nbytes(self) -> int:
         """Bytes of its arrays (the materials' textures are the asset's)."""
         return _array_bytes(self.positions, self.normals, self.indices, self.transforms, self.tangents,
-                            self.uv0, self.uv1, self.colors, self.interior, self.edges, self.edge_faces,
+                            self.uv0, self.uv1, self.colors, self.interior, self.ao, self.edges, self.edge_faces,
                             self.support)
 
 

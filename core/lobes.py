@@ -20,6 +20,8 @@ import struct
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
+import numpy as np
+
 # A core.scene.Material. Not imported: core.scene reads its colour spaces from this table.
 Material = Any
 
@@ -171,3 +173,23 @@ SLOTS: tuple[Slot, ...] = tuple(s for lobe in LOBES for s in lobe.slots)
 SRGB_SLOTS = frozenset(s.name for s in SLOTS if s.srgb)
 # Lobes whose shader code a material compiles only when it uses them (Material.uses).
 SHADER_LOBES = tuple(lobe.name for lobe in LOBES if lobe.define and lobe.define.startswith("MATERIAL_"))
+
+
+# -- baked visibility (pipeline.occlusion) on the image light ----------------------------------
+# shaders/ibl.glsl has the same two functions; the ray tracer's diffuse share reads the first.
+
+def ao_multibounce(ao, albedo):
+    """Diffuse occlusion from the baked visibility `ao`, lifted by the light interreflection
+    brings back on an albedo (Jimenez et al. 2016's cubic fit; never below `ao`). Arrays
+    broadcast: ao (N, 1) against albedo (N, 3)."""
+    ao, albedo = np.asarray(ao, np.float64), np.asarray(albedo, np.float64)
+    a, b, c = 2.0404 * albedo - 0.3324, -4.7951 * albedo + 0.6417, 2.7552 * albedo + 0.6903
+    return np.maximum(ao, ((ao * a + b) * ao + c) * ao)
+
+
+def specular_occlusion(n_dot_v, ao, roughness):
+    """The specular lobe's share left unblocked (Lagarde & de Rousiers 2014, from the
+    visibility, N.V and alpha = roughness^2), in [0, 1]. The raster lifts it by
+    `ao_multibounce(that, F0)`: a metal's blocked directions see lit neighbours."""
+    alpha = np.asarray(roughness, np.float64) ** 2
+    return np.clip((np.asarray(n_dot_v) + ao) ** np.exp2(-16.0 * alpha - 1.0) - 1.0 + ao, 0.0, 1.0)

@@ -1,7 +1,8 @@
 """Bake assets and environments into the cache, and load them back without their sources.
 
 An asset bake is: ingest -> one BakedMesh per (geometry, material) pair carrying every instance's
-world matrix -> interior vectors for transmissive geometry only -> welded edges for edge
+world matrix -> interior vectors for transmissive geometry only -> per-vertex ambient
+occlusion of the opaque meshes (pipeline.occlusion) -> welded edges for edge
 anti-aliasing (core.adjacency, assets within its triangle cap), the support points the camera
 frames and the points whose convex hull bounds every surface (core.hull) -> a cache entry
 holding the arrays (meshes.npz, hull.npy; per texture and colour space a zstd-compressed mip
@@ -59,9 +60,10 @@ log = logging.getLogger(__name__)
 #   none, so theirs is always the default (one bake whatever a request asks).
 # - draw_mode: USD model:drawMode stand-ins drawn ("authored") or the geometry ("full");
 #   likewise always the default for other formats.
+# - occlusion: bake per-vertex ambient occlusion for the image light (pipeline.occlusion).
 ASSET_OPTIONS = {"interior_epsilon": None, "subdivision_levels": None, "thumbnail_size": 1024,
                  "moment": None, "variant_sets": (), "purposes": ("render",),
-                 "draw_mode": "authored"}
+                 "draw_mode": "authored", "occlusion": True}
 USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
 
 
@@ -72,7 +74,7 @@ def asset_options(options) -> dict:
             "draw_mode": options.draw_mode}
 PREFILTERS = ("ggx", "paper")
 _MESH_ARRAYS = ("positions", "normals", "indices", "tangents", "uv0", "uv1", "colors", "interior",
-                "edges", "edge_faces", "support")
+                "ao", "edges", "edge_faces", "support")
 
 
 def _cache(cache_dir) -> Cache:
@@ -210,6 +212,12 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> Bak
             name=mesh.name, positions=mesh.positions, normals=mesh.normals, indices=mesh.indices,
             material=material, transforms=np.stack(transforms), tangents=mesh.tangents,
             uv0=mesh.uv0, uv1=mesh.uv1, colors=mesh.colors, interior=interior, variants=variants))
+    occlusion = None
+    if opts["occlusion"]:
+        from pipeline.occlusion import ambient_occlusion  # Embree and numba: bakes only
+        occlusion = ambient_occlusion(meshes, np.asarray(scene.bounds, np.float64))
+        for mesh, ao in zip(meshes, occlusion.ao):
+            mesh.ao = ao
     start = time.perf_counter()
     if sum(len(m.indices) * len(m.transforms) for m in meshes) <= MAX_TRIANGLES:
         welded: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # by geometry: one per mesh
@@ -233,11 +241,15 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> Bak
     manifest = {
         "timings": {"interior_s": round(interior_s, 6), "subdivide_s": round(subdivide_s, 6),
                     "adjacency_s": round(adjacency_s, 6), "hull_s": round(hull_s, 6),
-                    "support_s": round(support_s, 6)},
+                    "support_s": round(support_s, 6),
+                    "occlusion_s": round(occlusion.seconds, 6) if occlusion else 0.0},
         "stats": {"meshes": len(meshes), "instances": len(scene.instances), "refined": refined,
                   "vertices": int(sum(len(m.positions) for m in meshes)),
                   "triangles": int(sum(len(m.indices) * len(m.transforms) for m in meshes)),
-                  "textures": len(scene.textures), "interior": stats},
+                  "textures": len(scene.textures), "interior": stats,
+                  "occlusion": None if occlusion is None else
+                  {"rays": occlusion.rays, "rays_per_vertex": occlusion.rays_per_vertex,
+                   "stride": occlusion.stride}},
         # relative to the asset's folder, as the cache's inputs are (a moved tree keeps it)
         "animations": scene.animations, "time_range": scene.time_range, "moment": scene.moment,
         "environment": None if scene.environment is None else

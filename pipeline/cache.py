@@ -69,8 +69,9 @@ log = logging.getLogger(__name__)
 # 4: textures as capped, zstd-compressed mip chains (were full-size .npy); 5: meshes' welded
 # edges for edge anti-aliasing (core.adjacency), support and hull points (core.hull);
 # 6: Material.thin_walled; 7: Light.shadow / shadow_color (UsdLux ShadowAPI);
-# 8: Material.show_back_faces (USD single-sided gprims)
-BAKE_FORMAT_VERSION = 8
+# 8: Material.show_back_faces (USD single-sided gprims); 9: per-vertex ambient occlusion
+# (pipeline.occlusion)
+BAKE_FORMAT_VERSION = 9
 ZSTD_LEVEL = 9  # texture chains: written once at bake, read by every process (see README figures)
 KINDS = ("assets", "environments", "thumbnails")
 IMAGE_SUFFIXES = (".png", ".jpg", ".webp", ".gif")  # stored as they are (thumbnails' encoded files)

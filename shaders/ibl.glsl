@@ -57,6 +57,25 @@ void specular_albedo(vec3 f0, float f90, float NdotV, float roughness, out vec3 
 #endif
 }
 
+// Baked visibility (pipeline.occlusion) applied to the image light only (core.lobes holds the
+// same arithmetic for the ray tracer and the tests). Diffuse: the visible fraction of the
+// cosine-weighted hemisphere, lifted by what interreflection brings back on bright albedos
+// (Jimenez et al. 2016's multi-bounce fit): the references trace those bounces. Specular:
+// Lagarde & de Rousiers 2014's estimate of the share of the lobe the occluded cone blocks,
+// from the visibility, N.V and alpha (a narrow lobe at normal view keeps more of its sky),
+// lifted by the same multi-bounce fit on F0.
+vec3 ao_multibounce(float ao, vec3 albedo) {
+    vec3 a = 2.0404 * albedo - 0.3324;
+    vec3 b = -4.7951 * albedo + 0.6417;
+    vec3 c = 2.7552 * albedo + 0.6903;
+    return max(vec3(ao), ((ao * a + b) * ao + c) * ao);
+}
+
+float specular_occlusion(float NdotV, float ao, float roughness) {
+    float alpha = roughness * roughness;
+    return clamp(pow(NdotV + ao, exp2(-16.0 * alpha - 1.0)) - 1.0 + ao, 0.0, 1.0);
+}
+
 #ifdef MATERIAL_INFO_GLSL  // the lookups above also serve the background pass
 // Where the specular lobe looks: the mirror direction, or for an anisotropic material the
 // mirror about a normal bent across the grain (the stretched lobe's mean direction moves
@@ -82,8 +101,14 @@ vec3 ibl(MaterialInfo m, vec3 v) {
     vec3 radiance = env_radiance(specular_direction(m, v), m.roughness);
     vec3 irradiance = env_diffuse(n);
     vec3 kD = m.diffuse_color * (1.0 - FssEss - FmsEms);
-    vec3 color = FssEss * radiance + (FmsEms + kD) * irradiance;
-    return color * m.occlusion;
+    // The occlusion texture and the baked visibility usually record the same geometry (a
+    // texture is most often an AO bake): the darker of the two, not their product.
+    vec3 diffuse_occ = min(vec3(m.occlusion), ao_multibounce(m.ao, m.diffuse_color));
+    // the specular share too gets back what the blocked directions reflect: on a metal
+    // (F0 bright) the neighbouring surfaces it sees are lit (Filament does the same)
+    vec3 specular_occ = min(vec3(m.occlusion),
+                            ao_multibounce(specular_occlusion(NdotV, m.ao, m.roughness), m.f0));
+    return (FssEss * radiance + FmsEms * irradiance) * specular_occ + kD * irradiance * diffuse_occ;
 }
 
 #ifdef MATERIAL_SHEEN
@@ -94,7 +119,7 @@ vec3 ibl(MaterialInfo m, vec3 v) {
 vec3 ibl_sheen(MaterialInfo m, vec3 v) {
     float NdotV = clamp(dot(m.n, v), 1e-4, 1.0);
     float e = texture(u_brdf_lut, vec2(NdotV, m.sheen_roughness)).b;
-    return m.sheen_color * e * env_diffuse(m.n) * m.occlusion;
+    return m.sheen_color * e * env_diffuse(m.n) * min(m.occlusion, m.ao);
 }
 #endif
 
@@ -105,7 +130,7 @@ vec3 ibl_clearcoat(MaterialInfo m, vec3 v) {
     float NdotV = clamp(dot(n, v), 1e-4, 1.0);
     vec2 ab = texture(u_brdf_lut, vec2(NdotV, m.clearcoat_roughness)).rg;
     return (CLEARCOAT_F0 * ab.x + ab.y) * env_radiance(reflect(-v, n), m.clearcoat_roughness)
-         * m.occlusion;
+         * min(m.occlusion, specular_occlusion(NdotV, m.ao, m.clearcoat_roughness));
 }
 #endif
 

@@ -49,6 +49,9 @@ in vec4 v_tangent;
 #ifdef HAS_COLORS
 in vec4 v_color;
 #endif
+#ifdef HAS_AO
+in vec2 v_ao;  // front, back side
+#endif
 
 struct MaterialInfo {
     vec4 base_color;     // linear, with alpha
@@ -57,7 +60,8 @@ struct MaterialInfo {
     vec3 f0;             // normal-incidence reflectance (dielectric from IOR x specular, or metal)
     float f90;           // grazing reflectance (KHR_materials_specular scales it for dielectrics)
     vec3 diffuse_color;  // base colour x (1 - metallic)
-    float occlusion;
+    float occlusion;     // the occlusion texture's (glTF), 1 without
+    float ao;            // baked ambient visibility of the geometry (pipeline.occlusion), 1 without
     vec3 emissive;
     vec3 n;              // shading normal, world space, facing the viewer on double-sided
     vec3 ng;             // geometric normal, same side
@@ -296,6 +300,10 @@ MaterialInfo material_info(vec3 v) {
     m.occlusion = 1.0;
 #ifdef HAS_OCCLUSION_MAP
     m.occlusion = 1.0 + u_occlusion_strength * (SAMPLE_MAP(occlusion, OCCLUSION_UV).r - 1.0);
+#endif
+    m.ao = 1.0;
+#ifdef HAS_AO
+    m.ao = clamp(gl_FrontFacing ? v_ao.x : v_ao.y, 0.0, 1.0);
 #endif
     m.emissive = u_emissive;
 #ifdef HAS_EMISSIVE_MAP

@@ -22,6 +22,10 @@ out vec4 v_color;
 #endif
 out vec3 v_world;
 out vec3 v_normal;
+#ifdef HAS_AO
+in vec2 in_ao;         // baked ambient visibility (pipeline.occlusion), front and back
+out vec2 v_ao;
+#endif
 #ifdef HAS_INTERIOR
 in vec3 in_interior;   // baked object-space vertex->exit vector (refractive meshes)
 out vec3 v_interior;   // in world space: scale and shear apply (paper 4.2.3.2)
@@ -48,6 +52,9 @@ void main() {
 #endif
 #ifdef HAS_COLORS
     v_color = in_color;
+#endif
+#ifdef HAS_AO
+    v_ao = in_ao;
 #endif
 #ifdef HAS_INTERIOR
     v_interior = mat3(in_model) * in_interior;

@@ -131,13 +131,16 @@ class TriangleScene:
             raise RuntimeError(f"Embree: scene build failed (error {err})")
 
     def closest(self, points: np.ndarray, directions: np.ndarray, offsets: np.ndarray,
-                select: np.ndarray, threads: int | None = None) -> np.ndarray:
+                select: np.ndarray, threads: int | None = None, normals: bool = False):
         """Distance to the closest hit along each ray (tnear 0), inf where it misses: ray k
         starts at points[v] + offsets[v] * directions[v] and runs along directions[v], for
         v = select[k] ((n, 3) float32 rows, (n,) offsets).
 
         Each task fills its own packets (a compiled loop, _fill) and traces them, so the set-up
-        is spread over the cores too (through numpy it was a tenth of the trace)."""
+        is spread over the cores too (through numpy it was a tenth of the trace). With
+        `normals`, also each hit's unnormalised geometric normal ((n, 3), Embree's: the cross
+        product of the triangle's edges v1 - v0 and v2 - v0) and the quad hit ((n,) int64);
+        both undefined where the ray missed."""
         n = len(select)
         packets = -(-n // PACKET)
         buf = _aligned_words(packets * _ROWS * PACKET, zeroed=False).reshape(packets, _ROWS, PACKET)
@@ -168,7 +171,12 @@ class TriangleScene:
         work()
         for helper in helpers:
             helper.result()
-        return f[:, _TFAR].reshape(-1)[:n].copy()  # tfar stays inf where the ray misses
+        tfar = f[:, _TFAR].reshape(-1)[:n].copy()  # tfar stays inf where the ray misses
+        if normals:
+            ng = f[:, len(_RAY_FIELDS):len(_RAY_FIELDS) + 3].transpose(0, 2, 1).reshape(-1, 3)[:n].copy()
+            prim = buf[:, _GEOM_ID - 1].reshape(-1)[:n].astype(np.int64)
+            return tfar, ng, prim
+        return tfar
 
     def __del__(self):
         if getattr(self, "_scene", None) and _lib is not None:

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from core.baked import BakedAsset
-from core.lobes import BY_NAME
+from core.lobes import BY_NAME, ao_multibounce
 from core.scene import LINEAR, LINEAR_MIPMAP_LINEAR, NEAREST, Material, TextureRef, is_srgb
 
 MIRRORED_REPEAT, CLAMP_TO_EDGE = 33648, 33071
@@ -96,6 +96,7 @@ class Surface:
     materials: list[SurfaceMaterial]
     alpha_tested: np.ndarray             # K bool: MASK or BLEND (rays may pass through)
     corners: np.ndarray | None = None    # T x 3 x 3 world corners (tangents from UVs)
+    ao: np.ndarray | None = None         # T x 3 x 2 baked visibility, front and back (1: none)
 
 
 def build_surface(asset: BakedAsset, materials: list[Material], parts: list[tuple[int, np.ndarray, np.ndarray]],
@@ -105,8 +106,8 @@ def build_surface(asset: BakedAsset, materials: list[Material], parts: list[tupl
     n_sets = 2
     uv: list[list[np.ndarray]] = [[] for _ in range(n_sets)]
     have_uv = [False] * n_sets
-    tangents, colors = [], []
-    have_tan = have_col = False
+    tangents, colors, aos = [], [], []
+    have_tan = have_col = have_ao = False
     for k, idx, lin in parts:
         mesh = asset.meshes[k]
         t = len(idx)
@@ -132,6 +133,11 @@ def build_surface(asset: BakedAsset, materials: list[Material], parts: list[tupl
             colors.append(c[idx])
         else:
             colors.append(np.ones((t, 3, 4)))
+        if mesh.ao is not None and len(mesh.ao) == len(mesh.positions):
+            have_ao = True
+            aos.append(np.asarray(mesh.ao, np.float64).reshape(-1, 2)[idx])
+        else:
+            aos.append(np.ones((t, 3, 2)))
     area = 0.5 * np.linalg.norm(np.cross(world[:, 1] - world[:, 0], world[:, 2] - world[:, 0]), axis=-1)
     uvs: list[np.ndarray | None] = []
     density: list[np.ndarray | None] = []
@@ -165,7 +171,7 @@ def build_surface(asset: BakedAsset, materials: list[Material], parts: list[tupl
     alpha_tested = np.asarray([m.alpha_mode in ("MASK", "BLEND") for m in materials], bool)
     return Surface(uvs, density, np.concatenate(tangents) if have_tan and tangents else None,
                    np.concatenate(colors) if have_col and colors else None, surf_mats, alpha_tested,
-                   np.asarray(world, np.float64))
+                   np.asarray(world, np.float64), np.concatenate(aos) if have_ao and aos else None)
 
 
 def _interp(corners: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -355,6 +361,11 @@ def evaluate(surf: Surface, normals: np.ndarray, material: np.ndarray, prim: np.
             if np.any(ok):
                 ns[sel[ok]] = _perturb(t[ok], tan[ok], interp_n[ok], m.normal_scale)
         _lobes(m, lobe, sel, tex, tangent, interp_n, ns)
+    if surf.ao is not None:  # the baked visibility of the side the ray meets (core.lobes)
+        ao = _interp(surf.ao[prim], u, v)
+        side = np.where(np.einsum("ij,ij->i", d, _interp(normals[prim].astype(np.float64), u, v)) < 0, 0, 1)
+        albedo = (base * (1.0 - metal)[:, None]).mean(axis=1)
+        lobe.occlusion[:] = np.minimum(occ, ao_multibounce(ao[np.arange(n), side], albedo))
     return lobe
 
 

@@ -71,6 +71,7 @@ _ATTRIBUTES = {
     "positions": ("in_position", "3f"), "normals": ("in_normal", "3f"),
     "tangents": ("in_tangent", "4f"), "uv0": ("in_uv0", "2f"), "uv1": ("in_uv1", "2f"),
     "colors": ("in_color", "4f"),
+    "ao": ("in_ao", "2f"),  # baked ambient visibility, front and back (pipeline.occlusion)
     "interior": ("in_interior", "3f"),  # refractive meshes only (renderer.methods.refraction)
 }
 _INSTANCE = ("16f 9f/i", "in_model", "in_normal_matrix")

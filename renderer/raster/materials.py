@@ -76,6 +76,8 @@ def _build(mesh, m: Material, asset: gpu.GpuAsset, ov: MaterialOverride | None) 
         defines["HAS_TANGENTS"] = 1
     if mesh.colors is not None:
         defines["HAS_COLORS"] = 1
+    if mesh.ao is not None and len(mesh.ao) == len(mesh.positions):
+        defines["HAS_AO"] = 1
     if m.double_sided:
         defines["DOUBLE_SIDED"] = 1
     if m.alpha_mode == "MASK":
