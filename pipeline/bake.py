@@ -60,10 +60,12 @@ log = logging.getLogger(__name__)
 #   none, so theirs is always the default (one bake whatever a request asks).
 # - draw_mode: USD model:drawMode stand-ins drawn ("authored") or the geometry ("full");
 #   likewise always the default for other formats.
-# - occlusion: bake per-vertex ambient occlusion for the image light (pipeline.occlusion).
+# - occlusion: bake per-vertex ambient occlusion for the image light (pipeline.occlusion);
+#   None = as the format's reference draws it: glTF's are path tracers (issue 30), which see
+#   it; USD's is usdview's Storm, which draws none.
 ASSET_OPTIONS = {"interior_epsilon": None, "subdivision_levels": None, "thumbnail_size": 1024,
                  "moment": None, "variant_sets": (), "purposes": ("render",),
-                 "draw_mode": "authored", "occlusion": True}
+                 "draw_mode": "authored", "occlusion": None}
 USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
 
 
@@ -75,6 +77,11 @@ def asset_options(options) -> dict:
 PREFILTERS = ("ggx", "paper")
 _MESH_ARRAYS = ("positions", "normals", "indices", "tangents", "uv0", "uv1", "colors", "interior",
                 "ao", "edges", "edge_faces", "support")
+
+
+def _occlusion(asked: bool | None, source) -> bool:
+    """The `occlusion` option resolved: None is the format's default (see ASSET_OPTIONS)."""
+    return Path(str(source)).suffix.lower() not in USD_SUFFIXES if asked is None else bool(asked)
 
 
 def _cache(cache_dir) -> Cache:
@@ -106,6 +113,7 @@ def bake_or_load_asset(path, cache_dir=None, *, force: bool = False, limits: Lim
     if Path(path).suffix.lower() not in USD_SUFFIXES:
         opts["purposes"] = ASSET_OPTIONS["purposes"]
         opts["draw_mode"] = ASSET_OPTIONS["draw_mode"]
+    opts["occlusion"] = _occlusion(opts["occlusion"], path)
     if isinstance(opts["moment"], Moment):
         opts["moment"] = dataclasses.asdict(opts["moment"])
     cache = _cache(cache_dir)
@@ -213,7 +221,7 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> Bak
             material=material, transforms=np.stack(transforms), tangents=mesh.tangents,
             uv0=mesh.uv0, uv1=mesh.uv1, colors=mesh.colors, interior=interior, variants=variants))
     occlusion = None
-    if opts["occlusion"]:
+    if _occlusion(opts["occlusion"], scene.source):
         from pipeline.occlusion import ambient_occlusion  # Embree and numba: bakes only
         occlusion = ambient_occlusion(meshes, np.asarray(scene.bounds, np.float64))
         for mesh, ao in zip(meshes, occlusion.ao):

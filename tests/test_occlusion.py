@@ -261,7 +261,7 @@ def test_punctual_light_is_not_occluded(tmp_path):
 
 
 def test_bake_round_trip(tmp_path):
-    """build_baked bakes it into the meshes and the cache keeps it (format 8)."""
+    """build_baked bakes it into the meshes and the cache keeps it (format 9)."""
     from core.scene import Instance, Mesh, Scene
     plane, ball = _grid(10.0, 11), _sphere(1.0, (0.0, 1.05, 0.0))
     meshes = [Mesh("plane", *plane), Mesh("ball", *ball)]
@@ -273,6 +273,10 @@ def test_bake_round_trip(tmp_path):
     assert ao is not None and ao.shape == (len(plane[0]), 2) and ao.min() < 0.5
     off = build_baked(scene, options={"occlusion": False})
     assert all(m.ao is None for m in off.meshes)
+    # USD's reference, usdview's Storm, draws no ambient occlusion: a stage bakes none unless asked
+    usd = dataclasses.replace(scene, source="stage.usda", format="usd")
+    assert all(m.ao is None for m in build_baked(usd).meshes)
+    assert build_baked(usd, options={"occlusion": True}).meshes[0].ao is not None
 
 
 def test_cache_keeps_the_occlusion(tmp_path):
