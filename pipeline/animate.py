@@ -15,7 +15,7 @@ from core.animation import Moment, requested, select
 from core.baked import BakedAsset
 from core.errors import NotInAsset
 from core.options import MAX_FRAMES
-from pipeline.bake import build_baked
+from pipeline.bake import POSED_OPTIONS, build_baked
 from pipeline.ingest import load_scene
 from pipeline.limits import Limits
 
@@ -51,7 +51,7 @@ def posed(path, base: BakedAsset, moment: Moment, root=None, limits: Limits | No
                        draw_mode=opts.get("draw_mode", "authored"))
     scene.textures = []  # not decoded again: no pose changes them, base's are used
     key = f"{base.key}@{moment.animation or ''}:{float(moment.time):.6f}"
-    baked = build_baked(scene, key, {**opts,
+    baked = build_baked(scene, key, {**opts, **POSED_OPTIONS,
                                      "moment": dataclasses.asdict(moment)})
     baked.textures = base.textures
     return baked

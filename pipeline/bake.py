@@ -66,6 +66,10 @@ log = logging.getLogger(__name__)
 ASSET_OPTIONS = {"interior_epsilon": None, "subdivision_levels": None, "thumbnail_size": 1024,
                  "moment": None, "variant_sets": (), "purposes": ("render",),
                  "draw_mode": "authored", "occlusion": None}
+# A pose bakes no ambient occlusion: per frame it would cost a bake's rays, and a rig's frames
+# (pipeline.gltf.rig, pipeline.usd.rig) re-pose one template, so posed reads and rig frames
+# agree only if neither carries it.
+POSED_OPTIONS = {"occlusion": False}
 USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
 
 

@@ -33,7 +33,7 @@ from core.animation import Animation, select
 from core.baked import BakedAsset
 from core.hull import hull_points, hull_support_points
 from core.scene import Material, Scene
-from pipeline.bake import build_baked, framed_bounds, instance_groups
+from pipeline.bake import POSED_OPTIONS, build_baked, framed_bounds, instance_groups
 from pipeline.gltf.animation import write_pointers
 from pipeline.gltf.materials import read_material
 from pipeline.gltf.nodes import NodeGraph, camera, light
@@ -103,7 +103,8 @@ class Rig:
         self.epsilon = options.get("interior_epsilon")
         # one upload per asset and animation, its buffers rewritten by every frame of any
         # request for them (renderer.raster.gpu)
-        self.template = build_baked(scene, f"{base.key}#rig={self.animation.name}", options)
+        self.template = build_baked(scene, f"{base.key}#rig={self.animation.name}",
+                                    {**options, **POSED_OPTIONS})
         self.template.textures = base.textures  # one reader: the texture indices are the same
         self.deformers: dict[int, _Deformer] = {}
         for mi, mesh in enumerate(scene.meshes):

@@ -32,7 +32,7 @@ from core.errors import AssetError
 from core.hull import SUPPORT_BLOCK, hull_points, hull_support_points, support_points
 from core.scene import Scene
 from pipeline import deadline
-from pipeline.bake import build_baked, framed_bounds, instance_groups
+from pipeline.bake import POSED_OPTIONS, build_baked, framed_bounds, instance_groups
 from pipeline.ingest import finish
 from pipeline.limits import Limits
 from pipeline.usd.layers import LayerGraph
@@ -81,7 +81,7 @@ class UsdRig:
             raise
         self.groups = instance_groups(scene)
         self.epsilon = opts.get("interior_epsilon")
-        self.template = build_baked(scene, f"{base.key}#usdrig", opts)
+        self.template = build_baked(scene, f"{base.key}#usdrig", {**opts, **POSED_OPTIONS})
         self.template.textures = base.textures
         self.options = opts
 
