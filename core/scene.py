@@ -229,6 +229,9 @@ class Mesh:
     creases: Creases | None = None  # the cage's sharp edges and corners, used by that refinement
     cage: Cage | None = None  # catmullClark / bilinear: the polygon cage refined at bake
     cage_corners: np.ndarray | None = None  # per cage corner: this mesh's vertex, -1 off its faces
+    # per refined attribute (uv0, uv1, colors): its primvar's interpolation (vertex, varying,
+    # faceVarying, uniform, constant), which chooses how the refinement interpolates it
+    cage_interpolation: dict[str, str] | None = None
 
     @property
     def triangle_count(self) -> int:

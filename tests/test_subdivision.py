@@ -229,15 +229,16 @@ def Mesh "Grid"
     int[] faceVertexCounts = [4, 4, 4, 4, 4, 4, 4, 4, 4]
     int[] faceVertexIndices = [{indices}]
     point3f[] points = [{points}]
-    texCoord2f[] primvars:st = [{st}] (interpolation = "vertex")
-    uniform token subdivisionScheme = "catmullClark"
+    texCoord2f[] primvars:st = [{st}] (interpolation = "{interp}")
+{st_indices}    uniform token subdivisionScheme = "catmullClark"
 {extra}}}
 """
 
 
-def grid(tmp_path, extra="", name="grid", bump=0.0):
+def grid(tmp_path, extra="", name="grid", bump=0.0, interp="vertex"):
     """A flat open 3 x 3 quad grid over [0, 3]^2, st = xy / 3 (the centre-left inner point's st
-    moved by `bump`)."""
+    moved by `bump`), one value a point; `interp` faceVarying: the same values indexed by the
+    faces' corners (one face-varying region)."""
     pts = [(x, y) for y in range(4) for x in range(4)]
     idx = [v for y in range(3) for x in range(3)
            for v in (y * 4 + x, y * 4 + x + 1, y * 4 + x + 5, y * 4 + x + 4)]
@@ -245,7 +246,9 @@ def grid(tmp_path, extra="", name="grid", bump=0.0):
     path = tmp_path / f"{name}.usda"
     path.write_text(GRID.format(indices=", ".join(map(str, idx)),
                                 points=", ".join(f"({x}, {y}, 0)" for x, y in pts),
-                                st=", ".join(f"({u}, {v})" for u, v in st), extra=extra))
+                                st=", ".join(f"({u}, {v})" for u, v in st), extra=extra,
+                                interp=interp, st_indices="" if interp != "faceVarying" else
+                                f"    int[] primvars:st:indices = [{', '.join(map(str, idx))}]\n"))
     return path
 
 
@@ -279,7 +282,7 @@ def test_uvs_follow_the_surface_and_face_varying_rules(tmp_path):
     at = {}
     for rule in ("cornersPlus1", "all"):
         extra = f'    uniform token faceVaryingLinearInterpolation = "{rule}"\n'
-        m = refined(grid(tmp_path, extra, rule, bump=0.1))[0]
+        m = refined(grid(tmp_path, extra, rule, bump=0.1, interp="faceVarying"))[0]
         # the child of cage point (1, 1): a flat regular grid's points stay put
         i = np.argmin(np.linalg.norm(m.positions[:, :2] - 1.0, axis=1))
         np.testing.assert_allclose(m.positions[i, :2], (1, 1), atol=1e-6)
@@ -334,3 +337,98 @@ def test_triangle_subdivision_rule_smooth(tmp_path):
     for rule, vw, fw in (("catmullClark", 0.25, 0.25), ("smooth", 0.03, 0.47)):
         e = vw * (p[0] + p[1]) + fw * (f1 + f2)
         assert np.linalg.norm(out[rule] - e, axis=1).min() < 1e-5, rule
+
+
+# -- Each primvar by its own interpolation (OpenSubdiv refines each channel on its own) ------
+
+def grid_corners(tmp_path, name, primvars: str) -> "object":
+    """The open 3 x 3 grid with `primvars` (USD lines) instead of its st."""
+    text = grid(tmp_path, name=name).read_text()
+    start = text.index("    texCoord2f[] primvars:st")
+    end = text.index("\n", start) + 1
+    path = tmp_path / f"{name}.usda"
+    path.write_text(text[:start] + primvars + text[end:])
+    return path
+
+
+FACE_CORNERS = [((x, y), (x + 1, y), (x + 1, y + 1), (x, y + 1)) for y in range(3) for x in range(3)]
+
+
+def per_corner(value) -> str:
+    """`value(face_x, face_y, point)` at each face corner, as a USD array's items."""
+    return ", ".join(str(tuple(value(face[0][0], face[0][1], p))) for face in FACE_CORNERS for p in face)
+
+
+def values_at(mesh, point, attr="uv0", column=0) -> np.ndarray:
+    near = np.linalg.norm(mesh.positions[:, :2] - np.asarray(point), axis=1) < 1e-6
+    assert near.any()
+    return np.unique(np.round(getattr(mesh, attr)[near, column].astype(np.float64), 6))
+
+
+# displayColor red 0 left of x = 1, 1 right of it: a face-varying seam up the line x = 1
+SEAM_COLOR = ('    color3f[] primvars:displayColor = [{}] (interpolation = "faceVarying")\n'
+              .format(per_corner(lambda fx, fy, p: (0.0 if fx == 0 else 1.0, 0.5, 0.5))))
+
+
+@pytest.mark.parametrize("interp", ["vertex", "faceVarying"])
+def test_a_primvar_is_not_cut_by_another_primvars_seam(tmp_path, interp):
+    """st smooth (its bump at cage point (1, 1) one level on: 1/2 b + 4 (b / 4) / 16 = 9/16 b,
+    the interior vertex rule) though displayColor has a seam through that point; refined on
+    one shared topology it took the seam's crease rule, 3/4 b."""
+    bump = 0.1
+    if interp == "vertex":
+        st = ", ".join(f"({x / 3 + (bump if (x, y) == (1, 1) else 0)}, {y / 3})"
+                       for y in range(4) for x in range(4))
+    else:
+        st = per_corner(lambda fx, fy, p: (p[0] / 3 + (bump if p == (1, 1) else 0), p[1] / 3))
+    path = grid_corners(tmp_path, interp, f'    texCoord2f[] primvars:st = [{st}] '
+                        f'(interpolation = "{interp}")\n' + SEAM_COLOR)
+    mesh = refined(path, 1)[0]
+    assert mesh.colors is not None
+    np.testing.assert_allclose(values_at(mesh, (1, 1), "colors"), [0, 1], atol=1e-6)  # still cut
+    np.testing.assert_allclose(values_at(mesh, (1, 1)), [1 / 3 + 9 / 16 * bump], atol=1e-6)
+
+
+def test_varying_primvars_are_bilinear(tmp_path):
+    """A varying primvar is interpolated linearly over each face (OpenSubdiv's
+    InterpolateVarying): the bumped point's child keeps its value, an edge's midpoint the mean
+    of its ends, a face's centre the mean of its corners; a vertex primvar is smoothed."""
+    bump = 0.1
+    st = ", ".join(f"({x / 3 + (bump if (x, y) == (1, 1) else 0)}, {y / 3})"
+                   for y in range(4) for x in range(4))
+    out = {}
+    for interp in ("varying", "vertex"):
+        path = grid_corners(tmp_path, interp, f'    texCoord2f[] primvars:st = [{st}] '
+                            f'(interpolation = "{interp}")\n')
+        out[interp] = refined(path, 1)[0]
+    m = out["varying"]
+    np.testing.assert_allclose(values_at(m, (1, 1)), [1 / 3 + bump], atol=1e-6)
+    np.testing.assert_allclose(values_at(m, (1.5, 1)), [0.5 + bump / 2], atol=1e-6)
+    np.testing.assert_allclose(values_at(m, (1.5, 1.5)), [0.5 + bump / 4], atol=1e-6)
+    np.testing.assert_allclose(values_at(out["vertex"], (1, 1)), [1 / 3 + 9 / 16 * bump], atol=1e-6)
+
+
+@pytest.mark.parametrize("case", ["dart", "one_face_region"])
+def test_corners_plus2_sharpens_darts_and_both_values_beside_a_corner(tmp_path, case):
+    """faceVaryingLinearInterpolation cornersPlus2 (OpenSubdiv's FVAR_LINEAR_CORNERS_PLUS2).
+    dart: a seam on the cage edge (1, 0)-(1, 1) only (face (0, 0)'s u at (1, 0) is 0.3 more),
+    so interior point (1, 1) has one value: cornersPlus1 moves it by the crease rule along the
+    seam, 3/4 v + 1/8 (1/3 + 0.3 + 1/3) = 1/3 + 0.0375; cornersPlus2 keeps it, 1/3.
+    one_face_region: face (0, 0) has its own u at (1, 1) (0.3 more): that one-face value is a
+    corner under both; the other (three faces) is a crease under cornersPlus1,
+    3/4 (1/3) + 1/8 (u(1, 0) + u(0, 1)) = 1/4 + 1/8 (1/3 + 0) = 7/24, kept (1/3) by cornersPlus2."""
+    odd = (1, 0) if case == "dart" else (1, 1)
+    st = per_corner(lambda fx, fy, p: (p[0] / 3 + (0.3 if (fx, fy) == (0, 0) and p == odd else 0),
+                                       p[1] / 3))
+    got = {}
+    for rule in ("cornersPlus1", "cornersPlus2"):
+        path = grid_corners(tmp_path, f"{case}_{rule}",
+                            f'    texCoord2f[] primvars:st = [{st}] (interpolation = "faceVarying")\n'
+                            f'    uniform token faceVaryingLinearInterpolation = "{rule}"\n')
+        got[rule] = values_at(refined(path, 1)[0], (1, 1))
+    if case == "dart":
+        np.testing.assert_allclose(got["cornersPlus1"], [1 / 3 + 0.0375], atol=1e-6)
+        np.testing.assert_allclose(got["cornersPlus2"], [1 / 3], atol=1e-6)
+    else:
+        np.testing.assert_allclose(got["cornersPlus1"], [7 / 24, 1 / 3 + 0.3], atol=1e-6)
+        np.testing.assert_allclose(got["cornersPlus2"], [1 / 3, 1 / 3 + 0.3], atol=1e-6)

@@ -217,6 +217,7 @@ class _Topology:
     corner_vertex: np.ndarray | None = None  # per face-vertex: its (split) vertex
     face_drawn: np.ndarray | None = None  # per USD face: not a hole
     corner_face: np.ndarray | None = None  # per face-vertex: its face
+    interpolation: dict[str, str] = field(default_factory=dict)  # per attr: its primvar's
 
 
 class StageReader:
@@ -769,6 +770,7 @@ class StageReader:
             topo.normals = normals.values[elem(normals)][:, :3].astype(np.float32)
         for name, pv in primvars.items():
             topo.attrs[name] = pv.values[elem(pv)].astype(np.float32)
+            topo.interpolation[name] = pv.interpolation
         self.triangles += n_tri
         self.vertices += len(topo.positions)
         return topo
@@ -952,11 +954,19 @@ class StageReader:
                 else None
             alpha = np.ones((len(rgb), 1), np.float32) if alpha is None else alpha[:, :1]
             colors = pick(np.concatenate([np.broadcast_to(rgb, (len(rgb), 3)), alpha], axis=1))
+        interpolation = None
+        if cage_corners is not None:
+            uv_names = [n for n in binding.uv_primvars] or ["st"]
+            interpolation = {k: _cage_interpolation(topo, [n]) for k, n in zip(("uv0", "uv1"), uv_names)}
+            if colors is not None:
+                interpolation["colors"] = _cage_interpolation(
+                    topo, [binding.color_primvar or "", "displayOpacity"])
         return Mesh(name=name, positions=pick(topo.positions),
                     normals=None if topo.normals is None else pick(topo.normals),  # type: ignore[arg-type]  # None: pipeline.ingest computes them
                     indices=local.reshape(-1, 3).astype(np.uint32),
                     uv0=uvs[0], uv1=uvs[1], colors=colors, subdivision=topo.subdivision,
-                    creases=topo.creases, cage=topo.cage, cage_corners=cage_corners)
+                    creases=topo.creases, cage=topo.cage, cage_corners=cage_corners,
+                    cage_interpolation=interpolation)
 
     def _warn(self, text: str) -> None:
         if text not in self.scene.warnings:
@@ -1029,6 +1039,17 @@ def _unique_rows(columns: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         _, rep, inverse = np.unique(np.stack(columns, axis=1), axis=0, return_index=True,
                                     return_inverse=True)
     return inverse.reshape(-1), rep
+
+
+def _cage_interpolation(topo: _Topology, names: list[str]) -> str:
+    """How a subdivision surface refines an attribute made of the primvars `names`: the most
+    discontinuous of theirs (a colour of vertex displayColor and faceVarying displayOpacity is
+    face-varying); constant where none is authored (a generated or constant st)."""
+    found = [topo.interpolation[n] for n in names if n in topo.interpolation]
+    for kind in ("faceVarying", "uniform", "varying", "vertex"):
+        if kind in found:
+            return kind
+    return "constant"
 
 
 def _constant_st(name: str, n: int) -> np.ndarray:

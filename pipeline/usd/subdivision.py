@@ -294,11 +294,14 @@ def loop_step(pos: np.ndarray, tri: np.ndarray, attrs: dict[str, np.ndarray],
 # - borders and non-manifold edges are infinitely sharp; interpolateBoundary edgeAndCorner
 #   makes a border vertex of one face a corner; none drops the faces that touch the border
 #   (they still shape their neighbours, as OpenSubdiv's VTX_BOUNDARY_NONE holes do).
-# Face-varying data (UVs, colours) is refined on its own topology (a corner's vertex there
-# is its point and value: seams are borders) with faceVaryingLinearInterpolation: all =
-# bilinear; boundaries = corners along every seam; cornersOnly = corners where a region has
-# one face; cornersPlus1 (USD's default) also where three or more regions meet at a point;
-# cornersPlus2 as cornersPlus1; none = edgeOnly.
+# Each attribute is refined as its primvar's interpolation asks (OpenSubdiv refines each
+# channel on its own): vertex ones by these rules on the points, varying (and constant) ones
+# bilinearly on the points, each face-varying (or uniform) one on its own topology (a corner's
+# vertex there is its point and value: seams are borders) with faceVaryingLinearInterpolation:
+# all = bilinear; boundaries = corners along every seam; cornersOnly = corners where a region
+# has one face or is a bowtie; cornersPlus1 (USD's default) also where three or more regions
+# meet at a point; cornersPlus2 also darts and both values beside a one-face region
+# (`_fv_corners`); none = edgeOnly.
 
 @dataclasses.dataclass
 class Level:
@@ -399,24 +402,60 @@ def cc_level(lv: Level, bilinear: bool = False, boundary: str = "edgeAndCorner",
 
 
 def _fv_corners(mode: str, ids: np.ndarray, points: np.ndarray, counts: np.ndarray) -> np.ndarray | None:
-    """Face-varying vertices made corners by `mode` at a level: every seam vertex
-    (boundaries), or where three or more regions meet at a point (cornersPlus1/2; the
-    corners of one face are edgeAndCorner's)."""
+    """Face-varying vertices made corners by `mode` at a level, as OpenSubdiv's FVarLevel
+    tags a vertex's values (its "siblings", one per region of faces that share a value):
+    boundaries: every value on a seam or the mesh's border; otherwise a value whose region
+    is not one fan of faces (a bowtie); cornersPlus1 / cornersPlus2 also every value of a
+    point where three or more regions meet, and both of two where one is a bowtie;
+    cornersPlus2 also a dart (one value at an interior point a seam ends at) and both of two
+    values where one region is a single face. A region of one face is a corner by
+    edgeAndCorner's rule in `cc_level` (every mode but none)."""
     n = int(ids.max()) + 1
     point_of = np.zeros(n, np.int64)
     point_of[ids] = points
+    _, _, _, edge_of, e0, e1 = _edges(counts, ids, n)
+    once = np.bincount(edge_of, minlength=len(e0)) == 1  # borders of the value mesh: seams
+    seam_edges = np.bincount(np.concatenate([e0[once], e1[once]]), minlength=n)
     if mode == "boundaries":
-        _, _, _, edge_of, _, _ = _edges(counts, ids, n)
-        once = np.bincount(edge_of) == 1
-        on = np.zeros(n, bool)
-        on[ids[once[edge_of]]] = True
-        return on
+        return seam_edges > 0
+    if mode not in ("none", "cornersOnly", "cornersPlus1", "cornersPlus2"):
+        return None
+    present = np.zeros(n, bool)
+    present[ids] = True
+    n_points = int(points.max()) + 1
+    regions = np.bincount(point_of[present], minlength=n_points)[point_of]  # values at its point
+    bowtie = present & (seam_edges > 2)
+    sharp = bowtie.copy()
     if mode in ("cornersPlus1", "cornersPlus2"):
-        present = np.zeros(n, bool)
-        present[ids] = True
-        regions = np.bincount(point_of[present], minlength=int(points.max()) + 1)
-        return present & (regions[point_of] >= 3)
-    return None
+        bowtie_at = np.bincount(point_of[bowtie], minlength=n_points)[point_of] > 0
+        sharp |= present & ((regions >= 3) | ((regions == 2) & bowtie_at))
+    if mode == "cornersPlus2":
+        _, _, _, p_edge_of, _, _ = _edges(counts, points, n_points)
+        border_edge = np.bincount(p_edge_of) == 1
+        on_border = np.zeros(n_points, bool)
+        on_border[points[border_edge[p_edge_of]]] = True
+        faces = np.bincount(ids, minlength=n)
+        single_at = np.bincount(point_of[present & (faces == 1)], minlength=n_points)[point_of] > 0
+        dart = present & (regions == 1) & (seam_edges > 0) & ~on_border[point_of]
+        sharp |= dart | (present & (regions == 2) & single_at)
+    return sharp
+
+
+def _value_level(first: Level, own: np.ndarray, corner_own: np.ndarray, pts: np.ndarray,
+                 vals: np.ndarray, by_point: bool) -> Level:
+    """The cage level of one attribute over `mesh`'s own faces: by point (vertex / varying:
+    one value a point) or on its own face-varying topology (a value per distinct point and
+    value: where neighbours disagree, a seam that is a border of that topology)."""
+    key = pts[:, None].astype(np.float64) if by_point else \
+        np.concatenate([pts[:, None].astype(np.float64), vals], axis=1)
+    _, fv = np.unique(key, axis=0, return_inverse=True)
+    fv = fv.reshape(-1)
+    values = np.zeros((int(fv.max()) + 1, vals.shape[1]))
+    values[fv] = vals
+    vsharp = np.zeros(len(values))
+    vsharp[fv] = first.vsharp[pts]
+    return Level(first.counts[own], fv, values, first.esharp[corner_own], vsharp,
+                 np.flatnonzero(own))
 
 
 @dataclasses.dataclass
@@ -489,43 +528,59 @@ def _cage_mesh(rc: RefinedCage, mesh: Mesh) -> Mesh:
     pos_ids = final.ids.reshape(-1, 4)[keep_quads].reshape(-1)
     if names:
         corner_own = np.repeat(own, first.counts)
-        values = np.concatenate([getattr(mesh, k).astype(np.float64) for k in names], axis=1)
-        vals = values[mesh.cage_corners[corner_own]]
         pts = first.ids[corner_own]
-        _, fv = np.unique(np.concatenate([pts[:, None].astype(np.float64), vals], axis=1),
-                          axis=0, return_inverse=True)
-        fv = fv.reshape(-1)
-        mode = "all" if cage.scheme == "bilinear" else cage.face_varying
-        fv_values = np.zeros((int(fv.max()) + 1, values.shape[1]))
-        fv_values[fv] = vals
-        lv = Level(first.counts[own], fv, fv_values, first.esharp[corner_own],
-                   np.zeros(len(fv_values)), np.flatnonzero(own))
-        point_vs = first.vsharp
-        lv.vsharp[fv] = point_vs[pts]
-        for step in rc.steps[:-1]:
-            step_own = np.repeat(own[step.root], step.counts)
-            lv = cc_level(lv, bilinear=mode == "all",
-                          boundary="edgeOnly" if mode == "none" else "edgeAndCorner",
-                          smooth_triangles=cage.triangle_rule == "smooth" and step is first,
-                          extra_corners=_fv_corners(mode, lv.ids, step.ids[step_own], lv.counts))
-        vertex = lv.ids  # a face-varying vertex lies on one point: it is the drawn vertex
-        weld = np.zeros(len(lv.values), np.int64)
-        weld[vertex] = pos_ids
-        attr_rows = lv.values
+        fv_mode = "all" if cage.scheme == "bilinear" else cage.face_varying
+        kinds = mesh.cage_interpolation or {}
+        # Attributes refined alike on one topology are refined together: vertex ones as the
+        # points are, varying ones bilinearly on the points, each face-varying (or uniform)
+        # one on its own values' topology (OpenSubdiv refines each channel on its own).
+        groups: dict[str, list[str]] = {}
+        for k in names:
+            kind = kinds.get(k, "faceVarying")
+            group = {"vertex": "vertex", "varying": "varying", "constant": "varying"}.get(kind, "fv:" + k)
+            groups.setdefault(group, []).append(k)
+        corner_ids = [pos_ids]
+        rows: dict[str, np.ndarray] = {}
+        for group, members in groups.items():
+            vals = np.concatenate([getattr(mesh, k).astype(np.float64) for k in members],
+                                  axis=1)[mesh.cage_corners[corner_own]]
+            lv = _value_level(first, own, corner_own, pts, vals, not group.startswith("fv:"))
+            for step in rc.steps[:-1]:
+                step_own = np.repeat(own[step.root], step.counts)
+                if group == "vertex":
+                    lv = cc_level(lv, bilinear=cage.scheme == "bilinear",
+                                  boundary=cage.interpolate_boundary,
+                                  smooth_triangles=cage.triangle_rule == "smooth" and step is first)
+                elif group == "varying":
+                    lv = cc_level(lv, bilinear=True)
+                else:
+                    lv = cc_level(lv, bilinear=fv_mode == "all",
+                                  boundary="edgeOnly" if fv_mode == "none" else "edgeAndCorner",
+                                  smooth_triangles=cage.triangle_rule == "smooth" and step is first,
+                                  extra_corners=_fv_corners(fv_mode, lv.ids, step.ids[step_own],
+                                                            lv.counts))
+            corner_ids.append(lv.ids)
+            col = 0
+            for k in members:
+                width = getattr(mesh, k).shape[1]
+                rows[k] = lv.values[:, col:col + width]
+                col += width
+        # A drawn vertex per distinct (point, value of each group) at a refined corner.
+        table = np.stack(corner_ids, axis=1)
+        _, first_at, vertex = np.unique(table, axis=0, return_index=True, return_inverse=True)
+        vertex = vertex.reshape(-1)
+        weld = pos_ids[first_at]
+        picks = dict(zip(groups, table[first_at, 1:].T))
+        attrs_of = {k: rows[k][picks[g]] for g, members in groups.items() for k in members}
     else:
         weld, vertex = np.unique(pos_ids, return_inverse=True)
         vertex = vertex.reshape(-1)
-        attr_rows = np.zeros((len(weld), 0))
+        attrs_of = {}
     quads = vertex.reshape(-1, 4)
     tri = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
     pos = final.values[weld]
     normals = rc.normals[weld]
-    attrs: dict[str, np.ndarray] = {}
-    col = 0
-    for k in names:
-        width = getattr(mesh, k).shape[1]
-        attrs[k] = attr_rows[:, col:col + width]
-        col += width
+    attrs: dict[str, np.ndarray] = {k: attrs_of[k] for k in names}
     sharp_corners = final.esharp > 0
     if sharp_corners.any():
         edge_ends = np.stack([final.ids, final.ids.reshape(-1, 4)[:, [1, 2, 3, 0]].reshape(-1)], 1)
