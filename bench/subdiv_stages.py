@@ -6,8 +6,10 @@ writes DIR/usd/*.usda, then
 renders each with ours and Storm refined two levels (usdview's "High" complexity; ours refines a
 cage this small two levels). One rule each: a smooth cube, infinitely sharp and semi-sharp
 creases, sharp corners, a pyramid with a creased base and a sharp apex, a bumped open grid under
-each interpolateBoundary, triangles under each triangleSubdivisionRule, and a textured cube
-(face-varying UVs).
+each interpolateBoundary, triangles under each triangleSubdivisionRule, a textured cube
+(face-varying UVs, every face its own region), a textured cube unwrapped as a cross (seams
+that end at darts and one-face regions) under cornersPlus1 and cornersPlus2, and a textured
+bumped grid whose st is varying (bilinear) or vertex (smooth).
 """
 from __future__ import annotations
 
@@ -41,6 +43,49 @@ def _grid(boundary: str) -> str:
                     for v in (y * 5 + x, y * 5 + x + 5, y * 5 + x + 6, y * 5 + x + 1))
     return _mesh([4] * n * n, idx, pts, f'    uniform token interpolateBoundary = "{boundary}"\n'
                                         '    uniform bool doubleSided = true\n')
+
+
+# The cube's faces (CUBE_FACES order: front, top, back, bottom, right, left) unwrapped as a
+# cross over a 3 x 4 chart: bottom, front, top, back up the middle column, right and left
+# beside the front. Per face, its corners' (column, row).
+CROSS = [[(1, 1), (2, 1), (2, 2), (1, 2)], [(1, 2), (2, 2), (2, 3), (1, 3)],
+         [(1, 3), (2, 3), (2, 4), (1, 4)], [(1, 0), (2, 0), (2, 1), (1, 1)],
+         [(2, 1), (3, 1), (3, 2), (2, 2)], [(0, 1), (1, 1), (1, 2), (0, 2)]]
+CHECKER_MATERIAL = """
+def Scope "Looks"
+{
+    def Material "Checker"
+    {
+        token outputs:surface.connect = </Looks/Checker/S.outputs:surface>
+        def Shader "S"
+        {
+            uniform token info:id = "UsdPreviewSurface"
+            color3f inputs:diffuseColor.connect = </Looks/Checker/T.outputs:rgb>
+            float inputs:roughness = 0.6
+            token outputs:surface
+        }
+        def Shader "T"
+        {
+            uniform token info:id = "UsdUVTexture"
+            asset inputs:file = @./checker.png@
+            float2 inputs:st.connect = </Looks/Checker/R.outputs:result>
+            float3 outputs:rgb
+        }
+        def Shader "R"
+        {
+            uniform token info:id = "UsdPrimvarReader_float2"
+            string inputs:varname = "st"
+            float2 outputs:result
+        }
+    }
+}
+"""
+BOUND = ' (\n    prepend apiSchemas = ["MaterialBindingAPI"]\n)'
+
+
+def _textured(counts, indices, points, st: str, extra: str = "") -> str:
+    return HEADER + _mesh(counts, indices, points, st + extra + '    rel material:binding = </Looks/Checker>\n',
+                          BOUND).replace(GREY, "") + CHECKER_MATERIAL
 
 
 def stages() -> dict[str, str]:
@@ -94,6 +139,24 @@ def Scope "Looks"
     }
 }
 """
+    cross = ", ".join(f"({c / 3}, {r / 4})" for face in CROSS for c, r in face)
+    for rule in ("cornersPlus1", "cornersPlus2"):
+        out[f"cube_cross_{rule}"] = _textured(
+            [4] * 6, CUBE_FACES, CUBE_POINTS,
+            f'    texCoord2f[] primvars:st = [{cross}] (interpolation = "faceVarying")\n',
+            f'    uniform token faceVaryingLinearInterpolation = "{rule}"\n')
+    n = 4
+    pts = ", ".join(f"({x - 2}, {0.4 if (x, y) in ((1, 1), (2, 2)) else 0}, {y - 2})"
+                    for y in range(n + 1) for x in range(n + 1))
+    idx = ", ".join(str(v) for y in range(n) for x in range(n)
+                    for v in (y * 5 + x, y * 5 + x + 5, y * 5 + x + 6, y * 5 + x + 1))
+    warp = ", ".join(f"({x / 4 + (0.15 if (x, y) in ((1, 1), (2, 3)) else 0)}, {y / 4})"
+                     for y in range(n + 1) for x in range(n + 1))
+    for interp in ("varying", "vertex"):
+        out[f"grid_st_{interp}"] = _textured(
+            [4] * n * n, idx, pts,
+            f'    texCoord2f[] primvars:st = [{warp}] (interpolation = "{interp}")\n',
+            '    uniform bool doubleSided = true\n')
     return out
 
 
