@@ -263,3 +263,95 @@ def test_gltf_directional_light_shadows(tmp_path):
     assert _pixel(frames["opaque"], asset, OPTIONS, below).max() < 0.01 * lit.min()
     assert _pixel(frames["raytrace"], asset, OPTIONS, below).max() < 0.01 * lit.min()
     assert np.allclose(_pixel(frames["raytrace"], asset, OPTIONS, beside), lit, rtol=RAYTRACE_TOLERANCE)
+
+
+def _quat_from_to(a, b) -> list[float]:
+    """The unit quaternion (x, y, z, w) turning unit vector a to unit vector b."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    axis = np.cross(a, b)
+    s = np.linalg.norm(axis)
+    angle = math.atan2(s, float(a @ b))
+    axis = axis / s if s > 1e-12 else np.array([1.0, 0.0, 0.0])
+    return [*(axis * math.sin(angle / 2)).tolist(), math.cos(angle / 2)]
+
+
+def _png_rgba(pixels: np.ndarray) -> bytes:
+    import io
+
+    from PIL import Image
+    out = io.BytesIO()
+    Image.fromarray(pixels.astype(np.uint8), "RGBA").save(out, format="PNG")
+    return out.getvalue()
+
+
+SUN_TILT = math.radians(60.0)  # from the vertical, shining toward -x
+
+
+def _gltf_mask_card(path, alpha_mode="MASK"):
+    """A 2 x 1 m card 1 m above a ground quad, matte, its base-colour alpha 0 on the half
+    x < 0 (a 4-texel texture: 0, 0, 255, 255 across u = (x + 1) / 2), alphaMode `alpha_mode`
+    at cutoff 0.5, under a sun tilted SUN_TILT toward -x: the card's shadow falls beside it,
+    x in [-1 - tan, 1 - tan]."""
+    quad = [(-3.5, 0, 2), (2, 0, 2), (2, 0, -2), (-3.5, 0, -2)]
+    card = [(-1, 1, 0.5), (1, 1, 0.5), (1, 1, -0.5), (-1, 1, -0.5)]
+    pos = np.array(quad + card, np.float32)
+    uv = np.array([(0, 0)] * 4 + [(0, 0), (1, 0), (1, 1), (0, 1)], np.float32)
+    idx = np.array([(0, 1, 2), (0, 2, 3), (4, 5, 6), (4, 6, 7)], np.uint16).ravel()
+    texels = np.zeros((1, 4, 4))
+    texels[..., :3] = 255 * ALBEDO
+    texels[0, 2:, 3] = 255
+    image = _png_rgba(texels)
+    blob = pos.tobytes() + uv.tobytes() + idx.tobytes()
+    travel = [-math.sin(SUN_TILT), -math.cos(SUN_TILT), 0.0]
+    matte = {"pbrMetallicRoughness": {"baseColorFactor": [ALBEDO, ALBEDO, ALBEDO, 1],
+                                      "metallicFactor": 0, "roughnessFactor": 1}, "doubleSided": True}
+    doc = {
+        "asset": {"version": "2.0"}, "scene": 0, "extensionsUsed": ["KHR_lights_punctual"],
+        "extensions": {"KHR_lights_punctual": {"lights": [{"type": "directional", "intensity": 3.0}]}},
+        "scenes": [{"nodes": [0, 1, 2]}],
+        "nodes": [{"mesh": 0}, {"mesh": 1},
+                  {"rotation": _quat_from_to([0, 0, -1], travel),
+                   "extensions": {"KHR_lights_punctual": {"light": 0}}}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "indices": 2,
+                                    "material": 0}]},
+                   {"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "indices": 3,
+                                    "material": 1}]}],
+        "materials": [matte, {**matte, "alphaMode": alpha_mode, "alphaCutoff": 0.5,
+                              "pbrMetallicRoughness": {**matte["pbrMetallicRoughness"],
+                                                       "baseColorTexture": {"index": 0}}}],
+        "textures": [{"source": 0, "sampler": 0}],
+        "samplers": [{"magFilter": 9729, "minFilter": 9729, "wrapS": 33071, "wrapT": 33071}],
+        "images": [{"uri": "data:image/png;base64," + base64.b64encode(image).decode()}],
+        "buffers": [{"byteLength": len(blob),
+                     "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode()}],
+        "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": pos.nbytes},
+                        {"buffer": 0, "byteOffset": pos.nbytes, "byteLength": uv.nbytes},
+                        {"buffer": 0, "byteOffset": pos.nbytes + uv.nbytes, "byteLength": 12},
+                        {"buffer": 0, "byteOffset": pos.nbytes + uv.nbytes + 12, "byteLength": 12}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": len(pos), "type": "VEC3",
+                       "min": pos.min(0).tolist(), "max": pos.max(0).tolist()},
+                      {"bufferView": 1, "componentType": 5126, "count": len(uv), "type": "VEC2"},
+                      {"bufferView": 2, "componentType": 5123, "count": 6, "type": "SCALAR"},
+                      {"bufferView": 3, "componentType": 5123, "count": 6, "type": "SCALAR"}],
+    }
+    path.write_text(json.dumps(doc))
+    return path
+
+
+def test_alpha_mask_cut_outs_cut_the_shadow(tmp_path):
+    """The light passes a mask's cut-out: the ground where the card's alpha-0 half shadows
+    it is lit as if the card were not there (albedo E cos / pi), where the opaque half does
+    it is dark, and the ray tracer agrees at both."""
+    dark = bake_environment(uniform.DARK, tmp_path, face_size=32)
+    asset = build_baked(load_scene(_gltf_mask_card(tmp_path / "card.gltf")), key="light-shadows-mask")
+    shift = math.tan(SUN_TILT)
+    through = np.array([-0.6 - shift, 0.0, 0.0])  # under card x = -0.6 (u 0.2: alpha 0)
+    behind = np.array([0.6 - shift, 0.0, 0.0])    # under card x = 0.6 (u 0.8: alpha 1)
+    expected = ALBEDO * 3.0 * math.cos(SUN_TILT) / math.pi
+    frames = {"opaque": render(asset, dark, OPTIONS),
+              "raytrace": render(asset, dark, dataclasses.replace(OPTIONS, method="raytrace"))}
+    got = _pixel(frames["opaque"], asset, OPTIONS, through)
+    assert np.allclose(got, expected, rtol=0.05), (got, expected)  # lit (a little specular)
+    assert _pixel(frames["opaque"], asset, OPTIONS, behind).max() < 0.01 * expected
+    assert _pixel(frames["raytrace"], asset, OPTIONS, behind).max() < 0.01 * expected
+    assert np.allclose(_pixel(frames["raytrace"], asset, OPTIONS, through), got, rtol=RAYTRACE_TOLERANCE)

@@ -14,8 +14,10 @@ order, that have shadows on), every tile is `tile_size(w, h, views)` texels acro
 output's larger side as a power of two, 512 to 2048, shrunk so the atlas stays within
 MAX_ATLAS), and the maps depend on the geometry and lights only, not on the camera, so they are
 drawn once per asset and kept (turntable frames look them up). Casters are the opaque and mask
-meshes (a mask's cut-outs are not honoured: it shadows as solid); blend and transmissive meshes
-cast none (the ray tracer lets light through them, scaled).
+meshes; a mask's depth pass samples its base-colour alpha (factor x texture x vertex colour, as
+shaders/material_info.glsl has it) and discards below the cutoff, so its cut-outs let light
+through as the ray tracer's shadow rays pass them. Blend and transmissive meshes cast none
+(the ray tracer lets light through them, scaled).
 """
 from __future__ import annotations
 
@@ -28,6 +30,7 @@ import moderngl
 import numpy as np
 
 from gl import context
+from renderer.raster import materials
 
 MAX_SHADOW_LIGHTS = 4
 MAX_ATLAS = 4096           # texels across the atlas, at most
@@ -143,10 +146,29 @@ def light_views(light, bounds: np.ndarray, tile: int) -> list[tuple[np.ndarray, 
     return out
 
 
-def casters(items) -> list:
-    """The meshes (gpu.GpuMesh) of the frame's draw items that cast shadows."""
-    return [it.mesh for it in items
-            if it.material.alpha_mode != "BLEND" and it.material.material_class != "transmissive"]
+# What a mask caster's depth pass takes from its material state: alpha, its map and UVs.
+MASK_DEFINES = ("HAS_UV0", "HAS_UV1", "HAS_COLORS", "HAS_BASE_COLOR_MAP", "BASE_COLOR_UV")
+MASK_UNIFORMS = ("u_base_color", "u_alpha_cutoff", "u_base_color_uvm")
+
+
+@dataclass
+class Caster:
+    mesh: object                                 # gpu.GpuMesh
+    mask: materials.MaterialState | None = None  # alphaMode MASK: what cuts its shadow
+
+
+def casters(items, asset=None, options=None) -> list[Caster]:
+    """The frame's draw items that cast shadows; a mask's with its material state (when the
+    asset and options are given) so its cut-outs cut the shadow."""
+    out = []
+    for it in items:
+        m = it.material
+        if m.alpha_mode == "BLEND" or m.material_class == "transmissive":
+            continue
+        mask = materials.material_state(it.mesh, m, asset, options) \
+            if m.alpha_mode == "MASK" and asset is not None and options is not None else None
+        out.append(Caster(it.mesh, mask))
+    return out
 
 
 _cache: OrderedDict = OrderedDict()  # (asset key, ...) -> ShadowViews
@@ -165,7 +187,7 @@ def shadow_views(ctx: moderngl.Context, key: str, lights, meshes, bounds: np.nda
                  for i in chosen}
     views = sum(per_light.values())
     tile = tile_size(width, height, views)
-    cache_key = (key, tile, tuple(chosen), tuple(id(m) for m in meshes))
+    cache_key = (key, tile, tuple(chosen), tuple((id(c.mesh), id(c.mask)) for c in meshes))
     if _ctx_id[0] != id(ctx):  # a new context: the old textures are gone with it
         _cache.clear()
         _ctx_id[0] = id(ctx)
@@ -214,18 +236,36 @@ def _draw(ctx: moderngl.Context, meshes, matrices, tile: int, atlas: tuple[int, 
     ctx.enable(moderngl.DEPTH_TEST)
     ctx.disable(moderngl.CULL_FACE)  # one-sided surfaces (a ground quad) shadow both ways
     ctx.disable(moderngl.BLEND)
-    prog = context.program("pbr.vert", "depth.frag", {})
-    u = cast(dict, prog)
+    solid = context.program("pbr.vert", "depth.frag", {})
     for view_proj, _, (x0, y0) in matrices:
         ctx.viewport = (x0, y0, tile, tile)
-        u["u_view_proj"].write(np.ascontiguousarray(view_proj.T, np.float32).tobytes())
-        for mesh in meshes:
+        matrix = np.ascontiguousarray(view_proj.T, np.float32).tobytes()
+        for caster in meshes:
+            prog = solid if caster.mask is None else _mask_program(caster.mask)
+            u = cast(dict, prog)
+            u["u_view_proj"].write(matrix)
+            mesh = caster.mesh
             for mirrored, _, count in mesh.instances:
                 mesh.vao(prog, mirrored).render(moderngl.TRIANGLES, instances=count)
     fbo.release()
     tex.compare_func = "<="  # sampler2DShadow: 1 where the receiver is not behind the map
     tex.filter = (moderngl.LINEAR, moderngl.LINEAR)  # bilinear comparisons
     return tex
+
+
+def _mask_program(state: materials.MaterialState) -> moderngl.Program:
+    """The depth program of an alpha-mask caster, its alpha's uniforms and map bound."""
+    defines = {"ALPHA_MASK": 1, **{k: v for k, v in state.defines.items() if k in MASK_DEFINES}}
+    prog = context.program("pbr.vert", "depth.frag", defines)
+    u = cast(dict, prog)
+    for name, value in state.uniforms:
+        if name in MASK_UNIFORMS and name in prog:
+            u[name].write(value)
+    for name, tex in state.textures:
+        if name == "u_base_color_map" and name in prog:
+            u[name].value = 2
+            tex.use(2)
+    return prog
 
 
 def uniforms(views: ShadowViews | None, lights) -> dict[str, bytes]:

@@ -91,7 +91,7 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     lights = gasset.lights[:passes.MAX_LIGHTS] if options.lights else []
     t_light_shadows = time.perf_counter()
     # by the pose's key, not the GPU upload's: a rig's frames share one upload but move
-    views = (light_shadows.shadow_views(ctx, asset.key, lights, light_shadows.casters(items),
+    views = (light_shadows.shadow_views(ctx, asset.key, lights, light_shadows.casters(items, gasset, options),
                                         asset.bounds, w * supersample, h * supersample)
              if lights and options.light_shadows else None)
     t_light_shadows = time.perf_counter() - t_light_shadows
