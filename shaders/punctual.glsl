@@ -20,6 +20,9 @@ uniform vec2 u_shadow_texel[SHADOW_VIEWS];   // world texel size: x + y * distan
 uniform vec2 u_light_shadow[LIGHT_COUNT];    // first view, views (0: casts none; 6: a cube)
 uniform vec3 u_shadow_color[LIGHT_COUNT];    // what blocked light is multiplied by
 uniform vec2 u_shadow_step;                  // one atlas texel in uv
+#ifdef SHADOW_TINT
+uniform sampler2D u_shadow_tint;  // blend / transmissive casters: RGB let through, A their depth
+#endif
 
 // How much of light i reaches pos (normal n on the light's side, l toward the light).
 vec3 shadow_visibility(int i, vec3 pos, vec3 n, vec3 l) {
@@ -51,7 +54,12 @@ vec3 shadow_visibility(int i, vec3 pos, vec3 n, vec3 l) {
         for (int x = -1; x <= 1; ++x)
             lit += texture(u_shadow_map, vec3(clamp(uvz.xy + vec2(x, y) * u_shadow_step,
                                                     tile.xy, tile.zw), uvz.z));
-    return mix(u_shadow_color[i], vec3(1.0), lit / 9.0);
+    vec3 visible = mix(u_shadow_color[i], vec3(1.0), lit / 9.0);
+#ifdef SHADOW_TINT
+    vec4 tint = texture(u_shadow_tint, uvz.xy);
+    if (uvz.z > tint.a) visible *= tint.rgb;  // behind the nearest see-through layer
+#endif
+    return visible;
 }
 #endif
 

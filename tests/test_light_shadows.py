@@ -355,3 +355,64 @@ def test_alpha_mask_cut_outs_cut_the_shadow(tmp_path):
     assert _pixel(frames["opaque"], asset, OPTIONS, behind).max() < 0.01 * expected
     assert _pixel(frames["raytrace"], asset, OPTIONS, behind).max() < 0.01 * expected
     assert np.allclose(_pixel(frames["raytrace"], asset, OPTIONS, through), got, rtol=RAYTRACE_TOLERANCE)
+
+
+def _gltf_see_through_cards(path, glass_tint=(1.0, 0.5, 0.25), blend_alpha=0.5):
+    """Two 2 x 0.8 m cards 1 m above the ground under the tilted sun: at z = -0.8 a clear
+    glass (KHR_materials_transmission 1, base colour `glass_tint`), at z = +0.8 an alpha-blended
+    matte one of alpha `blend_alpha`."""
+    doc = json.loads(_gltf_mask_card(path).read_text())
+    quad = [(-3.5, 0, 2.5), (2, 0, 2.5), (2, 0, -2.5), (-3.5, 0, -2.5)]
+    cards = [[(-1, 1, z + 0.4), (1, 1, z + 0.4), (1, 1, z - 0.4), (-1, 1, z - 0.4)] for z in (-0.8, 0.8)]
+    pos = np.array(quad + cards[0] + cards[1], np.float32)
+    idx = np.array([(0, 1, 2), (0, 2, 3), (4, 5, 6), (4, 6, 7), (8, 9, 10), (8, 10, 11)], np.uint16).ravel()
+    blob = pos.tobytes() + idx.tobytes()
+    matte = doc["materials"][0]
+    doc["extensionsUsed"] = ["KHR_lights_punctual", "KHR_materials_transmission"]
+    doc["materials"] = [matte,
+                        {"pbrMetallicRoughness": {"baseColorFactor": [*glass_tint, 1], "metallicFactor": 0,
+                                                  "roughnessFactor": 0},
+                         "extensions": {"KHR_materials_transmission": {"transmissionFactor": 1.0}},
+                         "doubleSided": True},
+                        {**matte, "alphaMode": "BLEND",
+                         "pbrMetallicRoughness": {**matte["pbrMetallicRoughness"],
+                                                  "baseColorFactor": [ALBEDO, ALBEDO, ALBEDO, blend_alpha]}}]
+    doc["meshes"] = [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1 + k, "material": k}]}
+                     for k in range(3)]
+    doc["nodes"] = [{"mesh": 0}, {"mesh": 1}, {"mesh": 2}, doc["nodes"][2]]
+    doc["scenes"] = [{"nodes": [0, 1, 2, 3]}]
+    for key in ("textures", "samplers", "images"):
+        doc.pop(key)
+    doc["buffers"] = [{"byteLength": len(blob),
+                       "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode()}]
+    doc["bufferViews"] = [{"buffer": 0, "byteOffset": 0, "byteLength": pos.nbytes}] + [
+        {"buffer": 0, "byteOffset": pos.nbytes + 12 * k, "byteLength": 12} for k in range(3)]
+    doc["accessors"] = [{"bufferView": 0, "componentType": 5126, "count": len(pos), "type": "VEC3",
+                         "min": pos.min(0).tolist(), "max": pos.max(0).tolist()}] + [
+        {"bufferView": 1 + k, "componentType": 5123, "count": 6, "type": "SCALAR"} for k in range(3)]
+    path.write_text(json.dumps(doc))
+    return path
+
+
+def test_see_through_casters_tint_the_shadow_as_the_ray_tracer(tmp_path):
+    """A transmissive caster lets through transmission x base colour, a blended one 1 - alpha
+    (renderer.methods.trace_lights): the ground in their shadows is lit x (1, 0.5, 0.25) and
+    x 0.5, in the raster and in the ray tracer (whose blended layer stops a shadow ray with
+    probability alpha, so within sampling noise)."""
+    dark = bake_environment(uniform.DARK, tmp_path, face_size=32)
+    asset = build_baked(load_scene(_gltf_see_through_cards(tmp_path / "cards.gltf")), key="light-shadows-tint")
+    shift = math.tan(SUN_TILT)
+    lit = ALBEDO * 3.0 * math.cos(SUN_TILT) / math.pi
+    under_glass = np.array([-shift, 0.0, -0.8])
+    under_blend = np.array([-shift, 0.0, 0.8])
+    frames = {"opaque": render(asset, dark, OPTIONS),
+              "raytrace": render(asset, dark, dataclasses.replace(OPTIONS, method="raytrace", samples=64))}
+    raster = frames["opaque"]
+    assert raster.plan["light_shadows"].startswith("1 light(s)")
+    glass = _pixel(raster, asset, OPTIONS, under_glass)
+    blend = _pixel(raster, asset, OPTIONS, under_blend)
+    assert np.allclose(glass, lit * np.array([1.0, 0.5, 0.25]), rtol=0.05), glass
+    assert np.allclose(blend, lit * 0.5, rtol=0.05), blend
+    traced = frames["raytrace"]
+    assert np.allclose(_pixel(traced, asset, OPTIONS, under_glass), glass, rtol=RAYTRACE_TOLERANCE)
+    assert np.allclose(_pixel(traced, asset, OPTIONS, under_blend), blend, rtol=0.1)  # noise

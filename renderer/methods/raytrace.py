@@ -626,8 +626,11 @@ def _light_hits(ts: TraceScene, lights: trace_lights.Lights, env: _Environment,
         vis = np.ones((len(o), 3))
         start, dist = o + eps * normal, dist.copy()
         todo = np.arange(len(o))
-        for _ in range(trace_lights.MAX_LAYERS):
-            hp, _, _, ht = intersect_front(ts, start[todo], ldir[todo])
+        for layer in range(trace_lights.MAX_LAYERS):
+            # a blended surface stops a shadow ray with the probability of its alpha (as the
+            # path tracer's shadow rays and the raster's tint atlas: 1 - alpha gets through)
+            draw = pixel_shift(todo + layer * len(o), 950 + layer)
+            hp, _, _, ht = intersect_front(ts, start[todo], ldir[todo], draw)
             ht = np.asarray(ht, np.float64)
             blocked = (hp >= 0) & (ht < dist[todo] - 2 * eps)
             idx = todo[blocked]

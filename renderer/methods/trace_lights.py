@@ -4,8 +4,11 @@ and the BRDF the raster's shaders/punctual.glsl evaluates (Lambert diffuse under
 lobe's directional albedo, GGX specular with Schlick Fresnel and Smith masking, the range
 and cone falloffs). A punctual light is a delta: BSDF sampling can never hit it, so NEE alone
 is unbiased and needs no MIS weight. Shadow rays pass alpha cut-outs and culled back faces as
-camera rays do, and go straight through transmissive surfaces scaled by transmission x base
-colour (the caustic a refracting surface focuses is not traced).
+camera rays do, pass a blended surface with probability 1 - alpha (a uniform draw per ray),
+and go straight through transmissive surfaces scaled by transmission x base colour (the
+caustic a refracting surface focuses is not traced). The raster's light shadows
+(renderer/raster/light_shadows.py) agree on all three; the path tracer's NEE
+(renderer/methods/path_trace.py) is stopped by a transmissive surface.
 """
 from __future__ import annotations
 

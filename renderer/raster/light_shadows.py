@@ -16,8 +16,12 @@ MAX_ATLAS), and the maps depend on the geometry and lights only, not on the came
 drawn once per asset and kept (turntable frames look them up). Casters are the opaque and mask
 meshes; a mask's depth pass samples its base-colour alpha (factor x texture x vertex colour, as
 shaders/material_info.glsl has it) and discards below the cutoff, so its cut-outs let light
-through as the ray tracer's shadow rays pass them. Blend and transmissive meshes cast none
-(the ray tracer lets light through them, scaled).
+through as the ray tracer's shadow rays pass them. Blend and transmissive meshes cast a tinted
+shadow, as the ray tracer's shadow rays pass them: a transmissive one lets through
+transmission x (1 - metallic) x its base colour, a blended one 1 - alpha (its factor's). They are
+drawn after the opaque casters into a colour atlas beside the depth one (RGB multiplied by each
+layer's transmittance where no opaque caster is nearer the light, A the nearest layer's depth),
+which shaders/punctual.glsl applies to a receiver behind that depth.
 """
 from __future__ import annotations
 
@@ -41,10 +45,14 @@ CUBE_MARGIN = 3            # texels beyond 90 degrees on each side of a cube fac
 MAX_CACHED = 4             # assets whose atlases stay on the GPU (up to 64 MiB each)
 
 
+TINT_UNIT = 30             # texture unit of the tint atlas
+
+
 @dataclass
 class ShadowViews:
     """What the shaders need (renderer.raster.passes: uniforms) and the atlas."""
     texture: moderngl.Texture
+    tint: moderngl.Texture | None  # blend / transmissive casters' transmittance, or None
     matrices: np.ndarray      # V x 4 x 4 world -> atlas (u, v, depth, w)
     tiles: np.ndarray         # V x 4 the tile's usable uv rectangle (x0, y0, x1, y1)
     texel: np.ndarray         # V x 2 world size of a texel: x + y * distance along the view
@@ -155,15 +163,31 @@ MASK_UNIFORMS = ("u_base_color", "u_alpha_cutoff", "u_base_color_uvm")
 class Caster:
     mesh: object                                 # gpu.GpuMesh
     mask: materials.MaterialState | None = None  # alphaMode MASK: what cuts its shadow
+    tint: tuple[float, float, float] | None = None  # blend / transmissive: what it lets through
+
+
+def transmittance(m) -> tuple[float, float, float] | None:
+    """What a blend or transmissive material (core.scene.Material) lets through to the
+    surfaces it shadows, as the ray tracer's shadow rays have it; None for others."""
+    if m.material_class == "transmissive":
+        through = m.transmission * (1.0 - m.metallic)
+        return (m.base_color[0] * through, m.base_color[1] * through, m.base_color[2] * through)
+    if m.alpha_mode == "BLEND":
+        clear = 1.0 - m.base_color[3]
+        return (clear, clear, clear)
+    return None
 
 
 def casters(items, asset=None, options=None) -> list[Caster]:
     """The frame's draw items that cast shadows; a mask's with its material state (when the
-    asset and options are given) so its cut-outs cut the shadow."""
+    asset and options are given) so its cut-outs cut the shadow; a blend or transmissive
+    one's with what it lets through."""
     out = []
     for it in items:
         m = it.material
-        if m.alpha_mode == "BLEND" or m.material_class == "transmissive":
+        tint = transmittance(m)
+        if tint is not None:
+            out.append(Caster(it.mesh, tint=tint))
             continue
         mask = materials.material_state(it.mesh, m, asset, options) \
             if m.alpha_mode == "MASK" and asset is not None and options is not None else None
@@ -187,7 +211,7 @@ def shadow_views(ctx: moderngl.Context, key: str, lights, meshes, bounds: np.nda
                  for i in chosen}
     views = sum(per_light.values())
     tile = tile_size(width, height, views)
-    cache_key = (key, tile, tuple(chosen), tuple((id(c.mesh), id(c.mask)) for c in meshes))
+    cache_key = (key, tile, tuple(chosen), tuple((id(c.mesh), id(c.mask), c.tint) for c in meshes))
     if _ctx_id[0] != id(ctx):  # a new context: the old textures are gone with it
         _cache.clear()
         _ctx_id[0] = id(ctx)
@@ -216,41 +240,79 @@ def shadow_views(ctx: moderngl.Context, key: str, lights, meshes, bounds: np.nda
             inset_x, inset_y = 1.5 / atlas[0], 1.5 / atlas[1]  # bilinear taps stay in the tile
             tiles.append((ox + inset_x, oy + inset_y, ox + sx - inset_x, oy + sy - inset_y))
             texels.append(texel)
-    texture = _draw(ctx, meshes, matrices, tile, atlas)
-    found = ShadowViews(texture, np.asarray([m for _, m, _ in matrices], np.float64),
+    texture, tint = _draw(ctx, meshes, matrices, tile, atlas)
+    found = ShadowViews(texture, tint, np.asarray([m for _, m, _ in matrices], np.float64),
                         np.asarray(tiles, np.float64), np.asarray(texels, np.float64),
                         light_index, tile, atlas)
     _cache[cache_key] = found
     while len(_cache) > MAX_CACHED:
-        _cache.popitem(last=False)[1].texture.release()
+        old = _cache.popitem(last=False)[1]
+        old.texture.release()
+        if old.tint is not None:
+            old.tint.release()
     return found
 
 
-def _draw(ctx: moderngl.Context, meshes, matrices, tile: int, atlas: tuple[int, int]) -> moderngl.Texture:
-    """Every view's depth into its tile of a new depth atlas, set up for sampler2DShadow."""
+def _draw(ctx: moderngl.Context, meshes, matrices, tile: int,
+          atlas: tuple[int, int]) -> tuple[moderngl.Texture, moderngl.Texture | None]:
+    """Every view's depth into its tile of a new depth atlas, set up for sampler2DShadow; and
+    where blend / transmissive casters are, the tint atlas (RGB transmittance, A depth)."""
     tex = ctx.depth_texture(atlas)
     tex.repeat_x = tex.repeat_y = False
-    fbo = ctx.framebuffer(depth_attachment=tex)
+    solid_casters = [c for c in meshes if c.tint is None]
+    tinted = [c for c in meshes if c.tint is not None]
+    tint = ctx.texture(atlas, 4, dtype="f2") if tinted else None
+    fbo = ctx.framebuffer(color_attachments=[tint] if tint else [], depth_attachment=tex)
+    fbo.scissor = None  # type: ignore[assignment]  # stubs: None is the whole atlas
     fbo.use()
-    fbo.clear(depth=1.0)
+    fbo.clear(1.0, 1.0, 1.0, 1.0, depth=1.0)
     ctx.enable(moderngl.DEPTH_TEST)
     ctx.disable(moderngl.CULL_FACE)  # one-sided surfaces (a ground quad) shadow both ways
     ctx.disable(moderngl.BLEND)
+    if tint is not None:
+        fbo.color_mask = (False, False, False, False)  # masks apply when the fbo is bound
+        fbo.use()
     solid = context.program("pbr.vert", "depth.frag", {})
     for view_proj, _, (x0, y0) in matrices:
         ctx.viewport = (x0, y0, tile, tile)
         matrix = np.ascontiguousarray(view_proj.T, np.float32).tobytes()
-        for caster in meshes:
+        for caster in solid_casters:
             prog = solid if caster.mask is None else _mask_program(caster.mask)
-            u = cast(dict, prog)
-            u["u_view_proj"].write(matrix)
-            mesh = caster.mesh
-            for mirrored, _, count in mesh.instances:
-                mesh.vao(prog, mirrored).render(moderngl.TRIANGLES, instances=count)
+            _render(prog, matrix, caster.mesh)
+    if tint is not None:
+        # Each layer nearer the light than every opaque caster multiplies the RGB by what it
+        # lets through; A keeps the nearest layer's depth (MIN), so receivers before it are not
+        # tinted. The depth atlas is tested, not written.
+        fbo.color_mask = (True, True, True, True)
+        fbo.depth_mask = False
+        fbo.use()
+        ctx.enable(moderngl.BLEND)
+        ctx.blend_func = (moderngl.DST_COLOR, moderngl.ZERO, moderngl.ONE, moderngl.ONE)  # type: ignore[assignment]  # stubs: RGB and A factors
+        ctx.blend_equation = (moderngl.FUNC_ADD, moderngl.MIN)
+        prog = context.program("pbr.vert", "depth.frag", {"SHADOW_TINT_PASS": 1})
+        u = cast(dict, prog)
+        for view_proj, _, (x0, y0) in matrices:
+            ctx.viewport = (x0, y0, tile, tile)
+            matrix = np.ascontiguousarray(view_proj.T, np.float32).tobytes()
+            for caster in tinted:
+                u["u_tint"].value = tuple(float(c) for c in caster.tint)
+                _render(prog, matrix, caster.mesh)
+        ctx.blend_equation = moderngl.FUNC_ADD  # type: ignore[assignment]  # stubs: one for both
+        ctx.blend_func = moderngl.DEFAULT_BLENDING  # type: ignore[assignment]  # stubs: a tuple
+        ctx.disable(moderngl.BLEND)
+        fbo.depth_mask = True
+        tint.filter = (moderngl.NEAREST, moderngl.NEAREST)  # A is a depth: never blended
+        tint.repeat_x = tint.repeat_y = False
     fbo.release()
     tex.compare_func = "<="  # sampler2DShadow: 1 where the receiver is not behind the map
     tex.filter = (moderngl.LINEAR, moderngl.LINEAR)  # bilinear comparisons
-    return tex
+    return tex, tint
+
+
+def _render(prog: moderngl.Program, matrix: bytes, mesh) -> None:
+    cast(dict, prog)["u_view_proj"].write(matrix)
+    for mirrored, _, count in mesh.instances:
+        mesh.vao(prog, mirrored).render(moderngl.TRIANGLES, instances=count)
 
 
 def _mask_program(state: materials.MaterialState) -> moderngl.Program:

@@ -43,6 +43,7 @@ class Pass:
     frame_uniforms: dict[str, bytes]
     opaque_drawn: bool = False  # the opaque pass has drawn into fbo (refraction reads it)
     shadow_map: moderngl.Texture | None = None  # the lights' depth atlas (light_shadows)
+    shadow_tint: moderngl.Texture | None = None  # their tint atlas (see-through casters)
     _bound: set = field(default_factory=set)
 
     def program(self, item: DrawItem, fragment: str = "pbr.frag", vertex: str = "pbr.vert",
@@ -55,7 +56,8 @@ class Pass:
             for name, data in self.frame_uniforms.items():
                 if name in prog:
                     prog[name].write(data)  # type: ignore[union-attr]  # a uniform
-            for unit, name in ((0, "u_env"), (1, "u_brdf_lut"), (light_shadows.UNIT, "u_shadow_map")):
+            for unit, name in ((0, "u_env"), (1, "u_brdf_lut"), (light_shadows.UNIT, "u_shadow_map"),
+                               (light_shadows.TINT_UNIT, "u_shadow_tint")):
                 if name in prog:
                     prog[name].value = unit  # type: ignore[union-attr]  # a uniform
             self._bound.add(prog.glo)
@@ -75,6 +77,8 @@ class Pass:
         self.env.lut.use(1)
         if self.shadow_map is not None:
             self.shadow_map.use(light_shadows.UNIT)
+        if self.shadow_tint is not None:
+            self.shadow_tint.use(light_shadows.TINT_UNIT)
         cull = not (item.material.double_sided or item.material.show_back_faces) if cull is None else cull
         for mirrored, _, count in item.mesh.instances:
             # A mirroring transform turns the winding clockwise (glTF 2.0, "Instantiation"):
@@ -96,6 +100,8 @@ def env_rotated(options: RenderOptions) -> bool:
 def frame_defines(options: RenderOptions, lights,
                   shadows: light_shadows.ShadowViews | None = None) -> dict:
     d = {"LIGHT_COUNT": len(lights), "SHADOW_VIEWS": shadows.views if shadows else 0}
+    if shadows is not None and shadows.tint is not None:
+        d["SHADOW_TINT"] = 1
     if options.multiscatter:
         d["MULTISCATTER"] = 1
     if options.material_debug:  # shaders/lobes.glsl: one lobe alone

@@ -101,7 +101,8 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     pass_ = Pass(ctx, target.draw_fbo, camera, genv, gasset, options,
                  passes.frame_defines(options, lights, views),
                  passes.frame_uniforms(camera, genv, lights, options, views),
-                 shadow_map=views.texture if views else None)
+                 shadow_map=views.texture if views else None,
+                 shadow_tint=views.tint if views else None)
     # The object's bound for the final pass's regions: a rectangle for an edge-smoothed frame,
     # else a polygon marked before the geometry (llvmpipe draws it while Python goes on).
     polygon = rect = None
