@@ -560,7 +560,7 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
             if show_env:
                 bg = np.full(miss.sum(), options.background_blur)
                 add(env.radiance(dirs[miss], bg) * share[miss, None], slot[miss])
-        hits = hit_material(ts, origins, dirs, prim, u, v, t)
+        hits = hit_material(ts, origins, dirs, prim, u, v, t, lobes=False)
         if ts.lights is not None and len(ts.lights):
             _light_hits(ts, ts.lights, env, options, origins, dirs, prim, t, hits,
                         weight * share[:, None], slot, add)
