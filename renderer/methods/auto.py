@@ -345,8 +345,15 @@ def rt_ms(triangles: int, width: int, height: int, traced_px: float, bounces: in
 
 def estimate_raytrace_ms(asset: BakedAsset, options: RenderOptions, coverage_px: float,
                          bounces: int) -> float:
+    supersample = options.supersample
+    if supersample is None and options.integrator != "path" and options.rough_lobes == "sample":
+        from renderer.methods.raytrace import ROUGH_EXTRA, default_supersample
+        mats = [apply_override(m.material, options.override) for m in asset.meshes]
+        if any(m.roughness > 0 and m.transmission > 0 for m in mats):
+            # rough glass gets the finer grid where it is seen (counted here on every pixel)
+            supersample = default_supersample(options.width, options.height) + ROUGH_EXTRA
     return rt_ms(asset.triangle_count, options.width, options.height, coverage_px, bounces,
-                 options.supersample, options.fresnel_split, options.integrator, options.samples)
+                 supersample, options.fresnel_split, options.integrator, options.samples)
 
 
 def estimate_request_ms(triangles: int, width: int, height: int, method: str, transmissive: bool,

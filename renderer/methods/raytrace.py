@@ -67,10 +67,13 @@ ellipsoid and bunny and 4 x 4 halves it, so small frames get more (`default_supe
 whose centre ray and its 8 neighbours miss everything keep one ray: a sub-pixel object
 between centre rays is missed (documented limit). `supersample` (RenderOptions) overrides the
 grid; `aa_threshold` > 0 traces 2 x 2 first and the full grid only where those disagree.
+With the default grid, pixels whose centre ray meets rough glass (sampled lobes) get
+ROUGH_EXTRA more rays a side: their lobes are sampled with the pixel's rays.
 
 Speed: the per-surface work of a bounce (normals, Fresnel, lobes, children) runs in one
 compiled loop (renderer.methods.trace_kernel, numba; `_shade_numpy` is its numpy twin, the reference
-it is tested against), as do the environment reads; Embree casts each bounce's rays from two
+it is tested against), as do the material at the hits (renderer.methods.material_kernel) and the
+environment reads; Embree casts each bounce's rays from two
 threads.
 """
 from __future__ import annotations

@@ -500,7 +500,8 @@ def warm() -> None:
     sample_texture(np.zeros((1, 4), np.uint8), np.zeros(1, i64), np.ones(1, i64), np.ones(1, i64),
                    np.zeros((0, 2)), e, True, 10497, 10497, False, False, 2)
     r2_pair(np.zeros(0, i64), 0, 0, 0.5, 0.5)
-    from renderer.methods import path_kernel  # the path integrator's BSDF
+    from renderer.methods import material_kernel, path_kernel  # the hits' material, the path BSDF
+    material_kernel.warm()
     path_kernel.warm()
 
 

@@ -182,9 +182,9 @@ def pack(surf: Surface) -> tuple:
     absent)."""
     if surf.packed is not None:
         return surf.packed
-    from renderer.methods.material_kernel import F_BASE, F_EMIS, F_METAL, F_NSCALE, F_OCC, F_ROUGH, \
-        F_SPEC, F_SPEC_COL, F_TRANS, N_F
-    from renderer.methods.material_kernel import SLOTS as K_SLOTS
+    from renderer.methods import material_kernel as mk  # numba: only a process that traces
+    F_BASE, F_METAL, F_ROUGH, F_TRANS, F_EMIS = mk.F_BASE, mk.F_METAL, mk.F_ROUGH, mk.F_TRANS, mk.F_EMIS
+    F_OCC, F_NSCALE, F_SPEC, F_SPEC_COL, N_F, K_SLOTS = mk.F_OCC, mk.F_NSCALE, mk.F_SPEC, mk.F_SPEC_COL, mk.N_F, mk.SLOTS
     n_k = len(surf.materials)
     mat_f = np.zeros((max(n_k, 1), N_F))
     mat_i = np.zeros((max(n_k, 1), 2), np.int64)

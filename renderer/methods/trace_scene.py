@@ -136,7 +136,7 @@ def hit_material(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray, prim: np
                                    np.empty(n), np.empty((n, 3)), np.empty(n), np.empty(n),
                                    np.empty((n, 3)))
         d = np.ascontiguousarray(dirs, np.float64)
-        material_kernel.evaluate(
+        material_kernel.evaluate(  # type: ignore[call-arg]
             prim, u, v, t, np.ascontiguousarray(origins, np.float64), d, np.asarray(ts.eye, np.float64),
             float(ts.spread), ts.normals, ts.material, *trace_material.pack(surf), hits.normal,
             hits.base, hits.metallic, hits.roughness, hits.transmission, hits.emission,
