@@ -838,7 +838,7 @@ def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOpt
             "supersample": stats["supersample"],
             "rays": stats["rays"], "rays_per_bounce": stats["bounces"],
             "tir_events": stats["tir"], "integrator": options.integrator,
-            "embree_cached": stats["embree_cached"]}
+            "embree_cached": stats["embree_cached"], "rough_pixels": stats.get("rough_pixels", 0)}
     if options.integrator == "path":
         plan.update(passes=stats["passes"], samples_mean=round(stats["samples_mean"], 2),
                     stop=stats["stop"], nonfinite=stats.get("nonfinite", 0),
