@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from renderer.methods.trace_kernel import _SRGB_LUT, _UNIT_LUT, _texel_level
 
@@ -88,15 +88,34 @@ def _perturb(tex, tx, ty, tz, tw, gx, gy, gz, scale):
     return px, py, pz
 
 
-@njit(cache=True)
+CHUNKS = 64  # rows of a call cut into this many chunks over the cores (each its own scratch)
+
+
+@njit(cache=True, parallel=True)
 def evaluate(prim, u, v, t, origins, d, eye, spread, normals, tri_mat, mat_f, mat_i,
              slot_chain, slot_uv, slot_m, texels, lv_off, lv_h, lv_w, ch_lv0, ch_nlv, ch_i,
              uv0, uv1, dens0, dens1, has_uv0, tangents, has_tan, corners, colors, has_col,
              ao, has_ao, o_n, o_base, o_metal, o_rough, o_trans, o_emis, o_occ, o_spec, o_spec_col):
     """Every ray of a bounce (prim < 0: missed, given trace_material.Hits.empty's row) -> its
-    material in the o_* arrays. mat_i columns: unlit, uses specular."""
+    material in the o_* arrays. mat_i columns: unlit, uses specular. Rows are independent."""
+    n = len(prim)
+    nch = max(min(CHUNKS, n), 1)
+    for ch in prange(nch):
+        _rows(ch * n // nch, (ch + 1) * n // nch, prim, u, v, t, origins, d, eye, spread, normals,
+              tri_mat, mat_f, mat_i, slot_chain, slot_uv, slot_m, texels, lv_off, lv_h, lv_w,
+              ch_lv0, ch_nlv, ch_i, uv0, uv1, dens0, dens1, has_uv0, tangents, has_tan, corners,
+              colors, has_col, ao, has_ao, o_n, o_base, o_metal, o_rough, o_trans, o_emis, o_occ,
+              o_spec, o_spec_col)
+
+
+@njit(cache=True)
+def _rows(lo, hi, prim, u, v, t, origins, d, eye, spread, normals, tri_mat, mat_f, mat_i,
+          slot_chain, slot_uv, slot_m, texels, lv_off, lv_h, lv_w, ch_lv0, ch_nlv, ch_i,
+          uv0, uv1, dens0, dens1, has_uv0, tangents, has_tan, corners, colors, has_col,
+          ao, has_ao, o_n, o_base, o_metal, o_rough, o_trans, o_emis, o_occ, o_spec, o_spec_col):
+    """evaluate's rows lo .. hi - 1."""
     px = np.empty(4)
-    for i in range(len(prim)):
+    for i in range(lo, hi):
         p = prim[i]
         if p < 0:
             for c in range(3):
