@@ -54,7 +54,17 @@ def _open(b, find, server, name):
     # generous: on a loaded 2-core host the still queues behind the other card's turntable
     wait(lambda: find("#canvas").get_attribute("data-state") == "ready", 240,
          lambda: f"the still of {name} (canvas {find('#canvas').get_attribute('data-state')!r}, "
-                 f"page says {find('#hint').text!r} {find('#d-error').text!r})")
+                 f"page says {find('#hint').text!r} {find('#d-plan').text!r} {find('#d-error').text!r}; "
+                 f"{_server_state(server)})")
+
+
+def _server_state(server) -> str:
+    """What the server was doing, for a timeout's message: its workers, and its log's end."""
+    try:
+        workers = server.client.get("/readyz", timeout=10).json()["workers"]
+    except Exception as e:  # a blocked event loop is itself the answer
+        workers = f"/readyz failed: {e!r}"
+    return f"workers {workers}; log ends:\n{server.log.read_text()[-2500:]}"
 
 
 def _set(b, **values):
