@@ -138,7 +138,7 @@ def methods_for(spec, extended: bool = True) -> list[str]:
 
 def options_for(method: str, base, budget_ms: float = BUDGET_MS):
     """(RenderOptions, prefilter) for a method name of the chart (also bench.stability's)."""
-    # raytrace-N[/split=S][/lobes=L][/ss=K][/int=I or /integrator=I][/spp=S]
+    # raytrace-N[/split=S][/lobes=L][/ss=K][/aa=T][/int=I or /integrator=I][/spp=S]
     if method.startswith("raytrace-"):
         depth, *mods = method.split("/")
         kw = dict(m.split("=") for m in mods)
@@ -147,7 +147,8 @@ def options_for(method: str, base, budget_ms: float = BUDGET_MS):
                        rough_lobes=kw.get("lobes", "sample"),
                        integrator=kw.get("integrator", kw.get("int", "tree")),
                        samples=int(kw.get("spp", base.samples)),
-                       supersample=int(kw["ss"]) if "ss" in kw else None), "ggx"
+                       supersample=int(kw["ss"]) if "ss" in kw else None,
+                       aa_threshold=float(kw.get("aa", 0.0))), "ggx"
     # "raytrace" alone: RenderOptions' defaults, whatever they are (the point issue 26 places)
     if method.startswith("wyman/tir="):
         return replace(base, method="wyman", tir=method.split("=")[1]), "ggx"

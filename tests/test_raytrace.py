@@ -337,3 +337,25 @@ def test_supersample_and_adaptive_options(reference_env, scene_cache):
     small = ref.reshape(64, 4, 64, 4, 4).mean(axis=(1, 3))
     # [2 x 2: 0.074, adaptive 0.035, 4 x 4: 0.022]
     assert relative_mae(adaptive.linear, small) < 0.6 * relative_mae(two.linear, small)
+
+
+def test_default_grid_is_finer_on_rough_glass_only(reference_env, scene_cache):
+    """With the default grid, pixels whose centre ray meets rough glass trace ROUGH_EXTRA more
+    rays a side (their lobes are sampled with the pixel's rays): the frosted sphere gets more
+    rays and less error than the plain grid; smooth glass is traced exactly as before."""
+    from renderer.methods.raytrace import ROUGH_EXTRA, default_supersample
+    assert ROUGH_EXTRA >= 1
+    name = "frosted_sphere_ior1.5_r0.3"
+    ref = load_reference(name)
+    ss = default_supersample(ref.shape[1], ref.shape[0])
+    plain = render(name, reference_env, scene_cache, supersample=ss)
+    default = render(name, reference_env, scene_cache)
+    assert plain.plan["rough_pixels"] == 0 and default.plan["rough_pixels"] > 0.2 * ref.shape[0] ** 2
+    assert default.plan["rays"] > 1.3 * plain.plan["rays"]
+    e_plain, e_default = relative_mae(plain.linear, ref), relative_mae(default.linear, ref)
+    assert e_default < 0.9 * e_plain, (e_plain, e_default)
+    smooth = "glass_sphere_ior1.5"
+    a = render(smooth, reference_env, scene_cache, size=48)
+    b = render(smooth, reference_env, scene_cache, size=48, supersample=default_supersample(48, 48))
+    assert a.plan["rough_pixels"] == 0
+    np.testing.assert_array_equal(a.linear, b.linear)

@@ -69,18 +69,19 @@ RAYTRACE_BOUNCES = 12        # RenderOptions' default (issue 26's front); the to
 # per triangle (Embree build, material tables) + per frame pixel (centre rays, environment) +
 # per traced pixel x rays a pixel x depth(bounces), by Fresnel split; the path integrator per
 # traced pixel x path x depth. depth(b) = K (1 - exp(-b / K)): paths leave the glass, so late
-# bounces carry fewer rays. Fitted over 5 glass scenes and the Duck at 64-256 px, tree and path
-# (96 frames, 2 shared cores under load): median error 24%, rms 33%; the hollow vase (four
-# interfaces a view) runs ~2x the model. With the whole frame traced (the service's estimate)
-# it is under the measured time on 7 of 96 frames, by at most 30%. `sample` was not fitted:
-# it traces fewer rays than roulette, which it borrows.
+# bounces carry fewer rays (the refit of issue 26's compiled material chose K -> infinity: depth
+# = bounces). Fitted over 5 glass scenes and the Duck at 64-256 px, tree and path (96 frames,
+# 2 shared cores, `bench raycost`, 2026-12-02 after the compiled material): median error 14%,
+# rms 22%, worst 66% (the hollow vase, four interfaces a view, under). With the whole frame
+# traced (the service's estimate) it is under the measured time on 1 of 96 frames, by 16%.
+# `sample` was not fitted: it traces fewer rays than roulette, which it borrows.
 RT_FIXED_MS = 0.0
-RT_MS_PER_TRIANGLE = 0.014
-RT_MS_PER_FRAME_PIXEL = 0.0119
-RT_DEPTH_K = 8.0
-RT_MS_PER_RAY_DEPTH = {"both": 0.00316, "roulette": 0.00192, "sample": 0.00192}
-RT_MS_PER_PATH_DEPTH = 0.00711
-RT_PATH_FIXED_MS = 660.0     # the path tracer's environment sampling tables, once a frame
+RT_MS_PER_TRIANGLE = 0.00184
+RT_MS_PER_FRAME_PIXEL = 0.00182
+RT_DEPTH_K = 1e9
+RT_MS_PER_RAY_DEPTH = {"both": 0.000217, "roulette": 0.000091, "sample": 0.000091}
+RT_MS_PER_PATH_DEPTH = 0.000335
+RT_PATH_FIXED_MS = 71.2      # the path tracer's environment sampling tables, once a frame
 # Raster time model (the service's cost estimate for scheduling and its ceiling): fixed + per
 # frame pixel by method (MSAA 4x; wyman adds the back-face and refraction passes) + per
 # triangle. Measured warm on the Duck, 2 shared cores: 1024 px opaque 0.38 s, wyman 1.09 s;
@@ -345,8 +346,15 @@ def rt_ms(triangles: int, width: int, height: int, traced_px: float, bounces: in
 
 def estimate_raytrace_ms(asset: BakedAsset, options: RenderOptions, coverage_px: float,
                          bounces: int) -> float:
+    supersample = options.supersample
+    if supersample is None and options.integrator != "path" and options.rough_lobes == "sample":
+        from renderer.methods.raytrace import ROUGH_EXTRA, default_supersample
+        mats = [apply_override(m.material, options.override) for m in asset.meshes]
+        if any(m.roughness > 0 and m.transmission > 0 for m in mats):
+            # rough glass gets the finer grid where it is seen (counted here on every pixel)
+            supersample = default_supersample(options.width, options.height) + ROUGH_EXTRA
     return rt_ms(asset.triangle_count, options.width, options.height, coverage_px, bounces,
-                 options.supersample, options.fresnel_split, options.integrator, options.samples)
+                 supersample, options.fresnel_split, options.integrator, options.samples)
 
 
 def estimate_request_ms(triangles: int, width: int, height: int, method: str, transmissive: bool,

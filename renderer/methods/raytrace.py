@@ -67,10 +67,13 @@ ellipsoid and bunny and 4 x 4 halves it, so small frames get more (`default_supe
 whose centre ray and its 8 neighbours miss everything keep one ray: a sub-pixel object
 between centre rays is missed (documented limit). `supersample` (RenderOptions) overrides the
 grid; `aa_threshold` > 0 traces 2 x 2 first and the full grid only where those disagree.
+With the default grid, pixels whose centre ray meets rough glass (sampled lobes) get
+ROUGH_EXTRA more rays a side: their lobes are sampled with the pixel's rays.
 
 Speed: the per-surface work of a bounce (normals, Fresnel, lobes, children) runs in one
 compiled loop (renderer.methods.trace_kernel, numba; `_shade_numpy` is its numpy twin, the reference
-it is tested against), as do the environment reads; Embree casts each bounce's rays from two
+it is tested against), as do the material at the hits (renderer.methods.material_kernel) and the
+environment reads; Embree casts each bounce's rays from two
 threads.
 """
 from __future__ import annotations
@@ -117,6 +120,7 @@ MIN_WEIGHT = 1e-3      # children below this throughput (max over RGB) are not t
 ROULETTE = 0.1         # fresnel_split="roulette": weaker children go on with P = weight / this
 CHUNK_PIXELS = 1 << 18  # supersampled pixels traced together: bounds memory at any size
 KERNEL = True          # shade hits with the compiled trace_kernel (False: the numpy twin)
+ROUGH_EXTRA = 1        # the default grid's extra rays a side on pixels whose centre meets rough glass
 
 
 def _kernel():
@@ -134,6 +138,7 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
     from embreex.mesh_construction import TriangleMesh
 
     tris, nrms, mats, tables, parts, materials = [], [], [], [], [], []
+    verts, faces, n_verts = [], [], 0  # the indexed form Embree is given
     for k, mesh in enumerate(asset.meshes):
         mat = apply_override(mesh.material, options.override)
         materials.append(mat)
@@ -154,6 +159,9 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
             else:
                 idx_w = idx
             tris.append(p[idx_w])
+            verts.append(p)
+            faces.append(idx_w + n_verts)
+            n_verts += len(p)
             parts.append((k, idx_w, m[:3, :3]))
             nrms.append(n[idx_w])
             mats.append(np.full(len(idx), k, np.int32))
@@ -166,7 +174,9 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
     # Degenerate or missing vertex normals fall back to the face normal.
     bad = ~np.isfinite(nrm).all(axis=-1) | (np.linalg.norm(nrm, axis=-1) < 0.5)
     nrm[bad] = np.broadcast_to(ng[:, None, :], nrm.shape)[bad]
-    scene, cached = _embree_scene(tri.astype(np.float32), rtcs, TriangleMesh)
+    scene, cached = _embree_scene(np.concatenate(verts) if verts else np.zeros((0, 3)),
+                                  np.concatenate(faces) if faces else np.zeros((0, 3), np.int64),
+                                  rtcs, TriangleMesh)
     lo, hi = np.asarray(asset.bounds, np.float64)
     col = list(zip(*tables)) if tables else [[]] * 9
     surface = trace_material.build_surface(asset, materials, parts, tri,
@@ -182,9 +192,9 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
         radius=max(float(np.linalg.norm(hi - lo)) / 2, 1e-6), surface=surface, embree_cached=cached)
 
 
-# Built Embree scenes by the digest of their world-space triangles: the service renders many
-# frames of one asset, and embreex copies triangles one by one (~0.4 s for 36k of them, the
-# BVH build after it ~0.1 s). Keyed on content, not on the asset key, so that no edit of a
+# Built Embree scenes by the digest of their world-space vertices and faces: the service renders
+# many frames of one asset, and embreex copies vertices one by one (36k triangles: ~23 ms as
+# 19k indexed vertices, ~40 ms as a triangle soup; the BVH build after it ~10 ms, quiet machine). Keyed on content, not on the asset key, so that no edit of a
 # mesh (or a test asset reusing a key) can be served a stale scene. Embree traces a committed
 # scene from any number of threads.
 EMBREE_CACHE = 4      # scenes kept (least recently used out): a 36k-triangle scene is ~5 MB
@@ -198,18 +208,23 @@ def clear_scene_cache() -> None:
         _embree_cache.clear()
 
 
-def _embree_scene(tri: np.ndarray, rtcs, mesh_type) -> tuple[Any, bool]:
-    """(EmbreeScene of the float32 T x 3 x 3 triangles, whether it came from the cache)."""
-    tri = np.ascontiguousarray(tri, np.float32)
-    key = hashlib.blake2b(tri.tobytes(), digest_size=16).digest() + repr(tri.shape).encode()
+def _embree_scene(vertices: np.ndarray, faces: np.ndarray, rtcs, mesh_type) -> tuple[Any, bool]:
+    """(EmbreeScene of the indexed mesh: V x 3 world vertices, T x 3 faces into them, whether it
+    came from the cache). Primitive ids and barycentrics are those of the triangles in face
+    order, as a triangle soup of the same faces gives."""
+    vertices = np.ascontiguousarray(vertices, np.float32)
+    faces = np.ascontiguousarray(faces, np.int32)
+    digest = hashlib.blake2b(vertices.tobytes(), digest_size=16)
+    digest.update(faces.tobytes())
+    key = digest.digest() + repr((vertices.shape, faces.shape)).encode()
     with _embree_lock:
         scene = _embree_cache.get(key)
         if scene is not None:
             _embree_cache.move_to_end(key)
             return scene, True
     scene = rtcs.EmbreeScene()
-    if len(tri):
-        mesh_type(scene, tri)
+    if len(faces):
+        mesh_type(scene, vertices, faces)
         # commit (Embree builds its BVH on the first query) before the scene is shared
         scene.run(np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32), output=1)
     with _embree_lock:
@@ -389,10 +404,11 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     # ss x ss rays (the refracted environment is minified there), the open background keeps
     # its centre ray (the cube map is already filtered at about a pixel's footprint).
     # Pixels go through in chunks so that memory stays bounded at any image size.
-    first = np.zeros(npix, bool)
+    first_prim = np.full(npix, -1, np.int64)
     for chunk in _chunks(np.arange(npix), 4 * CHUNK_PIXELS):
         d, _ = subpixel_rays(camera, chunk, 1)
-        first[chunk] = intersect_front(ts, np.broadcast_to(camera.position, d.shape), d)[0] >= 0
+        first_prim[chunk] = intersect_front(ts, np.broadcast_to(camera.position, d.shape), d)[0]
+    first = first_prim >= 0
     near = grown_by_one(first.reshape(camera.height, camera.width)).reshape(-1)
     if show_env:
         for chunk in _chunks(np.flatnonzero(~near), 4 * CHUNK_PIXELS):
@@ -408,7 +424,19 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
             img.coverage[pixels] += cov_p
         supersample = 1
     else:
-        _trace_tree(ts, sky, options, camera, near, supersample, passes, images, stats)
+        groups = [(near, supersample)]
+        if options.supersample is None and options.rough_lobes == "sample" and ROUGH_EXTRA > 0:
+            # rough glass samples its lobes with the pixel's rays: where the centre ray meets
+            # it the default grid is finer (frosted sphere at 128 px: 0.116 FLIP at 3 x 3)
+            k = ts.material[np.maximum(first_prim, 0)]
+            rough = first & (ts.roughness[k] > 0) & (ts.transmission[k] > 0)
+            if rough.any():
+                groups = [(near & ~rough, supersample), (rough, supersample + ROUGH_EXTRA)]
+        stats["rough_pixels"] = int(groups[-1][0].sum()) if len(groups) > 1 else 0
+        for mask, ss in groups:
+            for scene in passes:  # the ray cone of this grid's rays
+                scene.spread = 2 * math.tan(math.radians(camera.fov) / 2) / camera.height / ss
+            _trace_tree(ts, sky, options, camera, mask, ss, passes, images, stats)
 
     rgb = image.rgb if len(images) == 1 else np.stack([img.rgb[:, c] for c, img in enumerate(images)], -1)
     rgb = rgb.reshape(camera.height, camera.width, 3)
@@ -431,7 +459,7 @@ def _trace_tree(ts: TraceScene, sky: _Environment, options: RenderOptions, camer
     """The Fresnel tree over the pixels `near`, ss x ss rays each (adaptive with aa_threshold)."""
     image = images[0]
     adaptive = options.aa_threshold > 0 and supersample > 2 and len(passes) == 1
-    stats["refined"] = 0
+    stats.setdefault("refined", 0)
     for chunk in _chunks(np.flatnonzero(near), CHUNK_PIXELS):
         if adaptive:  # 2 x 2 first; the full grid only where those disagree
             chunk = _coarse_pass(ts, sky, options, camera, chunk, image, stats)
@@ -536,6 +564,9 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
     if slot is None:
         slot = pix
 
+    # only BLEND reads the per-ray draw (a hash per ray and bounce otherwise wasted)
+    blended = ts.surface is not None and any(sm.material.alpha_mode == "BLEND"
+                                             for sm in ts.surface.materials)
     if options.bounces <= 0:  # no surfaces: every camera ray reads the environment
         hit = intersect_front(ts, origins, dirs, _alpha_draw(pix, sub, n_sub, 0))[0] >= 0
         image.coverage += np.bincount(slot[hit], share[hit], minlength=image.npix)
@@ -548,7 +579,8 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
             # ... as if it left the medium it is in, without a Fresnel loss
             add((weight * (share * medium ** 2)[:, None]) * env.radiance(dirs, blur ** 0.25), slot)
             break
-        prim, u, v, t = intersect_front(ts, origins, dirs, _alpha_draw(pix, sub, n_sub, depth))
+        prim, u, v, t = intersect_front(ts, origins, dirs,
+                                        _alpha_draw(pix, sub, n_sub, depth) if blended else None)
         stats["rays"] += len(dirs)
         if depth < len(stats["bounces"]):
             stats["bounces"][depth] += len(dirs)
@@ -560,7 +592,7 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
             if show_env:
                 bg = np.full(miss.sum(), options.background_blur)
                 add(env.radiance(dirs[miss], bg) * share[miss, None], slot[miss])
-        hits = hit_material(ts, origins, dirs, prim, u, v, t)
+        hits = hit_material(ts, origins, dirs, prim, u, v, t, lobes=False)
         if ts.lights is not None and len(ts.lights):
             _light_hits(ts, ts.lights, env, options, origins, dirs, prim, t, hits,
                         weight * share[:, None], slot, add)
@@ -594,8 +626,8 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
             sel = np.flatnonzero(hit)
             out = _shade_numpy(ts, env, options, depth, n_sub, eps, d,
                                origins[hit] + d * t[hit, None], t[hit], prim[hit],
-                               trace_material.Hits(*(getattr(hits, f.name)[sel] for f in
-                                                     dataclasses.fields(trace_material.Hits))),
+                               trace_material.Hits(*(getattr(hits, f.name)[sel] for f in  # the core
+                                                     dataclasses.fields(trace_material.Hits)[:9])),
                                weight[hit], pix[hit], sub[hit], slot[hit], blur[hit], share[hit],
                                medium[hit], add, stats)
         origins, dirs, weight, pix, sub, slot, blur, share, medium = out
@@ -809,7 +841,7 @@ def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOpt
             "supersample": stats["supersample"],
             "rays": stats["rays"], "rays_per_bounce": stats["bounces"],
             "tir_events": stats["tir"], "integrator": options.integrator,
-            "embree_cached": stats["embree_cached"]}
+            "embree_cached": stats["embree_cached"], "rough_pixels": stats.get("rough_pixels", 0)}
     if options.integrator == "path":
         plan.update(passes=stats["passes"], samples_mean=round(stats["samples_mean"], 2),
                     stop=stats["stop"], nonfinite=stats.get("nonfinite", 0),

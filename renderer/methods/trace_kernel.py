@@ -17,7 +17,7 @@ import math
 import time
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 _SOBOL_DIM1 = np.zeros(32, np.uint64)
 _SOBOL_DIM1[0] = 0x80000000
@@ -378,12 +378,13 @@ _T_AXIS = np.array([1, 1, 2, 2, 1, 1], np.int64)
 _T_SIGN = np.array([-1.0, -1.0, 1.0, -1.0, -1.0, -1.0])
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def sample_cube(faces, d, s_axis, s_sign, t_axis, t_sign):
-    """core.cubemap.sample_cube for 6 x S x S x 3 faces: bilinear, clamped at face edges."""
+    """core.cubemap.sample_cube for 6 x S x S x 3 faces: bilinear, clamped at face edges
+    (rows independent: over the cores)."""
     size = faces.shape[1]
     out = np.empty((len(d), 3))
-    for i in range(len(d)):
+    for i in prange(len(d)):
         ax, ay, az = abs(d[i, 0]), abs(d[i, 1]), abs(d[i, 2])
         major = 0
         if ay > ax and ay >= az:
@@ -500,7 +501,8 @@ def warm() -> None:
     sample_texture(np.zeros((1, 4), np.uint8), np.zeros(1, i64), np.ones(1, i64), np.ones(1, i64),
                    np.zeros((0, 2)), e, True, 10497, 10497, False, False, 2)
     r2_pair(np.zeros(0, i64), 0, 0, 0.5, 0.5)
-    from renderer.methods import path_kernel  # the path integrator's BSDF
+    from renderer.methods import material_kernel, path_kernel  # the hits' material, the path BSDF
+    material_kernel.warm()
     path_kernel.warm()
 
 

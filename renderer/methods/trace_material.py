@@ -97,6 +97,7 @@ class Surface:
     alpha_tested: np.ndarray             # K bool: MASK or BLEND (rays may pass through)
     corners: np.ndarray | None = None    # T x 3 x 3 world corners (tangents from UVs)
     ao: np.ndarray | None = None         # T x 3 x 2 baked visibility, front and back (1: none)
+    packed: tuple | None = None          # the tables of the compiled evaluate (pack), once built
 
 
 def build_surface(asset: BakedAsset, materials: list[Material], parts: list[tuple[int, np.ndarray, np.ndarray]],
@@ -172,6 +173,71 @@ def build_surface(asset: BakedAsset, materials: list[Material], parts: list[tupl
     return Surface(uvs, density, np.concatenate(tangents) if have_tan and tangents else None,
                    np.concatenate(colors) if have_col and colors else None, surf_mats, alpha_tested,
                    np.asarray(world, np.float64), np.concatenate(aos) if have_ao and aos else None)
+
+
+def pack(surf: Surface) -> tuple:
+    """The surface as renderer.methods.material_kernel.evaluate reads it (built once a scene):
+    per-material factors and flags, per (material, slot) its chain, UV set and 2 x 3 transform,
+    every chain's levels in one flat texel array, and the per-triangle arrays (empty where
+    absent)."""
+    if surf.packed is not None:
+        return surf.packed
+    from renderer.methods import material_kernel as mk  # numba: only a process that traces
+    F_BASE, F_METAL, F_ROUGH, F_TRANS, F_EMIS = mk.F_BASE, mk.F_METAL, mk.F_ROUGH, mk.F_TRANS, mk.F_EMIS
+    F_OCC, F_NSCALE, F_SPEC, F_SPEC_COL, N_F, K_SLOTS = mk.F_OCC, mk.F_NSCALE, mk.F_SPEC, mk.F_SPEC_COL, mk.N_F, mk.SLOTS
+    n_k = len(surf.materials)
+    mat_f = np.zeros((max(n_k, 1), N_F))
+    mat_i = np.zeros((max(n_k, 1), 2), np.int64)
+    slot_chain = np.full((max(n_k, 1), len(K_SLOTS)), -1, np.int64)
+    slot_uv = np.zeros((max(n_k, 1), len(K_SLOTS)), np.int64)
+    slot_m = np.zeros((max(n_k, 1), len(K_SLOTS), 6))
+    chains: list[TextureChain] = []
+    for k, sm in enumerate(surf.materials):
+        m = sm.material
+        mat_f[k, F_BASE:F_BASE + 3] = m.base_color[:3]
+        mat_f[k, F_METAL], mat_f[k, F_ROUGH], mat_f[k, F_TRANS] = m.metallic, m.roughness, m.transmission
+        mat_f[k, F_EMIS:F_EMIS + 3] = np.asarray(m.emissive, np.float64) * m.emissive_strength
+        mat_f[k, F_OCC], mat_f[k, F_NSCALE], mat_f[k, F_SPEC] = m.occlusion_strength, m.normal_scale, m.specular
+        mat_f[k, F_SPEC_COL:F_SPEC_COL + 3] = m.specular_color
+        mat_i[k] = (bool(m.unlit), m.uses("specular"))
+        for s, name in enumerate(K_SLOTS):
+            slot = sm.slots.get(name)
+            if slot is None:
+                continue
+            at = next((j for j, c in enumerate(chains) if c is slot.chain), None)
+            if at is None:
+                at = len(chains)
+                chains.append(slot.chain)
+            slot_chain[k, s], slot_uv[k, s] = at, slot.uv_set
+            slot_m[k, s] = slot.uvm[:2].reshape(-1)
+    if chains:
+        texels = np.ascontiguousarray(np.concatenate([c.texels for c in chains]))
+        starts = np.cumsum([0] + [len(c.texels) for c in chains])
+        lv_off = np.concatenate([c.offsets + starts[j] for j, c in enumerate(chains)]).astype(np.int64)
+        lv_h = np.concatenate([c.heights for c in chains]).astype(np.int64)
+        lv_w = np.concatenate([c.widths for c in chains]).astype(np.int64)
+        ch_nlv = np.asarray([len(c.offsets) for c in chains], np.int64)
+        ch_lv0 = np.concatenate([[0], np.cumsum(ch_nlv)[:-1]]).astype(np.int64)
+        ch_i = np.asarray([(c.srgb, c.wrap[0], c.wrap[1], c.mag == NEAREST,
+                            c.min in (NEAREST, NEAREST_MIPMAP_NEAREST, NEAREST_MIPMAP_LINEAR),
+                            0 if c.min in (NEAREST, LINEAR) else
+                            1 if c.min in (NEAREST_MIPMAP_NEAREST, LINEAR_MIPMAP_NEAREST) else 2)
+                           for c in chains], np.int64)
+    else:
+        texels = np.zeros((1, 4), np.uint8)
+        lv_off, lv_h, lv_w = np.zeros(1, np.int64), np.ones(1, np.int64), np.ones(1, np.int64)
+        ch_lv0, ch_nlv, ch_i = np.zeros(1, np.int64), np.ones(1, np.int64), np.zeros((1, 6), np.int64)
+
+    def arr(a: np.ndarray | None, shape: tuple) -> np.ndarray:
+        return np.zeros(shape) if a is None else np.ascontiguousarray(a, np.float64)
+    uv0, uv1 = arr(surf.uv[0], (0, 3, 2)), arr(surf.uv[1], (0, 3, 2))
+    dens0, dens1 = arr(surf.texel_density[0], (0,)), arr(surf.texel_density[1], (0,))
+    surf.packed = (mat_f, mat_i, slot_chain, slot_uv, slot_m, texels, lv_off, lv_h, lv_w, ch_lv0,
+                   ch_nlv, ch_i, uv0, uv1, dens0, dens1, surf.uv[0] is not None,
+                   arr(surf.tangents, (0, 3, 4)), surf.tangents is not None,
+                   arr(surf.corners, (0, 3, 3)), arr(surf.colors, (0, 3, 4)),
+                   surf.colors is not None, arr(surf.ao, (0, 3, 2)), surf.ao is not None)
+    return surf.packed
 
 
 def _interp(corners: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:

@@ -114,16 +114,46 @@ def pixel_shift(pix: np.ndarray, depth: int) -> np.ndarray:
     return (h >> np.uint64(11)).astype(np.float64) / float(1 << 53)
 
 
+KERNEL = True  # evaluate the core material compiled (renderer.methods.material_kernel; False: numpy)
+# the lobes the compiled evaluate leaves to the numpy one (the path integrator's BSDF reads them)
+EXTENSION_LOBES = ("clearcoat", "sheen", "iridescence", "anisotropy", "diffuse_transmission")
+
+
 def hit_material(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray, prim: np.ndarray,
-                  u: np.ndarray, v: np.ndarray, t: np.ndarray) -> trace_material.Hits:
-    """The material at every ray's hit (trace_material.evaluate; rows of misses are zeros)."""
+                 u: np.ndarray, v: np.ndarray, t: np.ndarray, lobes: bool = True) -> trace_material.Hits:
+    """The material at every ray's hit (rows of misses: Hits.empty's). `lobes` False: only the
+    core model and KHR_materials_specular are filled (what the Fresnel tree reads; the other
+    lobes keep their defaults), which the compiled evaluate does for any material; with `lobes`
+    a material that uses an extension lobe sends the bounce to trace_material.evaluate."""
     n = len(prim)
+    surf = ts.surface
+    if surf is None:
+        return trace_material.Hits.empty(n)
+    if KERNEL and not (lobes and any(sm.material.uses(x) for sm in surf.materials
+                                     for x in EXTENSION_LOBES)):
+        from renderer.methods import material_kernel  # numba loads only in a process that traces
+        hits = trace_material.Hits(np.empty((n, 3)), np.empty((n, 3)), np.empty(n), np.empty(n),
+                                   np.empty(n), np.empty((n, 3)), np.empty(n), np.empty(n),
+                                   np.empty((n, 3)))
+        d = np.ascontiguousarray(dirs, np.float64)
+        material_kernel.evaluate(  # type: ignore[call-arg]
+            prim, u, v, t, np.ascontiguousarray(origins, np.float64), d, np.asarray(ts.eye, np.float64),
+            float(ts.spread), ts.normals, ts.material, *trace_material.pack(surf), hits.normal,
+            hits.base, hits.metallic, hits.roughness, hits.transmission, hits.emission,
+            hits.occlusion, hits.specular, hits.specular_color)
+        if lobes:  # the extension lobes at their defaults (no material here uses them)
+            defaults = trace_material._lobe_defaults(n, hits.normal)
+            (hits.clearcoat, hits.clearcoat_roughness, hits.clearcoat_normal, hits.sheen_color,
+             hits.sheen_roughness, hits.iridescence, hits.iridescence_ior, hits.iridescence_thickness,
+             hits.anisotropy, hits.anisotropy_t, hits.diffuse_transmission,
+             hits.diffuse_transmission_color) = defaults[2:]
+        return hits
     full = trace_material.Hits.empty(n)
     sel = np.flatnonzero(prim >= 0)
-    if not len(sel) or ts.surface is None:
+    if not len(sel):
         return full
     width = ts.spread * (np.linalg.norm(origins[sel] - ts.eye, axis=-1) + t[sel])
-    got = trace_material.evaluate(ts.surface, ts.normals, ts.material[prim[sel]], prim[sel],
+    got = trace_material.evaluate(surf, ts.normals, ts.material[prim[sel]], prim[sel],
                                   u[sel], v[sel], dirs[sel], width)
     for f in dataclasses.fields(trace_material.Hits):
         getattr(full, f.name)[sel] = getattr(got, f.name)
