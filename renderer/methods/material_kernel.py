@@ -19,7 +19,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from renderer.methods.trace_kernel import _SRGB_LUT, _UNIT_LUT, _texel_level
+from renderer.methods.texel_kernel import SRGB_LUT, UNIT_LUT, texel_level
 
 # Slot order of the packed tables (renderer.methods.trace_material.pack).
 SLOTS = ("base_color", "metallic_roughness", "transmission", "emissive", "occlusion", "normal",
@@ -58,13 +58,13 @@ def _fetch(k, s, prim, bu, bv, bw, width, cos_d, slot_chain, slot_uv, slot_m, te
     nearest = (ch_i[c, 4] != 0) if lod > 0 else (ch_i[c, 3] != 0)
     for q in range(4):
         out[q] = 0.0
-    table = _SRGB_LUT if ch_i[c, 0] != 0 else _UNIT_LUT
+    table = SRGB_LUT if ch_i[c, 0] != 0 else UNIT_LUT
     for level, weight in ((lo, 1.0 - frac), (min(lo + 1, top), frac)):
         if weight <= 0.0:
             continue
         g = first + level
         h, w = lv_h[g], lv_w[g]
-        _texel_level(texels, lv_off[g], h, w, x * w - 0.5, y * h - 0.5, nearest, ch_i[c, 1],
+        texel_level(texels, lv_off[g], h, w, x * w - 0.5, y * h - 0.5, nearest, ch_i[c, 1],
                      ch_i[c, 2], table, out, weight)
 
 

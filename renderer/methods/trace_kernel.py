@@ -408,68 +408,6 @@ def sample_cube(faces, d, s_axis, s_sign, t_axis, t_sign):
     return out
 
 
-@njit(cache=True, inline="always")
-def _wrap(i, n, mode):
-    if mode == 33071:  # CLAMP_TO_EDGE
-        return min(max(i, 0), n - 1)
-    if mode == 33648:  # MIRRORED_REPEAT
-        m = i % (2 * n)
-        return m if m < n else 2 * n - 1 - m
-    return i % n  # REPEAT
-
-
-@njit(cache=True)
-def _texel_level(texels, offset, h, w, x, y, nearest, wrap_s, wrap_t, table, out, scale):
-    """Add `scale` x the bilinear (or nearest) RGBA of one level at texel coordinates x, y."""
-    x0f, y0f = math.floor(x), math.floor(y)
-    fx, fy = x - x0f, y - y0f
-    if nearest:
-        fx, fy = float(round(fx)), float(round(fy))
-    x0, y0 = int(x0f), int(y0f)
-    xa, xb = _wrap(x0, w, wrap_s), _wrap(x0 + 1, w, wrap_s)
-    ya, yb = _wrap(y0, h, wrap_t), _wrap(y0 + 1, h, wrap_t)
-    for c in range(4):
-        tab = table if c < 3 else _UNIT_LUT
-        v00, v01 = tab[texels[offset + ya * w + xa, c]], tab[texels[offset + ya * w + xb, c]]
-        v10, v11 = tab[texels[offset + yb * w + xa, c]], tab[texels[offset + yb * w + xb, c]]
-        out[c] += scale * ((v00 * (1 - fx) + v01 * fx) * (1 - fy) + (v10 * (1 - fx) + v11 * fx) * fy)
-
-
-_UNIT_LUT = np.arange(256) / 255.0
-_SRGB_LUT = np.where(_UNIT_LUT <= 0.04045, _UNIT_LUT / 12.92, ((_UNIT_LUT + 0.055) / 1.055) ** 2.4)
-
-
-@njit(cache=True)
-def sample_texture(texels, offsets, heights, widths, uv, lod, srgb, wrap_s, wrap_t, mag_nearest,
-                   min_nearest, mip_mode):
-    """N x 4 RGBA (sRGB colour decoded to linear) of a mip chain stored flat (`texels`: all
-    levels' RGBA8 rows one after another, level l from offsets[l]) at `uv` (glTF: v = 0 is
-    row 0) and level `lod`. mip_mode: 0 no mips (level 0), 1 nearest level, 2 linear."""
-    n = len(uv)
-    out = np.zeros((n, 4))
-    top = len(offsets) - 1
-    px = np.zeros(4)
-    for i in range(n):
-        level_f = min(max(lod[i], 0.0), float(top))
-        if mip_mode == 0:
-            level_f = 0.0
-        elif mip_mode == 1:
-            level_f = float(round(level_f))
-        lo = int(math.floor(level_f))
-        frac = level_f - lo
-        nearest = min_nearest if lod[i] > 0 else mag_nearest
-        px[:] = 0.0
-        for level, weight in ((lo, 1.0 - frac), (min(lo + 1, top), frac)):
-            if weight <= 0.0:
-                continue
-            h, w = heights[level], widths[level]
-            _texel_level(texels, offsets[level], h, w, uv[i, 0] * w - 0.5, uv[i, 1] * h - 0.5,
-                         nearest, wrap_s, wrap_t, _SRGB_LUT if srgb else _UNIT_LUT, px, weight)
-        for c in range(4):
-            out[i, c] = px[c]
-    return out
-
-
 @njit(cache=True)
 def r2_pair(pix, s, dim, a1, a2):
     """The path tracer's two uniforms of (pixel, pass s, dimension pair `dim`) for every pixel:
@@ -498,10 +436,10 @@ def warm() -> None:
               e3, e, e, e, e, e3, np.zeros(0, np.bool_), e3, e, e, e3, np.zeros((2, 2, 2)), 0, 1, 1e-4, True, False, True,
               1e-3, _SOBOL_DIM1, 0.0)
     sample_cube(np.zeros((6, 2, 2, 3), f32), e3, _S_AXIS, _S_SIGN, _T_AXIS, _T_SIGN)
-    sample_texture(np.zeros((1, 4), np.uint8), np.zeros(1, i64), np.ones(1, i64), np.ones(1, i64),
-                   np.zeros((0, 2)), e, True, 10497, 10497, False, False, 2)
     r2_pair(np.zeros(0, i64), 0, 0, 0.5, 0.5)
-    from renderer.methods import material_kernel, path_kernel  # the hits' material, the path BSDF
+    # the textures, the hits' material, the path BSDF
+    from renderer.methods import material_kernel, path_kernel, texel_kernel
+    texel_kernel.warm()
     material_kernel.warm()
     path_kernel.warm()
 

@@ -60,9 +60,9 @@ class TextureChain:
                     1 if self.min in (NEAREST_MIPMAP_NEAREST, LINEAR_MIPMAP_NEAREST) else 2)
         min_nearest = self.min in (NEAREST, NEAREST_MIPMAP_NEAREST, NEAREST_MIPMAP_LINEAR)
         # numba's import costs ~0.6 s, which a process that never ray traces skips
-        from renderer.methods import trace_kernel
+        from renderer.methods import texel_kernel
         t0 = time.perf_counter()
-        out = trace_kernel.sample_texture(
+        out = texel_kernel.sample_texture(
             self.texels, self.offsets, self.heights, self.widths,
             np.ascontiguousarray(uv, np.float64), np.ascontiguousarray(lod, np.float64),
             self.srgb, int(self.wrap[0]), int(self.wrap[1]), self.mag == NEAREST, min_nearest,
