@@ -144,6 +144,20 @@ def _gama(png: bytes, gamma: float) -> bytes:
     return png[:33] + struct.pack(">I", 4) + body + struct.pack(">I", zlib.crc32(body)) + png[33:]
 
 
+def _png16(channels: int) -> bytes:
+    """A 16-bit PNG of grey 128 x 257 with `channels` (Pillow writes 16-bit grey only)."""
+    import struct
+    import zlib
+    px = np.full((8, 8, channels), 128 * 257, ">u2")
+    raw = b"".join(b"\x00" + px[y].tobytes() for y in range(8))
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+    header = struct.pack(">IIBBBBB", 8, 8, 16, {1: 0, 2: 4, 3: 2, 4: 6}[channels], 0, 0, 0)
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(raw))
+            + chunk(b"IEND", b""))
+
+
 def _grey_image(tmp_path, kind: str) -> str:
     """An 8 x 8 image of grey 128 (8-bit) or 128 x 257 (16-bit), written as `kind`."""
     import io
@@ -156,9 +170,12 @@ def _grey_image(tmp_path, kind: str) -> str:
               "16.png": Image.fromarray(np.full((8, 8), 128 * 257, np.uint16)),
               "l.jpg": Image.fromarray(g, "L"), "rgb.jpg": Image.fromarray(np.stack([g] * 3, -1), "RGB")}
     base = kind.split("+")[0]
-    buf = io.BytesIO()
-    images[base].save(buf, format="JPEG" if base.endswith(".jpg") else "PNG", quality=100)
-    data = buf.getvalue()
+    if base in ("rgb16.png", "rgba16.png"):
+        data = _png16(3 if base == "rgb16.png" else 4)
+    else:
+        buf = io.BytesIO()
+        images[base].save(buf, format="JPEG" if base.endswith(".jpg") else "PNG", quality=100)
+        data = buf.getvalue()
     if kind.endswith("+g1"):
         data = _gama(data, 1.0)
     elif kind.endswith("+g045"):
@@ -174,7 +191,8 @@ STORM_SRGB = [("l.png", "auto", False), ("l.png", "sRGB", True), ("l.png", "raw"
               ("la.png", "auto", False), ("rgb.png", "auto", True), ("rgb.png", "raw", False),
               ("16.png", "auto", False), ("16.png", "sRGB", True), ("rgb.png+g1", "auto", False),
               ("l.png+g045", "auto", True), ("rgba.png", "auto", True), ("l.jpg", "auto", False),
-              ("rgb.jpg", "auto", True), ("rgb.png+g1", "sRGB", True), ("la.png", "sRGB", True)]
+              ("rgb.jpg", "auto", True), ("rgb.png+g1", "sRGB", True), ("la.png", "sRGB", True),
+              ("rgb16.png", "auto", True), ("rgba16.png", "auto", True), ("rgb16.png", "raw", False)]
 
 
 @pytest.mark.parametrize("kind,space,srgb", STORM_SRGB)
@@ -199,3 +217,19 @@ def test_source_color_space_as_storm_reads_it(tmp_path, kind, space, srgb):
 def test_auto_rule_reads_image_headers():
     from pipeline.usd.materials import auto_source_srgb
     assert not auto_source_srgb(b"\x76\x2f\x31\x01" + bytes(40))  # OpenEXR: float, linear
+
+
+def test_exr_reads_linear_in_data_slots(tmp_path):
+    """An OpenEXR is linear to Storm under auto: roughness from one reads the float value
+    (our 8-bit decode holds it sRGB-encoded, so the data slot gets it decoded back)."""
+    import OpenEXR
+    rgb = np.full((2, 2, 3), 0.3, np.float32)
+    with OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage},
+                      {"RGB": rgb}) as f:
+        f.write(str(tmp_path / "r.exr"))
+    path = tmp_path / "exr.usda"
+    path.write_text(GREY_CARD.replace("FILE", "r.exr").replace("SPACE", "auto"))
+    scene = load_scene(path)
+    (mat,) = [m for m in scene.materials if m.name.endswith("M")]
+    rough = scene.textures[mat.metallic_roughness_texture.texture].image
+    assert float(rough[..., 1].mean()) / 255 == pytest.approx(0.3, abs=0.005)

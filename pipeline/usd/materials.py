@@ -86,9 +86,10 @@ class _Tex:
 
 def auto_source_srgb(data: bytes | memoryview) -> bool:
     """Whether Storm reads an image as sRGB under `sourceColorSpace = "auto"` (Hio's stb
-    reader): a PNG gAMA chunk near 1/2.2 says sRGB and near 1.0 says linear; otherwise 8-bit
-    images of 3 or 4 channels are sRGB and the rest (1-2 channels, 16-bit, float) linear.
-    Checked against Storm on a stage of grey cards (tests/test_usd_look.py)."""
+    reader): a PNG gAMA chunk near 1/2.2 says sRGB and near 1.0 says linear; otherwise images
+    of 3 or 4 channels are sRGB, 16-bit PNGs too (stb hands them over as 8-bit), and 1-2
+    channel ones linear; OpenEXR (float) is linear. Checked against Storm on a stage of grey
+    cards (tests/test_usd_look.py)."""
     head = bytes(data[:8])
     if head[:4] == EXR_MAGIC:
         return False
@@ -105,7 +106,7 @@ def auto_source_srgb(data: bytes | memoryview) -> bool:
 def _png_auto_srgb(data: bytes | memoryview) -> bool:
     if len(data) < 33:
         return True
-    depth, colour = data[24], data[25]
+    colour = data[25]
     pos = 8
     while pos + 8 <= len(data):  # the chunks before the pixels: a gAMA there decides
         length = int.from_bytes(data[pos:pos + 4], "big")
@@ -119,8 +120,7 @@ def _png_auto_srgb(data: bytes | memoryview) -> bool:
             if abs(gamma - 1.0) < 0.1:
                 return False
         pos += 12 + length
-    channels = {0: 1, 2: 3, 3: 3, 4: 2, 6: 4}.get(colour, 4)  # a palette expands to RGB(A)
-    return channels >= 3 and (depth <= 8 or colour == 3)
+    return colour in (2, 3, 6)  # RGB, palette (expands to RGB(A)), RGBA; not grey (0), grey+alpha (4)
 
 
 class _Recoded(Texture):
@@ -189,7 +189,7 @@ class MaterialReader:
         self._textures: dict[tuple, int | None] = {}
         self._packed: dict[tuple, int] = {}
         self._recoded: dict[tuple[int, bool], int] = {}
-        self._auto_srgb: dict[str, bool] = {}
+        self._auto_srgb: dict[str, bool | None] = {}  # None: EXR
         self._materials: dict[str, int] = {}
         self._unpacked = 0
         self._documents: dict[str, object] = {}  # .mtlx identifier -> MaterialX document
@@ -414,7 +414,8 @@ class MaterialReader:
             if not (np.allclose(normal.scale[:3], 2.0) and np.allclose(normal.bias[:3], -1.0)):
                 self._warn(f"{name}: normal texture scale/bias {normal.scale[:3]}/"
                            f"{normal.bias[:3]} are not (2, -1); read as a standard normal map")
-            mat.normal_texture = ref(normal)
+            # an 8-bit RGB normal map left at auto is sRGB-decoded by Storm too, bent normals
+            mat.normal_texture = ref(self._in_space(normal, "raw"))
 
         displacement = self._input(shader, "displacement")
         if isinstance(displacement, (_Tex, str)) or _scalar(displacement, 0.0) != 0.0:
@@ -552,6 +553,11 @@ class MaterialReader:
 
     def _color_space(self, node: UsdShade.Shader, identifier: str) -> str:
         declared = str(self._input(node, "sourceColorSpace") or "auto")
+        if self._auto_srgb[identifier] is None:  # EXR: decoded as sRGB-encoded linear values
+            if declared == "sRGB":
+                self._warn(f"{node.GetPath()}: sourceColorSpace 'sRGB' on an OpenEXR image is "
+                           "read as linear")
+            return "sRGB"
         if declared in ("raw", "sRGB"):
             return declared
         if declared != "auto":
@@ -567,7 +573,7 @@ class MaterialReader:
         if len(self.scene.textures) >= self.limits.max_textures:
             raise LimitExceeded(self.graph.path, f"more than {self.limits.max_textures} textures")
         data = self.graph.read_bytes(identifier)
-        self._auto_srgb[identifier] = auto_source_srgb(data)
+        self._auto_srgb[identifier] = None if bytes(data[:4]) == EXR_MAGIC else auto_source_srgb(data)
         index = None
         try:
             w, h = probe_image(data, identifier, self.limits)
@@ -609,6 +615,9 @@ class MaterialReader:
         linear texel written as sRGB comes back within half a step of it)."""
         if tex.bias != (0.0, 0.0, 0.0, 0.0):
             self._warn(f"{name}: {slot} texture bias {tex.bias} is ignored")
+        return self._in_space(tex, expected)
+
+    def _in_space(self, tex: _Tex, expected: str) -> _Tex:
         if tex.color_space == expected or tex.output == "a":  # alpha is never decoded
             return tex
         key = (tex.texture, expected == "sRGB")
