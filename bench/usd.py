@@ -8,7 +8,8 @@ Method (docs/usd.md, "Storm reference"):
   a uniform white dome; both renderers render the wrapper through that camera.
 - Storm: FrameRecorder, no camera light, sRGB colour correction, no tone curve; ours:
   `--tonemap none` (sRGB encoding of the clamped linear frame), transparent background. Both
-  are composited over the same grey and compared with LDR-FLIP (Storm is the reference); the
+  are composited over the same grey, in display space with straight alpha (Storm's PNG holds
+  premultiplied colour: unpremultiplied in linear first), and compared with LDR-FLIP (Storm is the reference); the
   FLIP mean is over the frame.
 - Time to first image: cold = a new process (ours: `python -m bench.usd_cold`, which is
   `asset-preview render` plus a breakdown of where its time goes, with an empty cache and the
@@ -68,12 +69,12 @@ def entry_points(folder: Path) -> list[Path]:
     return [p for p in files if str(p) not in parts]
 
 
-def _over_grey(path: Path, size: int) -> np.ndarray:
+def _over_grey(path: Path, size: int, premultiplied: bool = False) -> np.ndarray:
     from PIL import Image
     im = Image.open(path).convert("RGBA")
     if im.size != (size, size):
         im = im.resize((size, size), Image.Resampling.BILINEAR)
-    return over_grey(np.asarray(im))
+    return over_grey(np.asarray(im), premultiplied)
 
 
 def ldr_flip(ours: np.ndarray, ref: np.ndarray) -> tuple[float, np.ndarray]:
@@ -135,9 +136,18 @@ def _ours_warm(wrapper, cache: Path, size: int, root: Path) -> float:
     return time.perf_counter() - start
 
 
-def over_grey(rgba8: np.ndarray) -> np.ndarray:
+def over_grey(rgba8: np.ndarray, premultiplied: bool = False) -> np.ndarray:
+    """sRGB 0..1 of `rgba8` over GREY, blended in display space as ours composites a
+    background. Ours is straight alpha; Storm's FrameRecorder writes the sRGB encoding of
+    premultiplied linear colour (`premultiplied`: a half-transparent white card comes out as
+    sRGB(0.5 x white) at alpha 0.5), so its colour is divided by alpha in linear first."""
     a = rgba8.astype(np.float32) / 255.0
-    return a[..., :3] * a[..., 3:] + GREY * (1.0 - a[..., 3:])
+    rgb, alpha = a[..., :3], a[..., 3:]
+    if premultiplied:
+        from core.colour import srgb_encode, srgb_to_linear
+        linear = srgb_to_linear(rgba8[..., :3])
+        rgb = srgb_encode(np.where(alpha > 0, linear / np.maximum(alpha, 1e-6), 0.0)).astype(np.float32)
+    return rgb * alpha + GREY * (1.0 - alpha)
 
 
 def compile_sources() -> None:
@@ -206,13 +216,13 @@ def run(args: argparse.Namespace) -> int:
                 from PIL import Image
                 row["storm_drew"] = bool(np.asarray(Image.open(storm_png).convert("RGBA"))[..., 3].max() > 0)
             if ours_png.is_file() and storm_png.is_file():
-                a, b = _over_grey(ours_png, args.size), _over_grey(storm_png, args.size)
+                a, b = _over_grey(ours_png, args.size), _over_grey(storm_png, args.size, premultiplied=True)
                 row["flip"], emap = ldr_flip(a, b)
                 row["_images"] = (a, b, emap)
             elif ours_png.is_file():
                 row["_images"] = (_over_grey(ours_png, args.size), None, None)
             elif storm_png.is_file():
-                row["_images"] = (None, _over_grey(storm_png, args.size), None)
+                row["_images"] = (None, _over_grey(storm_png, args.size, premultiplied=True), None)
             if args.keep_images:
                 import shutil
                 args.keep_images.mkdir(parents=True, exist_ok=True)

@@ -14,6 +14,7 @@ import pytest
 from PIL import Image
 from pxr import Sdf, Usd, UsdGeom, UsdUtils
 
+from core.colour import srgb_to_linear
 from core.errors import AssetError, LimitExceeded, MalformedAsset, MissingFile, UnsafeReference
 from pipeline.ingest import load_scene
 from pipeline.limits import Limits
@@ -470,7 +471,8 @@ def test_uv_texture_in_usdz_with_wrap_scale_and_channels(tmp_path):
     # roughness read from G lands in G of the metallic-roughness texture, factor = scale.g
     assert mat.roughness == pytest.approx(0.5)
     mr = scene.textures[mat.metallic_roughness_texture.texture]
-    assert mr.image[0, 0, 1] == 100
+    # an 8-bit RGBA PNG at sourceColorSpace auto is sRGB to Storm whichever input reads it
+    assert mr.image[0, 0, 1] == round(float(srgb_to_linear(np.uint8(100))) * 255)
     assert scene.meshes[0].uv0 is not None  # read from "uvmap", the reader's primvar
     assert scene.files == [str(pkg.resolve())]  # the package stands for what it holds
 
@@ -512,12 +514,14 @@ def test_channel_repack_for_separate_maps(tmp_path):
     {
         uniform token info:id = "UsdUVTexture"
         asset inputs:file = @./rough.png@
+        token inputs:sourceColorSpace = "raw"
         float outputs:r
     }
     def Shader "Me"
     {
         uniform token info:id = "UsdUVTexture"
         asset inputs:file = @./metal.png@
+        token inputs:sourceColorSpace = "raw"
         float outputs:r
     }
 """

@@ -51,7 +51,7 @@ def test_ours_matches_storm_on_the_teapot(teapot, tmp_path):
     storm = render_storm(python, wrapper.path, tmp_path / "storm.png", 128, warm=False)
     assert storm.image is not None, storm.error
     from PIL import Image
-    ref = over_grey(np.asarray(Image.open(storm.image).convert("RGBA")))
+    ref = over_grey(np.asarray(Image.open(storm.image).convert("RGBA")), premultiplied=True)
     ours = over_grey(render_ours(wrapper, tmp_path / "cache", 128, teapot.parent.parent).rgba8)
     assert (ref.std(axis=(0, 1)) > 0.02).any()  # Storm drew the teapot, not an empty frame
     flip, _ = ldr_flip(ours, ref)

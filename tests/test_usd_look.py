@@ -101,3 +101,135 @@ def test_displacement_is_not_drawn_and_says_so(tmp_path):
     assert any("displacement" in w and "Grey" in w for w in scene.warnings)
     flat = load_scene(_stage(tmp_path, True, True, displacement="float inputs:displacement = 0"))
     assert not any("displacement" in w for w in flat.warnings)
+
+
+# -- texture colour spaces (UsdUVTexture sourceColorSpace), as Storm resolves them
+
+GREY_CARD = """#usda 1.0
+def Mesh "Card" ( prepend apiSchemas = ["MaterialBindingAPI"] )
+{
+    int[] faceVertexCounts = [4]
+    int[] faceVertexIndices = [0, 1, 2, 3]
+    point3f[] points = [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)]
+    texCoord2f[] primvars:st = [(0, 0), (1, 0), (1, 1), (0, 1)] ( interpolation = "vertex" )
+    rel material:binding = </M>
+}
+def Material "M"
+{
+    token outputs:surface.connect = </M/S.outputs:surface>
+    def Shader "S"
+    {
+        uniform token info:id = "UsdPreviewSurface"
+        color3f inputs:diffuseColor.connect = </M/T.outputs:rgb>
+        float inputs:roughness.connect = </M/T.outputs:r>
+        token outputs:surface
+    }
+    def Shader "T"
+    {
+        uniform token info:id = "UsdUVTexture"
+        asset inputs:file = @./FILE@
+        token inputs:sourceColorSpace = "SPACE"
+        float3 outputs:rgb
+        float outputs:r
+    }
+}
+"""
+
+
+def _gama(png: bytes, gamma: float) -> bytes:
+    """`png` with a gAMA chunk after IHDR."""
+    import struct
+    import zlib
+    body = b"gAMA" + struct.pack(">I", round(gamma * 100000))
+    return png[:33] + struct.pack(">I", 4) + body + struct.pack(">I", zlib.crc32(body)) + png[33:]
+
+
+def _png16(channels: int) -> bytes:
+    """A 16-bit PNG of grey 128 x 257 with `channels` (Pillow writes 16-bit grey only)."""
+    import struct
+    import zlib
+    px = np.full((8, 8, channels), 128 * 257, ">u2")
+    raw = b"".join(b"\x00" + px[y].tobytes() for y in range(8))
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+    header = struct.pack(">IIBBBBB", 8, 8, 16, {1: 0, 2: 4, 3: 2, 4: 6}[channels], 0, 0, 0)
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(raw))
+            + chunk(b"IEND", b""))
+
+
+def _grey_image(tmp_path, kind: str) -> str:
+    """An 8 x 8 image of grey 128 (8-bit) or 128 x 257 (16-bit), written as `kind`."""
+    import io
+
+    from PIL import Image
+    g = np.full((8, 8), 128, np.uint8)
+    images = {"l.png": Image.fromarray(g, "L"), "la.png": Image.fromarray(np.stack([g, g], -1), "LA"),
+              "rgb.png": Image.fromarray(np.stack([g] * 3, -1), "RGB"),
+              "rgba.png": Image.fromarray(np.stack([g] * 3 + [g * 0 + 255], -1), "RGBA"),
+              "16.png": Image.fromarray(np.full((8, 8), 128 * 257, np.uint16)),
+              "l.jpg": Image.fromarray(g, "L"), "rgb.jpg": Image.fromarray(np.stack([g] * 3, -1), "RGB")}
+    base = kind.split("+")[0]
+    if base in ("rgb16.png", "rgba16.png"):
+        data = _png16(3 if base == "rgb16.png" else 4)
+    else:
+        buf = io.BytesIO()
+        images[base].save(buf, format="JPEG" if base.endswith(".jpg") else "PNG", quality=100)
+        data = buf.getvalue()
+    if kind.endswith("+g1"):
+        data = _gama(data, 1.0)
+    elif kind.endswith("+g045"):
+        data = _gama(data, 0.45455)
+    name = kind.replace("+", "_")
+    (tmp_path / name).write_bytes(data)
+    return name
+
+
+# What Storm draws (bench/storm_worker.py on a stage of such cards, lit by a distant light:
+# 184 where the texel is read as linear 0.502, 125 where it is sRGB-decoded to 0.216).
+STORM_SRGB = [("l.png", "auto", False), ("l.png", "sRGB", True), ("l.png", "raw", False),
+              ("la.png", "auto", False), ("rgb.png", "auto", True), ("rgb.png", "raw", False),
+              ("16.png", "auto", False), ("16.png", "sRGB", True), ("rgb.png+g1", "auto", False),
+              ("l.png+g045", "auto", True), ("rgba.png", "auto", True), ("l.jpg", "auto", False),
+              ("rgb.jpg", "auto", True), ("rgb.png+g1", "sRGB", True), ("la.png", "sRGB", True),
+              ("rgb16.png", "auto", True), ("rgba16.png", "auto", True), ("rgb16.png", "raw", False)]
+
+
+@pytest.mark.parametrize("kind,space,srgb", STORM_SRGB)
+def test_source_color_space_as_storm_reads_it(tmp_path, kind, space, srgb):
+    """Base colour (an sRGB slot) and roughness (a data slot) from one texture: each reads
+    the texel as Storm does, 0.216 when sRGB-decoded and 0.502 as it is, within the 8-bit
+    re-encoding's half step."""
+    from core.colour import srgb_to_linear
+    name = _grey_image(tmp_path, kind)
+    path = tmp_path / f"card_{name}_{space}.usda"
+    path.write_text(GREY_CARD.replace("FILE", name).replace("SPACE", space))
+    scene = load_scene(path)
+    (mat,) = [m for m in scene.materials if m.name.endswith("M")]
+    want = float(srgb_to_linear(np.uint8(128))) if srgb else 128 / 255
+    base = scene.textures[mat.base_color_texture.texture].image
+    read_as_base = float(srgb_to_linear(base[..., :3]).mean())  # the sRGB slot decodes
+    assert read_as_base == pytest.approx(want, abs=0.004)
+    rough = scene.textures[mat.metallic_roughness_texture.texture].image
+    assert float(rough[..., 1].mean()) / 255 == pytest.approx(want, abs=0.004)  # read as is
+
+
+def test_auto_rule_reads_image_headers():
+    from pipeline.usd.materials import auto_source_srgb
+    assert not auto_source_srgb(b"\x76\x2f\x31\x01" + bytes(40))  # OpenEXR: float, linear
+
+
+def test_exr_reads_linear_in_data_slots(tmp_path):
+    """An OpenEXR is linear to Storm under auto: roughness from one reads the float value
+    (our 8-bit decode holds it sRGB-encoded, so the data slot gets it decoded back)."""
+    import OpenEXR
+    rgb = np.full((2, 2, 3), 0.3, np.float32)
+    with OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage},
+                      {"RGB": rgb}) as f:
+        f.write(str(tmp_path / "r.exr"))
+    path = tmp_path / "exr.usda"
+    path.write_text(GREY_CARD.replace("FILE", "r.exr").replace("SPACE", "auto"))
+    scene = load_scene(path)
+    (mat,) = [m for m in scene.materials if m.name.endswith("M")]
+    rough = scene.textures[mat.metallic_roughness_texture.texture].image
+    assert float(rough[..., 1].mean()) / 255 == pytest.approx(0.3, abs=0.005)

@@ -8,6 +8,7 @@ import OpenEXR
 import pytest
 from PIL import Image
 
+from core.colour import srgb_to_linear
 from pipeline.ingest import load_scene
 
 STAGE = """#usda 1.0
@@ -94,10 +95,11 @@ def test_tga_exr_and_16_bit_png(tmp_path):
     _, img = texture_of(write(tmp_path, "blue.exr"))
     assert img.shape == (2, 4, 4) and abs(int(img[1, 3, 2]) - 128) <= 1 and img[0, 0, 0] == 0
 
-    grey16 = np.full((2, 4), 40000, np.uint16)  # 16-bit grey: 40000 / 65535 = 0.61 -> 156
+    grey16 = np.full((2, 4), 40000, np.uint16)  # 16-bit grey: 40000 / 65535 = 0.61
     Image.fromarray(grey16).save(tmp_path / "grey16.png")
     _, img = texture_of(write(tmp_path, "grey16.png"))
-    assert abs(int(img[0, 0, 0]) - 156) <= 1, img[0, 0]
+    # linear under auto (Storm's rule), so the base colour slot, which decodes sRGB, reads 0.61
+    assert abs(float(srgb_to_linear(img[0, 0, 0])) - 40000 / 65535) < 0.005, img[0, 0]
 
 
 def test_broken_exr_names_the_file(tmp_path):

@@ -22,6 +22,7 @@ USD says nothing of thickness or absorption, so those stay at their glTF default
 from __future__ import annotations
 
 import dataclasses
+import io
 import logging
 import math
 from dataclasses import dataclass
@@ -31,6 +32,7 @@ import numpy as np
 from PIL import Image
 from pxr import Sdf, Usd, UsdShade
 
+from core.colour import srgb_encode, srgb_to_linear
 from core.errors import LimitExceeded, MalformedAsset, MissingFile
 from core.scene import (
     CLAMP_TO_EDGE,
@@ -43,7 +45,7 @@ from core.scene import (
     TextureRef,
 )
 from pipeline import deadline
-from pipeline.images import DeferredTexture, probe_image
+from pipeline.images import EXR_MAGIC, PNG_SIGNATURE, DeferredTexture, probe_image
 from pipeline.limits import Limits
 from pipeline.usd import materialx
 from pipeline.usd.layers import LayerGraph
@@ -75,11 +77,76 @@ class _Tex:
     bias: tuple[float, float, float, float]
     primvar: str
     transform: tuple[tuple[float, float], float, tuple[float, float]]  # offset, rotation, scale
-    color_space: str
+    color_space: str  # as resolved: "sRGB" or "raw" (auto decided by the image, Hio's rule)
 
     @property
     def channel(self) -> int:
         return CHANNELS[self.output]
+
+
+def auto_source_srgb(data: bytes | memoryview) -> bool:
+    """Whether Storm reads an image as sRGB under `sourceColorSpace = "auto"` (Hio's stb
+    reader): a PNG gAMA chunk near 1/2.2 says sRGB and near 1.0 says linear; otherwise images
+    of 3 or 4 channels are sRGB, 16-bit PNGs too (stb hands them over as 8-bit), and 1-2
+    channel ones linear; OpenEXR (float) is linear. Checked against Storm on a stage of grey
+    cards (tests/test_usd_look.py)."""
+    head = bytes(data[:8])
+    if head[:4] == EXR_MAGIC:
+        return False
+    if head == PNG_SIGNATURE:
+        return _png_auto_srgb(data)
+    try:
+        with Image.open(io.BytesIO(bytes(data))) as im:  # header only
+            mode = im.mode
+    except Exception:  # noqa: BLE001 - unreadable here is refused where it is decoded
+        return True
+    return mode in ("RGB", "RGBA", "RGBX", "CMYK", "YCbCr", "P", "PA")
+
+
+def _png_auto_srgb(data: bytes | memoryview) -> bool:
+    if len(data) < 33:
+        return True
+    colour = data[25]
+    pos = 8
+    while pos + 8 <= len(data):  # the chunks before the pixels: a gAMA there decides
+        length = int.from_bytes(data[pos:pos + 4], "big")
+        kind = bytes(data[pos + 4:pos + 8])
+        if kind == b"IDAT" or kind == b"IEND":
+            break
+        if kind == b"gAMA" and length == 4:
+            gamma = int.from_bytes(data[pos + 8:pos + 12], "big") / 100000.0
+            if abs(gamma - 0.45455) < 0.1:
+                return True
+            if abs(gamma - 1.0) < 0.1:
+                return False
+        pos += 12 + length
+    return colour in (2, 3, 6)  # RGB, palette (expands to RGB(A)), RGBA; not grey (0), grey+alpha (4)
+
+
+class _Recoded(Texture):
+    """Another texture's colour channels re-encoded so that a slot reads them in the colour
+    space the asset asked for: `encode` sRGB-encodes linear texels for an sRGB slot (base
+    colour, emission), `decode` linearises sRGB texels for a data slot; alpha is kept."""
+
+    def __init__(self, name: str, base: Texture, encode: bool):
+        self.base, self.encode = base, encode
+        self._pixels: np.ndarray | None = None
+        super().__init__(name=name, image=None, sampler=base.sampler, source=base.source)  # type: ignore[arg-type]  # made on first use
+
+    @property
+    def image(self) -> np.ndarray:
+        if self._pixels is None:
+            rgba = self.base.image
+            x = rgba[..., :3].astype(np.float64) / 255.0
+            y = srgb_encode(x) if self.encode else srgb_to_linear(rgba[..., :3]).astype(np.float64)
+            out = rgba.copy()
+            out[..., :3] = np.round(y * 255.0).clip(0, 255).astype(np.uint8)
+            self._pixels = out
+        return self._pixels
+
+    @image.setter
+    def image(self, value) -> None:
+        self._pixels = value
 
 
 class _Packed(Texture):
@@ -121,6 +188,8 @@ class MaterialReader:
         self._bindings: dict[tuple, Binding] = {}
         self._textures: dict[tuple, int | None] = {}
         self._packed: dict[tuple, int] = {}
+        self._recoded: dict[tuple[int, bool], int] = {}
+        self._auto_srgb: dict[str, bool | None] = {}  # None: EXR
         self._materials: dict[str, int] = {}
         self._unpacked = 0
         self._documents: dict[str, object] = {}  # .mtlx identifier -> MaterialX document
@@ -278,7 +347,7 @@ class MaterialReader:
 
         diffuse = self._input(shader, "diffuseColor")
         if isinstance(diffuse, _Tex):
-            self._check_tex(name, "diffuseColor", diffuse, "sRGB")
+            diffuse = self._check_tex(name, "diffuseColor", diffuse, "sRGB")
             if diffuse.output in ("rgb", "rgba"):
                 mat.base_color_texture = ref(diffuse)
                 rgb = diffuse.scale[:3]
@@ -294,7 +363,7 @@ class MaterialReader:
 
         opacity = self._input(shader, "opacity")
         if isinstance(opacity, _Tex):
-            self._check_tex(name, "opacity", opacity, None)
+            opacity = self._check_tex(name, "opacity", opacity, "raw")
             alpha = _unit(opacity.scale[opacity.channel])
             base = mat.base_color_texture
             if base is not None and base.texture == opacity.texture and opacity.channel == 3:
@@ -315,7 +384,7 @@ class MaterialReader:
         for slot, channel in (("roughness", 1), ("metallic", 2)):
             value = self._input(shader, slot)
             if isinstance(value, _Tex):
-                self._check_tex(name, slot, value, "raw")
+                value = self._check_tex(name, slot, value, "raw")
                 parts[channel] = (value.texture, value.channel)
                 factors[slot] = value.scale[value.channel]
                 tex_for_ref = value
@@ -328,13 +397,13 @@ class MaterialReader:
 
         occlusion = self._input(shader, "occlusion")
         if isinstance(occlusion, _Tex):
-            self._check_tex(name, "occlusion", occlusion, "raw")
+            occlusion = self._check_tex(name, "occlusion", occlusion, "raw")
             mat.occlusion_texture = ref(_with(occlusion, self._pack({0: (occlusion.texture,
                                                                          occlusion.channel)})))
 
         emissive = self._input(shader, "emissiveColor")
         if isinstance(emissive, _Tex):
-            self._check_tex(name, "emissiveColor", emissive, "sRGB")
+            emissive = self._check_tex(name, "emissiveColor", emissive, "sRGB")
             mat.emissive_texture = ref(emissive)
             mat.emissive = cast(tuple[float, float, float], tuple(float(c) for c in emissive.scale[:3]))
         else:
@@ -345,7 +414,8 @@ class MaterialReader:
             if not (np.allclose(normal.scale[:3], 2.0) and np.allclose(normal.bias[:3], -1.0)):
                 self._warn(f"{name}: normal texture scale/bias {normal.scale[:3]}/"
                            f"{normal.bias[:3]} are not (2, -1); read as a standard normal map")
-            mat.normal_texture = ref(normal)
+            # an 8-bit RGB normal map left at auto is sRGB-decoded by Storm too, bent normals
+            mat.normal_texture = ref(self._in_space(normal, "raw"))
 
         displacement = self._input(shader, "displacement")
         if isinstance(displacement, (_Tex, str)) or _scalar(displacement, 0.0) != 0.0:
@@ -384,7 +454,7 @@ class MaterialReader:
                 mat.ior, f0 = IOR, ((IOR - 1.0) / (IOR + 1.0)) ** 2
             spec = self._input(shader, "specularColor")
             if isinstance(spec, _Tex):
-                self._check_tex(name, "specularColor", spec, "sRGB")
+                spec = self._check_tex(name, "specularColor", spec, "sRGB")
                 if spec.output in ("rgb", "rgba"):
                     mat.specular_color_texture = ref(spec)
                     rgb = spec.scale[:3]
@@ -479,7 +549,21 @@ class MaterialReader:
         return _Tex(texture, output if output in CHANNELS else "rgb",
                     tuple(_vec(self._input(node, "scale"), 4, (1.0, 1.0, 1.0, 1.0))),
                     tuple(_vec(self._input(node, "bias"), 4, (0.0, 0.0, 0.0, 0.0))),
-                    primvar, transform, str(self._input(node, "sourceColorSpace") or "auto"))
+                    primvar, transform, self._color_space(node, identifier))
+
+    def _color_space(self, node: UsdShade.Shader, identifier: str) -> str:
+        declared = str(self._input(node, "sourceColorSpace") or "auto")
+        if self._auto_srgb[identifier] is None:  # EXR: decoded as sRGB-encoded linear values
+            if declared == "sRGB":
+                self._warn(f"{node.GetPath()}: sourceColorSpace 'sRGB' on an OpenEXR image is "
+                           "read as linear")
+            return "sRGB"
+        if declared in ("raw", "sRGB"):
+            return declared
+        if declared != "auto":
+            self._warn(f"{node.GetPath()}: sourceColorSpace {declared!r} is not one of raw, sRGB, "
+                       "auto; read as auto")
+        return "sRGB" if self._auto_srgb[identifier] else "raw"
 
     def _texture(self, identifier: str, wrap: tuple[str, str]) -> int | None:
         key = (identifier, wrap)
@@ -489,6 +573,7 @@ class MaterialReader:
         if len(self.scene.textures) >= self.limits.max_textures:
             raise LimitExceeded(self.graph.path, f"more than {self.limits.max_textures} textures")
         data = self.graph.read_bytes(identifier)
+        self._auto_srgb[identifier] = None if bytes(data[:4]) == EXR_MAGIC else auto_source_srgb(data)
         index = None
         try:
             w, h = probe_image(data, identifier, self.limits)
@@ -524,12 +609,23 @@ class MaterialReader:
             self._packed[key] = len(self.scene.textures) - 1
         return self._packed[key]
 
-    def _check_tex(self, name: str, slot: str, tex: _Tex, expected: str | None) -> None:
+    def _check_tex(self, name: str, slot: str, tex: _Tex, expected: str) -> _Tex:
+        """`tex` as the slot reads it: the slot decodes sRGB (`expected` "sRGB") or reads
+        texels as they are ("raw"); a texture in the other space is re-encoded (8 bits: a
+        linear texel written as sRGB comes back within half a step of it)."""
         if tex.bias != (0.0, 0.0, 0.0, 0.0):
             self._warn(f"{name}: {slot} texture bias {tex.bias} is ignored")
-        if expected and tex.color_space not in ("auto", expected):
-            self._warn(f"{name}: {slot} texture declares sourceColorSpace {tex.color_space!r}; "
-                       f"read as {expected} like every {slot} texture")
+        return self._in_space(tex, expected)
+
+    def _in_space(self, tex: _Tex, expected: str) -> _Tex:
+        if tex.color_space == expected or tex.output == "a":  # alpha is never decoded
+            return tex
+        key = (tex.texture, expected == "sRGB")
+        if key not in self._recoded:
+            base = self.scene.textures[tex.texture]
+            self.scene.textures.append(_Recoded(f"{base.name}.{tex.color_space}", base, key[1]))
+            self._recoded[key] = len(self.scene.textures) - 1
+        return dataclasses.replace(_with(tex, self._recoded[key]), color_space=expected)
 
     def _add(self, mat: Material) -> int:
         """Index of `mat` in the scene, shared with an equal one added before (many USD
