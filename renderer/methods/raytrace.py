@@ -201,7 +201,7 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
 # and a worker that kept its last four big ones held hundreds of MiB after its jobs.
 EMBREE_CACHE_BYTES = 48 * 2**20  # least recently used out; a scene weighing more is used, not kept
 # What a built scene holds (vertices, faces, BVH): RSS grew by 4.5 MiB for 36k triangles,
-# 17 MiB for 250k, 75 MiB for 1M (embreex, scripts in bench/RESULTS.md "AO memory").
+# 17 MiB for 250k, 75 MiB for 1M (embreex; bench/RESULTS.md, "AO: emitters do not occlude").
 SCENE_FIXED_BYTES, SCENE_TRIANGLE_BYTES = 2**20, 80
 _embree_cache: OrderedDict[bytes, tuple[Any, int]] = OrderedDict()
 _embree_lock = threading.Lock()
