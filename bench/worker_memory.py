@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-HEADROOM_BYTES = 256 * 2**20  # allocator slack of the interpreter and the libraries (Embree: the AO bake)
+HEADROOM_BYTES = 200 * 2**20  # allocator slack of the interpreter and the libraries (Embree's, after a bake's AO pass)
 
 
 def chess_class(path: Path, triangles: int = 1_000_000) -> Path:

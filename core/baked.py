@@ -67,6 +67,19 @@ def _chain_of(tex: Texture, cap: int | None, srgb: bool, top: int | None = None)
     return mip_chain(tex.image, srgb, cap)
 
 
+def quantise_visibility(ao: np.ndarray) -> np.ndarray:
+    """Visibility in [0, 1] as stored in BakedMesh.ao: uint8 x 255 (a quarter of float32's bytes)."""
+    return np.rint(np.clip(ao, 0.0, 1.0) * 255.0).astype(np.uint8)
+
+
+def dequantise_visibility(ao: np.ndarray) -> np.ndarray:
+    """BakedMesh.ao as float32 in [0, 1]; a float array (a hand-made mesh) passes as it is."""
+    ao = np.asarray(ao)
+    if ao.dtype == np.uint8:
+        return ao.astype(np.float32) * np.float32(1.0 / 255.0)
+    return ao.astype(np.float32)
+
+
 @dataclass
 class BakedMesh:
     """One (geometry, material) pair with every world placement of it."""
@@ -81,13 +94,20 @@ class BakedMesh:
     uv1: np.ndarray | None = None
     colors: np.ndarray | None = None
     interior: np.ndarray | None = None  # N x 3 float32 object-space vertex->exit vectors, or None
-    ao: np.ndarray | None = None        # N x 2 float32 ambient visibility (pipeline.occlusion) of
-    #                                    the front and back sides, or None
+    ao: np.ndarray | None = None        # N x 2 uint8 ambient visibility x 255 (pipeline.occlusion)
+    #                                    of the front and back sides, or None: read visibility()
     # welded edges (core.adjacency.welded_edges), baked for assets within its MAX_TRIANGLES:
     edges: np.ndarray | None = None       # E x 2 uint32 vertex indices
     edge_faces: np.ndarray | None = None  # E x 2 int32 face indices (second -1: boundary)
     support: np.ndarray | None = None     # S x 3 float64 support points (core.hull), baked
     variants: dict[str, Material] = field(default_factory=dict)  # KHR_materials_variants
+
+    def visibility(self) -> np.ndarray | None:
+        """The baked ambient visibility as N x 2 float32 in [0, 1], or None where there is none
+        (or it does not match the vertices)."""
+        if self.ao is None or len(self.ao) != len(self.positions):
+            return None
+        return dequantise_visibility(self.ao)
 
     @property
     def interior_length(self) -> np.ndarray | None:

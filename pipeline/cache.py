@@ -72,7 +72,8 @@ log = logging.getLogger(__name__)
 # 8: Material.show_back_faces (USD single-sided gprims); 9: per-vertex ambient occlusion
 # (pipeline.occlusion); 10: subdivision refines each primvar by its own interpolation;
 # 11: UsdUVTexture sourceColorSpace honoured (auto by Hio's rule), textures re-encoded
-BAKE_FORMAT_VERSION = 11
+# 12: ambient occlusion as uint8, emitters not occluding
+BAKE_FORMAT_VERSION = 12
 ZSTD_LEVEL = 9  # texture chains: written once at bake, read by every process (see README figures)
 KINDS = ("assets", "environments", "thumbnails")
 IMAGE_SUFFIXES = (".png", ".jpg", ".webp", ".gif")  # stored as they are (thumbnails' encoded files)

@@ -11,7 +11,13 @@ asset's bounding-box diagonal is the vertex's ambient visibility (1: open, 0: en
 Decisions:
 - occluders: every instance whose material is not transmissive or blended (glass and
   see-through layers let the sky through; a MASK material counts as solid, its cut-outs are
-  not seen by the rays); receivers: the same meshes, unlit and transmissive ones get none;
+  not seen by the rays) and does not emit (emissive factor x strength above `EMIT_THRESHOLD`
+  in some channel, untextured: a path tracer finds an emitter's own light where it hides the
+  sky, so open is nearer than dark; an emissive texture says per texel where it glows, so a
+  textured emitter still occludes); receivers: the same meshes, unlit and transmissive ones
+  get none;
+- stored as uint8 (visibility x 255, core.baked.quantise_visibility): its steps are below the ray
+  set's 1/64; readers take BakedMesh.visibility();
 - a mesh with several placements gets the mean over its first `AO_INSTANCES` placements (one
   value per vertex is what the vertex buffer holds; instances in other surroundings differ);
 - the ray set: s x s strata of the unit square mapped to the cosine-weighted hemisphere
@@ -37,6 +43,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from core.baked import quantise_visibility
+
 log = logging.getLogger(__name__)
 
 AO_RAYS = 64            # per vertex (8 x 8 strata), when the budget allows
@@ -45,13 +53,14 @@ AO_MAX_RAYS = 1_000_000  # per bake: about 1.5 s on two loaded cores (0.6-0.9 M 
 AO_DISTANCE = 1.0       # occluders count within this x the bounds' diagonal (the whole asset)
 AO_INSTANCES = 4        # placements of one mesh averaged
 EPSILON_SCALE = 1e-4    # ray start offset, x the bounds' diagonal
+EMIT_THRESHOLD = 0.05   # emissive factor x strength (linear, max channel): a face emits above it
 PASS_THROUGH = 3        # single-sided back faces a ray goes on through
 _CHUNK = 1 << 20        # rays per Embree call (bounds the ray buffers' memory)
 
 
 @dataclass
 class OcclusionResult:
-    ao: list[np.ndarray | None]  # per mesh: N x 2 float32 in [0, 1] (front, back side), or None
+    ao: list[np.ndarray | None]  # per mesh: N x 2 uint8 visibility x 255 (front, back side), or None
     rays: int
     rays_per_vertex: int
     stride: int                  # 1: every vertex traced
@@ -89,8 +98,16 @@ def _receives(material) -> bool:
     return material.material_class != "transmissive" and not material.unlit
 
 
+def emits(material) -> bool:
+    """Whether the material is an emitter the rays see through (see the module's decisions)."""
+    if material.emissive_texture is not None:
+        return False
+    return max(material.emissive) * material.emissive_strength > EMIT_THRESHOLD
+
+
 def _occludes(material) -> bool:
-    return material.material_class != "transmissive" and material.alpha_mode != "BLEND"
+    return (material.material_class != "transmissive" and material.alpha_mode != "BLEND"
+            and not emits(material))
 
 
 def ambient_occlusion(meshes, bounds: np.ndarray, max_rays: int = AO_MAX_RAYS,
@@ -163,7 +180,7 @@ def ambient_occlusion(meshes, bounds: np.ndarray, max_rays: int = AO_MAX_RAYS,
                 acc[:, side] += trace(p, -n if side else n, inward @ lin.T, turn)
         if sides[i] == 1:
             acc[:, 1] = acc[:, 0]  # never seen: culled from behind
-        ao = (acc / len(xs)).astype(np.float32)
+        ao = quantise_visibility(acc / len(xs))
         out[i] = ao if stride == 1 else np.repeat(ao, stride, axis=0)[:len(pos)]
     seconds = time.perf_counter() - start
     total = trace.rays

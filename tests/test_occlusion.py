@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from core.baked import BakedAsset, BakedMesh
+from core.baked import BakedAsset, BakedMesh, dequantise_visibility, quantise_visibility
 from core.lobes import ao_multibounce, specular_occlusion
 from core.options import RenderOptions
 from core.scene import Light, Material
@@ -63,7 +63,8 @@ def _mesh(name, geometry, material=None, transform=None) -> BakedMesh:
 def _ao(result, i: int) -> np.ndarray:
     ao = result.ao[i]
     assert ao is not None, f"mesh {i} got no occlusion"
-    return ao
+    assert ao.dtype == np.uint8  # stored compactly; readers dequantise
+    return dequantise_visibility(ao)
 
 
 def _bounds(meshes) -> np.ndarray:
@@ -172,6 +173,30 @@ def test_glass_and_unlit_neither_receive_nor_glass_occludes():
     assert result.ao[1] is None and np.all(_ao(result, 0) == 1.0)
 
 
+@pytest.mark.parametrize("emissive, strength, occludes", [
+    ((0.0, 0.0, 0.0), 1.0, True), ((0.02, 0.02, 0.02), 1.0, True),  # dark: below the threshold
+    ((1.0, 0.5, 0.0), 1.0, False), ((0.02, 0.0, 0.0), 10.0, False)])  # strength counts
+def test_an_emitter_does_not_occlude(emissive, strength, occludes):
+    # in a path tracer an emitter is light where it hides the sky: the plane under it stays open
+    plane = _mesh("plane", _grid(10.0, 21))
+    lamp = _mesh("lamp", _sphere(1.0, (0.0, 1.05, 0.0)), Material(emissive=emissive, emissive_strength=strength))
+    result = ambient_occlusion([plane, lamp], _bounds([plane, lamp]))
+    centre = 10 * 21 + 10
+    under = _ao(result, 0)[centre, 0]
+    assert (under < 0.2) if occludes else (under == 1.0)
+    bottom = np.argmin(lamp.positions[:, 1])
+    assert _ao(result, 1)[bottom, 0] < 0.2  # it still receives: its base colour is lit as before
+
+
+def test_a_textured_emitter_still_occludes():
+    from core.scene import TextureRef
+    plane = _mesh("plane", _grid(10.0, 21))
+    lamp = _mesh("lamp", _sphere(1.0, (0.0, 1.05, 0.0)),
+                 Material(emissive=(1.0, 1.0, 1.0), emissive_texture=TextureRef(0)))
+    result = ambient_occlusion([plane, lamp], _bounds([plane, lamp]))
+    assert _ao(result, 0)[10 * 21 + 10, 0] < 0.2  # the texture says where it glows, per texel
+
+
 def test_budget_caps_the_rays():
     plane = _mesh("plane", _grid(10.0, 41))  # 1681 vertices
     ball = _mesh("ball", _sphere(1.0, (0.0, 1.05, 0.0)))
@@ -203,7 +228,7 @@ def _board(material: Material, ao: float | None, key: str) -> BakedAsset:
     pos = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], np.float32)
     mesh = BakedMesh("board", pos, np.tile([0, 0, 1], (4, 1)).astype(np.float32),
                      np.array([[0, 1, 2], [0, 2, 3]], np.uint32), material, np.eye(4)[None],
-                     ao=None if ao is None else np.full((4, 2), ao, np.float32))
+                     ao=None if ao is None else quantise_visibility(np.full((4, 2), ao)))
     return BakedAsset(key=f"ao-board-{key}-{ao}", source="board", format="test", meshes=[mesh], textures=[],
                       bounds=np.array([pos.min(0), pos.max(0)], np.float64))
 
@@ -222,7 +247,8 @@ def test_raster_diffuse_drops_by_the_multibounce_factor(uniform_env, ao):
     open_ = _centre(_board(m, None, "d"), uniform_env)
     shut = _centre(_board(m, ao, "d"), uniform_env)
     np.testing.assert_allclose(open_, [0.8, 0.5, 0.2], rtol=0.02)
-    expected = ao_multibounce(ao, np.array([0.8, 0.5, 0.2]))
+    stored = float(dequantise_visibility(quantise_visibility(np.array(ao))))  # as the bake keeps it
+    expected = ao_multibounce(stored, np.array([0.8, 0.5, 0.2]))
     assert np.all(expected < 1) and np.all(expected >= ao)
     np.testing.assert_allclose(shut / open_, expected, rtol=0.01)
 
@@ -269,7 +295,7 @@ def test_bake_round_trip(tmp_path):
                   instances=[Instance(0, 0), Instance(1, 0)])
     baked = build_baked(scene)
     assert baked.manifest["stats"]["occlusion"]["rays"] > 0
-    ao = baked.meshes[0].ao
+    ao = baked.meshes[0].visibility()
     assert ao is not None and ao.shape == (len(plane[0]), 2) and ao.min() < 0.5
     off = build_baked(scene, options={"occlusion": False})
     assert all(m.ao is None for m in off.meshes)
@@ -283,7 +309,7 @@ def test_cache_keeps_the_occlusion(tmp_path):
     from tests.gltf_builder import cube
     baked = bake_asset(cube(tmp_path / "cube.glb"), tmp_path / "cache")
     ao = baked.meshes[0].ao
-    assert ao is not None and ao.shape == (len(baked.meshes[0].positions), 2)
-    assert np.all(ao == 1.0)  # a convex solid: nothing blocks its own sky
+    assert ao is not None and ao.shape == (len(baked.meshes[0].positions), 2) and ao.dtype == np.uint8
+    assert np.all(baked.meshes[0].visibility() == 1.0)  # a convex solid: nothing blocks its own sky
     again = load_baked(baked.key, tmp_path / "cache")
     np.testing.assert_array_equal(again.meshes[0].ao, ao)

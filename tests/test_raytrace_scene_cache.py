@@ -27,9 +27,9 @@ def test_a_second_frame_reuses_the_embree_scene_and_renders_the_same():
     assert render_raytrace(asset, env, options).plan["embree_cached"] is False
 
 
-def test_the_cache_is_keyed_on_triangles_not_on_the_asset_key():
+def test_the_cache_is_keyed_on_triangles_not_on_the_asset_key(monkeypatch):
     """An asset with the same key but moved vertices gets its own scene (no stale geometry),
-    and the cache keeps at most EMBREE_CACHE scenes."""
+    and the cache keeps scenes up to EMBREE_CACHE_BYTES, the oldest out first."""
     clear_scene_cache()
     a = sphere_asset(0.0, 0.3)
     mesh = a.meshes[0]
@@ -43,8 +43,21 @@ def test_the_cache_is_keyed_on_triangles_not_on_the_asset_key():
     t_b = ts_b.embree.run(o, d, output=1)["tfar"][0]
     assert abs(t_a - 4.0) < 0.01 and abs(t_b - 4.5) < 0.01  # radius 1 and 0.5
     assert build_scene(a).embree_cached
-    for k in range(raytrace.EMBREE_CACHE + 2):
+    one = raytrace.scene_bytes(len(mesh.indices))
+    assert raytrace.cached_scene_bytes() == 2 * one
+    monkeypatch.setattr(raytrace, "EMBREE_CACHE_BYTES", 3 * one)  # room for three spheres
+    for k in range(4):
         shrunk = dataclasses.replace(mesh, positions=mesh.positions * (0.9 - 0.05 * k))
         build_scene(dataclasses.replace(a, meshes=[shrunk]))
-    assert len(raytrace._embree_cache) == raytrace.EMBREE_CACHE
+    assert raytrace.cached_scene_bytes() == 3 * one
     assert not build_scene(a).embree_cached  # the oldest went first
+
+
+def test_a_scene_over_the_byte_budget_is_used_not_kept(monkeypatch):
+    clear_scene_cache()
+    a = sphere_asset(0.0, 0.3)
+    monkeypatch.setattr(raytrace, "EMBREE_CACHE_BYTES", raytrace.scene_bytes(len(a.meshes[0].indices)) - 1)
+    ts = build_scene(a)
+    assert ts.embree.run(np.array([[0.0, 0.0, 5.0]], np.float32), np.array([[0.0, 0.0, -1.0]], np.float32),
+                         output=1)["tfar"][0] < 5  # it traces
+    assert raytrace.cached_scene_bytes() == 0 and not build_scene(a).embree_cached

@@ -197,8 +197,13 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
 # 19k indexed vertices, ~40 ms as a triangle soup; the BVH build after it ~10 ms, quiet machine). Keyed on content, not on the asset key, so that no edit of a
 # mesh (or a test asset reusing a key) can be served a stale scene. Embree traces a committed
 # scene from any number of threads.
-EMBREE_CACHE = 4      # scenes kept (least recently used out): a 36k-triangle scene is ~5 MB
-_embree_cache: OrderedDict[bytes, Any] = OrderedDict()
+# Bounded by bytes, not by count: one 1M-triangle scene weighs as much as fifteen small ones,
+# and a worker that kept its last four big ones held hundreds of MiB after its jobs.
+EMBREE_CACHE_BYTES = 48 * 2**20  # least recently used out; a scene weighing more is used, not kept
+# What a built scene holds (vertices, faces, BVH): RSS grew by 4.5 MiB for 36k triangles,
+# 17 MiB for 250k, 75 MiB for 1M (embreex; bench/RESULTS.md, "AO: emitters do not occlude").
+SCENE_FIXED_BYTES, SCENE_TRIANGLE_BYTES = 2**20, 80
+_embree_cache: OrderedDict[bytes, tuple[Any, int]] = OrderedDict()
 _embree_lock = threading.Lock()
 
 
@@ -218,20 +223,33 @@ def _embree_scene(vertices: np.ndarray, faces: np.ndarray, rtcs, mesh_type) -> t
     digest.update(faces.tobytes())
     key = digest.digest() + repr((vertices.shape, faces.shape)).encode()
     with _embree_lock:
-        scene = _embree_cache.get(key)
-        if scene is not None:
+        kept = _embree_cache.get(key)
+        if kept is not None:
             _embree_cache.move_to_end(key)
-            return scene, True
+            return kept[0], True
     scene = rtcs.EmbreeScene()
     if len(faces):
         mesh_type(scene, vertices, faces)
         # commit (Embree builds its BVH on the first query) before the scene is shared
         scene.run(np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32), output=1)
-    with _embree_lock:
-        _embree_cache[key] = scene
-        while len(_embree_cache) > EMBREE_CACHE:
-            _embree_cache.popitem(last=False)
+    weight = scene_bytes(len(faces))
+    if weight <= EMBREE_CACHE_BYTES:
+        with _embree_lock:
+            _embree_cache[key] = (scene, weight)
+            while sum(w for _, w in _embree_cache.values()) > EMBREE_CACHE_BYTES:
+                _embree_cache.popitem(last=False)
     return scene, False
+
+
+def scene_bytes(triangles: int) -> int:
+    """The weight of a built Embree scene of `triangles` in the scene cache."""
+    return SCENE_FIXED_BYTES + SCENE_TRIANGLE_BYTES * triangles
+
+
+def cached_scene_bytes() -> int:
+    """What the kept Embree scenes weigh together."""
+    with _embree_lock:
+        return sum(w for _, w in _embree_cache.values())
 
 
 class _Environment:

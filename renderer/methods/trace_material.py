@@ -134,9 +134,9 @@ def build_surface(asset: BakedAsset, materials: list[Material], parts: list[tupl
             colors.append(c[idx])
         else:
             colors.append(np.ones((t, 3, 4)))
-        if mesh.ao is not None and len(mesh.ao) == len(mesh.positions):
+        if (vis := mesh.visibility()) is not None:
             have_ao = True
-            aos.append(np.asarray(mesh.ao, np.float64).reshape(-1, 2)[idx])
+            aos.append(vis.astype(np.float64).reshape(-1, 2)[idx])
         else:
             aos.append(np.ones((t, 3, 2)))
     area = 0.5 * np.linalg.norm(np.cross(world[:, 1] - world[:, 0], world[:, 2] - world[:, 0]), axis=-1)

@@ -17,7 +17,7 @@ from typing import Any, Callable, TypeVar
 import moderngl
 import numpy as np
 
-from core.baked import BakedAsset, BakedEnvironment, BakedMesh, BakedTexture
+from core.baked import BakedAsset, BakedEnvironment, BakedMesh, BakedTexture, quantise_visibility
 from core.config import renderer_settings
 from core.mips import level_shapes, texture_size_for
 from core.scene import CLAMP_TO_EDGE, MIRRORED_REPEAT, REPEAT, Light, is_srgb
@@ -71,7 +71,9 @@ _ATTRIBUTES = {
     "positions": ("in_position", "3f"), "normals": ("in_normal", "3f"),
     "tangents": ("in_tangent", "4f"), "uv0": ("in_uv0", "2f"), "uv1": ("in_uv1", "2f"),
     "colors": ("in_color", "4f"),
-    "ao": ("in_ao", "2f"),  # baked ambient visibility, front and back (pipeline.occlusion)
+    # baked ambient visibility, front and back (pipeline.occlusion): uint8 x 255 as the bake
+    # stores it, read as normalised floats (a quarter of float32's buffer)
+    "ao": ("in_ao", "2f1"),
     "interior": ("in_interior", "3f"),  # refractive meshes only (renderer.methods.refraction)
 }
 _INSTANCE = ("16f 9f/i", "in_model", "in_normal_matrix")
@@ -210,6 +212,13 @@ def clear() -> None:
             cache.clear()
 
 
+def _vertex_data(name: str, arr: np.ndarray) -> np.ndarray:
+    """One attribute's array as its buffer holds it (_ATTRIBUTES' format)."""
+    if name == "ao":
+        return np.ascontiguousarray(arr if arr.dtype == np.uint8 else quantise_visibility(arr))
+    return np.ascontiguousarray(arr, np.float32)
+
+
 def _upload_asset(baked: BakedAsset) -> GpuAsset:
     ctx = context.get_context()
     meshes = []
@@ -218,7 +227,7 @@ def _upload_asset(baked: BakedAsset) -> GpuAsset:
         for name in _ATTRIBUTES:
             arr = getattr(m, name)
             if arr is not None and len(arr) == len(m.positions):
-                buffers[name] = ctx.buffer(np.ascontiguousarray(arr, np.float32))
+                buffers[name] = ctx.buffer(_vertex_data(name, arr))
         ibo = ctx.buffer(np.ascontiguousarray(m.indices, np.uint32))
         transforms = np.asarray(m.transforms, np.float64).reshape(-1, 4, 4)
         det = np.linalg.det(transforms[:, :3, :3])
@@ -259,7 +268,7 @@ def _repose(gpu: GpuAsset, baked: BakedAsset) -> bool:
             arr = getattr(m, name)
             if arr is getattr(old, name):
                 continue
-            buf.write(np.ascontiguousarray(arr, np.float32))
+            buf.write(_vertex_data(name, arr))
             stats["vertex_writes"] += 1
         if m.positions is not old.positions:
             gm.edges = None  # the edge planes follow the surface (renderer.raster.edges)
