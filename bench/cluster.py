@@ -163,16 +163,20 @@ class LocalCluster:
                 os.killpg(group, signal.SIGTERM)
             except ProcessLookupError:
                 pass
-        end = time.monotonic() + 10
-        while time.monotonic() < end and any(_group_alive(g) for g in self.groups):
-            time.sleep(0.2)
+        self._wait_gone(10)
         for group in self.groups:
             try:
                 os.killpg(group, signal.SIGKILL)
             except ProcessLookupError:
                 pass
+        self._wait_gone(10)  # a KILL is not instant on a loaded host: return once they are gone
         self.groups = []
         shutil.rmtree(self.temp, ignore_errors=True)
+
+    def _wait_gone(self, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end and any(_group_alive(g) for g in self.groups):
+            time.sleep(0.2)
 
     def __enter__(self) -> "LocalCluster":
         return self.start()
