@@ -5,6 +5,7 @@ crosses, as Cycles' Principled BSDF does (a glass sphere half (0.64, 0.16, 0.36)
 IOR 1, where a tint on entry alone would be A). A solid of one colour still tints by base;
 thin-walled glass (one surface) keeps glTF's base colour once (tests/test_thin_walled.py).
 
+Raster `wyman`, the tree tracer and the path tracer, each compiled kernel and its numpy twin.
 The sphere is textured A on the camera's half and B on the far half, at IOR 1 (no Fresnel,
 no bending) under a constant white sky: the centre pixels are the tint itself.
 """
@@ -57,8 +58,13 @@ def _centre(asset: BakedAsset, method: str) -> np.ndarray:
     return frame.linear[c - 2:c + 2, c - 2:c + 2, :3].reshape(-1, 3).mean(0).astype(np.float64)
 
 
-@pytest.mark.parametrize("method", ["wyman", "raytrace", "raytrace-path"])
-def test_volume_glass_tints_by_sqrt_base_at_entry_and_exit(method):
+@pytest.mark.parametrize("method", ["wyman", "raytrace", "raytrace-path", "raytrace-numpy",
+                                    "raytrace-path-numpy"])
+def test_volume_glass_tints_by_sqrt_base_at_entry_and_exit(method, monkeypatch):
+    if method.endswith("-numpy"):  # the compiled kernels' numpy twins
+        from renderer.methods import path_trace, raytrace
+        monkeypatch.setattr(path_trace if "path" in method else raytrace, "KERNEL", False)
+        method = method.removesuffix("-numpy")
     a, b = _linear(A_SRGB), _linear(B_SRGB)
     seen = _centre(_sphere("ab", A_SRGB, B_SRGB), method)
     want = np.sqrt(a * b)
