@@ -8,7 +8,7 @@
 uniform vec3 u_camera_position;
 layout(location = 0) out vec4 f_position;  // xyz world position, w roughness
 layout(location = 1) out vec4 f_normal;    // xyz outward world normal, w coverage (1)
-layout(location = 2) out vec4 f_tint;      // rgb sqrt(base colour): a crossing's transmission tint
+layout(location = 2) out vec4 f_tint;      // rgb sqrt(base colour) (a crossing's transmission tint), w coverage (1)
 
 void main() {
     MaterialInfo m = material_info(normalize(u_camera_position - v_world));

@@ -23,7 +23,7 @@ uniform vec3 u_sigma;            // Beer-Lambert absorption per scene unit (KHR_
 uniform float u_thickness;       // path length without baked interior vectors
 uniform float u_trace_length;
 #ifdef WYMAN
-uniform sampler2D u_back_tint;   // sqrt(base colour) of the back faces (backface.frag)
+uniform sampler2D u_back_tint;   // sqrt(base colour), w coverage, of the back faces (backface.frag)
 #endif
 uniform float u_pixel_angle;     // a pixel's height over its distance from the camera
 #ifdef MATERIAL_DISPERSION
@@ -374,7 +374,9 @@ vec3 transmitted(vec3 v, vec3 n, float ior, float roughness, float d_interior, o
         variance = pow(0.5 * add_spread(lobe_spread(variance), alpha_back * abs(1.0 - ior) * BLUR_SCALE), 2.0);
         // Cycles' convention: each crossing of a volume tints by sqrt(base) of its texel.
         // After a TIR bounce the first back-face texel stands in for wherever it leaves.
-        g_exit_tint = textureLod(u_back_tint, uv, 0.0).rgb;
+        // (bilinear over covered texels only, w being coverage, as the normals)
+        vec4 exit_tint = textureLod(u_back_tint, uv, 0.0);
+        g_exit_tint = exit_tint.rgb / max(exit_tint.w, 1e-6);
         vec3 r2;
         if (refract_ray(r1, -n2, ior, r2)) {
             dir = r2;
