@@ -93,8 +93,10 @@ def _bsdf(mat, texture: str | None = None) -> dict:
             return {"type": "roughdielectric", "distribution": "ggx",
                     "alpha": float(mat.roughness) ** 2, "int_ior": float(mat.ior), "ext_ior": 1.0}
         out = {"type": "dielectric", "int_ior": float(mat.ior), "ext_ior": 1.0}
-        if texture:  # the baseColorTexture (sRGB, decoded by Mitsuba) tints what is transmitted
-            out["specular_transmittance"] = _bitmap(texture)
+        if texture:  # the baseColorTexture tints what is transmitted: Mitsuba applies
+            # specular_transmittance at every refraction, so it gets sqrt(linear base), the
+            # tint per crossing of Cycles and of our renderers (sqrt(c_in) sqrt(c_out))
+            out["specular_transmittance"] = _bitmap(texture, per_crossing=True)
         return out
     if mat.metallic >= 1 and mat.roughness == 0 and min(mat.base_color[:3]) >= 1:
         return {"type": "conductor", "material": "none"}
@@ -108,14 +110,21 @@ def _bsdf(mat, texture: str | None = None) -> dict:
             "roughness": float(mat.roughness), "specular": 0.5}
 
 
-def _bitmap(texture: str) -> dict:
+def _bitmap(texture: str, per_crossing: bool = False) -> dict:
+    """The sRGB texture as Mitsuba decodes it; `per_crossing`: sqrt of its linear values,
+    decoded here (a raw float bitmap)."""
     import mitsuba as mi
 
     img = scenes.texture_srgb(texture)
+    raw = False
+    if per_crossing:
+        c = img.astype(np.float32) / 255
+        img = np.sqrt(np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)).astype(np.float32)
+        raw = True
     bmp = mi.Bitmap(np.ascontiguousarray(img), pixel_format=mi.Bitmap.PixelFormat.RGB)
     # Mitsuba's bitmap wraps u and v alike; the glTF sampler clamps v, which only the pole
     # rows (white) would notice
-    return {"type": "bitmap", "bitmap": bmp, "raw": False, "filter_type": "bilinear",
+    return {"type": "bitmap", "bitmap": bmp, "raw": raw, "filter_type": "bilinear",
             "wrap_mode": "repeat"}
 
 

@@ -22,6 +22,9 @@ uniform float u_transmission;
 uniform vec3 u_sigma;            // Beer-Lambert absorption per scene unit (KHR_materials_volume)
 uniform float u_thickness;       // path length without baked interior vectors
 uniform float u_trace_length;
+#ifdef WYMAN
+uniform sampler2D u_back_tint;   // sqrt(base colour), w coverage, of the back faces (backface.frag)
+#endif
 uniform float u_pixel_angle;     // a pixel's height over its distance from the camera
 #ifdef MATERIAL_DISPERSION
 uniform float u_dispersion;      // half the IOR spread between the red and blue channels
@@ -78,7 +81,7 @@ bool covered(sampler2D normals, vec2 uv) {
 // The surface seen at uv; where uv misses the object (an exit estimate just outside the
 // silhouette), the last covered texel on the segment from this fragment's uv0 (bisection),
 // so the exit takes the silhouette's normal rather than none.
-bool surface_at(sampler2D positions, sampler2D normals, vec2 uv0, vec2 uv, out vec4 pos,
+bool surface_at(sampler2D positions, sampler2D normals, vec2 uv0, inout vec2 uv, out vec4 pos,
                 out vec3 n) {
     if (!covered(normals, uv)) {
         if (!covered(normals, uv0)) return false;
@@ -311,7 +314,9 @@ vec3 outside_radiance(vec3 origin, vec3 dir, float variance) {
 // Radiance refracted through the object for one IOR: into the front face at n, through the
 // volume (WYMAN: out of the estimated back face; else the first refraction alone) to the
 // opaque layer or the environment. `path` is the length inside, `D` Wyman's exit distance,
-// `tir` whether the exit reflected totally.
+// `tir` whether the exit reflected totally. Sets g_exit_tint to sqrt(base colour) at the
+// back face it leaves by, where it found one (negative otherwise).
+vec3 g_exit_tint = vec3(-1.0);
 vec3 transmitted(vec3 v, vec3 n, float ior, float roughness, float d_interior, out float path,
                  out float D, out bool tir) {
     vec3 d = -v;
@@ -367,6 +372,11 @@ vec3 transmitted(vec3 v, vec3 n, float ior, float roughness, float d_interior, o
         float alpha_back = bpos.w * bpos.w;
         variance_reflected = variance + alpha_back * alpha_back;
         variance = pow(0.5 * add_spread(lobe_spread(variance), alpha_back * abs(1.0 - ior) * BLUR_SCALE), 2.0);
+        // Cycles' convention: each crossing of a volume tints by sqrt(base) of its texel.
+        // After a TIR bounce the first back-face texel stands in for wherever it leaves.
+        // (bilinear over covered texels only, w being coverage, as the normals)
+        vec4 exit_tint = textureLod(u_back_tint, uv, 0.0);
+        g_exit_tint = exit_tint.rgb / max(exit_tint.w, 1e-6);
         vec3 r2;
         if (refract_ray(r1, -n2, ior, r2)) {
             dir = r2;
@@ -447,7 +457,15 @@ void main() {
     float path;
     vec3 through = transmitted(v, n, u_ior, m.roughness, d_interior, path, D, tir);
 #endif
-    vec3 refracted = through * exp(-u_sigma * max(path, 0.0)) * m.base_color.rgb;
+    // Transmission tint: base colour once through a thin sheet (glTF); through a volume,
+    // sqrt(base) at the entry times sqrt(base) at the exit (Cycles' Principled BSDF), which
+    // is base for a solid of one colour; where no exit face was found, the entry's again.
+    vec3 tint = m.base_color.rgb;
+#ifndef THIN_WALLED
+    vec3 sqrt_in = sqrt(max(m.base_color.rgb, vec3(0.0)));
+    tint = sqrt_in * (g_exit_tint.r >= 0.0 ? g_exit_tint : sqrt_in);
+#endif
+    vec3 refracted = through * exp(-u_sigma * max(path, 0.0)) * tint;
 
     float dielectric = 1.0 - m.metallic;
     vec3 FssEss, FmsEms;  // the metal lobe, energy-compensated as in ibl()
@@ -473,7 +491,7 @@ void main() {
 #endif
     Lobes lobes = ibl_lobes(m, v);  // sheen and clearcoat over the glass, as on opaque
     // what the debug view shows: the throughput, share x tint x volume attenuation
-    lobes.transmission = kr * exp(-u_sigma * max(path, 0.0)) * m.base_color.rgb;
+    lobes.transmission = kr * exp(-u_sigma * max(path, 0.0)) * tint;
     lobes.base = (ks * reflected + (m.metallic * FmsEms + kd * m.base_color.rgb) * env_diffuse(n))
                * m.occlusion
                + kr * refracted;

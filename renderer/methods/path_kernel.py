@@ -444,9 +444,16 @@ def scatter(p, d, pos, ng, ns, entering, lit, thin, ior, roughness, alpha, base,
                 factor = g_r if take_r else g_t * (1.0 if thin[i] else eta * eta)
                 if lit[i]:  # what the coat and sheen over it leave, over the choice's odds
                     factor *= p[i, W_BASE] / max(1.0 - p[i, P_COAT] - p[i, P_SHEEN], 1e-12)
-                tinted = entering[i] and not take_r
+                # a refraction takes sqrt(base) at each crossing of a volume (Cycles'
+                # convention: c overall for one colour), base once through a thin sheet
                 for c in range(3):
-                    w_new[i, c] = w[i, c] * (base[i, c] if tinted else 1.0) * factor
+                    if take_r:
+                        tint = 1.0
+                    elif thin[i]:
+                        tint = base[i, c]
+                    else:
+                        tint = math.sqrt(max(base[i, c], 0.0))
+                    w_new[i, c] = w[i, c] * tint * factor
                 if take_r:
                     lx, ly, lz = rx, ry, rz
                 else:

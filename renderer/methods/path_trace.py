@@ -18,7 +18,7 @@ and dividing by its weight is exact:
   0.1), the cosine-weighted diffuse otherwise; the component's pdf is the mixture of both.
 - Glass: the exact dielectric (smooth: mirror / refraction with exact Fresnel, TIR included;
   rough: Walter et al. about a sampled visible normal, renderer.methods.optics), tinted by
-  base colour on the way in, radiance scaled by eta^2 across the interface (as the tree),
+  sqrt(base colour) at each crossing of a volume (Cycles' convention; a thin sheet: base once), radiance scaled by eta^2 across the interface (as the tree),
   Beer-Lambert attenuation inside. It is only BSDF-sampled (no light sampling).
 
 Light: the environment is importance-sampled from a luminance x solid-angle CDF over the
@@ -416,7 +416,9 @@ def _scatter_numpy(bsdf, hits, d, p, ng, ns, entering, surface_lit, thin, ior, a
         fres = np.where(tir, 1.0, fres)
         # what is not transmitted of this component is the dielectric's reflection
         take_r = u_lobe[gl] < fres
-        tint = np.where((entering[gl] & ~take_r)[:, None], hits.base[gl], 1.0)
+        # sqrt(base) at each crossing of a volume, base once through a thin sheet (as the kernel)
+        tint = np.where(take_r[:, None], 1.0,
+                        np.where(sheet[:, None], hits.base[gl], np.sqrt(np.maximum(hits.base[gl], 0.0))))
         # a surface seen from inside with no transmission still refracts out as glass
         new_d[gl] = np.where(take_r[:, None], r_dir, t_dir)
         factor = np.where(take_r, g_r, g_t * np.where(sheet, 1.0, eta * eta))

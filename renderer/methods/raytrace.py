@@ -777,7 +777,10 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
         sel = np.flatnonzero(metal > 0)
         refl_w[sel] += (metal[sel, None] * env.specular_albedo(
             base[sel], cos_c[sel], rough_k[sel], ms)) * w[sel]
-    tint = np.where(entering[:, None], base, 1.0)  # glTF tints transmission by base colour once
+    # Transmission tint (as Cycles' Principled BSDF): a volume's every crossing, in or out,
+    # takes sqrt(base) of the texel it crosses, so a closed solid of one colour tints by base
+    # and a textured one by sqrt(c_entry) sqrt(c_exit); a thin sheet is one surface: base.
+    tint = np.where(thin[:, None], base, np.sqrt(np.maximum(base, 0.0)))
     # Radiance crossing an interface scales by (n_camera_side / n_far_side)^2 = eta^2: it
     # cancels on a path in and out again and matters when the camera is inside the glass.
     # A rough interface's microfacets mask and shadow part of what crosses it, as they do

@@ -59,7 +59,7 @@ DEBUG_VIEWS = {"backface_normals": 1, "tir": 2, "exit_distance": 3}
 MAX_TARGETS = 6  # (kind, size) entries: back, front and opaque layers for two sizes
 # Texture units above the material's (renderer.raster.passes.Pass.draw binds 0, 1 and one per material slot).
 (_UNIT_BACK_POSITION, _UNIT_BACK_NORMAL, _UNIT_OPAQUE_COLOR, _UNIT_OPAQUE_DEPTH,
- _UNIT_FRONT_POSITION, _UNIT_FRONT_NORMAL) = range(FIRST_FREE_UNIT, FIRST_FREE_UNIT + 6)
+ _UNIT_FRONT_POSITION, _UNIT_FRONT_NORMAL, _UNIT_BACK_TINT) = range(FIRST_FREE_UNIT, FIRST_FREE_UNIT + 7)
 
 stats = {"backface_passes": 0, "frontface_passes": 0, "back_allocations": 0,
          "front_allocations": 0, "opaque_allocations": 0, "opaque_copies": 0,
@@ -89,8 +89,8 @@ def allocated() -> list[tuple]:
 
 
 def _get_targets(ctx: moderngl.Context, kind: str, w: int, h: int) -> _Targets:
-    """Back / front faces: RGBA32F world position + roughness, RGBA16F outward normal + coverage.
-    Opaque copy: RGBA16F colour. Both with a depth texture; kept per size (small LRU)."""
+    """Back / front faces: RGBA32F world position + roughness, RGBA16F outward normal + coverage,
+    RGBA16F sqrt(base colour) (the crossing's transmission tint). Opaque copy: RGBA16F colour. Both with a depth texture; kept per size (small LRU)."""
     global _targets, _targets_ctx
     if _targets_ctx != id(ctx):
         _targets = ReleasingLRU(MAX_TARGETS)  # the old context's objects went with it
@@ -98,7 +98,7 @@ def _get_targets(ctx: moderngl.Context, kind: str, w: int, h: int) -> _Targets:
     key = (kind, w, h)
     t = _targets.get(key)
     if t is None:
-        dtypes = ("f2",) if kind == "opaque" else ("f4", "f2")
+        dtypes = ("f2",) if kind == "opaque" else ("f4", "f2", "f2")
         color = [ctx.texture((w, h), 4, dtype=dt) for dt in dtypes]
         for tex in color:
             tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
@@ -130,7 +130,7 @@ def _rough(mat) -> bool:
 
 def _surface_pass(p: Pass, items: list[DrawItem], side: str) -> _Targets:
     """The nearest `side` ("back" or "front") faces of the refractive objects: world position,
-    roughness and outward normal (shaders/backface.frag)."""
+    roughness, outward normal and sqrt(base colour) (shaders/backface.frag)."""
     ctx = p.ctx
     w, h = p.fbo.size
     t = _get_targets(ctx, side, w, h)
@@ -194,6 +194,7 @@ def _draw_front(p: Pass, items: list[DrawItem], back: _Targets | None,
             "u_trace_length": 2.0 * radius,
             "u_pixel_angle": 2.0 * float(np.tan(np.radians(cam.fov) / 2)) / float(h), "u_debug_scale": 0.5 / radius,
             "u_back_position": _UNIT_BACK_POSITION, "u_back_normal": _UNIT_BACK_NORMAL,
+            "u_back_tint": _UNIT_BACK_TINT,
             "u_front_position": _UNIT_FRONT_POSITION, "u_front_normal": _UNIT_FRONT_NORMAL,
             "u_opaque_color": _UNIT_OPAQUE_COLOR, "u_opaque_depth": _UNIT_OPAQUE_DEPTH,
         }
@@ -203,6 +204,7 @@ def _draw_front(p: Pass, items: list[DrawItem], back: _Targets | None,
         if back is not None:  # wyman
             back.color[0].use(_UNIT_BACK_POSITION)
             back.color[1].use(_UNIT_BACK_NORMAL)
+            back.color[2].use(_UNIT_BACK_TINT)
         if front is not None:
             front.color[0].use(_UNIT_FRONT_POSITION)
             front.color[1].use(_UNIT_FRONT_NORMAL)

@@ -302,10 +302,14 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in,
             r2 += metal * _spec_albedo(base[i, 2], a, b, ms) * w2
         e_ss = g_t if lobe else _lut_albedo(lut, cos_i, rough)
         ft = (1 - metal) * (1 - fres) * trans * (1.0 if sheet else eta * eta) * e_ss
-        if entering:
+        # transmission tint, as the numpy twin: base once through a sheet, sqrt(base) at
+        # each crossing of a volume (Cycles' convention: base overall for one colour)
+        if sheet:
             q0, q1, q2 = ft * base[i, 0] * w0, ft * base[i, 1] * w1, ft * base[i, 2] * w2
         else:
-            q0, q1, q2 = ft * w0, ft * w1, ft * w2
+            q0 = ft * math.sqrt(max(base[i, 0], 0.0)) * w0
+            q1 = ft * math.sqrt(max(base[i, 1], 0.0)) * w1
+            q2 = ft * math.sqrt(max(base[i, 2], 0.0)) * w2
         fd = (1 - metal) * (1 - fres) * (1 - trans) * occlusion[i]
         if fd > 0 and max(base[i, 0] * w0, base[i, 1] * w1, base[i, 2] * w2) > 0:
             diffuse[n_matte, 0] = fd * base[i, 0] * w0 * sh[i]
