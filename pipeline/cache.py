@@ -70,8 +70,9 @@ log = logging.getLogger(__name__)
 # edges for edge anti-aliasing (core.adjacency), support and hull points (core.hull);
 # 6: Material.thin_walled; 7: Light.shadow / shadow_color (UsdLux ShadowAPI);
 # 8: Material.show_back_faces (USD single-sided gprims); 9: per-vertex ambient occlusion
-# (pipeline.occlusion); 10: subdivision refines each primvar by its own interpolation
-BAKE_FORMAT_VERSION = 10
+# (pipeline.occlusion); 10: subdivision refines each primvar by its own interpolation;
+# 11: the studio environment's bake comes from pipeline/data/studio_bakes.npz (float16 mips)
+BAKE_FORMAT_VERSION = 11
 ZSTD_LEVEL = 9  # texture chains: written once at bake, read by every process (see README figures)
 KINDS = ("assets", "environments", "thumbnails")
 IMAGE_SUFFIXES = (".png", ".jpg", ".webp", ".gif")  # stored as they are (thumbnails' encoded files)
