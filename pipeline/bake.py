@@ -482,6 +482,7 @@ def bake_or_load_environment(source, cache_dir=None, face_size: int = DEFAULT_FA
 
     start = time.perf_counter()
     env = shipped.load_shipped(key)  # the default studio's bake ships with the package
+    from_package = env is not None
     if env is not None:
         name, shape = studio.NAME, [studio.WIDTH // 2, studio.WIDTH, 3]
         load_s, prefilter_s = time.perf_counter() - start, 0.0
@@ -500,7 +501,7 @@ def bake_or_load_environment(source, cache_dir=None, face_size: int = DEFAULT_FA
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "inputs": source_files.inputs(), "options": opts, "versions": _versions(),
         "panorama_shape": shape, "mips": len(env.specular),
-        "shipped": shipped.STUDIO_BAKES.name if prefilter_s == 0.0 and name == studio.NAME else None,
+        "shipped": shipped.STUDIO_BAKES.name if from_package else None,
         "timings": {"load_s": round(load_s, 6), "prefilter_s": round(prefilter_s, 6),
                     **{k: round(float(v), 6) for k, v in dict(env.timings).items()}},
     }
