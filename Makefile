@@ -8,7 +8,7 @@ STAMP := $(VENV)/.installed
 TEST_STAMP := $(VENV)/.installed-test
 PORT ?= $(or $(ASSET_PREVIEW_PORT),8000)
 
-.PHONY: run test lint install install-test check-egl image clean brdf-lut
+.PHONY: run test lint install install-test check-egl image clean brdf-lut studio-env
 
 $(STAMP): pyproject.toml
 	@$(PYTHON) -c 'import venv, ensurepip' 2>/dev/null || { echo "error: Python venv support missing; install it with: apt-get install -y python3-venv"; exit 1; }
@@ -51,6 +51,10 @@ test: check-egl lint $(TEST_STAMP)
 # constants and shader; tests/test_environment.py fails when it no longer matches them)
 brdf-lut: $(STAMP)
 	$(PY) -m pipeline.environment.prefilter
+
+# after the LUT: the studio's shipped bakes hold it (and every constant of the bake key)
+studio-env: $(STAMP)
+	$(PY) -m pipeline.environment.shipped
 
 # BASE=debootstrap to build from a Debian base made here; SMOKE=1 to run and probe it
 image:

@@ -37,8 +37,8 @@ from core.mips import level_shapes, texture_size_for
 from core.scene import Light, Material, Sampler, Scene, SceneCamera, TextureRef, extent, is_srgb, placed_bounds
 from pipeline.cache import BAKE_FORMAT_VERSION, Cache, Entry, NotInCache, SourceFiles
 from pipeline.environment import prefilter as environment
-from pipeline.environment import scaled, uniform
-from pipeline.environment.panorama import load_panorama, resolve_panorama
+from pipeline.environment import shipped, studio
+from pipeline.environment.panorama import load_panorama
 from pipeline.ingest import load_scene
 from pipeline.limits import Limits
 from pipeline.paths import sandbox_root
@@ -474,35 +474,34 @@ def bake_or_load_environment(source, cache_dir=None, face_size: int = DEFAULT_FA
         raise ValueError(f"prefilter must be one of {PREFILTERS}, not {prefilter!r}")
     environment.check_face_size(face_size)  # before the key: default_levels needs a valid one
     cache = _cache(cache_dir)
-    # The filter's own constants are part of the key: changing them must not serve old bakes.
-    opts = {"face_size": face_size, "prefilter": prefilter, "version": environment.PREFILTER_VERSION,
-            "levels": environment.default_levels(face_size), "ggx_samples": environment.GGX_SAMPLES,
-            "lut": [environment.LUT_SIZE, environment.LUT_SAMPLES]}
-    if uniform.parse(source) is not None:  # one module makes every uniform one: the value keys it
-        opts["uniform"] = list(uniform.parse(source))  # type: ignore[arg-type]
-    if scaled.parse(source) is not None:  # a textured dome's factor: the file's content and it
-        opts["scale"] = list(scaled.parse(source)[0])  # type: ignore[index]
-    source_files = SourceFiles.hash(resolve_panorama(source))
-    key = source_files.key("environments", opts)
+    source_files, opts, key = shipped.environment_key(source, face_size, prefilter)
     if not force:
         entry = cache.load("environments", key)
         if entry:
             return unpack_environment(entry), True
 
     start = time.perf_counter()
-    panorama = load_panorama(source, limits)
-    load_s = time.perf_counter() - start
-    start = time.perf_counter()
-    env = environment.prefilter(panorama.pixels, face_size=face_size, method=prefilter)
-    prefilter_s = time.perf_counter() - start
+    env = shipped.load_shipped(key)  # the default studio's bake ships with the package
+    from_package = env is not None
+    if env is not None:
+        name, shape = studio.NAME, [studio.WIDTH // 2, studio.WIDTH, 3]
+        load_s, prefilter_s = time.perf_counter() - start, 0.0
+    else:
+        panorama = load_panorama(source, limits)
+        name, shape = panorama.name, list(panorama.pixels.shape)
+        load_s = time.perf_counter() - start
+        start = time.perf_counter()
+        env = environment.prefilter(panorama.pixels, face_size=face_size, method=prefilter)
+        prefilter_s = time.perf_counter() - start
     arrays: dict[str, Any] = {f"specular.{i}.npy": mip for i, mip in enumerate(env.specular)}
     arrays["small.npz"] = {"irradiance_sh": np.asarray(env.irradiance_sh),
                            "brdf_lut": np.asarray(env.brdf_lut)}
     manifest = {
-        "kind": "environment", "name": panorama.name,
+        "kind": "environment", "name": name,
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "inputs": source_files.inputs(), "options": opts, "versions": _versions(),
-        "panorama_shape": list(panorama.pixels.shape), "mips": len(env.specular),
+        "panorama_shape": shape, "mips": len(env.specular),
+        "shipped": shipped.STUDIO_BAKES.name if from_package else None,
         "timings": {"load_s": round(load_s, 6), "prefilter_s": round(prefilter_s, 6),
                     **{k: round(float(v), 6) for k, v in dict(env.timings).items()}},
     }

@@ -484,3 +484,51 @@ def test_uniform_panorama_skips_gl_with_the_same_arrays(rgb, method):
     # one texel off the constant takes the GL passes
     pixels[3, 5, 0] += 0.5
     assert "context" in env.prefilter(pixels, face_size=32, method=method).timings
+
+
+# the shipped studio bake ----------------------------------------------------------------------
+
+def test_shipped_studio_bakes_are_what_the_prefilter_makes_now():
+    """pipeline/data/studio_bakes.npz holds the default studio's bake for the current cache key
+    at every shipped face size (any edit of studio.py, the filter's constants or
+    BAKE_FORMAT_VERSION changes the keys: run `make studio-env`). Mips equal a fresh GL
+    prefilter to float16 rounding (relative 2^-11; 1e-3 allowed for GL rounding on another
+    driver), SH to float32 rounding."""
+    from pipeline.environment import shipped
+    keys = {face: shipped.environment_key("studio", face, "ggx")[2] for face in shipped.SHIPPED_FACE_SIZES}
+    assert shipped.shipped_keys() == sorted(keys.values()), \
+        f"{shipped.STUDIO_BAKES} is stale or missing: run `make studio-env`"
+    assert shipped.STUDIO_BAKES.stat().st_size < 1 << 20  # float16, one grey channel, four sizes
+    for face, key in keys.items():
+        loaded = shipped.load_shipped(key)
+        fresh = shipped.bake_studio(face)
+        assert loaded is not None and len(loaded.specular) == len(fresh.specular) == cubemap.default_levels(face)
+        for a, b in zip(loaded.specular, fresh.specular):
+            assert a.dtype == np.float32 and a.shape == b.shape
+            np.testing.assert_allclose(a, b, rtol=1e-3, atol=1e-6)
+        np.testing.assert_allclose(loaded.irradiance_sh, fresh.irradiance_sh, rtol=1e-6, atol=1e-7)
+        np.testing.assert_array_equal(loaded.brdf_lut, fresh.brdf_lut)
+
+
+def test_cold_studio_bake_loads_the_shipped_one_and_others_still_prefilter(tmp_path, monkeypatch):
+    """An empty cache and the default environment at a shipped size: no prefilter, the usual
+    key, stored in the cache like any bake. Another size or environment prefilters as before."""
+    from pipeline import bake
+    from pipeline.environment import shipped
+    calls = []
+    real = bake.environment.prefilter
+    monkeypatch.setattr(bake.environment, "prefilter", lambda *a, **k: calls.append(k) or real(*a, **k))
+    baked, hit = bake.bake_or_load_environment("studio", tmp_path, face_size=64)
+    assert not hit and calls == [] and baked.key == shipped.environment_key("studio", 64, "ggx")[2]
+    assert baked.manifest["shipped"] == shipped.STUDIO_BAKES.name and baked.face_size == 64
+    assert all(m.dtype == np.float32 and m.shape[-1] == 3 for m in baked.specular)
+    again, hit = bake.bake_or_load_environment("studio", tmp_path, face_size=64)
+    assert hit and again.key == baked.key
+    np.testing.assert_array_equal(again.specular[2], baked.specular[2])
+
+    court, hit = bake.bake_or_load_environment("footprint_court", tmp_path, face_size=32)
+    assert not hit and len(calls) == 1 and court.manifest["shipped"] is None
+    big, hit = bake.bake_or_load_environment("studio", tmp_path, face_size=512)  # not shipped
+    assert not hit and len(calls) == 2 and big.manifest["shipped"] is None
+    forced, _ = bake.bake_or_load_environment("studio", tmp_path, face_size=64, force=True)
+    assert len(calls) == 2 and forced.key == baked.key  # a forced rebake of a shipped key reloads it
