@@ -183,7 +183,9 @@ def test_materialx_reference_is_read(assets):
     scene = load_scene(path)
     assert scene.triangle_count == 10
     assert not any("cannot read" in w for w in scene.warnings)
-    assert len(scene.textures) == 1 and scene.textures[0].source.endswith("Template.png")
+    # one image, read through its linear (lin_rec709) copy: the document declares it linear
+    used = {m.base_color_texture.texture for m in scene.materials if m.base_color_texture}
+    assert len(used) == 1 and all(t.source.endswith("Template.png") for t in scene.textures)
 
 
 def test_primvar_interpolations(assets):

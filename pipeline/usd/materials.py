@@ -325,6 +325,10 @@ class MaterialReader:
     def pack(self, parts: dict[int, tuple[int, int]]) -> int:
         return self._pack(parts)
 
+    def recode(self, texture: int, srgb: bool) -> int:
+        """`texture` re-encoded for a slot that decodes sRGB (`srgb`) or reads raw texels."""
+        return self._recode(texture, srgb, "raw" if srgb else "sRGB")
+
     def add_material(self, mat: Material) -> int:
         """Index of `mat` in the scene (pipeline.usd.drawmode's stand-in materials)."""
         return self._add(mat)
@@ -620,12 +624,18 @@ class MaterialReader:
     def _in_space(self, tex: _Tex, expected: str) -> _Tex:
         if tex.color_space == expected or tex.output == "a":  # alpha is never decoded
             return tex
-        key = (tex.texture, expected == "sRGB")
+        recoded = self._recode(tex.texture, expected == "sRGB", tex.color_space)
+        return dataclasses.replace(_with(tex, recoded), color_space=expected)
+
+    def _recode(self, texture: int, encode: bool, space: str) -> int:
+        """Texture `texture` re-encoded for a slot reading sRGB (`encode`) or raw texels,
+        made once; `space` names the space it is in."""
+        key = (texture, encode)
         if key not in self._recoded:
-            base = self.scene.textures[tex.texture]
-            self.scene.textures.append(_Recoded(f"{base.name}.{tex.color_space}", base, key[1]))
+            base = self.scene.textures[texture]
+            self.scene.textures.append(_Recoded(f"{base.name}.{space}", base, encode))
             self._recoded[key] = len(self.scene.textures) - 1
-        return dataclasses.replace(_with(tex, self._recoded[key]), color_space=expected)
+        return self._recoded[key]
 
     def _add(self, mat: Material) -> int:
         """Index of `mat` in the scene, shared with an equal one added before (many USD

@@ -372,9 +372,12 @@ class SurfaceReader:
         return _num(v, default), None
 
     def ref(self, tex: Tex, texture: int | None = None, expect_srgb: bool | None = None):
+        """`texture` (else tex's own) for a slot that decodes sRGB (`expect_srgb`) or reads
+        texels raw; an image declared in the other space is re-encoded, as usdview's Storm
+        loads MaterialX images raw and converts each from its declared colorspace."""
+        index = tex.texture if texture is None else texture
         if expect_srgb is not None and tex.srgb != expect_srgb:
-            self.host.warn(f"MaterialX image {tex.node!r} is declared {'sRGB' if tex.srgb else 'linear'}; "
-                      f"read as {'sRGB' if expect_srgb else 'linear'} like every texture there")
+            index = self.host.recode(index, expect_srgb)
         if tex.uv.primvar not in self.uv_names:
             self.uv_names.append(tex.uv.primvar)
         uv_set = self.uv_names.index(tex.uv.primvar)
@@ -382,8 +385,7 @@ class SurfaceReader:
             self.warn(f"more than two UV primvars; {tex.uv.primvar!r} read as UV set 1")
             uv_set = 1
         offset, rotation, scale = gltf_transform(tex.uv.matrix, self.warn)
-        return TextureRef(tex.texture if texture is None else texture, uv_set, offset, rotation,
-                          scale)
+        return TextureRef(index, uv_set, offset, rotation, scale)
 
     def pack(self, parts: dict[int, Tex]) -> int:
         return self.host.pack({dst: (t.texture, t.channels[0]) for dst, t in parts.items()})
