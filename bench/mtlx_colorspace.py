@@ -18,7 +18,7 @@ def main(path: str = PATH) -> None:
         scene = load_scene(path)
         for m in scene.materials:  # materialise what the materials read
             if m.base_color_texture:
-                scene.textures[m.base_color_texture.texture].image
+                _ = scene.textures[m.base_color_texture.texture].image
         times.append((time.perf_counter() - t) * 1e3)
     print(f"median {statistics.median(times):.1f} ms over 7, warnings {scene.warnings}")
 
