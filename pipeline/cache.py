@@ -74,7 +74,8 @@ log = logging.getLogger(__name__)
 # 11: UsdUVTexture sourceColorSpace honoured (auto by Hio's rule), textures re-encoded
 # 12: ambient occlusion as uint8, emitters not occluding
 # 13: the studio environment's bake comes from pipeline/data/studio_bakes.npz (float16 mips)
-BAKE_FORMAT_VERSION = 13
+# 14: Material.opacity_premultiplied (UsdPreviewSurface blended as Storm does)
+BAKE_FORMAT_VERSION = 14
 ZSTD_LEVEL = 9  # texture chains: written once at bake, read by every process (see README figures)
 KINDS = ("assets", "environments", "thumbnails")
 IMAGE_SUFFIXES = (".png", ".jpg", ".webp", ".gif")  # stored as they are (thumbnails' encoded files)
