@@ -94,7 +94,8 @@ def _dispersion(m: Material) -> float:
 LOBES: tuple[Lobe, ...] = (
     Lobe("core", None,
          ("base_color", "metallic", "roughness", "normal_scale", "occlusion_strength", "emissive",
-          "alpha_mode", "alpha_cutoff", "double_sided", "show_back_faces"),
+          "alpha_mode", "alpha_cutoff", "opacity_premultiplied", "double_sided",
+          "show_back_faces"),
          (Slot("base_color", "baseColorTexture", srgb=True),
           Slot("metallic_roughness", "metallicRoughnessTexture"),
           Slot("normal", "normalTexture"), Slot("occlusion", "occlusionTexture"),

@@ -84,6 +84,10 @@ class Material:
     emissive_strength: float = 1.0
     alpha_mode: AlphaMode = "OPAQUE"
     alpha_cutoff: float = 0.5
+    # BLEND as Storm blends a UsdPreviewSurface: opacity scales the diffuse share only, the
+    # specular (and emission) stay whole, over (1 - opacity) of what is behind; glTF's BLEND
+    # (False) fades the whole shaded colour by alpha.
+    opacity_premultiplied: bool = False
     double_sided: bool = False
     # A single-sided surface whose back faces are drawn (not culled) and shaded with the
     # normal as it is, unflipped: a USD gprim with doubleSided = 0, as usdview draws it by

@@ -1,6 +1,7 @@
 #version 430
 // Opaque / mask / blend PBR: emissive + image-based lighting + punctual lights, linear
-// radiance out (premultiplied by alpha through the blend state for BLEND materials).
+// radiance out (premultiplied by alpha through the blend state for BLEND materials, or in the
+// shader for OPACITY_PREMULTIPLIED ones).
 #include "material_info.glsl"
 #include "ibl.glsl"
 #include "punctual.glsl"
@@ -14,8 +15,16 @@ void main() {
 #ifdef ALPHA_MASK
     if (m.base_color.a < u_alpha_cutoff) discard;
 #endif
+#ifdef OPACITY_PREMULTIPLIED
+    // UsdPreviewSurface as Storm blends it: the output is premultiplied (blend ONE, 1 - alpha)
+    // and opacity fades only the diffuse share, so a clear sheet keeps its highlights
+    m.diffuse_color *= m.base_color.a;
+#endif
 #ifdef UNLIT
     vec3 color = m.base_color.rgb;
+#ifdef OPACITY_PREMULTIPLIED
+    color *= m.base_color.a;
+#endif
 #else
     Lobes lobes = ibl_lobes(m, v);
 #if LIGHT_COUNT > 0

@@ -233,3 +233,63 @@ def test_exr_reads_linear_in_data_slots(tmp_path):
     (mat,) = [m for m in scene.materials if m.name.endswith("M")]
     rough = scene.textures[mat.metallic_roughness_texture.texture].image
     assert float(rough[..., 1].mean()) / 255 == pytest.approx(0.3, abs=0.005)
+
+
+GLOSSY_CARD = """#usda 1.0
+(
+    metersPerUnit = 1
+    upAxis = "Y"
+)
+def Xform "World"
+{
+    def Mesh "Card" ( prepend apiSchemas = ["MaterialBindingAPI"] )
+    {
+        int[] faceVertexCounts = [4]
+        int[] faceVertexIndices = [0, 1, 2, 3]
+        point3f[] points = [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)]
+        rel material:binding = </World/Glossy>
+    }
+    def Material "Glossy"
+    {
+        token outputs:surface.connect = </World/Glossy/S.outputs:surface>
+        def Shader "S"
+        {
+            uniform token info:id = "UsdPreviewSurface"
+            color3f inputs:diffuseColor = DIFFUSE
+            float inputs:roughness = 0.4
+            float inputs:opacity = OPACITY
+            token outputs:surface
+        }
+    }
+    def DistantLight "Sun"
+    {
+        float inputs:intensity = 3
+        bool inputs:normalize = 1
+    }
+}
+"""
+
+
+def _glossy(tmp_path, diffuse: float, opacity: float):
+    path = tmp_path / f"glossy_{diffuse}_{opacity}.usda"
+    path.write_text(GLOSSY_CARD.replace("DIFFUSE", f"({diffuse}, {diffuse}, {diffuse})")
+                    .replace("OPACITY", str(opacity)))
+    return path
+
+
+def test_preview_surface_opacity_fades_diffuse_only(tmp_path):
+    """Storm blends a translucent UsdPreviewSurface premultiplied: diffuse x opacity +
+    specular, over 1 - opacity of what is behind (bench usd on AlphaBlendSortTest and on a
+    0.25-opacity probe, docs/usd.md "Translucency"); glTF's BLEND fades the whole colour. The
+    sun behind the camera puts its highlight all over the card; the linear frame holds
+    premultiplied colour, so the translucent card must read 0.25 x diffuse + specular."""
+    (mat,) = [m for m in load_scene(_glossy(tmp_path, 0.5, 0.25)).materials
+              if m.name.endswith("Glossy")]
+    assert mat.alpha_mode == "BLEND" and mat.opacity_premultiplied
+    opaque = _shot(_glossy(tmp_path, 0.5, 1.0), tmp_path)
+    specular = _shot(_glossy(tmp_path, 0.0, 1.0), tmp_path)  # a black card: its highlight alone
+    sheet = _shot(_glossy(tmp_path, 0.5, 0.25), tmp_path)
+    diffuse = opaque[..., :3] - specular[..., :3]
+    assert specular[..., :3].min() > 0.2 * diffuse.max()  # a highlight worth telling apart
+    np.testing.assert_allclose(sheet[..., :3], 0.25 * diffuse + specular[..., :3], rtol=0.03)
+    np.testing.assert_allclose(sheet[..., 3], 0.25, atol=0.01)

@@ -84,6 +84,8 @@ def _build(mesh, m: Material, asset: gpu.GpuAsset, ov: MaterialOverride | None) 
         defines["ALPHA_MASK"] = 1
     elif m.alpha_mode == "BLEND":
         defines["ALPHA_BLEND"] = 1
+        if m.opacity_premultiplied:
+            defines["OPACITY_PREMULTIPLIED"] = 1
     if ov is not None and ov.metallic is not None:
         defines["METALLIC_OVERRIDDEN"] = 1
     if ov is not None and ov.roughness is not None:

@@ -156,10 +156,12 @@ def draw_blend(p: Pass, items: list[DrawItem]) -> None:
     order = sorted(((float(np.linalg.norm(c - eye)), i, it) for i, it in enumerate(items)
                     for c in it.mesh.centers[:1]), key=lambda t: -t[0])
     p.ctx.enable(moderngl.BLEND)
-    p.ctx.blend_func = (moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA,  # type: ignore[assignment]  # stubs: 2 or 4
-                        moderngl.ONE, moderngl.ONE_MINUS_SRC_ALPHA)
     p.fbo.depth_mask = False
     for _, _, it in order:
+        # premultiplied-opacity materials (USD) weight their own colour in the shader
+        src = moderngl.ONE if it.material.opacity_premultiplied else moderngl.SRC_ALPHA
+        p.ctx.blend_func = (src, moderngl.ONE_MINUS_SRC_ALPHA,  # type: ignore[assignment]  # stubs: 2 or 4
+                            moderngl.ONE, moderngl.ONE_MINUS_SRC_ALPHA)
         prog, state = p.program(it)
         p.draw(it, prog, state)
     p.fbo.depth_mask = True
