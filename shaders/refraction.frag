@@ -9,7 +9,8 @@
 // back-face normal there; TIR_REFLECT reflects a totally internally reflected ray and
 // marches it between the front- and back-face layers to a second exit. SCREEN_OPAQUE:
 // rays that reach opaque geometry drawn before take its colour (screen-space march).
-// THIN_WALLED (glTF: no volume or thickness 0): straight through, no absorption.
+// THIN_WALLED (glTF: no volume or thickness 0): straight through, no absorption; THIN_BACK:
+// the nearest back faces of the thin items (backface.frag), the far sheet of a closed one.
 #include "material_info.glsl"
 #include "ibl.glsl"
 #include "punctual.glsl"
@@ -22,8 +23,11 @@ uniform float u_transmission;
 uniform vec3 u_sigma;            // Beer-Lambert absorption per scene unit (KHR_materials_volume)
 uniform float u_thickness;       // path length without baked interior vectors
 uniform float u_trace_length;
-#ifdef WYMAN
+#if defined(WYMAN) || defined(THIN_BACK)
 uniform sampler2D u_back_tint;   // sqrt(base colour), w coverage, of the back faces (backface.frag)
+#endif
+#if defined(THIN_BACK) && !defined(WYMAN)
+uniform sampler2D u_back_position;  // xyz world position, w roughness
 #endif
 uniform float u_pixel_angle;     // a pixel's height over its distance from the camera
 #ifdef MATERIAL_DISPERSION
@@ -461,6 +465,15 @@ void main() {
     // sqrt(base) at the entry times sqrt(base) at the exit (Cycles' Principled BSDF), which
     // is base for a solid of one colour; where no exit face was found, the entry's again.
     vec3 tint = m.base_color.rgb;
+#if defined(THIN_WALLED) && defined(THIN_BACK)
+    // A closed sheet's far side lies straight behind (the ray goes on unbent): a second sheet,
+    // base colour again (the tracers'). A back face where this fragment is, is this sheet
+    // seen from behind (double-sided): not a second one.
+    vec4 far_tint = texelFetch(u_back_tint, ivec2(gl_FragCoord.xy), 0);
+    vec3 far_p = texelFetch(u_back_position, ivec2(gl_FragCoord.xy), 0).xyz;
+    if (far_tint.w > 0.5 && distance(far_p, v_world) > 1e-4 * u_trace_length)
+        tint *= far_tint.rgb * far_tint.rgb;
+#endif
 #ifndef THIN_WALLED
     vec3 sqrt_in = sqrt(max(m.base_color.rgb, vec3(0.0)));
     tint = sqrt_in * (g_exit_tint.r >= 0.0 ? g_exit_tint : sqrt_in);

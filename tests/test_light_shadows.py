@@ -416,3 +416,86 @@ def test_see_through_casters_tint_the_shadow_as_the_ray_tracer(tmp_path):
     traced = frames["raytrace"]
     assert np.allclose(_pixel(traced, asset, OPTIONS, under_glass), glass, rtol=RAYTRACE_TOLERANCE)
     assert np.allclose(_pixel(traced, asset, OPTIONS, under_blend), blend, rtol=0.1)  # noise
+
+
+GLASS_ENTRY = (200, 80, 150)   # sRGB texel on the sphere's half toward the sun
+GLASS_EXIT = (90, 210, 150)    # and on the half away from it
+
+
+def _srgb_linear(c) -> np.ndarray:
+    c = np.asarray(c, np.float64) / 255
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+def _gltf_glass_ball(path, colours=(GLASS_ENTRY, GLASS_EXIT), thin=False, centre=(0.0, 1.0, 0.0),
+                     radius=0.45):
+    """A closed UV sphere of clear glass (transmission 1, base colour factor white) over the
+    ground quad under the tilted sun, its base-colour texture (2 texels, nearest) `colours[0]`
+    on the hemisphere facing the sun and `colours[1]` on the other; volume glass
+    (KHR_materials_volume, thickness 1) unless `thin` (transmission alone: thin-walled)."""
+    doc = json.loads(_gltf_mask_card(path).read_text())
+    toward = np.array([math.sin(SUN_TILT), math.cos(SUN_TILT), 0.0])
+    lat, lon = np.meshgrid(np.linspace(0, math.pi, 33), np.linspace(0, 2 * math.pi, 65), indexing="ij")
+    normal = np.stack([np.sin(lat) * np.cos(lon), np.cos(lat), np.sin(lat) * np.sin(lon)], -1).reshape(-1, 3)
+    ball = np.asarray(centre) + radius * normal
+    quad = np.array([(-3.5, 0, 2), (2, 0, 2), (2, 0, -2), (-3.5, 0, -2)], np.float64)
+    pos = np.concatenate([quad, ball]).astype(np.float32)
+    nrm = np.concatenate([np.tile([0.0, 1.0, 0.0], (4, 1)), normal]).astype(np.float32)
+    uv = np.zeros((len(pos), 2), np.float32)
+    uv[4:, 0] = np.where(normal @ toward > 0, 0.25, 0.75)
+    uv[4:, 1] = 0.5
+    tris = []
+    for i in range(32):
+        for j in range(64):
+            a, b = 4 + i * 65 + j, 4 + (i + 1) * 65 + j
+            tris += [(a, a + 1, b + 1), (a, b + 1, b)]  # outward winding (CCW from outside)
+    ground = np.array([(0, 1, 2), (0, 2, 3)], np.uint32).ravel()
+    sphere = np.array(tris, np.uint32).ravel()
+    texels = np.full((1, 2, 4), 255.0)
+    texels[0, 0, :3], texels[0, 1, :3] = colours
+    image = _png_rgba(texels)
+    blob = pos.tobytes() + nrm.tobytes() + uv.tobytes() + ground.tobytes() + sphere.tobytes()
+    offsets = np.cumsum([0, pos.nbytes, nrm.nbytes, uv.nbytes, ground.nbytes, sphere.nbytes])
+    glass = {"pbrMetallicRoughness": {"baseColorFactor": [1, 1, 1, 1], "metallicFactor": 0,
+                                      "roughnessFactor": 0, "baseColorTexture": {"index": 0}},
+             "extensions": {"KHR_materials_transmission": {"transmissionFactor": 1.0},
+                            **({} if thin else {"KHR_materials_volume": {"thicknessFactor": 1.0}})}}
+    doc["extensionsUsed"] = ["KHR_lights_punctual", "KHR_materials_transmission", "KHR_materials_volume"]
+    doc["materials"] = [doc["materials"][0], glass]
+    attrs = {"POSITION": 0, "NORMAL": 1, "TEXCOORD_0": 2}
+    doc["meshes"] = [{"primitives": [{"attributes": attrs, "indices": 3 + k, "material": k}]} for k in range(2)]
+    doc["samplers"] = [{"magFilter": 9728, "minFilter": 9728, "wrapS": 33071, "wrapT": 33071}]
+    doc["images"] = [{"uri": "data:image/png;base64," + base64.b64encode(image).decode()}]
+    doc["buffers"] = [{"byteLength": len(blob),
+                       "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode()}]
+    doc["bufferViews"] = [{"buffer": 0, "byteOffset": int(offsets[k]), "byteLength": int(offsets[k + 1] - offsets[k])}
+                          for k in range(5)]
+    doc["accessors"] = [{"bufferView": 0, "componentType": 5126, "count": len(pos), "type": "VEC3",
+                         "min": pos.min(0).tolist(), "max": pos.max(0).tolist()},
+                        {"bufferView": 1, "componentType": 5126, "count": len(pos), "type": "VEC3"},
+                        {"bufferView": 2, "componentType": 5126, "count": len(pos), "type": "VEC2"},
+                        {"bufferView": 3, "componentType": 5125, "count": len(ground), "type": "SCALAR"},
+                        {"bufferView": 4, "componentType": 5125, "count": len(sphere), "type": "SCALAR"}]
+    path.write_text(json.dumps(doc))
+    return path
+
+
+@pytest.mark.parametrize("thin", [False, True], ids=["volume", "thin-walled"])
+def test_textured_glass_ball_tints_its_shadow_per_crossing(tmp_path, thin):
+    """A shadow ray through a closed glass ball crosses it twice, in at one texel and out at
+    another, as a camera ray does (docs/material-extensions.md): volume glass lets through
+    sqrt(c_in) x sqrt(c_out), a thin-walled ball two sheets, c_in x c_out. The ground at the
+    centre of the ball's shadow is lit x that in the raster's tint atlas and in the ray
+    tracer's shadow rays."""
+    dark = bake_environment(uniform.DARK, tmp_path, face_size=32)
+    asset = build_baked(load_scene(_gltf_glass_ball(tmp_path / "ball.gltf", thin=thin)),
+                        key=f"light-shadows-glass-ball-{thin}")
+    lit = ALBEDO * 3.0 * math.cos(SUN_TILT) / math.pi
+    toward = np.array([math.sin(SUN_TILT), math.cos(SUN_TILT), 0.0])
+    centre = _ground_hit(np.array([0.0, 1.0, 0.0]), toward)
+    c_in, c_out = _srgb_linear(GLASS_ENTRY), _srgb_linear(GLASS_EXIT)
+    through = c_in * c_out if thin else np.sqrt(c_in * c_out)
+    raster = _pixel(render(asset, dark, OPTIONS), asset, OPTIONS, centre)
+    assert np.allclose(raster, lit * through, rtol=0.05), (raster, lit * through)
+    traced = render(asset, dark, dataclasses.replace(OPTIONS, method="raytrace", samples=16))
+    assert np.allclose(_pixel(traced, asset, OPTIONS, centre), raster, rtol=RAYTRACE_TOLERANCE)

@@ -121,3 +121,59 @@ def test_auto_draws_a_thin_sheet_with_single(reference_env):
     solid = dataclasses.replace(_glass(False), name="solid")
     frame = render(_scene(solid), reference_env, RenderOptions(width=32, height=32, method="auto", background="env"))
     assert [o for o in frame.plan["objects"] if o["mesh"] == "sheet"][0]["method"] == "wyman"
+
+
+NEAR_TINT = (0.9, 0.5, 0.3, 1.0)  # the half of the closed sheet facing the camera
+FAR_TINT = (0.4, 0.8, 0.6, 1.0)   # the half behind
+SKY = 0.5
+
+
+def _closed_thin_ball() -> BakedAsset:
+    """A closed thin-walled UV sphere (radius 0.5 at the origin), clear (IOR 1: no Fresnel,
+    no bending), in two meshes: the half z > 0, toward the camera, NEAR_TINT, the other
+    FAR_TINT."""
+    lat, lon = np.meshgrid(np.linspace(0, np.pi, 25), np.linspace(0, 2 * np.pi, 49), indexing="ij")
+    meshes = []
+    for name, tint, sign in (("near", NEAR_TINT, 1.0), ("far", FAR_TINT, -1.0)):
+        # lat from the pole on +z (near) or -z (far) to the equator: a hemisphere each
+        half = lat[:13] * 1.0
+        n = np.stack([np.sin(half) * np.cos(lon[:13]), np.sin(half) * np.sin(lon[:13]) * sign,
+                      np.cos(half) * sign], -1).reshape(-1, 3)
+        tris = []
+        for i in range(12):
+            for j in range(48):
+                a, b = i * 49 + j, (i + 1) * 49 + j
+                tris += [(a, b, b + 1), (a, b + 1, a + 1)]
+        idx = np.array(tris, np.uint32)
+        # outward winding: flip where the triangle's normal points in
+        p = (0.5 * n).astype(np.float32)
+        cross = np.cross(p[idx[:, 1]] - p[idx[:, 0]], p[idx[:, 2]] - p[idx[:, 0]])
+        inward = np.einsum("ij,ij->i", cross, p[idx].mean(1)) < 0
+        idx[inward] = idx[inward][:, ::-1]
+        glass = Material(name=name, base_color=tint, metallic=0.0, roughness=0.0, ior=1.0,
+                         transmission=1.0, thin_walled=True, thickness=0.0)
+        meshes.append(BakedMesh(name, p, n.astype(np.float32), idx, glass, np.eye(4)[None]))
+    return BakedAsset("test:thin_ball", "test", "generated", meshes, [],
+                      np.array([[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]))
+
+
+@pytest.mark.parametrize("method", ["single", "wyman", "auto", "raytrace", "raytrace-path"])
+def test_closed_thin_sheet_tints_by_both_sheets(method, tmp_path_factory):
+    """glTF's thin-walled model makes every face an infinitely thin sheet, so a ray through
+    a closed thin-walled mesh crosses two: the sky through the ball's middle comes out
+    x NEAR_TINT x FAR_TINT (IOR 1: nothing reflected) in the raster, which finds the far
+    sheet in a back-face pass, and in the tracers, which tint at each hit."""
+    from pipeline.bake import bake_environment
+    from pipeline.environment import uniform
+    sky = bake_environment(uniform.name((SKY,) * 3), tmp_path_factory.mktemp("sky"), face_size=32)
+    opts = RenderOptions(width=48, height=48, yaw=0.0, pitch=0.0, background="env", distance=3.0,
+                         target=(0.0, 0.0, 0.0), tonemap="none",
+                         method="raytrace" if method.startswith("raytrace") else method,  # type: ignore[arg-type]
+                         integrator="path" if method == "raytrace-path" else "tree",
+                         samples=16)
+    asset = _closed_thin_ball()
+    frame = render_raytrace(asset, sky, opts) if opts.method == "raytrace" else render(asset, sky, opts)
+    centre = frame.linear[22:26, 22:26, :3].reshape(-1, 3).mean(0)
+    expected = SKY * np.asarray(NEAR_TINT[:3]) * np.asarray(FAR_TINT[:3])
+    # raster and tree exact to float16 / 1%; the path tracer within its noise
+    assert np.allclose(centre, expected, rtol=0.05 if method == "raytrace-path" else 0.02), (centre, expected)

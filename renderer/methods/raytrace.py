@@ -680,15 +680,26 @@ def _light_hits(ts: TraceScene, lights: trace_lights.Lights, env: _Environment,
             # a blended surface stops a shadow ray with the probability of its alpha (as the
             # path tracer's shadow rays and the raster's tint atlas: 1 - alpha gets through)
             draw = pixel_shift(todo + layer * len(o), 950 + layer)
-            hp, _, _, ht = intersect_front(ts, start[todo], ldir[todo], draw)
+            hp, hu, hv, ht = intersect_front(ts, start[todo], ldir[todo], draw)
             ht = np.asarray(ht, np.float64)
             blocked = (hp >= 0) & (ht < dist[todo] - 2 * eps)
             idx = todo[blocked]
             if not len(idx):
                 break
-            km = ts.material[hp[blocked]]
+            pb = hp[blocked]
+            km = ts.material[pb]
             through = ts.transmission[km] * (1 - ts.metallic[km])
-            vis[idx] *= through[:, None] * ts.base[km]
+            if ts.surface is None:
+                c = ts.base[km]
+            else:  # the texel crossed, as the camera rays' tint has it
+                width = ts.spread * (np.linalg.norm(start[idx] - ts.eye, axis=-1) + ht[blocked])
+                cos_d = np.abs(np.einsum("ij,ij->i", ldir[idx], ts.geo_normals[pb]))
+                c = trace_material.base_colour(ts.surface, km, pb, hu[blocked], hv[blocked],
+                                               width, cos_d)
+            # a crossing of a volume takes sqrt(c) (a closed solid of one colour: c in all,
+            # as its camera rays); a thin sheet is one surface: c
+            c = np.where(ts.thin[km][:, None], c, np.sqrt(np.maximum(c, 0.0)))
+            vis[idx] *= through[:, None] * c
             start[idx] += ldir[idx] * (ht[blocked] + eps)[:, None]
             dist[idx] -= ht[blocked] + eps
             todo = idx[through > 0]

@@ -15,7 +15,10 @@ refracting out by the normal of the layer it crossed. DEFAULT_TIR has the lower 
 
 Thin-walled materials (glTF: no KHR_materials_volume, or thicknessFactor 0) are sheets with
 no inside: both methods let their rays through unbent and unabsorbed (THIN_WALLED), tinted by
-base colour and blurred by roughness, and `wyman` draws no back faces for them.
+base colour and blurred by roughness. Every face is a sheet, so a ray through a closed
+thin-walled mesh crosses two, as the tracers have it: both methods draw the nearest back faces
+of the thin items first (the same pass as `wyman`'s, THIN_BACK) and the front pass multiplies
+the front sheet's base colour by the back sheet's found straight behind it.
 
 Both methods see the asset's own opaque parts: when the frame already holds opaque geometry,
 its colour and depth are copied to textures and refracted rays march across them in screen
@@ -157,7 +160,7 @@ def tir_mode(options) -> str:
 
 
 def _draw_front(p: Pass, items: list[DrawItem], back: _Targets | None,
-                front: _Targets | None, opaque: _Targets | None) -> None:
+                front: _Targets | None, opaque: _Targets | None, thin_back: _Targets | None = None) -> None:
     wyman = back is not None
     cam = p.camera
     w, h = cam.width, cam.height
@@ -175,6 +178,8 @@ def _draw_front(p: Pass, items: list[DrawItem], back: _Targets | None,
             defines["DEBUG_VIEW"] = DEBUG_VIEWS[p.options.debug]
     if opaque:
         defines["SCREEN_OPAQUE"] = 1
+    if thin_back is not None:
+        defines["THIN_BACK"] = 1
     p.fbo.use()
     p.ctx.viewport = (0, 0, w, h)
     for it in items:
@@ -205,6 +210,9 @@ def _draw_front(p: Pass, items: list[DrawItem], back: _Targets | None,
             back.color[0].use(_UNIT_BACK_POSITION)
             back.color[1].use(_UNIT_BACK_NORMAL)
             back.color[2].use(_UNIT_BACK_TINT)
+        if thin_back is not None:  # the thin sheets' far sides
+            thin_back.color[0].use(_UNIT_BACK_POSITION)
+            thin_back.color[2].use(_UNIT_BACK_TINT)
         if front is not None:
             front.color[0].use(_UNIT_FRONT_POSITION)
             front.color[1].use(_UNIT_FRONT_NORMAL)
@@ -217,10 +225,10 @@ def _draw_front(p: Pass, items: list[DrawItem], back: _Targets | None,
 
 def _draw(p: Pass, items: list[DrawItem], wyman: bool) -> None:
     opaque = _opaque_copy(p, any(_rough(it.material) for it in items)) if p.opaque_drawn else None
-    thin = [it for it in items if it.material.thin_walled]  # no inside: no faces to find
+    thin = [it for it in items if it.material.thin_walled]  # no inside, but a far sheet
     solid = [it for it in items if not it.material.thin_walled]
     if thin:
-        _draw_front(p, thin, None, None, opaque)
+        _draw_front(p, thin, None, None, opaque, _surface_pass(p, thin, "back"))
     if solid:
         back = _surface_pass(p, solid, "back") if wyman else None
         front = _surface_pass(p, solid, "front") if wyman and tir_mode(p.options) == "reflect" else None

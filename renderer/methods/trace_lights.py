@@ -5,8 +5,10 @@ lobe's directional albedo, GGX specular with Schlick Fresnel and Smith masking, 
 and cone falloffs). A punctual light is a delta: BSDF sampling can never hit it, so NEE alone
 is unbiased and needs no MIS weight. Shadow rays pass alpha cut-outs and culled back faces as
 camera rays do, pass a blended surface with probability 1 - alpha (a uniform draw per ray),
-and go straight through transmissive surfaces scaled by transmission x base colour (the
-caustic a refracting surface focuses is not traced). The raster's light shadows
+and go straight through transmissive surfaces scaled by transmission x (1 - metallic) x the
+crossed texel's base colour c per thin sheet, x sqrt(c) per crossing of volume glass (so a
+closed solid of one colour gives c, as its camera rays; the caustic a refracting surface
+focuses is not traced). The raster's light shadows
 (renderer/raster/light_shadows.py) agree on all three; the path tracer's NEE
 (renderer/methods/path_trace.py) is stopped by a transmissive surface.
 """

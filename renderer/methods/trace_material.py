@@ -280,6 +280,24 @@ def alpha(surf: Surface, material: np.ndarray, prim, u, v, width, cos_d) -> np.n
     return out
 
 
+def base_colour(surf: Surface, material: np.ndarray, prim, u, v, width, cos_d) -> np.ndarray:
+    """N x 3 linear base colour (factor x texture x vertex colour) at the hits, as evaluate
+    has it: what a shadow ray through glass is tinted by."""
+    out = np.empty((len(prim), 3))
+    u, v = np.asarray(u, np.float64), np.asarray(v, np.float64)
+    for k in np.unique(material):
+        sm = surf.materials[k]
+        sel = np.flatnonzero(material == k)
+        b = np.broadcast_to(np.asarray(sm.material.base_color[:3], np.float64), (len(sel), 3)).copy()
+        slot = sm.slots.get("base_color")
+        if slot is not None:
+            b *= _lookup(surf, slot, prim[sel], u[sel], v[sel], width[sel], cos_d[sel])[:, :3]
+        if surf.colors is not None:
+            b *= _interp(surf.colors[prim[sel]], u[sel], v[sel])[:, :3]
+        out[sel] = b
+    return out
+
+
 def passes_through(surf: Surface, material: np.ndarray, prim, u, v, width, cos_d,
                    draw: np.ndarray) -> np.ndarray:
     """Which hits on alpha-tested materials the ray goes through: MASK below the cut-off;

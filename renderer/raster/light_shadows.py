@@ -18,9 +18,12 @@ meshes; a mask's depth pass samples its base-colour alpha (factor x texture x ve
 shaders/material_info.glsl has it) and discards below the cutoff, so its cut-outs let light
 through as the ray tracer's shadow rays pass them. Blend and transmissive meshes cast a tinted
 shadow, as the ray tracer's shadow rays pass them: a transmissive one lets through
-transmission x (1 - metallic) x its base colour, a blended one 1 - alpha (its factor's). They are
-drawn after the opaque casters into a colour atlas beside the depth one (RGB multiplied by each
-layer's transmittance where no opaque caster is nearer the light, A the nearest layer's depth),
+transmission x (1 - metallic) x its base colour (factor x map x vertex colour) per thin-walled
+layer, x sqrt(base colour) per layer of volume glass (as its camera rays: a closed solid of one
+colour gives base colour, a textured one sqrt(c_entry) x sqrt(c_exit)), a blended one 1 - alpha
+(its factor's). They are drawn after the opaque casters into a colour atlas beside the depth
+one (RGB multiplied by each layer's transmittance where no opaque caster is nearer the light, A
+the nearest layer's depth),
 which shaders/punctual.glsl applies to a receiver behind that depth.
 """
 from __future__ import annotations
@@ -164,14 +167,21 @@ class Caster:
     mesh: object                                 # gpu.GpuMesh
     mask: materials.MaterialState | None = None  # alphaMode MASK: what cuts its shadow
     tint: tuple[float, float, float] | None = None  # blend / transmissive: what it lets through
+    # transmissive with a base-colour map or vertex colours: the tint pass multiplies `tint`
+    # (then transmission x (1 - metallic) alone) by the texel's colour, sqrt'd for a volume
+    colour: materials.MaterialState | None = None
+    volume: bool = False                         # volume glass: sqrt(colour) per crossing
 
 
 def transmittance(m) -> tuple[float, float, float] | None:
-    """What a blend or transmissive material (core.scene.Material) lets through to the
-    surfaces it shadows, as the ray tracer's shadow rays have it; None for others."""
+    """What one layer of a blend or transmissive material (core.scene.Material) lets through
+    to the surfaces it shadows, as the ray tracer's shadow rays have it; None for others. A
+    volume glass's layer takes sqrt(base colour), so that its two layers (every face is drawn)
+    give base colour, as its camera rays; a thin-walled sheet's takes base colour."""
     if m.material_class == "transmissive":
         through = m.transmission * (1.0 - m.metallic)
-        return (m.base_color[0] * through, m.base_color[1] * through, m.base_color[2] * through)
+        c = m.base_color[:3] if m.thin_walled else [math.sqrt(max(x, 0.0)) for x in m.base_color[:3]]
+        return (c[0] * through, c[1] * through, c[2] * through)
     if m.alpha_mode == "BLEND":
         clear = 1.0 - m.base_color[3]
         return (clear, clear, clear)
@@ -187,7 +197,13 @@ def casters(items, asset=None, options=None) -> list[Caster]:
         m = it.material
         tint = transmittance(m)
         if tint is not None:
-            out.append(Caster(it.mesh, tint=tint))
+            state = materials.material_state(it.mesh, m, asset, options) \
+                if m.material_class == "transmissive" and asset is not None and options is not None else None
+            if state is not None and ("HAS_BASE_COLOR_MAP" in state.defines or "HAS_COLORS" in state.defines):
+                through = m.transmission * (1.0 - m.metallic)  # the colour comes per texel
+                out.append(Caster(it.mesh, tint=(through,) * 3, colour=state, volume=not m.thin_walled))
+            else:
+                out.append(Caster(it.mesh, tint=tint))
             continue
         mask = materials.material_state(it.mesh, m, asset, options) \
             if m.alpha_mode == "MASK" and asset is not None and options is not None else None
@@ -211,7 +227,7 @@ def shadow_views(ctx: moderngl.Context, key: str, lights, meshes, bounds: np.nda
                  for i in chosen}
     views = sum(per_light.values())
     tile = tile_size(width, height, views)
-    cache_key = (key, tile, tuple(chosen), tuple((id(c.mesh), id(c.mask), c.tint) for c in meshes))
+    cache_key = (key, tile, tuple(chosen), tuple((id(c.mesh), id(c.mask), c.tint, id(c.colour), c.volume) for c in meshes))
     if _ctx_id[0] != id(ctx):  # a new context: the old textures are gone with it
         _cache.clear()
         _ctx_id[0] = id(ctx)
@@ -289,13 +305,13 @@ def _draw(ctx: moderngl.Context, meshes, matrices, tile: int,
         ctx.enable(moderngl.BLEND)
         ctx.blend_func = (moderngl.DST_COLOR, moderngl.ZERO, moderngl.ONE, moderngl.ONE)  # type: ignore[assignment]  # stubs: RGB and A factors
         ctx.blend_equation = (moderngl.FUNC_ADD, moderngl.MIN)
-        prog = context.program("pbr.vert", "depth.frag", {"SHADOW_TINT_PASS": 1})
-        u = cast(dict, prog)
+        plain = context.program("pbr.vert", "depth.frag", {"SHADOW_TINT_PASS": 1})
         for view_proj, _, (x0, y0) in matrices:
             ctx.viewport = (x0, y0, tile, tile)
             matrix = np.ascontiguousarray(view_proj.T, np.float32).tobytes()
             for caster in tinted:
-                u["u_tint"].value = tuple(float(c) for c in caster.tint)
+                prog = plain if caster.colour is None else _colour_program(caster.colour, caster.volume)
+                cast(dict, prog)["u_tint"].value = tuple(float(c) for c in cast(tuple, caster.tint))
                 _render(prog, matrix, caster.mesh)
         ctx.blend_equation = moderngl.FUNC_ADD  # type: ignore[assignment]  # stubs: one for both
         ctx.blend_func = moderngl.DEFAULT_BLENDING  # type: ignore[assignment]  # stubs: a tuple
@@ -318,6 +334,24 @@ def _render(prog: moderngl.Program, matrix: bytes, mesh) -> None:
 def _mask_program(state: materials.MaterialState) -> moderngl.Program:
     """The depth program of an alpha-mask caster, its alpha's uniforms and map bound."""
     defines = {"ALPHA_MASK": 1, **{k: v for k, v in state.defines.items() if k in MASK_DEFINES}}
+    prog = context.program("pbr.vert", "depth.frag", defines)
+    u = cast(dict, prog)
+    for name, value in state.uniforms:
+        if name in MASK_UNIFORMS and name in prog:
+            u[name].write(value)
+    for name, tex in state.textures:
+        if name == "u_base_color_map" and name in prog:
+            u[name].value = 2
+            tex.use(2)
+    return prog
+
+
+def _colour_program(state: materials.MaterialState, volume: bool) -> moderngl.Program:
+    """The tint pass's program for a transmissive caster whose colour varies: its base colour
+    (factor, map, vertex colours) bound, sqrt'd per layer for a volume."""
+    defines = {"SHADOW_TINT_PASS": 1, "SHADOW_TINT_COLOUR": 1,
+               **({"SHADOW_TINT_SQRT": 1} if volume else {}),
+               **{k: v for k, v in state.defines.items() if k in MASK_DEFINES}}
     prog = context.program("pbr.vert", "depth.frag", defines)
     u = cast(dict, prog)
     for name, value in state.uniforms:
