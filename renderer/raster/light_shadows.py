@@ -333,25 +333,20 @@ def _render(prog: moderngl.Program, matrix: bytes, mesh) -> None:
 
 def _mask_program(state: materials.MaterialState) -> moderngl.Program:
     """The depth program of an alpha-mask caster, its alpha's uniforms and map bound."""
-    defines = {"ALPHA_MASK": 1, **{k: v for k, v in state.defines.items() if k in MASK_DEFINES}}
-    prog = context.program("pbr.vert", "depth.frag", defines)
-    u = cast(dict, prog)
-    for name, value in state.uniforms:
-        if name in MASK_UNIFORMS and name in prog:
-            u[name].write(value)
-    for name, tex in state.textures:
-        if name == "u_base_color_map" and name in prog:
-            u[name].value = 2
-            tex.use(2)
-    return prog
+    return _caster_program(state, {"ALPHA_MASK": 1})
 
 
 def _colour_program(state: materials.MaterialState, volume: bool) -> moderngl.Program:
     """The tint pass's program for a transmissive caster whose colour varies: its base colour
     (factor, map, vertex colours) bound, sqrt'd per layer for a volume."""
-    defines = {"SHADOW_TINT_PASS": 1, "SHADOW_TINT_COLOUR": 1,
-               **({"SHADOW_TINT_SQRT": 1} if volume else {}),
-               **{k: v for k, v in state.defines.items() if k in MASK_DEFINES}}
+    return _caster_program(state, {"SHADOW_TINT_PASS": 1, "SHADOW_TINT_COLOUR": 1,
+                                   **({"SHADOW_TINT_SQRT": 1} if volume else {})})
+
+
+def _caster_program(state: materials.MaterialState, defines: dict) -> moderngl.Program:
+    """depth.frag under `defines` plus the caster's base-colour defines, its base colour and
+    alpha uniforms and its base-colour map bound."""
+    defines = {**defines, **{k: v for k, v in state.defines.items() if k in MASK_DEFINES}}
     prog = context.program("pbr.vert", "depth.frag", defines)
     u = cast(dict, prog)
     for name, value in state.uniforms:
