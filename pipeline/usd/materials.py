@@ -137,8 +137,8 @@ class _Recoded(Texture):
     def image(self) -> np.ndarray:
         if self._pixels is None:
             rgba = self.base.image
-            x = rgba[..., :3].astype(np.float64) / 255.0
-            y = srgb_encode(x) if self.encode else srgb_to_linear(rgba[..., :3]).astype(np.float64)
+            y = (srgb_encode(rgba[..., :3].astype(np.float64) / 255.0) if self.encode
+                 else srgb_to_linear(rgba[..., :3]).astype(np.float64))
             out = rgba.copy()
             out[..., :3] = np.round(y * 255.0).clip(0, 255).astype(np.uint8)
             self._pixels = out

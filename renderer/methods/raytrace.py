@@ -694,8 +694,8 @@ def _light_hits(ts: TraceScene, lights: trace_lights.Lights, env: _Environment,
             else:  # the texel crossed, as the camera rays' tint has it
                 width = ts.spread * (np.linalg.norm(start[idx] - ts.eye, axis=-1) + ht[blocked])
                 cos_d = np.abs(np.einsum("ij,ij->i", ldir[idx], ts.geo_normals[pb]))
-                c = trace_material.base_colour(ts.surface, km, pb, hu[blocked], hv[blocked],
-                                               width, cos_d)
+                c = trace_material.base_rgba(ts.surface, km, pb, hu[blocked], hv[blocked],
+                                             width, cos_d)[:, :3]
             # a crossing of a volume takes sqrt(c) (a closed solid of one colour: c in all,
             # as its camera rays); a thin sheet is one surface: c
             c = np.where(ts.thin[km][:, None], c, np.sqrt(np.maximum(c, 0.0)))

@@ -264,36 +264,21 @@ def _lookup(surf: Surface, slot: Slot, prim, u, v, width, cos_d, memo: dict | No
     return slot.chain.sample(uv, lod)
 
 
-def alpha(surf: Surface, material: np.ndarray, prim, u, v, width, cos_d) -> np.ndarray:
-    """Coverage alpha at hits on alpha-tested materials (`material` per hit)."""
-    out = np.ones(len(prim))
-    for k in np.unique(material):
-        sm = surf.materials[k]
-        sel = np.flatnonzero(material == k)
-        a = np.full(len(sel), float(sm.material.base_color[3]))
-        slot = sm.slots.get("base_color")
-        if slot is not None:
-            a *= _lookup(surf, slot, prim[sel], u[sel], v[sel], width[sel], cos_d[sel])[:, 3]
-        if surf.colors is not None:
-            a *= _interp(surf.colors[prim[sel]], u[sel], v[sel])[:, 3]
-        out[sel] = a
-    return out
-
-
-def base_colour(surf: Surface, material: np.ndarray, prim, u, v, width, cos_d) -> np.ndarray:
-    """N x 3 linear base colour (factor x texture x vertex colour) at the hits, as evaluate
-    has it: what a shadow ray through glass is tinted by."""
-    out = np.empty((len(prim), 3))
+def base_rgba(surf: Surface, material: np.ndarray, prim, u, v, width, cos_d) -> np.ndarray:
+    """N x 4 linear base colour and coverage alpha (factor x texture x vertex colour) at the
+    hits (`material` per hit), as evaluate has it: alpha tests read A, a shadow ray through
+    glass is tinted by RGB."""
+    out = np.empty((len(prim), 4))
     u, v = np.asarray(u, np.float64), np.asarray(v, np.float64)
     for k in np.unique(material):
         sm = surf.materials[k]
         sel = np.flatnonzero(material == k)
-        b = np.broadcast_to(np.asarray(sm.material.base_color[:3], np.float64), (len(sel), 3)).copy()
+        b = np.broadcast_to(np.asarray(sm.material.base_color, np.float64), (len(sel), 4)).copy()
         slot = sm.slots.get("base_color")
         if slot is not None:
-            b *= _lookup(surf, slot, prim[sel], u[sel], v[sel], width[sel], cos_d[sel])[:, :3]
+            b *= _lookup(surf, slot, prim[sel], u[sel], v[sel], width[sel], cos_d[sel])
         if surf.colors is not None:
-            b *= _interp(surf.colors[prim[sel]], u[sel], v[sel])[:, :3]
+            b *= _interp(surf.colors[prim[sel]], u[sel], v[sel])
         out[sel] = b
     return out
 
@@ -302,7 +287,7 @@ def passes_through(surf: Surface, material: np.ndarray, prim, u, v, width, cos_d
                    draw: np.ndarray) -> np.ndarray:
     """Which hits on alpha-tested materials the ray goes through: MASK below the cut-off;
     BLEND where `draw` (uniform per ray) >= alpha."""
-    a = alpha(surf, material, prim, u, v, width, cos_d)
+    a = base_rgba(surf, material, prim, u, v, width, cos_d)[:, 3]
     mode = np.asarray([surf.materials[k].material.alpha_mode for k in material])
     cutoff = np.asarray([surf.materials[k].material.alpha_cutoff for k in material], np.float64)
     return np.where(mode == "MASK", a < cutoff, draw >= a)
