@@ -39,6 +39,27 @@ class Sampler:
     wrap_t: int = REPEAT
 
 
+UDIM_FIRST, UDIM_LAST = 1001, 1100  # the tiles a UDIM pattern names (10 across, 10 up)
+UDIM_GUTTER = 1 / 18  # of a padded cell's side, each edge: a tile of C texels gets C/16
+
+
+@dataclass(frozen=True)
+class UdimLayout:
+    """Where the tiles of a UDIM texture (tile 1001 + u + 10 v covers st [u, u+1] x [v, v+1])
+    lie in its atlas: cells of equal size, row-major from the top left in `columns` x `rows`,
+    `tiles[k]` in cell k; the cells after the last tile are empty (transparent black, which
+    is what Storm reads where a tile is missing). Each cell's edge texels are repeated into a
+    gutter (UDIM_GUTTER of the cell each side) so that bilinear taps and the first mips stay
+    inside it. The bake remaps a mesh's UVs into the cells (pipeline.udim)."""
+    tiles: tuple[int, ...]
+    columns: int
+    rows: int
+
+    @property
+    def empty_cell(self) -> int:
+        return len(self.tiles)
+
+
 @dataclass
 class Texture:
     """A decoded image: `image` is H x W x 4 uint8, row 0 at the top (as glTF UVs expect)."""
@@ -46,6 +67,7 @@ class Texture:
     image: np.ndarray
     sampler: Sampler = field(default_factory=Sampler)
     source: str = ""  # file or URI it came from, for messages
+    udim: UdimLayout | None = None  # an atlas of UDIM tiles, read through remapped UVs
 
 
 @dataclass

@@ -35,6 +35,7 @@ from core.errors import AssetError, EmptyScene, MissingFile, UnsupportedFormat
 from core.hull import hull_points, support_points
 from core.mips import level_shapes, texture_size_for
 from core.scene import Light, Material, Sampler, Scene, SceneCamera, TextureRef, extent, is_srgb, placed_bounds
+from pipeline import udim
 from pipeline.cache import BAKE_FORMAT_VERSION, Cache, Entry, NotInCache, SourceFiles
 from pipeline.environment import prefilter as environment
 from pipeline.environment import shipped, studio
@@ -197,20 +198,33 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> Bak
     subdivide_s = time.perf_counter() - start
     groups = {g: [np.asarray(scene.instances[k].matrix, np.float64) for k in members]
               for g, members in instance_groups(scene).items()}
-    interiors: dict[int, np.ndarray] = {}
+    interiors: dict[object, np.ndarray] = {}
     stats = {"rays": 0, "misses": 0, "degenerate": 0, "build_s": 0.0, "trace_s": 0.0}
     meshes = []
+    geometry: list[object] = []  # per BakedMesh, what its vertices are: the scene mesh's, or
+    # those split for a UDIM material (pipeline.udim), which only that material's groups share
+    remapped: dict[tuple[int, int], tuple | None] = {}
+    warnings = list(scene.warnings)
     for (mi, mat, variant_map), transforms in groups.items():
         mesh, material = scene.meshes[mi], scene.materials[mat]
+        if (mi, mat) not in remapped:
+            remapped[(mi, mat)] = udim.remap(mesh, material, scene.textures,
+                                             lambda text: warnings.append(text)
+                                             if text not in warnings else None)
+        geo: object = mi
+        if remapped[(mi, mat)] is not None:
+            mesh, material = remapped[(mi, mat)]  # type: ignore[misc]  # not None here
+            geo = (mi, mat)
+        geometry.append(geo)
         variants = {scene.variants[v]: scene.materials[m] for v, m in variant_map}
         interior = None
         if any(m.material_class == "transmissive" for m in (material, *variants.values())):
-            if mi not in interiors:
+            if geo not in interiors:
                 from pipeline.interior.vectors import interior_vectors  # here: numba's import is
                 # for bakes of glass, not for every process that loads a bake
                 result = interior_vectors(mesh.positions, mesh.normals, mesh.indices,
                                           epsilon=opts["interior_epsilon"])
-                interiors[mi] = result.vectors
+                interiors[geo] = result.vectors
                 for k, v in (("rays", result.rays), ("misses", result.misses),
                              ("degenerate", result.degenerate), ("build_s", result.build_seconds),
                              ("trace_s", result.trace_seconds)):
@@ -219,7 +233,7 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> Bak
                     log.info("%s: mesh %r: %d of %d interior rays missed (open mesh?); "
                              "bounding-box fallback used", scene.source, mesh.name, result.misses,
                              len(mesh.positions))
-            interior = interiors[mi]
+            interior = interiors[geo]
         meshes.append(BakedMesh(
             name=mesh.name, positions=mesh.positions, normals=mesh.normals, indices=mesh.indices,
             material=material, transforms=np.stack(transforms), tangents=mesh.tangents,
@@ -232,18 +246,18 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> Bak
             mesh.ao = ao
     start = time.perf_counter()
     if sum(len(m.indices) * len(m.transforms) for m in meshes) <= MAX_TRIANGLES:
-        welded: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # by geometry: one per mesh
-        for mesh, (mi, _, _) in zip(meshes, groups):
-            if mi not in welded:
-                welded[mi] = welded_edges(mesh.positions, mesh.indices)
-            mesh.edges, mesh.edge_faces = welded[mi]
+        welded: dict[object, tuple[np.ndarray, np.ndarray]] = {}  # by geometry: one per mesh
+        for mesh, geo in zip(meshes, geometry):
+            if geo not in welded:
+                welded[geo] = welded_edges(mesh.positions, mesh.indices)
+            mesh.edges, mesh.edge_faces = welded[geo]
     adjacency_s = time.perf_counter() - start
     start = time.perf_counter()
-    support: dict[int, np.ndarray] = {}  # by geometry, as the edges
-    for mesh, (mi, _, _) in zip(meshes, groups):
-        if mi not in support:
-            support[mi] = support_points(mesh.positions)
-        mesh.support = support[mi]
+    support: dict[object, np.ndarray] = {}  # by geometry, as the edges
+    for mesh, geo in zip(meshes, geometry):
+        if geo not in support:
+            support[geo] = support_points(mesh.positions)
+        mesh.support = support[geo]
     support_s = time.perf_counter() - start
     start = time.perf_counter()
     hull = hull_points(meshes)
@@ -275,7 +289,7 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> Bak
     textures = [BakedTexture.from_texture(t, spaces[i], cap) for i, t in enumerate(scene.textures)]
     return BakedAsset(key=key, source=str(scene.source), format=scene.format, meshes=meshes,
                       textures=textures, bounds=np.asarray(scene.bounds, np.float64),
-                      lights=list(scene.lights), warnings=list(scene.warnings), manifest=manifest,
+                      lights=list(scene.lights), warnings=warnings, manifest=manifest,
                       variants=list(scene.variants), cameras=list(scene.cameras),
                       extent=extent(scene) if any(i.backdrop for i in scene.instances) else None,
                       hull=np.zeros((0, 3)) if hull is None else hull)

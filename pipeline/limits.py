@@ -16,6 +16,7 @@ class Limits(FromEnv):
     max_triangles: int = Field(20_000_000, ge=0, description="triangles in one asset")
     max_texture_pixels: int = Field(8192 * 8192, ge=0, description="per image, checked from the header")
     max_textures: int = Field(512, ge=0, description="textures in one asset")
+    max_udim_tiles: int = Field(100, ge=0, description="tiles of one UDIM texture (1001-1100 all)")
     max_unpacked_bytes: int = Field(1 * 2**30, ge=0, description="usdz / zip / decoded images in total")
     max_archive_files: int = Field(10_000, ge=0, description="members of an uploaded .zip")
     max_archive_ratio: float = Field(200.0, ge=1, description="unpacked bytes per byte of an uploaded .zip "

@@ -26,11 +26,12 @@ import io
 import logging
 import math
 from dataclasses import dataclass
+from pathlib import Path
 from typing import cast
 
 import numpy as np
 from PIL import Image
-from pxr import Sdf, Usd, UsdShade
+from pxr import Ar, Sdf, Usd, UsdShade
 
 from core.colour import srgb_encode, srgb_to_linear
 from core.errors import LimitExceeded, MalformedAsset, MissingFile
@@ -38,13 +39,15 @@ from core.scene import (
     CLAMP_TO_EDGE,
     MIRRORED_REPEAT,
     REPEAT,
+    UDIM_FIRST,
+    UDIM_LAST,
     Material,
     Sampler,
     Scene,
     Texture,
     TextureRef,
 )
-from pipeline import deadline
+from pipeline import deadline, udim
 from pipeline.images import EXR_MAGIC, PNG_SIGNATURE, DeferredTexture, probe_image
 from pipeline.limits import Limits
 from pipeline.usd import materialx
@@ -57,6 +60,7 @@ WRAP = {"repeat": REPEAT, "mirror": MIRRORED_REPEAT, "clamp": CLAMP_TO_EDGE,
         "black": CLAMP_TO_EDGE, "useMetadata": REPEAT}
 # UsdPreviewSurface fallbacks (its spec), where they differ from Material's glTF defaults.
 DIFFUSE, METALLIC, ROUGHNESS, IOR = (0.18, 0.18, 0.18), 0.0, 0.5, 1.5
+UDIM = "<UDIM>"  # the tile number's place in a UDIM texture's file name
 HYDRA_GREY = (0.5, 0.5, 0.5)  # displayColor when a gprim authors none (UsdImaging's fallback)
 
 
@@ -131,7 +135,8 @@ class _Recoded(Texture):
     def __init__(self, name: str, base: Texture, encode: bool):
         self.base, self.encode = base, encode
         self._pixels: np.ndarray | None = None
-        super().__init__(name=name, image=None, sampler=base.sampler, source=base.source)  # type: ignore[arg-type]  # made on first use
+        super().__init__(name=name, image=None, sampler=base.sampler, source=base.source,  # type: ignore[arg-type]  # made on first use
+                         udim=base.udim)
 
     @property
     def image(self) -> np.ndarray:
@@ -156,7 +161,10 @@ class _Packed(Texture):
                  source: str):
         self.parts = parts  # dst channel -> (texture, src channel)
         self._pixels: np.ndarray | None = None
-        super().__init__(name=name, image=None, sampler=sampler, source=source)  # type: ignore[arg-type]  # made on first use
+        # UDIM atlases of one layout scale onto each other cell for cell (MaterialReader._pack
+        # warns when the parts' layouts differ)
+        udim = next((t.udim for t, _ in parts.values() if t.udim is not None), None)
+        super().__init__(name=name, image=None, sampler=sampler, source=source, udim=udim)  # type: ignore[arg-type]  # made on first use
 
     @property
     def image(self) -> np.ndarray:
@@ -194,6 +202,7 @@ class MaterialReader:
         self._unpacked = 0
         self._documents: dict[str, object] = {}  # .mtlx identifier -> MaterialX document
         self._files: dict[tuple[str, str], materialx.File] = {}
+        self._udim: dict[str, dict[int, str]] = {}  # UDIM pattern -> tile number -> identifier
 
     def bound(self, prim: Usd.Prim):
         """The material bound to `prim` (preview purpose, else all-purpose), or the binding's
@@ -301,8 +310,13 @@ class MaterialReader:
         return self._documents[identifier]
 
     def _resolve_usd_file(self, attr: Usd.Attribute, text: str) -> "materialx.File":
+        layer = authoring_layer(attr, self.time)
         try:
-            return materialx.File(self.graph.resolve(authoring_layer(attr, self.time), text), text)
+            if UDIM in text:
+                return materialx.File(self._udim_tiles(
+                    layer.ComputeAbsolutePath(text), text,
+                    lambda tile: self.graph.resolve(layer, tile)), text)
+            return materialx.File(self.graph.resolve(layer, text), text)
         except MissingFile as exc:
             return materialx.File(None, text, exc)
 
@@ -310,7 +324,13 @@ class MaterialReader:
         key = (document, text)  # documents name one texture from many materials
         if key not in self._files:
             try:
-                self._files[key] = materialx.File(self.graph.resolve_file(document, text), text)
+                if UDIM in text:
+                    pattern = str(Path(document).parent / text) if not \
+                        Ar.IsPackageRelativePath(document) else f"{document}:{text}"
+                    self._files[key] = materialx.File(self._udim_tiles(
+                        pattern, text, lambda tile: self.graph.resolve_file(document, tile)), text)
+                else:
+                    self._files[key] = materialx.File(self.graph.resolve_file(document, text), text)
             except MissingFile as exc:
                 self._files[key] = materialx.File(None, text, exc)
         return self._files[key]
@@ -516,13 +536,13 @@ class MaterialReader:
         if not isinstance(asset, Sdf.AssetPath) or not asset.path:
             self._warn(f"{node.GetPath()}: UsdUVTexture without a file; its fallback is used")
             return fallback
-        if "<UDIM>" in asset.path:
-            self._warn(f"{node.GetPath()}: UDIM texture {asset.path!r} is not supported; "
-                       "its fallback is used")
-            return fallback
         layer = authoring_layer(attr, self.time)
         try:
-            identifier = self.graph.resolve(layer, asset.path)  # refuses unsafe
+            if UDIM in asset.path:
+                identifier = self._udim_tiles(layer.ComputeAbsolutePath(asset.path), asset.path,
+                                              lambda tile: self.graph.resolve(layer, tile))
+            else:
+                identifier = self.graph.resolve(layer, asset.path)  # refuses unsafe
         except MissingFile as exc:
             self._warn(f"{node.GetPath()}: {exc.reason}; its fallback is used")
             return fallback
@@ -570,6 +590,58 @@ class MaterialReader:
                        "auto; read as auto")
         return "sRGB" if self._auto_srgb[identifier] else "raw"
 
+    def _udim_tiles(self, pattern: str, text: str, resolve) -> str:
+        """`pattern` (a file path holding <UDIM>, as its layer resolves it), its tiles looked
+        up through `resolve` as Storm looks them up (1001 to 1100; the absent ones are left
+        out); MissingFile when there is none, LimitExceeded past `max_udim_tiles`."""
+        if pattern not in self._udim:
+            tiles = {}
+            for number in range(UDIM_FIRST, UDIM_LAST + 1):
+                try:
+                    tiles[number] = resolve(text.replace(UDIM, str(number)))
+                except MissingFile:
+                    continue
+                if len(tiles) > self.limits.max_udim_tiles:
+                    raise LimitExceeded(pattern, f"UDIM texture has more than "
+                                                 f"{self.limits.max_udim_tiles} tiles "
+                                                 "(ASSET_PREVIEW_MAX_UDIM_TILES)")
+            if not tiles:
+                raise MissingFile(pattern, f"no UDIM tile of {text!r} ({UDIM_FIRST} to "
+                                           f"{UDIM_LAST}) found")
+            self._udim[pattern] = tiles
+        return pattern
+
+    def _udim_texture(self, pattern: str, wrap: tuple[str, str]) -> int | None:
+        """The atlas of `pattern`'s tiles (pipeline.udim); a tile that does not decode is
+        dropped with a warning, as a missing one."""
+        tiles: dict[int, DeferredTexture] = {}
+        name = pattern.rsplit("/", 1)[-1].rstrip("]")
+        for number, identifier in self._udim[pattern].items():
+            data = self.graph.read_bytes(identifier)
+            try:
+                w, h = probe_image(data, identifier, self.limits)
+            except (MalformedAsset, LimitExceeded) as exc:
+                self._warn(f"UDIM tile {identifier}: {exc.reason}; dropped")
+                continue
+            self._unpacked += w * h * 4
+            if self._unpacked > self.limits.max_unpacked_bytes:
+                raise LimitExceeded(pattern, f"decoded textures would exceed "
+                                             f"{self.limits.max_unpacked_bytes} bytes (UDIM "
+                                             f"tile {number})")
+            if not tiles:  # the first tile's encoding decides auto's colour space for all
+                self._auto_srgb[pattern] = None if bytes(data[:4]) == EXR_MAGIC else \
+                    auto_source_srgb(data)
+            tiles[number] = DeferredTexture(name=f"{name}:{number}", data=data, size=(w, h),
+                                            limits=self.limits, source=identifier)
+        if not tiles:
+            self._warn(f"UDIM texture {pattern}: no tile decodes; dropped (factor only)")
+            return None
+        layout = udim.layout_for(sorted(tiles))
+        cell = udim.cell_size([t.size for t in tiles.values()], layout,
+                              self.limits.max_texture_pixels)
+        self.scene.textures.append(udim.UdimTexture(name, dict(tiles), layout, cell, pattern))
+        return len(self.scene.textures) - 1
+
     def _texture(self, identifier: str, wrap: tuple[str, str]) -> int | None:
         key = (identifier, wrap)
         if key in self._textures:
@@ -577,6 +649,9 @@ class MaterialReader:
         deadline.check()
         if len(self.scene.textures) >= self.limits.max_textures:
             raise LimitExceeded(self.graph.path, f"more than {self.limits.max_textures} textures")
+        if identifier in self._udim:
+            self._textures[key] = self._udim_texture(identifier, wrap)
+            return self._textures[key]
         data = self.graph.read_bytes(identifier)
         self._auto_srgb[identifier] = None if bytes(data[:4]) == EXR_MAGIC else auto_source_srgb(data)
         index = None
@@ -606,6 +681,10 @@ class MaterialReader:
         key = tuple(sorted(parts.items()))
         if key not in self._packed:
             first = self.scene.textures[next(iter(parts.values()))[0]]
+            layouts = {self.scene.textures[t].udim for t, _ in parts.values()}
+            if len(layouts) > 1:
+                self._warn(f"channels of {first.name} packed with textures of other UDIM tiles "
+                           "(or none); they read the first UDIM texture's layout")
             self.scene.textures.append(_Packed(
                 name="+".join(f"{self.scene.textures[t].name}.{'rgba'[s]}"
                               for _, (t, s) in sorted(parts.items())),

@@ -127,6 +127,11 @@ class UsdRig:
                 mesh = self.scene.meshes[inst.mesh]
                 if mesh.subdivision is not None:
                     raise RigUnsupported(f"{path} deforms and is subdivided at bake")
+                material = self.scene.materials[inst.material]
+                if any(self.scene.textures[r.texture].udim is not None
+                       for r in material.texture_refs().values()):
+                    raise RigUnsupported(f"{path} deforms and its vertices are split for UDIM "
+                                         "tiles at bake")
                 if names.count(mesh.name) != 1:
                     raise RigUnsupported(f"{path}: mesh name {mesh.name!r} is not unique")
                 reread[path] = None

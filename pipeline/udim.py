@@ -1,0 +1,173 @@
+"""UDIM textures as one atlas, and the bake's UV remap that reads them through it.
+
+A UDIM texture is a set of tiles: tile 1001 + u + 10 v covers st [u, u+1] x [v, v+1]. Storm
+samples a texture array per fragment; here the tiles that exist are packed into one atlas
+texture (core.scene.UdimLayout: equal cells, a gutter of repeated edge texels around each,
+empty cells transparent black as Storm reads a missing tile), and the bake gives each
+triangle UVs into its tile's cell: the tile is the one under the triangle's UV centroid (after
+the texture's transform), and a vertex shared by triangles of different tiles is split. Every
+renderer then samples an ordinary texture with ordinary UVs from the same bake.
+
+Approximate: a triangle that straddles a tile border reads its centroid's tile across the
+whole triangle (Storm switches tiles at the border); inside a tile, wrap modes are those of
+the gutter (clamp to the tile's edge; a repeat-wrapped tile differs in half a texel at its
+edge); the mips past the gutter's width (a cell under 16 texels) blend neighbouring cells.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+from PIL import Image
+
+from core.scene import (
+    CLAMP_TO_EDGE,
+    UDIM_GUTTER,
+    Material,
+    Mesh,
+    Sampler,
+    Texture,
+    TextureRef,
+    UdimLayout,
+)
+
+
+def layout_for(tiles: list[int]) -> UdimLayout:
+    """Cells for `tiles` (sorted tile numbers) and one empty cell, in a near-square grid."""
+    columns = math.ceil(math.sqrt(len(tiles) + 1))
+    return UdimLayout(tuple(tiles), columns, math.ceil((len(tiles) + 1) / columns))
+
+
+def cell_size(sizes: list[tuple[int, int]], layout: UdimLayout, max_pixels: int) -> tuple[int, int]:
+    """(w, h) of a cell's tile part: the largest tile's, a multiple of 16 (so that the gutter,
+    a sixteenth each side, is whole texels), shrunk until the atlas holds no more than
+    `max_pixels` texels (the per-image limit)."""
+    w = 16 * math.ceil(max(s[0] for s in sizes) / 16)
+    h = 16 * math.ceil(max(s[1] for s in sizes) / 16)
+    while w > 16 and h > 16 and \
+            _padded(w) * layout.columns * _padded(h) * layout.rows > max_pixels:
+        w, h = 16 * max(1, w // 32), 16 * max(1, h // 32)
+    return w, h
+
+
+def _padded(c: int) -> int:
+    return c + c // 8  # the tile and a gutter of c / 16 each side
+
+
+class UdimTexture(Texture):
+    """The atlas of a UDIM texture's tiles (Textures with their pixels, decoded on first use),
+    built when first read; `cell` is a tile's part of a cell in texels."""
+
+    def __init__(self, name: str, tiles: dict[int, Texture], layout: UdimLayout,
+                 cell: tuple[int, int], source: str):
+        self.tiles, self.cell = tiles, cell
+        self._pixels: np.ndarray | None = None
+        super().__init__(name=name, image=None, source=source, udim=layout,  # type: ignore[arg-type]  # made on first use
+                         sampler=Sampler(wrap_s=CLAMP_TO_EDGE, wrap_t=CLAMP_TO_EDGE))
+
+    @property
+    def image(self) -> np.ndarray:
+        if self._pixels is None:
+            layout = self.udim
+            assert layout is not None
+            w, h = self.cell
+            pw, ph = _padded(w), _padded(h)
+            out = np.zeros((ph * layout.rows, pw * layout.columns, 4), np.uint8)
+            for k, number in enumerate(layout.tiles):
+                tile = self.tiles[number]
+                pixels = tile.image
+                if pixels.shape[:2] != (h, w):
+                    pixels = np.asarray(Image.fromarray(pixels, "RGBA").resize(
+                        (w, h), Image.Resampling.BOX if pixels.shape[1] > w else
+                        Image.Resampling.BILINEAR))
+                tile.image = None  # type: ignore[assignment]  # decoded once, into the atlas
+                row, col = divmod(k, layout.columns)
+                gw, gh = (pw - w) // 2, (ph - h) // 2
+                out[row * ph:(row + 1) * ph, col * pw:(col + 1) * pw] = np.pad(
+                    pixels, ((gh, gh), (gw, gw), (0, 0)), mode="edge")
+            self._pixels = out
+        return self._pixels
+
+    @image.setter
+    def image(self, value) -> None:
+        self._pixels = value
+
+
+def tile_of(s: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """UDIM tile numbers at st points (v up); 0 outside the 10 x 10 tiles."""
+    u, v = np.floor(s), np.floor(t)
+    inside = (u >= 0) & (u < 10) & (v >= 0) & (v < 10)
+    return np.where(inside, 1001 + u + 10 * v, 0).astype(np.int64)
+
+
+def remap(mesh: Mesh, material: Material, textures: list[Texture],
+          warn) -> tuple[Mesh, Material] | None:
+    """`mesh` and `material` with the material's UDIM textures read through atlas UVs (None
+    when it reads none). The UDIM slots read one UV set afterwards, untransformed: their own
+    set when no other texture reads it, else the other set when that is free."""
+    refs = {slot: ref for slot, ref in material.texture_refs().items()
+            if textures[ref.texture].udim is not None}
+    if not refs:
+        return None
+    first = next(iter(refs.values()))
+    layout = textures[first.texture].udim
+    assert layout is not None
+    source = first.uv_set
+    for slot, ref in refs.items():
+        if (textures[ref.texture].udim, ref.uv_set, ref.offset, ref.rotation, ref.scale) != \
+                (layout, source, first.offset, first.rotation, first.scale):
+            warn(f"{material.name}: {slot}'s UDIM texture has other tiles, UVs or transform "
+                 f"than {textures[first.texture].name}'s; read through the latter's layout")
+    uv = mesh.uv0 if source == 0 else mesh.uv1
+    if uv is None or not len(mesh.indices):
+        return None
+    others = {ref.uv_set for slot, ref in material.texture_refs().items() if slot not in refs}
+    target = source
+    if source in others:
+        if 1 - source in others:
+            warn(f"{material.name}: UDIM and other textures read both UV sets; the others read "
+                 "the UDIM atlas's UVs")
+        else:
+            target = 1 - source
+    m = first.uv_matrix().astype(np.float64)
+    st = uv.astype(np.float64) @ m[:2, :2].T + m[:2, 2]
+    st[:, 1] = 1.0 - st[:, 1]  # glTF v down -> UDIM's t up
+    tri = mesh.indices.astype(np.int64)
+    centre = st[tri].mean(axis=1)
+    numbers = tile_of(centre[:, 0], centre[:, 1])
+    lookup = np.full(1101, layout.empty_cell, np.int64)
+    lookup[list(layout.tiles)] = np.arange(len(layout.tiles))
+    cell = lookup[numbers]  # tile 0 (outside) -> the empty cell, as a missing tile
+    cells = layout.empty_cell + 1
+    keys = (tri * cells + cell[:, None]).reshape(-1)
+    unique, inverse = np.unique(keys, return_inverse=True)
+    vertex, vcell = unique // cells, unique % cells
+    atlas = _atlas_uv(st[vertex], vcell, layout)
+    out = dataclasses.replace(mesh, indices=inverse.reshape(-1, 3).astype(np.uint32),
+                              subdivision=None, creases=None, cage=None, cage_corners=None,
+                              cage_interpolation=None)
+    for name in ("positions", "normals", "tangents", "uv0", "uv1", "colors"):
+        if getattr(mesh, name) is not None:
+            setattr(out, name, getattr(mesh, name)[vertex])
+    setattr(out, "uv0" if target == 0 else "uv1", atlas.astype(np.float32))
+    read = dataclasses.replace(material)
+    for slot, ref in refs.items():
+        setattr(read, slot, TextureRef(ref.texture, target))
+    return out, read
+
+
+def _atlas_uv(st: np.ndarray, cell: np.ndarray, layout: UdimLayout) -> np.ndarray:
+    """Atlas UVs (glTF, v down) of st points, each in its cell's tile; the empty cell's centre
+    for the points of triangles on no tile."""
+    numbers = np.array([*layout.tiles, 1001], np.int64)[cell]
+    u0, v0 = (numbers - 1001) % 10, (numbers - 1001) // 10
+    local_s = st[:, 0] - u0
+    local_t = st[:, 1] - v0
+    empty = cell == layout.empty_cell
+    local_s[empty], local_t[empty] = 0.5, 0.5
+    row, col = np.divmod(cell, layout.columns)
+    inner = 1.0 - 2.0 * UDIM_GUTTER
+    u = (col + UDIM_GUTTER + local_s * inner) / layout.columns
+    v = (row + UDIM_GUTTER + (1.0 - local_t) * inner) / layout.rows
+    return np.stack([u, v], axis=1)
