@@ -49,10 +49,11 @@ def posed(path, base: BakedAsset, moment: Moment, root=None, limits: Limits | No
                        variant_sets=tuple(opts.get("variant_sets", ())),
                        purposes=tuple(opts.get("purposes", ("render",))),
                        draw_mode=opts.get("draw_mode", "authored"))
+    layouts = [t.udim for t in scene.textures]  # UDIM meshes are remapped as base's were
     scene.textures = []  # not decoded again: no pose changes them, base's are used
     key = f"{base.key}@{moment.animation or ''}:{float(moment.time):.6f}"
     baked = build_baked(scene, key, {**opts, **POSED_OPTIONS,
-                                     "moment": dataclasses.asdict(moment)})
+                                     "moment": dataclasses.asdict(moment)}, layouts)
     baked.textures = base.textures
     return baked
 

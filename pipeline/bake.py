@@ -34,7 +34,18 @@ from core.cubemap import DEFAULT_FACE_SIZE
 from core.errors import AssetError, EmptyScene, MissingFile, UnsupportedFormat
 from core.hull import hull_points, support_points
 from core.mips import level_shapes, texture_size_for
-from core.scene import Light, Material, Sampler, Scene, SceneCamera, TextureRef, extent, is_srgb, placed_bounds
+from core.scene import (
+    Light,
+    Material,
+    Sampler,
+    Scene,
+    SceneCamera,
+    TextureRef,
+    UdimLayout,
+    extent,
+    is_srgb,
+    placed_bounds,
+)
 from pipeline import udim
 from pipeline.cache import BAKE_FORMAT_VERSION, Cache, Entry, NotInCache, SourceFiles
 from pipeline.environment import prefilter as environment
@@ -187,10 +198,13 @@ def framed_bounds(meshes: list[BakedMesh], groups: Iterable[list[int]], scene: S
                          for k, tr in zip(members, mesh.transforms) if not scene.instances[k].backdrop)
 
 
-def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> BakedAsset:
+def build_baked(scene: Scene, key: str = "", options: dict | None = None,
+                layouts: list[UdimLayout | None] | None = None) -> BakedAsset:
     """Group a Scene's instances into BakedMeshes, compute interior vectors where needed and
     the welded edges that edge anti-aliasing reads (renderer.raster.edges) for assets it serves, and
-    the points on the hull that the framing and the final pass's regions read (core.hull)."""
+    the points on the hull that the framing and the final pass's regions read (core.hull).
+    `layouts`: the textures' UDIM layouts, for a scene whose textures were left out (a pose
+    keeps its base's) but whose meshes are remapped as the base's were (pipeline.udim)."""
     opts = {**ASSET_OPTIONS, **(options or {})}
     start = time.perf_counter()
     refined = subdivision.refine_scene(scene, min(Limits.from_env().max_triangles,
@@ -204,11 +218,13 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None) -> Bak
     geometry: list[object] = []  # per BakedMesh, what its vertices are: the scene mesh's, or
     # those split for a UDIM material (pipeline.udim), which only that material's groups share
     remapped: dict[tuple[int, int], tuple | None] = {}
+    if layouts is None:
+        layouts = [t.udim for t in scene.textures]
     warnings = list(scene.warnings)
     for (mi, mat, variant_map), transforms in groups.items():
         mesh, material = scene.meshes[mi], scene.materials[mat]
         if (mi, mat) not in remapped:
-            remapped[(mi, mat)] = udim.remap(mesh, material, scene.textures,
+            remapped[(mi, mat)] = udim.remap(mesh, material, layouts,
                                              lambda text: warnings.append(text)
                                              if text not in warnings else None)
         geo: object = mi

@@ -101,24 +101,25 @@ def tile_of(s: np.ndarray, t: np.ndarray) -> np.ndarray:
     return np.where(inside, 1001 + u + 10 * v, 0).astype(np.int64)
 
 
-def remap(mesh: Mesh, material: Material, textures: list[Texture],
+def remap(mesh: Mesh, material: Material, layouts: list[UdimLayout | None],
           warn) -> tuple[Mesh, Material] | None:
-    """`mesh` and `material` with the material's UDIM textures read through atlas UVs (None
-    when it reads none). The UDIM slots read one UV set afterwards, untransformed: their own
-    set when no other texture reads it, else the other set when that is free."""
+    """`mesh` and `material` with the material's UDIM textures (those with a layout in
+    `layouts`, by texture index) read through atlas UVs; None when it reads none. The UDIM
+    slots read one UV set afterwards, untransformed: their own set when no other texture
+    reads it, else the other set when that is free."""
     refs = {slot: ref for slot, ref in material.texture_refs().items()
-            if textures[ref.texture].udim is not None}
+            if 0 <= ref.texture < len(layouts) and layouts[ref.texture] is not None}
     if not refs:
         return None
-    first = next(iter(refs.values()))
-    layout = textures[first.texture].udim
+    first_slot, first = next(iter(refs.items()))
+    layout = layouts[first.texture]
     assert layout is not None
     source = first.uv_set
     for slot, ref in refs.items():
-        if (textures[ref.texture].udim, ref.uv_set, ref.offset, ref.rotation, ref.scale) != \
+        if (layouts[ref.texture], ref.uv_set, ref.offset, ref.rotation, ref.scale) != \
                 (layout, source, first.offset, first.rotation, first.scale):
             warn(f"{material.name}: {slot}'s UDIM texture has other tiles, UVs or transform "
-                 f"than {textures[first.texture].name}'s; read through the latter's layout")
+                 f"than {first_slot}'s; read through the latter's layout")
     uv = mesh.uv0 if source == 0 else mesh.uv1
     if uv is None or not len(mesh.indices):
         return None

@@ -38,7 +38,7 @@ def Mesh "Card" ( prepend apiSchemas = ["MaterialBindingAPI"] )
                         (-1, 1, 0), (0, 1, 0), (1, 1, 0)]
     texCoord2f[] primvars:st = [(0, 0), (1, 0), (2, 0), (0, 1), (1, 1), (2, 1), (0, 2), (1, 2),
                                 (2, 2)] ( interpolation = "vertex" )
-    rel material:binding = </Look>
+SCHEME    rel material:binding = </Look>
 }
 def Material "Look"
 {
@@ -75,13 +75,17 @@ def Material "Look"
 """
 
 
-def card(folder, tiles=tuple(COLOURS), translation=(0, 0), sizes=None):
-    """The card stage in `folder` with the UDIM tiles `tiles` (64 x 64 each, or `sizes[t]`)."""
+def card(folder, tiles=tuple(COLOURS), translation=(0, 0), sizes=None, scheme=None):
+    """The card stage in `folder` with the UDIM tiles `tiles` (64 x 64 each, or `sizes[t]`);
+    `scheme` authored (None: unauthored, drawn as it is with smooth normals, the points shared
+    by the quads)."""
     (folder / "tiles").mkdir(parents=True, exist_ok=True)
     for t in tiles:
         Image.new("RGB", (sizes or {}).get(t, (64, 64)), COLOURS[t]).save(folder / "tiles" / f"card.{t}.png")
     path = folder / "card.usda"
-    path.write_text(STAGE.replace("TRANSLATION", f"({translation[0]}, {translation[1]})"))
+    path.write_text(STAGE.replace("TRANSLATION", f"({translation[0]}, {translation[1]})")
+                    .replace("SCHEME", f'    uniform token subdivisionScheme = "{scheme}"\n'
+                             if scheme else ""))
     return path
 
 
@@ -134,6 +138,38 @@ def test_the_texture_transform_picks_the_tile(tmp_path, env):
     assert_colour(seen[1011], 1012)
     for dark in (seen[1002], seen[1012]):
         assert dark.max() < 0.35 * seen[1001].max(), seen
+
+
+def test_a_subdivision_cage_is_refined_then_remapped(tmp_path, env):
+    """The bake refines the Catmull-Clark cage first (its st with it), then splits the refined
+    vertices by tile: each quad's refined faces stay in its tile."""
+    asset = bake_asset(card(tmp_path, tiles=(1001, 1002, 1011), scheme="catmullClark"),
+                       tmp_path / "cache")
+    (mesh,) = asset.meshes
+    assert asset.manifest["stats"]["refined"] == 1 and len(mesh.indices) > 8
+    seen = quadrants(asset, env, "opaque")
+    for tile in (1001, 1002, 1011):
+        assert_colour(seen[tile], tile)
+    assert seen[1012].max() < 0.35 * seen[1001].max(), seen
+
+
+def test_a_deforming_udim_mesh_is_posed_by_whole_reads(tmp_path):
+    """Its vertices are split at bake, which a rig's re-read points would not match: the
+    frames are read whole (pipeline.animate's fallback) and keep the split."""
+    from pipeline.animate import frames
+    from pipeline.usd.rig import RigUnsupported, UsdRig
+
+    path = card(tmp_path, tiles=(1001, 1002, 1011))
+    points = STAGE[STAGE.index("point3f[] points"):STAGE.index("texCoord2f")].strip()
+    moved = points.replace("point3f[] points = [", "point3f[] points.timeSamples = { 0: [") \
+        .rstrip("]") + "], 24: [" + points.split("[", 2)[2].replace(", 0)", ", 1)") + " }"
+    path.write_text(path.read_text().replace(points, moved))
+    base = bake_asset(path, tmp_path / "cache")
+    with pytest.raises(RigUnsupported, match="split for UDIM"):
+        UsdRig(path, base, 0.0)
+    out = frames(path, base, [0.0, 1.0])
+    assert len(out[1].meshes[0].positions) == 16
+    assert out[1].bounds[1, 2] == pytest.approx(1.0)  # the card moved to z = 1
 
 
 def test_the_atlas_holds_each_tile_in_its_cell_with_a_gutter(tmp_path):
