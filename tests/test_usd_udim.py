@@ -12,12 +12,12 @@ from PIL import Image
 from bench.storm import render_storm, storm_python, write_wrapper
 from core.errors import LimitExceeded
 from core.options import RenderOptions
-from core.scene import UDIM_GUTTER
+from core.scene import UDIM_GUTTER, Material, Mesh, TextureRef
 from pipeline.bake import bake_asset, bake_environment
 from pipeline.environment.panorama import DEFAULT_ENVIRONMENT
 from pipeline.ingest import load_scene
 from pipeline.limits import Limits
-from pipeline.udim import tile_of
+from pipeline.udim import layout_for, remap, tile_of
 from renderer import render
 
 # tile -> colour; the card's four quads cover st [0,2] x [0,2]: 1001 bottom left, 1002 bottom
@@ -190,6 +190,65 @@ def test_the_atlas_holds_each_tile_in_its_cell_with_a_gutter(tmp_path):
         assert (block[..., :3] == COLOURS[t]).all() and (block[..., 3] == 255).all(), t
     assert not atlas[cell:, cell:].any()  # the empty cell
     assert UDIM_GUTTER == pytest.approx((64 // 16) / cell)
+
+
+def test_the_atlas_is_shrunk_to_the_per_image_limit(tmp_path):
+    limits = Limits(max_texture_pixels=64 * 64 * 4)
+    (tex,) = load_scene(card(tmp_path), limits).textures
+    atlas = tex.image
+    assert atlas.shape[0] * atlas.shape[1] <= limits.max_texture_pixels
+    assert tex.udim is not None and (tex.udim.columns, tex.udim.rows) == (3, 2)
+    cell = atlas.shape[1] // 3
+    for k, t in enumerate(tex.udim.tiles):
+        row, col = divmod(k, 3)
+        assert (atlas[row * cell:(row + 1) * cell, col * cell:(col + 1) * cell, :3] == COLOURS[t]).all()
+
+
+def test_decoded_tiles_count_against_the_texture_budget(tmp_path):
+    with pytest.raises(LimitExceeded, match=r"card\.<UDIM>\.png.*decoded textures would exceed"):
+        load_scene(card(tmp_path), Limits(max_unpacked_bytes=3 * 64 * 64 * 4))
+
+
+def test_roughness_from_a_udim_texture_shares_the_atlas_uvs(tmp_path):
+    """A channel read from a UDIM texture (repacked into roughness's G) keeps the layout, and
+    every UDIM slot of the material reads the one remapped UV set."""
+    path = card(tmp_path, tiles=(1001, 1002, 1011))
+    path.write_text(path.read_text().replace(
+        "        float inputs:roughness = 1\n",
+        "        float inputs:roughness.connect = </Look/Tex.outputs:r>\n").replace(
+        "        float3 outputs:rgb\n", "        float3 outputs:rgb\n        float outputs:r\n"))
+    scene = load_scene(path)
+    (mat,) = scene.materials
+    assert mat.metallic_roughness_texture is not None
+    packed = scene.textures[mat.metallic_roughness_texture.texture]
+    assert packed.udim == scene.textures[mat.base_color_texture.texture].udim is not None
+    asset = bake_asset(path, tmp_path / "cache")
+    assert not asset.warnings, asset.warnings
+    baked = asset.meshes[0].material
+    assert baked.base_color_texture.uv_set == baked.metallic_roughness_texture.uv_set == 0
+
+
+def test_other_textures_on_the_same_uvs_keep_them():
+    """A UDIM slot moves to the free UV set when a single-image texture reads its set; the
+    UDIM transform is in the new UVs, the other slot keeps its own."""
+    layout = layout_for([1001, 1002])
+    mesh = Mesh("quad", positions=np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], np.float32),
+                normals=np.tile(np.float32([0, 0, 1]), (4, 1)),
+                indices=np.array([[0, 1, 2], [0, 2, 3]], np.uint32),
+                uv0=np.array([[1, 1], [2, 1], [2, 0], [1, 0]], np.float32))  # st [1,2] x [0,1]
+    mat = Material(base_color_texture=TextureRef(0, 0, offset=(-1.0, 0.0)),
+                   occlusion_texture=TextureRef(1, 0))
+    warnings: list[str] = []
+    remapped = remap(mesh, mat, [layout, None], warnings.append)
+    assert remapped is not None and not warnings
+    out, read = remapped
+    assert read.base_color_texture == TextureRef(0, 1) and read.occlusion_texture == mat.occlusion_texture
+    np.testing.assert_array_equal(out.uv0, mesh.uv0)  # the occlusion's UVs, as they were
+    assert out.uv1 is not None
+    # offset -1 moves st [1,2] into tile 1001: cell 0 of a 2 x 2 grid, the top left
+    assert out.uv1[:, 0].max() < 0.5 and out.uv1[:, 1].max() < 0.5
+    inner = (1 - 2 * UDIM_GUTTER) / 2
+    np.testing.assert_allclose(np.ptp(out.uv1, axis=0), (inner, inner), rtol=1e-5)
 
 
 def test_tile_numbers_follow_the_udim_rule():

@@ -194,7 +194,7 @@ class MaterialReader:
     def __init__(self, graph: LayerGraph, scene: Scene, limits: Limits, time: Usd.TimeCode):
         self.graph, self.scene, self.limits, self.time = graph, scene, limits, time
         self._bindings: dict[tuple, Binding] = {}
-        self._textures: dict[tuple, int | None] = {}
+        self._textures: dict[tuple, int | None] = {}  # (identifier, wrap) -> index
         self._packed: dict[tuple, int] = {}
         self._recoded: dict[tuple[int, bool], int] = {}
         self._auto_srgb: dict[str, bool | None] = {}  # None: EXR
@@ -649,8 +649,10 @@ class MaterialReader:
         deadline.check()
         if len(self.scene.textures) >= self.limits.max_textures:
             raise LimitExceeded(self.graph.path, f"more than {self.limits.max_textures} textures")
-        if identifier in self._udim:
-            self._textures[key] = self._udim_texture(identifier, wrap)
+        if identifier in self._udim:  # one atlas whatever the wrap (pipeline.udim: clamped)
+            if (identifier, None) not in self._textures:
+                self._textures[(identifier, None)] = self._udim_texture(identifier, wrap)
+            self._textures[key] = self._textures[(identifier, None)]
             return self._textures[key]
         data = self.graph.read_bytes(identifier)
         self._auto_srgb[identifier] = None if bytes(data[:4]) == EXR_MAGIC else auto_source_srgb(data)
