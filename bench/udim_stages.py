@@ -7,7 +7,9 @@ renders each with ours and Storm. The card (tests/test_usd_udim.py's stage: flat
 1002, 1011, tile 1012 missing), the card through a UsdTransform2d (rotated 90 degrees and
 moved, patterned tiles: orientation shows), and a cylinder whose st runs 0..4 around it over
 four patterned tiles of different sizes (the seams between tiles share vertices), also as
-a Catmull-Clark cage (refined at bake, then remapped).
+a Catmull-Clark cage (refined at bake, then remapped); the control: that cylinder with one
+image holding the four tiles side by side (its st 0..1 around), no UDIM, which measures what
+of the cylinder's FLIP is not UDIM's.
 """
 from __future__ import annotations
 
@@ -79,14 +81,14 @@ def patterned(tile: int, size: int) -> Image.Image:
     return Image.fromarray(np.round(shade.clip(0, 1) * 255).astype(np.uint8), "RGB")
 
 
-def _cylinder(segments: int = 32, rings: int = 8) -> tuple[list[int], str, str, str]:
-    """A cylinder around Y, st (0..4 around, 0..1 up): four tiles side by side."""
+def _cylinder(segments: int = 32, rings: int = 8, around: float = 4.0) -> tuple[list[int], str, str, str]:
+    """A cylinder around Y, st (0..`around` around, 0..1 up): four tiles side by side."""
     pts, st = [], []
     for j in range(rings + 1):
         for i in range(segments + 1):  # the last column repeats the first (st 4 vs 0)
             a = 2 * math.pi * i / segments
             pts.append(f"({math.sin(a):.6g}, {2 * j / rings - 1:.6g}, {math.cos(a):.6g})")
-            st.append(f"({4 * i / segments:.6g}, {j / rings:.6g})")
+            st.append(f"({around * i / segments:.6g}, {j / rings:.6g})")
     faces = []
     w = segments + 1
     for j in range(rings):
@@ -104,6 +106,11 @@ def write(folder: Path) -> list[Path]:
         patterned(t, 128).save(usd / "tiles" / f"card.{t}.png")
     for t, size in ((1001, 256), (1002, 128), (1003, 256), (1004, 64)):
         patterned(t, size).save(usd / "tiles" / f"cyl.{t}.png")
+    strip = Image.new("RGB", (4 * 256, 256))
+    for k, t in enumerate((1001, 1002, 1003, 1004)):
+        strip.paste(Image.open(usd / "tiles" / f"cyl.{t}.png").resize((256, 256), Image.Resampling.BILINEAR),
+                    (256 * k, 0))
+    strip.save(usd / "tiles" / "cyl_strip.png")
     counts = [4, 4, 4, 4]
     stages = {
         "udim_card": _mesh(counts, CARD_FACES, CARD_POINTS, CARD_ST) + _material("tiles/flat.<UDIM>.png"),
@@ -112,6 +119,7 @@ def write(folder: Path) -> list[Path]:
                                      "            float2 inputs:translation = (2, 0)\n"),
         "udim_cylinder": _mesh(*_cylinder()) + _material("tiles/cyl.<UDIM>.png"),
         "udim_cylinder_subdiv": _mesh(*_cylinder(), scheme="catmullClark") + _material("tiles/cyl.<UDIM>.png"),
+        "udim_control_cylinder_one_image": _mesh(*_cylinder(around=1.0)) + _material("tiles/cyl_strip.png"),
     }
     out = []
     for name, body in stages.items():

@@ -10,7 +10,7 @@ import pytest
 from PIL import Image
 
 from bench.storm import render_storm, storm_python, write_wrapper
-from core.errors import LimitExceeded
+from core.errors import LimitExceeded, UnsafeReference
 from core.options import RenderOptions
 from core.scene import UDIM_GUTTER, Material, Mesh, TextureRef
 from pipeline.bake import bake_asset, bake_environment
@@ -259,9 +259,28 @@ def test_tile_numbers_follow_the_udim_rule():
 
 def test_too_many_tiles_are_refused_naming_the_file(tmp_path):
     path = card(tmp_path)
-    with pytest.raises(LimitExceeded, match=r"card\.<UDIM>\.png.*more than 3 tiles"):
+    with pytest.raises(LimitExceeded, match=r"card\.<UDIM>\.png.*has 4 tiles, more than 3"):
         load_scene(path, Limits(max_udim_tiles=3))
     assert load_scene(path, Limits(max_udim_tiles=4)).textures[0].udim.tiles == tuple(COLOURS)
+
+
+def test_a_pattern_that_leaves_the_root_is_refused(tmp_path):
+    path = card(tmp_path / "asset")
+    card(tmp_path / "outside")
+    path.write_text(path.read_text().replace("@./tiles/", "@../outside/tiles/"))
+    with pytest.raises(UnsafeReference, match="leaves the root"):
+        load_scene(path)
+
+
+def test_tiles_in_folders_named_by_the_tile(tmp_path):
+    """<UDIM> in a folder's name: each tile is looked up on its own (no folder to list)."""
+    path = card(tmp_path, tiles=(1001, 1002, 1011))
+    for t in (1001, 1002, 1011):
+        (tmp_path / "tiles" / str(t)).mkdir()
+        (tmp_path / "tiles" / f"card.{t}.png").rename(tmp_path / "tiles" / str(t) / "card.png")
+    path.write_text(path.read_text().replace("tiles/card.<UDIM>.png", "tiles/<UDIM>/card.png"))
+    (tex,) = load_scene(path).textures
+    assert tex.udim is not None and tex.udim.tiles == (1001, 1002, 1011)
 
 
 def test_no_tile_is_a_warning_and_the_fallback(tmp_path):

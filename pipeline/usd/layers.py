@@ -11,9 +11,11 @@ the stage afterwards reuses them instead of reading again.
 from __future__ import annotations
 
 import logging
+import os
 import posixpath
 import zipfile
 from pathlib import Path
+from urllib.parse import unquote
 
 from pxr import Ar, Sdf, Tf, UsdUtils
 
@@ -168,6 +170,46 @@ class LayerGraph:
             self._absent(str(Path(referrer).parent / relative_path_text(
                 referrer, uri, absolute_ok=self.root == UNCONFINED)))
             raise
+
+    def resolve_each(self, layer: Sdf.Layer, uri: str, placeholder: str,
+                     values) -> dict[int, str]:
+        """`resolve` of `uri` with `placeholder` replaced by each of `values` (a UDIM
+        texture's tile numbers), for those that exist; the others are absent (in the cache
+        key). On disk the folder is listed once and only names in it are resolved."""
+        here = None if Ar.IsPackageRelativePath(layer.identifier) or \
+            _outer(layer.identifier).lower().endswith(".usdz") else Path(layer.realPath).parent
+        return self._each(lambda text: self.resolve(layer, text), here, layer.ComputeAbsolutePath,
+                          uri, placeholder, values)
+
+    def resolve_file_each(self, referrer: str, uri: str, placeholder: str,
+                          values) -> dict[int, str]:
+        """`resolve_each` for a reference in a file that is not a layer (`resolve_file`)."""
+        here = None if Ar.IsPackageRelativePath(referrer) else Path(referrer).parent
+        return self._each(lambda text: self.resolve_file(referrer, text), here,
+                          lambda text: str(Path(referrer).parent / text), uri, placeholder, values)
+
+    def _each(self, resolve, here: Path | None, absolute, uri: str, placeholder: str,
+              values) -> dict[int, str]:
+        values = list(values)
+        names = None
+        folder, _, name = unquote(uri).replace("\\", "/").rpartition("/")
+        if here is not None and values and placeholder not in folder:
+            try:
+                names = set(os.listdir(here / folder))
+            except OSError:
+                names = set()
+        found = {}
+        for k, value in enumerate(values):
+            text = uri.replace(placeholder, str(value))
+            # the first is always resolved: it refuses a pattern that leaves the root
+            if k and names is not None and name.replace(placeholder, str(value)) not in names:
+                self._absent(absolute(text))
+                continue
+            try:
+                found[value] = resolve(text)
+            except MissingFile:
+                continue
+        return found
 
     def _absent(self, path: str) -> None:
         """A file looked for inside the root and not there: in the cache key too, so that

@@ -315,7 +315,7 @@ class MaterialReader:
             if UDIM in text:
                 return materialx.File(self._udim_tiles(
                     layer.ComputeAbsolutePath(text), text,
-                    lambda tile: self.graph.resolve(layer, tile)), text)
+                    lambda numbers: self.graph.resolve_each(layer, text, UDIM, numbers)), text)
             return materialx.File(self.graph.resolve(layer, text), text)
         except MissingFile as exc:
             return materialx.File(None, text, exc)
@@ -328,7 +328,9 @@ class MaterialReader:
                     pattern = str(Path(document).parent / text) if not \
                         Ar.IsPackageRelativePath(document) else f"{document}:{text}"
                     self._files[key] = materialx.File(self._udim_tiles(
-                        pattern, text, lambda tile: self.graph.resolve_file(document, tile)), text)
+                        pattern, text,
+                        lambda numbers: self.graph.resolve_file_each(document, text, UDIM, numbers)),
+                        text)
                 else:
                     self._files[key] = materialx.File(self.graph.resolve_file(document, text), text)
             except MissingFile as exc:
@@ -539,8 +541,9 @@ class MaterialReader:
         layer = authoring_layer(attr, self.time)
         try:
             if UDIM in asset.path:
-                identifier = self._udim_tiles(layer.ComputeAbsolutePath(asset.path), asset.path,
-                                              lambda tile: self.graph.resolve(layer, tile))
+                identifier = self._udim_tiles(
+                    layer.ComputeAbsolutePath(asset.path), asset.path,
+                    lambda numbers: self.graph.resolve_each(layer, asset.path, UDIM, numbers))
             else:
                 identifier = self.graph.resolve(layer, asset.path)  # refuses unsafe
         except MissingFile as exc:
@@ -590,21 +593,17 @@ class MaterialReader:
                        "auto; read as auto")
         return "sRGB" if self._auto_srgb[identifier] else "raw"
 
-    def _udim_tiles(self, pattern: str, text: str, resolve) -> str:
-        """`pattern` (a file path holding <UDIM>, as its layer resolves it), its tiles looked
-        up through `resolve` as Storm looks them up (1001 to 1100; the absent ones are left
-        out); MissingFile when there is none, LimitExceeded past `max_udim_tiles`."""
+    def _udim_tiles(self, pattern: str, text: str, lookup) -> str:
+        """`pattern` (a file path holding <UDIM>, as its layer resolves it), its tiles found
+        by `lookup(numbers)` (LayerGraph.resolve_each: tile number -> identifier) as Storm
+        looks for them, 1001 to 1100, the absent ones left out; MissingFile when there is
+        none, LimitExceeded past `max_udim_tiles`."""
         if pattern not in self._udim:
-            tiles = {}
-            for number in range(UDIM_FIRST, UDIM_LAST + 1):
-                try:
-                    tiles[number] = resolve(text.replace(UDIM, str(number)))
-                except MissingFile:
-                    continue
-                if len(tiles) > self.limits.max_udim_tiles:
-                    raise LimitExceeded(pattern, f"UDIM texture has more than "
-                                                 f"{self.limits.max_udim_tiles} tiles "
-                                                 "(ASSET_PREVIEW_MAX_UDIM_TILES)")
+            tiles = lookup(range(UDIM_FIRST, UDIM_LAST + 1))
+            if len(tiles) > self.limits.max_udim_tiles:
+                raise LimitExceeded(pattern, f"UDIM texture has {len(tiles)} tiles, more than "
+                                             f"{self.limits.max_udim_tiles} "
+                                             "(ASSET_PREVIEW_MAX_UDIM_TILES)")
             if not tiles:
                 raise MissingFile(pattern, f"no UDIM tile of {text!r} ({UDIM_FIRST} to "
                                            f"{UDIM_LAST}) found")
