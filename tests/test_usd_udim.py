@@ -283,6 +283,20 @@ def test_tiles_in_folders_named_by_the_tile(tmp_path):
     assert tex.udim is not None and tex.udim.tiles == (1001, 1002, 1011)
 
 
+def test_tiles_in_a_usdz_package(tmp_path):
+    import zipfile
+    src = card(tmp_path / "src", tiles=(1001, 1002, 1011))
+    package = tmp_path / "card.usdz"
+    with zipfile.ZipFile(package, "w", zipfile.ZIP_STORED) as z:
+        z.write(src, "card.usda")
+        for t in (1001, 1002, 1011):
+            z.write(src.parent / "tiles" / f"card.{t}.png", f"tiles/card.{t}.png")
+    scene = load_scene(package)
+    (tex,) = scene.textures
+    assert not scene.warnings and tex.udim is not None and tex.udim.tiles == (1001, 1002, 1011)
+    assert (tex.image[:64 + 8, :64 + 8, :3] == COLOURS[1001]).all()
+
+
 def test_no_tile_is_a_warning_and_the_fallback(tmp_path):
     scene = load_scene(card(tmp_path, tiles=()))
     assert any("no UDIM tile" in w and "card.<UDIM>.png" in w for w in scene.warnings), scene.warnings
