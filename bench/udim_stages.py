@@ -3,7 +3,8 @@ DIR/usd/udim_*.usda and their tiles, then
 
     ASSET_PREVIEW_STORM_PYTHON=... asset-preview bench usd --assets DIR --stages udim
 
-renders each with ours and Storm. The card (tests/test_usd_udim.py's stage: flat tiles 1001,
+renders each with ours and Storm (`--time` after DIR also prints the ingest and bake cost of
+the UDIM cylinder beside its one-image control). The card (tests/test_usd_udim.py's stage: flat tiles 1001,
 1002, 1011, tile 1012 missing), the card through a UsdTransform2d (rotated 90 degrees and
 moved, patterned tiles: orientation shows), and a cylinder whose st runs 0..4 around it over
 four patterned tiles of different sizes (the seams between tiles share vertices), also as
@@ -129,6 +130,35 @@ def write(folder: Path) -> list[Path]:
     return out
 
 
+def time_cylinders(folder: Path, runs: int = 7) -> str:
+    """Median ingest (load_scene) and bake (build_baked and the texture mips) of the UDIM
+    cylinder and its one-image control, run alternately in this process."""
+    import statistics
+    import time
+
+    from pipeline.bake import build_baked
+    from pipeline.ingest import load_scene
+
+    paths = [folder / "usd" / "udim_cylinder.usda", folder / "usd" / "udim_control_cylinder_one_image.usda"]
+    ingest: dict[Path, list[float]] = {p: [] for p in paths}
+    bake: dict[Path, list[float]] = {p: [] for p in paths}
+    for _ in range(runs):
+        for p in paths:
+            t = time.perf_counter()
+            scene = load_scene(p)
+            ingest[p].append(time.perf_counter() - t)
+            t = time.perf_counter()
+            for tex in build_baked(scene, "bench", {"occlusion": False}).textures:
+                tex.mips(True)
+            bake[p].append(time.perf_counter() - t)
+    a, b = (statistics.median(ingest[p]) for p in paths)
+    c, d = (statistics.median(bake[p]) for p in paths)
+    return (f"ingest median: UDIM {1000 * a:.1f} ms, one image {1000 * b:.1f} ms ({a / b:.2f}x); "
+            f"bake + mips median: UDIM {1000 * c:.1f} ms, one image {1000 * d:.1f} ms ({c / d:.2f}x)")
+
+
 if __name__ == "__main__":
     for p in write(Path(sys.argv[1])):
         print(p)
+    if "--time" in sys.argv[2:]:
+        print(time_cylinders(Path(sys.argv[1])))
