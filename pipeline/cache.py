@@ -77,7 +77,9 @@ log = logging.getLogger(__name__)
 # 13: the studio environment's bake comes from pipeline/data/studio_bakes.npz (float16 mips)
 # 14: MaterialX images honour their declared colorspace (lin_rec709 colour images re-encoded)
 # 15: Material.opacity_premultiplied (UsdPreviewSurface blended as Storm does)
-BAKE_FORMAT_VERSION = 15
+# 16: MaterialX colour management: standard colour spaces (gamuts, transfers) to lin_rec709 for
+#     colour constants and images
+BAKE_FORMAT_VERSION = 16
 # Environment entries have their own format: a prefiltered light does not change with the mesh
 # bake's format, and the filter's constants already key it (pipeline.environment.shipped), so a
 # mesh-format bump neither rebakes every environment nor stales the shipped studio bake.
