@@ -177,3 +177,24 @@ def test_render_of_an_acescg_texture_matches_its_lin_rec709_constant(tmp_path):
                                atol=0.01)
     # and it is not the unconverted read: red moves by more than the threshold
     assert abs(rgb[0] - ACES_TEXELS[0] / 255.0) > 0.05
+
+
+@pytest.mark.parametrize("space", ["lin_rec709", "acescg"])
+def test_openexr_image_declared_linear_is_not_encoded_twice(tmp_path, space):
+    """Our 8-bit decode holds an OpenEXR's linear values sRGB-encoded: the base colour slot
+    reads them as they are (lin_rec709) or after the gamut's conversion (acescg), never
+    sRGB-encoded a second time."""
+    import OpenEXR
+    value = np.array([0.5, 0.4, 0.3], np.float32)
+    with OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage},
+                      {"RGB": np.broadcast_to(value, (2, 2, 3)).copy()}) as f:
+        f.write(str(tmp_path / "c.exr"))
+    doc = (f'<image name="img" type="color3"><input name="file" type="filename" value="c.exr" '
+           f'colorspace="{space}"/></image>'
+           + surface("standard_surface", '<input name="base_color" type="color3" nodename="img"/>'))
+    scene, m = one(stage(tmp_path, doc, "/World/mtl/M"))
+    assert scene.warnings == []
+    rgb = value if space == "lin_rec709" else ACESCG_TO_REC709 @ value
+    texel = scene.textures[m.base_color_texture.texture].image[0, 0, :3]
+    # 8-bit sRGB storage of the linear value: within one step of its encoding
+    np.testing.assert_allclose(texel, srgb_encode(rgb) * 255, atol=1.0)
