@@ -198,3 +198,46 @@ def test_openexr_image_declared_linear_is_not_encoded_twice(tmp_path, space):
     texel = scene.textures[m.base_color_texture.texture].image[0, 0, :3]
     # 8-bit sRGB storage of the linear value: within one step of its encoding
     np.testing.assert_allclose(texel, srgb_encode(rgb) * 255, atol=1.0)
+
+
+USD_IMAGE = """
+    def Material "M"
+    {
+        asset inputs:tex = @c.png@ INTERFACE
+        token outputs:mtlx:surface.connect = </World/M/S.outputs:out>
+        def Shader "S"
+        {
+            uniform token info:id = "ND_standard_surface_surfaceshader"
+            float inputs:base = 1
+            color3f inputs:base_color.connect = </World/M/img.outputs:out>
+            color3f inputs:specular_color = (0.5, 0.4, 0.3) (colorSpace = "lin_ap1_scene")
+            token outputs:out
+        }
+        def Shader "img"
+        {
+            uniform token info:id = "ND_image_color3"
+            FILE
+            color3f outputs:out
+        }
+    }
+"""
+
+
+@pytest.mark.parametrize("where", ["input", "interface"])
+def test_usd_authored_image_colour_space_from_its_file_or_the_interface_input(tmp_path, where):
+    """usdMtlx writes an image's colorspace as the file attribute's colorSpace metadata; the
+    attribute giving the value (a material's interface input) may carry it instead. USD's
+    own name for a space (Gf.ColorSpaceNames: lin_ap1_scene) reads as MaterialX's acescg."""
+    Image.new("RGB", (4, 4), ACES_TEXELS).save(tmp_path / "c.png")
+    if where == "input":
+        text = USD_IMAGE.replace(" INTERFACE", "").replace(
+            "FILE", 'asset inputs:file = @c.png@ (colorSpace = "acescg")')
+    else:
+        text = USD_IMAGE.replace("INTERFACE", '(colorSpace = "acescg")').replace(
+            "FILE", "asset inputs:file.connect = </World/M.inputs:tex>")
+    scene, m = one(stage(tmp_path, None, "/World/M", text))
+    assert scene.warnings == []
+    rgb = ACESCG_TO_REC709 @ (np.array(ACES_TEXELS) / 255.0)
+    texel = scene.textures[m.base_color_texture.texture].image[0, 0, :3]
+    assert texel.tolist() == np.round(srgb_encode(rgb) * 255).tolist()
+    np.testing.assert_allclose(m.specular_color, ACESCG_TO_REC709 @ (0.5, 0.4, 0.3), atol=1e-6)

@@ -33,6 +33,8 @@ GAMUTS = {
     "ap1": (((0.713, 0.293), (0.165, 0.830), (0.128, 0.044)), ACES_WHITE),
     "displayp3": (((0.680, 0.320), (0.265, 0.690), (0.150, 0.060)), D65),
     "adobergb": (((0.64, 0.33), (0.21, 0.71), (0.15, 0.06)), D65),
+    "rec2020": (((0.708, 0.292), (0.170, 0.797), (0.131, 0.046)), D65),
+    "ap0": (((0.7347, 0.2653), (0.0, 1.0), (0.0001, -0.077)), ACES_WHITE),
 }
 POWERS = {"g18": 1.8, "g22": 2.2, "g24": 2.4, "adobe": 563.0 / 256.0}
 
@@ -55,6 +57,26 @@ SPACES: dict[str, Space] = {
     "gamma18": ("g18", "rec709"),
     "gamma22": ("g22", "rec709"),
     "gamma24": ("g24", "rec709"),
+    # USD's own names (Gf.ColorSpaceNames, nanocolor's), which colorSpace metadata may carry
+    "lin_rec709_scene": LIN_REC709,
+    "srgb_rec709_scene": SRGB_TEXTURE,
+    "g24_rec709_scene": ("g24", "rec709"),
+    "g22_rec709_scene": ("g22", "rec709"),
+    "g18_rec709_scene": ("g18", "rec709"),
+    "lin_ap1_scene": ("linear", "ap1"),
+    "srgb_ap1_scene": ("srgb", "ap1"),
+    "g22_ap1_scene": ("g22", "ap1"),
+    "lin_ap0_scene": ("linear", "ap0"),
+    "lin_p3d65_scene": ("linear", "displayp3"),
+    "srgb_p3d65_scene": ("srgb", "displayp3"),
+    "lin_adobergb_scene": ("linear", "adobergb"),
+    "g22_adobergb_scene": ("g22", "adobergb"),
+    "lin_rec2020_scene": ("linear", "rec2020"),
+    # values that are not colours: read as they are
+    "raw": LIN_REC709,
+    "data": LIN_REC709,
+    "identity": LIN_REC709,
+    "none": LIN_REC709,
 }
 
 BRADFORD = np.array([[0.8951, 0.2664, -0.1614],

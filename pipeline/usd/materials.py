@@ -141,21 +141,29 @@ class _Recoded(Texture):
     def image(self) -> np.ndarray:
         if self._pixels is None:
             rgba = self.base.image
-            if self.space == colorspaces.LIN_REC709:
-                lin = rgba[..., :3].astype(np.float64) / 255.0
-            elif self.space == colorspaces.SRGB_TEXTURE:
-                lin = srgb_to_linear(rgba[..., :3]).astype(np.float64)
-            else:
-                lin = colorspaces.bytes_to_working(rgba[..., :3], self.space)
-            y = srgb_encode(lin) if self.encode else lin
             out = rgba.copy()
-            out[..., :3] = np.round(y * 255.0).clip(0, 255).astype(np.uint8)
+            if self.space in (colorspaces.LIN_REC709, colorspaces.SRGB_TEXTURE):
+                out[..., :3] = _byte_table(self.space, self.encode)[rgba[..., :3]]
+            else:  # a gamut mixes the channels: per texel
+                lin = colorspaces.bytes_to_working(rgba[..., :3], self.space)
+                y = srgb_encode(lin) if self.encode else lin
+                out[..., :3] = np.round(y * 255.0).clip(0, 255).astype(np.uint8)
             self._pixels = out
         return self._pixels
 
     @image.setter
     def image(self, value) -> None:
         self._pixels = value
+
+
+def _byte_table(space: colorspaces.Space, encode: bool) -> np.ndarray:
+    """Byte -> byte for a channel-wise recode (Rec.709 gamut): what every texel would get."""
+    if space == colorspaces.LIN_REC709:
+        lin = np.arange(256, dtype=np.float64) / 255.0
+    else:
+        lin = srgb_to_linear(np.arange(256, dtype=np.uint8)).astype(np.float64)
+    y = srgb_encode(lin) if encode else lin
+    return np.round(y * 255.0).clip(0, 255).astype(np.uint8)
 
 
 class _Packed(Texture):

@@ -194,8 +194,16 @@ class UsdNode(Node):
         return ("value", _plain(value))
 
     def colorspace(self, name: str) -> str:
+        """The colorSpace metadata of the attribute giving the input its value (a material's
+        interface input, say), else of the input itself."""
         inp = self.shader.GetInput(name)
-        return str(inp.GetAttr().GetColorSpace()) if inp else ""
+        if not inp:
+            return ""
+        for attr in list(inp.GetValueProducingAttributes()[:1]) + [inp.GetAttr()]:
+            space = str(attr.GetColorSpace()) if attr.HasColorSpace() else ""
+            if space:
+                return space
+        return ""
 
 
 def _plain(v):
