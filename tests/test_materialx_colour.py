@@ -241,3 +241,26 @@ def test_usd_authored_image_colour_space_from_its_file_or_the_interface_input(tm
     texel = scene.textures[m.base_color_texture.texture].image[0, 0, :3]
     assert texel.tolist() == np.round(srgb_encode(rgb) * 255).tolist()
     np.testing.assert_allclose(m.specular_color, ACESCG_TO_REC709 @ (0.5, 0.4, 0.3), atol=1e-6)
+
+
+def test_image_file_from_a_nodegraph_interface_input_takes_its_colorspace(tmp_path):
+    """A nodegraph's filename input declared acescg, read by an image inside through
+    interfacename: the image is converted from acescg (the document says lin_rec709)."""
+    Image.new("RGB", (4, 4), ACES_TEXELS).save(tmp_path / "c.png")
+    body = """
+    <nodegraph name="NG">
+      <input name="tex" type="filename" value="c.png" colorspace="acescg"/>
+      <image name="img" type="color3"><input name="file" type="filename" interfacename="tex"/>
+      </image>
+      <output name="out" type="color3" nodename="img"/>
+    </nodegraph>""" + surface("standard_surface", '<input name="base" type="float" value="1"/>'
+                                                  '<input name="base_color" type="color3" '
+                                                  'nodegraph="NG" output="out"/>')
+    path = stage(tmp_path, "", "/World/mtl/M")
+    (tmp_path / "look.mtlx").write_text(f'<?xml version="1.0"?>\n<materialx version="1.38" '
+                                        f'colorspace="lin_rec709">\n{body}\n</materialx>\n')
+    scene, m = one(path)
+    assert scene.warnings == []
+    rgb = ACESCG_TO_REC709 @ (np.array(ACES_TEXELS) / 255.0)
+    texel = scene.textures[m.base_color_texture.texture].image[0, 0, :3]
+    assert texel.tolist() == np.round(srgb_encode(rgb) * 255).tolist()

@@ -153,8 +153,18 @@ class MxNode(Node):
         return ("value", _plain(inp.getValue()))
 
     def colorspace(self, name: str) -> str:
+        """The input's own colorspace, else that of the nodegraph interface input giving its
+        value (as MaterialX's shader generation takes a file's), else the nearest enclosing
+        element's."""
         inp = self.node.getInput(name)
-        return inp.getActiveColorSpace() if inp is not None else ""
+        if inp is None:
+            return ""
+        first = inp
+        for _ in range(MAX_DEPTH):
+            if inp.getColorSpace() or not inp.hasInterfaceName() or inp.getInterfaceInput() is None:
+                break
+            inp = inp.getInterfaceInput()
+        return inp.getColorSpace() or first.getActiveColorSpace()
 
 
 class UsdNode(Node):
