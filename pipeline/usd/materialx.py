@@ -16,6 +16,8 @@ constant (or a texture times a factor, as glTF multiplies). A `normalmap` node f
 texture. Any other node is a warning naming it, and that input keeps its default. The mapping
 of the surfaces' inputs onto Material is the README's table (and the SurfaceReader
 methods below); MaterialX's `UsdPreviewSurface` node reads as the UsdShade one does.
+Colour constants and images are taken from their declared colorspace to lin_rec709
+(pipeline.usd.colorspaces: MaterialX's standard spaces).
 """
 from __future__ import annotations
 
