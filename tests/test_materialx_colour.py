@@ -264,3 +264,13 @@ def test_image_file_from_a_nodegraph_interface_input_takes_its_colorspace(tmp_pa
     rgb = ACESCG_TO_REC709 @ (np.array(ACES_TEXELS) / 255.0)
     texel = scene.textures[m.base_color_texture.texture].image[0, 0, :3]
     assert texel.tolist() == np.round(srgb_encode(rgb) * 255).tolist()
+
+
+def test_rec2020_from_usd_names_matches_the_published_matrix():
+    """lin_rec2020_scene (a USD name, no cmlib transform): ITU-R BT.2087's Rec.2020 -> Rec.709
+    matrix, to its 4 printed digits."""
+    bt2087 = np.array([[1.6605, -0.5876, -0.0728],
+                       [-0.1246, 1.1329, -0.0083],
+                       [-0.0182, -0.1006, 1.1187]])
+    space = colorspaces.lookup("lin_rec2020_scene")
+    np.testing.assert_allclose(colorspaces.to_working(np.eye(3), space).T, bt2087, atol=1e-4)
