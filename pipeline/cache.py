@@ -8,7 +8,8 @@ Layout under the cache root (default `$ASSET_PREVIEW_CACHE`, else `./.cache`):
     sources/<id>.json    source index (below)
     tmp/                 entries being built, and entries being deleted
 
-Key. SHA-256 over a canonical JSON of: BAKE_FORMAT_VERSION, the kind, the main file's suffix
+Key. SHA-256 over a canonical JSON of: the kind's format (BAKE_FORMAT_VERSION, or
+ENVIRONMENT_FORMAT_VERSION for environments), the kind, the main file's suffix
 and SHA-256, the (relative path, SHA-256) of every other file the asset read (Scene.files:
 buffers, textures, USD layers), and the bake options. Same bytes and options -> same key,
 wherever the files live; any changed byte -> a new key. The main file's name is not part of it.
@@ -76,8 +77,15 @@ log = logging.getLogger(__name__)
 # 13: the studio environment's bake comes from pipeline/data/studio_bakes.npz (float16 mips)
 # 14: MaterialX images honour their declared colorspace (lin_rec709 colour images re-encoded)
 # 15: Material.opacity_premultiplied (UsdPreviewSurface blended as Storm does)
-# 16: UDIM textures baked as one atlas, their meshes' UVs remapped into it (pipeline.udim)
-BAKE_FORMAT_VERSION = 16
+# 16: MaterialX colour management: standard colour spaces (gamuts, transfers) to lin_rec709 for
+#     colour constants and images
+# 17: UDIM textures baked as one atlas, their meshes' UVs remapped into it (pipeline.udim)
+BAKE_FORMAT_VERSION = 17
+# Environment entries have their own format: a prefiltered light does not change with the mesh
+# bake's format, and the filter's constants already key it (pipeline.environment.shipped), so a
+# mesh-format bump neither rebakes every environment nor stales the shipped studio bake.
+# 1: the layout of BAKE_FORMAT_VERSION 15 (irradiance SH, GGX mips, BRDF LUT)
+ENVIRONMENT_FORMAT_VERSION = 1
 ZSTD_LEVEL = 9  # texture chains: written once at bake, read by every process (see README figures)
 KINDS = ("assets", "environments", "thumbnails")
 IMAGE_SUFFIXES = (".png", ".jpg", ".webp", ".gif")  # stored as they are (thumbnails' encoded files)
@@ -85,6 +93,11 @@ MANIFEST = "manifest.json"
 _KEY = re.compile(r"[0-9a-f]{64}")
 _RECORDS_PER_SOURCE = 8
 _STALE_TMP_SECONDS = 3600
+
+
+def format_version(kind: str) -> int:
+    """The format an entry of this kind is keyed and stored under."""
+    return ENVIRONMENT_FORMAT_VERSION if kind == "environments" else BAKE_FORMAT_VERSION
 
 
 class NotInCache(AssetError):
@@ -149,7 +162,7 @@ class SourceFiles:
         return cls(main, file_sha256(main), sorted(deps.items(), key=lambda d: d[0]))
 
     def key(self, kind: str, options: dict) -> str:
-        return _digest({"format": BAKE_FORMAT_VERSION, "kind": kind, "suffix": self.main.suffix.lower(),
+        return _digest({"format": format_version(kind), "kind": kind, "suffix": self.main.suffix.lower(),
                         "main": self.main_sha256, "deps": self.deps, "options": options})
 
     def inputs(self) -> list[dict]:
@@ -214,7 +227,7 @@ class Cache:
             return None
         except (OSError, ValueError) as exc:
             return self._corrupt(kind, key, f"unreadable manifest ({exc})")
-        if manifest.get("format") != BAKE_FORMAT_VERSION or manifest.get("key") != key:
+        if manifest.get("format") != format_version(kind) or manifest.get("key") != key:
             return self._corrupt(kind, key, "manifest of another format or key")
         arrays = {}
         for name, meta in manifest.get("files", {}).items():
@@ -247,7 +260,7 @@ class Cache:
         final = self.entry_dir(kind, key)
         tmp = self._tmp_dir(f"{kind[:3]}-{key[:16]}")
         try:
-            manifest = dict(manifest, format=BAKE_FORMAT_VERSION, key=key, files={})
+            manifest = dict(manifest, format=format_version(kind), key=key, files={})
             for name, value in arrays.items():
                 data = _encode(name, value)
                 _write(tmp / name, data)
@@ -308,7 +321,7 @@ class Cache:
     # -- source index --------------------------------------------------------------------------
 
     def _source_file(self, kind: str, main_sha256: str, suffix: str, options: dict) -> Path:
-        ident = _digest({"format": BAKE_FORMAT_VERSION, "kind": kind, "main": main_sha256,
+        ident = _digest({"format": format_version(kind), "kind": kind, "main": main_sha256,
                          "suffix": suffix.lower(), "options": options})
         return self.root / "sources" / f"{ident}.json"
 

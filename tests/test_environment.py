@@ -491,7 +491,8 @@ def test_uniform_panorama_skips_gl_with_the_same_arrays(rgb, method):
 def test_shipped_studio_bakes_are_what_the_prefilter_makes_now():
     """pipeline/data/studio_bakes.npz holds the default studio's bake for the current cache key
     at every shipped face size (any edit of studio.py, the filter's constants or
-    BAKE_FORMAT_VERSION changes the keys: run `make studio-env`). Mips equal a fresh GL
+    ENVIRONMENT_FORMAT_VERSION changes the keys, BAKE_FORMAT_VERSION does not: run
+    `make studio-env`). Mips equal a fresh GL
     prefilter to float16 rounding (relative 2^-11; 1e-3 allowed for GL rounding on another
     driver), SH to float32 rounding."""
     from pipeline.environment import shipped
@@ -508,6 +509,22 @@ def test_shipped_studio_bakes_are_what_the_prefilter_makes_now():
             np.testing.assert_allclose(a, b, rtol=1e-3, atol=1e-6)
         np.testing.assert_allclose(loaded.irradiance_sh, fresh.irradiance_sh, rtol=1e-6, atol=1e-7)
         np.testing.assert_array_equal(loaded.brdf_lut, fresh.brdf_lut)
+
+
+def test_a_mesh_format_bump_keeps_environment_keys_and_changes_asset_keys(monkeypatch, tmp_path):
+    """Environments are keyed by ENVIRONMENT_FORMAT_VERSION: bumping BAKE_FORMAT_VERSION must
+    leave the shipped studio bake and cached environments valid, and still rebake assets."""
+    from pipeline import cache
+    from pipeline.environment import shipped
+    src = tmp_path / "a.gltf"
+    src.write_text("{}")
+    files = cache.SourceFiles.hash(src)
+    before = shipped.environment_key("studio", 64, "ggx")[2], files.key("assets", {})
+    monkeypatch.setattr(cache, "BAKE_FORMAT_VERSION", cache.BAKE_FORMAT_VERSION + 1)
+    assert shipped.environment_key("studio", 64, "ggx")[2] == before[0]
+    assert files.key("assets", {}) != before[1]
+    monkeypatch.setattr(cache, "ENVIRONMENT_FORMAT_VERSION", cache.ENVIRONMENT_FORMAT_VERSION + 1)
+    assert shipped.environment_key("studio", 64, "ggx")[2] != before[0]
 
 
 def test_cold_studio_bake_loads_the_shipped_one_and_others_still_prefilter(tmp_path, monkeypatch):

@@ -50,7 +50,7 @@ from core.scene import (
 from pipeline import deadline, udim
 from pipeline.images import EXR_MAGIC, PNG_SIGNATURE, DeferredTexture, probe_image
 from pipeline.limits import Limits
-from pipeline.usd import materialx
+from pipeline.usd import colorspaces, materialx
 from pipeline.usd.layers import LayerGraph
 
 log = logging.getLogger(__name__)
@@ -129,11 +129,15 @@ def _png_auto_srgb(data: bytes | memoryview) -> bool:
 
 class _Recoded(Texture):
     """Another texture's colour channels re-encoded so that a slot reads them in the colour
-    space the asset asked for: `encode` sRGB-encodes linear texels for an sRGB slot (base
-    colour, emission), `decode` linearises sRGB texels for a data slot; alpha is kept."""
+    space the asset asked for: texels in `space` (colorspaces.Space) are taken to linear
+    Rec.709, then sRGB-encoded for an sRGB slot (`encode`: base colour, emission) or kept
+    linear for a data slot; alpha is kept. Linear Rec.709 into an sRGB slot and sRGB into a
+    data slot are the common two; MaterialX's wider gamuts clip to 0..1 here."""
 
-    def __init__(self, name: str, base: Texture, encode: bool):
+    def __init__(self, name: str, base: Texture, encode: bool,
+                 space: colorspaces.Space | None = None):
         self.base, self.encode = base, encode
+        self.space = space or (colorspaces.LIN_REC709 if encode else colorspaces.SRGB_TEXTURE)
         self._pixels: np.ndarray | None = None
         super().__init__(name=name, image=None, sampler=base.sampler, source=base.source,  # type: ignore[arg-type]  # made on first use
                          udim=base.udim)
@@ -142,16 +146,29 @@ class _Recoded(Texture):
     def image(self) -> np.ndarray:
         if self._pixels is None:
             rgba = self.base.image
-            y = (srgb_encode(rgba[..., :3].astype(np.float64) / 255.0) if self.encode
-                 else srgb_to_linear(rgba[..., :3]).astype(np.float64))
             out = rgba.copy()
-            out[..., :3] = np.round(y * 255.0).clip(0, 255).astype(np.uint8)
+            if self.space in (colorspaces.LIN_REC709, colorspaces.SRGB_TEXTURE):
+                out[..., :3] = _byte_table(self.space, self.encode)[rgba[..., :3]]
+            else:  # a gamut mixes the channels: per texel
+                lin = colorspaces.bytes_to_working(rgba[..., :3], self.space)
+                y = srgb_encode(lin) if self.encode else lin
+                out[..., :3] = np.round(y * 255.0).clip(0, 255).astype(np.uint8)
             self._pixels = out
         return self._pixels
 
     @image.setter
     def image(self, value) -> None:
         self._pixels = value
+
+
+def _byte_table(space: colorspaces.Space, encode: bool) -> np.ndarray:
+    """Byte -> byte for a channel-wise recode (Rec.709 gamut): what every texel would get."""
+    if space == colorspaces.LIN_REC709:
+        lin = np.arange(256, dtype=np.float64) / 255.0
+    else:
+        lin = srgb_to_linear(np.arange(256, dtype=np.uint8)).astype(np.float64)
+    y = srgb_encode(lin) if encode else lin
+    return np.round(y * 255.0).clip(0, 255).astype(np.uint8)
 
 
 class _Packed(Texture):
@@ -196,7 +213,7 @@ class MaterialReader:
         self._bindings: dict[tuple, Binding] = {}
         self._textures: dict[tuple, int | None] = {}  # (identifier, wrap) -> index
         self._packed: dict[tuple, int] = {}
-        self._recoded: dict[tuple[int, bool], int] = {}
+        self._recoded: dict[tuple, int] = {}
         self._auto_srgb: dict[str, bool | None] = {}  # None: EXR
         self._materials: dict[str, int] = {}
         self._unpacked = 0
@@ -347,9 +364,17 @@ class MaterialReader:
     def pack(self, parts: dict[int, tuple[int, int]]) -> int:
         return self._pack(parts)
 
-    def recode(self, texture: int, srgb: bool) -> int:
-        """`texture` re-encoded for a slot that decodes sRGB (`srgb`) or reads raw texels."""
-        return self._recode(texture, srgb, "raw" if srgb else "sRGB")
+    def recode(self, texture: int, srgb: bool, space: colorspaces.Space) -> int:
+        """`texture`, whose texels are in `space`, re-encoded for a slot that decodes sRGB
+        (`srgb`) or reads raw texels."""
+        if space == (colorspaces.LIN_REC709 if srgb else colorspaces.SRGB_TEXTURE):
+            return self._recode(texture, srgb, "raw" if srgb else "sRGB")
+        return self._recode(texture, srgb, "_".join(space), space)
+
+    def float_image(self, identifier: str) -> bool:
+        """Whether `identifier` (a texture made before) is OpenEXR: its texels are held
+        sRGB-encoded."""
+        return self._auto_srgb.get(identifier, False) is None
 
     def add_material(self, mat: Material) -> int:
         """Index of `mat` in the scene (pipeline.usd.drawmode's stand-in materials)."""
@@ -708,13 +733,15 @@ class MaterialReader:
         recoded = self._recode(tex.texture, expected == "sRGB", tex.color_space)
         return dataclasses.replace(_with(tex, recoded), color_space=expected)
 
-    def _recode(self, texture: int, encode: bool, space: str) -> int:
+    def _recode(self, texture: int, encode: bool, name: str,
+                space: colorspaces.Space | None = None) -> int:
         """Texture `texture` re-encoded for a slot reading sRGB (`encode`) or raw texels,
-        made once; `space` names the space it is in."""
-        key = (texture, encode)
+        made once; `name` names the space it is in, `space` gives it when it is neither
+        linear nor sRGB Rec.709."""
+        key = (texture, encode, space)
         if key not in self._recoded:
             base = self.scene.textures[texture]
-            self.scene.textures.append(_Recoded(f"{base.name}.{space}", base, encode))
+            self.scene.textures.append(_Recoded(f"{base.name}.{name}", base, encode, space))
             self._recoded[key] = len(self.scene.textures) - 1
         return self._recoded[key]
 

@@ -16,6 +16,8 @@ constant (or a texture times a factor, as glTF multiplies). A `normalmap` node f
 texture. Any other node is a warning naming it, and that input keeps its default. The mapping
 of the surfaces' inputs onto Material is the README's table (and the SurfaceReader
 methods below); MaterialX's `UsdPreviewSurface` node reads as the UsdShade one does.
+Colour constants and images are taken from their declared colorspace to lin_rec709
+(pipeline.usd.colorspaces: MaterialX's standard spaces).
 """
 from __future__ import annotations
 
@@ -28,12 +30,14 @@ from pxr import Sdf, UsdShade
 
 from core.errors import AssetError, MalformedAsset
 from core.scene import Material, TextureRef
+from pipeline.usd import colorspaces
+from pipeline.usd.colorspaces import Space
 
 SURFACES = ("standard_surface", "open_pbr_surface", "gltf_pbr", "UsdPreviewSurface")
 RENDER_CONTEXT = "mtlx"  # UsdShade render context of MaterialX surfaces (outputs:mtlx:surface)
 MAX_DEPTH = 64  # node chain length: a cycle or a hostile graph ends here
 WRAPS = {"periodic": "repeat", "clamp": "clamp", "mirror": "mirror", "constant": "black"}
-SRGB = ("srgb_texture", "srgb_displayp3", "gamma22", "gamma24")
+COLOUR_TYPES = ("color3", "color4", "color3f", "color4f")  # MaterialX's and Sdf's names
 
 
 @lru_cache(maxsize=1)
@@ -65,17 +69,18 @@ class UV:
 
 @dataclass
 class Tex:
-    """An image read at `channels` times `factor` (one per channel)."""
+    """An image read at `channels` times `factor` (one per channel); `space` is what its
+    stored 8-bit texels encode (colorspaces.Space)."""
     texture: int
     channels: tuple[int, ...]
     factor: np.ndarray
     uv: UV
-    srgb: bool
+    space: Space
     node: str
 
     def channel(self, i: int = 0) -> "Tex":
         i = min(i, len(self.channels) - 1)
-        return Tex(self.texture, (self.channels[i],), self.factor[i:i + 1], self.uv, self.srgb,
+        return Tex(self.texture, (self.channels[i],), self.factor[i:i + 1], self.uv, self.space,
                    self.node)
 
 
@@ -145,11 +150,23 @@ class MxNode(Node):
             return None
         if inp.getType() == "filename":
             return ("file", self.resolve(inp.getResolvedValueString()))
+        if inp.getType() in COLOUR_TYPES:  # its own, else the nearest enclosing colorspace
+            return ("value", _plain(inp.getValue()), inp.getActiveColorSpace())
         return ("value", _plain(inp.getValue()))
 
     def colorspace(self, name: str) -> str:
+        """The input's own colorspace, else that of the nodegraph interface input giving its
+        value (as MaterialX's shader generation takes a file's), else the nearest enclosing
+        element's."""
         inp = self.node.getInput(name)
-        return inp.getActiveColorSpace() if inp is not None else ""
+        if inp is None:
+            return ""
+        first = inp
+        for _ in range(MAX_DEPTH):
+            if inp.getColorSpace() or not inp.hasInterfaceName() or inp.getInterfaceInput() is None:
+                break
+            inp = inp.getInterfaceInput()
+        return inp.getColorSpace() or first.getActiveColorSpace()
 
 
 class UsdNode(Node):
@@ -184,11 +201,21 @@ class UsdNode(Node):
             return None
         if isinstance(value, Sdf.AssetPath):
             return ("file", self.resolve(attr, value.path))
+        if str(attr.GetTypeName()) in COLOUR_TYPES:  # usdMtlx writes colorSpace metadata
+            return ("value", _plain(value), str(attr.GetColorSpace()))
         return ("value", _plain(value))
 
     def colorspace(self, name: str) -> str:
+        """The colorSpace metadata of the attribute giving the input its value (a material's
+        interface input, say), else of the input itself."""
         inp = self.shader.GetInput(name)
-        return str(inp.GetAttr().GetColorSpace()) if inp else ""
+        if not inp:
+            return ""
+        for attr in list(inp.GetValueProducingAttributes()[:1]) + [inp.GetAttr()]:
+            space = str(attr.GetColorSpace()) if attr.HasColorSpace() else ""
+            if space:
+                return space
+        return ""
 
 
 def _plain(v):
@@ -220,10 +247,30 @@ class Evaluator:
             d = node.default(name)
             return d.copy() if isinstance(d, np.ndarray) else d  # the cached default stays
         if got[0] == "value":
+            if len(got) > 2 and got[2]:
+                return self.working(got[1], got[2], f"{node.name}.{name}")
             return got[1]
         if got[0] == "file":
             return got[1]
         return self.output(got[1], got[2], depth + 1, f"{node.name}.{name}")
+
+    def space(self, name: str, where: str) -> Space | None:
+        """The standard colour space `name` declares, or None with a warning."""
+        space = colorspaces.lookup(name)
+        if space is None:
+            self.host.warn(f"{self.material}: colorspace {name!r} at {where} is not one of "
+                           "MaterialX's standard colour spaces; read as lin_rec709")
+        return space
+
+    def working(self, value, name: str, where: str):
+        """A colour constant declared in colour space `name`, in lin_rec709 (alpha kept)."""
+        space = self.space(name, where)
+        if space is None or space == colorspaces.LIN_REC709 or not isinstance(value, np.ndarray) \
+                or len(value) < 3:
+            return value
+        out = value.copy()
+        out[:3] = colorspaces.to_working(value[:3], space)
+        return out
 
     def output(self, node: Node, out: str, depth: int, where: str):
         if depth > MAX_DEPTH:
@@ -289,9 +336,26 @@ class Evaluator:
             uv = UV(uv.primvar, m @ uv.matrix)
         n = {"float": 1, "vector2": 2, "color3": 3, "vector3": 3, "color4": 4,
              "vector4": 4}.get(node.type, 3)
-        space = node.colorspace("file") if hasattr(node, "colorspace") else ""
-        srgb = space in SRGB if space else node.type in ("color3", "color4")
-        return Tex(texture, tuple(range(n)), np.ones(n), uv, srgb, node.name)
+        return Tex(texture, tuple(range(n)), np.ones(n), uv,
+                   self._texel_space(node, file.identifier), node.name)
+
+    def _texel_space(self, node: Node, identifier: str) -> Space:
+        """What an image's stored texels encode. Undeclared: colour images sRGB, others
+        linear (as Storm reads them). A colour image's gamut is converted as MaterialX's
+        colour management converts the image node's output; a float or vector image has no
+        gamut, only its transfer is undone. OpenEXR texels are held sRGB-encoded (linear
+        files), so only the declared gamut applies to them."""
+        colour = node.type in ("color3", "color4")
+        declared = node.colorspace("file") if hasattr(node, "colorspace") else ""
+        space = (self.space(declared, f"{node.name}.file") if declared else None) or \
+            (colorspaces.SRGB_TEXTURE if colour and not declared else colorspaces.LIN_REC709)
+        transfer, gamut = space if colour else (space[0], "rec709")
+        if self.host.float_image(identifier):
+            if transfer != "linear" and declared:
+                self.host.warn(f"{self.material}: image {node.name!r}: colorspace {declared!r} "
+                               "on an OpenEXR image: its values are read as linear")
+            transfer = "srgb"
+        return (transfer, gamut)
 
     def _place2d(self, node: Node, arg):
         uv = arg("texcoord")
@@ -331,7 +395,7 @@ def _fold(op: str, a, b):
             k = b if op == "multiply" else 1.0 / np.where(b == 0, 1.0, b)
             if len(k) in (1, len(a.channels)):
                 return Tex(a.texture, a.channels, a.factor * np.resize(k, len(a.channels)),
-                           a.uv, a.srgb, a.node)
+                           a.uv, a.space, a.node)
         elif op in ("add", "subtract") and not np.any(b):
             return a
     return None
@@ -358,7 +422,7 @@ class SurfaceReader:
         v = self.eval.input(self.node, name)
         if isinstance(v, Tex):
             if len(v.channels) == 1:
-                v = Tex(v.texture, v.channels * 3, np.repeat(v.factor, 3), v.uv, v.srgb, v.node)
+                v = Tex(v.texture, v.channels * 3, np.repeat(v.factor, 3), v.uv, v.space, v.node)
             return tuple(float(x) for x in v.factor[:3]), v
         return _vec(v, 3, default), None
 
@@ -373,11 +437,19 @@ class SurfaceReader:
 
     def ref(self, tex: Tex, texture: int | None = None, expect_srgb: bool | None = None):
         """`texture` (else tex's own) for a slot that decodes sRGB (`expect_srgb`) or reads
-        texels raw; an image declared in the other space is re-encoded, as usdview's Storm
-        loads MaterialX images raw and converts each from its declared colorspace."""
+        texels raw; an image in another space is re-encoded (converted to lin_rec709 first),
+        as usdview's Storm loads MaterialX images raw and converts each from its declared
+        colorspace. A gamut needs the image's three channels: a repacked texture keeps only
+        the transfer's conversion."""
         index = tex.texture if texture is None else texture
-        if expect_srgb is not None and tex.srgb != expect_srgb:
-            index = self.host.recode(index, expect_srgb)
+        space = tex.space
+        if index != tex.texture and space[1] != "rec709":
+            self.warn(f"the {space[1]} gamut of {tex.node!r} is not converted where its "
+                      "channels are repacked; only its transfer is")
+            space = (space[0], "rec709")
+        if expect_srgb is not None and \
+                space != (colorspaces.SRGB_TEXTURE if expect_srgb else colorspaces.LIN_REC709):
+            index = self.host.recode(index, expect_srgb, space)
         if tex.uv.primvar not in self.uv_names:
             self.uv_names.append(tex.uv.primvar)
         uv_set = self.uv_names.index(tex.uv.primvar)
@@ -439,7 +511,7 @@ class SurfaceReader:
             if m.base_color_texture is not None:
                 base_tex = self.host.scene.textures[m.base_color_texture.texture]
                 packed.update({c: Tex(m.base_color_texture.texture, (c,), np.ones(1), a_tex.uv,
-                                      True, base_tex.name) for c in range(3)})
+                                      colorspaces.SRGB_TEXTURE, base_tex.name) for c in range(3)})
             m.base_color_texture = self.ref(a_tex, self.pack(packed))
             m.alpha_mode = "BLEND"
         elif alpha < 1.0:
