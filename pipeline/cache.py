@@ -22,7 +22,10 @@ match, the key follows (the same main bytes and the same dependency bytes make a
 ingest read the same files). Several records per id are kept, newest first, for copies of one
 main file beside different dependencies. A file the asset looked for and did not find (a USD
 texture or reference missing at bake time: Scene.absent) is listed with no SHA-256, so its
-appearing later is a change too. Known gap: glTF does not report its absent files yet.
+appearing later is a change too. A UDIM texture's tiles (`name.<UDIM>.png`) are one such
+entry, the pattern itself, whose hash is which tiles exist (`_dependency_hash`: one folder
+listing), not 100 absent files each looked for again on every lookup; the tiles found are
+hashed as files besides. Known gap: glTF does not report its absent files yet.
 
 Atomicity. An entry is built in tmp/ on the same filesystem, then renamed into place; the
 loser of a race (its rename finds the entry there) discards its copy. Entries are removed by
@@ -132,6 +135,35 @@ def file_sha256(path: str | os.PathLike) -> str:
     return h.hexdigest()
 
 
+UDIM, UDIM_TILES = "<UDIM>", range(1001, 1101)  # as pipeline.usd.materials looks for them
+
+
+def tiles_present(pattern: str | os.PathLike) -> list[int]:
+    """The tile numbers whose file `pattern` (a path holding <UDIM>) names exists: one
+    listing of its folder, or a look per tile when a folder's name holds the placeholder."""
+    pattern = str(pattern)
+    folder, name = os.path.split(pattern)
+    if UDIM in folder:
+        return [n for n in UDIM_TILES if os.path.isfile(pattern.replace(UDIM, str(n)))]
+    try:
+        names = set(os.listdir(folder or "."))
+    except OSError:
+        return []
+    return [n for n in UDIM_TILES if name.replace(UDIM, str(n)) in names]
+
+
+def _dependency_hash(path: Path) -> str | None:
+    """A dependency's hash as recorded: a file's SHA-256, None when it is absent; for a UDIM
+    pattern, a digest of which tiles exist (None when none does)."""
+    if UDIM in path.name or UDIM in str(path.parent):
+        present = tiles_present(path)
+        return _digest(["udim", present]) if present else None
+    try:
+        return file_sha256(path)
+    except OSError:
+        return None
+
+
 def _digest(obj) -> str:
     return hashlib.sha256(json.dumps(obj, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 
@@ -151,8 +183,8 @@ class SourceFiles:
         deps: dict[str, str | None] = {}
         for f in absent:
             f = Path(f).resolve()
-            if not f.exists():
-                deps[Path(os.path.relpath(f, main.parent)).as_posix()] = None
+            if UDIM in str(f) or not f.exists():
+                deps[Path(os.path.relpath(f, main.parent)).as_posix()] = _dependency_hash(f)
         for f in files:
             f = Path(f).resolve()
             if f == main:
@@ -338,10 +370,7 @@ class Cache:
                 deps, key = record["deps"], record["key"]
                 for rel, sha in deps:
                     if rel not in hashes:
-                        try:
-                            hashes[rel] = file_sha256(main.parent / rel)
-                        except OSError:
-                            hashes[rel] = None
+                        hashes[rel] = _dependency_hash(main.parent / rel)
                     if hashes[rel] != sha:
                         break
                 else:

@@ -305,9 +305,14 @@ def test_no_tile_is_a_warning_and_the_fallback(tmp_path):
 
 
 def test_a_tile_that_appears_later_bakes_again(tmp_path):
-    """Each tile looked for and absent is in the cache key (Scene.absent)."""
+    """Which tiles exist is in the cache key: one entry for the pattern (pipeline.cache),
+    beside each tile found, not one per absent tile."""
     path = card(tmp_path, tiles=(1001, 1002, 1011))
     first = bake_asset(path, tmp_path / "cache")
+    inputs = [i["path"] for i in first.manifest["inputs"][1:]]
+    assert inputs == ["tiles/card.1001.png", "tiles/card.1002.png", "tiles/card.1011.png",
+                      "tiles/card.<UDIM>.png"]
+    assert bake_asset(path, tmp_path / "cache").key == first.key  # the source index finds it
     card(tmp_path, tiles=(1012,))
     second = bake_asset(path, tmp_path / "cache")
     assert second.key != first.key

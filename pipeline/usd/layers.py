@@ -174,8 +174,9 @@ class LayerGraph:
     def resolve_each(self, layer: Sdf.Layer, uri: str, placeholder: str,
                      values) -> dict[int, str]:
         """`resolve` of `uri` with `placeholder` replaced by each of `values` (a UDIM
-        texture's tile numbers), for those that exist; the others are absent (in the cache
-        key). On disk the folder is listed once and only names in it are resolved."""
+        texture's tile numbers), for those that exist. On disk the folder is listed once and
+        only names in it are resolved, and the pattern itself is recorded absent: the cache
+        key holds which tiles exist (pipeline.cache.tiles_present), not each absent tile."""
         here = None if Ar.IsPackageRelativePath(layer.identifier) or \
             _outer(layer.identifier).lower().endswith(".usdz") else Path(layer.realPath).parent
         return self._each(lambda text: self.resolve(layer, text), here, layer.ComputeAbsolutePath,
@@ -199,16 +200,19 @@ class LayerGraph:
             except OSError:
                 names = set()
         found = {}
+        before = len(self.absent)
         for k, value in enumerate(values):
             text = uri.replace(placeholder, str(value))
             # the first is always resolved: it refuses a pattern that leaves the root
             if k and names is not None and name.replace(placeholder, str(value)) not in names:
-                self._absent(absolute(text))
                 continue
             try:
                 found[value] = resolve(text)
             except MissingFile:
                 continue
+        if here is not None:  # which tiles exist is one entry of the key (pipeline.cache)
+            del self.absent[before:]
+            self._absent(absolute(uri))
         return found
 
     def _absent(self, path: str) -> None:
