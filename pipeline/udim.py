@@ -137,6 +137,8 @@ def remap(mesh: Mesh, material: Material, layouts: list[UdimLayout | None],
     tri = mesh.indices.astype(np.int64)
     centre = st[tri].mean(axis=1)
     numbers = tile_of(centre[:, 0], centre[:, 1])
+    arrays = {name: getattr(mesh, name) for name in ATTRIBUTES if getattr(mesh, name) is not None}
+    tri, numbers, arrays, st = _split_at_tile_borders(tri, numbers, arrays, st, material.name, warn)
     lookup = np.full(1101, layout.empty_cell, np.int64)
     lookup[list(layout.tiles)] = np.arange(len(layout.tiles))
     cell = lookup[numbers]  # tile 0 (outside) -> the empty cell, as a missing tile
@@ -148,14 +150,101 @@ def remap(mesh: Mesh, material: Material, layouts: list[UdimLayout | None],
     out = dataclasses.replace(mesh, indices=inverse.reshape(-1, 3).astype(np.uint32),
                               subdivision=None, creases=None, cage=None, cage_corners=None,
                               cage_interpolation=None)
-    for name in ("positions", "normals", "tangents", "uv0", "uv1", "colors"):
-        if getattr(mesh, name) is not None:
-            setattr(out, name, getattr(mesh, name)[vertex])
+    for name, values in arrays.items():
+        setattr(out, name, values[vertex])
     setattr(out, "uv0" if target == 0 else "uv1", atlas.astype(np.float32))
     read = dataclasses.replace(material)
     for slot, ref in refs.items():
         setattr(read, slot, TextureRef(ref.texture, target))
     return out, read
+
+
+ATTRIBUTES = ("positions", "normals", "tangents", "uv0", "uv1", "colors")
+MAX_SPLIT = 20_000  # triangles across tile borders cut per mesh (a Python loop each); past it,
+MAX_SPAN = 16       # or for a triangle over more tiles than this, its centroid's tile is used
+_EPS = 1e-6         # st within this of a border is on it (a corner on a border is not across)
+
+
+def _split_at_tile_borders(tri, numbers, arrays, st, name, warn):
+    """Triangles whose st crosses a tile border cut along the borders (each piece in one
+    tile, as Storm switches tiles per fragment), new corners interpolated from the
+    triangle's; (triangles, tile numbers, attributes, st) for the whole mesh."""
+    lo = np.floor(st[tri].min(axis=1) + _EPS)
+    hi = np.floor(st[tri].max(axis=1) - _EPS)
+    span = (hi - lo + 1).clip(1, None)
+    e1, e2 = st[tri[:, 1]] - st[tri[:, 0]], st[tri[:, 2]] - st[tri[:, 0]]
+    area = np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    across = np.flatnonzero((span.prod(axis=1) > 1) & (area > 1e-12))
+    if not len(across):
+        return tri, numbers, arrays, st
+    fits = span[across].prod(axis=1) <= MAX_SPAN
+    if not fits.all() or len(across) > MAX_SPLIT:
+        warn(f"{name}: {len(across)} triangles cross UDIM tile borders; past {MAX_SPLIT} (or "
+             f"over {MAX_SPAN} tiles each) they show their centre's tile")
+    across = across[fits][:MAX_SPLIT]
+    corners: list[tuple[int, int, int, float, float, float]] = []  # source triangle, weights
+    pieces: list[tuple[int, int, int]] = []
+    tiles: list[int] = []
+    base = len(st)
+    for t in across.tolist():
+        a, b, c = st[tri[t]].tolist()
+        for v in range(int(lo[t, 1]), int(hi[t, 1]) + 1):
+            for u in range(int(lo[t, 0]), int(hi[t, 0]) + 1):
+                poly = _clip([(*a, 1.0, 0.0, 0.0), (*b, 0.0, 1.0, 0.0), (*c, 0.0, 0.0, 1.0)],
+                             u, v)
+                if len(poly) < 3:
+                    continue
+                first = base + len(corners)
+                corners.extend((t, *p[2:]) for p in poly)  # type: ignore[misc]  # (int, 3 floats)
+                pieces.extend((first, first + k, first + k + 1) for k in range(1, len(poly) - 1))
+                tiles.extend([int(tile_of(np.array([u + 0.5]), np.array([v + 0.5]))[0])]
+                             * (len(poly) - 2))
+    if not pieces:
+        return tri, numbers, arrays, st
+    table = np.asarray(corners, np.float64)
+    src = tri[table[:, 0].astype(np.int64)]  # K x 3 source vertices
+    w = table[:, 1:]
+
+    def blend(values: np.ndarray) -> np.ndarray:
+        mixed = np.einsum("kj,kjc->kc", w, values[src].astype(np.float64))
+        return mixed.astype(values.dtype)
+
+    out = {}
+    for key, values in arrays.items():
+        new = blend(values)
+        if key in ("normals", "tangents"):  # interpolated directions, unit again
+            xyz = new[:, :3].astype(np.float64)
+            xyz /= np.maximum(np.linalg.norm(xyz, axis=1, keepdims=True), 1e-12)
+            new[:, :3] = xyz
+            if key == "tangents":
+                new[:, 3] = values[src[:, 0], 3]
+        out[key] = np.concatenate([values, new])
+    keep = np.ones(len(tri), bool)
+    keep[across] = False
+    return (np.concatenate([tri[keep], np.asarray(pieces, np.int64)]),
+            np.concatenate([numbers[keep], np.asarray(tiles, np.int64)]), out,
+            np.concatenate([st, blend(st)]))
+
+
+def _clip(poly: list[tuple], u: int, v: int) -> list[tuple]:
+    """Sutherland-Hodgman: the polygon (points (s, t, *weights)) inside tile [u, u+1] x
+    [v, v+1], its winding kept."""
+    for axis, bound, above in ((0, u, True), (0, u + 1, False), (1, v, True), (1, v + 1, False)):
+        out = []
+        for k, p in enumerate(poly):
+            q = poly[k - 1]
+            p_in = p[axis] >= bound if above else p[axis] <= bound
+            q_in = q[axis] >= bound if above else q[axis] <= bound
+            if p_in != q_in:
+                f = (bound - q[axis]) / (p[axis] - q[axis])
+                out.append(tuple(qa + f * (pa - qa) for qa, pa in zip(q, p)))
+            if p_in:
+                out.append(p)
+        # a corner on the border comes back as its own crossing: once is enough
+        poly = [p for k, p in enumerate(out) if p[:2] != out[k - 1][:2]] if len(out) > 1 else out
+        if len(poly) < 3:
+            return []
+    return poly
 
 
 def _atlas_uv(st: np.ndarray, cell: np.ndarray, layout: UdimLayout) -> np.ndarray:

@@ -129,6 +129,29 @@ def test_each_face_shows_its_tile_and_a_missing_tile_is_black(tmp_path, env, met
     assert np.ptp(dark) < 0.02, dark
 
 
+@pytest.mark.parametrize("method", ["opaque", "raytrace"])
+def test_a_face_across_tiles_is_cut_at_their_borders(tmp_path, env, method):
+    """One quad whose st spans 0..2 both ways shows four tiles, as Storm's per-fragment
+    lookup does: its two triangles are cut along s = 1 and t = 1 at bake."""
+    path = card(tmp_path, tiles=(1001, 1002, 1011))
+    text = path.read_text()
+    start, end = text.index("    int[] faceVertexCounts"), text.index("SCHEME") if "SCHEME" in text \
+        else text.index("    rel material:binding")
+    path.write_text(text[:start] + """    int[] faceVertexCounts = [4]
+    int[] faceVertexIndices = [0, 1, 2, 3]
+    point3f[] points = [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)]
+    texCoord2f[] primvars:st = [(0, 0), (2, 0), (2, 2), (0, 2)] ( interpolation = "vertex" )
+""" + text[end:])
+    asset = bake_asset(path, tmp_path / "cache")
+    assert not asset.warnings, asset.warnings
+    (mesh,) = asset.meshes
+    assert len(mesh.indices) > 2  # cut
+    seen = quadrants(asset, env, method)
+    for tile in (1001, 1002, 1011):
+        assert_colour(seen[tile], tile)
+    assert seen[1012].max() < 0.35 * seen[1001].max(), seen
+
+
 def test_the_texture_transform_picks_the_tile(tmp_path, env):
     """UsdTransform2d moves st before the tile is chosen: st + (1, 0) shows the tile to the
     right of each, and past tile 1002 there is none (black)."""
@@ -249,6 +272,33 @@ def test_other_textures_on_the_same_uvs_keep_them():
     assert out.uv1[:, 0].max() < 0.5 and out.uv1[:, 1].max() < 0.5
     inner = (1 - 2 * UDIM_GUTTER) / 2
     np.testing.assert_allclose(np.ptp(out.uv1, axis=0), (inner, inner), rtol=1e-5)
+
+
+def test_cut_pieces_cover_each_triangle_once_each_in_one_tile():
+    """Random triangles over up to 3 x 3 tiles: the pieces' st areas add up to the triangle's,
+    every piece lies inside its tile, and its corners' attributes are the interpolation."""
+    from pipeline.udim import _split_at_tile_borders
+    rng = np.random.default_rng(7)
+    st = rng.uniform(0.0, 3.0, (60, 2))
+    tri = np.arange(60).reshape(20, 3)
+    pos = np.concatenate([st, np.zeros((60, 1))], axis=1).astype(np.float32)  # positions = st
+    centre = st[tri].mean(axis=1)
+    new_tri, numbers, arrays, new_st = _split_at_tile_borders(
+        tri, tile_of(centre[:, 0], centre[:, 1]), {"positions": pos}, st, "m", pytest.fail)
+    np.testing.assert_allclose(arrays["positions"][:, :2], new_st, atol=1e-5)
+
+    def areas(t, p):
+        e1, e2 = p[t[:, 1]] - p[t[:, 0]], p[t[:, 2]] - p[t[:, 0]]
+        return 0.5 * (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])  # signed: winding kept
+
+    # the same area, signed and unsigned: covered once, no piece's winding flipped
+    assert areas(new_tri, new_st).sum() == pytest.approx(areas(tri, st).sum(), rel=1e-9)
+    assert np.abs(areas(new_tri, new_st)).sum() == pytest.approx(np.abs(areas(tri, st)).sum(), rel=1e-9)
+    assert len(new_tri) > len(tri)
+    u0, v0 = (numbers - 1001) % 10, (numbers - 1001) // 10
+    corners = new_st[new_tri]
+    assert (corners[..., 0] >= u0[:, None] - 1e-9).all() and (corners[..., 0] <= u0[:, None] + 1 + 1e-9).all()
+    assert (corners[..., 1] >= v0[:, None] - 1e-9).all() and (corners[..., 1] <= v0[:, None] + 1 + 1e-9).all()
 
 
 def test_tile_numbers_follow_the_udim_rule():
