@@ -6,7 +6,8 @@ DIR/usd/udim_*.usda and their tiles, then
 renders each with ours and Storm (`--time` after DIR also prints the ingest and bake cost of
 the UDIM cylinder beside its one-image control). The card (tests/test_usd_udim.py's stage: flat tiles 1001,
 1002, 1011, tile 1012 missing), the card through a UsdTransform2d (rotated 90 degrees and
-moved, patterned tiles: orientation shows), and a cylinder whose st runs 0..4 around it over
+moved, patterned tiles: orientation shows), one quad whose st spans four tiles (its two
+triangles cut along the tile borders at bake), and a cylinder whose st runs 0..4 around it over
 four patterned tiles of different sizes (the seams between tiles share vertices), also as
 a Catmull-Clark cage (refined at bake, then remapped); the control: that cylinder with one
 image holding the four tiles side by side (its st 0..1 around), no UDIM, which measures what
@@ -118,6 +119,8 @@ def write(folder: Path) -> list[Path]:
         "udim_card_rotated": _mesh(counts, CARD_FACES, CARD_POINTS, CARD_ST) + _material(
             "tiles/card.<UDIM>.png", "            float inputs:rotation = 90\n"
                                      "            float2 inputs:translation = (2, 0)\n"),
+        "udim_quad_across": _mesh([4], "0, 1, 2, 3", "(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)",
+                                  "(0, 0), (2, 0), (2, 2), (0, 2)") + _material("tiles/card.<UDIM>.png"),
         "udim_cylinder": _mesh(*_cylinder()) + _material("tiles/cyl.<UDIM>.png"),
         "udim_cylinder_subdiv": _mesh(*_cylinder(), scheme="catmullClark") + _material("tiles/cyl.<UDIM>.png"),
         "udim_control_cylinder_one_image": _mesh(*_cylinder(around=1.0)) + _material("tiles/cyl_strip.png"),

@@ -4,14 +4,15 @@ A UDIM texture is a set of tiles: tile 1001 + u + 10 v covers st [u, u+1] x [v, 
 samples a texture array per fragment; here the tiles that exist are packed into one atlas
 texture (core.scene.UdimLayout: equal cells, a gutter of repeated edge texels around each,
 empty cells transparent black as Storm reads a missing tile), and the bake gives each
-triangle UVs into its tile's cell: the tile is the one under the triangle's UV centroid (after
-the texture's transform), and a vertex shared by triangles of different tiles is split. Every
-renderer then samples an ordinary texture with ordinary UVs from the same bake.
+triangle UVs into its tile's cell (st after the texture's transform): a triangle across tile
+borders is first cut along them, each piece in one tile, and a vertex shared by triangles of
+different tiles is split. Every renderer then samples an ordinary texture with ordinary UVs
+from the same bake.
 
-Approximate: a triangle that straddles a tile border reads its centroid's tile across the
-whole triangle (Storm switches tiles at the border); inside a tile, wrap modes are those of
-the gutter (clamp to the tile's edge; a repeat-wrapped tile differs in half a texel at its
-edge); the mips past the gutter's width (a cell under 16 texels) blend neighbouring cells.
+Approximate: inside a tile, wrap modes are those of the gutter (clamp to the tile's edge; a
+repeat-wrapped tile differs in half a texel at its edge); the mips past the gutter's width (a
+cell under 16 texels) blend neighbouring cells; past MAX_SPLIT triangles across borders in a
+mesh (or one over MAX_SPAN tiles) the rest show their centroid's tile, with a warning.
 """
 from __future__ import annotations
 
