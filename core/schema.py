@@ -129,13 +129,8 @@ def check(obj: Any) -> None:
     cls: Any = type(obj)
     plan = _plan(cls)
     raw = {name: getattr(obj, name) for name in plan.names}
-    try:
-        values = {}
-        for name in plan.names:
-            v = raw[name]
-            fn = plan.before.get(name)
-            values[name] = plan.convert[name](fn(v) if fn is not None else v)
-    except (Refused, ValueError):
+    values = fast_values(cls, raw)
+    if values is None:
         values = _pydantic_values(cls, raw)  # raises pydantic's error, or converts what it converts
     for name, v in values.items():
         object.__setattr__(obj, name, v)
@@ -145,6 +140,21 @@ def check(obj: Any) -> None:
     except ValueError:
         _pydantic_values(cls, raw)  # words the refusal (loc: the whole object)
         raise
+
+
+def fast_values(cls: Any, raw: dict[str, Any]) -> dict[str, Any] | None:
+    """Every field of `raw` (all of `cls`'s) checked and converted without pydantic, or None
+    where one is not of a form this check takes (pydantic then decides)."""
+    plan = _plan(cls)
+    try:
+        values = {}
+        for name in plan.names:
+            v = raw[name]
+            fn = plan.before.get(name)
+            values[name] = plan.convert[name](fn(v) if fn is not None else v)
+    except (Refused, ValueError):
+        return None
+    return values
 
 
 def _pydantic_values(cls: type, raw: dict[str, Any]) -> dict[str, Any]:
