@@ -484,13 +484,13 @@ def installed_versions(dists: Iterable[str]) -> dict[str, str]:
         except OSError:
             continue
         for name in names:
-            stem, dot, kind = name.rpartition(".")
-            dist = wanted.get(_dist_key(stem.partition("-")[0])) if kind in ("dist-info", "egg-info") else None
-            if dist is None or dist in out:
+            stem, _, kind = name.rpartition(".")
+            found = wanted.get(_dist_key(stem.partition("-")[0])) if kind in ("dist-info", "egg-info") else None
+            if found is None or found in out:
                 continue
             version = _version_header(os.path.join(folder, name, "METADATA" if kind == "dist-info" else "PKG-INFO"))
             if version is not None:
-                out[dist] = version
+                out[found] = version
     return {d: out[d] for d in dists if d in out}
 
 
