@@ -26,8 +26,6 @@ import typing
 from pathlib import Path
 from typing import Annotated, Any, Callable, Literal, Union
 
-_NUMBER_BOUNDS = ("ge", "le", "gt")
-
 
 @dataclasses.dataclass(frozen=True)
 class Bounds:
@@ -249,7 +247,7 @@ def _to_bool(v: Any) -> bool:
     if type(v) is int and v in (0, 1):
         return bool(v)
     if type(v) is str:
-        s = v.strip().lower()
+        s = v.lower()  # no strip: pydantic refuses " true "
         if s in _TRUE:
             return True
         if s in _FALSE:

@@ -22,7 +22,8 @@ CLASSES = [MaterialOverride, RenderOptions, Limits, PipelineSettings, RendererSe
 # What flags, queries, variables and callers give, and what they should not.
 VALUES = [None, 0, 1, -1, 2, 3, 0.0, 0.5, 1.0, 1.5, 3.0, -0.0, 1e-9, 255, 256, 9000, 65536, 1e13, True, False,
           "0", "1", "3", " 3 ", "+3", "-2", "3.0", "2.5", ".5", "5.", "1e3", "-1E-2", "1_000", "0x10", "\u0663",
-          "abc", "", "true", "False", "YES", "off", "t", "2", "inf", "nan", math.nan, math.inf, -math.inf,
+          "abc", "", "true", "False", "YES", "off", "t", "2", " true ", "On", "\t2.5\t", "+.5", "1e+3", "00012",
+          "-0", "inf", "nan", math.nan, math.inf, -math.inf,
           [1, 2, 3], (0.5, 0.5, 0.5), [0.5, 2, 0.1], (1, 2), [], (), ["a=b"], ("a=b", "c:d=e"), "1,2,3",
           "ff8000", "#ff8000", "#12", "a=b", ["render", "proxy"], "render,guide", "bogus", "auto", "raytrace",
           "poster", "12.5", "x" * 300, "edges", "full", " Transparent ", "local", "ray", "/tmp/x", "16G",
