@@ -150,7 +150,7 @@ def fast_values(cls: Any, raw: dict[str, Any]) -> dict[str, Any] | None:
             v = raw[name]
             fn = plan.before.get(name)
             values[name] = plan.convert[name](fn(v) if fn is not None else v)
-    except (Refused, ValueError):
+    except (Refused, ValueError, OverflowError):  # OverflowError: an int too large for a float
         return None
     return values
 

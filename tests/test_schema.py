@@ -27,7 +27,7 @@ VALUES = [None, 0, 1, -1, 2, 3, 0.0, 0.5, 1.0, 1.5, 3.0, -0.0, 1e-9, 255, 256, 9
           [1, 2, 3], (0.5, 0.5, 0.5), [0.5, 2, 0.1], (1, 2), [], (), ["a=b"], ("a=b", "c:d=e"), "1,2,3",
           "ff8000", "#ff8000", "#12", "a=b", ["render", "proxy"], "render,guide", "bogus", "auto", "raytrace",
           "poster", "12.5", "x" * 300, "edges", "full", " Transparent ", "local", "ray", "/tmp/x", "16G",
-          {"metallic": 0.5}, {"metallic": 5}, {"nope": 1}, MaterialOverride(roughness=0.2), b"x", Path("x")]
+          {"metallic": 0.5}, {"metallic": 5}, {"nope": 1}, MaterialOverride(roughness=0.2), b"x", Path("x"), 10**400]
 
 
 def _plain(v):
