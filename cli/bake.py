@@ -88,19 +88,14 @@ def run(args: argparse.Namespace) -> int:
         return 2
     thumbs = None
     if args.thumbnails:
-        from pydantic import ValidationError
-
         from cli.thumbnails import Thumbnails, check_format
         from core.options import describe_error, from_arguments
         from renderer.raster.render import validate_options
         try:
             options = from_arguments(args)
             validate_options(options)  # refused before any bake
-        except ValidationError as exc:
+        except ValueError as exc:  # pydantic's ValidationError is one (core.schema)
             print(f"error: {describe_error(exc)}", file=sys.stderr)
-            return 2
-        except ValueError as exc:
-            print(f"error: {exc}", file=sys.stderr)
             return 2
         if why := check_format(args.thumbnail_format, options):
             print(f"error: {why}", file=sys.stderr)

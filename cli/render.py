@@ -7,8 +7,6 @@ import logging
 import os
 import sys
 
-from pydantic import ValidationError
-
 from cli import sandbox
 
 log = logging.getLogger(__name__)
@@ -56,10 +54,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         options = from_arguments(args)
         validate_options(options)  # reject bad options before spending time on a bake
-    except ValidationError as exc:
+    except ValueError as exc:  # pydantic's ValidationError is one (core.schema)
         return _fail(describe_error(exc))
-    except ValueError as exc:
-        return _fail(str(exc))
     if options.turntable and not options.animate and out_ext not in (".webp", ".gif"):
         return _fail(f"{args.out}: --turntable writes an animated .webp or .gif")
     if options.animate and out_ext not in (".webp", ".gif", ".png"):

@@ -10,13 +10,14 @@ import ipaddress
 import socket
 import sys
 
+from core.schema import declared
 from service.settings import Settings
 
 ALIASES = {"render_workers": ["--workers"]}
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    for name, field in Settings.model_fields.items():
+    for name, field in declared(Settings).items():
         flags = ["--" + name.replace("_", "-"), *ALIASES.get(name, [])]
         env = "ASSET_PREVIEW_" + name.upper()
         help_text = f"{field.description} (${env}; default {field.default!s})"
@@ -34,7 +35,7 @@ def settings_table(model=Settings, flags: bool = True) -> str:
     """README's table of settings, from the one declaration."""
     rows = ["| flag | variable | default | meaning |" if flags else "| variable | default | meaning |",
             "|---|---|---|---|" if flags else "|---|---|---|"]
-    for name, field in model.model_fields.items():
+    for name, field in declared(model).items():
         flag = f"`--{name.replace('_', '-')}` | " if flags else ""
         rows.append(f"| {flag}`ASSET_PREVIEW_{name.upper()}` | `{field.default!s}` | {field.description or ''} |")
     return "\n".join(rows)
@@ -58,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     logging.getLogger().setLevel(args.log_level.upper())
     from pydantic import ValidationError
     try:
-        settings = Settings.from_env(**{name: getattr(args, name) for name in Settings.model_fields})
+        settings = Settings.from_env(**{name: getattr(args, name) for name in declared(Settings)})
     except ValidationError as exc:  # a bad flag or ASSET_PREVIEW_* value: say which, no traceback
         for e in exc.errors():
             name = str(e["loc"][0]) if e["loc"] else "?"

@@ -7,8 +7,11 @@ description included) are derived from `request_fields()`, the flat view of thes
 that both surfaces share, and a request crosses the process boundary as a `RenderOptions`.
 Adding a render parameter means adding one field here, plus its implementation.
 
-The classes are pydantic dataclasses: constructing one validates it (a `ValueError`), and
-`dataclasses.replace` and `dataclasses.asdict` work as on any dataclass.
+The classes are frozen dataclasses declared with core.schema's `knob`: constructing one checks
+it (a `ValueError`: pydantic's ValidationError, worded as pydantic words it), and
+`dataclasses.replace` and `dataclasses.asdict` work as on any dataclass. Checking a valid request
+imports no pydantic (a cold command line's first image does not wait for it); the service's
+pydantic models are built from the same declaration.
 """
 from __future__ import annotations
 
@@ -22,11 +25,9 @@ import typing
 from typing import Annotated, Any, Literal, Mapping
 
 import numpy as np
-from pydantic import ConfigDict, Field, ValidationError, field_validator, model_validator
-from pydantic.dataclasses import dataclass
-from pydantic.fields import FieldInfo
 
 from core.colour import srgb_to_linear
+from core.schema import Bounds, Param, after, before, check, declared, knob
 
 if typing.TYPE_CHECKING:
     from core.scene import Material
@@ -46,156 +47,159 @@ MAX_DISTANCE = 1e12  # scene units (metres); beyond it the projection's arithmet
 MAX_FRAMES = 120  # frames of a turntable or an animated image: past it is a video's job
 MAX_BUDGET_MS = 60_000.0  # a render's time budget cannot exceed the service's render deadline
 
-Unit = Annotated[float, Field(ge=0.0, le=1.0)]
+Unit = Annotated[float, Bounds(ge=0.0, le=1.0)]
 _HEX = re.compile(r"^#?([0-9a-fA-F]{6})$")
-_CONFIG = ConfigDict(extra="forbid", allow_inf_nan=False)
+_CONFIG = {"extra": "forbid", "allow_inf_nan": False}  # pydantic's, when it checks (core.schema)
 
 
-@dataclass(frozen=True, config=_CONFIG)
+@dataclasses.dataclass(frozen=True)
 class MaterialOverride:
     """Per-request material applied to every mesh ("preview any mesh as glass or steel").
     None leaves the asset's own value."""
-    base_color: tuple[Unit, Unit, Unit] | None = Field(default=None, description=(
+    PYDANTIC_CONFIG: typing.ClassVar[dict] = _CONFIG
+    base_color: tuple[Unit, Unit, Unit] | None = knob(None, description=(
         "override base colour for every mesh: sRGB hex RRGGBB, or linear r,g,b in 0..1"))
-    metallic: float | None = Field(default=None, ge=0, le=1, description="override metalness for every mesh")
-    roughness: float | None = Field(default=None, ge=0, le=1, description="override roughness for every mesh")
-    ior: float | None = Field(default=None, ge=1, le=3, description=(
+    metallic: float | None = knob(None, ge=0, le=1, description="override metalness for every mesh")
+    roughness: float | None = knob(None, ge=0, le=1, description="override roughness for every mesh")
+    ior: float | None = knob(None, ge=1, le=3, description=(
         "override index of refraction for every mesh (with transmission: glass); 1..3 covers "
         "every common dielectric, diamond is 2.42"))
-    transmission: float | None = Field(default=None, ge=0, le=1, description="override transmission, 0..1")
+    transmission: float | None = knob(None, ge=0, le=1, description="override transmission, 0..1")
 
-    @field_validator("base_color", mode="before")
-    @classmethod
-    def _parse_color(cls, v: Any) -> Any:
+    def __post_init__(self) -> None:
+        check(self)
+
+    @before("base_color")
+    def _parse_color(v: Any) -> Any:
         return parse_color(v) if isinstance(v, str) else v
 
     def is_empty(self) -> bool:
         return all(v is None for v in dataclasses.asdict(self).values())
 
 
-@dataclass(frozen=True, config=_CONFIG)
+@dataclasses.dataclass(frozen=True)
 class RenderOptions:
-    width: int = Field(default=256, ge=1, le=MAX_SIDE, description="image width in pixels")
-    height: int = Field(default=256, ge=1, le=MAX_SIDE, description="image height in pixels")
+    PYDANTIC_CONFIG: typing.ClassVar[dict] = _CONFIG
+    width: int = knob(256, ge=1, le=MAX_SIDE, description="image width in pixels")
+    height: int = knob(256, ge=1, le=MAX_SIDE, description="image height in pixels")
     # The default view is three-quarter from above, so a box shows three faces (renderer/view/camera.py).
-    yaw: float = Field(default=35.0, ge=-3600, le=3600, description=(
+    yaw: float = knob(35.0, ge=-3600, le=3600, description=(
         "camera turn about +Y, degrees; 0 looks from +Z, positive turns toward +X"))
-    pitch: float = Field(default=25.0, ge=-90, le=90, description="camera elevation, degrees; positive looks down from above")
-    fov: float = Field(default=40.0, ge=1, le=170, description="vertical field of view, degrees")
-    distance: float | None = Field(default=None, gt=0, le=MAX_DISTANCE, description=(
+    pitch: float = knob(25.0, ge=-90, le=90, description="camera elevation, degrees; positive looks down from above")
+    fov: float = knob(40.0, ge=1, le=170, description="vertical field of view, degrees")
+    distance: float | None = knob(None, gt=0, le=MAX_DISTANCE, description=(
         "camera distance from the bounds centre in scene units (default: fit the object)"))
-    method: Method = Field(default="auto", description=(
+    method: Method = knob("auto", description=(
         "auto picks per object; opaque ignores transmission; single / wyman are raster "
         "refraction; raytrace is the slow, accurate method"))
-    tonemap: Tonemap = Field(default="neutral", description="tone mapping: Khronos PBR Neutral, ACES or none")
-    exposure: float = Field(default=0.0, ge=-16, le=16, description="stops (EV): radiance is scaled by 2**exposure")
-    background: str = Field(default="gradient", description=(
+    tonemap: Tonemap = knob("neutral", description="tone mapping: Khronos PBR Neutral, ACES or none")
+    exposure: float = knob(0.0, ge=-16, le=16, description="stops (EV): radiance is scaled by 2**exposure")
+    background: str = knob("gradient", description=(
         "gradient (a light studio grey) | env (the environment's panorama) | transparent | sRGB colour #RRGGBB"))
-    background_blur: float = Field(default=0.0, ge=0, le=1, description=(
+    background_blur: float = knob(0.0, ge=0, le=1, description=(
         "roughness of the prefiltered environment mip shown behind the asset, 0..1"))
-    shadow: float = Field(default=0.8, ge=0, le=1, description=(
+    shadow: float = knob(0.8, ge=0, le=1, description=(
         "ground contact shadow under the object, 0..1 (0: none; never with background env)"))
-    turntable: int = Field(default=0, ge=0, le=MAX_FRAMES, description=(
+    turntable: int = knob(0, ge=0, le=MAX_FRAMES, description=(
         "frames of an animated image turning about +Y (.webp / .gif); 0: one still image"))
-    views: bool = Field(default=False, description="a labelled 2 x 2 sheet: front, side, top, three-quarter")
-    override: MaterialOverride | None = None
-    antialias: Literal["edges", "msaa"] = Field(default="edges", description=(
+    views: bool = knob(False, description="a labelled 2 x 2 sheet: front, side, top, three-quarter")
+    override: MaterialOverride | None = knob(None)
+    antialias: Literal["edges", "msaa"] = knob("edges", description=(
         "edges: one shaded sample per pixel; each pixel a silhouette or boundary edge crosses is "
         "blended with its neighbour across it by the edge's position (on a par with 4x MSAA at "
         "a fraction of its cost on a CPU rasteriser); msaa: `msaa` samples per pixel"))
-    msaa: int = Field(default=4, ge=0, le=16, description=(
+    msaa: int = knob(4, ge=0, le=16, description=(
         "antialias msaa: samples per pixel (0 or 1: no anti-aliasing, with either antialias)"))
-    lights: bool = Field(default=True, description="the asset's own KHR_lights_punctual lights")
-    light_shadows: bool = Field(default=True, description=(
+    lights: bool = knob(True, description="the asset's own KHR_lights_punctual lights")
+    light_shadows: bool = knob(True, description=(
         "the asset's lights cast shadows (shadow maps in the raster; a USD light's "
         "inputs:shadow:enable false casts none either way)"))
-    multiscatter: bool = Field(default=True, description=(
+    multiscatter: bool = knob(True, description=(
         "multiple-scattering energy compensation of the GGX lobes (Fdez-Aguera 2019), as "
         "reference viewers do; off: single scattering, rough metals darken"))
-    target: tuple[float, float, float] | None = Field(default=None, description=(
+    target: tuple[float, float, float] | None = knob(None, description=(
         "look-at point x,y,z in world units (default: the bounds centre)"))
-    env_rotation: float = Field(default=0.0, ge=-3600, le=3600, description=(
+    env_rotation: float = knob(0.0, ge=-3600, le=3600, description=(
         "environment turn about +Y, degrees; positive turns what was at +Z toward +X"))
-    alpha: Literal["auto", "coverage"] = Field(default="auto", description=(
+    alpha: Literal["auto", "coverage"] = knob("auto", description=(
         "auto: opaque over an environment or colour background, coverage when transparent; "
         "coverage: the object's coverage whatever the background"))
-    tir: Literal["paper", "reflect"] | None = Field(default=None, description=(
+    tir: Literal["paper", "reflect"] | None = knob(None, description=(
         "wyman: total internal reflection treatment (default: reflect)"))
     # Defaults from issue 26's front (`bench accuracy --front`, bench/RESULTS.md): 12 bounces
     # with roulette (3 x 3 rays at 128-383 px) at ~0.4x the old default's (8, both, 4 x 4) time
     # for +0.011 mean FLIP, on most scenes' Pareto front, at about Mitsuba 16 spp's time.
-    bounces: int = Field(default=12, ge=0, le=64, description="raytrace: path depth (0: the environment along each primary ray)")
-    fresnel_split: Literal["both", "sample", "roulette"] = Field(default="roulette", description=(
+    bounces: int = knob(12, ge=0, le=64, description="raytrace: path depth (0: the environment along each primary ray)")
+    fresnel_split: Literal["both", "sample", "roulette"] = knob("roulette", description=(
         "raytrace: at each interface trace both the reflected and the refracted ray (both: "
         "no noise) or, past the first surface a camera ray meets, one of them chosen with "
         "probability proportional to its throughput and reweighted (sample: unbiased, about "
         "half the rays, some noise) or both but a child carrying under 10% by Russian "
         "roulette (roulette: unbiased, noise only in the weak paths)"))
-    rough_lobes: Literal["sample", "prefilter"] = Field(default="sample", description=(
+    rough_lobes: Literal["sample", "prefilter"] = knob("sample", description=(
         "raytrace: rough glass reflects and refracts about GGX microfacet normals sampled per "
         "ray (sample: converges to the rough dielectric, some noise) or keeps the mirror "
         "direction and reads the prefiltered environment for the lobe width (prefilter: no "
         "noise, biased)"))
-    integrator: Literal["tree", "path"] = Field(default="tree", description=(
+    integrator: Literal["tree", "path"] = knob("tree", description=(
         "raytrace: tree: the deterministic Fresnel tree (exact two-interface glass, no noise); "
         "path: unbiased path tracing of the whole metal-rough material with environment "
         "importance sampling and MIS, in passes until `noise`, `samples` or `budget_ms`"))
-    samples: int = Field(default=64, ge=1, le=4096, description=(
+    samples: int = knob(64, ge=1, le=4096, description=(
         "raytrace integrator path: most paths per pixel (one per pass)"))
-    noise: float = Field(default=0.02, ge=0, le=1, description=(
+    noise: float = knob(0.02, ge=0, le=1, description=(
         "raytrace integrator path: a pixel stops when the relative standard error of its "
         "luminance is below this (0: run all samples or the budget)"))
-    supersample: int | None = Field(default=None, ge=1, le=16, description=(
+    supersample: int | None = knob(None, ge=1, le=16, description=(
         "raytrace: rays per pixel side on and around the object (default: 4 below 128 px, "
         "3 below 384, else 2)"))
-    aa_threshold: float = Field(default=0.0, ge=0, le=1, description=(
+    aa_threshold: float = knob(0.0, ge=0, le=1, description=(
         "raytrace: adaptive anti-aliasing: with supersample above 2, pixels near the object "
         "get 2 x 2 rays first and the full grid only where those differ in coverage or in "
         "tone-mapped luminance L/(1+L) by more than this (0: the full grid everywhere)"))
-    debug: Literal["backface_normals", "tir", "exit_distance"] | None = Field(default=None, description="wyman debug view")
-    variant: str | None = Field(default=None, min_length=1, max_length=256, description=(
+    debug: Literal["backface_normals", "tir", "exit_distance"] | None = knob(None, description="wyman debug view")
+    variant: str | None = knob(None, min_length=1, max_length=256, description=(
         "glTF KHR_materials_variants: bind the material variant of this name (inspect lists them)"))
-    camera: str | None = Field(default=None, min_length=1, max_length=256, description=(
+    camera: str | None = knob(None, min_length=1, max_length=256, description=(
         "render through the asset's own camera, by index N or by name (inspect lists them); "
         "yaw, pitch and distance are then unused"))
     material_debug: Literal["base", "clearcoat", "sheen", "specular", "iridescence",
-                            "transmission"] | None = Field(
-        default=None, description=(
+                            "transmission"] | None = knob(
+        None, description=(
             "show one material lobe alone: base (diffuse + specular under the layers), "
             "clearcoat, sheen (each lit as in the frame), specular (the base's normal-incidence "
             "reflectance F0 from IOR and KHR_materials_specular), iridescence (the thin film's "
             "reflectance at the view angle) or transmission (the share "
             "that refracts through, tinted and attenuated by the volume)"))
-    time: str | None = Field(default=None, max_length=32, description=(
+    time: str | None = knob(None, max_length=32, description=(
         "pose the asset at this moment of its animation: SECONDS (glTF seconds; USD seconds from "
         "the stage's start, through timeCodesPerSecond) or poster (the middle of the animation); "
         "default: at rest (docs/animation.md)"))
-    animation: str | None = Field(default=None, min_length=1, max_length=256, description=(
+    animation: str | None = knob(None, min_length=1, max_length=256, description=(
         "glTF: the animation --time and --animate play, by index N or by name (inspect lists "
         "them; default: the first)"))
-    animate: float | None = Field(default=None, ge=1, le=60, description=(
+    animate: float | None = knob(None, ge=1, le=60, description=(
         "frames per second of an animated image (.webp .gif .png) of the asset's animation, "
         "its whole duration (at most 120 frames); with turntable the camera also turns once"))
-    budget_ms: float | None = Field(default=None, gt=0, le=MAX_BUDGET_MS, description=(
+    budget_ms: float | None = knob(None, gt=0, le=MAX_BUDGET_MS, description=(
         "time budget in milliseconds: lets method auto ray trace objects where raster "
         "refraction fails or only approximates (attenuation, dispersion, textured glass), when "
         "the estimate fits; raytrace integrator path stops its passes "
         "before this is spent (granularity: one pass)"))
     # USD stage population: bake options (pipeline.bake.asset_options), so in the bake key too
-    variant_set: tuple[str, ...] = Field(default=(), max_length=MAX_VARIANT_SELECTIONS, description=(
+    variant_set: tuple[str, ...] = knob((), max_length=MAX_VARIANT_SELECTIONS, description=(
         "USD: select a variant, [PRIM:]SET=NAME (repeatable, applied in order, so a selection "
         "may name a set an earlier one brought in; no PRIM: the default prim's set; inspect "
         "lists them)"))
-    purposes: tuple[Purpose, ...] = Field(default=("render",), description=(
+    purposes: tuple[Purpose, ...] = knob(("render",), description=(
         "USD: the purposes drawn besides default, comma-separated from render, proxy, guide "
         "(usdview's toggles; default render; empty: default only)"))
-    draw_mode: Literal["authored", "full"] = Field(default="authored", description=(
+    draw_mode: Literal["authored", "full"] = knob("authored", description=(
         "USD: authored draws the model:drawMode stand-ins a stage asks for (origin axes, "
         "bounds box, cards), as usdview does; full draws those models' geometry instead"))
 
-    @field_validator("background", mode="before")
-    @classmethod
-    def _background(cls, v: Any) -> Any:
+    @before("background")
+    def _background(v: Any) -> Any:
         if not isinstance(v, str):
             return v
         s = v.strip().lower()
@@ -206,9 +210,8 @@ class RenderOptions:
             raise ValueError(f"background {v!r}: use gradient, env, transparent or a colour #rrggbb")
         return "#" + m.group(1)
 
-    @field_validator("time", mode="before")
-    @classmethod
-    def _time(cls, v: Any) -> Any:
+    @before("time")
+    def _time(v: Any) -> Any:
         if v is None:
             return v
         s = str(v).strip().lower()
@@ -222,9 +225,8 @@ class RenderOptions:
             raise ValueError(f"time {v!r}: use seconds (a finite number) or poster")
         return repr(t)
 
-    @field_validator("variant_set", mode="before")
-    @classmethod
-    def _variant_set(cls, v: Any) -> Any:
+    @before("variant_set")
+    def _variant_set(v: Any) -> Any:
         items = (v,) if isinstance(v, str) else tuple(v or ())
         for text in items:
             if not isinstance(text, str):
@@ -234,9 +236,8 @@ class RenderOptions:
                 raise ValueError(f"variant_set {text!r}: expected [PRIM:]SET=NAME")
         return items
 
-    @field_validator("purposes", mode="before")
-    @classmethod
-    def _purposes(cls, v: Any) -> Any:
+    @before("purposes")
+    def _purposes(v: Any) -> Any:
         """"render,proxy" (CLI, query) or a sequence; one canonical order, so one key."""
         items = [v] if isinstance(v, str) else list(v or ())
         names = {p.strip().lower() for item in items if isinstance(item, str)
@@ -247,9 +248,8 @@ class RenderOptions:
                              f"{', '.join(PURPOSES)} (default is always drawn)")
         return tuple(p for p in PURPOSES if p in names)
 
-    @field_validator("target", mode="before")
-    @classmethod
-    def _target(cls, v: Any) -> Any:
+    @before("target")
+    def _target(v: Any) -> Any:
         if isinstance(v, str):
             try:
                 v = tuple(float(x) for x in v.split(","))
@@ -261,17 +261,19 @@ class RenderOptions:
             raise ValueError(f"target: coordinates must be finite and within {MAX_DISTANCE:g}")
         return v
 
-    @model_validator(mode="after")
-    def _pixels(self) -> "RenderOptions":
+    def __post_init__(self) -> None:
+        check(self)
+
+    @after
+    def _pixels(self) -> None:
         if self.width * self.height > MAX_PIXELS:
             raise ValueError(f"image size {self.width}x{self.height} is over {MAX_PIXELS} pixels")
         if self.turntable and self.views:
             raise ValueError("turntable and views cannot be combined")
         if self.animate and (self.views or self.time is not None):
             raise ValueError("animate plays the whole animation: it takes neither views nor time")
-        if self.override is not None and self.override.is_empty():
+        if self.override is not None and all(v is None for v in dataclasses.asdict(self.override).values()):
             object.__setattr__(self, "override", None)  # one spelling of "no override"
-        return self
 
     def replace(self, **changes) -> "RenderOptions":
         return dataclasses.replace(self, **changes)
@@ -333,45 +335,32 @@ def parse_color(text: str) -> tuple[float, float, float]:
 
 # --- the flat request: what the CLI and HTTP surfaces expose ---------------------------------
 
-SIZE_FIELD = FieldInfo.from_annotated_attribute(int, Field(default=256, ge=1, le=MAX_SIDE, description=(
-    "width and height in pixels, unless those are given")))
-
-
-def _fields(cls) -> dict[str, FieldInfo]:
-    return dict(cls.__pydantic_fields__)
+SIZE_FIELD = Param(int, 256, "width and height in pixels, unless those are given", Bounds(ge=1, le=MAX_SIDE))
 
 
 @functools.cache
-def request_fields() -> Mapping[str, FieldInfo]:
+def request_fields() -> Mapping[str, Param]:
     """RenderOptions flattened for a query string or a command line: `size` for width and
     height, and the MaterialOverride fields in place of `override`. Width and height default
     to None there (meaning: `size`). Built once (every HTTP thumbnail request checks against
     it), read-only."""
-    out: dict[str, FieldInfo] = {"size": SIZE_FIELD}
-    for name, info in _fields(RenderOptions).items():
+    out: dict[str, Param] = {"size": SIZE_FIELD}
+    for name, info in declared(RenderOptions).items():
         if name == "override":
             out.update(_override_fields())
         elif name in ("width", "height"):
-            out[name] = _optional(info)
+            out[name] = dataclasses.replace(info, annotation=info.annotation | None, default=None)
         elif name in ("target", "purposes"):  # "x,y,z" / "render,proxy" on both surfaces, parsed by RenderOptions
-            out[name] = FieldInfo.from_annotated_attribute(
-                str | None, Field(default=None, description=info.description))  # type: ignore[arg-type]  # a union is an annotation
+            out[name] = Param(str | None, None, info.description)
         else:
             out[name] = info
     return types.MappingProxyType(out)
 
 
-def _override_fields() -> dict[str, FieldInfo]:
-    fields = _fields(MaterialOverride)
-    color = fields["base_color"]
-    fields["base_color"] = FieldInfo.from_annotated_attribute(
-        str | None, Field(default=None, description=color.description))  # type: ignore[arg-type]  # a union is an annotation; parsed by MaterialOverride
+def _override_fields() -> dict[str, Param]:
+    fields = declared(MaterialOverride)
+    fields["base_color"] = Param(str | None, None, fields["base_color"].description)  # parsed by MaterialOverride
     return fields
-
-
-def _optional(info: FieldInfo) -> FieldInfo:
-    ann = info.annotation
-    return FieldInfo.merge_field_infos(info, FieldInfo.from_annotation(ann | None), default=None)  # type: ignore[operator,arg-type]  # annotation union
 
 
 def from_request(values: Mapping[str, Any]) -> RenderOptions:
@@ -384,7 +373,7 @@ def from_request(values: Mapping[str, Any]) -> RenderOptions:
     if size is not None:
         given.setdefault("width", size)
         given.setdefault("height", size)
-    override_names = _fields(MaterialOverride).keys()
+    override_names = declared(MaterialOverride).keys()
     ov = {k: given.pop(k) for k in list(given) if k in override_names}
     if ov:
         given["override"] = MaterialOverride(**ov)
@@ -399,7 +388,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     for name, info in request_fields().items():
         flag = "--" + name.replace("_", "-")
         ann = _strip_optional(info.annotation)
-        default = info.get_default()
+        default = info.default
         help_text = (info.description or "") + (f" (default: {default})" if default is not None else "")
         help_text = help_text.replace("%", "%%")
         if ann is bool:
@@ -429,10 +418,13 @@ def _strip_optional(ann):
     return ann
 
 
-def describe_error(exc: ValidationError) -> str:
-    """A pydantic error as one line a person reads: `field: reason; field: reason`."""
+def describe_error(exc: ValueError) -> str:
+    """A refused request as one line a person reads: `field: reason; field: reason` for
+    pydantic's ValidationError (core.schema raises it), the message of any other ValueError."""
+    if not callable(getattr(exc, "errors", None)):
+        return str(exc)
     parts = []
-    for e in exc.errors(include_url=False):
+    for e in exc.errors(include_url=False):  # type: ignore[attr-defined]  # a ValidationError
         loc = ".".join(str(x) for x in e["loc"] if x != "override") or "options"
         given = e.get("input")
         shown = f" {given!r}" if isinstance(given, (int, float, str)) and loc != "options" else ""

@@ -16,11 +16,12 @@ import logging
 import math
 import os
 import platform
+import re
+import sys
 import time
 from collections.abc import Iterable
 from datetime import datetime, timezone
 from functools import lru_cache, partial
-from importlib import metadata
 from pathlib import Path
 from typing import Any, cast
 
@@ -477,15 +478,63 @@ def _light_from_json(d: dict) -> Light:
     return Light(**d)
 
 
+_RECORDED = ("asset-preview", "numpy", "embreex", "usd-core", "trimesh", "moderngl")
+
+
 @lru_cache(maxsize=1)
 def _versions() -> dict:
-    out = {"bake_format": BAKE_FORMAT_VERSION, "python": platform.python_version()}
-    for dist in ("asset-preview", "numpy", "embreex", "usd-core", "trimesh", "moderngl"):
+    return {"bake_format": BAKE_FORMAT_VERSION, "python": platform.python_version(), **installed_versions(_RECORDED)}
+
+
+def _dist_key(name: str) -> str:
+    return re.sub(r"[-_.]+", "_", name).lower()
+
+
+def installed_versions(dists: Iterable[str]) -> dict[str, str]:
+    """The installed version of each distribution found, as `importlib.metadata.version` gives
+    it: the first `*.dist-info` / `*.egg-info` folder on sys.path of that name, its `Version:`
+    header. Read directly, because importing importlib.metadata (email, zipfile, csv ...) cost
+    a cold render more than the bake record it feeds (bench/RESULTS.md); a sys.path entry that
+    is a file (a zip) is left to importlib.metadata."""
+    wanted = {_dist_key(d): d for d in dists}
+    out: dict[str, str] = {}
+    for entry in sys.path:
+        folder = entry or "."
+        if os.path.isfile(folder):
+            from importlib import metadata
+            for dist in wanted.values():
+                if dist not in out:
+                    try:
+                        out[dist] = metadata.version(dist)
+                    except metadata.PackageNotFoundError:
+                        pass
+            continue
         try:
-            out[dist] = metadata.version(dist)
-        except metadata.PackageNotFoundError:
-            pass
-    return out
+            names = os.listdir(folder)
+        except OSError:
+            continue
+        for name in names:
+            stem, _, kind = name.rpartition(".")
+            found = wanted.get(_dist_key(stem.partition("-")[0])) if kind in ("dist-info", "egg-info") else None
+            if found is None or found in out:
+                continue
+            version = _version_header(os.path.join(folder, name, "METADATA" if kind == "dist-info" else "PKG-INFO"))
+            if version is not None:
+                out[found] = version
+    return {d: out[d] for d in dists if d in out}
+
+
+def _version_header(path: str) -> str | None:
+    try:
+        with open(path, encoding="utf-8") as f:
+            for line in f:
+                if not line.strip():
+                    break  # the headers end at the first blank line
+                if line.startswith("Version:"):
+                    return line[len("Version:"):].strip()
+    except OSError:
+        pass
+    return None
 
 
 # -- environments ------------------------------------------------------------------------------

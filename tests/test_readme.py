@@ -21,16 +21,15 @@ def _type(ann) -> str:
 
 
 def _range(info) -> str:
-    def bound(*names):
-        return next((getattr(m, n) for m in info.metadata for n in names if hasattr(m, n)), None)
-    lo, hi = bound("ge", "gt"), bound("le", "lt")
+    b = info.bounds
+    lo, hi = b.ge if b.ge is not None else b.gt, b.le
     return f"{lo:g}..{hi:g}" if lo is not None and hi is not None else ""
 
 
 def table() -> str:
     rows = ["| parameter (`--flag`) | type | range | default | what it does |", "|---|---|---|---|---|"]
     for name, info in request_fields().items():
-        default = info.get_default()
+        default = info.default
         shown = "" if default is None else f"`{default}`"
         flag = "--" + name.replace("_", "-")
         if isinstance(default, bool):

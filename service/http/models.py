@@ -6,6 +6,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, create_model
 
 from core.options import RenderOptions, from_request, request_fields
+from core.schema import pydantic_field
 
 AssetStatus = Literal["baking", "ready", "failed"]
 ImageFormat = Literal["png", "jpeg", "webp", "gif"]
@@ -88,7 +89,7 @@ def _thumbnail_params() -> type[BaseModel]:
     """Query parameters of GET /assets/{id}/thumbnail: the flat render request
     (core.options.request_fields, the single schema) plus the image format and the
     environment, which choose what is encoded and what is baked rather than how it renders."""
-    fields: dict[str, Any] = {name: (info.annotation, info) for name, info in request_fields().items()}
+    fields: dict[str, Any] = {name: pydantic_field(info) for name, info in request_fields().items()}
     fields["format"] = (ImageFormat, Field("png", description="image encoding"))
     fields["env"] = (str | None, Field(None, description=(
         "environment name (GET /environments); default the bundled one")))
