@@ -95,17 +95,31 @@ class BakedMesh:
     colors: np.ndarray | None = None
     interior: np.ndarray | None = None  # N x 3 float32 object-space vertex->exit vectors, or None
     ao: np.ndarray | None = None        # N x 2 uint8 ambient visibility x 255 (pipeline.occlusion)
-    #                                    of the front and back sides, or None: read visibility()
+    #                                    of the front and back sides, shared by the placements,
+    #                                    or (K N) x 2 (one N x 2 row per placement, in transforms'
+    #                                    order), or None: read visibility()
     # welded edges (core.adjacency.welded_edges), baked for assets within its MAX_TRIANGLES:
     edges: np.ndarray | None = None       # E x 2 uint32 vertex indices
     edge_faces: np.ndarray | None = None  # E x 2 int32 face indices (second -1: boundary)
     support: np.ndarray | None = None     # S x 3 float64 support points (core.hull), baked
     variants: dict[str, Material] = field(default_factory=dict)  # KHR_materials_variants
 
-    def visibility(self) -> np.ndarray | None:
-        """The baked ambient visibility as N x 2 float32 in [0, 1], or None where there is none
-        (or it does not match the vertices)."""
-        if self.ao is None or len(self.ao) != len(self.positions):
+    @property
+    def ao_per_placement(self) -> bool:
+        """Whether `ao` holds one row of vertices per placement (else one shared row)."""
+        k = len(self.transforms)
+        return self.ao is not None and k > 1 and len(self.ao) == k * len(self.positions) > 0
+
+    def visibility(self, placement: int = 0) -> np.ndarray | None:
+        """The baked ambient visibility of placement `placement` as N x 2 float32 in [0, 1]
+        (a shared row serves every placement), or None where there is none (or it does not
+        match the vertices)."""
+        if self.ao is None:
+            return None
+        n = len(self.positions)
+        if self.ao_per_placement:
+            return dequantise_visibility(self.ao[placement * n:(placement + 1) * n])
+        if len(self.ao) != n:
             return None
         return dequantise_visibility(self.ao)
 

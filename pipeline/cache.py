@@ -83,7 +83,8 @@ log = logging.getLogger(__name__)
 # 16: MaterialX colour management: standard colour spaces (gamuts, transfers) to lin_rec709 for
 #     colour constants and images
 # 17: UDIM textures baked as one atlas, their meshes' UVs remapped into it (pipeline.udim)
-BAKE_FORMAT_VERSION = 17
+# 18: ambient occlusion per placement of an instanced mesh (a row each) where the budget allows
+BAKE_FORMAT_VERSION = 18
 # Environment entries have their own format: a prefiltered light does not change with the mesh
 # bake's format, and the filter's constants already key it (pipeline.environment.shipped), so a
 # mesh-format bump neither rebakes every environment nor stales the shipped studio bake.

@@ -18,8 +18,10 @@ Decisions:
   get none;
 - stored as uint8 (visibility x 255, core.baked.quantise_visibility): its steps are below the ray
   set's 1/64; readers take BakedMesh.visibility();
-- a mesh with several placements gets the mean over its first `AO_INSTANCES` placements (one
-  value per vertex is what the vertex buffer holds; instances in other surroundings differ);
+- a mesh with several placements gets a visibility per placement (K x N rows, placement-major:
+  instances in other surroundings differ, as SimpleInstancing's 125 cubes, open on the outside
+  and enclosed in the middle) while every placement fits the budget at `AO_MIN_RAYS`; past it,
+  one shared row, the mean over its first `AO_INSTANCES` placements;
 - the ray set: s x s strata of the unit square mapped to the cosine-weighted hemisphere
   (Malley), turned per vertex by a fixed pseudo-random rotation (seeded: a bake is
   reproducible) so that neighbouring vertices do not share one pattern's bias;
@@ -28,9 +30,9 @@ Decisions:
   convex neighbour, so only real occluders are met; a vertex on a wall's foot or in a
   corner starts inside the walls and meets them);
 - cost: `AO_RAYS` per vertex while the bake stays under `AO_MAX_RAYS`, fewer (down to
-  `AO_MIN_RAYS`) on bigger assets; past that budget at the minimum, the placements per mesh
-  drop to one and then vertices are sampled on a stride, the rest taking their sampled
-  neighbour's (index order) value.
+  `AO_MIN_RAYS`) on bigger assets; past that budget at the minimum, the placements traced per
+  mesh drop to `AO_INSTANCES` (shared rows), then to one, and then vertices are sampled on a
+  stride, the rest taking their sampled neighbour's (index order) value.
 The renderer applies it to the environment terms only, never to punctual lights or the
 ground shadow (core.lobes: the diffuse and specular occlusion functions).
 """
@@ -51,7 +53,7 @@ AO_RAYS = 64            # per vertex (8 x 8 strata), when the budget allows
 AO_MIN_RAYS = 16        # per vertex at least (4 x 4 strata)
 AO_MAX_RAYS = 1_000_000  # per bake: about 1.5 s on two loaded cores (0.6-0.9 M rays/s)
 AO_DISTANCE = 1.0       # occluders count within this x the bounds' diagonal (the whole asset)
-AO_INSTANCES = 4        # placements of one mesh averaged
+AO_INSTANCES = 4        # placements of one mesh averaged when not all fit the budget
 EPSILON_SCALE = 1e-4    # ray start offset, x the bounds' diagonal
 EMIT_THRESHOLD = 0.05   # emissive factor x strength (linear, max channel): a face emits above it
 PASS_THROUGH = 3        # single-sided back faces a ray goes on through
@@ -60,7 +62,9 @@ _CHUNK = 1 << 20        # rays per Embree call (bounds the ray buffers' memory)
 
 @dataclass
 class OcclusionResult:
-    ao: list[np.ndarray | None]  # per mesh: N x 2 uint8 visibility x 255 (front, back side), or None
+    # per mesh: N x 2 uint8 visibility x 255 (front, back side), K x N x 2 flattened to
+    # (K N) x 2 when kept per placement, or None
+    ao: list[np.ndarray | None]
     rays: int
     rays_per_vertex: int
     stride: int                  # 1: every vertex traced
@@ -149,16 +153,23 @@ def ambient_occlusion(meshes, bounds: np.ndarray, max_rays: int = AO_MAX_RAYS,
     block = np.searchsorted(np.asarray(starts), quads[:, 0].astype(np.int64), side="right") - 1
     one_sided = np.asarray(single, bool)[block]
 
-    # The budget: rays per vertex, then placements, then a vertex stride (a double-sided
-    # mesh traces both sides).
+    # The budget: rays per vertex, then placements (every one kept apart, a few averaged,
+    # one), then a vertex stride (a double-sided mesh traces both sides).
     sides = {i: 2 if meshes[i].material.double_sided else 1 for i in receivers}
-    placements = {i: min(len(meshes[i].transforms), AO_INSTANCES) for i in receivers}
-    vertex_count = sum(len(meshes[i].positions) * placements[i] * sides[i] for i in receivers)
+
+    def count(placements: dict[int, int]) -> int:
+        return sum(len(meshes[i].positions) * placements[i] * sides[i] for i in receivers)
+
+    placements = {i: len(meshes[i].transforms) for i in receivers}
+    apart = any(p > 1 for p in placements.values()) and count(placements) * AO_MIN_RAYS <= max_rays
+    if not apart:
+        placements = {i: min(len(meshes[i].transforms), AO_INSTANCES) for i in receivers}
+    vertex_count = count(placements)
     per_vertex = max(AO_MIN_RAYS, min(rays, max_rays // max(vertex_count, 1)))
     per_vertex = int(math.isqrt(per_vertex)) ** 2
     if vertex_count * per_vertex > max_rays:
         placements = dict.fromkeys(receivers, 1)
-        vertex_count = sum(len(meshes[i].positions) * sides[i] for i in receivers)
+        vertex_count = count(placements)
     stride = max(1, -(-vertex_count * per_vertex // max_rays))
     trace = _Tracer(scene, one_sided, hemisphere_set(per_vertex), max(EPSILON_SCALE * diagonal, 1e-7),
                     AO_DISTANCE * diagonal)
@@ -169,18 +180,23 @@ def ambient_occlusion(meshes, bounds: np.ndarray, max_rays: int = AO_MAX_RAYS,
         nrm = np.asarray(m.normals, np.float64)
         traced = np.arange(0, len(pos), stride)
         turn = rng.uniform(0, 2 * np.pi, len(traced))  # per vertex, shared by its placements
-        acc = np.zeros((len(traced), 2))
         xs = np.asarray(m.transforms, np.float64).reshape(-1, 4, 4)[:placements[i]]
+        acc = np.zeros((len(xs), len(traced), 2))
         inward = (_ring_centres(pos, np.asarray(m.indices, np.int64).reshape(-1, 3)) - pos)[traced]
-        for x in xs:
-            lin = x[:3, :3]
-            p = pos[traced] @ lin.T + x[:3, 3]
-            n = nrm[traced] @ np.linalg.inv(lin)
-            for side in range(sides[i]):
-                acc[:, side] += trace(p, -n if side else n, inward @ lin.T, turn)
+        # every placement's vertices in one call (many small instances cost one Embree pass)
+        lin = xs[:, :3, :3]
+        p = (np.einsum("vj,kij->kvi", pos[traced], lin) + xs[:, None, :3, 3]).reshape(-1, 3)
+        n = np.einsum("vj,kji->kvi", nrm[traced], np.linalg.inv(lin)).reshape(-1, 3)
+        inward_w = np.einsum("vj,kij->kvi", inward, lin).reshape(-1, 3)
+        turns = np.tile(turn, len(xs))
+        for side in range(sides[i]):
+            acc[..., side] = trace(p, -n if side else n, inward_w, turns).reshape(len(xs), -1)
         if sides[i] == 1:
-            acc[:, 1] = acc[:, 0]  # never seen: culled from behind
-        ao = quantise_visibility(acc / len(xs))
+            acc[..., 1] = acc[..., 0]  # never seen: culled from behind
+        if apart and len(xs) > 1:  # stride is 1 here: every placement fit at the minimum
+            out[i] = quantise_visibility(acc.reshape(-1, 2))
+            continue
+        ao = quantise_visibility(acc.mean(axis=0))
         out[i] = ao if stride == 1 else np.repeat(ao, stride, axis=0)[:len(pos)]
     seconds = time.perf_counter() - start
     total = trace.rays

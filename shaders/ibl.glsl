@@ -77,28 +77,46 @@ float specular_occlusion(float NdotV, float ao, float roughness) {
 }
 
 #ifdef MATERIAL_INFO_GLSL  // the lookups above also serve the background pass
-// Where the specular lobe looks: the mirror direction, or for an anisotropic material the
-// mirror about a normal bent across the grain (the stretched lobe's mean direction moves
-// along the grain), blended back to n as the lobe gets rounder (KHR_materials_anisotropy's
-// recommended approximation of an anisotropic lookup with an isotropic prefiltered map).
-vec3 specular_direction(MaterialInfo m, vec3 v) {
 #ifdef MATERIAL_ANISOTROPY
-    vec3 bent = normalize(cross(cross(m.anisotropy_b, v), m.anisotropy_b));
-    float k = 1.0 - m.anisotropy * (1.0 - m.roughness);
-    k *= k;
-    bent = normalize(mix(bent, m.n, k * k));
-    return reflect(-v, bent);
-#else
-    return reflect(-v, m.n);
-#endif
+// The prefiltered light of the anisotropic lobe (alpha_t = mix(alpha, 1, strength^2) along the
+// grain t, alpha_b = alpha across it): the lobe's microfacet slopes along t, spread by the
+// one-axis marginal of anisotropic GGX (1 / (2 a (1 + (x/a)^2)^1.5), its quantiles below),
+// each tap an isotropic lookup at the narrow width (widened to the taps' spacing, so they
+// blend). A normal bent across the grain (Filament's and the Sample Viewer's shortcut) sends
+// the whole lobe one way: on a ring whose grain runs around it, every point mirrored the same
+// patch of sky, where the lobe (the path tracer's, sampled) smears each point's reflection
+// along the grain.
+const int ANISO_TAPS = 8;
+vec3 env_radiance_anisotropic(MaterialInfo m, vec3 v) {
+    float ab = max(m.roughness * m.roughness, 1e-4);
+    float at = mix(ab, 1.0, m.anisotropy * m.anisotropy);
+    float spread = sqrt(max(at * at - ab * ab, 0.0));  // what the narrow lookup lacks along t
+    float tap_alpha = max(ab, spread / float(ANISO_TAPS));
+    float tap_roughness = min(sqrt(tap_alpha), 1.0);
+    vec3 sum = vec3(0.0);
+    for (int i = 0; i < ANISO_TAPS; ++i) {
+        float u = (float(i) + 0.5) / float(ANISO_TAPS) * 2.0 - 1.0;  // 2 F - 1 of the quantile
+        float x = spread * u * inversesqrt(1.0 - u * u);
+        vec3 h = normalize(m.n + x * m.anisotropy_t);
+        vec3 r = reflect(-v, h);
+        // below the horizon the facet is masked: fold the tap back above it
+        r -= 2.0 * min(dot(r, m.n), 0.0) * m.n;
+        sum += env_radiance(r, tap_roughness);
+    }
+    return sum / float(ANISO_TAPS);
 }
+#endif
 
 vec3 ibl(MaterialInfo m, vec3 v) {
     vec3 n = m.n;
     float NdotV = clamp(dot(n, v), 1e-4, 1.0);
     vec3 FssEss, FmsEms;
     specular_albedo(m.f0, m.f90, NdotV, m.roughness, FssEss, FmsEms);
-    vec3 radiance = env_radiance(specular_direction(m, v), m.roughness);
+#ifdef MATERIAL_ANISOTROPY
+    vec3 radiance = env_radiance_anisotropic(m, v);
+#else
+    vec3 radiance = env_radiance(reflect(-v, n), m.roughness);
+#endif
     vec3 irradiance = env_diffuse(n);
     vec3 kD = m.diffuse_color * (1.0 - FssEss - FmsEms);
     // The occlusion texture and the baked visibility usually record the same geometry (a

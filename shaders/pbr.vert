@@ -23,7 +23,15 @@ out vec4 v_color;
 out vec3 v_world;
 out vec3 v_normal;
 #ifdef HAS_AO
+#ifdef AO_ROWS
+// one row of vertices per placement (BakedMesh.ao_per_placement): uint8 front/back pairs,
+// two vertices a word; indexed by the instance's row in the mesh's transforms and the vertex
+layout(std430, binding = 0) readonly buffer AoRows { uint ao_words[]; };
+uniform int u_ao_vertices;
+in float in_instance_row;
+#else
 in vec2 in_ao;         // baked ambient visibility (pipeline.occlusion), front and back
+#endif
 out vec2 v_ao;
 #endif
 #ifdef HAS_INTERIOR
@@ -54,7 +62,13 @@ void main() {
     v_color = in_color;
 #endif
 #ifdef HAS_AO
+#ifdef AO_ROWS
+    uint i = uint(in_instance_row + 0.5) * uint(u_ao_vertices) + uint(gl_VertexID);
+    uint pair = (ao_words[i >> 1] >> ((i & 1u) * 16u)) & 0xffffu;
+    v_ao = vec2(float(pair & 0xffu), float(pair >> 8)) / 255.0;
+#else
     v_ao = in_ao;
+#endif
 #endif
 #ifdef HAS_INTERIOR
     v_interior = mat3(in_model) * in_interior;

@@ -313,3 +313,61 @@ def test_cache_keeps_the_occlusion(tmp_path):
     assert np.all(baked.meshes[0].visibility() == 1.0)  # a convex solid: nothing blocks its own sky
     again = load_baked(baked.key, tmp_path / "cache")
     np.testing.assert_array_equal(again.meshes[0].ao, ao)
+
+
+# -- instanced meshes: a row per placement ---------------------------------------------------
+
+def test_instances_get_a_row_each(assets, tmp_path):
+    """SimpleInstancing's 125 cubes (one mesh, EXT_mesh_gpu_instancing, a 5 x 5 x 5 lattice):
+    each placement keeps its own visibility, so the cube in the lattice's middle is darker
+    than the corner cube at the origin, where one shared row (the mean of a few placements)
+    gave every cube the same."""
+    baked = bake_asset(assets / "gltf-samples" / "SimpleInstancing" / "glTF" / "SimpleInstancing.gltf", tmp_path)
+    (mesh,) = baked.meshes
+    k, n = len(mesh.transforms), len(mesh.positions)
+    assert k == 125 and mesh.ao_per_placement and mesh.ao.shape == (k * n, 2)
+    centres = mesh.transforms[:, :3, 3]
+    middle = int(np.argmin(np.linalg.norm(centres - centres.mean(0), axis=1)))
+    corner = int(np.argmin(np.linalg.norm(centres - centres.min(0), axis=1)))
+    inner, outer = mesh.visibility(middle)[:, 0].mean(), mesh.visibility(corner)[:, 0].mean()
+    assert inner < outer - 0.2, (inner, outer)
+
+
+def test_shared_row_past_the_budget():
+    """When every placement does not fit the budget at the fewest rays, the placements share
+    one row (the mean of the first few), as before."""
+    ball = _sphere(1.0, (0.0, 0.0, 0.0))
+    xs = np.tile(np.eye(4), (6, 1, 1))
+    xs[:, 0, 3] = np.arange(6) * 2.1
+    mesh = BakedMesh("balls", *ball, Material(), xs)
+    lo = (xs[:, :3, 3].min(0) - 1.0)
+    bounds = np.array([lo, xs[:, :3, 3].max(0) + 1.0])
+    apart = ambient_occlusion([mesh], bounds)
+    assert apart.ao[0].shape == (6 * len(ball[0]), 2)
+    shared = ambient_occlusion([mesh], bounds, max_rays=16 * 6 * len(ball[0]) - 1)
+    assert shared.ao[0].shape == (len(ball[0]), 2)
+
+
+def test_raster_reads_each_instances_row(uniform_env):
+    """Three boards side by side, the middle one mirrored (drawn in the other winding's
+    batch): each is shaded by its own row of the visibility."""
+    m = Material(base_color=(0.8, 0.8, 0.8, 1.0), metallic=0.0, roughness=1.0, specular=0.0,
+                 double_sided=True)
+    pos = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], np.float32)
+    xs = np.tile(np.eye(4), (3, 1, 1))
+    xs[:, 0, 3] = [-2.2, 0.0, 2.2]
+    xs[1, 0, 0] = -1.0  # mirrored
+    rows = np.repeat([0.2, 1.0, 0.6], 4)[:, None] * np.ones((1, 2))
+    mesh = BakedMesh("boards", pos, np.tile([0, 0, 1], (4, 1)).astype(np.float32),
+                     np.array([[0, 1, 2], [0, 2, 3]], np.uint32), m, xs, ao=quantise_visibility(rows))
+    assert mesh.ao_per_placement
+    asset = BakedAsset(key="ao-rows-boards", source="boards", format="test", meshes=[mesh], textures=[],
+                       bounds=np.array([[-3.2, -1, 0], [3.2, 1, 0]], np.float64))
+    from renderer import render
+    o = RenderOptions(width=96, height=32, tonemap="none", background="transparent", yaw=0.0, pitch=0.0,
+                      fov=30.0, shadow=0.0, method="opaque")
+    img = render(asset, uniform_env, o).linear[..., :3].mean(-1)
+    cols = [img[12:20, c - 3:c + 3].mean() for c in (48 - 33, 48, 48 + 33)]
+    expected = ao_multibounce(np.array([0.2, 1.0, 0.6]), 0.8) * 0.8
+    assert np.all(img[16] >= 0)
+    np.testing.assert_allclose(cols, expected, rtol=0.03)

@@ -103,15 +103,19 @@ class Surface:
 def build_surface(asset: BakedAsset, materials: list[Material], parts: list[tuple[int, np.ndarray, np.ndarray]],
                   world: np.ndarray, texture_top: int | None) -> Surface:
     """`parts`: per placed mesh (mesh index, its T x 3 index array in world winding, the 3 x 3
-    linear part of its transform); `world`: all T x 3 x 3 world corners in the same order."""
+    linear part of its transform), each mesh's placements in its transforms' order (the baked
+    visibility may hold a row per placement); `world`: all T x 3 x 3 world corners in the same
+    order."""
     n_sets = 2
     uv: list[list[np.ndarray]] = [[] for _ in range(n_sets)]
     have_uv = [False] * n_sets
     tangents, colors, aos = [], [], []
     have_tan = have_col = have_ao = False
+    placement: dict[int, int] = {}  # parts list each mesh's placements in transforms' order
     for k, idx, lin in parts:
         mesh = asset.meshes[k]
         t = len(idx)
+        row = placement[k] = placement.get(k, -1) + 1
         for s, arr in enumerate((mesh.uv0, mesh.uv1)):
             if arr is not None:
                 have_uv[s] = True
@@ -134,7 +138,7 @@ def build_surface(asset: BakedAsset, materials: list[Material], parts: list[tupl
             colors.append(c[idx])
         else:
             colors.append(np.ones((t, 3, 4)))
-        if (vis := mesh.visibility()) is not None:
+        if (vis := mesh.visibility(row)) is not None:
             have_ao = True
             aos.append(vis.astype(np.float64).reshape(-1, 2)[idx])
         else:

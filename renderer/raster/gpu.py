@@ -76,7 +76,9 @@ _ATTRIBUTES = {
     "ao": ("in_ao", "2f1"),
     "interior": ("in_interior", "3f"),  # refractive meshes only (renderer.methods.refraction)
 }
-_INSTANCE = ("16f 9f/i", "in_model", "in_normal_matrix")
+# per instance: model and normal matrices, and its row in transforms (per-placement visibility)
+_INSTANCE = ("16f 9f 1f/i", "in_model", "in_normal_matrix", "in_instance_row")
+AO_ROWS_BINDING = 0  # shader storage binding of a mesh's per-placement visibility (pbr.vert)
 
 
 @dataclass
@@ -92,6 +94,9 @@ class GpuMesh:
     vaos: dict[tuple, moderngl.VertexArray] = field(default_factory=dict)
     states: dict = field(default_factory=dict)  # renderer's per-material state, by override
     edges: Any = None  # renderer.raster.edges.Adjacency, set up on the first edge-smoothed frame
+    # the baked visibility as one row of vertices per placement (BakedMesh.ao_per_placement):
+    # a storage buffer the vertex shader indexes by instance row and vertex (pbr.vert)
+    ao_rows: moderngl.Buffer | None = None
 
     def vao(self, prog: moderngl.Program, mirrored: bool) -> moderngl.VertexArray:
         key = (prog.glo, mirrored)
@@ -100,7 +105,7 @@ class GpuMesh:
             content: list[tuple] = [(buf, _ATTRIBUTES[name][1], _ATTRIBUTES[name][0])
                                    for name, buf in self.buffers.items()]
             inst = next(b for m, b, _ in self.instances if m == mirrored)
-            content.append((inst, _INSTANCE[0], _INSTANCE[1], _INSTANCE[2]))
+            content.append((inst, *_INSTANCE))
             vao = context.get_context().vertex_array(prog, content, self.index_buffer, 4,
                                                      skip_errors=True)
             self.vaos[key] = vao
@@ -109,7 +114,8 @@ class GpuMesh:
     def release(self) -> None:
         for vao in self.vaos.values():
             vao.release()
-        for buf in [*self.buffers.values(), self.index_buffer, *(b for _, b, _ in self.instances)]:
+        for buf in [*self.buffers.values(), self.index_buffer, *(b for _, b, _ in self.instances),
+                    *([self.ao_rows] if self.ao_rows is not None else [])]:
             buf.release()
 
 
@@ -235,10 +241,11 @@ def _upload_asset(baked: BakedAsset) -> GpuAsset:
         for mirrored in (False, True):
             sel = transforms[(det < 0) == mirrored]
             if len(sel):
-                instances.append((mirrored, ctx.buffer(_instance_data(sel)), len(sel)))
+                instances.append((mirrored, ctx.buffer(_instance_data(transforms, det, mirrored)), len(sel)))
         centers = transforms[:, :3, :3] @ _centre(m) + transforms[:, :3, 3]
-        nbytes = sum(b.size for b in buffers.values()) + ibo.size
-        meshes.append(GpuMesh(m, buffers, ibo, instances, centers, nbytes))
+        ao_rows = ctx.buffer(_ao_rows_data(m)) if m.ao_per_placement else None
+        nbytes = sum(b.size for b in buffers.values()) + ibo.size + (ao_rows.size if ao_rows else 0)
+        meshes.append(GpuMesh(m, buffers, ibo, instances, centers, nbytes, ao_rows=ao_rows))
     nbytes = sum(m.nbytes for m in meshes)
     log.info("uploaded %s: %d meshes, %.1f MB", baked.key[:12], len(meshes), nbytes / 2**20)
     return GpuAsset(baked.gpu_key or baked.key, meshes, {}, list(baked.lights),
@@ -261,6 +268,10 @@ def _repose(gpu: GpuAsset, baked: BakedAsset) -> bool:
                 if (a := getattr(m, name)) is not None and len(a) == len(m.positions)}
         if have != set(gm.buffers) or len(m.positions) != len(old.positions):
             return False
+        if m.ao_per_placement != (gm.ao_rows is not None) or (
+                m.ao is not None and old.ao is not None and gm.ao_rows is not None
+                and m.ao.nbytes != old.ao.nbytes):
+            return False
     ctx = context.get_context()
     for gm, m in zip(gpu.meshes, baked.meshes):
         old = gm.baked
@@ -270,6 +281,8 @@ def _repose(gpu: GpuAsset, baked: BakedAsset) -> bool:
                 continue
             buf.write(_vertex_data(name, arr))
             stats["vertex_writes"] += 1
+        if gm.ao_rows is not None and m.ao is not old.ao:
+            gm.ao_rows.write(_ao_rows_data(m))
         if m.positions is not old.positions:
             gm.edges = None  # the edge planes follow the surface (renderer.raster.edges)
         if m.material is not old.material:
@@ -281,7 +294,7 @@ def _repose(gpu: GpuAsset, baked: BakedAsset) -> bool:
             if len(sel) != count:  # a scale through zero turned some over: lay them out anew
                 _instances_anew(ctx, gm, transforms, det)
                 break
-            buf.write(_instance_data(sel))
+            buf.write(_instance_data(transforms, det, mirrored))
         else:
             if sum(c for _, _, c in gm.instances) != len(transforms):
                 _instances_anew(ctx, gm, transforms, det)
@@ -299,7 +312,7 @@ def _instances_anew(ctx, gm: GpuMesh, transforms: np.ndarray, det: np.ndarray) -
     gm.vaos.clear()
     for _, buf, _ in gm.instances:
         buf.release()
-    gm.instances = [(mirrored, ctx.buffer(_instance_data(sel)), len(sel))
+    gm.instances = [(mirrored, ctx.buffer(_instance_data(transforms, det, mirrored)), len(sel))
                     for mirrored in (False, True)
                     if len(sel := transforms[(det < 0) == mirrored])]
 
@@ -343,8 +356,17 @@ def _upload_textures(gpu: GpuAsset, baked: BakedAsset, top: int) -> int:
     return added
 
 
-def _instance_data(transforms: np.ndarray) -> np.ndarray:
-    """Per instance: the model matrix and the normal matrix (inverse transpose), column-major."""
+def _ao_rows_data(m: BakedMesh) -> bytes:
+    """The per-placement visibility as pbr.vert reads it: uint8 pairs, padded to whole words."""
+    raw = np.ascontiguousarray(m.ao, np.uint8).tobytes()
+    return raw + bytes(-len(raw) % 4)
+
+
+def _instance_data(all_transforms: np.ndarray, det: np.ndarray, mirrored: bool) -> np.ndarray:
+    """Per instance of one winding (`mirrored`: negative determinant): the model matrix, the
+    normal matrix (inverse transpose), column-major, and its row in `all_transforms`."""
+    rows = np.flatnonzero((det < 0) == mirrored)
+    transforms = all_transforms[rows]
     model = transforms.astype(np.float32)
     linear = transforms[:, :3, :3]
     with np.errstate(all="ignore"):
@@ -352,7 +374,8 @@ def _instance_data(transforms: np.ndarray) -> np.ndarray:
     normal = np.nan_to_num(normal).astype(np.float32)
     # GLSL matrices are column-major: transpose each before flattening.
     return np.ascontiguousarray(np.concatenate(
-        [model.transpose(0, 2, 1).reshape(-1, 16), normal.transpose(0, 2, 1).reshape(-1, 9)], axis=1))
+        [model.transpose(0, 2, 1).reshape(-1, 16), normal.transpose(0, 2, 1).reshape(-1, 9),
+         rows.astype(np.float32)[:, None]], axis=1))
 
 
 def _upload_texture(gl_tex: moderngl.Texture | None, tex: BakedTexture, chain: list[np.ndarray],

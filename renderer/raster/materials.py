@@ -76,7 +76,10 @@ def _build(mesh, m: Material, asset: gpu.GpuAsset, ov: MaterialOverride | None) 
         defines["HAS_TANGENTS"] = 1
     if mesh.colors is not None:
         defines["HAS_COLORS"] = 1
-    if mesh.ao is not None and len(mesh.ao) == len(mesh.positions):
+    if mesh.ao_per_placement:  # a row per placement, read from a storage buffer (pbr.vert)
+        defines["HAS_AO"] = defines["AO_ROWS"] = 1
+        uniforms.append(("u_ao_vertices", np.int32(len(mesh.positions)).tobytes()))
+    elif mesh.ao is not None and len(mesh.ao) == len(mesh.positions):
         defines["HAS_AO"] = 1
     if m.double_sided:
         defines["DOUBLE_SIDED"] = 1

@@ -80,6 +80,8 @@ class Pass:
         if self.shadow_tint is not None:
             self.shadow_tint.use(light_shadows.TINT_UNIT)
         cull = not (item.material.double_sided or item.material.show_back_faces) if cull is None else cull
+        if item.mesh.ao_rows is not None:
+            item.mesh.ao_rows.bind_to_storage_buffer(gpu.AO_ROWS_BINDING)
         for mirrored, _, count in item.mesh.instances:
             # A mirroring transform turns the winding clockwise (glTF 2.0, "Instantiation"):
             # the front face follows it for culling and for gl_FrontFacing, which flips a
