@@ -628,17 +628,18 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
                 bg = np.full(lost.sum(), options.background_blur)
                 add(env.radiance(dirs[lost], bg) * (weight[lost] * share[lost, None]), slot[lost])
             keep = np.flatnonzero(~lost)
-            origins, dirs, weight, pix, sub, slot, blur, share, medium, clear, prim, u, v, t, miss = (
+            origins, dirs, weight, pix, sub, slot, blur, share, medium, clear, prim, u, v, t = (  # type: ignore[assignment]  # one selection of all
                 a[keep] for a in (origins, dirs, weight, pix, sub, slot, blur, share, medium, clear,
-                                  prim, u, v, t, miss))
+                                  prim, u, v, t))
+            miss = prim < 0
             if cover is not None:
                 cover = cover[keep]
         if depth == 0 and not split:
             image.coverage += np.bincount(slot[~miss], share[~miss], minlength=image.npix)
         elif split:
-            on = np.flatnonzero(~miss & (clear > 0))
+            line = np.flatnonzero(~miss & (clear > 0))
             assert cover is not None
-            image.coverage += np.bincount(slot[on], share[on] * clear[on] * cover[on],
+            image.coverage += np.bincount(slot[line], share[line] * clear[line] * cover[line],
                                           minlength=image.npix)
         if depth == 0 and show_env:
             bg = np.full(miss.sum(), options.background_blur)

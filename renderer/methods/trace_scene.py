@@ -130,6 +130,35 @@ def opacity(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray, prim: np.ndar
     return out
 
 
+def coverage(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray, prim: np.ndarray, t: np.ndarray,
+             cover: np.ndarray | None, draw: np.ndarray | None = None) -> np.ndarray:
+    """Per camera ray what it covers (1 - the product of 1 - opacity over the premultiplied
+    blends it crosses, up to anything else it meets): 1 or 0 without any; `prim`, `t`,
+    `cover` its first hit (intersect_front with stop_premultiplied, opacity)."""
+    cov = (prim >= 0).astype(np.float64)
+    if cover is None:
+        return cov
+    todo = np.flatnonzero((prim >= 0) & (cover < 1))
+    cov[todo] = cover[todo]
+    left = 1.0 - cover[todo]
+    eps = EPSILON * ts.radius
+    o = origins[todo] + dirs[todo] * (np.asarray(t[todo], np.float64) + eps)[:, None]
+    d = dirs[todo]
+    for _ in range(MAX_CULLED):
+        if not len(todo):
+            break
+        p2, u2, v2, t2 = intersect_front(ts, o, d, None if draw is None else draw[todo], True)
+        a = opacity(ts, o, d, p2, u2, v2, t2)
+        assert a is not None
+        a = np.where(p2 >= 0, a, 0.0)
+        cov[todo] += left * a
+        left = left * (1.0 - a)
+        go = (p2 >= 0) & (a < 1)
+        todo, left, d = todo[go], left[go], d[go]
+        o = o[go] + d * (np.asarray(t2[go], np.float64) + eps)[:, None]
+    return cov
+
+
 def pixel_shift(pix: np.ndarray, depth: int) -> np.ndarray:
     """A uniform number in [0, 1) per (pixel, bounce), the same every frame (splitmix64)."""
     with np.errstate(over="ignore"):
