@@ -76,7 +76,8 @@ log = logging.getLogger(__name__)
 # 13: the studio environment's bake comes from pipeline/data/studio_bakes.npz (float16 mips)
 # 14: MaterialX images honour their declared colorspace (lin_rec709 colour images re-encoded)
 # 15: Material.opacity_premultiplied (UsdPreviewSurface blended as Storm does)
-BAKE_FORMAT_VERSION = 15
+# 16: ... also for MaterialX ND_UsdPreviewSurface; UsdPreviewSurface opacityMode "presence" fades
+BAKE_FORMAT_VERSION = 16
 ZSTD_LEVEL = 9  # texture chains: written once at bake, read by every process (see README figures)
 KINDS = ("assets", "environments", "thumbnails")
 IMAGE_SUFFIXES = (".png", ".jpg", ".webp", ".gif")  # stored as they are (thumbnails' encoded files)

@@ -399,3 +399,59 @@ def test_premultiplied_split_compiled_matches_numpy_twin(tmp_path, monkeypatch, 
     slow = _frame(path, tmp_path, *extra, tag="_numpy")
     assert fast[..., :3].max() > 0.05
     np.testing.assert_allclose(fast, slow, atol=1e-5)
+
+
+MTLX_CARD = """#usda 1.0
+(
+    metersPerUnit = 1
+    upAxis = "Y"
+)
+def Xform "World"
+{
+    def Mesh "Card" ( prepend apiSchemas = ["MaterialBindingAPI"] )
+    {
+        int[] faceVertexCounts = [4]
+        int[] faceVertexIndices = [0, 1, 2, 3]
+        point3f[] points = [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)]
+        rel material:binding = </World/M>
+    }
+    def Material "M"
+    {
+        token outputs:mtlx:surface.connect = </World/M/S.outputs:out>
+        def Shader "S"
+        {
+            uniform token info:id = "ND_ID"
+            INPUTS
+            token outputs:out
+        }
+    }
+}
+"""
+
+
+@pytest.mark.parametrize("node,inputs,premultiplied", [
+    ("UsdPreviewSurface_surfaceshader", "float inputs:opacity = 0.3", True),
+    ("standard_surface_surfaceshader", "color3f inputs:opacity = (0.3, 0.3, 0.3)", False),
+])
+def test_materialx_opacity_blends_by_its_definition(tmp_path, node, inputs, premultiplied):
+    """MaterialX's library (bxdf/usd_preview_surface.mtlx, as bpy's usdMtlx ships it) puts
+    ND_UsdPreviewSurface's whole specular over mix(transmission, diffuse, opacity): the
+    premultiplied rule; standard_surface's opacity is the surface's presence: the whole
+    shading fades (glTF's blend)."""
+    path = tmp_path / f"{node}.usda"
+    path.write_text(MTLX_CARD.replace("ID", node).replace("INPUTS", inputs))
+    (mat,) = [m for m in load_scene(path).materials if m.name.endswith("M")]
+    assert mat.alpha_mode == "BLEND" and mat.opacity_premultiplied == premultiplied
+
+
+def test_preview_surface_presence_mode_fades_the_whole_colour(tmp_path):
+    """opacityMode "presence" fades the whole shading in Storm's previewSurface (c *= opacity);
+    "transparent", the default, fades the diffuse alone."""
+    text = GLOSSY_CARD.replace("DIFFUSE", "(0.5, 0.5, 0.5)").replace("OPACITY", "0.25")
+    presence = tmp_path / "presence.usda"
+    presence.write_text(text.replace("float inputs:roughness = 0.4",
+                                     'float inputs:roughness = 0.4\n            uniform token inputs:opacityMode = "presence"'))
+    (mat,) = [m for m in load_scene(presence).materials if m.name.endswith("Glossy")]
+    assert mat.alpha_mode == "BLEND" and not mat.opacity_premultiplied
+    (mat,) = [m for m in load_scene(_glossy(tmp_path, 0.5, 0.25)).materials if m.name.endswith("Glossy")]
+    assert mat.opacity_premultiplied

@@ -374,8 +374,13 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         o_all, new_d, new_w, new_pdf, new_medium, alive, rough, tir = nxt
         if split:
             assert cover is not None
+            go_w = np.where(cover < 1, 1.0 - cover, 0.0)
+            off = (cover < 1) & (clear <= 0)  # met by a scattered path: as raytrace._pass_share
+            if np.any(off):
+                cos_o = np.abs(_dot(d[off], ng[off]))
+                go_w[off] = np.minimum(go_w[off], 1.0 - fresnel_dielectric(cos_o, 1.0 / ior[off]))
             o_all, new_d, new_w, new_pdf, new_medium, alive, rough, clear = _pass_on(
-                sample(px, s, 300 + depth)[0], cover, clear, p, d, w, medium, eps,
+                sample(px, s, 300 + depth)[0], cover, go_w, clear, p, d, w, medium, eps,
                 (o_all, new_d, new_w, new_pdf, new_medium, alive, rough))
         stats["tir"] += int(np.sum(tir))
         clamp_esc = n_rough > 0
@@ -392,11 +397,12 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
 PASS_MAX = 0.9  # most probability of going on through a premultiplied blend (the rest scatters)
 
 
-def _pass_on(u: np.ndarray, cover: np.ndarray, clear: np.ndarray, p, d, w, medium, eps: float,
-             scattered: tuple) -> tuple:
+def _pass_on(u: np.ndarray, cover: np.ndarray, go_w: np.ndarray, clear: np.ndarray, p, d, w,
+             medium, eps: float, scattered: tuple) -> tuple:
     """At premultiplied blends (opacity `cover` < 1), the paths that go on straight through
-    instead of their sampled scatter (trace_pass), both reweighted; `clear` of the next
-    segment (the camera's line kept only by those that go on)."""
+    (carrying `go_w`: 1 - opacity, or less off the camera's line) instead of their sampled
+    scatter (trace_pass), both reweighted; `clear` of the next segment (the camera's line
+    kept only by those that go on)."""
     o_all, new_d, new_w, new_pdf, new_medium, alive, rough = (np.array(a) for a in scattered)
     go_p = np.where(cover < 1, np.minimum(1 - cover, PASS_MAX), 0.0)
     go = u < go_p
@@ -405,7 +411,7 @@ def _pass_on(u: np.ndarray, cover: np.ndarray, clear: np.ndarray, p, d, w, mediu
     g = np.flatnonzero(go)
     o_all[g] = p[g] + d[g] * eps
     new_d[g] = d[g]
-    share = (1 - cover[g]) / go_p[g]
+    share = go_w[g] / go_p[g]
     new_w[g] = w[g] * share[:, None]
     new_pdf[g] = 0.0  # a delta: no MIS at what it meets
     new_medium[g] = medium[g]

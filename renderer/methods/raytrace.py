@@ -148,7 +148,9 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
         tables.append((mat.base_color[:3], mat.metallic, mat.roughness, mat.transmission,
                        1.0 if mat.unlit else mat.ior, mat.absorption(), not (mat.double_sided or mat.show_back_faces) and mat.transmission <= 0,
                        np.asarray(mat.emissive, np.float64) * mat.emissive_strength,
-                       mat.thin_walled and mat.transmission > 0))
+                       # a premultiplied blend is a sheet too: no inside (no TIR between its sides)
+                       (mat.thin_walled and mat.transmission > 0)
+                       or (mat.alpha_mode == "BLEND" and mat.opacity_premultiplied)))
         idx = mesh.indices.astype(np.int64)
         for m in mesh.transforms:
             m = np.asarray(m, np.float64)
@@ -687,21 +689,36 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
         if split:
             assert cover is not None
             out, clear = _pass_on(out, origins, dirs, t, weight, pix, sub, slot, blur, share, medium,
-                                  clear, cover, eps)
+                                  clear, _pass_share(ts, dirs, prim, cover, clear), eps)
         origins, dirs, weight, pix, sub, slot, blur, share, medium = out
 
 
+def _pass_share(ts: TraceScene, dirs, prim, cover: np.ndarray, clear: np.ndarray) -> np.ndarray:
+    """What goes on straight through a premultiplied blend, per ray (0 at anything else):
+    1 - opacity on the camera's line, as Storm blends what it sees; elsewhere (a reflection
+    meeting it) at most 1 - F besides the whole reflection F, so that a closed translucent
+    mesh, whose inside reflects its rays back and forth, cannot give more than it gets (the
+    rule's F + 1 - opacity passes 1 toward grazing, and grew by bounce)."""
+    go = np.where(cover < 1, 1.0 - cover, 0.0)
+    off = np.flatnonzero((cover < 1) & (clear <= 0))
+    if len(off):
+        k = ts.material[prim[off]]
+        cos_i = np.abs(np.einsum("ij,ij->i", dirs[off], ts.geo_normals[prim[off]]))
+        go[off] = np.minimum(go[off], 1.0 - fresnel_dielectric(cos_i, 1.0 / ts.ior[k]))
+    return go
+
+
 def _pass_on(children: tuple, origins, dirs, t, weight, pix, sub, slot, blur, share, medium,
-             clear, cover, eps: float) -> tuple[tuple, np.ndarray]:
+             clear, go_w: np.ndarray, eps: float) -> tuple[tuple, np.ndarray]:
     """The shading's children and, after them, the rays that go on straight through the
-    premultiplied blends they hit, carrying 1 - opacity (culled as the children are); with
-    each one's `clear` (the children's: 0, off the camera's line)."""
-    go = np.flatnonzero((cover < 1) & (weight.max(axis=1) * (1 - cover) * medium ** 2 > MIN_WEIGHT))
-    clear_out = np.concatenate([np.zeros(len(children[0])), clear[go] * (1 - cover[go])])
+    premultiplied blends they hit, carrying `go_w` (_pass_share; culled as the children are);
+    with each one's `clear` (the children's: 0, off the camera's line)."""
+    go = np.flatnonzero((go_w > 0) & (weight.max(axis=1) * go_w * medium ** 2 > MIN_WEIGHT))
+    clear_out = np.concatenate([np.zeros(len(children[0])), clear[go] * go_w[go]])
     if not len(go):
         return children, clear_out
     d = dirs[go].astype(np.float64)
-    through = (origins[go] + d * (t[go] + eps)[:, None], d, weight[go] * (1 - cover[go])[:, None],
+    through = (origins[go] + d * (t[go] + eps)[:, None], d, weight[go] * go_w[go, None],
                pix[go], sub[go], slot[go], blur[go], share[go], medium[go])
     return tuple(np.concatenate([c, x.astype(c.dtype, copy=False)]) for c, x in zip(children, through)), clear_out
 
