@@ -50,7 +50,9 @@ The material at a hit is the baked one the raster reads (renderer.methods.trace_
 factors times base colour, metal-rough, normal (baked tangents), occlusion, emissive and
 transmission textures, each with its KHR_texture_transform, UV set and sampler, trilinear on
 the baked mips at the ray cone's footprint, times vertex colours; alpha MASK cuts rays
-through, BLEND lets them through with probability 1 - alpha (stratified per pixel). Occlusion
+through, BLEND lets them through with probability 1 - alpha (stratified per pixel); a
+premultiplied BLEND (USD, as Storm) is split: opacity x diffuse + the whole reflection, and
+a ray of 1 - opacity straight on (docs/raytrace.md "Premultiplied blends"). Occlusion
 scales the diffuse share, which reads the environment without visibility (as the raster's
 ambient term). The asset's punctual lights are added by next-event estimation at every
 surface a path meets (renderer.methods.trace_lights). KHR_materials_specular tints and scales

@@ -4,7 +4,8 @@ and the BRDF the raster's shaders/punctual.glsl evaluates (Lambert diffuse under
 lobe's directional albedo, GGX specular with Schlick Fresnel and Smith masking, the range
 and cone falloffs). A punctual light is a delta: BSDF sampling can never hit it, so NEE alone
 is unbiased and needs no MIS weight. Shadow rays pass alpha cut-outs and culled back faces as
-camera rays do, pass a blended surface with probability 1 - alpha (a uniform draw per ray),
+camera rays do, pass a blended surface with probability 1 - alpha (a uniform draw per ray;
+the tree tracer's cross a premultiplied one by 1 - opacity, untinted),
 and go straight through transmissive surfaces scaled by transmission x (1 - metallic) x the
 crossed texel's base colour c per thin sheet, x sqrt(c) per crossing of volume glass (so a
 closed solid of one colour gives c, as its camera rays; the caustic a refracting surface
