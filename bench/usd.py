@@ -57,6 +57,8 @@ def configure(p: argparse.ArgumentParser) -> None:
                         "unrefined, 1.2 refines them two levels as ours does a small cage")
     p.add_argument("--keep-images", type=Path, default=None,
                    help="copy each stage's ours/Storm PNGs here (to look at them or compare runs)")
+    p.add_argument("--method", default="auto",
+                   help="our render method (`render --method`: auto, raytrace, ...); Storm is the same")
 
 
 def entry_points(folder: Path) -> list[Path]:
@@ -86,10 +88,11 @@ def ldr_flip(ours: np.ndarray, ref: np.ndarray) -> tuple[float, np.ndarray]:
     return float(mean), np.clip(np.asarray(emap) * 255, 0, 255).astype(np.uint8)
 
 
-def _ours_cold(wrapper, out: Path, cache: Path, size: int, root: Path, timeout: float) -> dict:
+def _ours_cold(wrapper, out: Path, cache: Path, size: int, root: Path, timeout: float,
+               method: str = "auto") -> dict:
     cmd = [sys.executable, "-m", "bench.usd_cold", str(wrapper.path), "--camera", CAMERA, "--out", str(out),
            "--cache", str(cache), "--tonemap", "none", "--background", "transparent", "--size", str(size),
-           "--shadow", "0", "--sandbox", str(root)]
+           "--shadow", "0", "--sandbox", str(root), "--method", method]
     if wrapper.black_env:
         cmd += ["--env", str(wrapper.black_env)]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}
@@ -109,7 +112,7 @@ def _ours_cold(wrapper, out: Path, cache: Path, size: int, root: Path, timeout: 
     return {"cold_s": wall, "cold_cpu_s": phases.get("cpu_s"), "phases": phases, "warnings": warnings[:5]}
 
 
-def render_ours(wrapper, cache: Path, size: int, root: Path):
+def render_ours(wrapper, cache: Path, size: int, root: Path, method: str = "auto"):
     """Our Frame of the wrapper, in this process, as the cold command renders it."""
     from core.options import from_request
     from pipeline.bake import bake_asset, bake_environment
@@ -119,7 +122,7 @@ def render_ours(wrapper, cache: Path, size: int, root: Path):
     from renderer.raster.render import render
 
     options = from_request({"width": size, "height": size, "camera": CAMERA, "tonemap": "none",
-                            "background": "transparent", "shadow": 0.0})
+                            "background": "transparent", "shadow": 0.0, "method": method})
     asset = bake_asset(str(wrapper.path), str(cache), root=str(root))
     face, _ = environment_face_size(asset, options)
     source = str(wrapper.black_env) if wrapper.black_env else (dome_texture(asset, str(wrapper.path))
@@ -128,11 +131,11 @@ def render_ours(wrapper, cache: Path, size: int, root: Path):
     return render(asset, env, options)
 
 
-def _ours_warm(wrapper, cache: Path, size: int, root: Path) -> float:
+def _ours_warm(wrapper, cache: Path, size: int, root: Path, method: str = "auto") -> float:
     """A second image in this process from the warm cache (the first one warms GL and shaders)."""
-    render_ours(wrapper, cache, size, root).encode("png")
+    render_ours(wrapper, cache, size, root, method).encode("png")
     start = time.perf_counter()
-    render_ours(wrapper, cache, size, root).encode("png")  # Storm's Record writes a PNG too
+    render_ours(wrapper, cache, size, root, method).encode("png")  # Storm's Record writes a PNG too
     return time.perf_counter() - start
 
 
@@ -198,13 +201,13 @@ def run(args: argparse.Namespace) -> int:
                 else "uniform dome"
             ours_png, storm_png = images / f"{slug}.ours.png", images / f"{slug}.storm.png"
             cache = work / "cache" / slug
-            ours = _ours_cold(wrapper, ours_png, cache, args.size, root, args.timeout)
+            ours = _ours_cold(wrapper, ours_png, cache, args.size, root, args.timeout, args.method)
             row.update({"ours_cold_s": ours.get("cold_s"), "ours_cold_cpu_s": ours.get("cold_cpu_s"), "ours_error": ours.get("error", ""),
                         **{f"phase_{k}": ours.get("phases", {}).get(k) for k in PHASES},
                         **{f"cpu_phase_{k}": ours.get("phases", {}).get("cpu", {}).get(k) for k in PHASES}})
             if "cold_s" in ours:
                 try:
-                    row["ours_warm_s"] = _ours_warm(wrapper, cache, args.size, root)
+                    row["ours_warm_s"] = _ours_warm(wrapper, cache, args.size, root, args.method)
                 except Exception as exc:
                     row["ours_error"] = f"warm: {exc}"
             if python:

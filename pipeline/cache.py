@@ -84,7 +84,9 @@ log = logging.getLogger(__name__)
 #     colour constants and images
 # 17: UDIM textures baked as one atlas, their meshes' UVs remapped into it (pipeline.udim)
 # 18: ambient occlusion per placement of an instanced mesh (a row each) where the budget allows
-BAKE_FORMAT_VERSION = 18
+# 19: Material.opacity_premultiplied also for MaterialX ND_UsdPreviewSurface; UsdPreviewSurface
+#     opacityMode "presence" fades the whole colour
+BAKE_FORMAT_VERSION = 19
 # Environment entries have their own format: a prefiltered light does not change with the mesh
 # bake's format, and the filter's constants already key it (pipeline.environment.shipped), so a
 # mesh-format bump neither rebakes every environment nor stales the shipped studio bake.

@@ -490,7 +490,9 @@ class MaterialReader:
                 mat.transmission = 1.0 - alpha
             else:
                 mat.alpha_mode = "BLEND"
-                mat.opacity_premultiplied = True  # as Storm blends it (core.scene.Material)
+                # as Storm blends it (core.scene.Material), for opacityMode "transparent" (the
+                # default); "presence" fades the whole shading (Storm's previewSurface too)
+                mat.opacity_premultiplied = self._input(shader, "opacityMode") != "presence"
                 mat.base_color = (*mat.base_color[:3], alpha)
         if int(_scalar(self._input(shader, "useSpecularWorkflow"), 0)):
             # UsdPreviewSurface's specular workflow (as Storm's previewSurface shades it):

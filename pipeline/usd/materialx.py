@@ -695,6 +695,11 @@ class SurfaceReader:
                     occlusion=self.scalar("occlusion", 1.0))
         if threshold > 0:
             m.alpha_mode, m.alpha_cutoff = "MASK", threshold
+        elif m.alpha_mode == "BLEND":
+            # MaterialX's own definition (bxdf/usd_preview_surface.mtlx) layers the whole
+            # specular over mix(transmission, diffuse, opacity): the premultiplied rule of
+            # the UsdShade node (standard_surface's opacity is presence: a faded blend)
+            m.opacity_premultiplied = True
         if int(_num(self.eval.input(self.node, "useSpecularWorkflow"), 0)):
             # F0 = specularColor, F90 = 1, metallic unused (Storm's previewSurface); as
             # KHR_materials_specular: specular_color = specularColor / F0(ior), factor 1

@@ -350,6 +350,7 @@ class Bsdf:
     w_base: np.ndarray   # N: what coat and sheen leave to Base
     p_coat: np.ndarray   # choice probabilities of the layers (Base: 1 - p_coat - p_sheen)
     p_sheen: np.ndarray
+    kd_o: np.ndarray     # N: a premultiplied blend's opacity, which scales the diffuse alone (1: none)
 
     @property
     def p_base(self) -> np.ndarray:
@@ -424,7 +425,8 @@ class Bsdf:
         pdf_ggx = d / (1.0 + lam_v) / (4 * n_v)
         f_m, f_d = self._fresnel(v_h)
         kd = 1.0 - f_d.max(axis=1)
-        diffuse_r = (1 - self.dt)[:, None] * kd[:, None] * self.base * (cl / math.pi)[:, None]
+        diffuse_r = (1 - self.dt)[:, None] * kd[:, None] * self.base * (cl / math.pi)[:, None] \
+            * self.kd_o[:, None]
         base = (self.p_metal[:, None] * f_m * self.ms_m * spec[:, None]
                 + self.p_plastic[:, None] * (diffuse_r + f_d * self.ms_d * spec[:, None]))
         pdf_base = (self.p_metal * pdf_ggx
@@ -534,7 +536,8 @@ def frame(n: np.ndarray, grain: np.ndarray | None) -> tuple[np.ndarray, np.ndarr
     return t, b
 
 
-def build_packed(hits, ns, ng, wo, ior, multiscatter: bool) -> np.ndarray:
+def build_packed(hits, ns, ng, wo, ior, multiscatter: bool,
+                 opacity: np.ndarray | None = None) -> np.ndarray:
     """build's packed matrix (Bsdf.packed), compiled (path_kernel.build_rows)."""
     from renderer.methods import path_kernel
 
@@ -547,13 +550,15 @@ def build_packed(hits, ns, ng, wo, ior, multiscatter: bool) -> np.ndarray:
         f8(hits.specular_color), f8(hits.diffuse_transmission), f8(hits.diffuse_transmission_color),
         f8(hits.iridescence), f8(hits.iridescence_ior), f8(hits.iridescence_thickness),
         f8(hits.clearcoat), f8(hits.clearcoat_normal), f8(hits.clearcoat_roughness),
-        f8(hits.sheen_color), f8(hits.sheen_roughness), bool(multiscatter),
+        f8(hits.sheen_color), f8(hits.sheen_roughness),
+        f8(np.ones(len(wo)) if opacity is None else opacity), bool(multiscatter),
         _table("ggx_e"), _table("ggx_b"), _table("aniso_e"), _table("sheen_e"))
 
 
-def build(hits, ns, ng, wo, ior, multiscatter: bool) -> Bsdf:
+def build(hits, ns, ng, wo, ior, multiscatter: bool, opacity: np.ndarray | None = None) -> Bsdf:
     """The BSDF at hits (trace_material.Hits rows) with shading normal ns and geometric ng
-    on wo's side, IOR per hit."""
+    on wo's side, IOR per hit; `opacity` (None: 1) scales the diffuse share of a
+    premultiplied blend (its specular stays whole, as Storm blends it)."""
     n = len(wo)
     metal, trans = hits.metallic, hits.transmission
     alpha = np.maximum(hits.roughness ** 2, ALPHA_MIN)
@@ -606,7 +611,8 @@ def build(hits, ns, ng, wo, ior, multiscatter: bool) -> Bsdf:
                 p_spec, ms_m, ms_d, dt, hits.diffuse_transmission_color,
                 hits.iridescence, hits.iridescence_ior, hits.iridescence_thickness,
                 coat, cn, np.maximum(hits.clearcoat_roughness ** 2, ALPHA_MIN), hits.sheen_color,
-                hits.sheen_roughness, kd_t, w_sheen, w_base, p_coat, p_sheen)
+                hits.sheen_roughness, kd_t, w_sheen, w_base, p_coat, p_sheen,
+                np.ones(n) if opacity is None else np.asarray(opacity, np.float64))
 
 
 if __name__ == "__main__":

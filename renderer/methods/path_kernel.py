@@ -20,8 +20,8 @@ AX, AY, P_METAL, P_PLASTIC = 18, 19, 20, 21
 F0_D, F90_D, P_SPEC, MS_M, MS_D = 22, 25, 26, 27, 30
 DT, DT_COLOR, IRID, IRID_IOR, IRID_THICK = 33, 34, 37, 38, 39
 COAT, COAT_N, COAT_ALPHA, SHEEN, SHEEN_ROUGH = 40, 41, 44, 45, 48
-KD_T, W_SHEEN, W_BASE, P_COAT, P_SHEEN = 49, 50, 51, 52, 53
-WIDTH = 54
+KD_T, W_SHEEN, W_BASE, P_COAT, P_SHEEN, KD_O = 49, 50, 51, 52, 53, 54
+WIDTH = 55
 SCRATCH = 18          # floats of scratch _eval_row works in (one allocation per chunk of rows)
 CHUNKS = 64           # the rows of a call, cut into this many parallel chunks
 
@@ -213,7 +213,7 @@ def _eval_row(p, i, lx, ly, lz, tmp, out):
         out[c] = 0.0
     if up:
         for c in range(3):
-            diffuse_r = (1 - dt) * kd * p[i, BASE + c] * (cl / _PI)
+            diffuse_r = (1 - dt) * kd * p[i, BASE + c] * (cl / _PI) * p[i, KD_O]
             out[c] = p[i, W_BASE] * (pm * fm[c] * p[i, MS_M + c] * spec
                                      + pp * (diffuse_r + fd[c] * p[i, MS_D + c] * spec))
         pdf = p_base * (pm * pdf_ggx + pp * (ps * pdf_ggx + (1 - ps) * (1 - dt) * cl / _PI))
@@ -525,7 +525,7 @@ def _ms_scale(f0, e_ss):
 def build_rows(ns, ng, wo, ior, base, metallic, transmission, roughness, anisotropy, grain,
                specular, specular_color, diffuse_t, diffuse_t_color, irid, irid_ior, irid_thick,
                clearcoat, clearcoat_normal, clearcoat_roughness, sheen_color, sheen_roughness,
-               multiscatter, ggx_e, ggx_b, aniso_e, sheen_e):
+               opacity, multiscatter, ggx_e, ggx_b, aniso_e, sheen_e):
     """path_bsdf.build compiled, straight to the packed matrix (Bsdf.packed's columns)."""
     m = len(ns)
     p = np.empty((m, WIDTH))
@@ -613,6 +613,7 @@ def build_rows(ns, ng, wo, ior, base, metallic, transmission, roughness, anisotr
         p[i, SHEEN_ROUGH] = sheen_roughness[i]
         p[i, W_SHEEN] = w_sheen
         p[i, W_BASE] = w_sheen * (1.0 - peak * e_sheen)
+        p[i, KD_O] = opacity[i]
         p_coat = min(max(coat * max(fc_v, 0.1), 0.0), 0.9) if coat > 0 else 0.0
         p[i, P_COAT] = p_coat
         p[i, P_SHEEN] = (1 - p_coat) * min(max(peak * max(e_sheen, 0.1), 0.0), 0.9) if peak > 0 else 0.0
@@ -699,7 +700,7 @@ def warm() -> None:
     sample_rows(p, rows, e, e, e, e, e)
     e3, b = np.zeros((0, 3)), np.zeros(0, np.bool_)
     t2, t4 = np.zeros((2, 2)), np.zeros((2, 2, 2, 2))
-    build_rows(e3, e3, e3, e, e3, e, e, e, e, e3, e, e3, e, e3, e, e, e, e, e3, e, e3, e, True, t2, t2, t4, t2)
+    build_rows(e3, e3, e3, e, e3, e, e, e, e, e3, e, e3, e, e3, e, e, e, e, e3, e, e3, e, e, True, t2, t2, t4, t2)
     scatter(p, e3, e3, e3, e3, b, b, b, e, e, e, e3, e3, e, e, e, e, e, e, e, True, 1e-4)
     i64, eye = np.zeros(6, np.int64), np.eye(3)
     env_pdf(np.ones(6), 1, np.zeros((0, 3)), eye, 0.1, i64, e, i64, e)

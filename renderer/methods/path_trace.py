@@ -68,7 +68,7 @@ from renderer.methods.optics import (
     sample_rough_dielectric,
 )
 from renderer.methods.path_bsdf import ALPHA_MIN, ROUGH_ALPHA, ggx_albedo  # noqa: F401  # ggx_albedo: re-exported
-from renderer.methods.trace_scene import EPSILON, hit_material, intersect_front, pixel_shift
+from renderer.methods.trace_scene import EPSILON, coverage, hit_material, intersect_front, opacity, pixel_shift
 
 FIREFLY = 16.0        # max-RGB clamp of indirect contributions (linear radiance)
 UNIFORM_SHARE = 0.1   # of environment samples drawn uniformly over the sphere
@@ -83,17 +83,17 @@ class _Lobes:
     compiled (path_kernel over the packed parameters, built compiled too) or, with KERNEL
     off, path_bsdf's numpy Bsdf."""
 
-    def __init__(self, hits, ns, ng, wo, ior, multiscatter: bool):
+    def __init__(self, hits, ns, ng, wo, ior, multiscatter: bool, opacity: np.ndarray | None = None):
         if KERNEL:
             from renderer.methods import path_kernel as k
             self.kernel = k
             self.bsdf: path_bsdf.Bsdf | None = None
-            p = path_bsdf.build_packed(hits, ns, ng, wo, ior, multiscatter)
+            p = path_bsdf.build_packed(hits, ns, ng, wo, ior, multiscatter, opacity)
             self.packed: np.ndarray | None = p
             layers = p[:, k.P_COAT] + p[:, k.P_SHEEN]
             self.p_reflective = layers + (1 - layers) * (p[:, k.P_METAL] + p[:, k.P_PLASTIC])
         else:
-            self.bsdf = path_bsdf.build(hits, ns, ng, wo, ior, multiscatter)
+            self.bsdf = path_bsdf.build(hits, ns, ng, wo, ior, multiscatter, opacity)
             self.packed = None
             self.p_reflective = self.bsdf.p_reflective
 
@@ -250,30 +250,43 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
     stats.setdefault("paths", 0)
     stats["paths"] += n
     max_depth = max(int(options.bounces), 1)
-    hit0 = np.zeros(n, bool)
+    hit0 = np.zeros(n)
+    # A premultiplied blend (USD, as Storm blends it) is met, not passed by its alpha: its
+    # BSDF's diffuse share takes the opacity a (the specular stays whole), and the path goes
+    # on straight through it with probability P = min(1 - a, PASS_MAX), weighted
+    # (1 - a) / P, or scatters, weighted 1 / (1 - P). `clear`: the weight of a path still on
+    # its camera ray's line through such layers (0 off it), which sees the background only
+    # where it is shown; coverage walks the line at once (trace_scene.coverage: no noise).
+    split = ts.premultiplied.any()
+    clear = np.ones(n) if split else np.zeros(0)
     for depth in range(max_depth + 1):
         if not len(d):
             break
         if depth == max_depth:  # out of surfaces: the environment along the ray (as the tree)
             add = w * (medium ** 2)[:, None] * env.radiance(d, np.zeros(len(d)))
+            if split and not show_env:  # still the camera's ray: no background
+                add[clear > 0] = 0.0
             out[slot] += _clamp(add, clamp_esc)
             break
         u_alpha, _ = sample(pix[slot], s, 100 + depth)
-        prim, u, v, t = _timed(stats, "traversal", intersect_front, ts, origins, d, u_alpha)
+        prim, u, v, t = _timed(stats, "traversal", intersect_front, ts, origins, d, u_alpha, True)
         stats["rays"] += len(d)
         miss = prim < 0
-        if depth == 0:
-            hit0 = ~miss
-        if np.any(miss) and (depth > 0 or show_env):
-            dm = d[miss]
+        cover = opacity(ts, origins, d, prim, u, v, t)
+        if depth == 0:  # through premultiplied layers: what they let through is uncovered
+            hit0 = coverage(ts, origins, d, prim, t, cover, u_alpha)
+        # a camera ray behind the layers it went through sees the background only if shown
+        esc = miss & ~(clear > 0) if split and depth > 0 and not show_env else miss
+        if np.any(esc) and (depth > 0 or show_env):
+            dm = d[esc]
             le = env.radiance(dm, np.zeros(len(dm)))
-            p_b = mis_pdf[miss]
+            p_b = mis_pdf[esc]
             mis = np.ones(len(dm))
             has = p_b > 0
             if np.any(has):
                 p_l = env_sampler.pdf(dm[has])
                 mis[has] = p_b[has] ** 2 / (p_b[has] ** 2 + p_l ** 2)
-            out[slot[miss]] += _clamp(w[miss] * (mis * medium[miss] ** 2)[:, None] * le, clamp_esc[miss])
+            out[slot[esc]] += _clamp(w[esc] * (mis * medium[esc] ** 2)[:, None] * le, clamp_esc[esc])
         hit = np.flatnonzero(~miss)
         if not len(hit):
             break
@@ -282,6 +295,9 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         stats["split_ms"]["textures"] += trace_material.FETCH_MS[0] - fetch0
         origins, d, w, slot, medium = origins[hit], d[hit], w[hit], slot[hit], medium[hit]
         clamp_esc, n_rough, prim, t = clamp_esc[hit], n_rough[hit], prim[hit], t[hit]
+        if split:
+            assert cover is not None
+            clear, cover = clear[hit], cover[hit]
         px = pix[slot]
         k = ts.material[prim]
         p = origins + d * t[:, None]
@@ -305,7 +321,7 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         ior = ts.ior[k]
         wo = -d
         alpha = np.maximum(hits.roughness ** 2, ALPHA_MIN)
-        lobes = _Lobes(hits, ns, ng, wo, ior, options.multiscatter)
+        lobes = _Lobes(hits, ns, ng, wo, ior, options.multiscatter, cover)
         # hits from inside a transmissive object see only Glass (light reaches them refracted)
         surface_lit = entering | (trans <= 0)
         reflective = surface_lit & (lobes.p_reflective > 0)
@@ -356,6 +372,16 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         else:
             nxt = _scatter_numpy(lobes.bsdf, hits, *args, lobes)
         o_all, new_d, new_w, new_pdf, new_medium, alive, rough, tir = nxt
+        if split:
+            assert cover is not None
+            go_w = np.where(cover < 1, 1.0 - cover, 0.0)
+            off = (cover < 1) & (clear <= 0)  # met by a scattered path: as raytrace._pass_share
+            if np.any(off):
+                cos_o = np.abs(_dot(d[off], ng[off]))
+                go_w[off] = np.minimum(go_w[off], 1.0 - fresnel_dielectric(cos_o, 1.0 / ior[off]))
+            o_all, new_d, new_w, new_pdf, new_medium, alive, rough, clear = _pass_on(
+                sample(px, s, 300 + depth)[0], cover, go_w, clear, p, d, w, medium, eps,
+                (o_all, new_d, new_w, new_pdf, new_medium, alive, rough))
         stats["tir"] += int(np.sum(tir))
         clamp_esc = n_rough > 0
         n_rough = n_rough + rough
@@ -363,7 +389,36 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         origins = o_all[keep]
         d, w, slot, medium = new_d[keep], new_w[keep], slot[keep], new_medium[keep]
         mis_pdf, clamp_esc, n_rough = new_pdf[keep], clamp_esc[keep], n_rough[keep]
+        if split:
+            clear = clear[keep]
     return out, hit0
+
+
+PASS_MAX = 0.9  # most probability of going on through a premultiplied blend (the rest scatters)
+
+
+def _pass_on(u: np.ndarray, cover: np.ndarray, go_w: np.ndarray, clear: np.ndarray, p, d, w,
+             medium, eps: float, scattered: tuple) -> tuple:
+    """At premultiplied blends (opacity `cover` < 1), the paths that go on straight through
+    (carrying `go_w`: 1 - opacity, or less off the camera's line) instead of their sampled
+    scatter (trace_pass), both reweighted; `clear` of the next segment (the camera's line
+    kept only by those that go on)."""
+    o_all, new_d, new_w, new_pdf, new_medium, alive, rough = (np.array(a) for a in scattered)
+    go_p = np.where(cover < 1, np.minimum(1 - cover, PASS_MAX), 0.0)
+    go = u < go_p
+    scat = np.flatnonzero(~go & (go_p > 0))
+    new_w[scat] /= (1 - go_p[scat])[:, None]
+    g = np.flatnonzero(go)
+    o_all[g] = p[g] + d[g] * eps
+    new_d[g] = d[g]
+    share = go_w[g] / go_p[g]
+    new_w[g] = w[g] * share[:, None]
+    new_pdf[g] = 0.0  # a delta: no MIS at what it meets
+    new_medium[g] = medium[g]
+    alive[g], rough[g] = True, False
+    clear_out = np.zeros(len(cover))
+    clear_out[g] = clear[g] * share
+    return o_all, new_d, new_w, new_pdf, new_medium, alive, rough, clear_out
 
 
 def _scatter_numpy(bsdf, hits, d, p, ng, ns, entering, surface_lit, thin, ior, alpha, w, medium,

@@ -50,7 +50,9 @@ The material at a hit is the baked one the raster reads (renderer.methods.trace_
 factors times base colour, metal-rough, normal (baked tangents), occlusion, emissive and
 transmission textures, each with its KHR_texture_transform, UV set and sampler, trilinear on
 the baked mips at the ray cone's footprint, times vertex colours; alpha MASK cuts rays
-through, BLEND lets them through with probability 1 - alpha (stratified per pixel). Occlusion
+through, BLEND lets them through with probability 1 - alpha (stratified per pixel); a
+premultiplied BLEND (USD, as Storm) is split: opacity x diffuse + the whole reflection, and
+a ray of 1 - opacity straight on (docs/raytrace.md "Premultiplied blends"). Occlusion
 scales the diffuse share, which reads the environment without visibility (as the raster's
 ambient term). The asset's punctual lights are added by next-event estimation at every
 surface a path meets (renderer.methods.trace_lights). KHR_materials_specular tints and scales
@@ -108,6 +110,7 @@ from renderer.methods.trace_scene import (
     TraceScene,
     hit_material,
     intersect_front,
+    opacity,
     pixel_shift,
 )
 from renderer.raster.final import GRADIENT
@@ -147,7 +150,9 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
         tables.append((mat.base_color[:3], mat.metallic, mat.roughness, mat.transmission,
                        1.0 if mat.unlit else mat.ior, mat.absorption(), not (mat.double_sided or mat.show_back_faces) and mat.transmission <= 0,
                        np.asarray(mat.emissive, np.float64) * mat.emissive_strength,
-                       mat.thin_walled and mat.transmission > 0))
+                       # a premultiplied blend is a sheet too: no inside (no TIR between its sides)
+                       (mat.thin_walled and mat.transmission > 0)
+                       or (mat.alpha_mode == "BLEND" and mat.opacity_premultiplied)))
         idx = mesh.indices.astype(np.int64)
         for m in mesh.transforms:
             m = np.asarray(m, np.float64)
@@ -189,7 +194,9 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
         transmission=np.asarray(col[3], np.float64), ior=np.asarray(col[4], np.float64),
         sigma=np.asarray(col[5], np.float64).reshape(-1, 3), culled=np.asarray(col[6], bool),
         emission=np.asarray(col[7], np.float64).reshape(-1, 3), thin=np.asarray(col[8], bool),
-        radius=max(float(np.linalg.norm(hi - lo)) / 2, 1e-6), surface=surface, embree_cached=cached)
+        radius=max(float(np.linalg.norm(hi - lo)) / 2, 1e-6), surface=surface, embree_cached=cached,
+        premultiplied=np.asarray([m.alpha_mode == "BLEND" and m.opacity_premultiplied
+                                  for m in materials], bool))
 
 
 # Built Embree scenes by the digest of their world-space vertices and faces: the service renders
@@ -425,7 +432,8 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     first_prim = np.full(npix, -1, np.int64)
     for chunk in _chunks(np.arange(npix), 4 * CHUNK_PIXELS):
         d, _ = subpixel_rays(camera, chunk, 1)
-        first_prim[chunk] = intersect_front(ts, np.broadcast_to(camera.position, d.shape), d)[0]
+        first_prim[chunk] = intersect_front(ts, np.broadcast_to(camera.position, d.shape), d,
+                                            stop_premultiplied=True)[0]
     first = first_prim >= 0
     near = grown_by_one(first.reshape(camera.height, camera.width)).reshape(-1)
     if show_env:
@@ -590,30 +598,62 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
         image.coverage += np.bincount(slot[hit], share[hit], minlength=image.npix)
         add(env.radiance(dirs, np.zeros(len(dirs))) * share[:, None], slot)
         return
+    # A premultiplied blend (USD, as Storm) is split, not passed stochastically: the hit adds
+    # opacity x its diffuse share (the occlusion input scales exactly that share) and its
+    # whole reflection, and a ray of (1 - opacity) goes on straight behind. `clear`: the part
+    # of a camera ray still on its line through such layers (0 off it): it adds coverage
+    # where it lands and sees the background, not the lit environment, where it leaves.
+    split = ts.premultiplied.any()
+    clear = np.ones(len(dirs)) if split else np.zeros(0)
     for depth in range(int(options.bounces) + 1):
         if len(dirs) == 0:
             break
         if depth == options.bounces:  # out of bounces: read the environment where they point
+            if split and np.any(on := clear > 0):  # still the camera's ray: the background
+                if show_env:
+                    bg = np.full(on.sum(), options.background_blur)
+                    add(env.radiance(dirs[on], bg) * (weight[on] * share[on, None]), slot[on])
+                dirs, weight, share, medium, blur, slot = (a[~on] for a in (dirs, weight, share, medium, blur, slot))
             # ... as if it left the medium it is in, without a Fresnel loss
             add((weight * (share * medium ** 2)[:, None]) * env.radiance(dirs, blur ** 0.25), slot)
             break
         prim, u, v, t = intersect_front(ts, origins, dirs,
-                                        _alpha_draw(pix, sub, n_sub, depth) if blended else None)
+                                        _alpha_draw(pix, sub, n_sub, depth) if blended else None,
+                                        stop_premultiplied=True)
         stats["rays"] += len(dirs)
         if depth < len(stats["bounces"]):
             stats["bounces"][depth] += len(dirs)
         else:
             stats["bounces"].append(len(dirs))
         miss = prim < 0
-        if depth == 0:
+        cover = opacity(ts, origins, dirs, prim, u, v, t)
+        if split and depth > 0 and np.any(lost := miss & (clear > 0)):
+            if show_env:  # behind the layers a camera ray went through: the background
+                bg = np.full(lost.sum(), options.background_blur)
+                add(env.radiance(dirs[lost], bg) * (weight[lost] * share[lost, None]), slot[lost])
+            keep = np.flatnonzero(~lost)
+            origins, dirs, weight, pix, sub, slot, blur, share, medium, clear, prim, u, v, t = (  # type: ignore[assignment]  # one selection of all
+                a[keep] for a in (origins, dirs, weight, pix, sub, slot, blur, share, medium, clear,
+                                  prim, u, v, t))
+            miss = prim < 0
+            if cover is not None:
+                cover = cover[keep]
+        if depth == 0 and not split:
             image.coverage += np.bincount(slot[~miss], share[~miss], minlength=image.npix)
-            if show_env:
-                bg = np.full(miss.sum(), options.background_blur)
-                add(env.radiance(dirs[miss], bg) * share[miss, None], slot[miss])
+        elif split:
+            line = np.flatnonzero(~miss & (clear > 0))
+            assert cover is not None
+            image.coverage += np.bincount(slot[line], share[line] * clear[line] * cover[line],
+                                          minlength=image.npix)
+        if depth == 0 and show_env:
+            bg = np.full(miss.sum(), options.background_blur)
+            add(env.radiance(dirs[miss], bg) * share[miss, None], slot[miss])
         hits = hit_material(ts, origins, dirs, prim, u, v, t, lobes=False)
+        if cover is not None:
+            hits.occlusion = hits.occlusion * cover
         if ts.lights is not None and len(ts.lights):
             _light_hits(ts, ts.lights, env, options, origins, dirs, prim, t, hits,
-                        weight * share[:, None], slot, add)
+                        weight * share[:, None], slot, add, cover)
         kernel = _kernel()
         if kernel is not None:
             out = kernel.shade(
@@ -648,13 +688,49 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
                                                      dataclasses.fields(trace_material.Hits)[:9])),
                                weight[hit], pix[hit], sub[hit], slot[hit], blur[hit], share[hit],
                                medium[hit], add, stats)
+        if split:
+            assert cover is not None
+            out, clear = _pass_on(out, origins, dirs, t, weight, pix, sub, slot, blur, share, medium,
+                                  clear, _pass_share(ts, dirs, prim, cover, clear), eps)
         origins, dirs, weight, pix, sub, slot, blur, share, medium = out
 
 
+def _pass_share(ts: TraceScene, dirs, prim, cover: np.ndarray, clear: np.ndarray) -> np.ndarray:
+    """What goes on straight through a premultiplied blend, per ray (0 at anything else):
+    1 - opacity on the camera's line, as Storm blends what it sees; elsewhere (a reflection
+    meeting it) at most 1 - F besides the whole reflection F, so that a closed translucent
+    mesh, whose inside reflects its rays back and forth, cannot give more than it gets (the
+    rule's F + 1 - opacity passes 1 toward grazing, and grew by bounce)."""
+    go = np.where(cover < 1, 1.0 - cover, 0.0)
+    off = np.flatnonzero((cover < 1) & (clear <= 0))
+    if len(off):
+        k = ts.material[prim[off]]
+        cos_i = np.abs(np.einsum("ij,ij->i", dirs[off], ts.geo_normals[prim[off]]))
+        go[off] = np.minimum(go[off], 1.0 - fresnel_dielectric(cos_i, 1.0 / ts.ior[k]))
+    return go
+
+
+def _pass_on(children: tuple, origins, dirs, t, weight, pix, sub, slot, blur, share, medium,
+             clear, go_w: np.ndarray, eps: float) -> tuple[tuple, np.ndarray]:
+    """The shading's children and, after them, the rays that go on straight through the
+    premultiplied blends they hit, carrying `go_w` (_pass_share; culled as the children are);
+    with each one's `clear` (the children's: 0, off the camera's line)."""
+    go = np.flatnonzero((go_w > 0) & (weight.max(axis=1) * go_w * medium ** 2 > MIN_WEIGHT))
+    clear_out = np.concatenate([np.zeros(len(children[0])), clear[go] * go_w[go]])
+    if not len(go):
+        return children, clear_out
+    d = dirs[go].astype(np.float64)
+    through = (origins[go] + d * (t[go] + eps)[:, None], d, weight[go] * go_w[go, None],
+               pix[go], sub[go], slot[go], blur[go], share[go], medium[go])
+    return tuple(np.concatenate([c, x.astype(c.dtype, copy=False)]) for c, x in zip(children, through)), clear_out
+
+
 def _light_hits(ts: TraceScene, lights: trace_lights.Lights, env: _Environment,
-                options: RenderOptions, origins, dirs, prim, t, hits: trace_material.Hits, carried: np.ndarray, slot: np.ndarray, add) -> None:
+                options: RenderOptions, origins, dirs, prim, t, hits: trace_material.Hits, carried: np.ndarray, slot: np.ndarray, add,
+                cover: np.ndarray | None = None) -> None:
     """Next-event estimation: what the punctual lights reflect along each ray from the
-    surface it hit, times what the ray carries, into `add`. Hits from inside a transmissive
+    surface it hit, times what the ray carries, into `add` (`cover`: the opacity of a
+    premultiplied blend per ray, which scales the diffuse share). Hits from inside a transmissive
     object are skipped: light reaches them only refracted, which a straight shadow ray
     cannot follow."""
     sel = np.flatnonzero(prim >= 0)
@@ -678,9 +754,11 @@ def _light_hits(ts: TraceScene, lights: trace_lights.Lights, env: _Environment,
         todo = np.arange(len(o))
         for layer in range(trace_lights.MAX_LAYERS):
             # a blended surface stops a shadow ray with the probability of its alpha (as the
-            # path tracer's shadow rays and the raster's tint atlas: 1 - alpha gets through)
+            # path tracer's shadow rays and the raster's tint atlas: 1 - alpha gets through);
+            # a premultiplied one is met and lets 1 - alpha through untinted (no noise)
             draw = pixel_shift(todo + layer * len(o), 950 + layer)
-            hp, hu, hv, ht = intersect_front(ts, start[todo], ldir[todo], draw)
+            hp, hu, hv, ht = intersect_front(ts, start[todo], ldir[todo], draw,
+                                             stop_premultiplied=True)
             ht = np.asarray(ht, np.float64)
             blocked = (hp >= 0) & (ht < dist[todo] - 2 * eps)
             idx = todo[blocked]
@@ -694,8 +772,13 @@ def _light_hits(ts: TraceScene, lights: trace_lights.Lights, env: _Environment,
             else:  # the texel crossed, as the camera rays' tint has it
                 width = ts.spread * (np.linalg.norm(start[idx] - ts.eye, axis=-1) + ht[blocked])
                 cos_d = np.abs(np.einsum("ij,ij->i", ldir[idx], ts.geo_normals[pb]))
-                c = trace_material.base_rgba(ts.surface, km, pb, hu[blocked], hv[blocked],
-                                             width, cos_d)[:, :3]
+                rgba = trace_material.base_rgba(ts.surface, km, pb, hu[blocked], hv[blocked],
+                                                width, cos_d)
+                c = rgba[:, :3]
+                if ts.premultiplied.any():
+                    pm = ts.premultiplied[km]
+                    through = np.where(pm, 1.0 - np.clip(rgba[:, 3], 0.0, 1.0), through)
+                    c = np.where(pm[:, None], 1.0, c)
             # a crossing of a volume takes sqrt(c) (a closed solid of one colour: c in all,
             # as its camera rays); a thin sheet is one surface: c
             c = np.where(ts.thin[km][:, None], c, np.sqrt(np.maximum(c, 0.0)))
@@ -713,7 +796,7 @@ def _light_hits(ts: TraceScene, lights: trace_lights.Lights, env: _Environment,
 
     rgb = trace_lights.direct(lights, transmittance, p, n, ng, -d, hits.base[sel],
                               hits.metallic[sel], hits.roughness[sel], hits.transmission[sel],
-                              ts.ior[k], spec_albedo)
+                              ts.ior[k], spec_albedo, None if cover is None else cover[sel])
     add(rgb * carried[sel], slot[sel])
 
 

@@ -4,7 +4,8 @@ and the BRDF the raster's shaders/punctual.glsl evaluates (Lambert diffuse under
 lobe's directional albedo, GGX specular with Schlick Fresnel and Smith masking, the range
 and cone falloffs). A punctual light is a delta: BSDF sampling can never hit it, so NEE alone
 is unbiased and needs no MIS weight. Shadow rays pass alpha cut-outs and culled back faces as
-camera rays do, pass a blended surface with probability 1 - alpha (a uniform draw per ray),
+camera rays do, pass a blended surface with probability 1 - alpha (a uniform draw per ray;
+the tree tracer's cross a premultiplied one by 1 - opacity, untinted),
 and go straight through transmissive surfaces scaled by transmission x (1 - metallic) x the
 crossed texel's base colour c per thin sheet, x sqrt(c) per crossing of volume glass (so a
 closed solid of one colour gives c, as its camera rays; the caustic a refracting surface
@@ -93,14 +94,16 @@ def falloff(lights: Lights, i: int, p: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
 def direct(lights: Lights, occlusion_test, p: np.ndarray, n: np.ndarray, ng: np.ndarray,
            v: np.ndarray, base: np.ndarray, metallic: np.ndarray, roughness: np.ndarray,
-           transmission: np.ndarray, ior: np.ndarray, spec_albedo) -> np.ndarray:
+           transmission: np.ndarray, ior: np.ndarray, spec_albedo,
+           opacity: np.ndarray | None = None) -> np.ndarray:
     """N x 3 radiance reflected toward v (unit, pointing away from the surface) by surfaces at
     p (shading normal n and geometric normal ng both on v's side) from every light.
     `occlusion_test(origins, dirs, dist, normals)` -> N x 3 transmittance of the segments
     (rays leave off the surface along `normals`);
     `spec_albedo(f0, cos_v, roughness)` -> (single-scattering, total) N x 3 directional
     albedos of the lobe: the diffuse base gets what the total leaves, and the lobe is scaled
-    by total / single (its multiple scattering, as the raster)."""
+    by total / single (its multiple scattering, as the raster). `opacity` (per hit, None: 1)
+    scales the diffuse share alone: a premultiplied blend's (its specular stays whole)."""
     out = np.zeros((len(p), 3))
     n_v = np.clip(np.einsum("ij,ij->i", n, v), 1e-4, 1.0)
     dielectric = ((ior - 1) / (ior + 1)) ** 2
@@ -108,6 +111,8 @@ def direct(lights: Lights, occlusion_test, p: np.ndarray, n: np.ndarray, ng: np.
     e_ss, e_spec = spec_albedo(f0, n_v, roughness)
     ms_scale = e_spec / np.maximum(e_ss, 1e-4)
     diffuse = base * ((1 - metallic) * (1 - transmission))[:, None] / math.pi * (1 - e_spec)
+    if opacity is not None:
+        diffuse = diffuse * opacity[:, None]
     alpha = np.maximum(roughness * roughness, 1e-3)
     for i in range(len(lights)):
         ldir, dist, atten = falloff(lights, i, p)

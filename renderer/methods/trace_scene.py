@@ -41,6 +41,9 @@ class TraceScene:
     spread: float = 0.0          # ray cone angle per unit length (a camera ray's pixel share)
     lights: trace_lights.Lights | None = None  # punctual lights (next-event estimation)
     embree_cached: bool = False  # the Embree scene came from raytrace's in-process cache
+    # K bool: blended premultiplied as Storm blends a UsdPreviewSurface (core.scene.Material
+    # opacity_premultiplied): the tracers stop on it and split it (opacity)
+    premultiplied: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, bool))
 
 
 def intersect(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray):
@@ -61,11 +64,14 @@ def intersect(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray):
 
 
 def intersect_front(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray,
-                     draw: np.ndarray | None = None):
+                     draw: np.ndarray | None = None, stop_premultiplied: bool = False):
     """intersect, passing through the back faces of single-sided opaque materials and
     where alpha says so (MASK: below the cut-off; BLEND: where `draw`, a uniform per ray,
     is at or above alpha; draw None: 0, so that any alpha above 0 is found, as the first
-    pass that finds the object's pixels needs)."""
+    pass that finds the object's pixels needs). `stop_premultiplied`: a premultiplied
+    blend is always hit (at any opacity, even 0, its specular shows): the camera and bounce
+    rays, which go on through it as a ray of their own (`opacity`); shadow rays pass it
+    with probability 1 - opacity as any blend."""
     prim, u, v, t = intersect(ts, origins, dirs)
     surf = ts.surface
     tested = surf is not None and surf.alpha_tested.any()
@@ -80,7 +86,10 @@ def intersect_front(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray,
         back = np.einsum("ij,ij->i", dirs[hit], ts.geo_normals[prim[hit]]) > 0
         through = ts.culled[k] & back
         if surf is not None and tested:
-            at = np.flatnonzero(surf.alpha_tested[k] & ~through)
+            tested_k = surf.alpha_tested[k]
+            if stop_premultiplied and ts.premultiplied.any():
+                tested_k = tested_k & ~ts.premultiplied[k]
+            at = np.flatnonzero(tested_k & ~through)
             if len(at):
                 ray = hit[at]
                 width = ts.spread * (np.linalg.norm(origins[ray] - ts.eye, axis=-1) + t[ray])
@@ -100,6 +109,54 @@ def intersect_front(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray,
         prim[sel], u[sel], v[sel] = p2, u2, v2
         t[sel] = np.where(p2 >= 0, t2 + start, t2)
     return prim, u, v, t
+
+
+def opacity(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray, prim: np.ndarray,
+            u: np.ndarray, v: np.ndarray, t: np.ndarray) -> np.ndarray | None:
+    """Per ray the opacity (base alpha x texture x vertex alpha) of a premultiplied blend
+    it hit, 1 elsewhere (misses too); None where the scene has no premultiplied blend."""
+    surf = ts.surface
+    if surf is None or not ts.premultiplied.any():
+        return None
+    out = np.ones(len(prim))
+    hit = np.flatnonzero(prim >= 0)
+    sel = hit[ts.premultiplied[ts.material[prim[hit]]]]
+    if len(sel):
+        width = ts.spread * (np.linalg.norm(origins[sel] - ts.eye, axis=-1) + t[sel])
+        cos_d = np.abs(np.einsum("ij,ij->i", dirs[sel], ts.geo_normals[prim[sel]]))
+        a = trace_material.base_rgba(surf, ts.material[prim[sel]], prim[sel], u[sel], v[sel],
+                                     width, cos_d)[:, 3]
+        out[sel] = np.clip(a, 0.0, 1.0)
+    return out
+
+
+def coverage(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray, prim: np.ndarray, t: np.ndarray,
+             cover: np.ndarray | None, draw: np.ndarray | None = None) -> np.ndarray:
+    """Per camera ray what it covers (1 - the product of 1 - opacity over the premultiplied
+    blends it crosses, up to anything else it meets): 1 or 0 without any; `prim`, `t`,
+    `cover` its first hit (intersect_front with stop_premultiplied, opacity)."""
+    cov = (prim >= 0).astype(np.float64)
+    if cover is None:
+        return cov
+    todo = np.flatnonzero((prim >= 0) & (cover < 1))
+    cov[todo] = cover[todo]
+    left = 1.0 - cover[todo]
+    eps = EPSILON * ts.radius
+    o = origins[todo] + dirs[todo] * (np.asarray(t[todo], np.float64) + eps)[:, None]
+    d = dirs[todo]
+    for _ in range(MAX_CULLED):
+        if not len(todo):
+            break
+        p2, u2, v2, t2 = intersect_front(ts, o, d, None if draw is None else draw[todo], True)
+        a = opacity(ts, o, d, p2, u2, v2, t2)
+        assert a is not None
+        a = np.where(p2 >= 0, a, 0.0)
+        cov[todo] += left * a
+        left = left * (1.0 - a)
+        go = (p2 >= 0) & (a < 1)
+        todo, left, d = todo[go], left[go], d[go]
+        o = o[go] + d * (np.asarray(t2[go], np.float64) + eps)[:, None]
+    return cov
 
 
 def pixel_shift(pix: np.ndarray, depth: int) -> np.ndarray:

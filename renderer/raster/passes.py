@@ -165,7 +165,14 @@ def draw_blend(p: Pass, items: list[DrawItem]) -> None:
         p.ctx.blend_func = (src, moderngl.ONE_MINUS_SRC_ALPHA,  # type: ignore[assignment]  # stubs: 2 or 4
                             moderngl.ONE, moderngl.ONE_MINUS_SRC_ALPHA)
         prog, state = p.program(it)
-        p.draw(it, prog, state)
+        if it.material.double_sided or it.material.show_back_faces:
+            # its far side first, then its near side: the order a per-pixel sort gives a
+            # convex mesh (Storm sorts translucent fragments); in one draw the triangles'
+            # index order decided which side lay over the other
+            p.ctx.cull_face = "front"
+            p.draw(it, prog, state, cull=True)
+            p.ctx.cull_face = "back"
+        p.draw(it, prog, state, cull=True if it.material.double_sided or it.material.show_back_faces else None)
     p.fbo.depth_mask = True
     p.ctx.disable(moderngl.BLEND)
 
