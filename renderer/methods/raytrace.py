@@ -768,7 +768,9 @@ def _emitter_hits(ts: TraceScene, em: trace_lights.Emitters, env: _Environment,
         if not len(lit):
             continue
         idx, p_l, le = idx[lit], p_l[lit], le[lit]
-        vis = _transmittance(ts, p[idx], ldir[idx], dist[idx], ng[idx], 1600 + 8 * depth)
+        # off the surface by eps along ng, the ray meets the emitter up to eps / cos_e early
+        short = dist[idx] - EPSILON * ts.radius / np.maximum(np.abs(cos_e[idx]), 1e-3)
+        vis = _transmittance(ts, p[idx], ldir[idx], short, ng[idx], 1600 + 8 * depth)
         h = ldir[idx] + v[idx]
         h /= np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-12)
         n_h = np.clip(np.einsum("ij,ij->i", n[idx], h), 0.0, 1.0)
