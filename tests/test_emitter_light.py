@@ -123,3 +123,28 @@ def test_compiled_kernel_matches_its_numpy_twin_with_emitters(monkeypatch):
     slow = render_raytrace(asset, env, _options(width=32, height=32))
     assert fast.plan["rays"] == slow.plan["rays"]
     np.testing.assert_allclose(fast.linear, slow.linear, atol=1e-4)
+
+
+def test_compiled_emitter_choice_matches_its_numpy_twin(monkeypatch):
+    """trace_kernel.emitter_pick against trace_lights' numpy odds: the same emitter and
+    probability at every point, one-sided emitters never chosen from behind."""
+    from renderer.methods import trace_lights
+    rng = np.random.default_rng(5)
+    tri = rng.normal(size=(40, 3, 3))
+    em = trace_lights.emitters_of(tri, np.arange(40) % 3, np.array([[1.0, 1, 1], [0, 0, 0], [2, 1, 0.5]]),
+                                  np.ones(3, bool), np.array([False, False, True]))
+    assert em is not None and len(em) == 27  # material 1 emits nothing
+    x, u = rng.normal(size=(5000, 3)) * 3, rng.random(5000)
+    fast = trace_lights.emitter_choice(em, x, u)
+    fast_odds = trace_lights.emitter_odds(em, x, fast[0])
+    monkeypatch.setattr(trace_lights, "KERNEL", False)
+    slow = trace_lights.emitter_choice(em, x, u)
+    assert np.array_equal(fast[0], slow[0])
+    np.testing.assert_allclose(fast[1], slow[1], rtol=1e-12)
+    np.testing.assert_allclose(fast_odds, trace_lights.emitter_odds(em, x, slow[0]), rtol=1e-12)
+    np.testing.assert_allclose(fast_odds, fast[1], rtol=1e-12)
+    behind = np.einsum("ij,ij->i", x - em.p0[fast[0]], em.normal[fast[0]]) <= 0
+    assert not (behind & ~em.two_sided[fast[0]] & (fast[1] > 0)).any()
+    # the odds over all emitters sum to one wherever any can light the point
+    total = sum(trace_lights.emitter_odds(em, x, np.full(len(x), k)) for k in range(len(em)))
+    np.testing.assert_allclose(total[total > 0], 1.0, rtol=1e-9)

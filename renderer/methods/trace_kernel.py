@@ -439,6 +439,41 @@ def r2_pair(pix, s, dim, a1, a2):
     return a, b
 
 
+@njit(cache=True, parallel=True)
+def emitter_pick(x, u, centre, p0, normal, area, power, two_sided, pick):
+    """trace_lights.emitter_choice's local odds, one point at a time (no N x E temporaries):
+    with `pick`, the emitter u chooses at each point x and its probability; else u holds
+    emitter indices and only their probabilities are returned (trace_lights.emitter_odds)."""
+    n, e = len(x), len(centre)
+    j_out = np.zeros(n, np.int64)
+    prob = np.zeros(n)
+    for i in prange(n):
+        w = np.empty(e)
+        total = 0.0
+        for k in range(e):
+            w[k] = 0.0
+            s = ((x[i, 0] - p0[k, 0]) * normal[k, 0] + (x[i, 1] - p0[k, 1]) * normal[k, 1]
+                 + (x[i, 2] - p0[k, 2]) * normal[k, 2])
+            if two_sided[k] or s > 0:
+                dx, dy, dz = centre[k, 0] - x[i, 0], centre[k, 1] - x[i, 1], centre[k, 2] - x[i, 2]
+                w[k] = power[k] / max(dx * dx + dy * dy + dz * dz, area[k])
+            total += w[k]
+        if total <= 0:
+            continue
+        if pick:
+            target, acc, j = u[i] * total, 0.0, e - 1
+            for k in range(e):
+                acc += w[k]
+                if acc > target:
+                    j = k
+                    break
+        else:
+            j = np.int64(u[i])
+        j_out[i] = j
+        prob[i] = w[j] / total
+    return j_out, prob
+
+
 def warm() -> None:
     """Compile (or load from numba's cache) every signature the tracer calls, on empty
     arrays: `python -m renderer.methods.trace_kernel`, run by `make install` and `make test` so that
@@ -452,6 +487,8 @@ def warm() -> None:
               e3, e, e, e, e, e3, np.zeros(0, np.bool_), e3, e, e, e3, np.zeros((2, 2, 2)), 0, 1, 1e-4, True, False, True,
               1e-3, _SOBOL_DIM1, 0.0, 0.0)
     sample_cube(np.zeros((6, 2, 2, 3), f32), e3, _S_AXIS, _S_SIGN, _T_AXIS, _T_SIGN)
+    for pick in (True, False):
+        emitter_pick(e3, e, e3, e3, e3, e, e, np.zeros(0, np.bool_), pick)
     r2_pair(np.zeros(0, i64), 0, 0, 0.5, 0.5)
     # the textures, the hits' material, the path BSDF
     from renderer.methods import material_kernel, path_kernel, texel_kernel

@@ -191,6 +191,16 @@ def _weights(em: Emitters, x: np.ndarray) -> np.ndarray:
     return np.where(front, em.power[None, :] / d2, 0.0)
 
 
+KERNEL = True  # the local odds compiled (trace_kernel.emitter_pick; False: the numpy `_weights`)
+
+
+def _compiled(em: Emitters, x: np.ndarray, u: np.ndarray, pick: bool):
+    from renderer.methods import trace_kernel  # numba loads only in a process that traces
+    return trace_kernel.emitter_pick(np.ascontiguousarray(x, np.float64), np.ascontiguousarray(u, np.float64),
+                                     em.p0 + (em.e1 + em.e2) / 3.0, em.p0, em.normal, em.area,
+                                     em.power, em.two_sided, pick)
+
+
 def emitter_choice(em: Emitters, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(emitter index, its choice probability) for points x and uniforms u: with up to
     LOCAL_EMITTERS triangles by `_weights` (the nearer and brighter, the likelier: a grey
@@ -199,6 +209,8 @@ def emitter_choice(em: Emitters, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarr
     if len(em) > LOCAL_EMITTERS:
         j = np.minimum(np.searchsorted(em.cdf, u, side="right"), len(em) - 1)
         return j, em.power[j] / em.power.sum()
+    if KERNEL:
+        return _compiled(em, x, u, True)
     j, prob = np.zeros(len(x), np.int64), np.zeros(len(x))
     step = max(1, _CHUNK // len(em))
     for a in range(0, len(x), step):
@@ -215,6 +227,8 @@ def emitter_odds(em: Emitters, x: np.ndarray, j: np.ndarray) -> np.ndarray:
     """The probability emitter_choice gives emitter j[i] from point x[i]."""
     if len(em) > LOCAL_EMITTERS:
         return em.power[j] / em.power.sum()
+    if KERNEL:
+        return _compiled(em, x, j.astype(np.float64), False)[1]
     out = np.zeros(len(x))
     step = max(1, _CHUNK // len(em))
     for a in range(0, len(x), step):
