@@ -678,7 +678,7 @@ def _light_hits(ts: TraceScene, lights: trace_lights.Lights, env: _Environment,
     sel, k, d, ng, n, p = side
 
     def transmittance(o: np.ndarray, ldir: np.ndarray, dist: np.ndarray, normal: np.ndarray) -> np.ndarray:
-        return _transmittance(ts, o, ldir, dist, normal, 950)
+        return shadow_transmittance(ts, o, ldir, dist, normal, 950)
 
     def spec_albedo(f0: np.ndarray, cos_v: np.ndarray, rough: np.ndarray):
         return (env.specular_albedo(f0, cos_v, rough, False),
@@ -770,7 +770,7 @@ def _emitter_hits(ts: TraceScene, em: trace_lights.Emitters, env: _Environment,
         idx, p_l, le = idx[lit], p_l[lit], le[lit]
         # off the surface by eps along ng, the ray meets the emitter up to eps / cos_e early
         short = dist[idx] - EPSILON * ts.radius / np.maximum(np.abs(cos_e[idx]), 1e-3)
-        vis = _transmittance(ts, p[idx], ldir[idx], short, ng[idx], 1600 + 8 * depth)
+        vis = shadow_transmittance(ts, p[idx], ldir[idx], short, ng[idx], 1600 + 8 * depth)
         h = ldir[idx] + v[idx]
         h /= np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-12)
         n_h = np.clip(np.einsum("ij,ij->i", n[idx], h), 0.0, 1.0)
@@ -801,7 +801,39 @@ def _mis_emission(em: trace_lights.Emitters, origins, dirs, prim, t, hits: trace
     hits.emission[sel] *= (1.0 / (1.0 + r * r))[:, None]
 
 
-def _transmittance(ts: TraceScene, o: np.ndarray, ldir: np.ndarray, dist: np.ndarray,
+def emitter_irradiance(ts: TraceScene, em: trace_lights.Emitters, p: np.ndarray, n: np.ndarray,
+                       ng: np.ndarray, samples: int, seed: int = 0) -> np.ndarray:
+    """N x 3 irradiance the emitters give points p (shading normal n, geometric ng on the lit
+    side), shadowed, by `samples` emitter points each (iid, as _emitter_hits chooses them;
+    no MIS: nothing else finds emitters here). For measurements such as a per-vertex bake's."""
+    rng = np.random.default_rng(seed)
+    out = np.zeros((len(p), 3))
+    x = p + EPSILON * ts.radius * ng
+    for _ in range(samples):
+        u0, u1, u2 = rng.random((3, len(p)))
+        j, odds = trace_lights.emitter_choice(em, x, u0)
+        r1 = np.sqrt(u1)
+        bu, bv = r1 * (1 - u2), r1 * u2
+        q = em.p0[j] + bu[:, None] * em.e1[j] + bv[:, None] * em.e2[j]
+        dist = np.linalg.norm(q - p, axis=-1)
+        ldir = (q - p) / np.maximum(dist, 1e-30)[:, None]
+        cos_e = -np.einsum("ij,ij->i", ldir, em.normal[j])
+        n_l = np.einsum("ij,ij->i", n, ldir)
+        idx = np.flatnonzero(((cos_e > 0) | em.two_sided[j]) & (n_l > 0) & (odds > 0)
+                             & (np.einsum("ij,ij->i", ng, ldir) > 0) & (np.abs(cos_e) > 1e-9))
+        if not len(idx):
+            continue
+        tri = em.tri[j[idx]]
+        p_l = odds[idx] / em.area[j[idx]] * dist[idx] ** 2 / np.abs(cos_e[idx])
+        le = hit_material(ts, p[idx], ldir[idx], tri.astype(np.int32), bu[idx].astype(np.float32),
+                          bv[idx].astype(np.float32), dist[idx], lobes=False).emission
+        short = dist[idx] - EPSILON * ts.radius / np.maximum(np.abs(cos_e[idx]), 1e-3)
+        vis = shadow_transmittance(ts, p[idx], ldir[idx], short, ng[idx], 1600)
+        out[idx] += le * vis * (n_l[idx] / p_l)[:, None]
+    return out / samples
+
+
+def shadow_transmittance(ts: TraceScene, o: np.ndarray, ldir: np.ndarray, dist: np.ndarray,
                    normal: np.ndarray, salt: int) -> np.ndarray:
     """N x 3 of what gets through the segments from o (offset off the surface along `normal`)
     along ldir for dist: alpha cut-outs and culled back faces pass, a blended surface stops the
