@@ -15,6 +15,10 @@ of the emitters' irradiance E, taken two ways:
 Each is scored against the Cycles frame with bench fidelity's LDR FLIP; the bake's time is
 printed beside it, and `--sheet` writes raster, raster + vertex bake, raster + per pixel,
 Cycles side by side. It is a measurement: the raster does not add either.
+
+`--tree-samples 0,1,2` also renders the ray tracer's default (tree) frame with each number of
+emitter points a ray (raytrace.EMITTER_SAMPLES; 0: emitters light nothing, as before issue
+30) and prints its FLIP and the median of `--repeat` frame times, all in the same run.
 """
 from __future__ import annotations
 
@@ -55,6 +59,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--pixel-samples", type=int, default=256)
     p.add_argument("--cache", default="/tmp/emitter-irradiance-cache")
     p.add_argument("--sheet", default="")
+    p.add_argument("--tree-samples", default="", help="comma-separated EMITTER_SAMPLES to time the tree at")
+    p.add_argument("--repeat", type=int, default=3)
     args = p.parse_args(argv)
 
     folder = Path(args.samples) / args.model
@@ -127,6 +133,20 @@ def main(argv: list[str] | None = None) -> int:
     lit = e_pixel.sum(1) > 0.05 * e_pixel.sum(1).max()
     print(f"vertex vs pixel irradiance on the lit pixels: median |error| {np.median(rel[lit]) * 100:.0f}%, "
           f"90th percentile {np.percentile(rel[lit], 90) * 100:.0f}%")
+    if args.tree_samples:
+        traced = o.replace(method="raytrace")
+        render(asset, env, traced)  # compiled kernels loaded, Embree scene cached
+        kept = raytrace.EMITTER_SAMPLES
+        for n_s in (int(x) for x in args.tree_samples.split(",")):
+            raytrace.EMITTER_SAMPLES = n_s
+            times = []
+            for _ in range(args.repeat):
+                t0 = time.perf_counter()
+                img = render(asset, env, traced).linear
+                times.append((time.perf_counter() - t0) * 1e3)
+            print(f"raytrace (tree), {n_s} emitter points a ray   {flip_ldr(img, ref):.3f}   "
+                  f"median {np.median(times):.0f} ms of {args.repeat}")
+        raytrace.EMITTER_SAMPLES = kept
     if args.sheet:
         from PIL import Image
 

@@ -44,7 +44,10 @@ on a smooth sheet; refracted in about the sampled microfacet and out through the
 rough one.
 Single-sided opaque materials are invisible from behind (rays pass through their back faces,
 as raster culling does); transmissive ones keep both sides (rays inside glass meet back
-faces). Emissive surfaces add their emission wherever a path meets them.
+faces). Emissive surfaces add their emission wherever a path meets them, and light the
+surfaces the rays meet by next-event estimation (`_emitter_hits`: a point on an emissive
+triangle a ray, a shadow ray, the diffuse share in full and the glossy share weighed against the
+mirror child by the power heuristic; docs/raytrace.md, "Emitters as lights").
 
 The material at a hit is the baked one the raster reads (renderer.methods.trace_material):
 factors times base colour, metal-rough, normal (baked tangents), occlusion, emissive and
