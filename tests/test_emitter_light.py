@@ -71,7 +71,9 @@ def test_grey_card_matches_the_form_factor_and_the_path_tracer():
     """Lambert (IOR 1: no specular) under a black sky: all its light is the emitter's."""
     asset = _card_under_emitter(roughness=1.0, ior=1.0)
     env = constant_env(0.0)
-    tree = render_raytrace(asset, env, _options()).linear[..., :3].mean(-1)
+    frame = render_raytrace(asset, env, _options())
+    assert frame.plan["emitters"] == 2  # the quad's two triangles
+    tree = frame.linear[..., :3].mean(-1)
     path = render_raytrace(asset, env, _options(integrator="path", samples=64, noise=0.0,
                                                 bounces=4)).linear[..., :3].mean(-1)
     on, exact = _analytic(_options(), asset)

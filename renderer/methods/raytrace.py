@@ -425,7 +425,8 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     passes = _dispersion_passes(ts, asset, options)
     images = [_Image(npix) for _ in passes]
     image = images[0]
-    stats: dict[str, Any] = {"rays": npix, "bounces": [], "tir": 0, "embree_cached": ts.embree_cached}
+    stats: dict[str, Any] = {"rays": npix, "bounces": [], "tir": 0, "embree_cached": ts.embree_cached,
+                             "emitters": len(ts.emitters) if ts.emitters is not None else 0}
     show_env = options.background == "env"
 
     # Adaptive anti-aliasing: one centre ray finds the object; pixels on or next to it get
@@ -1041,7 +1042,9 @@ def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOpt
             "supersample": stats["supersample"],
             "rays": stats["rays"], "rays_per_bounce": stats["bounces"],
             "tir_events": stats["tir"], "integrator": options.integrator,
-            "embree_cached": stats["embree_cached"], "rough_pixels": stats.get("rough_pixels", 0)}
+            "embree_cached": stats["embree_cached"], "rough_pixels": stats.get("rough_pixels", 0),
+            # emissive triangles the tree samples as lights (the path integrator finds them by its rays)
+            "emitters": stats["emitters"] if options.integrator == "tree" and EMITTER_SAMPLES > 0 else 0}
     if options.integrator == "path":
         plan.update(passes=stats["passes"], samples_mean=round(stats["samples_mean"], 2),
                     stop=stats["stop"], nonfinite=stats.get("nonfinite", 0),
