@@ -47,7 +47,7 @@ as raster culling does); transmissive ones keep both sides (rays inside glass me
 faces). Emissive surfaces add their emission wherever a path meets them, and light the
 surfaces the rays meet by next-event estimation (`_emitter_hits`: a point on an emissive
 triangle a ray, a shadow ray, the diffuse share in full and the glossy share weighed against the
-mirror child by the power heuristic; docs/raytrace.md, "Emitters as lights").
+mirror child by roughness; docs/raytrace.md, "Emitters as lights").
 
 The material at a hit is the baked one the raster reads (renderer.methods.trace_material):
 factors times base colour, metal-rough, normal (baked tangents), occlusion, emissive and
@@ -585,7 +585,7 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
     share = np.full(len(dirs), sample_share)  # its part of the pixel
     blur = np.zeros(len(dirs))  # sum of squared GGX alphas of the lobes along the path
     medium = np.ones(len(dirs))  # IOR around the ray (outside every object: air)
-    pdf = np.full(len(dirs), np.inf)  # mirror pdf / emitter samples of the parent (inf: none)
+    mirror = np.ones(len(dirs))  # of a light triangle's emission, the share a ray counts
     emitters = ts.emitters if EMITTER_SAMPLES > 0 else None
     # fresnel_split="sample": sub-ray j of a pixel's S draws (j + 0.5) / S + shift (mod 1), the
     # shift a hash of pixel and bounce: each draw uniform and independent of the previous
@@ -630,7 +630,7 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
         n_nee = 0
         if emitters is not None:
             n_nee = EMITTER_SAMPLES if depth == 0 else 1
-            _mis_emission(emitters, origins, dirs, prim, t, hits, pdf)
+            _mirror_emission(emitters, prim, hits, mirror)
             _emitter_hits(ts, emitters, env, options, origins, dirs, prim, t, hits,
                           weight * share[:, None], pix, sub, n_sub, depth, n_nee, slot, add)
         kernel = _kernel()
@@ -644,7 +644,8 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
                 np.asarray(env.baked.brdf_lut, np.float64), depth, n_sub, eps,
                 options.rough_lobes == "sample", options.fresnel_split == "sample",
                 options.multiscatter, MIN_WEIGHT, kernel._SOBOL_DIM1,
-                ROULETTE if options.fresnel_split == "roulette" else 0.0, float(n_nee))
+                ROULETTE if options.fresnel_split == "roulette" else 0.0, float(n_nee),
+                *trace_lights.MIRROR_ROUGH)
             m_dir, m_w, m_blur, m_slot, direct, glow, diffuse, dnorm, matte, tir = out[10:]
             if depth > 0 and len(m_slot):
                 add(m_w * env.radiance(m_dir, m_blur ** 0.25), m_slot)
@@ -667,7 +668,7 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
                                                      dataclasses.fields(trace_material.Hits)[:9])),
                                weight[hit], pix[hit], sub[hit], slot[hit], blur[hit], share[hit],
                                medium[hit], n_nee, add, stats)
-        origins, dirs, weight, pix, sub, slot, blur, share, medium, pdf = out
+        origins, dirs, weight, pix, sub, slot, blur, share, medium, mirror = out
 
 
 def _light_hits(ts: TraceScene, lights: trace_lights.Lights, env: _Environment,
@@ -720,12 +721,13 @@ def _emitter_hits(ts: TraceScene, em: trace_lights.Emitters, env: _Environment,
                   n_s: int, slot: np.ndarray, add) -> None:
     """Next-event estimation toward the emissive triangles: n_s points a ray (the triangle
     chosen by trace_lights.emitter_choice, stratified over the pixel's rays; the point uniform
-    on it, from the pixel's scrambled Sobol set), a shadow ray to each, and what the BRDF of trace_lights.direct
-    reflects of the emission there (read at the point, textures included). The diffuse share
-    takes all of it: the tree's diffuse reads only the sky. The glossy share is weighted by
-    the power heuristic against the mirror child, which meets the emitters too
-    (_mis_emission weighs those hits alike, from the pdf this hit gives its child); rough glass with sampled lobes
-    reflects a child drawn from its lobe, which alone is unbiased: no glossy share here."""
+    on it, from the pixel's scrambled Sobol set), a shadow ray to each, and what the BRDF of
+    trace_lights.direct reflects of the emission there (read at the point, textures included).
+    The diffuse share takes all of it: the tree's diffuse reads only the sky. The glossy share
+    is split with the mirror child, which meets the emitters too, by trace_lights.mirror_share
+    of the roughness (the child carries its share, _mirror_emission applies it); rough glass
+    with sampled lobes reflects a child drawn from its lobe, which alone is unbiased there: no
+    glossy share here."""
     side = _lit_side(ts, origins, dirs, prim, t, hits)
     if side is None:
         return
@@ -742,9 +744,9 @@ def _emitter_hits(ts: TraceScene, em: trace_lights.Emitters, env: _Environment,
     diffuse = base * ((1 - metal) * (1 - trans))[:, None] / math.pi * (1 - e_spec)
     alpha = np.maximum(rough * rough, 1e-3)
     glossy = ~((rough > 0) & (trans > 0)) if options.rough_lobes == "sample" else np.ones(len(sel), bool)
+    w_l = np.where(glossy, 1.0 - trace_lights.mirror_share(rough), 0.0)  # the mirror child has the rest
     out = np.zeros((len(sel), 3))
-    # chosen from where the mirror child starts, so that _mis_emission reads the same odds
-    x = p + EPSILON * ts.radius * ng
+    x = p + EPSILON * ts.radius * ng  # off the surface (a point on the card is on no emitter)
     for s in range(n_s):
         strata = sub[sel] * n_s + s
         u0 = ((strata + 0.5) / (n_sub * n_s) + pixel_shift(pix[sel], 1300 + depth)) % 1.0
@@ -780,29 +782,19 @@ def _emitter_hits(ts: TraceScene, em: trace_lights.Emitters, env: _Environment,
         n_h = np.clip(np.einsum("ij,ij->i", n[idx], h), 0.0, 1.0)
         v_h = np.clip(np.einsum("ij,ij->i", v[idx], h), 0.0, 1.0)
         spec = trace_lights.ggx_spec(f0[idx], alpha[idx], n_v[idx], n_l[idx], n_h, v_h) * ms_scale[idx]
-        ratio = trace_lights.ggx_reflect_pdf(alpha[idx], n_v[idx], n_h) / p_l
-        w_l = np.where(glossy[idx], 1.0 / (1.0 + ratio * ratio), 0.0)
-        out[idx] += (diffuse[idx] + spec * w_l[:, None]) * le * vis * (n_l[idx] / p_l)[:, None]
+        out[idx] += (diffuse[idx] + spec * w_l[idx, None]) * le * vis * (n_l[idx] / p_l)[:, None]
     add(out * carried[sel], slot[sel])
 
 
-def _mis_emission(em: trace_lights.Emitters, origins, dirs, prim, t, hits: trace_material.Hits,
-                  pdf: np.ndarray) -> None:
-    """Weigh the emission of the light triangles these rays hit by the power heuristic
-    against the emitter samples their parent took (pdf: the parent's mirror pdf per sample;
-    inf where it took none, and the weight is 1), in place in hits.emission."""
-    sel = np.flatnonzero((prim >= 0) & np.isfinite(pdf))
-    if not len(sel):
-        return
-    j = em.index[prim[sel]]
-    sel, j = sel[j >= 0], j[j >= 0]
-    if not len(sel):
-        return
-    cos_e = np.abs(np.einsum("ij,ij->i", dirs[sel], em.normal[j]))
-    odds = trace_lights.emitter_odds(em, np.asarray(origins[sel], np.float64), j)
-    p_l = odds / em.area[j] * np.asarray(t[sel], np.float64) ** 2 / np.maximum(cos_e, 1e-12)
-    r = p_l / pdf[sel]
-    hits.emission[sel] *= (1.0 / (1.0 + r * r))[:, None]
+def _mirror_emission(em: trace_lights.Emitters, prim, hits: trace_material.Hits,
+                     mirror: np.ndarray) -> None:
+    """Scale the emission of the light triangles these rays hit by the share their parent
+    left to its mirror child (trace_lights.mirror_share; 1 where the parent sampled no
+    emitters), in place in hits.emission."""
+    sel = np.flatnonzero((prim >= 0) & (mirror < 1.0))
+    sel = sel[em.index[prim[sel]] >= 0]
+    if len(sel):
+        hits.emission[sel] *= mirror[sel, None]
 
 
 def emitter_irradiance(ts: TraceScene, em: trace_lights.Emitters, p: np.ndarray, n: np.ndarray,
@@ -889,7 +881,7 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
                  sl, v_in, sh, n_in, nee: int, add, stats: dict) -> tuple:
     """The numpy twin of renderer.methods.trace_kernel.shade (the reference the kernel is tested
     against): one bounce's hits -> their children (origin, dir, weight, pix, sub, slot,
-    blur, share, medium, mirror pdf); emission and the diffuse share go straight into `add`."""
+    blur, share, medium, mirror share); emission and the diffuse share go straight into `add`."""
     ns = hits.normal.copy()
     ng = ts.geo_normals[prim].astype(np.float64)
     entering = np.einsum("ij,ij->i", d, ng) < 0
@@ -1001,12 +993,12 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
             draw = ((sb + 0.5) / n_sub + pixel_shift(px, depth + salt)) % 1.0
             keep &= ~weak | (draw < carried / ROULETTE)
             cw[weak] *= (ROULETTE / np.maximum(carried[weak], 1e-30))[:, None]
-    # The mirror child's pdf where this hit sampled the emitters (_emitter_hits' condition)
-    pdf_r = np.full(len(d), np.inf)
+    # The mirror child's share of a light's emission where this hit sampled the emitters
+    # (_emitter_hits' condition)
+    share_r = np.ones(len(d))
     if nee:
         sampled = ~lobe & (entering | (trans <= 0))
-        a_r = np.maximum(rough_k * rough_k, 1e-3)
-        pdf_r[sampled] = (trace_lights.ggx_reflect_pdf(a_r, cos_c, 1.0) / nee)[sampled]
+        share_r[sampled] = trace_lights.mirror_share(rough_k)[sampled]
     # Each child starts off the surface on the side it leaves toward (a reflection about
     # a shading or microfacet normal may dip below the geometric surface).
     out_r = np.where(np.einsum("ij,ij->i", rdir, ng) >= 0, eps, -eps)[:, None] * ng
@@ -1018,7 +1010,7 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
             np.concatenate([sl[keep_r], sl[keep_t]]),
             np.concatenate([v_refl[keep_r], v_refr[keep_t]]),
             np.concatenate([sh[keep_r], sh[keep_t]]), np.concatenate([n_in[keep_r], n_t[keep_t]]),
-            np.concatenate([pdf_r[keep_r], np.full(int(keep_t.sum()), np.inf)]))
+            np.concatenate([share_r[keep_r], np.ones(int(keep_t.sum()))]))
 
 
 def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
