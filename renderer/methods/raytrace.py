@@ -44,7 +44,10 @@ on a smooth sheet; refracted in about the sampled microfacet and out through the
 rough one.
 Single-sided opaque materials are invisible from behind (rays pass through their back faces,
 as raster culling does); transmissive ones keep both sides (rays inside glass meet back
-faces). Emissive surfaces add their emission wherever a path meets them.
+faces). Emissive surfaces add their emission wherever a path meets them, and light the
+surfaces the rays meet by next-event estimation (`_emitter_hits`: a point on an emissive
+triangle a ray, a shadow ray, the diffuse share in full and the glossy share weighed against the
+mirror child by roughness; docs/raytrace.md, "Emitters as lights").
 
 The material at a hit is the baked one the raster reads (renderer.methods.trace_material):
 factors times base colour, metal-rough, normal (baked tangents), occlusion, emissive and
@@ -124,6 +127,7 @@ ROULETTE = 0.1         # fresnel_split="roulette": weaker children go on with P 
 CHUNK_PIXELS = 1 << 18  # supersampled pixels traced together: bounds memory at any size
 KERNEL = True          # shade hits with the compiled trace_kernel (False: the numpy twin)
 ROUGH_EXTRA = 1        # the default grid's extra rays a side on pixels whose centre meets rough glass
+EMITTER_SAMPLES = 1    # points on emissive triangles per ray at every surface (0: emitters light nothing)
 
 
 def _kernel():
@@ -186,17 +190,23 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
     col = list(zip(*tables)) if tables else [[]] * 9
     surface = trace_material.build_surface(asset, materials, parts, tri,
                                            texture_size_for(max(options.width, options.height)))
+    material = np.concatenate(mats) if mats else np.zeros(0, np.int32)
+    emission = np.asarray(col[7], np.float64).reshape(-1, 3)
+    emitters = trace_lights.emitters_of(tri, material, emission,
+                                        np.asarray([not m.unlit for m in materials], bool),
+                                        ~np.asarray(col[6], bool)) if len(material) else None
     return TraceScene(
         embree=scene, normals=nrm.astype(np.float32), geo_normals=ng.astype(np.float32),
-        material=np.concatenate(mats) if mats else np.zeros(0, np.int32),
+        material=material,
         base=np.asarray(col[0], np.float64).reshape(-1, 3),
         metallic=np.asarray(col[1], np.float64), roughness=np.asarray(col[2], np.float64),
         transmission=np.asarray(col[3], np.float64), ior=np.asarray(col[4], np.float64),
         sigma=np.asarray(col[5], np.float64).reshape(-1, 3), culled=np.asarray(col[6], bool),
-        emission=np.asarray(col[7], np.float64).reshape(-1, 3), thin=np.asarray(col[8], bool),
+        emission=emission, thin=np.asarray(col[8], bool),
         radius=max(float(np.linalg.norm(hi - lo)) / 2, 1e-6), surface=surface, embree_cached=cached,
         premultiplied=np.asarray([m.alpha_mode == "BLEND" and m.opacity_premultiplied
-                                  for m in materials], bool))
+                                  for m in materials], bool),
+        emitters=emitters)
 
 
 # Built Embree scenes by the digest of their world-space vertices and faces: the service renders
@@ -422,7 +432,8 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     passes = _dispersion_passes(ts, asset, options)
     images = [_Image(npix) for _ in passes]
     image = images[0]
-    stats: dict[str, Any] = {"rays": npix, "bounces": [], "tir": 0, "embree_cached": ts.embree_cached}
+    stats: dict[str, Any] = {"rays": npix, "bounces": [], "tir": 0, "embree_cached": ts.embree_cached,
+                             "emitters": len(ts.emitters) if ts.emitters is not None else 0}
     show_env = options.background == "env"
 
     # Adaptive anti-aliasing: one centre ray finds the object; pixels on or next to it get
@@ -582,6 +593,8 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
     share = np.full(len(dirs), sample_share)  # its part of the pixel
     blur = np.zeros(len(dirs))  # sum of squared GGX alphas of the lobes along the path
     medium = np.ones(len(dirs))  # IOR around the ray (outside every object: air)
+    mirror = np.ones(len(dirs))  # of a light triangle's emission, the share a ray counts
+    emitters = ts.emitters if EMITTER_SAMPLES > 0 else None
     # fresnel_split="sample": sub-ray j of a pixel's S draws (j + 0.5) / S + shift (mod 1), the
     # shift a hash of pixel and bounce: each draw uniform and independent of the previous
     # bounce's, and the pixel's S choices stratified (exactly F of them reflect, not about F).
@@ -632,9 +645,9 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
                 bg = np.full(lost.sum(), options.background_blur)
                 add(env.radiance(dirs[lost], bg) * (weight[lost] * share[lost, None]), slot[lost])
             keep = np.flatnonzero(~lost)
-            origins, dirs, weight, pix, sub, slot, blur, share, medium, clear, prim, u, v, t = (  # type: ignore[assignment]  # one selection of all
-                a[keep] for a in (origins, dirs, weight, pix, sub, slot, blur, share, medium, clear,
-                                  prim, u, v, t))
+            origins, dirs, weight, pix, sub, slot, blur, share, medium, mirror, clear, prim, u, v, t = (  # type: ignore[assignment]  # one selection of all
+                a[keep] for a in (origins, dirs, weight, pix, sub, slot, blur, share, medium, mirror,
+                                  clear, prim, u, v, t))
             miss = prim < 0
             if cover is not None:
                 cover = cover[keep]
@@ -654,6 +667,12 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
         if ts.lights is not None and len(ts.lights):
             _light_hits(ts, ts.lights, env, options, origins, dirs, prim, t, hits,
                         weight * share[:, None], slot, add, cover)
+        n_nee = 0
+        if emitters is not None:
+            n_nee = EMITTER_SAMPLES if depth == 0 else 1
+            _mirror_emission(emitters, prim, hits, mirror)
+            _emitter_hits(ts, emitters, env, options, origins, dirs, prim, t, hits,
+                          weight * share[:, None], pix, sub, n_sub, depth, n_nee, slot, add, cover)
         kernel = _kernel()
         if kernel is not None:
             out = kernel.shade(
@@ -665,8 +684,9 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
                 np.asarray(env.baked.brdf_lut, np.float64), depth, n_sub, eps,
                 options.rough_lobes == "sample", options.fresnel_split == "sample",
                 options.multiscatter, MIN_WEIGHT, kernel._SOBOL_DIM1,
-                ROULETTE if options.fresnel_split == "roulette" else 0.0)
-            m_dir, m_w, m_blur, m_slot, direct, glow, diffuse, dnorm, matte, tir = out[9:]
+                ROULETTE if options.fresnel_split == "roulette" else 0.0, float(n_nee),
+                *trace_lights.MIRROR_ROUGH)
+            m_dir, m_w, m_blur, m_slot, direct, glow, diffuse, dnorm, matte, tir = out[10:]
             if depth > 0 and len(m_slot):
                 add(m_w * env.radiance(m_dir, m_blur ** 0.25), m_slot)
             stats["tir"] += int(tir)
@@ -674,7 +694,7 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
                 add(direct, glow)
             if len(matte):
                 add(diffuse * env.irradiance(dnorm), matte)
-            out = out[:9]
+            out = out[:10]
         else:
             if depth > 0:
                 add((weight[miss] * share[miss, None]) * env.radiance(dirs[miss], blur[miss] ** 0.25),
@@ -687,12 +707,12 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
                                trace_material.Hits(*(getattr(hits, f.name)[sel] for f in  # the core
                                                      dataclasses.fields(trace_material.Hits)[:9])),
                                weight[hit], pix[hit], sub[hit], slot[hit], blur[hit], share[hit],
-                               medium[hit], add, stats)
+                               medium[hit], n_nee, add, stats)
         if split:
             assert cover is not None
             out, clear = _pass_on(out, origins, dirs, t, weight, pix, sub, slot, blur, share, medium,
                                   clear, _pass_share(ts, dirs, prim, cover, clear), eps)
-        origins, dirs, weight, pix, sub, slot, blur, share, medium = out
+        origins, dirs, weight, pix, sub, slot, blur, share, medium, mirror = out
 
 
 def _pass_share(ts: TraceScene, dirs, prim, cover: np.ndarray, clear: np.ndarray) -> np.ndarray:
@@ -720,8 +740,9 @@ def _pass_on(children: tuple, origins, dirs, t, weight, pix, sub, slot, blur, sh
     if not len(go):
         return children, clear_out
     d = dirs[go].astype(np.float64)
+    # the mirror share is 1: a ray that goes on straight counts an emitter's light in full
     through = (origins[go] + d * (t[go] + eps)[:, None], d, weight[go] * go_w[go, None],
-               pix[go], sub[go], slot[go], blur[go], share[go], medium[go])
+               pix[go], sub[go], slot[go], blur[go], share[go], medium[go], np.ones(len(go)))
     return tuple(np.concatenate([c, x.astype(c.dtype, copy=False)]) for c, x in zip(children, through)), clear_out
 
 
@@ -733,62 +754,13 @@ def _light_hits(ts: TraceScene, lights: trace_lights.Lights, env: _Environment,
     premultiplied blend per ray, which scales the diffuse share). Hits from inside a transmissive
     object are skipped: light reaches them only refracted, which a straight shadow ray
     cannot follow."""
-    sel = np.flatnonzero(prim >= 0)
-    k = ts.material[prim[sel]]
-    d = dirs[sel].astype(np.float64)
-    ng = ts.geo_normals[prim[sel]].astype(np.float64)
-    entering = np.einsum("ij,ij->i", d, ng) < 0
-    keep = entering | (ts.transmission[k] <= 0) | ts.thin[k]
-    sel, k, d, ng = sel[keep], k[keep], d[keep], ng[keep]
-    if not len(sel):
+    side = _lit_side(ts, origins, dirs, prim, t, hits)
+    if side is None:
         return
-    ng = ng * np.where(np.einsum("ij,ij->i", d, ng) < 0, 1.0, -1.0)[:, None]
-    n = hits.normal[sel] * np.where(np.einsum("ij,ij->i", d, ng) < 0, 1.0, -1.0)[:, None]
-    n = np.where((np.einsum("ij,ij->i", d, n) >= 0)[:, None], ng, n)
-    p = origins[sel] + d * t[sel, None]
-    eps = EPSILON * ts.radius
+    sel, k, d, ng, n, p = side
 
     def transmittance(o: np.ndarray, ldir: np.ndarray, dist: np.ndarray, normal: np.ndarray) -> np.ndarray:
-        vis = np.ones((len(o), 3))
-        start, dist = o + eps * normal, dist.copy()
-        todo = np.arange(len(o))
-        for layer in range(trace_lights.MAX_LAYERS):
-            # a blended surface stops a shadow ray with the probability of its alpha (as the
-            # path tracer's shadow rays and the raster's tint atlas: 1 - alpha gets through);
-            # a premultiplied one is met and lets 1 - alpha through untinted (no noise)
-            draw = pixel_shift(todo + layer * len(o), 950 + layer)
-            hp, hu, hv, ht = intersect_front(ts, start[todo], ldir[todo], draw,
-                                             stop_premultiplied=True)
-            ht = np.asarray(ht, np.float64)
-            blocked = (hp >= 0) & (ht < dist[todo] - 2 * eps)
-            idx = todo[blocked]
-            if not len(idx):
-                break
-            pb = hp[blocked]
-            km = ts.material[pb]
-            through = ts.transmission[km] * (1 - ts.metallic[km])
-            if ts.surface is None:
-                c = ts.base[km]
-            else:  # the texel crossed, as the camera rays' tint has it
-                width = ts.spread * (np.linalg.norm(start[idx] - ts.eye, axis=-1) + ht[blocked])
-                cos_d = np.abs(np.einsum("ij,ij->i", ldir[idx], ts.geo_normals[pb]))
-                rgba = trace_material.base_rgba(ts.surface, km, pb, hu[blocked], hv[blocked],
-                                                width, cos_d)
-                c = rgba[:, :3]
-                if ts.premultiplied.any():
-                    pm = ts.premultiplied[km]
-                    through = np.where(pm, 1.0 - np.clip(rgba[:, 3], 0.0, 1.0), through)
-                    c = np.where(pm[:, None], 1.0, c)
-            # a crossing of a volume takes sqrt(c) (a closed solid of one colour: c in all,
-            # as its camera rays); a thin sheet is one surface: c
-            c = np.where(ts.thin[km][:, None], c, np.sqrt(np.maximum(c, 0.0)))
-            vis[idx] *= through[:, None] * c
-            start[idx] += ldir[idx] * (ht[blocked] + eps)[:, None]
-            dist[idx] -= ht[blocked] + eps
-            todo = idx[through > 0]
-            if not len(todo):
-                break
-        return vis
+        return shadow_transmittance(ts, o, ldir, dist, normal, 950)
 
     def spec_albedo(f0: np.ndarray, cos_v: np.ndarray, rough: np.ndarray):
         return (env.specular_albedo(f0, cos_v, rough, False),
@@ -800,6 +772,192 @@ def _light_hits(ts: TraceScene, lights: trace_lights.Lights, env: _Environment,
     add(rgb * carried[sel], slot[sel])
 
 
+def _lit_side(ts: TraceScene, origins, dirs, prim, t, hits: trace_material.Hits):
+    """The hits that direct light reaches (not from inside a transmissive object: light gets
+    there only refracted, which a straight shadow ray cannot follow) as (ray indices, their
+    materials, directions, geometric and shading normals turned to the ray as the shading
+    kernel turns them, points), or None."""
+    sel = np.flatnonzero(prim >= 0)
+    k = ts.material[prim[sel]]
+    d = dirs[sel].astype(np.float64)
+    ng = ts.geo_normals[prim[sel]].astype(np.float64)
+    entering = np.einsum("ij,ij->i", d, ng) < 0
+    keep = entering | (ts.transmission[k] <= 0) | ts.thin[k]
+    sel, k, d, ng = sel[keep], k[keep], d[keep], ng[keep]
+    if not len(sel):
+        return None
+    ng = ng * np.where(np.einsum("ij,ij->i", d, ng) < 0, 1.0, -1.0)[:, None]
+    n = hits.normal[sel] * np.where(np.einsum("ij,ij->i", d, ng) < 0, 1.0, -1.0)[:, None]
+    n = np.where((np.einsum("ij,ij->i", d, n) >= 0)[:, None], ng, n)
+    return sel, k, d, ng, n, origins[sel] + d * t[sel, None]
+
+
+def _emitter_hits(ts: TraceScene, em: trace_lights.Emitters, env: _Environment,
+                  options: RenderOptions, origins, dirs, prim, t, hits: trace_material.Hits,
+                  carried: np.ndarray, pix: np.ndarray, sub: np.ndarray, n_sub: int, depth: int,
+                  n_s: int, slot: np.ndarray, add, cover: np.ndarray | None = None) -> None:
+    """Next-event estimation toward the emissive triangles: n_s points a ray (the triangle
+    chosen by trace_lights.emitter_choice, stratified over the pixel's rays; the point uniform
+    on it, from the pixel's scrambled Sobol set), a shadow ray to each, and what the BRDF of
+    trace_lights.direct reflects of the emission there (read at the point, textures included).
+    The diffuse share takes all of it: the tree's diffuse reads only the sky. The glossy share
+    is split with the mirror child, which meets the emitters too, by trace_lights.mirror_share
+    of the roughness (the child carries its share, _mirror_emission applies it); rough glass
+    with sampled lobes reflects a child drawn from its lobe, which alone is unbiased there: no
+    glossy share here. `cover`: a premultiplied blend's opacity per ray, which scales the
+    diffuse share (as in _light_hits)."""
+    side = _lit_side(ts, origins, dirs, prim, t, hits)
+    if side is None:
+        return
+    sel, k, d, ng, n, p = side
+    v = -d
+    base, metal = hits.base[sel], hits.metallic[sel]
+    rough, trans = hits.roughness[sel], hits.transmission[sel]
+    ior = ts.ior[k]
+    n_v = np.clip(np.einsum("ij,ij->i", n, v), 1e-4, 1.0)
+    f0 = (((ior - 1) / (ior + 1)) ** 2)[:, None] * (1 - metal[:, None]) + base * metal[:, None]
+    e_ss = env.specular_albedo(f0, n_v, rough, False)
+    e_spec = env.specular_albedo(f0, n_v, rough, options.multiscatter)
+    ms_scale = e_spec / np.maximum(e_ss, 1e-4)
+    diffuse = base * ((1 - metal) * (1 - trans))[:, None] / math.pi * (1 - e_spec)
+    if cover is not None:
+        diffuse = diffuse * cover[sel, None]
+    alpha = np.maximum(rough * rough, 1e-3)
+    glossy = ~((rough > 0) & (trans > 0)) if options.rough_lobes == "sample" else np.ones(len(sel), bool)
+    w_l = np.where(glossy, 1.0 - trace_lights.mirror_share(rough), 0.0)  # the mirror child has the rest
+    out = np.zeros((len(sel), 3))
+    x = p + EPSILON * ts.radius * ng  # off the surface (a point on the card is on no emitter)
+    for s in range(n_s):
+        strata = sub[sel] * n_s + s
+        u0 = ((strata + 0.5) / (n_sub * n_s) + pixel_shift(pix[sel], 1300 + depth)) % 1.0
+        u1, u2 = _pixel_samples(pix[sel], strata, 1400 + depth)
+        j, odds = trace_lights.emitter_choice(em, x, u0)
+        r1 = np.sqrt(u1)
+        bu, bv = r1 * (1 - u2), r1 * u2  # Embree's barycentrics of a uniform point
+        q = em.p0[j] + bu[:, None] * em.e1[j] + bv[:, None] * em.e2[j]
+        to = q - p
+        dist = np.linalg.norm(to, axis=-1)
+        ldir = to / np.maximum(dist, 1e-30)[:, None]
+        cos_e = -np.einsum("ij,ij->i", ldir, em.normal[j])
+        n_l = np.einsum("ij,ij->i", n, ldir)
+        ok = (((cos_e > 0) | em.two_sided[j]) & (n_l > 0) & (np.einsum("ij,ij->i", ng, ldir) > 0)
+              & (dist > 0) & (np.abs(cos_e) > 1e-9))
+        idx = np.flatnonzero(ok)
+        if not len(idx):
+            continue
+        tri = em.tri[j[idx]]
+        # the combined density of the n_s samples, in solid angle
+        p_l = n_s * odds[idx] / em.area[j[idx]] * dist[idx] ** 2 / np.abs(cos_e[idx])
+        le = hit_material(ts, p[idx], ldir[idx], tri.astype(np.int32), bu[idx].astype(np.float32),
+                          bv[idx].astype(np.float32), dist[idx], lobes=False).emission
+        lit = np.flatnonzero(le.max(axis=1) > 0)
+        if not len(lit):
+            continue
+        idx, p_l, le = idx[lit], p_l[lit], le[lit]
+        # off the surface by eps along ng, the ray meets the emitter up to eps / cos_e early
+        short = dist[idx] - EPSILON * ts.radius / np.maximum(np.abs(cos_e[idx]), 1e-3)
+        vis = shadow_transmittance(ts, p[idx], ldir[idx], short, ng[idx], 1600 + 8 * depth)
+        h = ldir[idx] + v[idx]
+        h /= np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-12)
+        n_h = np.clip(np.einsum("ij,ij->i", n[idx], h), 0.0, 1.0)
+        v_h = np.clip(np.einsum("ij,ij->i", v[idx], h), 0.0, 1.0)
+        spec = trace_lights.ggx_spec(f0[idx], alpha[idx], n_v[idx], n_l[idx], n_h, v_h) * ms_scale[idx]
+        out[idx] += (diffuse[idx] + spec * w_l[idx, None]) * le * vis * (n_l[idx] / p_l)[:, None]
+    add(out * carried[sel], slot[sel])
+
+
+def _mirror_emission(em: trace_lights.Emitters, prim, hits: trace_material.Hits,
+                     mirror: np.ndarray) -> None:
+    """Scale the emission of the light triangles these rays hit by the share their parent
+    left to its mirror child (trace_lights.mirror_share; 1 where the parent sampled no
+    emitters), in place in hits.emission."""
+    sel = np.flatnonzero((prim >= 0) & (mirror < 1.0))
+    sel = sel[em.index[prim[sel]] >= 0]
+    if len(sel):
+        hits.emission[sel] *= mirror[sel, None]
+
+
+def emitter_irradiance(ts: TraceScene, em: trace_lights.Emitters, p: np.ndarray, n: np.ndarray,
+                       ng: np.ndarray, samples: int, seed: int = 0) -> np.ndarray:
+    """N x 3 irradiance the emitters give points p (shading normal n, geometric ng on the lit
+    side), shadowed, by `samples` emitter points each (iid, as _emitter_hits chooses them;
+    no MIS: nothing else finds emitters here). For measurements such as a per-vertex bake's."""
+    rng = np.random.default_rng(seed)
+    out = np.zeros((len(p), 3))
+    x = p + EPSILON * ts.radius * ng
+    for _ in range(samples):
+        u0, u1, u2 = rng.random((3, len(p)))
+        j, odds = trace_lights.emitter_choice(em, x, u0)
+        r1 = np.sqrt(u1)
+        bu, bv = r1 * (1 - u2), r1 * u2
+        q = em.p0[j] + bu[:, None] * em.e1[j] + bv[:, None] * em.e2[j]
+        dist = np.linalg.norm(q - p, axis=-1)
+        ldir = (q - p) / np.maximum(dist, 1e-30)[:, None]
+        cos_e = -np.einsum("ij,ij->i", ldir, em.normal[j])
+        n_l = np.einsum("ij,ij->i", n, ldir)
+        idx = np.flatnonzero(((cos_e > 0) | em.two_sided[j]) & (n_l > 0) & (odds > 0)
+                             & (np.einsum("ij,ij->i", ng, ldir) > 0) & (np.abs(cos_e) > 1e-9))
+        if not len(idx):
+            continue
+        tri = em.tri[j[idx]]
+        p_l = odds[idx] / em.area[j[idx]] * dist[idx] ** 2 / np.abs(cos_e[idx])
+        le = hit_material(ts, p[idx], ldir[idx], tri.astype(np.int32), bu[idx].astype(np.float32),
+                          bv[idx].astype(np.float32), dist[idx], lobes=False).emission
+        short = dist[idx] - EPSILON * ts.radius / np.maximum(np.abs(cos_e[idx]), 1e-3)
+        vis = shadow_transmittance(ts, p[idx], ldir[idx], short, ng[idx], 1600)
+        out[idx] += le * vis * (n_l[idx] / p_l)[:, None]
+    return out / samples
+
+
+def shadow_transmittance(ts: TraceScene, o: np.ndarray, ldir: np.ndarray, dist: np.ndarray,
+                   normal: np.ndarray, salt: int) -> np.ndarray:
+    """N x 3 of what gets through the segments from o (offset off the surface along `normal`)
+    along ldir for dist: alpha cut-outs and culled back faces pass, a blended surface stops the
+    ray with the probability of its alpha (a draw hashed from `salt`), transmissive surfaces
+    tint it, anything else blocks it."""
+    eps = EPSILON * ts.radius
+    vis = np.ones((len(o), 3))
+    start, dist = o + eps * normal, dist.copy()
+    todo = np.arange(len(o))
+    for layer in range(trace_lights.MAX_LAYERS):
+        # a blended surface stops a shadow ray with the probability of its alpha (as the
+        # path tracer's shadow rays and the raster's tint atlas: 1 - alpha gets through);
+        # a premultiplied one is met and lets 1 - alpha through untinted (no noise)
+        draw = pixel_shift(todo + layer * len(o), salt + layer)
+        hp, hu, hv, ht = intersect_front(ts, start[todo], ldir[todo], draw,
+                                         stop_premultiplied=True)
+        ht = np.asarray(ht, np.float64)
+        blocked = (hp >= 0) & (ht < dist[todo] - 2 * eps)
+        idx = todo[blocked]
+        if not len(idx):
+            break
+        pb = hp[blocked]
+        km = ts.material[pb]
+        through = ts.transmission[km] * (1 - ts.metallic[km])
+        if ts.surface is None:
+            c = ts.base[km]
+        else:  # the texel crossed, as the camera rays' tint has it
+            width = ts.spread * (np.linalg.norm(start[idx] - ts.eye, axis=-1) + ht[blocked])
+            cos_d = np.abs(np.einsum("ij,ij->i", ldir[idx], ts.geo_normals[pb]))
+            rgba = trace_material.base_rgba(ts.surface, km, pb, hu[blocked], hv[blocked],
+                                            width, cos_d)
+            c = rgba[:, :3]
+            if ts.premultiplied.any():
+                pm = ts.premultiplied[km]
+                through = np.where(pm, 1.0 - np.clip(rgba[:, 3], 0.0, 1.0), through)
+                c = np.where(pm[:, None], 1.0, c)
+        # a crossing of a volume takes sqrt(c) (a closed solid of one colour: c in all,
+        # as its camera rays); a thin sheet is one surface: c
+        c = np.where(ts.thin[km][:, None], c, np.sqrt(np.maximum(c, 0.0)))
+        vis[idx] *= through[:, None] * c
+        start[idx] += ldir[idx] * (ht[blocked] + eps)[:, None]
+        dist[idx] -= ht[blocked] + eps
+        todo = idx[through > 0]
+        if not len(todo):
+            break
+    return vis
+
+
 def _alpha_draw(pix: np.ndarray, sub: np.ndarray, n_sub: int, depth: int) -> np.ndarray:
     """The uniform per ray that alpha BLEND compares with: stratified over a pixel's rays."""
     return ((sub + 0.5) / n_sub + pixel_shift(pix, depth + 900)) % 1.0
@@ -807,10 +965,10 @@ def _alpha_draw(pix: np.ndarray, sub: np.ndarray, n_sub: int, depth: int) -> np.
 
 def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, depth: int,
                  n_sub: int, eps: float, d, p, t, prim, hits: trace_material.Hits, w, px, sb,
-                 sl, v_in, sh, n_in, add, stats: dict) -> tuple:
+                 sl, v_in, sh, n_in, nee: int, add, stats: dict) -> tuple:
     """The numpy twin of renderer.methods.trace_kernel.shade (the reference the kernel is tested
     against): one bounce's hits -> their children (origin, dir, weight, pix, sub, slot,
-    blur, share, medium); emission and the diffuse share go straight into `add`."""
+    blur, share, medium, mirror share); emission and the diffuse share go straight into `add`."""
     ns = hits.normal.copy()
     ng = ts.geo_normals[prim].astype(np.float64)
     entering = np.einsum("ij,ij->i", d, ng) < 0
@@ -922,6 +1080,12 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
             draw = ((sb + 0.5) / n_sub + pixel_shift(px, depth + salt)) % 1.0
             keep &= ~weak | (draw < carried / ROULETTE)
             cw[weak] *= (ROULETTE / np.maximum(carried[weak], 1e-30))[:, None]
+    # The mirror child's share of a light's emission where this hit sampled the emitters
+    # (_emitter_hits' condition)
+    share_r = np.ones(len(d))
+    if nee:
+        sampled = ~lobe & (entering | (trans <= 0))
+        share_r[sampled] = trace_lights.mirror_share(rough_k)[sampled]
     # Each child starts off the surface on the side it leaves toward (a reflection about
     # a shading or microfacet normal may dip below the geometric surface).
     out_r = np.where(np.einsum("ij,ij->i", rdir, ng) >= 0, eps, -eps)[:, None] * ng
@@ -932,7 +1096,8 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
             np.concatenate([px[keep_r], px[keep_t]]), np.concatenate([sb[keep_r], sb[keep_t]]),
             np.concatenate([sl[keep_r], sl[keep_t]]),
             np.concatenate([v_refl[keep_r], v_refr[keep_t]]),
-            np.concatenate([sh[keep_r], sh[keep_t]]), np.concatenate([n_in[keep_r], n_t[keep_t]]))
+            np.concatenate([sh[keep_r], sh[keep_t]]), np.concatenate([n_in[keep_r], n_t[keep_t]]),
+            np.concatenate([share_r[keep_r], np.ones(int(keep_t.sum()))]))
 
 
 def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
@@ -956,7 +1121,9 @@ def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOpt
             "supersample": stats["supersample"],
             "rays": stats["rays"], "rays_per_bounce": stats["bounces"],
             "tir_events": stats["tir"], "integrator": options.integrator,
-            "embree_cached": stats["embree_cached"], "rough_pixels": stats.get("rough_pixels", 0)}
+            "embree_cached": stats["embree_cached"], "rough_pixels": stats.get("rough_pixels", 0),
+            # emissive triangles the tree samples as lights (the path integrator finds them by its rays)
+            "emitters": stats["emitters"] if options.integrator == "tree" and EMITTER_SAMPLES > 0 else 0}
     if options.integrator == "path":
         plan.update(passes=stats["passes"], samples_mean=round(stats["samples_mean"], 2),
                     stop=stats["stop"], nonfinite=stats.get("nonfinite", 0),

@@ -182,11 +182,14 @@ def _refract(dx, dy, dz, nx, ny, nz, eta):
 def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in,
           normals, geo_normals, material, base, metallic, roughness, transmission, ior, sigma,
           thin, emission, occlusion, spec, spec_col, lut, depth, n_sub, eps, sample_lobes, split_sample, ms, min_weight,
-          sobol, roulette):
+          sobol, roulette, nee, mirror_lo, mirror_hi):
     """One bounce's rays (prim < 0: missed) -> (children: origin, dir, weight, pix, sub,
-    slot, blur, share, medium; the misses' dir, weight x share, blur and slot; emission to
-    add and its slots; the diffuse shares' weight x share, normals and slots; TIR events on
-    transmissive surfaces)."""
+    slot, blur, share, medium, mirror share; the misses' dir, weight x share, blur and slot;
+    emission to add and its slots; the diffuse shares' weight x share, normals and slots; TIR
+    events on transmissive surfaces). The mirror share is the part of a light triangle's
+    emission a reflected child counts where this hit sampled the emitters (`nee` > 0):
+    trace_lights.mirror_share of the roughness, 1 at mirror_lo and below, 0 from mirror_hi;
+    1 where the hit sampled none, and for refracted children."""
     n = len(d)
     m_d, m_w, m_blur = np.empty((n, 3)), np.empty((n, 3)), np.empty(n)
     m_sl = np.empty(n, np.int64)
@@ -195,6 +198,7 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in,
     c_o, c_d, c_w = np.empty((2 * n, 3)), np.empty((2 * n, 3)), np.empty((2 * n, 3))
     c_px, c_sb, c_sl = np.empty(2 * n, np.int64), np.empty(2 * n, np.int64), np.empty(2 * n, np.int64)
     c_blur, c_sh, c_med = np.empty(2 * n), np.empty(2 * n), np.empty(2 * n)
+    c_share = np.empty(2 * n)
     direct, glow = np.empty((n, 3)), np.empty(n, np.int64)
     diffuse, dnorm, matte = np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.int64)
     n_glow, n_matte = 0, 0
@@ -346,6 +350,10 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in,
                 st = roulette / pt
                 q0, q1, q2 = q0 * st, q1 * st, q2 * st
         if keep_r:
+            share_r = 1.0  # of a light's emission, what the mirror child counts
+            if nee > 0 and not lobe and (entering or trans <= 0):
+                share_r = min(max((mirror_hi - rough) / (mirror_hi - mirror_lo), 0.0), 1.0)
+            c_share[n_r] = share_r
             o = eps if rx * gx + ry * gy + rz * gz >= 0 else -eps
             c_o[n_r, 0], c_o[n_r, 1], c_o[n_r, 2] = p[0] + o * gx, p[1] + o * gy, p[2] + o * gz
             c_d[n_r, 0], c_d[n_r, 1], c_d[n_r, 2] = rx, ry, rz
@@ -369,9 +377,10 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in,
             c_d[m, c], c_w[m, c] = t_dir[j, c], t_w[j, c]
         c_px[m], c_sb[m], c_sl[m] = px[i], sb[i], sl[i]
         c_blur[m], c_sh[m], c_med[m] = t_blur[j], sh[i], t_med[j]
+        c_share[m] = 1.0
     m = n_r + n_t_count
     return (c_o[:m], c_d[:m], c_w[:m], c_px[:m], c_sb[:m], c_sl[:m], c_blur[:m], c_sh[:m],
-            c_med[:m], m_d[:n_miss], m_w[:n_miss], m_blur[:n_miss], m_sl[:n_miss], direct[:n_glow], glow[:n_glow], diffuse[:n_matte], dnorm[:n_matte],
+            c_med[:m], c_share[:m], m_d[:n_miss], m_w[:n_miss], m_blur[:n_miss], m_sl[:n_miss], direct[:n_glow], glow[:n_glow], diffuse[:n_matte], dnorm[:n_matte],
             matte[:n_matte], tir_events)
 
 
@@ -427,6 +436,41 @@ def r2_pair(pix, s, dim, a1, a2):
     return a, b
 
 
+@njit(cache=True, parallel=True)
+def emitter_pick(x, u, centre, p0, normal, area, power, two_sided, pick):
+    """trace_lights.emitter_choice's local odds, one point at a time (no N x E temporaries):
+    with `pick`, the emitter u chooses at each point x and its probability; else u holds
+    emitter indices and only their probabilities are returned (trace_lights.emitter_odds)."""
+    n, e = len(x), len(centre)
+    j_out = np.zeros(n, np.int64)
+    prob = np.zeros(n)
+    for i in prange(n):
+        w = np.empty(e)
+        total = 0.0
+        for k in range(e):
+            w[k] = 0.0
+            s = ((x[i, 0] - p0[k, 0]) * normal[k, 0] + (x[i, 1] - p0[k, 1]) * normal[k, 1]
+                 + (x[i, 2] - p0[k, 2]) * normal[k, 2])
+            if two_sided[k] or s > 0:
+                dx, dy, dz = centre[k, 0] - x[i, 0], centre[k, 1] - x[i, 1], centre[k, 2] - x[i, 2]
+                w[k] = power[k] / max(dx * dx + dy * dy + dz * dz, area[k])
+            total += w[k]
+        if total <= 0:
+            continue
+        if pick:
+            target, acc, j = u[i] * total, 0.0, e - 1
+            for k in range(e):
+                acc += w[k]
+                if acc > target:
+                    j = k
+                    break
+        else:
+            j = np.int64(u[i])
+        j_out[i] = j
+        prob[i] = w[j] / total
+    return j_out, prob
+
+
 def warm() -> None:
     """Compile (or load from numba's cache) every signature the tracer calls, on empty
     arrays: `python -m renderer.methods.trace_kernel`, run by `make install` and `make test` so that
@@ -438,8 +482,10 @@ def warm() -> None:
               np.zeros(0, t_type), e3, np.zeros(0, i64), np.zeros(0, i64), np.zeros(0, i64),
               e, e, e, e3, np.zeros((0, 3), f32), np.zeros(0, np.int32),
               e3, e, e, e, e, e3, np.zeros(0, np.bool_), e3, e, e, e3, np.zeros((2, 2, 2)), 0, 1, 1e-4, True, False, True,
-              1e-3, _SOBOL_DIM1, 0.0)
+              1e-3, _SOBOL_DIM1, 0.0, 0.0, 0.15, 0.3)
     sample_cube(np.zeros((6, 2, 2, 3), f32), e3, _S_AXIS, _S_SIGN, _T_AXIS, _T_SIGN)
+    for pick in (True, False):
+        emitter_pick(e3, e, e3, e3, e3, e, e, np.zeros(0, np.bool_), pick)
     r2_pair(np.zeros(0, i64), 0, 0, 0.5, 0.5)
     # the textures, the hits' material, the path BSDF
     from renderer.methods import material_kernel, path_kernel, texel_kernel

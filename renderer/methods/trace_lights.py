@@ -12,6 +12,11 @@ closed solid of one colour gives c, as its camera rays; the caustic a refracting
 focuses is not traced). The raster's light shadows
 (renderer/raster/light_shadows.py) agree on all three; the path tracer's NEE
 (renderer/methods/path_trace.py) is stopped by a transmissive surface.
+
+Emissive triangles are lights too (`Emitters`, issue 30): the Fresnel tree samples a point on
+one (chosen by power over distance, uniform over its area) per ray at every surface and
+splits the glossy share with its mirror child, which also meets emitters, by roughness
+(`mirror_share`; renderer.methods.raytrace, `_emitter_hits`).
 """
 from __future__ import annotations
 
@@ -60,7 +65,7 @@ def lights_of(lights: list[Light], shadows: bool = True) -> Lights:
                   np.asarray([light.shadow_color for light in lights], np.float64).reshape(-1, 3))
 
 
-def _ggx_spec(f0, alpha, n_v, n_l, n_h, v_h):
+def ggx_spec(f0, alpha, n_v, n_l, n_h, v_h):
     """F D V of the GGX lobe (height-correlated Smith visibility), per row."""
     a2 = alpha * alpha
     d = a2 / (math.pi * (n_h * n_h * (a2 - 1.0) + 1.0) ** 2)
@@ -129,7 +134,125 @@ def direct(lights: Lights, occlusion_test, p: np.ndarray, n: np.ndarray, ng: np.
         h /= np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-12)
         n_h = np.clip(np.einsum("ij,ij->i", n[lit], h), 0.0, 1.0)
         v_h = np.clip(np.einsum("ij,ij->i", v[lit], h), 0.0, 1.0)
-        spec = _ggx_spec(f0[lit], alpha[lit], n_v[lit], n_l[lit], n_h, v_h) * ms_scale[lit]
+        spec = ggx_spec(f0[lit], alpha[lit], n_v[lit], n_l[lit], n_h, v_h) * ms_scale[lit]
         radiance = lights.color[i] * atten[lit, None]
         out[lit] += (diffuse[lit] + spec) * radiance * (n_l[lit])[:, None] * vis
     return out
+
+
+LOCAL_EMITTERS = 256   # up to this many emissive triangles, each point weighs them by distance
+_CHUNK = 1 << 22       # points x emitters weighed at once
+
+
+@dataclass
+class Emitters:
+    """The emissive triangles as area lights: a point uniform on a triangle chosen by
+    `emitter_choice`."""
+    tri: np.ndarray        # E triangle indices
+    p0: np.ndarray         # E x 3 corner 0 (world)
+    e1: np.ndarray         # E x 3 corner 1 - corner 0
+    e2: np.ndarray         # E x 3 corner 2 - corner 0
+    normal: np.ndarray     # E x 3 unit geometric normal (winding order)
+    two_sided: np.ndarray  # E bool: emits from its back as well (double-sided material)
+    area: np.ndarray       # E
+    power: np.ndarray      # E luminance of emissive factor x strength x area (x 2 two-sided)
+    cdf: np.ndarray        # E cumulative power share (last 1)
+    index: np.ndarray      # T the emitter of every triangle (-1: not a light)
+
+    def __len__(self) -> int:
+        return len(self.tri)
+
+
+def emitters_of(tri: np.ndarray, material: np.ndarray, emission: np.ndarray, lit: np.ndarray,
+                two_sided: np.ndarray) -> Emitters | None:
+    """Emitters of a T x 3 x 3 world triangle soup (material per triangle; per material the
+    emissive radiance, whether it is a light (unlit colours are not: they are shown, not
+    shone) and whether it has two sides), or None when nothing emits. A texture can only
+    darken the factor: the power is an upper bound, the emission is read at the point."""
+    lum = emission @ np.array([0.2126, 0.7152, 0.0722]) * lit
+    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    cross = np.cross(e1, e2)
+    area = 0.5 * np.linalg.norm(cross, axis=-1)
+    power = lum[material] * area * np.where(two_sided[material], 2.0, 1.0)
+    sel = np.flatnonzero(power > 0)
+    if not len(sel):
+        return None
+    cdf = np.cumsum(power[sel])
+    index = np.full(len(tri), -1, np.int64)
+    index[sel] = np.arange(len(sel))
+    return Emitters(sel, tri[sel, 0].astype(np.float64), e1[sel].astype(np.float64),
+                    e2[sel].astype(np.float64), cross[sel] / (2 * area[sel, None]),
+                    two_sided[material[sel]], area[sel], power[sel], cdf / cdf[-1], index)
+
+
+def _weights(em: Emitters, x: np.ndarray) -> np.ndarray:
+    """N x E unnormalised odds of each emitter seen from points x: its power over the squared
+    distance to its centroid (at least its area, so a point on a big one does not single it
+    out), 0 where a one-sided emitter turns its back (it cannot light x)."""
+    centre = em.p0 + (em.e1 + em.e2) / 3.0
+    to = centre[None, :, :] - x[:, None, :]
+    d2 = np.maximum(np.einsum("nej,nej->ne", to, to), em.area[None, :])
+    front = em.two_sided[None, :] | (np.einsum("nej,ej->ne", x[:, None, :] - em.p0[None], em.normal) > 0)
+    return np.where(front, em.power[None, :] / d2, 0.0)
+
+
+KERNEL = True  # the local odds compiled (trace_kernel.emitter_pick; False: the numpy `_weights`)
+
+
+def _compiled(em: Emitters, x: np.ndarray, u: np.ndarray, pick: bool):
+    from renderer.methods import trace_kernel  # numba loads only in a process that traces
+    return trace_kernel.emitter_pick(np.ascontiguousarray(x, np.float64), np.ascontiguousarray(u, np.float64),
+                                     em.p0 + (em.e1 + em.e2) / 3.0, em.p0, em.normal, em.area,
+                                     em.power, em.two_sided, pick)
+
+
+def emitter_choice(em: Emitters, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(emitter index, its choice probability) for points x and uniforms u: with up to
+    LOCAL_EMITTERS triangles by `_weights` (the nearer and brighter, the likelier: a grey
+    card between two emitters samples mostly the near one), else by power alone. A point
+    that no emitter can light gets index 0 and probability 0."""
+    if len(em) > LOCAL_EMITTERS:
+        j = np.minimum(np.searchsorted(em.cdf, u, side="right"), len(em) - 1)
+        return j, em.power[j] / em.power.sum()
+    if KERNEL:
+        return _compiled(em, x, u, True)
+    j, prob = np.zeros(len(x), np.int64), np.zeros(len(x))
+    step = max(1, _CHUNK // len(em))
+    for a in range(0, len(x), step):
+        w = _weights(em, x[a:a + step])
+        cum = np.cumsum(w, axis=1)
+        total = cum[:, -1]
+        pick = np.minimum((cum < (u[a:a + step] * total)[:, None]).sum(axis=1), len(em) - 1)
+        j[a:a + step] = pick
+        prob[a:a + step] = np.where(total > 0, w[np.arange(len(pick)), pick] / np.maximum(total, 1e-300), 0.0)
+    return j, prob
+
+
+def emitter_odds(em: Emitters, x: np.ndarray, j: np.ndarray) -> np.ndarray:
+    """The probability emitter_choice gives emitter j[i] from point x[i]."""
+    if len(em) > LOCAL_EMITTERS:
+        return em.power[j] / em.power.sum()
+    if KERNEL:
+        return _compiled(em, x, j.astype(np.float64), False)[1]
+    out = np.zeros(len(x))
+    step = max(1, _CHUNK // len(em))
+    for a in range(0, len(x), step):
+        w = _weights(em, x[a:a + step])
+        total = w.sum(axis=1)
+        out[a:a + step] = w[np.arange(len(w)), j[a:a + step]] / np.maximum(total, 1e-300)
+    return out
+
+
+MIRROR_ROUGH = (0.15, 0.3)  # roughness up to which the mirror child takes a light's glossy share, from which NEE does
+
+
+def mirror_share(roughness):
+    """Of the glossy light from the emitters, the share the tree's mirror child counts (the
+    rest is the emitter samples'): 1 up to MIRROR_ROUGH[0], 0 from MIRROR_ROUGH[1], linear
+    between. The same at every direction, so the two never count one light twice. The mirror
+    child stands for its whole lobe as if the emitter filled it: near exact on a narrow lobe,
+    where emitter samples are noisy (a GGX lobe of roughness 0.05 sampled at 9 points a pixel
+    missed a quarter of the highlight); the samples are exact on a wide one, where the mirror
+    would show a sharp emitter in a blurred highlight."""
+    lo, hi = MIRROR_ROUGH
+    return np.clip((hi - np.asarray(roughness, np.float64)) / (hi - lo), 0.0, 1.0)

@@ -40,6 +40,7 @@ class TraceScene:
     eye: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
     spread: float = 0.0          # ray cone angle per unit length (a camera ray's pixel share)
     lights: trace_lights.Lights | None = None  # punctual lights (next-event estimation)
+    emitters: trace_lights.Emitters | None = None  # emissive triangles as lights (the tree's NEE)
     embree_cached: bool = False  # the Embree scene came from raytrace's in-process cache
     # K bool: blended premultiplied as Storm blends a UsdPreviewSurface (core.scene.Material
     # opacity_premultiplied): the tracers stop on it and split it (opacity)
