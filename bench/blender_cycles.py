@@ -58,6 +58,26 @@ def main(job: dict) -> None:
     BlenderAnimation.restore_animation = staticmethod(lambda gltf, name: None)  # type: ignore[method-assign]
     bpy.ops.import_scene.gltf(filepath=job["gltf"])
     scene = bpy.context.scene
+    # A primitive without a material takes glTF's default material (spec 3.9.6: white, metallic
+    # 1, roughness 1, as the Sample Viewer and we draw it); Blender's importer leaves it empty,
+    # which Cycles would shade with its own grey dielectric.
+    default = None
+    for me in bpy.data.meshes:
+        empty = [i for i, m in enumerate(me.materials) if m is None] if len(me.materials) else None
+        if empty == []:
+            continue
+        if default is None:
+            default = bpy.data.materials.new("gltf_default")
+            default.use_nodes = True
+            bsdf = next(n for n in default.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
+            bsdf.inputs["Base Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+            bsdf.inputs["Metallic"].default_value = 1.0
+            bsdf.inputs["Roughness"].default_value = 1.0
+        if empty is None:
+            me.materials.append(default)
+        else:
+            for i in empty:
+                me.materials[i] = default
     # Every reference viewer compensates multiple scattering: so do we, by default.
     for mat in bpy.data.materials:
         if mat.node_tree is None:

@@ -371,5 +371,6 @@ def transformed_bounds(positions: np.ndarray, matrix: np.ndarray) -> tuple[np.nd
 
 
 def default_material(name: str = "default") -> Material:
-    """The material given to meshes that come without one (plain meshes, unbound USD prims)."""
+    """The material given to plain meshes (PLY, STL, OBJ) and unbound USD prims; a glTF primitive
+    without one takes the spec's default, `Material()`."""
     return Material(name=name, base_color=(0.8, 0.8, 0.8, 1.0), metallic=0.0, roughness=0.5)

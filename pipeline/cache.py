@@ -86,7 +86,8 @@ log = logging.getLogger(__name__)
 # 18: ambient occlusion per placement of an instanced mesh (a row each) where the budget allows
 # 19: Material.opacity_premultiplied also for MaterialX ND_UsdPreviewSurface; UsdPreviewSurface
 #     opacityMode "presence" fades the whole colour
-BAKE_FORMAT_VERSION = 19
+# 20: a glTF primitive without a material takes the spec's default material (white metal, rough)
+BAKE_FORMAT_VERSION = 20
 # Environment entries have their own format: a prefiltered light does not change with the mesh
 # bake's format, and the filter's constants already key it (pipeline.environment.shipped), so a
 # mesh-format bump neither rebakes every environment nor stales the shipped studio bake.

@@ -81,3 +81,15 @@ def test_bad_material_names_the_file(tmp_path):
     with pytest.raises(MalformedAsset, match="alphaMode 'SOMETIMES'") as err:
         read_material(d, Textures(d), 0)
     assert str(d.path) in str(err.value)
+
+
+def test_a_primitive_without_a_material_takes_the_specs_default_material(tmp_path):
+    """glTF 2.0 3.9.6: no `material` means every property at its default (white, metallic 1,
+    roughness 1), as the Sample Viewer and three.js draw it; not our grey for plain meshes."""
+    from pipeline.ingest import load_scene
+    b = Builder()
+    b.node(b.mesh(CUBE_POSITIONS, CUBE_INDICES))
+    scene = load_scene(b.write(tmp_path / "plain.glb"))
+    (mat,) = scene.materials
+    assert mat.base_color == (1.0, 1.0, 1.0, 1.0) and mat.metallic == 1.0 and mat.roughness == 1.0
+    assert mat.base_color_texture is None and mat.alpha_mode == "OPAQUE"

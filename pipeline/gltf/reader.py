@@ -16,7 +16,7 @@ import numpy as np
 
 from core.animation import Moment, seconds, select
 from core.errors import UnsupportedFormat
-from core.scene import Instance, Scene, default_material
+from core.scene import Instance, Material, Scene
 from pipeline import deadline
 from pipeline.gltf.accessors import Document
 from pipeline.gltf.animation import read_animations, write_pointers
@@ -148,7 +148,9 @@ class Assembly:
             mat = prim.get("material")
             if mat not in self.materials:
                 self.materials[mat] = len(self.out.materials)
-                self.out.materials.append(default_material() if mat is None
+                # no material: the spec's default material (every property at its default:
+                # white, metallic 1, roughness 1), as the Sample Viewer and three.js draw it
+                self.out.materials.append(Material(name="default") if mat is None
                                           else read_material(d, self.textures,
                                                              d.integer(prim, "material")))
             variants = variant_materials(d, prim, self._scene_material)
