@@ -79,7 +79,8 @@ log = logging.getLogger(__name__)
 # 15: Material.opacity_premultiplied (UsdPreviewSurface blended as Storm does)
 # 16: MaterialX colour management: standard colour spaces (gamuts, transfers) to lin_rec709 for
 #     colour constants and images
-BAKE_FORMAT_VERSION = 16
+# 17: USD BasisCurves (tubes) and Points (spheres) are read, no longer skipped
+BAKE_FORMAT_VERSION = 17
 # Environment entries have their own format: a prefiltered light does not change with the mesh
 # bake's format, and the filter's constants already key it (pipeline.environment.shipped), so a
 # mesh-format bump neither rebakes every environment nor stales the shipped studio bake.

@@ -14,7 +14,8 @@ from core.options import RenderOptions
 from pipeline.bake import bake_environment, build_baked
 from pipeline.environment import uniform
 from pipeline.ingest import load_scene
-from pipeline.usd import curves, stage as usd_stage
+from pipeline.usd import curves
+from pipeline.usd import stage as usd_stage
 from renderer import render
 
 HEADER = '#usda 1.0\n(\n    defaultPrim = "W"\n    metersPerUnit = 1\n    upAxis = "Y"\n)\n'

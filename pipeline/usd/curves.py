@@ -177,11 +177,11 @@ def tubes(centres: np.ndarray, radii: np.ndarray, lengths: list[int], closed: li
         seed = np.eye(3)[np.argmin(np.abs(t0), axis=1)]
         n0 = np.cross(t0, seed)
         normal[:, 0] = n0 / np.maximum(np.linalg.norm(n0, axis=1, keepdims=True), 1e-30)
-        for i in range(1, m):  # parallel transport: the previous normal, made normal to t_i
-            prev, t = normal[:, i - 1], tangent[:, i]
+        for k in range(1, m):  # parallel transport: the previous normal, made normal to t_k
+            prev, t = normal[:, k - 1], tangent[:, k]
             v = prev - t * np.einsum("bk,bk->b", prev, t)[:, None]
             nv = np.linalg.norm(v, axis=1, keepdims=True)
-            normal[:, i] = np.where(nv > 1e-12, v / np.maximum(nv, 1e-30), prev)
+            normal[:, k] = np.where(nv > 1e-12, v / np.maximum(nv, 1e-30), prev)
         binormal = np.cross(tangent, normal)
         if periodic and m > 2:  # spread the twist that transport leaves around the loop
             end = normal[:, -1] - t0 * np.einsum("bk,bk->b", normal[:, -1], t0)[:, None]

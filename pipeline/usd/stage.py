@@ -35,7 +35,8 @@ at its rest transforms without one, as usdview shows them: the animation's blend
 weights first (UsdSkel.BlendShapeQuery, inbetweens included; normalOffsets of shapes without
 inbetweens on vertex normals), then the joints; authored normals are skinned too
 (UsdSkel.SkinNormals), so that they follow the pose. PointInstancers place their prototypes (one Mesh each, an Instance per unmasked point);
-nested ones, curves, points and NURBS are skipped with a warning. UsdLux distant / sphere /
+nested ones and NURBS are skipped with a warning. BasisCurves become tubes and Points small
+spheres of their widths (`usd_curves`; CURVE_BUDGET thins or refuses them, naming the prim). UsdLux distant / sphere /
 rect / disk lights become KHR_lights_punctual lights (`_light`), a dome light's texture the
 scene's environment; UsdGeomCameras are listed (`Scene.cameras`) for `render --camera PATH`.
 """
