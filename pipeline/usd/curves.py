@@ -79,63 +79,75 @@ def varying_count(n: int, kind: str, basis: str, wrap: str) -> int:
     return s if wrap == "periodic" else s + 1
 
 
+def _template(n: int, kind: str, basis: str, wrap: str):
+    """One curve of `n` vertices: per polyline point its 8 (vertex, weight) pairs and varying
+    pair, local to the curve; and its varying element count."""
+    segs = segment_count(n, kind, basis, wrap)
+    periodic = wrap == "periodic"
+    nv = segs if periodic else segs + 1
+    steps = 1 if kind == "linear" else SAMPLES
+    t = np.arange(segs * steps) / steps
+    if not periodic:
+        t = np.append(t, segs)
+    seg = np.minimum(t.astype(np.int64), segs - 1)
+    u = t - seg  # 0..1 within its segment (the last point: 1)
+    if kind == "linear":
+        a, b = seg, (seg + 1) % n
+        i8 = np.stack([a, b] + [a] * 6, axis=1)
+        w8 = np.stack([1 - u, u] + [np.zeros_like(u)] * 6, axis=1)
+    else:
+        # extended control vertices: (index, coefficient) pairs; pinned adds a phantom vertex
+        # at each end, 2 P0 - P1 (and 2 Pn-1 - Pn-2)
+        ia, ca = np.arange(n), np.ones(n)
+        ib, cb = np.arange(n), np.zeros(n)
+        if wrap == "pinned":
+            ia = np.concatenate([[0], ia, [n - 1]])
+            ib = np.concatenate([[1], ib, [n - 2]])
+            ca = np.concatenate([[2.0], ca, [2.0]])
+            cb = np.concatenate([[-1.0], cb, [-1.0]])
+        step = 3 if basis == "bezier" else 1
+        cv = (seg[:, None] * step + np.arange(4)[None]) % len(ia)  # E x 4 extended
+        power = np.stack([u ** 3, u ** 2, u, np.ones_like(u)], axis=1)
+        bw = power @ BASES[basis]  # E x 4
+        i8 = np.concatenate([ia[cv], ib[cv]], axis=1)
+        w8 = np.concatenate([bw * ca[cv], bw * cb[cv]], axis=1)
+    return i8, w8, np.stack([seg, (seg + 1) % nv], axis=1), np.stack([1 - u, u], axis=1), nv
+
+
 def sample_curves(counts: np.ndarray, kind: str, basis: str, wrap: str,
                   keep: np.ndarray | None = None) -> tuple[Samples, list[int], list[bool]]:
     """Per output polyline point, where its values come from; and each curve's polyline length
-    and whether it closes. `counts` are curveVertexCounts (checked by segment_count); `keep`
-    (per curve) leaves curves out, their elements still counted."""
+    and whether it closes. `counts` are curveVertexCounts (CurveError where one does not fit);
+    `keep` (per curve) leaves curves out, their elements still counted. Curves of one count
+    share their template (hair: one)."""
     kind = "linear" if kind == "linear" or basis not in BASES else kind
     if kind == "cubic" and basis == "bezier" and wrap == "pinned":
         wrap = "nonperiodic"  # pinned means nothing for bezier (USD)
-    idx, w, vary, vary_w, curve, lengths, closed = [], [], [], [], [], [], []
-    start, vstart = 0, 0
-    for c, n in enumerate(int(k) for k in counts):
-        segs = segment_count(n, kind, basis, wrap)
-        periodic = wrap == "periodic"
-        nv = segs if periodic else segs + 1
-        if keep is not None and not keep[c]:
-            start += n
-            vstart += nv
+    counts = np.asarray(counts, np.int64)
+    sizes, which = np.unique(counts, return_inverse=True)
+    templates = [_template(int(n), kind, basis, wrap) for n in sizes]
+    nv = np.array([t[4] for t in templates], np.int64)[which]
+    length = np.array([len(t[0]) for t in templates], np.int64)[which]
+    start, vstart = np.cumsum(counts) - counts, np.cumsum(nv) - nv
+    kept = np.arange(len(counts)) if keep is None else np.flatnonzero(keep)
+    out_start = np.cumsum(length[kept]) - length[kept]
+    total = int(length[kept].sum())
+    idx, w = np.zeros((total, 8), np.int64), np.zeros((total, 8))
+    vary, vary_w = np.zeros((total, 2), np.int64), np.zeros((total, 2))
+    curve = np.zeros(total, np.int64)
+    for k, (i8, w8, vl, vw, _) in enumerate(templates):
+        members = np.flatnonzero(which[kept] == k)  # positions among the kept curves
+        if not len(members):
             continue
-        steps = 1 if kind == "linear" else SAMPLES
-        t = np.arange(segs * steps) / steps
-        if not periodic:
-            t = np.append(t, segs)
-        seg = np.minimum(t.astype(np.int64), segs - 1)
-        u = t - seg  # 0..1 within its segment (the last point: 1)
-        if kind == "linear":
-            a = seg
-            b = (seg + 1) % n
-            i8 = np.stack([a, b] + [a] * 6, axis=1)
-            w8 = np.stack([1 - u, u] + [np.zeros_like(u)] * 6, axis=1)
-        else:
-            # extended control vertices: (index, coefficient) pairs; pinned adds a phantom
-            # vertex at each end, 2 P0 - P1 (and 2 Pn-1 - Pn-2)
-            ia, ca = np.arange(n), np.ones(n)
-            ib, cb = np.arange(n), np.zeros(n)
-            if wrap == "pinned":
-                ia = np.concatenate([[0], ia, [n - 1]])
-                ib = np.concatenate([[1], ib, [n - 2]])
-                ca = np.concatenate([[2.0], ca, [2.0]])
-                cb = np.concatenate([[-1.0], cb, [-1.0]])
-            step = 3 if basis == "bezier" else 1
-            cv = (seg[:, None] * step + np.arange(4)[None]) % len(ia)  # E x 4 extended
-            power = np.stack([u ** 3, u ** 2, u, np.ones_like(u)], axis=1)
-            bw = power @ BASES[basis]  # E x 4
-            i8 = np.concatenate([ia[cv], ib[cv]], axis=1)
-            w8 = np.concatenate([bw * ca[cv], bw * cb[cv]], axis=1)
-        vary.append(vstart + np.stack([seg, (seg + 1) % nv], axis=1))
-        vary_w.append(np.stack([1 - u, u], axis=1))
-        idx.append(start + i8)
-        w.append(w8)
-        curve.append(np.full(len(t), c))
-        lengths.append(len(t))
-        closed.append(periodic)
-        start += n
-        vstart += nv
-    cat = lambda parts, shape: np.concatenate(parts) if parts else np.zeros(shape)  # noqa: E731
-    return Samples(cat(idx, (0, 8)).astype(np.int64), cat(w, (0, 8)), cat(vary, (0, 2)).astype(np.int64),
-                   cat(vary_w, (0, 2)), cat(curve, (0,)).astype(np.int64)), lengths, closed
+        c = kept[members]
+        at = out_start[members][:, None] + np.arange(len(i8))[None]  # B x L
+        idx[at] = start[c][:, None, None] + i8[None]
+        w[at] = w8[None]
+        vary[at] = vstart[c][:, None, None] + vl[None]
+        vary_w[at] = vw[None]
+        curve[at] = c[:, None]
+    return Samples(idx, w, vary, vary_w, curve), [int(x) for x in length[kept]], \
+        [wrap == "periodic"] * len(kept)
 
 
 def evaluate(values: np.ndarray, interpolation: str, s: Samples) -> np.ndarray:

@@ -957,6 +957,8 @@ class StageReader:
                     self._warn(f"{where}: primvar {name}: indices outside its values; ignored")
                     return None
                 arr = arr[idx]
+            if name == "widths" and len(arr) == 1:
+                interpolation = "constant"  # one width, the schema's vertex default: Storm's reading
             expected = 1 if interpolation == "constant" else elements.get(str(interpolation))
             if expected is None or len(arr) < expected or not np.isfinite(arr).all():
                 self._warn(f"{where}: primvar {name}: {len(arr)} values do not fit "
@@ -1056,7 +1058,11 @@ class StageReader:
             tri = tri[select]
         if not len(tri):
             return None
-        used, local = np.unique(tri, return_inverse=True)
+        # the vertices the triangles use, in order (np.unique's result, without its sort)
+        mask = np.zeros(len(topo.positions), bool)
+        mask[tri.reshape(-1)] = True
+        used = np.flatnonzero(mask)
+        local = (np.cumsum(mask) - 1)[tri.reshape(-1)]
         cage_corners = None
         if topo.cage is not None and topo.cage_order is not None and topo.corner_face is not None \
                 and topo.corner_vertex is not None and topo.face_drawn is not None:
