@@ -64,7 +64,7 @@ from pipeline.usd.shapes import SHAPES, tessellate
 from pipeline.usd.time import time_code, time_range
 
 log = logging.getLogger(__name__)
-CURVE_BUDGET = 4_000_000  # vertices of the tubes and spheres made for curves and points, per asset
+CURVE_BUDGET = 2_000_000  # vertices of the tubes and spheres made for curves and points, per asset
 
 Y_UP_FROM_Z_UP = np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]], np.float64)
 PRUNED_TYPES = (UsdShade.Material, UsdShade.NodeGraph, UsdShade.Shader)
