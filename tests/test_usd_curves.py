@@ -133,6 +133,11 @@ def test_primvars_widths_and_defaults(tmp_path):
         float[] widths = [0.1, 0.1, 0.3, 0.5] (interpolation = "vertex")
         color3f[] primvars:displayColor = [(1, 0, 0), (0, 1, 0)] (interpolation = "uniform")
     }
+    def Points "One"
+    {
+        point3f[] points = [(0, 9, 0), (3, 9, 0)]
+        float[] widths = [0.3]
+    }
     def BasisCurves "Bare"
     {
         uniform token type = "linear"
@@ -148,6 +153,9 @@ def test_primvars_widths_and_defaults(tmp_path):
     np.testing.assert_allclose(v.colors[second, :3], [[0, 1, 0]] * int(second.sum()))
     r = np.abs(v.positions[second][:, 1] - 2).max()  # vertex widths: up to 0.5 at the end
     assert r == pytest.approx(0.25, abs=1e-4)
+    one = by["/W/One"]  # one width under the schema's vertex default: constant, as Storm reads it
+    np.testing.assert_allclose(np.ptp(one.positions, axis=0), [3.3, 0.3, 0.3], atol=1e-4)
+    assert not [w for w in scene.warnings if "widths" in w], scene.warnings
     bare = by["/W/Bare"]  # no widths: Storm's fallback
     assert np.abs(bare.positions[:, 1] - 5).max() == pytest.approx(curves.DEFAULT_WIDTH / 2, abs=1e-4)
 

@@ -911,14 +911,16 @@ class StageReader:
                            f"its {n} points; skipped")
                 return None
             try:
-                n_vary = [curves.varying_count(int(k), kind, basis, wrap) for k in counts]
+                sizes, which = np.unique(counts, return_inverse=True)  # hair: one count
+                n_vary = np.array([curves.varying_count(int(k), kind, basis, wrap)
+                                   for k in sizes], np.int64)[which]
             except curves.CurveError as exc:
                 self._warn(f"{where}: {exc}; skipped")
                 return None
             steps = 1 if kind == "linear" else curves.SAMPLES
-            per_curve = np.array([(v - (0 if wrap == "periodic" else 1)) * steps +
-                                  (0 if wrap == "periodic" else 1) for v in n_vary]) * curves.SIDES
-            elements = {"uniform": len(counts), "vertex": n, "varying": sum(n_vary)}
+            open_end = 0 if wrap == "periodic" else 1
+            per_curve = ((n_vary - open_end) * steps + open_end) * curves.SIDES
+            elements = {"uniform": len(counts), "vertex": n, "varying": int(n_vary.sum())}
             elements["faceVarying"] = elements["varying"]
             total, count_word = int(per_curve.sum()), f"{len(counts)} curves"
         else:
@@ -937,7 +939,7 @@ class StageReader:
                            f"of {max(budget, 0)}; skipped")
                 return None
             self._warn(f"{where}: {count_word} would make {total} vertices, over the budget of "
-                       f"{budget}; every {step}th drawn")
+                       f"{budget}; every {_ordinal(step)} drawn")
         if is_curves:
             samples, lengths, closed = curves.sample_curves(counts, kind, basis, wrap, keep)
         else:
@@ -1104,6 +1106,10 @@ class StageReader:
         if text not in self.scene.warnings:
             self.scene.warnings.append(text)
             log.info("%s: %s", self.graph.path, text)  # said once, as the scene's warning
+
+
+def _ordinal(k: int) -> str:
+    return f"{k}{'th' if 10 <= k % 100 <= 20 else {1: 'st', 2: 'nd', 3: 'rd'}.get(k % 10, 'th')}"
 
 
 def _finite(value, default: float) -> float:
