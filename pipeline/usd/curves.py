@@ -2,7 +2,9 @@
 
 Curves: each curve is evaluated by its `type` / `basis` / `wrap` (linear; cubic bezier,
 bspline, catmullRom; nonperiodic, periodic, pinned) into a polyline, SAMPLES points per
-cubic segment (a linear one: its two ends), and swept into an open tube of SIDES sides whose
+cubic segment; a linear segment is its own two ends, so that its rings are square to it and the
+width holds along it (as Storm draws it; rings square to the vertex's mean tangent made a sharp
+zigzag a third thinner), the two rings at a corner bridged. Then swept into an open tube of SIDES sides whose
 diameter is the authored width there (rotation-minimising frames, a periodic curve's twist
 spread along it so that the tube closes). Points: a low-poly sphere (an icosphere once
 subdivided) of the point's width per point. Widths absent: Storm's fallback, DEFAULT_WIDTH.
@@ -85,12 +87,15 @@ def _template(n: int, kind: str, basis: str, wrap: str):
     segs = segment_count(n, kind, basis, wrap)
     periodic = wrap == "periodic"
     nv = segs if periodic else segs + 1
-    steps = 1 if kind == "linear" else SAMPLES
-    t = np.arange(segs * steps) / steps
-    if not periodic:
-        t = np.append(t, segs)
-    seg = np.minimum(t.astype(np.int64), segs - 1)
-    u = t - seg  # 0..1 within its segment (the last point: 1)
+    if kind == "linear":  # each segment's own two ends: rings square to the segment
+        seg = np.repeat(np.arange(segs), 2)
+        u = np.tile([0.0, 1.0], segs)
+    else:
+        t = np.arange(segs * SAMPLES) / SAMPLES
+        if not periodic:
+            t = np.append(t, segs)
+        seg = np.minimum(t.astype(np.int64), segs - 1)
+        u = t - seg  # 0..1 within its segment (the last point: 1)
     if kind == "linear":
         a, b = seg, (seg + 1) % n
         i8 = np.stack([a, b] + [a] * 6, axis=1)
@@ -215,13 +220,6 @@ def tubes(centres: np.ndarray, radii: np.ndarray, lengths: list[int], closed: li
         tris.append((starts[members][:, None, None] * SIDES + local[None]).reshape(-1, 3))
     tri = np.concatenate(tris) if tris else np.zeros((0, 3), np.int64)
     return pos, nrm, tri, np.repeat(np.arange(total), SIDES)
-
-
-def tube_size(lengths: list[int], closed: list[bool]) -> tuple[int, int]:
-    """(vertices, triangles) tubes() makes for these polylines."""
-    v = sum(lengths) * SIDES
-    t = sum((m if c else m - 1) * 2 * SIDES for m, c in zip(lengths, closed))
-    return v, t
 
 
 def spheres(centres: np.ndarray, radii: np.ndarray):

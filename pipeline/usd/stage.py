@@ -917,9 +917,10 @@ class StageReader:
             except curves.CurveError as exc:
                 self._warn(f"{where}: {exc}; skipped")
                 return None
-            steps = 1 if kind == "linear" else curves.SAMPLES
             open_end = 0 if wrap == "periodic" else 1
-            per_curve = ((n_vary - open_end) * steps + open_end) * curves.SIDES
+            segments = n_vary - open_end
+            per_curve = (segments * 2 if kind == "linear" else
+                         segments * curves.SAMPLES + open_end) * curves.SIDES
             elements = {"uniform": len(counts), "vertex": n, "varying": int(n_vary.sum())}
             elements["faceVarying"] = elements["varying"]
             total, count_word = int(per_curve.sum()), f"{len(counts)} curves"
@@ -984,6 +985,9 @@ class StageReader:
             pos, nrm, tri, src = curves.tubes(centres, radii, lengths, closed)
         else:
             pos, nrm, tri, src = curves.spheres(centres, radii)
+        pos = pos.astype(np.float32)
+        corner = pos[tri]  # a corner's bridge between rings that share a vertex: zero area
+        tri = tri[np.any(np.cross(corner[:, 1] - corner[:, 0], corner[:, 2] - corner[:, 0]) != 0, axis=1)]
         if self.triangles + len(tri) > self.limits.max_triangles:
             raise LimitExceeded(self.graph.path, f"{where}: {len(tri)} triangles, over the "
                                                  f"limit of {self.limits.max_triangles}")
