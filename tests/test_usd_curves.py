@@ -200,3 +200,38 @@ def test_purpose_visibility_and_bad_topology(tmp_path):
     assert any("/W/Odd" in w and "bezier curve of 5 vertices" in w for w in scene.warnings)
     guides = load_scene(_write(tmp_path, body, "g.usda"), purposes=("render", "guide"))
     assert "/W/Guide" in {m.name for m in guides.meshes}
+
+
+def test_material_binding_on_curves_and_points(tmp_path):
+    body = """    def Material "Gold"
+    {
+        token outputs:surface.connect = </W/Gold/S.outputs:surface>
+        def Shader "S"
+        {
+            uniform token info:id = "UsdPreviewSurface"
+            color3f inputs:diffuseColor = (0.9, 0.6, 0.1)
+            token outputs:surface
+        }
+    }
+    def BasisCurves "C" ( prepend apiSchemas = ["MaterialBindingAPI"] )
+    {
+        uniform token type = "linear"
+        int[] curveVertexCounts = [2]
+        point3f[] points = [(-1, 0, 0), (1, 0, 0)]
+        float[] widths = [0.1] (interpolation = "constant")
+        color3f[] primvars:displayColor = [(0, 0, 1)]
+        rel material:binding = </W/Gold>
+    }
+    def Points "P" ( prepend apiSchemas = ["MaterialBindingAPI"] )
+    {
+        point3f[] points = [(0, 1, 0)]
+        float[] widths = [0.2]
+        rel material:binding = </W/Gold>
+    }
+"""
+    scene = load_scene(_write(tmp_path, body))
+    for inst in scene.instances:
+        mesh, mat = scene.meshes[inst.mesh], scene.materials[inst.material]
+        # the material's own diffuse wins over displayColor, as on meshes
+        assert mat.base_color[:3] == pytest.approx((0.9, 0.6, 0.1), abs=1e-6), mesh.name
+        assert mesh.colors is None, mesh.name
