@@ -35,7 +35,8 @@ at its rest transforms without one, as usdview shows them: the animation's blend
 weights first (UsdSkel.BlendShapeQuery, inbetweens included; normalOffsets of shapes without
 inbetweens on vertex normals), then the joints; authored normals are skinned too
 (UsdSkel.SkinNormals), so that they follow the pose. PointInstancers place their prototypes (one Mesh each, an Instance per unmasked point);
-nested ones, curves, points and NURBS are skipped with a warning. UsdLux distant / sphere /
+nested ones and NURBS are skipped with a warning. BasisCurves become tubes and Points small
+spheres of their widths (`usd_curves`; CURVE_BUDGET thins or refuses them, naming the prim). UsdLux distant / sphere /
 rect / disk lights become KHR_lights_punctual lights (`_light`), a dome light's texture the
 scene's environment; UsdGeomCameras are listed (`Scene.cameras`) for `render --camera PATH`.
 """
@@ -56,13 +57,14 @@ from core.scene import Cage, Creases, Instance, Light, Mesh, Scene, SceneCamera
 from pipeline import deadline
 from pipeline.limits import Limits
 from pipeline.normals import smooth_normals
-from pipeline.usd import drawmode
+from pipeline.usd import curves, drawmode
 from pipeline.usd.layers import LayerGraph
 from pipeline.usd.materials import Binding, MaterialReader, authoring_layer
 from pipeline.usd.shapes import SHAPES, tessellate
 from pipeline.usd.time import time_code, time_range
 
 log = logging.getLogger(__name__)
+CURVE_BUDGET = 2_000_000  # vertices of the tubes and spheres made for curves and points, per asset
 
 Y_UP_FROM_Z_UP = np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]], np.float64)
 PRUNED_TYPES = (UsdShade.Material, UsdShade.NodeGraph, UsdShade.Shader)
@@ -241,6 +243,7 @@ class StageReader:
         self._topology: dict[tuple, _Topology | None] = {}
         self.triangles = 0
         self.vertices = 0
+        self._swept_vertices = 0  # of curves and points (CURVE_BUDGET)
         self._nodes = 0
         self._skipped: set[str] = set()
         self._skel: UsdSkel.Cache | None = None  # made at the first SkelRoot
@@ -316,6 +319,9 @@ class StageReader:
                     self._gprim(prim, *skinned)
                 else:
                     self._gprim(prim, self._matrices(prim, root, placements))
+            elif prim.IsA(UsdGeom.BasisCurves) or prim.IsA(UsdGeom.Points):
+                self._placing = None if placements is not None else (str(prim.GetPath()), False)
+                self._gprim(prim, self._matrices(prim, root, placements))
             elif prim.IsA(UsdGeom.PointInstancer):
                 it.PruneChildren()  # its prototypes are drawn only where it places them
                 if placements is None:
@@ -613,7 +619,10 @@ class StageReader:
         mesh = UsdGeom.Mesh(prim) if prim.IsA(UsdGeom.Mesh) else None
         source = prim.GetPrimInPrototype() if prim.IsInstanceProxy() else prim
         groups = self._groups(prim, mesh)
-        double_sided = bool(UsdGeom.Gprim(prim).GetDoubleSidedAttr().Get())
+        swept = prim.IsA(UsdGeom.BasisCurves) or prim.IsA(UsdGeom.Points)
+        # a tube's open ends show its inside
+        double_sided = bool(UsdGeom.Gprim(prim).GetDoubleSidedAttr().Get()) or \
+            prim.IsA(UsdGeom.BasisCurves)
         # authored here or on an ancestor: the schema declares displayColor on every gprim
         color_pv = UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance("displayColor")
         has_color = bool(color_pv) and color_pv.HasAuthoredValue()
@@ -631,7 +640,7 @@ class StageReader:
         if topo_key not in self._topology:
             deadline.check()
             self._topology[topo_key] = self._triangulate(prim, mesh, needed, points, skin) if mesh \
-                else self._shape(prim, needed)
+                else self._swept(prim, needed) if swept else self._shape(prim, needed)
         topo = self._topology[topo_key]
         if topo is None:
             return
@@ -872,6 +881,131 @@ class StageReader:
                 topo.attrs[name] = np.repeat(value[None], len(points), axis=0)
         return topo
 
+    def _swept(self, prim: Usd.Prim, names: list[str]) -> _Topology | None:
+        """BasisCurves as tubes, Points as small spheres (pipeline.usd.curves), of their
+        widths; primvars evaluated per USD's curve interpolation. Over the vertex budget
+        (CURVE_BUDGET, and what the asset's limits leave) every k-th curve or point is drawn,
+        with a warning naming the prim."""
+        where = str(prim.GetPath())
+        points = np.asarray(UsdGeom.PointBased(prim).GetPointsAttr().Get(self.time) or [],
+                            np.float64).reshape(-1, 3)
+        if not len(points):
+            return None
+        if not np.isfinite(points).all():
+            self._warn(f"{where}: NaN or infinite points; skipped")
+            return None
+        n = len(points)
+        is_curves = prim.IsA(UsdGeom.BasisCurves)
+        budget = min(CURVE_BUDGET - self._swept_vertices, self.limits.max_vertices - self.vertices)
+        if is_curves:
+            bc = UsdGeom.BasisCurves(prim)
+            counts = np.asarray(bc.GetCurveVertexCountsAttr().Get(self.time) or [], np.int64)
+            kind = str(bc.GetTypeAttr().Get() or "cubic")
+            basis = str(bc.GetBasisAttr().Get() or "bezier")
+            wrap = str(bc.GetWrapAttr().Get() or "nonperiodic")
+            if basis not in curves.BASES and kind == "cubic":
+                self._warn(f"{where}: basis {basis!r} is not one Storm draws; drawn linear")
+                kind = "linear"
+            if not len(counts) or counts.min() < 1 or counts.sum() != n:
+                self._warn(f"{where}: curveVertexCounts (sum {int(counts.sum())}) do not match "
+                           f"its {n} points; skipped")
+                return None
+            try:
+                sizes, which = np.unique(counts, return_inverse=True)  # hair: one count
+                n_vary = np.array([curves.varying_count(int(k), kind, basis, wrap)
+                                   for k in sizes], np.int64)[which]
+            except curves.CurveError as exc:
+                self._warn(f"{where}: {exc}; skipped")
+                return None
+            open_end = 0 if wrap == "periodic" else 1
+            segments = n_vary - open_end
+            per_curve = (segments * 2 if kind == "linear" else
+                         segments * curves.SAMPLES + open_end) * curves.SIDES
+            elements = {"uniform": len(counts), "vertex": n, "varying": int(n_vary.sum())}
+            elements["faceVarying"] = elements["varying"]
+            total, count_word = int(per_curve.sum()), f"{len(counts)} curves"
+        else:
+            per_curve = np.full(n, curves.sphere_size(1)[0])
+            elements = {k: n for k in ("uniform", "vertex", "varying", "faceVarying")}
+            total, count_word = int(per_curve.sum()), f"{n} points"
+        keep = np.ones(len(per_curve), bool)
+        if total > budget:
+            step = -(-total // max(budget, 1))
+            keep = np.arange(len(per_curve)) % step == 0
+            while int(per_curve[keep].sum()) > budget and keep.sum() > 1:
+                step += 1
+                keep = np.arange(len(per_curve)) % step == 0
+            if budget <= 0 or int(per_curve[keep].sum()) > budget:
+                self._warn(f"{where}: {count_word} would make {total} vertices, over the budget "
+                           f"of {max(budget, 0)}; skipped")
+                return None
+            self._warn(f"{where}: {count_word} would make {total} vertices, over the budget of "
+                       f"{budget}; every {_ordinal(step)} drawn")
+        if is_curves:
+            samples, lengths, closed = curves.sample_curves(counts, kind, basis, wrap, keep)
+        else:
+            chosen = np.flatnonzero(keep)
+            zero = np.zeros((len(chosen), 7), np.float64)
+            samples = curves.Samples(
+                np.concatenate([chosen[:, None], zero.astype(np.int64)], axis=1),
+                np.concatenate([np.ones((len(chosen), 1)), zero], axis=1),
+                np.stack([chosen, chosen], axis=1), np.tile([1.0, 0.0], (len(chosen), 1)), chosen)
+
+        def value(name: str, values, interpolation, indices) -> np.ndarray | None:
+            arr = np.asarray(values, np.float64)
+            arr = arr.reshape(len(arr), -1) if arr.ndim else arr.reshape(1, 1)
+            if indices is not None and len(indices):
+                idx = np.asarray(indices, np.int64)
+                if idx.min() < 0 or idx.max() >= len(arr):
+                    self._warn(f"{where}: primvar {name}: indices outside its values; ignored")
+                    return None
+                arr = arr[idx]
+            if name == "widths" and len(arr) == 1:
+                interpolation = "constant"  # one width, the schema's vertex default: Storm's reading
+            expected = 1 if interpolation == "constant" else elements.get(str(interpolation))
+            if expected is None or len(arr) < expected or not np.isfinite(arr).all():
+                self._warn(f"{where}: primvar {name}: {len(arr)} values do not fit "
+                           f"{interpolation!r} interpolation (or are not finite); ignored")
+                return None
+            return curves.evaluate(arr, str(interpolation), samples)
+
+        geom = UsdGeom.Curves(prim) if is_curves else UsdGeom.Points(prim)
+        pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar("widths")  # primvars:widths wins
+        if pv and pv.HasValue():
+            widths = value("widths", pv.Get(self.time), pv.GetInterpolation(),
+                           pv.GetIndices(self.time) if pv.IsIndexed() else None)
+        else:
+            raw = geom.GetWidthsAttr().Get(self.time)
+            widths = None if raw is None or not len(raw) else \
+                value("widths", raw, geom.GetWidthsInterpolation(), None)
+        radii = np.full(len(samples.curve), curves.DEFAULT_WIDTH / 2) if widths is None \
+            else np.maximum(widths[:, 0], 0.0) / 2
+        centres = curves.evaluate(points, "vertex", samples)
+        if is_curves:
+            pos, nrm, tri, src = curves.tubes(centres, radii, lengths, closed)
+        else:
+            pos, nrm, tri, src = curves.spheres(centres, radii)
+        pos = pos.astype(np.float32)
+        corner = pos[tri]  # a corner's bridge between rings that share a vertex: zero area
+        tri = tri[np.any(np.cross(corner[:, 1] - corner[:, 0], corner[:, 2] - corner[:, 0]) != 0, axis=1)]
+        if self.triangles + len(tri) > self.limits.max_triangles:
+            raise LimitExceeded(self.graph.path, f"{where}: {len(tri)} triangles, over the "
+                                                 f"limit of {self.limits.max_triangles}")
+        self.triangles += len(tri)
+        self.vertices += len(pos)
+        self._swept_vertices += len(pos)
+        topo = _Topology(pos.astype(np.float32), tri.astype(np.uint32),
+                         np.zeros(len(tri), np.int64), nrm.astype(np.float32))
+        for name in names + (["displayOpacity"] if "displayColor" in names else []):
+            found = UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance(name)
+            if not found or not found.HasValue():
+                continue
+            at = value(name, found.Get(self.time), found.GetInterpolation(),
+                       found.GetIndices(self.time) if found.IsIndexed() else None)
+            if at is not None:
+                topo.attrs[name] = at[src].astype(np.float32)
+        return topo
+
     def _primvar(self, prim, name, counts, fvi, n_points) -> _Primvar | None:
         pv = UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance(name)
         if not pv or not pv.HasValue():
@@ -930,7 +1064,11 @@ class StageReader:
             tri = tri[select]
         if not len(tri):
             return None
-        used, local = np.unique(tri, return_inverse=True)
+        # the vertices the triangles use, in order (np.unique's result, without its sort)
+        mask = np.zeros(len(topo.positions), bool)
+        mask[tri.reshape(-1)] = True
+        used = np.flatnonzero(mask)
+        local = (np.cumsum(mask) - 1)[tri.reshape(-1)]
         cage_corners = None
         if topo.cage is not None and topo.cage_order is not None and topo.corner_face is not None \
                 and topo.corner_vertex is not None and topo.face_drawn is not None:
@@ -972,6 +1110,10 @@ class StageReader:
         if text not in self.scene.warnings:
             self.scene.warnings.append(text)
             log.info("%s: %s", self.graph.path, text)  # said once, as the scene's warning
+
+
+def _ordinal(k: int) -> str:
+    return f"{k}{'th' if 10 <= k % 100 <= 20 else {1: 'st', 2: 'nd', 3: 'rd'}.get(k % 10, 'th')}"
 
 
 def _finite(value, default: float) -> float:
