@@ -34,6 +34,14 @@ vec3 env_radiance(vec3 dir, float roughness) {
     return textureLod(u_env, ENV_DIR(dir), roughness_to_lod(roughness)).rgb;
 }
 
+// Where a GGX lobe's reflected light comes from: toward the normal as the lobe widens (its
+// peak leaves the mirror direction; Lagarde & de Rousiers 2014's dominant direction, in
+// Filament's form, mix(r, n, alpha)); the split-sum's mips were prefiltered about this axis.
+vec3 specular_dir(vec3 n, vec3 v, float roughness) {
+    float alpha = roughness * roughness, gloss = 1.0 - alpha;
+    return normalize(mix(n, reflect(-v, n), gloss * (sqrt(gloss) + alpha)));
+}
+
 // Cosine-weighted mean radiance about n (irradiance / pi, as sh.glsl returns it): what a
 // white Lambertian surface reflects.
 vec3 env_diffuse(vec3 n) {
@@ -115,7 +123,7 @@ vec3 ibl(MaterialInfo m, vec3 v) {
 #ifdef MATERIAL_ANISOTROPY
     vec3 radiance = env_radiance_anisotropic(m, v);
 #else
-    vec3 radiance = env_radiance(reflect(-v, n), m.roughness);
+    vec3 radiance = env_radiance(specular_dir(n, v, m.roughness), m.roughness);
 #endif
     vec3 irradiance = env_diffuse(n);
     vec3 kD = m.diffuse_color * (1.0 - FssEss - FmsEms);
@@ -147,7 +155,7 @@ vec3 ibl_clearcoat(MaterialInfo m, vec3 v) {
     vec3 n = m.clearcoat_n;
     float NdotV = clamp(dot(n, v), 1e-4, 1.0);
     vec2 ab = texture(u_brdf_lut, vec2(NdotV, m.clearcoat_roughness)).rg;
-    return (CLEARCOAT_F0 * ab.x + ab.y) * env_radiance(reflect(-v, n), m.clearcoat_roughness)
+    return (CLEARCOAT_F0 * ab.x + ab.y) * env_radiance(specular_dir(n, v, m.clearcoat_roughness), m.clearcoat_roughness)
          * min(m.occlusion, specular_occlusion(NdotV, m.ao, m.clearcoat_roughness));
 }
 #endif
