@@ -117,6 +117,21 @@ def test_a_refusal_is_marked_over_the_image_and_cleared_by_the_next_success(serv
     assert "stale" not in find("#d-plan").get_attribute("class")
 
 
+def test_closing_and_opening_another_asset_at_once_shows_its_still(server, page):
+    """The dialog's close event fires after close() returns: closing one asset and opening
+    another in the same task must not let that late event abort the new asset's requests
+    (its still stayed 'loading' for good)."""
+    b, find = page
+    _open(b, find, server, "Duck.glb")
+    box = server.ids["BoxTextured.glb"]
+    b.execute_script("document.getElementById('detail').close();"
+                     f"document.querySelector('.card[data-id=\"{box}\"]').click()")
+    wait(lambda: find("#d-name").text == "BoxTextured.glb", 10, "the detail view of BoxTextured.glb")
+    wait(lambda: find("#canvas").get_attribute("data-state") == "ready", 240,
+         lambda: f"the still (canvas {find('#canvas').get_attribute('data-state')!r})")
+    assert b.execute_script("return document.getElementById('detail').open")
+
+
 def test_opening_another_asset_resets_the_view(server, page):
     b, find = page
     _open(b, find, server, "Duck.glb")

@@ -200,11 +200,14 @@ async function openDetail(rec) {
   const c = $("canvas");
   c.getContext("2d").clearRect(0, 0, c.width, c.height);
   $("d-download").removeAttribute("href");
+  // Open before any await: a dialog's close event fires later than close() itself, so one
+  // still queued from closing the previous asset must find the dialog open (onclose) and
+  // leave this asset's requests alone.
+  if (!$("detail").open) $("detail").showModal();
   await loadEnvironments();
   if (current !== rec) return;
   resetControls();
   showOutputs();
-  if (!$("detail").open) $("detail").showModal();
   if (rec.status !== "failed") { renderStill(); loadTurntable(); updateCost(); }
 }
 
@@ -359,7 +362,7 @@ $("controls").onchange = e => {
 };
 $("controls").onsubmit = e => e.preventDefault();
 $("d-close").onclick = () => $("detail").close();
-$("detail").onclose = () => { abortAll(); current = null; };
+$("detail").onclose = () => { if (!$("detail").open) { abortAll(); current = null; } };
 $("d-delete").onclick = async () => {
   const rec = current;
   if (!confirm(`Delete ${rec.name}?`)) return;
