@@ -5,10 +5,15 @@ from __future__ import annotations
 import numpy as np
 
 
+def srgb_decode(x: np.ndarray) -> np.ndarray:
+    """sRGB-encoded values -> linear, float64 (IEC 61966-2-1; below 0 stays linear)."""
+    x = np.asarray(x, np.float64)
+    return np.where(x <= 0.04045, x / 12.92, (np.maximum(x + 0.055, 0.0) / 1.055) ** 2.4)
+
+
 def srgb_to_linear(rgb8: np.ndarray) -> np.ndarray:
     """uint8 sRGB -> float32 linear (IEC 61966-2-1), through a 256-entry table."""
-    c = np.arange(256, dtype=np.float64) / 255.0
-    table = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
+    table = srgb_decode(np.arange(256, dtype=np.float64) / 255.0).astype(np.float32)
     return table[rgb8]
 
 

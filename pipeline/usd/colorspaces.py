@@ -18,7 +18,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from core.colour import srgb_to_linear
+from core.colour import srgb_decode, srgb_to_linear
 
 Space = tuple[str, str]  # (transfer, gamut)
 
@@ -121,7 +121,7 @@ def decode(values: np.ndarray, transfer: str) -> np.ndarray:
     if transfer == "linear":
         return v.copy()
     if transfer == "srgb":
-        return np.where(v <= 0.04045, v / 12.92, (np.maximum(v + 0.055, 0.0) / 1.055) ** 2.4)
+        return srgb_decode(v)
     return np.maximum(v, 0.0) ** POWERS[transfer]
 
 

@@ -9,9 +9,11 @@ import math
 import numpy as np
 from numba import njit
 
+from core.colour import srgb_decode
+
 # Byte -> value in [0, 1], and byte -> linear for sRGB-encoded colour.
 UNIT_LUT = np.arange(256) / 255.0
-SRGB_LUT = np.where(UNIT_LUT <= 0.04045, UNIT_LUT / 12.92, ((UNIT_LUT + 0.055) / 1.055) ** 2.4)
+SRGB_LUT = srgb_decode(UNIT_LUT)
 
 
 @njit(cache=True, inline="always")
