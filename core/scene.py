@@ -306,6 +306,12 @@ class Light:
     # colour that shadowed light is multiplied by instead of black
     shadow: bool = True
     shadow_color: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # A USD light's extent, which the ray tracer samples for soft shadows (the raster draws the
+    # light as the point or direction above): "" none, "rect" (size: width, height along the
+    # matrix's x and y), "disk" (radius, radius), "sphere" (radius, 0), "cylinder" (radius,
+    # length along x), "cone" (a directional light's half-angle in radians, 0); metres
+    shape: str = ""
+    size: tuple[float, float] = (0.0, 0.0)
 
 
 @dataclass

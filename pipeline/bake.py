@@ -472,7 +472,7 @@ def _light_to_json(light: Light) -> dict:
 
 def _light_from_json(d: dict) -> Light:
     d = dict(d, matrix=np.asarray(d["matrix"], np.float64), color=tuple(d["color"]),
-             shadow_color=tuple(d["shadow_color"]))
+             shadow_color=tuple(d["shadow_color"]), size=tuple(d.get("size", (0.0, 0.0))))
     if d.get("range") is None:
         d["range"] = math.inf
     return Light(**d)

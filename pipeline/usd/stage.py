@@ -346,8 +346,12 @@ class StageReader:
         - Sphere / rect / disk lights: a Lambertian emitter of area A (in m^2, world space: the
           xform's scale and metersPerUnit included) facing the point gives I = L x A_projected
           (pi r^2 for a sphere, w h for a rect, pi r^2 for a disk); normalized, I = intensity.
-        Sphere lights become point lights (spot with ShapingAPI's cone), rect and disk lights
-        a one-sided 90 degree spot."""
+        - Cylinder lights: the side of a cylinder of radius r and length l along x, seen
+          broadside: I = L x 2 r l (its projected area); normalized, I = intensity.
+        Sphere and cylinder lights become point lights (spot with ShapingAPI's cone), rect
+        and disk lights a one-sided 90 degree spot. Their extent is kept (Light.shape / size;
+        a distant light's half-angle t): the ray tracer samples it, so its shadows have
+        penumbrae, and the power above is unchanged (renderer/methods/trace_lights.py)."""
         api = UsdLux.LightAPI(prim)
         get = lambda a, d: _finite(a.Get(self.time), d)  # noqa: E731
         color = np.array(api.GetColorAttr().Get(self.time) or (1.0, 1.0, 1.0), np.float64)
@@ -371,20 +375,33 @@ class StageReader:
             kind = "directional"
             area = 1.0 if half <= 0 else math.pi * (math.sin(half) ** 2 if half <= math.pi / 2
                                                    else 1.0)
+            shape, size = ("cone", (half, 0.0)) if half > 0 else ("", (0.0, 0.0))
         elif prim.IsA(UsdLux.SphereLight):
             light = UsdLux.SphereLight(prim)
             r = get(light.GetRadiusAttr(), 0.5) * float(np.mean(axis_m))
             kind = "point"
-            area = 1.0 if light.GetTreatAsPointAttr().Get(self.time) else math.pi * r * r
+            point = bool(light.GetTreatAsPointAttr().Get(self.time))
+            area = 1.0 if point else math.pi * r * r
+            shape, size = ("", (0.0, 0.0)) if point or r <= 0 else ("sphere", (r, 0.0))
         elif prim.IsA(UsdLux.RectLight):
             light = UsdLux.RectLight(prim)
             kind = "rect"
-            area = get(light.GetWidthAttr(), 1.0) * axis_m[0] * \
-                get(light.GetHeightAttr(), 1.0) * axis_m[1]
+            w = get(light.GetWidthAttr(), 1.0) * axis_m[0]
+            h = get(light.GetHeightAttr(), 1.0) * axis_m[1]
+            area, shape, size = w * h, "rect", (w, h)
         elif prim.IsA(UsdLux.DiskLight):
             kind = "rect"
-            area = math.pi * get(UsdLux.DiskLight(prim).GetRadiusAttr(), 0.5) ** 2 * \
-                axis_m[0] * axis_m[1]
+            radius = get(UsdLux.DiskLight(prim).GetRadiusAttr(), 0.5)
+            area = math.pi * radius ** 2 * axis_m[0] * axis_m[1]
+            shape, size = "disk", (radius * axis_m[0], radius * axis_m[1])
+        elif prim.IsA(UsdLux.CylinderLight):
+            light = UsdLux.CylinderLight(prim)
+            length = get(light.GetLengthAttr(), 1.0) * axis_m[0]
+            r = get(light.GetRadiusAttr(), 0.5) * (axis_m[1] + axis_m[2]) / 2
+            kind, area = "point", 2 * r * length
+            if light.GetTreatAsLineAttr().Get(self.time):
+                r = 0.0  # sampled along its axis only (its power still as wide as the radius)
+            shape, size = "cylinder", (r, length)
         else:
             self._warn(f"{where}: {prim.GetTypeName()} lights are not drawn")
             return
@@ -392,7 +409,8 @@ class StageReader:
             area = 1.0
         r, g, b = (float(c) for c in np.clip(color, 0, None))
         out = Light(type="point", color=(r, g, b),
-                    intensity=float(intensity * area), matrix=_orthonormal(world))
+                    intensity=float(intensity * area), matrix=_orthonormal(world),
+                    shape=shape, size=(float(size[0]), float(size[1])))
         if kind == "directional":
             out.type = "directional"
         elif kind == "rect":  # one-sided emitter along -Z: a hemisphere spot

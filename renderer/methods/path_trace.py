@@ -342,13 +342,15 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
                 contrib = w[ls] * fcos * (vis * mis / np.maximum(p_l, 1e-300))[:, None] \
                     * env.radiance(wi, np.zeros(len(wi)))
                 out[slot[ls]] += _clamp(contrib, nee_clamp[ls])
-        # --- next-event estimation: punctual lights (deltas: no MIS)
+        # --- next-event estimation: punctual lights (deltas: no MIS; a USD light's extent is
+        # sampled, one point a pass, and BSDF sampling cannot hit it: NEE alone again)
         if ts.lights is not None and len(ts.lights):
             ls = np.flatnonzero(reflective)
             for i in range(len(ts.lights)):
                 if not len(ls):
                     break
-                ldir, dist, radiance = _light(ts.lights, i, p[ls])
+                u_l = sample(px[ls], s, 2000 + 64 * depth + i % 64) if ts.lights.extended(i) else None
+                ldir, dist, radiance = _light(ts.lights, i, p[ls], u_l)
                 fcos, _ = lobes.eval(ls, ldir)
                 live = np.flatnonzero((fcos.max(axis=1) > 0) & (radiance.max(axis=1) > 0))
                 if not len(live):
@@ -517,10 +519,11 @@ def _off(p: np.ndarray, ng: np.ndarray, wi: np.ndarray, eps: float) -> np.ndarra
     return p + (np.where(_dot(wi, ng) >= 0, eps, -eps))[:, None] * ng
 
 
-def _light(lights, i: int, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _light(lights, i: int, p: np.ndarray, u=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(direction to light i, distance, incident radiance x attenuation) at points p (as
-    renderer.methods.trace_lights, the raster's falloffs)."""
-    ldir, dist, atten = trace_lights.falloff(lights, i, p)
+    renderer.methods.trace_lights, the raster's falloffs; with uniforms u, toward a sample of a
+    light's extent: its soft shadow)."""
+    ldir, dist, atten = trace_lights.falloff(lights, i, p, u)
     return ldir, dist, lights.color[i] * atten[:, None]
 
 

@@ -127,6 +127,7 @@ ROULETTE = 0.1         # fresnel_split="roulette": weaker children go on with P 
 CHUNK_PIXELS = 1 << 18  # supersampled pixels traced together: bounds memory at any size
 KERNEL = True          # shade hits with the compiled trace_kernel (False: the numpy twin)
 ROUGH_EXTRA = 1        # the default grid's extra rays a side on pixels whose centre meets rough glass
+LIGHT_SAMPLES = 4      # shadow rays a camera ray's first surface sends to a light with extent (1 deeper)
 EMITTER_SAMPLES = 1    # points on emissive triangles per ray at every surface (0: emitters light nothing)
 
 
@@ -666,7 +667,7 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
             hits.occlusion = hits.occlusion * cover
         if ts.lights is not None and len(ts.lights):
             _light_hits(ts, ts.lights, env, options, origins, dirs, prim, t, hits,
-                        weight * share[:, None], slot, add, cover)
+                        weight * share[:, None], slot, add, cover, (pix, sub, n_sub, depth))
         n_nee = 0
         if emitters is not None:
             n_nee = EMITTER_SAMPLES if depth == 0 else 1
@@ -748,16 +749,24 @@ def _pass_on(children: tuple, origins, dirs, t, weight, pix, sub, slot, blur, sh
 
 def _light_hits(ts: TraceScene, lights: trace_lights.Lights, env: _Environment,
                 options: RenderOptions, origins, dirs, prim, t, hits: trace_material.Hits, carried: np.ndarray, slot: np.ndarray, add,
-                cover: np.ndarray | None = None) -> None:
+                cover: np.ndarray | None = None, strata: tuple | None = None) -> None:
     """Next-event estimation: what the punctual lights reflect along each ray from the
     surface it hit, times what the ray carries, into `add` (`cover`: the opacity of a
     premultiplied blend per ray, which scales the diffuse share). Hits from inside a transmissive
     object are skipped: light reaches them only refracted, which a straight shadow ray
-    cannot follow."""
+    cannot follow. A light with extent (a USD rect, disk, sphere, cylinder or wide distant
+    light) is sampled LIGHT_SAMPLES times a ray at the first surface, once deeper, from the
+    pixel's scrambled Sobol set (`strata`: pixel, sub-ray, rays a pixel, bounce), so a
+    pixel's rays stratify its extent together."""
     side = _lit_side(ts, origins, dirs, prim, t, hits)
     if side is None:
         return
     sel, k, d, ng, n, p = side
+    samples = None
+    if strata is not None and any(lights.extended(i) for i in range(len(lights))):
+        pix, sub, n_sub, depth = strata
+        n_s = LIGHT_SAMPLES if depth == 0 else 1
+        samples = [_pixel_samples(pix[sel], sub[sel] * n_s + j, 1700 + depth) for j in range(n_s)]
 
     def transmittance(o: np.ndarray, ldir: np.ndarray, dist: np.ndarray, normal: np.ndarray) -> np.ndarray:
         return shadow_transmittance(ts, o, ldir, dist, normal, 950)
@@ -768,7 +777,7 @@ def _light_hits(ts: TraceScene, lights: trace_lights.Lights, env: _Environment,
 
     rgb = trace_lights.direct(lights, transmittance, p, n, ng, -d, hits.base[sel],
                               hits.metallic[sel], hits.roughness[sel], hits.transmission[sel],
-                              ts.ior[k], spec_albedo, None if cover is None else cover[sel])
+                              ts.ior[k], spec_albedo, None if cover is None else cover[sel], samples)
     add(rgb * carried[sel], slot[sel])
 
 

@@ -9,7 +9,21 @@ the tree tracer's cross a premultiplied one by 1 - opacity, untinted),
 and go straight through transmissive surfaces scaled by transmission x (1 - metallic) x the
 crossed texel's base colour c per thin sheet, x sqrt(c) per crossing of volume glass (so a
 closed solid of one colour gives c, as its camera rays; the caustic a refracting surface
-focuses is not traced). The raster's light shadows
+focuses is not traced).
+
+USD lights with extent (Light.shape, issue 25) are sampled for visibility and irradiance, so
+their shadows have penumbrae: each shadow ray goes to a point of a rect (uniform over its
+area), a disk (uniform over its area), a cylinder (uniform over the half of its side that
+faces the receiver) or a sphere (uniform in the solid angle of its visible cap), or along a
+direction uniform in a distant light's cone of half-angle t. The radiometry is the punctual
+light's: a rect or disk point emits with the whole light's profile (the spot's cone, range
+and inverse square from that point), a sphere of radiance L = I / (pi r^2) seen in a cap of
+half-angle a gives L x 2 pi (1 - cos a) x cos per sample (on average I cos / d^2, the point
+light's value while the cap is above the horizon), a cylinder's side of radiance L = I /
+(2 r l) (pi / 2) cos_e cos / d^2 (on average I / d^2 broadside), a cone E x 2 (1 - cos t) /
+sin^2 t x cos (on average E cos, the directional light's value). Far from the light, or
+unoccluded within a cap above the horizon, a receiver gets what the punctual light gives it.
+The raster's light shadows
 (renderer/raster/light_shadows.py) agree on all three; the path tracer's NEE
 (renderer/methods/path_trace.py) is stopped by a transmissive surface.
 
@@ -40,18 +54,31 @@ class Lights:
     cone: np.ndarray       # L x 2 angle scale, offset (as the raster's u_light_cone)
     shadow: np.ndarray     # L bool: casts shadows (UsdLux shadow:enable)
     shadow_color: np.ndarray  # L x 3: what shadowed light is multiplied by
+    shape: np.ndarray | None = None  # L int: SHAPES' index of Light.shape (0: a point / direction)
+    size: np.ndarray | None = None   # L x 2 Light.size
+    right: np.ndarray | None = None  # L x 3 the light's x axis (a rect's width, a cylinder's length)
+    up: np.ndarray | None = None     # L x 3 its y axis
 
     def __len__(self) -> int:
         return len(self.kind)
 
+    def extended(self, i: int) -> bool:
+        """Light i has an extent to sample."""
+        return self.shape is not None and bool(self.shape[i])
+
+
+SHAPES = ("", "rect", "disk", "sphere", "cylinder", "cone")
+
 
 def lights_of(lights: list[Light], shadows: bool = True) -> Lights:
     """The lights as arrays; `shadows` False: none casts a shadow (RenderOptions.light_shadows)."""
-    kind, pos, axis, rng, color, cone = [], [], [], [], [], []
+    kind, pos, axis, rng, color, cone, right, up = [], [], [], [], [], [], [], []
     for light in lights:
         mtx = np.asarray(light.matrix, np.float64)
         a = -mtx[:3, 2]
         axis.append(a / max(float(np.linalg.norm(a)), 1e-12))
+        right.append(mtx[:3, 0] / max(float(np.linalg.norm(mtx[:3, 0])), 1e-12))
+        up.append(mtx[:3, 1] / max(float(np.linalg.norm(mtx[:3, 1])), 1e-12))
         kind.append({"directional": 0, "point": 1, "spot": 2}[light.type])
         pos.append(mtx[:3, 3])
         rng.append(float(light.range))
@@ -62,7 +89,11 @@ def lights_of(lights: list[Light], shadows: bool = True) -> Lights:
                   np.asarray(axis, np.float64).reshape(-1, 3), np.asarray(rng, np.float64),
                   np.asarray(color, np.float64).reshape(-1, 3), np.asarray(cone, np.float64).reshape(-1, 2),
                   np.asarray([shadows and light.shadow for light in lights], bool),
-                  np.asarray([light.shadow_color for light in lights], np.float64).reshape(-1, 3))
+                  np.asarray([light.shadow_color for light in lights], np.float64).reshape(-1, 3),
+                  np.asarray([SHAPES.index(light.shape) if light.shape in SHAPES and max(light.size) > 0
+                              else 0 for light in lights], np.int64),
+                  np.asarray([light.size for light in lights], np.float64).reshape(-1, 2),
+                  np.asarray(right, np.float64).reshape(-1, 3), np.asarray(up, np.float64).reshape(-1, 3))
 
 
 def ggx_spec(f0, alpha, n_v, n_l, n_h, v_h):
@@ -76,13 +107,22 @@ def ggx_spec(f0, alpha, n_v, n_l, n_h, v_h):
     return f * (d * vis)[:, None]
 
 
-def falloff(lights: Lights, i: int, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def falloff(lights: Lights, i: int, p: np.ndarray, u: tuple[np.ndarray, np.ndarray] | None = None,
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(unit direction to light i, distance, attenuation) at points p: inverse square with
     glTF's range window and the spot cone's smooth edge, as the raster's lights fall off;
-    a directional light is at infinity, unattenuated."""
+    a directional light is at infinity, unattenuated. With uniforms `u` (two per point), a
+    light with extent is sampled there (`_sample`): a point on it or a direction in its cone."""
+    if u is not None and lights.extended(i):
+        return _sample(lights, i, p, u)
+    return _from(lights, i, p, lights.position[i])
+
+
+def _from(lights: Lights, i: int, p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """falloff of light i as if it sat at q (one point or one per p)."""
     if lights.kind[i] == 0:
         return np.broadcast_to(-lights.axis[i], p.shape).copy(), np.full(len(p), np.inf), np.ones(len(p))
-    d = lights.position[i] - p
+    d = q - p
     dist2 = np.maximum(np.einsum("ij,ij->i", d, d), 1e-12)
     dist = np.sqrt(dist2)
     ldir = d / dist[:, None]
@@ -97,10 +137,84 @@ def falloff(lights: Lights, i: int, p: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return ldir, dist, atten
 
 
+def _frame(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors completing unit rows a to an orthonormal frame (Duff et al. 2017)."""
+    sign = np.where(a[:, 2] >= 0, 1.0, -1.0)
+    k = -1.0 / (sign + a[:, 2])
+    m = a[:, 0] * a[:, 1] * k
+    b1 = np.stack([1.0 + sign * a[:, 0] ** 2 * k, sign * m, -sign * a[:, 0]], -1)
+    b2 = np.stack([m, sign + a[:, 1] ** 2 * k, -a[:, 1]], -1)
+    return b1, b2
+
+
+def _in_cone(axis: np.ndarray, cos_max: np.ndarray, u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
+    """Unit directions uniform in the cones about unit rows `axis` of half-angle acos(cos_max)."""
+    cos_t = 1.0 - u1 * (1.0 - cos_max)
+    sin_t = np.sqrt(np.maximum(0.0, 1.0 - cos_t * cos_t))
+    phi = 2 * math.pi * u2
+    b1, b2 = _frame(axis)
+    return (b1 * (sin_t * np.cos(phi))[:, None] + b2 * (sin_t * np.sin(phi))[:, None]
+            + axis * cos_t[:, None])
+
+
+def _sample(lights: Lights, i: int, p: np.ndarray, u: tuple[np.ndarray, np.ndarray],
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """falloff's (direction, distance, attenuation) toward a sample of light i's extent (the
+    module docstring's radiometry): colour x attenuation x cos is a one-sample estimate of
+    what the light gives, whose mean is the punctual light's value where that is exact."""
+    assert lights.shape is not None and lights.size is not None
+    assert lights.right is not None and lights.up is not None
+    u1, u2 = np.asarray(u[0], np.float64), np.asarray(u[1], np.float64)
+    shape = SHAPES[int(lights.shape[i])]
+    a, b = lights.size[i]
+    if shape == "cone":
+        t = min(float(a), math.pi / 2)
+        axis = np.broadcast_to(-lights.axis[i], p.shape)
+        ldir = _in_cone(axis, np.full(len(p), math.cos(t)), u1, u2)
+        return ldir, np.full(len(p), np.inf), np.full(len(p), 2 * (1 - math.cos(t)) / math.sin(t) ** 2)
+    c, right, up = lights.position[i], lights.right[i], lights.up[i]
+    if shape == "sphere":
+        to = c - p
+        d2 = np.einsum("ij,ij->i", to, to)
+        far = d2 > (a * 1.0001) ** 2  # inside the sphere: its centre (as the point light)
+        dist_c = np.sqrt(d2)
+        ldir_c, _, atten_c = _from(lights, i, p, c)  # the profile at the centre
+        sin2 = np.where(far, a * a / np.maximum(d2, 1e-30), 0.0)
+        cos_a = np.sqrt(np.maximum(0.0, 1.0 - sin2))
+        ldir = np.where(far[:, None], _in_cone(ldir_c, cos_a, u1, u2), ldir_c)
+        cos_l = np.einsum("ij,ij->i", ldir, ldir_c)
+        # the nearer intersection with the sphere along ldir
+        dist = dist_c * cos_l - np.sqrt(np.maximum(0.0, a * a - d2 * (1.0 - cos_l * cos_l)))
+        dist = np.where(far, np.maximum(dist, 0.0), dist_c)
+        atten = np.where(far, atten_c * d2 * 2.0 * (1.0 - cos_a) / (a * a), atten_c)
+        return ldir, dist, atten
+    if shape == "rect":
+        q = c + ((u1 - 0.5) * a)[:, None] * right + ((u2 - 0.5) * b)[:, None] * up
+        return _from(lights, i, p, q)
+    if shape == "disk":
+        r, phi = np.sqrt(u1), 2 * math.pi * u2
+        q = c + (r * np.cos(phi) * a)[:, None] * right + (r * np.sin(phi) * b)[:, None] * up
+        return _from(lights, i, p, q)
+    # cylinder of radius a, length b along `right`: the half of its side facing p
+    fwd = np.cross(right, up)
+    rel = p - c
+    phi0 = np.arctan2(rel @ fwd, rel @ up)
+    phi = phi0 + math.pi * (u2 - 0.5)
+    normal = np.cos(phi)[:, None] * up + np.sin(phi)[:, None] * fwd
+    q = c + ((u1 - 0.5) * b)[:, None] * right + a * normal
+    ldir, dist, atten = _from(lights, i, p, q)
+    if a > 0:
+        cos_e = np.maximum(-np.einsum("ij,ij->i", ldir, normal), 0.0)
+        return ldir, dist, atten * (math.pi / 2) * cos_e
+    # a line: its projected width goes as the sine from its axis (1 broadside)
+    return ldir, dist, atten * np.sqrt(np.maximum(0.0, 1.0 - (ldir @ right) ** 2))
+
+
 def direct(lights: Lights, occlusion_test, p: np.ndarray, n: np.ndarray, ng: np.ndarray,
            v: np.ndarray, base: np.ndarray, metallic: np.ndarray, roughness: np.ndarray,
            transmission: np.ndarray, ior: np.ndarray, spec_albedo,
-           opacity: np.ndarray | None = None) -> np.ndarray:
+           opacity: np.ndarray | None = None,
+           samples: list[tuple[np.ndarray, np.ndarray]] | None = None) -> np.ndarray:
     """N x 3 radiance reflected toward v (unit, pointing away from the surface) by surfaces at
     p (shading normal n and geometric normal ng both on v's side) from every light.
     `occlusion_test(origins, dirs, dist, normals)` -> N x 3 transmittance of the segments
@@ -108,7 +222,9 @@ def direct(lights: Lights, occlusion_test, p: np.ndarray, n: np.ndarray, ng: np.
     `spec_albedo(f0, cos_v, roughness)` -> (single-scattering, total) N x 3 directional
     albedos of the lobe: the diffuse base gets what the total leaves, and the lobe is scaled
     by total / single (its multiple scattering, as the raster). `opacity` (per hit, None: 1)
-    scales the diffuse share alone: a premultiplied blend's (its specular stays whole)."""
+    scales the diffuse share alone: a premultiplied blend's (its specular stays whole).
+    `samples`: pairs of uniforms per point; a light with extent takes the mean over one sample
+    of it per pair (falloff), None: every light a point or a direction."""
     out = np.zeros((len(p), 3))
     n_v = np.clip(np.einsum("ij,ij->i", n, v), 1e-4, 1.0)
     dielectric = ((ior - 1) / (ior + 1)) ** 2
@@ -120,23 +236,25 @@ def direct(lights: Lights, occlusion_test, p: np.ndarray, n: np.ndarray, ng: np.
         diffuse = diffuse * opacity[:, None]
     alpha = np.maximum(roughness * roughness, 1e-3)
     for i in range(len(lights)):
-        ldir, dist, atten = falloff(lights, i, p)
-        n_l = np.einsum("ij,ij->i", n, ldir)
-        lit = np.flatnonzero((n_l > 0) & (atten > 0) & (np.einsum("ij,ij->i", ng, ldir) > 0))
-        if not len(lit):
-            continue
-        if lights.shadow[i]:
-            vis = occlusion_test(p[lit], ldir[lit], dist[lit], ng[lit])
-            vis = vis + (1.0 - vis) * lights.shadow_color[i]  # shadowed light tinted, not black
-        else:
-            vis = np.ones((len(lit), 3))
-        h = ldir[lit] + v[lit]
-        h /= np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-12)
-        n_h = np.clip(np.einsum("ij,ij->i", n[lit], h), 0.0, 1.0)
-        v_h = np.clip(np.einsum("ij,ij->i", v[lit], h), 0.0, 1.0)
-        spec = ggx_spec(f0[lit], alpha[lit], n_v[lit], n_l[lit], n_h, v_h) * ms_scale[lit]
-        radiance = lights.color[i] * atten[lit, None]
-        out[lit] += (diffuse[lit] + spec) * radiance * (n_l[lit])[:, None] * vis
+        draws: list = list(samples) if samples and lights.extended(i) else [None]
+        for u in draws:
+            ldir, dist, atten = falloff(lights, i, p, u)
+            n_l = np.einsum("ij,ij->i", n, ldir)
+            lit = np.flatnonzero((n_l > 0) & (atten > 0) & (np.einsum("ij,ij->i", ng, ldir) > 0))
+            if not len(lit):
+                continue
+            if lights.shadow[i]:
+                vis = occlusion_test(p[lit], ldir[lit], dist[lit], ng[lit])
+                vis = vis + (1.0 - vis) * lights.shadow_color[i]  # shadowed light tinted, not black
+            else:
+                vis = np.ones((len(lit), 3))
+            h = ldir[lit] + v[lit]
+            h /= np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-12)
+            n_h = np.clip(np.einsum("ij,ij->i", n[lit], h), 0.0, 1.0)
+            v_h = np.clip(np.einsum("ij,ij->i", v[lit], h), 0.0, 1.0)
+            spec = ggx_spec(f0[lit], alpha[lit], n_v[lit], n_l[lit], n_h, v_h) * ms_scale[lit]
+            radiance = lights.color[i] * (atten[lit] / len(draws))[:, None]
+            out[lit] += (diffuse[lit] + spec) * radiance * (n_l[lit])[:, None] * vis
     return out
 
 
