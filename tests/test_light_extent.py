@@ -213,7 +213,7 @@ def _ground_visibility(tmp_path, env, light: str, options: RenderOptions, hard: 
         if hard:
             asset = dataclasses.replace(asset, lights=[dataclasses.replace(li, shape="") for li in asset.lights])
         frames.append((render(asset, env, options), asset_camera(asset, options)[0]))
-    xs = np.linspace(-0.2, 1.5, 120)
+    xs = np.linspace(WALL_X + 0.05, 1.5, 120)
     vis = []
     for x in xs:
         got = []
