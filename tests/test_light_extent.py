@@ -265,3 +265,58 @@ def test_without_the_extent_the_shadow_is_hard(tmp_path, dark):
     xs, vis = _ground_visibility(tmp_path, dark, RECT, options, hard=True)
     lo, hi = _crossing(xs, vis, 0.05), _crossing(xs, vis, 0.95)
     assert hi - lo < 3 * 4.0 / SIZE
+
+
+def test_stage_lights_keep_their_extent_in_metres(tmp_path):
+    """The reader keeps each USD light's extent in metres (metersPerUnit and the xform's
+    scale), a distant light's half-angle, and none for treatAsPoint; a CylinderLight is read
+    (radiance x its broadside projected area 2 r l)."""
+    path = tmp_path / "cm.usda"
+    path.write_text("""#usda 1.0
+(
+    metersPerUnit = 0.01
+)
+def Cube "Box"
+{
+}
+def RectLight "Panel"
+{
+    float inputs:width = 200
+    float inputs:height = 50
+}
+def DiskLight "Disk"
+{
+    float inputs:radius = 20
+    double3 xformOp:scale = (2, 1, 1)
+    uniform token[] xformOpOrder = ["xformOp:scale"]
+}
+def SphereLight "Bulb"
+{
+    float inputs:radius = 10
+}
+def SphereLight "Point"
+{
+    float inputs:radius = 10
+    bool treatAsPoint = 1
+}
+def CylinderLight "Tube"
+{
+    float inputs:radius = 5
+    float inputs:length = 100
+    float inputs:intensity = 2
+}
+def DistantLight "Sun"
+{
+    float inputs:angle = 10
+}
+""")
+    panel, disk, bulb, point, tube, sun = load_scene(path).lights
+    assert (panel.shape, panel.size) == ("rect", pytest.approx((2.0, 0.5)))
+    assert (disk.shape, disk.size) == ("disk", pytest.approx((0.4, 0.2)))
+    assert (bulb.shape, bulb.size) == ("sphere", pytest.approx((0.1, 0.0)))
+    assert point.shape == ""
+    assert (tube.shape, tube.size, tube.type) == ("cylinder", pytest.approx((0.05, 1.0)), "point")
+    assert tube.intensity == pytest.approx(2 * 2 * 0.05 * 1.0)
+    assert (sun.shape, sun.size) == ("cone", pytest.approx((math.radians(5.0), 0.0)))
+    baked = build_baked(load_scene(path), key="extent-cm")
+    assert [li.shape for li in baked.lights] == ["rect", "disk", "sphere", "", "cylinder", "cone"]

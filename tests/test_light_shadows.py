@@ -85,7 +85,7 @@ SPOT = """def SphereLight "Spot" ( prepend apiSchemas = ["ShapingAPI"] )
     {
         float inputs:intensity = 20
         bool inputs:normalize = 1
-        bool inputs:treatAsPoint = 1
+        bool treatAsPoint = 1
         float inputs:shaping:cone:angle = 40
         double3 xformOp:translate = (1.2, 3.5, 0.8)
         float3 xformOp:rotateXYZ = (-75, 0, 0)
@@ -96,7 +96,7 @@ POINT = """def SphereLight "Bulb"
     {
         float inputs:intensity = 20
         bool inputs:normalize = 1
-        bool inputs:treatAsPoint = 1
+        bool treatAsPoint = 1
         double3 xformOp:translate = (0.6, 3.2, 0.4)
         uniform token[] xformOpOrder = ["xformOp:translate"]
     }"""
