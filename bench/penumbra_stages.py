@@ -5,7 +5,8 @@ our integrators: `python -m bench.penumbra_stages DIR` writes DIR/usd/Penumbra/*
 
 renders each with ours and Storm. One stage per light: a 1.5 m RectLight, a 0.75 m DiskLight,
 a 0.4 m SphereLight, a 1.5 m CylinderLight, all 2.6 m above the ground, and a DistantLight
-of angle 10 degrees (a 0.53 degree one for the sun-sized case). Every light is normalized (its
+of angle 10 degrees (a 0.53 degree one for the sun-sized case) 50 degrees high, its shadow
+toward `bench usd`'s camera. Every light is normalized (its
 intensity is the illuminance or intensity a point receiver far away sees), so a shadow's width
 is the only thing the extent changes. The box is 0.8 m with its top at 0.8 m: the penumbra the
 rect light's 1.5 m puts across the shadow of a top edge is w h / (H - h) = 1.5 x 0.8 / 1.8 =
@@ -52,10 +53,10 @@ LIGHTS = {
                  f'        double3 xformOp:translate = (-1.3, {HEIGHT}, -0.7)\n'
                  '        uniform token[] xformOpOrder = ["xformOp:translate"]\n'),
     "distant_10deg": ('DistantLight', 'float inputs:angle = 10\n        float inputs:intensity = 3\n',
-                      '        float3 xformOp:rotateXYZ = (-60, 30, 0)\n'
+                      '        float3 xformOp:rotateXYZ = (-50, -135, 0)\n'
                       '        uniform token[] xformOpOrder = ["xformOp:rotateXYZ"]\n'),
     "distant_sun": ('DistantLight', 'float inputs:intensity = 3\n',
-                    '        float3 xformOp:rotateXYZ = (-60, 30, 0)\n'
+                    '        float3 xformOp:rotateXYZ = (-50, -135, 0)\n'
                     '        uniform token[] xformOpOrder = ["xformOp:rotateXYZ"]\n'),
 }
 
