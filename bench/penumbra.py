@@ -5,12 +5,11 @@ the tree with the lights as points and directions ("before": what the tree did b
 sampled a light's extent, i.e. Light.shape cleared), the tree sampling them ("after"), and
 the path integrator sampling them at --spp passes (the reference); LDR-FLIP of each tree
 frame against the reference (tonemap none, sRGB, over 50% grey as `bench usd`), the tree's
-render time, and a contact sheet (before | after | path) at DIR/penumbra_sheet.png."""
+render time (median of 3, warm), and a contact sheet (before | after | path) at DIR/penumbra_sheet.png."""
 from __future__ import annotations
 
 import argparse
 import dataclasses
-import time
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +23,7 @@ def _srgb_over_grey(frame) -> np.ndarray:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from bench.metrics import median_ms
     from bench.penumbra_stages import LIGHTS, write_stages
     from bench.usd import ldr_flip
     from core.options import RenderOptions
@@ -50,10 +50,9 @@ def main(argv: list[str] | None = None) -> int:
         for label, a, opts in (("before", hard, base), ("after", asset, base),
                                ("path", asset, dataclasses.replace(base, integrator="path", samples=args.spp,
                                                                     noise=0.0))):
-            render(a, env, dataclasses.replace(opts, width=16, height=16))  # warm: compile, scene cache
-            t0 = time.perf_counter()
-            frames[label] = render(a, env, opts)
-            ms[label] = (time.perf_counter() - t0) * 1e3
+            # the trees: median of 3 after a warm-up (compile, scene cache); the path: once
+            ms[label], frames[label] = median_ms(lambda: render(a, env, opts), 3 if label != "path" else 1,
+                                                 warm=label != "path")
         ref = _srgb_over_grey(frames["path"])
         row = {"stage": name, "before": ldr_flip(_srgb_over_grey(frames["before"]), ref)[0],
                "after": ldr_flip(_srgb_over_grey(frames["after"]), ref)[0],
