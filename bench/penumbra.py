@@ -5,7 +5,9 @@ the tree with the lights as points and directions ("before": what the tree did b
 sampled a light's extent, i.e. Light.shape cleared), the tree sampling them ("after"), and
 the path integrator sampling them at --spp passes (the reference); LDR-FLIP of each tree
 frame against the reference (tonemap none, sRGB, over 50% grey as `bench usd`), the tree's
-render time (median of 3, warm), and a contact sheet (before | after | path) at DIR/penumbra_sheet.png."""
+render time (median of 3, warm), and a contact sheet (before | after | path) at DIR/penumbra_sheet.png.
+`--storm-images DIR` instead measures whether Storm shadows at all, from `bench usd`'s frames
+(`storm_in_our_shadow`)."""
 from __future__ import annotations
 
 import argparse
@@ -20,6 +22,26 @@ SKY = 0.1
 def _srgb_over_grey(frame) -> np.ndarray:
     from bench.usd import over_grey
     return over_grey(frame.rgba8)
+
+
+def storm_in_our_shadow(ours_png: Path, storm_png: Path) -> tuple[int, float, float]:
+    """Whether Storm darkens where our raster's shadow falls, from `bench usd --keep-images`
+    frames: (pixels in our shadow, Storm's mean sRGB there over its mean in a ring 3-5 pixels
+    around it, ours likewise). Our shadow: opaque pixels of both where ours is under 0.35 of
+    Storm's. A ratio near 1 is no shadow at all, hard or soft."""
+    from PIL import Image
+    from scipy import ndimage
+
+    o = np.asarray(Image.open(ours_png).convert("RGBA"), np.float64) / 255
+    t = np.asarray(Image.open(storm_png).convert("RGBA"), np.float64) / 255
+    lo, lt = o[..., :3].mean(-1), t[..., :3].mean(-1)
+    both = (o[..., 3] > 0.99) & (t[..., 3] > 0.99)
+    mask = ndimage.binary_opening(both & (lo < 0.35 * lt) & (lt > 0.1))
+    ring = (ndimage.binary_dilation(mask, iterations=5) & ~ndimage.binary_dilation(mask, iterations=2)
+            & both & (lo >= 0.35 * lt))
+    if not mask.any() or not ring.any():
+        return 0, float("nan"), float("nan")
+    return int(mask.sum()), float(lt[mask].mean() / lt[ring].mean()), float(lo[mask].mean() / lo[ring].mean())
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -37,7 +59,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--stages", default=",".join(LIGHTS))
     p.add_argument("--size", type=int, default=96)
     p.add_argument("--spp", type=int, default=256)
+    p.add_argument("--storm-images", type=Path, default=None,
+                   help="only compare Storm's frames with ours in our shadow (`bench usd --keep-images` folder)")
     args = p.parse_args(argv)
+    if args.storm_images is not None:
+        for ours in sorted(args.storm_images.glob("*.ours.png")):
+            n, storm, mine = storm_in_our_shadow(ours, Path(str(ours).replace(".ours.png", ".storm.png")))
+            print(f"{ours.name.removesuffix('.ours.png')}: {n} px in our shadow; there over around it: "
+                  f"Storm {storm:.3f}, ours {mine:.3f}")
+        return 0
     write_stages(args.dir)
     env = bake_environment(uniform.name((SKY,) * 3), args.dir / "env", face_size=32)
     base = RenderOptions(width=args.size, height=args.size, tonemap="none", background="transparent",
