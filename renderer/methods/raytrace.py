@@ -765,7 +765,8 @@ def _light_hits(ts: TraceScene, lights: trace_lights.Lights, env: _Environment,
     samples = None
     if strata is not None and any(lights.extended(i) for i in range(len(lights))):
         pix, sub, n_sub, depth = strata
-        n_s = LIGHT_SAMPLES if depth == 0 else 1
+        wide = any(lights.extended(i) and not lights.narrow(i) for i in range(len(lights)))
+        n_s = LIGHT_SAMPLES if depth == 0 and wide else 1  # a narrow cone takes the first only
         samples = [_pixel_samples(pix[sel], sub[sel] * n_s + j, 1700 + depth) for j in range(n_s)]
 
     def transmittance(o: np.ndarray, ldir: np.ndarray, dist: np.ndarray, normal: np.ndarray) -> np.ndarray:
