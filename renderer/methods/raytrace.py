@@ -102,7 +102,9 @@ from core.sh import sh_irradiance
 from renderer.frame import Frame, FrameTimings, alpha_is_mask, tonemap_srgb8
 from renderer.methods import trace_lights, trace_material
 from renderer.methods.optics import (
+    dominant_direction,
     fresnel_dielectric,
+    ggx_visible_normal,
     reflect,
     refract,
     sample_rough_dielectric,
@@ -128,6 +130,11 @@ CHUNK_PIXELS = 1 << 18  # supersampled pixels traced together: bounds memory at 
 KERNEL = True          # shade hits with the compiled trace_kernel (False: the numpy twin)
 ROUGH_EXTRA = 1        # the default grid's extra rays a side on pixels whose centre meets rough glass
 EMITTER_SAMPLES = 1    # points on emissive triangles per ray at every surface (0: emitters light nothing)
+# Of a rough reflection's GGX lobe (not a sampled glass lobe), the share of its variance each
+# ray draws (a visible normal of alpha sqrt(this)); the rest is the prefiltered blur read
+# about the rest's dominant direction. 0: every ray leaves along the whole lobe's dominant
+# direction.
+ROUGH_PROBE = 0.0
 
 
 def _kernel():
@@ -685,7 +692,7 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
                 options.rough_lobes == "sample", options.fresnel_split == "sample",
                 options.multiscatter, MIN_WEIGHT, kernel._SOBOL_DIM1,
                 ROULETTE if options.fresnel_split == "roulette" else 0.0, float(n_nee),
-                *trace_lights.MIRROR_ROUGH)
+                *trace_lights.MIRROR_ROUGH, ROUGH_PROBE)
             m_dir, m_w, m_blur, m_slot, direct, glow, diffuse, dnorm, matte, tir = out[10:]
             if depth > 0 and len(m_slot):
                 add(m_w * env.radiance(m_dir, m_blur ** 0.25), m_slot)
@@ -1056,6 +1063,20 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
     tdir, tir = refract(d, ns, eta)
     if g_r is not None:
         rdir[lsel], tdir[lsel], tir[lsel] = r_m, t_m, tir_m
+    wide = np.flatnonzero(~lobe & (rough_k > 0))
+    if len(wide):
+        keep_var = np.ones(len(wide))  # of the lobe's variance, the share the blur carries
+        if ROUGH_PROBE > 0:  # part of the lobe drawn: what it meets is seen in part
+            u1, u2 = _pixel_samples(px[wide], sb[wide], depth)
+            m = ggx_visible_normal(-d[wide], ns[wide], rough_k[wide] ** 2 * math.sqrt(ROUGH_PROBE), u1, u2)
+            q = reflect(d[wide], m)
+            up = np.einsum("ij,ij->i", q, ns[wide]) > 0
+            rdir[wide[up]] = q[up]
+            keep_var[up] = 1.0 - ROUGH_PROBE
+        # a wide lobe's light comes from nearer the normal
+        rdir[wide] = dominant_direction(rdir[wide], ns[wide], np.sqrt(rough_k[wide] ** 2 * np.sqrt(keep_var)))
+        v_refl = v_refl.copy()
+        v_refl[wide] = v_in[wide] + rough_k[wide] ** 4 * keep_var
     if np.any(thin):  # out through the sheet's parallel back face: unbent where it is smooth
         tdir[thin], tir_out = refract(tdir[thin], ns[thin], ior[thin])
         tdir[thin & ~lobe] = d[thin & ~lobe]

@@ -166,6 +166,18 @@ def _visible_normal(vx, vy, vz, nx, ny, nz, alpha, u1, u2):
     return (mx * tx + my * bx + mz * nx, mx * ty + my * by + mz * ny, mx * tz + my * bz + mz * nz)
 
 
+@njit(cache=True, inline="always")
+def _dominant(rx, ry, rz, nx, ny, nz, rough):
+    """The dominant direction of a GGX lobe about mirror direction r and normal n (Lagarde &
+    de Rousiers 2014, as shaders/ibl.glsl specular_dir): toward n as the lobe widens."""
+    alpha = rough * rough
+    s = 1.0 - alpha
+    f = s * (math.sqrt(s) + alpha)
+    x, y, z = nx + (rx - nx) * f, ny + (ry - ny) * f, nz + (rz - nz) * f
+    inv = 1.0 / math.sqrt(max(x * x + y * y + z * z, 1e-30))
+    return x * inv, y * inv, z * inv
+
+
 @njit(cache=True)
 def _refract(dx, dy, dz, nx, ny, nz, eta):
     cos_i = min(max(-(dx * nx + dy * ny + dz * nz), 0.0), 1.0)
@@ -182,14 +194,17 @@ def _refract(dx, dy, dz, nx, ny, nz, eta):
 def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in,
           normals, geo_normals, material, base, metallic, roughness, transmission, ior, sigma,
           thin, emission, occlusion, spec, spec_col, lut, depth, n_sub, eps, sample_lobes, split_sample, ms, min_weight,
-          sobol, roulette, nee, mirror_lo, mirror_hi):
+          sobol, roulette, nee, mirror_lo, mirror_hi, probe):
     """One bounce's rays (prim < 0: missed) -> (children: origin, dir, weight, pix, sub,
     slot, blur, share, medium, mirror share; the misses' dir, weight x share, blur and slot;
     emission to add and its slots; the diffuse shares' weight x share, normals and slots; TIR
     events on transmissive surfaces). The mirror share is the part of a light triangle's
     emission a reflected child counts where this hit sampled the emitters (`nee` > 0):
     trace_lights.mirror_share of the roughness, 1 at mirror_lo and below, 0 from mirror_hi;
-    1 where the hit sampled none, and for refracted children."""
+    1 where the hit sampled none, and for refracted children. A rough reflection that is not
+    a sampled glass lobe draws `probe` of its lobe's variance (a GGX visible normal of alpha
+    sqrt(probe)) and leaves along the dominant direction of the rest (`_dominant`), which
+    its blur adds (renderer.methods.raytrace.ROUGH_PROBE)."""
     n = len(d)
     m_d, m_w, m_blur = np.empty((n, 3)), np.empty((n, 3)), np.empty(n)
     m_sl = np.empty(n, np.int64)
@@ -274,6 +289,19 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in,
             c2 = dx * sx + dy * sy + dz * sz
             rx, ry, rz = dx - 2 * c2 * sx, dy - 2 * c2 * sy, dz - 2 * c2 * sz
             tx, ty, tz, tir = _refract(dx, dy, dz, sx, sy, sz, eta)
+        keep_var = 1.0  # of the lobe's variance, the share the child's blur carries
+        if not lobe and rough > 0:
+            alpha = rough * rough
+            if probe > 0:  # part of the lobe drawn: what it meets is seen in part
+                u1, u2 = _pixel_samples(px[i], sb[i], depth, sobol)
+                mx, my, mz = _visible_normal(-dx, -dy, -dz, sx, sy, sz, alpha * math.sqrt(probe), u1, u2)
+                c2 = dx * mx + dy * my + dz * mz
+                qx, qy, qz = dx - 2 * c2 * mx, dy - 2 * c2 * my, dz - 2 * c2 * mz
+                if qx * sx + qy * sy + qz * sz > 0:
+                    rx, ry, rz = qx, qy, qz
+                    keep_var = 1.0 - probe
+            # a wide lobe's light comes from nearer the normal
+            rx, ry, rz = _dominant(rx, ry, rz, sx, sy, sz, math.sqrt(alpha * math.sqrt(keep_var)))
         if sheet and not tir:  # out through the parallel back face: unbent where smooth
             if lobe:
                 tx, ty, tz, tir = _refract(tx, ty, tz, sx, sy, sz, n_k)
@@ -323,7 +351,7 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in,
             matte[n_matte] = sl[i]
             n_matte += 1
         alpha_b = 0.0 if lobe else rough * rough
-        v_refl = v_in[i] + alpha_b ** 2
+        v_refl = v_in[i] + alpha_b ** 2 * keep_var
         v_refr = v_in[i] + (alpha_b * abs(1.0 - eta) / 2) ** 2
         if tir and trans > 0:
             tir_events += 1
@@ -482,7 +510,7 @@ def warm() -> None:
               np.zeros(0, t_type), e3, np.zeros(0, i64), np.zeros(0, i64), np.zeros(0, i64),
               e, e, e, e3, np.zeros((0, 3), f32), np.zeros(0, np.int32),
               e3, e, e, e, e, e3, np.zeros(0, np.bool_), e3, e, e, e3, np.zeros((2, 2, 2)), 0, 1, 1e-4, True, False, True,
-              1e-3, _SOBOL_DIM1, 0.0, 0.0, 0.15, 0.3)
+              1e-3, _SOBOL_DIM1, 0.0, 0.0, 0.15, 0.3, 0.5)
     sample_cube(np.zeros((6, 2, 2, 3), f32), e3, _S_AXIS, _S_SIGN, _T_AXIS, _T_SIGN)
     for pick in (True, False):
         emitter_pick(e3, e, e3, e3, e3, e, e, np.zeros(0, np.bool_), pick)
