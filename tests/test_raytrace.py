@@ -361,19 +361,28 @@ def test_default_grid_is_finer_on_rough_glass_only(reference_env, scene_cache):
     np.testing.assert_array_equal(a.linear, b.linear)
 
 
-@pytest.mark.parametrize("roughness,limit", [(1.0, 0.035), (0.6, 0.03)])
-def test_rough_metal_reflection_follows_the_lobe_not_the_mirror(roughness, limit, reference_env):
+# (roughness, relative mean absolute error limit over the sphere, limit on the rim's mean
+# bias). Measured at 32 px against 128 paths a pixel: roughness 1 error 0.067 (mirror
+# direction: 0.154), rim bias +0.002 (+0.045); 0.6: 0.063 (0.079), +0.009 (-0.036). At 0.6 the
+# error is mostly the paths' noise; the rim's mean tells the two directions apart.
+@pytest.mark.parametrize("roughness,limit,rim_limit", [(1.0, 0.10, 0.02), (0.6, 0.075, 0.02)])
+def test_rough_metal_reflection_follows_the_lobe_not_the_mirror(roughness, limit, rim_limit, reference_env):
     """glTF's default material (white, metallic 1) under the court: the tree's reflection child
     reads the prefiltered sky along the lobe's dominant direction, so it agrees with the path
-    integrator, which samples the GGX lobe, over the sphere the camera sees whole. The mirror
-    direction it read before looks too far toward the horizon at the rim [relative error
-    measured at 48 px: roughness 1 0.018 (mirror: 0.050), 0.6 0.020 (mirror: 0.031)]."""
+    integrator, which samples the GGX lobe, over the pixels the sphere covers whole and on its
+    rim (outer 30% of the radius), where the mirror direction it read before looks too far
+    toward the horizon."""
     from test_render_physics import sphere_asset
     asset = sphere_asset(1.0, roughness)
-    opts = RenderOptions(width=48, height=48, yaw=30.0, pitch=20.0, tonemap="none")
-    tree = render_raytrace(asset, reference_env, opts)
-    path = render_raytrace(asset, reference_env, replace(opts, integrator="path", samples=256,
-                                                         noise=0.0, bounces=4))
-    mask = (tree.linear[..., 3] > 0.999) & (path.linear[..., 3] > 0.999)
-    err = relative_mae(tree.linear, path.linear, mask)
-    assert err < limit, (roughness, err)
+    size = 32
+    opts = RenderOptions(width=size, height=size, yaw=30.0, pitch=20.0, tonemap="none")
+    tree = render_raytrace(asset, reference_env, opts).linear
+    path = render_raytrace(asset, reference_env, replace(opts, integrator="path", samples=128,
+                                                         noise=0.0, bounces=2)).linear
+    mask = (tree[..., 3] > 0.999) & (path[..., 3] > 0.999)
+    err = relative_mae(tree, path, mask)
+    yy, xx = np.mgrid[:size, :size]
+    radius = np.hypot(yy - (size - 1) / 2, xx - (size - 1) / 2)
+    rim = mask & (radius > 0.7 * radius[mask].max())
+    bias = tree[..., :3][rim].mean() / path[..., :3][rim].mean() - 1
+    assert err < limit and abs(bias) < rim_limit, (roughness, err, bias)
