@@ -386,3 +386,30 @@ def test_rough_metal_reflection_follows_the_lobe_not_the_mirror(roughness, limit
     rim = mask & (radius > 0.7 * radius[mask].max())
     bias = tree[..., :3][rim].mean() / path[..., :3][rim].mean() - 1
     assert err < limit and abs(bias) < rim_limit, (roughness, err, bias)
+
+
+def test_rough_reflections_probe_their_lobe_where_geometry_fills_it(assets, tmp_path, monkeypatch):
+    """SimpleInstancing (125 white rough-metal cubes, glTF's default material): with the
+    children drawn from their lobes (ROUGH_PROBE) neighbours are met by part of a pixel's rays,
+    so the frame differs from children sent along the dominant direction; on a convex sphere
+    every child escapes and reads its dominant direction either way: the same frame. The
+    compiled kernel hands on each child's look as its numpy twin does."""
+    from pipeline.bake import bake_asset, bake_environment
+    from renderer.methods import raytrace
+    from test_render_physics import sphere_asset
+    env = bake_environment("footprint_court", tmp_path, face_size=64)
+    cubes = bake_asset(assets / "gltf-samples" / "SimpleInstancing" / "glTF" / "SimpleInstancing.gltf", tmp_path)
+    sphere = sphere_asset(1.0, 0.8)
+    opts = RenderOptions(width=40, height=40, yaw=30.0, pitch=20.0, tonemap="none")
+    assert raytrace.ROUGH_PROBE > 0
+    probed = {k: render_raytrace(a, env, opts) for k, a in (("cubes", cubes), ("sphere", sphere))}
+    monkeypatch.setattr(raytrace, "KERNEL", False)
+    twin = render_raytrace(cubes, env, opts)
+    assert twin.plan["rays"] == probed["cubes"].plan["rays"]
+    np.testing.assert_allclose(twin.linear, probed["cubes"].linear, atol=1e-4)
+    monkeypatch.setattr(raytrace, "KERNEL", True)
+    monkeypatch.setattr(raytrace, "ROUGH_PROBE", 0.0)
+    np.testing.assert_allclose(render_raytrace(sphere, env, opts).linear, probed["sphere"].linear, atol=1e-6)
+    along = render_raytrace(cubes, env, opts).linear
+    covered = probed["cubes"].linear[..., 3] > 0.999
+    assert np.abs(along[..., :3] - probed["cubes"].linear[..., :3])[covered].max() > 0.02
