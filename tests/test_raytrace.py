@@ -394,9 +394,10 @@ def test_rough_reflections_probe_their_lobe_where_geometry_fills_it(assets, tmp_
     so the frame differs from children sent along the dominant direction; on a convex sphere
     every child escapes and reads its dominant direction either way: the same frame. The
     compiled kernel hands on each child's look as its numpy twin does."""
+    from test_render_physics import sphere_asset
+
     from pipeline.bake import bake_asset, bake_environment
     from renderer.methods import raytrace
-    from test_render_physics import sphere_asset
     env = bake_environment("footprint_court", tmp_path, face_size=64)
     cubes = bake_asset(assets / "gltf-samples" / "SimpleInstancing" / "glTF" / "SimpleInstancing.gltf", tmp_path)
     sphere = sphere_asset(1.0, 0.8)
