@@ -22,6 +22,18 @@ def reflect(d: np.ndarray, n: np.ndarray) -> np.ndarray:
     return d - 2.0 * _dot(d, n)[..., None] * n
 
 
+def dominant_direction(r: np.ndarray, n: np.ndarray, roughness) -> np.ndarray:
+    """Where most of a GGX lobe's reflected light comes from, given its mirror direction r
+    and normal n (unit, N x 3): toward n as the lobe widens (Lagarde & de Rousiers 2014,
+    mix(n, r, s (sqrt(s) + alpha)), s = 1 - alpha, alpha = roughness^2; shaders/ibl.glsl
+    specular_dir). The prefiltered mips were filtered about this axis."""
+    alpha = np.asarray(roughness, np.float64) ** 2
+    s = 1.0 - alpha
+    f = (s * (np.sqrt(s) + alpha))[..., None]
+    m = n + (r - n) * f
+    return m / np.maximum(np.linalg.norm(m, axis=-1, keepdims=True), 1e-15)
+
+
 def refract(d: np.ndarray, n: np.ndarray, eta) -> tuple[np.ndarray, np.ndarray]:
     """Snell's law in vector form (the paper's section 3.2 with ratio = eta).
 

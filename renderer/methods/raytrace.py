@@ -32,10 +32,15 @@ Sobol set, and reflects and refracts about it with Walter et al.'s weights, exac
 the microfacet (TIR included) times the Smith G1 of the way out (tests/test_rough_dielectric.py
 checks them against quadrature of the BSDF): it converges to Mitsuba's rough dielectric. With
 `rough_lobes="prefilter"`, and always for metals and the diffuse share, lobes are not traced:
-the diffuse share reads the baked SH irradiance about the normal (the raster's ambient) and a rough reflection or
-refraction keeps its mirror direction and, at escape, reads the prefiltered mip for the lobe
-width gathered along the path (as the raster path's split-sum does; refraction lobes are
-narrower by |1 - eta| / 2): no noise, but biased. Inside a volume, Beer-Lambert
+the diffuse share reads the baked SH irradiance about the normal (the raster's ambient); a rough
+refraction keeps its refracted direction and a rough reflection escapes along its lobe's
+dominant direction (Lagarde & de Rousiers 2014, as shaders/ibl.glsl), each reading at escape
+the prefiltered mip for the lobe width gathered along the path (as the raster path's split-sum
+does; refraction lobes are narrower by |1 - eta| / 2). The rough reflection child travels along a
+direction drawn from its GGX lobe (`ROUGH_PROBE`; the pixel's stratified set): geometry in
+part of a wide lobe is met by that part of the pixel's rays, and a ray that escapes still reads
+the whole lobe's prefiltered light along the dominant direction (carried as its `look`): no
+noise on open surfaces, biased as the split sum is. Inside a volume, Beer-Lambert
 attenuation exp(-sigma t) with sigma = -ln(attenuation_color) / attenuation_distance.
 Thin-walled materials (glTF: no KHR_materials_volume, or thickness 0) have no inside: every
 hit counts as from outside (Fresnel at 1 / IOR, tinted by base colour, nothing absorbed, the
@@ -102,7 +107,9 @@ from core.sh import sh_irradiance
 from renderer.frame import Frame, FrameTimings, alpha_is_mask, tonemap_srgb8
 from renderer.methods import trace_lights, trace_material
 from renderer.methods.optics import (
+    dominant_direction,
     fresnel_dielectric,
+    ggx_visible_normal,
     reflect,
     refract,
     sample_rough_dielectric,
@@ -129,6 +136,11 @@ KERNEL = True          # shade hits with the compiled trace_kernel (False: the n
 ROUGH_EXTRA = 1        # the default grid's extra rays a side on pixels whose centre meets rough glass
 LIGHT_SAMPLES = 4      # shadow rays a camera ray's first surface sends to a light with extent (1 deeper)
 EMITTER_SAMPLES = 1    # points on emissive triangles per ray at every surface (0: emitters light nothing)
+# A rough reflection (not a sampled glass lobe) reads the prefiltered sky along its lobe's
+# dominant direction when it escapes; with ROUGH_PROBE > 0 it travels along a direction drawn
+# from the lobe (GGX visible normals of alpha sqrt(ROUGH_PROBE)), so that geometry in part of
+# a wide lobe is met by that part of a pixel's rays. 0: it travels the dominant direction.
+ROUGH_PROBE = 1.0
 
 
 def _kernel():
@@ -595,6 +607,7 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
     blur = np.zeros(len(dirs))  # sum of squared GGX alphas of the lobes along the path
     medium = np.ones(len(dirs))  # IOR around the ray (outside every object: air)
     mirror = np.ones(len(dirs))  # of a light triangle's emission, the share a ray counts
+    look = np.array(dirs, np.float64)  # where a ray reads the sky if it escapes (trace_kernel.shade)
     emitters = ts.emitters if EMITTER_SAMPLES > 0 else None
     # fresnel_split="sample": sub-ray j of a pixel's S draws (j + 0.5) / S + shift (mod 1), the
     # shift a hash of pixel and bounce: each draw uniform and independent of the previous
@@ -627,9 +640,9 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
                 if show_env:
                     bg = np.full(on.sum(), options.background_blur)
                     add(env.radiance(dirs[on], bg) * (weight[on] * share[on, None]), slot[on])
-                dirs, weight, share, medium, blur, slot = (a[~on] for a in (dirs, weight, share, medium, blur, slot))
+                look, weight, share, medium, blur, slot = (a[~on] for a in (look, weight, share, medium, blur, slot))
             # ... as if it left the medium it is in, without a Fresnel loss
-            add((weight * (share * medium ** 2)[:, None]) * env.radiance(dirs, blur ** 0.25), slot)
+            add((weight * (share * medium ** 2)[:, None]) * env.radiance(look, blur ** 0.25), slot)
             break
         prim, u, v, t = intersect_front(ts, origins, dirs,
                                         _alpha_draw(pix, sub, n_sub, depth) if blended else None,
@@ -646,9 +659,9 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
                 bg = np.full(lost.sum(), options.background_blur)
                 add(env.radiance(dirs[lost], bg) * (weight[lost] * share[lost, None]), slot[lost])
             keep = np.flatnonzero(~lost)
-            origins, dirs, weight, pix, sub, slot, blur, share, medium, mirror, clear, prim, u, v, t = (  # type: ignore[assignment]  # one selection of all
+            origins, dirs, weight, pix, sub, slot, blur, share, medium, mirror, look, clear, prim, u, v, t = (  # type: ignore[assignment]  # one selection of all
                 a[keep] for a in (origins, dirs, weight, pix, sub, slot, blur, share, medium, mirror,
-                                  clear, prim, u, v, t))
+                                  look, clear, prim, u, v, t))
             miss = prim < 0
             if cover is not None:
                 cover = cover[keep]
@@ -678,7 +691,7 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
         if kernel is not None:
             out = kernel.shade(
                 np.ascontiguousarray(origins), dirs, prim, u, v, t, weight, pix, sub, slot, blur,
-                share, medium, hits.normal, ts.geo_normals, ts.material, hits.base, hits.metallic,
+                share, medium, look, hits.normal, ts.geo_normals, ts.material, hits.base, hits.metallic,
                 hits.roughness, hits.transmission, ts.ior, ts.sigma, ts.thin, hits.emission, hits.occlusion,
                 np.ascontiguousarray(hits.specular, np.float64),
                 np.ascontiguousarray(hits.specular_color, np.float64),
@@ -686,8 +699,8 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
                 options.rough_lobes == "sample", options.fresnel_split == "sample",
                 options.multiscatter, MIN_WEIGHT, kernel._SOBOL_DIM1,
                 ROULETTE if options.fresnel_split == "roulette" else 0.0, float(n_nee),
-                *trace_lights.MIRROR_ROUGH)
-            m_dir, m_w, m_blur, m_slot, direct, glow, diffuse, dnorm, matte, tir = out[10:]
+                *trace_lights.MIRROR_ROUGH, ROUGH_PROBE)
+            m_dir, m_w, m_blur, m_slot, direct, glow, diffuse, dnorm, matte, tir = out[11:]
             if depth > 0 and len(m_slot):
                 add(m_w * env.radiance(m_dir, m_blur ** 0.25), m_slot)
             stats["tir"] += int(tir)
@@ -695,10 +708,10 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
                 add(direct, glow)
             if len(matte):
                 add(diffuse * env.irradiance(dnorm), matte)
-            out = out[:10]
+            out = out[:11]
         else:
             if depth > 0:
-                add((weight[miss] * share[miss, None]) * env.radiance(dirs[miss], blur[miss] ** 0.25),
+                add((weight[miss] * share[miss, None]) * env.radiance(look[miss], blur[miss] ** 0.25),
                     slot[miss])
             hit = ~miss
             d = dirs[hit].astype(np.float64)
@@ -712,8 +725,8 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
         if split:
             assert cover is not None
             out, clear = _pass_on(out, origins, dirs, t, weight, pix, sub, slot, blur, share, medium,
-                                  clear, _pass_share(ts, dirs, prim, cover, clear), eps)
-        origins, dirs, weight, pix, sub, slot, blur, share, medium, mirror = out
+                                  look, clear, _pass_share(ts, dirs, prim, cover, clear), eps)
+        origins, dirs, weight, pix, sub, slot, blur, share, medium, mirror, look = out
 
 
 def _pass_share(ts: TraceScene, dirs, prim, cover: np.ndarray, clear: np.ndarray) -> np.ndarray:
@@ -732,7 +745,7 @@ def _pass_share(ts: TraceScene, dirs, prim, cover: np.ndarray, clear: np.ndarray
 
 
 def _pass_on(children: tuple, origins, dirs, t, weight, pix, sub, slot, blur, share, medium,
-             clear, go_w: np.ndarray, eps: float) -> tuple[tuple, np.ndarray]:
+             look, clear, go_w: np.ndarray, eps: float) -> tuple[tuple, np.ndarray]:
     """The shading's children and, after them, the rays that go on straight through the
     premultiplied blends they hit, carrying `go_w` (_pass_share; culled as the children are);
     with each one's `clear` (the children's: 0, off the camera's line)."""
@@ -743,7 +756,7 @@ def _pass_on(children: tuple, origins, dirs, t, weight, pix, sub, slot, blur, sh
     d = dirs[go].astype(np.float64)
     # the mirror share is 1: a ray that goes on straight counts an emitter's light in full
     through = (origins[go] + d * (t[go] + eps)[:, None], d, weight[go] * go_w[go, None],
-               pix[go], sub[go], slot[go], blur[go], share[go], medium[go], np.ones(len(go)))
+               pix[go], sub[go], slot[go], blur[go], share[go], medium[go], np.ones(len(go)), look[go])
     return tuple(np.concatenate([c, x.astype(c.dtype, copy=False)]) for c, x in zip(children, through)), clear_out
 
 
@@ -978,7 +991,7 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
                  sl, v_in, sh, n_in, nee: int, add, stats: dict) -> tuple:
     """The numpy twin of renderer.methods.trace_kernel.shade (the reference the kernel is tested
     against): one bounce's hits -> their children (origin, dir, weight, pix, sub, slot,
-    blur, share, medium, mirror share); emission and the diffuse share go straight into `add`."""
+    blur, share, medium, mirror share, look); emission and the diffuse share go straight into `add`."""
     ns = hits.normal.copy()
     ng = ts.geo_normals[prim].astype(np.float64)
     entering = np.einsum("ij,ij->i", d, ng) < 0
@@ -1066,6 +1079,16 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
     tdir, tir = refract(d, ns, eta)
     if g_r is not None:
         rdir[lsel], tdir[lsel], tir[lsel] = r_m, t_m, tir_m
+    wide = np.flatnonzero(~lobe & (rough_k > 0))
+    if len(wide):  # a wide lobe's light comes from nearer the normal
+        rdir[wide] = dominant_direction(rdir[wide], ns[wide], rough_k[wide])
+    rlook = rdir.copy()
+    if ROUGH_PROBE > 0 and len(wide):  # travel along a direction of the lobe
+        u1, u2 = _pixel_samples(px[wide], sb[wide], depth)
+        m = ggx_visible_normal(-d[wide], ns[wide], rough_k[wide] ** 2 * math.sqrt(ROUGH_PROBE), u1, u2)
+        q = reflect(d[wide], m)
+        up = np.einsum("ij,ij->i", q, ns[wide]) > 0
+        rdir[wide[up]] = q[up]
     if np.any(thin):  # out through the sheet's parallel back face: unbent where it is smooth
         tdir[thin], tir_out = refract(tdir[thin], ns[thin], ior[thin])
         tdir[thin & ~lobe] = d[thin & ~lobe]
@@ -1107,7 +1130,8 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
             np.concatenate([sl[keep_r], sl[keep_t]]),
             np.concatenate([v_refl[keep_r], v_refr[keep_t]]),
             np.concatenate([sh[keep_r], sh[keep_t]]), np.concatenate([n_in[keep_r], n_t[keep_t]]),
-            np.concatenate([share_r[keep_r], np.ones(int(keep_t.sum()))]))
+            np.concatenate([share_r[keep_r], np.ones(int(keep_t.sum()))]),
+            np.concatenate([rlook[keep_r], tdir[keep_t]]))
 
 
 def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,

@@ -166,6 +166,18 @@ def _visible_normal(vx, vy, vz, nx, ny, nz, alpha, u1, u2):
     return (mx * tx + my * bx + mz * nx, mx * ty + my * by + mz * ny, mx * tz + my * bz + mz * nz)
 
 
+@njit(cache=True, inline="always")
+def _dominant(rx, ry, rz, nx, ny, nz, rough):
+    """The dominant direction of a GGX lobe about mirror direction r and normal n (Lagarde &
+    de Rousiers 2014, as shaders/ibl.glsl specular_dir): toward n as the lobe widens."""
+    alpha = rough * rough
+    s = 1.0 - alpha
+    f = s * (math.sqrt(s) + alpha)
+    x, y, z = nx + (rx - nx) * f, ny + (ry - ny) * f, nz + (rz - nz) * f
+    inv = 1.0 / math.sqrt(max(x * x + y * y + z * z, 1e-30))
+    return x * inv, y * inv, z * inv
+
+
 @njit(cache=True)
 def _refract(dx, dy, dz, nx, ny, nz, eta):
     cos_i = min(max(-(dx * nx + dy * ny + dz * nz), 0.0), 1.0)
@@ -179,17 +191,22 @@ def _refract(dx, dy, dz, nx, ny, nz, eta):
 
 
 @njit(cache=True)
-def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in,
+def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in, look,
           normals, geo_normals, material, base, metallic, roughness, transmission, ior, sigma,
           thin, emission, occlusion, spec, spec_col, lut, depth, n_sub, eps, sample_lobes, split_sample, ms, min_weight,
-          sobol, roulette, nee, mirror_lo, mirror_hi):
+          sobol, roulette, nee, mirror_lo, mirror_hi, probe):
     """One bounce's rays (prim < 0: missed) -> (children: origin, dir, weight, pix, sub,
-    slot, blur, share, medium, mirror share; the misses' dir, weight x share, blur and slot;
+    slot, blur, share, medium, mirror share, look; the misses' look, weight x share, blur and slot;
     emission to add and its slots; the diffuse shares' weight x share, normals and slots; TIR
     events on transmissive surfaces). The mirror share is the part of a light triangle's
     emission a reflected child counts where this hit sampled the emitters (`nee` > 0):
     trace_lights.mirror_share of the roughness, 1 at mirror_lo and below, 0 from mirror_hi;
-    1 where the hit sampled none, and for refracted children."""
+    1 where the hit sampled none, and for refracted children. `look`: where a ray reads the
+    prefiltered environment if it escapes (its direction, but for a rough reflection that is
+    not a sampled glass lobe: its lobe's dominant direction, `_dominant`). With `probe` > 0
+    such a child travels along a direction drawn from its lobe (a GGX visible normal of
+    alpha sqrt(probe)): what it meets is seen in part, and if it escapes it still reads the
+    whole lobe's prefiltered light (renderer.methods.raytrace.ROUGH_PROBE)."""
     n = len(d)
     m_d, m_w, m_blur = np.empty((n, 3)), np.empty((n, 3)), np.empty(n)
     m_sl = np.empty(n, np.int64)
@@ -199,6 +216,7 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in,
     c_px, c_sb, c_sl = np.empty(2 * n, np.int64), np.empty(2 * n, np.int64), np.empty(2 * n, np.int64)
     c_blur, c_sh, c_med = np.empty(2 * n), np.empty(2 * n), np.empty(2 * n)
     c_share = np.empty(2 * n)
+    c_look = np.empty((2 * n, 3))
     direct, glow = np.empty((n, 3)), np.empty(n, np.int64)
     diffuse, dnorm, matte = np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.int64)
     n_glow, n_matte = 0, 0
@@ -213,7 +231,7 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in,
         tri = prim[i]
         dx, dy, dz = np.float64(d[i, 0]), np.float64(d[i, 1]), np.float64(d[i, 2])
         if tri < 0:
-            m_d[n_miss, 0], m_d[n_miss, 1], m_d[n_miss, 2] = dx, dy, dz
+            m_d[n_miss, 0], m_d[n_miss, 1], m_d[n_miss, 2] = look[i, 0], look[i, 1], look[i, 2]
             for c in range(3):
                 m_w[n_miss, c] = w[i, c] * sh[i]
             m_blur[n_miss], m_sl[n_miss] = v_in[i], sl[i]
@@ -274,6 +292,16 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in,
             c2 = dx * sx + dy * sy + dz * sz
             rx, ry, rz = dx - 2 * c2 * sx, dy - 2 * c2 * sy, dz - 2 * c2 * sz
             tx, ty, tz, tir = _refract(dx, dy, dz, sx, sy, sz, eta)
+        if not lobe and rough > 0:  # a wide lobe's light comes from nearer the normal
+            rx, ry, rz = _dominant(rx, ry, rz, sx, sy, sz, rough)
+        lx, ly, lz = rx, ry, rz
+        if probe > 0 and not lobe and rough > 0:  # travel along a direction of the lobe
+            u1, u2 = _pixel_samples(px[i], sb[i], depth, sobol)
+            mx, my, mz = _visible_normal(-dx, -dy, -dz, sx, sy, sz, rough * rough * math.sqrt(probe), u1, u2)
+            c2 = dx * mx + dy * my + dz * mz
+            qx, qy, qz = dx - 2 * c2 * mx, dy - 2 * c2 * my, dz - 2 * c2 * mz
+            if qx * sx + qy * sy + qz * sz > 0:
+                rx, ry, rz = qx, qy, qz
         if sheet and not tir:  # out through the parallel back face: unbent where smooth
             if lobe:
                 tx, ty, tz, tir = _refract(tx, ty, tz, sx, sy, sz, n_k)
@@ -357,6 +385,7 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in,
             o = eps if rx * gx + ry * gy + rz * gz >= 0 else -eps
             c_o[n_r, 0], c_o[n_r, 1], c_o[n_r, 2] = p[0] + o * gx, p[1] + o * gy, p[2] + o * gz
             c_d[n_r, 0], c_d[n_r, 1], c_d[n_r, 2] = rx, ry, rz
+            c_look[n_r, 0], c_look[n_r, 1], c_look[n_r, 2] = lx, ly, lz
             c_w[n_r, 0], c_w[n_r, 1], c_w[n_r, 2] = r0, r1, r2
             c_px[n_r], c_sb[n_r], c_sl[n_r] = px[i], sb[i], sl[i]
             c_blur[n_r], c_sh[n_r], c_med[n_r] = v_refl, sh[i], n_in[i]
@@ -375,12 +404,13 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in,
         for c in range(3):
             c_o[m, c] = t_off[j, c]
             c_d[m, c], c_w[m, c] = t_dir[j, c], t_w[j, c]
+            c_look[m, c] = t_dir[j, c]
         c_px[m], c_sb[m], c_sl[m] = px[i], sb[i], sl[i]
         c_blur[m], c_sh[m], c_med[m] = t_blur[j], sh[i], t_med[j]
         c_share[m] = 1.0
     m = n_r + n_t_count
     return (c_o[:m], c_d[:m], c_w[:m], c_px[:m], c_sb[:m], c_sl[:m], c_blur[:m], c_sh[:m],
-            c_med[:m], c_share[:m], m_d[:n_miss], m_w[:n_miss], m_blur[:n_miss], m_sl[:n_miss], direct[:n_glow], glow[:n_glow], diffuse[:n_matte], dnorm[:n_matte],
+            c_med[:m], c_share[:m], c_look[:m], m_d[:n_miss], m_w[:n_miss], m_blur[:n_miss], m_sl[:n_miss], direct[:n_glow], glow[:n_glow], diffuse[:n_matte], dnorm[:n_matte],
             matte[:n_matte], tir_events)
 
 
@@ -480,9 +510,9 @@ def warm() -> None:
     for t_type in (f32, f64):  # Embree's distances, or float64 after culled back faces
         shade(e3, e3, np.zeros(0, np.int32), np.zeros(0, f32), np.zeros(0, f32),
               np.zeros(0, t_type), e3, np.zeros(0, i64), np.zeros(0, i64), np.zeros(0, i64),
-              e, e, e, e3, np.zeros((0, 3), f32), np.zeros(0, np.int32),
+              e, e, e, e3, e3, np.zeros((0, 3), f32), np.zeros(0, np.int32),
               e3, e, e, e, e, e3, np.zeros(0, np.bool_), e3, e, e, e3, np.zeros((2, 2, 2)), 0, 1, 1e-4, True, False, True,
-              1e-3, _SOBOL_DIM1, 0.0, 0.0, 0.15, 0.3)
+              1e-3, _SOBOL_DIM1, 0.0, 0.0, 0.15, 0.3, 0.5)
     sample_cube(np.zeros((6, 2, 2, 3), f32), e3, _S_AXIS, _S_SIGN, _T_AXIS, _T_SIGN)
     for pick in (True, False):
         emitter_pick(e3, e, e3, e3, e3, e, e, np.zeros(0, np.bool_), pick)
