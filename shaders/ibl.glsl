@@ -2,8 +2,9 @@
 // the BRDF LUT's scale and bias for F0, Karis 2013) and Lambert diffuse from the
 // environment's 9 spherical-harmonic coefficients. MULTISCATTER (on by default) adds
 // Fdez-Aguera's (2019) energy compensation, which restores what single scattering loses on
-// rough surfaces. Dielectrics layer as glTF writes it: the specular lobe over the diffuse
-// base, the base weighted by 1 - the lobe's directional albedo (energy-conserving).
+// rough surfaces (spread like the single-scattered lobe: ibl()). Dielectrics layer as glTF
+// writes it: the specular lobe over the diffuse base, the base weighted by 1 - the lobe's
+// directional albedo (energy-conserving).
 #ifndef IBL_GLSL
 #define IBL_GLSL
 #include "brdf.glsl"
@@ -134,7 +135,11 @@ vec3 ibl(MaterialInfo m, vec3 v) {
     // (F0 bright) the neighbouring surfaces it sees are lit (Filament does the same)
     vec3 specular_occ = min(vec3(m.occlusion),
                             ao_multibounce(specular_occlusion(NdotV, m.ao, m.roughness), m.f0));
-    return (FssEss * radiance + FmsEms * irradiance) * specular_occ + kD * irradiance * diffuse_occ;
+    // The multiply scattered share leaves along the lobe, as the punctual lights' ms_scale, the
+    // tree tracer's albedo and the path tracer's scaled lobe put it (a metal's second bounce
+    // between microfacets stays near the mirror direction), not over the cosine hemisphere:
+    // on a rough metal the irradiance brought the sky onto side faces that reflect the horizon.
+    return (FssEss + FmsEms) * radiance * specular_occ + kD * irradiance * diffuse_occ;
 }
 
 #ifdef MATERIAL_SHEEN

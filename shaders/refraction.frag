@@ -505,7 +505,7 @@ void main() {
     Lobes lobes = ibl_lobes(m, v);  // sheen and clearcoat over the glass, as on opaque
     // what the debug view shows: the throughput, share x tint x volume attenuation
     lobes.transmission = kr * exp(-u_sigma * max(path, 0.0)) * tint;
-    lobes.base = (ks * reflected + (m.metallic * FmsEms + kd * m.base_color.rgb) * env_diffuse(n))
+    lobes.base = ((ks + m.metallic * FmsEms) * reflected + kd * m.base_color.rgb * env_diffuse(n))
                * m.occlusion
                + kr * refracted;
 #if LIGHT_COUNT > 0
