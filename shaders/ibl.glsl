@@ -36,8 +36,9 @@ vec3 env_radiance(vec3 dir, float roughness) {
 }
 
 // Where a GGX lobe's reflected light comes from: toward the normal as the lobe widens (its
-// peak leaves the mirror direction; Lagarde & de Rousiers 2014's dominant direction, in
-// Filament's form, mix(r, n, alpha)); the split-sum's mips were prefiltered about this axis.
+// peak leaves the mirror direction; Lagarde & de Rousiers 2014's dominant direction,
+// mix(n, r, s(sqrt(s) + alpha)) with s = 1 - alpha); the split-sum's mips were prefiltered
+// about this axis.
 vec3 specular_dir(vec3 n, vec3 v, float roughness) {
     float alpha = roughness * roughness, gloss = 1.0 - alpha;
     return normalize(mix(n, reflect(-v, n), gloss * (sqrt(gloss) + alpha)));
