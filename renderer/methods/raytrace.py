@@ -94,6 +94,7 @@ from typing import Any
 
 import numpy as np
 
+from core import storm
 from core.baked import BakedAsset, BakedEnvironment
 from core.cubemap import env_rotation_matrix, sample_cube
 from core.mips import texture_size_for
@@ -115,6 +116,8 @@ from renderer.methods.trace_scene import (
     intersect_front,
     opacity,
     pixel_shift,
+    storm_back,
+    storm_back_faces,
 )
 from renderer.raster.final import GRADIENT
 from renderer.view.camera import Camera
@@ -206,7 +209,7 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
         radius=max(float(np.linalg.norm(hi - lo)) / 2, 1e-6), surface=surface, embree_cached=cached,
         premultiplied=np.asarray([m.alpha_mode == "BLEND" and m.opacity_premultiplied
                                   for m in materials], bool),
-        emitters=emitters)
+        storm_back=storm_back_faces(materials), emitters=emitters)
 
 
 # Built Embree scenes by the digest of their world-space vertices and faces: the service renders
@@ -685,10 +688,13 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
                 options.rough_lobes == "sample", options.fresnel_split == "sample",
                 options.multiscatter, MIN_WEIGHT, kernel._SOBOL_DIM1,
                 ROULETTE if options.fresnel_split == "roulette" else 0.0, float(n_nee),
-                *trace_lights.MIRROR_ROUGH)
-            m_dir, m_w, m_blur, m_slot, direct, glow, diffuse, dnorm, matte, tir = out[10:]
+                *trace_lights.MIRROR_ROUGH, storm_back(ts), storm.back_face_table())
+            m_dir, m_w, m_blur, m_slot, direct, glow, diffuse, dnorm, matte, tir = out[10:20]
             if depth > 0 and len(m_slot):
                 add(m_w * env.radiance(m_dir, m_blur ** 0.25), m_slot)
+            e_dir, e_w, e_blur, e_slot = out[20:]  # Storm back faces' reflections: the environment
+            if len(e_slot):
+                add(e_w * env.radiance(e_dir, e_blur ** 0.25), e_slot)
             stats["tir"] += int(tir)
             if len(glow):
                 add(direct, glow)
@@ -977,6 +983,10 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
     flip = np.einsum("ij,ij->i", d, ns) >= 0      # shading normal behind the ray
     ns[flip] = ng[flip]
     k = ts.material[prim]
+    # a single-sided USD surface's back face, lit as Storm lights it (core.storm): the
+    # authored normal, facing away (N.E = 0); specular F0 A + B, diffuse 1 - F0, no refraction
+    back = storm_back(ts)[k] & ~entering
+    ns[back] = hits.normal[back]
     thin = ts.thin[k]
     entering = entering | thin  # a thin sheet has no inside: every side is the outside
     base, metal = hits.base, hits.metallic
@@ -1022,13 +1032,23 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
         g_t[lsel] = wt_m / np.maximum(1.0 - f_m, 1e-30)
     # KHR_materials_specular: the reflected share per channel; what passes under it loses
     # its largest channel (glTF's fresnel_mix)
-    fres_c = specular_tint(fres, f_smooth, ior, hits.specular, hits.specular_color, entering)
+    fres_c = specular_tint(fres, f_smooth, ior, hits.specular, hits.specular_color, entering & ~back)
+    f_diffuse = fres_c.max(axis=1)  # what the diffuse base loses
+    if np.any(back):
+        a_b, b_b = storm.back_face_albedo(rough_k[back])
+        f0_b = ((ior[back] - 1) / (ior[back] + 1)) ** 2
+        fres_c[back] = (f0_b * a_b + b_b)[:, None]
+        f_diffuse[back] = f0_b
     fres = fres_c.max(axis=1)
     refl_w = ((1 - metal)[:, None] * fres_c * (1.0 if g_r is None else g_r[:, None])) * w
     if np.any(metal > 0):  # the metallic share's lobe albedo (a LUT read: only for metals)
-        sel = np.flatnonzero(metal > 0)
+        sel = np.flatnonzero((metal > 0) & ~back)
         refl_w[sel] += (metal[sel, None] * env.specular_albedo(
             base[sel], cos_c[sel], rough_k[sel], ms)) * w[sel]
+        sel = np.flatnonzero((metal > 0) & back)
+        if len(sel):
+            a_b, b_b = storm.back_face_albedo(rough_k[sel])
+            refl_w[sel] += metal[sel, None] * (base[sel] * a_b[:, None] + b_b[:, None]) * w[sel]
     # Transmission tint (as Cycles' Principled BSDF): a volume's every crossing, in or out,
     # takes sqrt(base) of the texel it crosses, so a closed solid of one colour tints by base
     # and a textured one by sqrt(c_entry) sqrt(c_exit); a thin sheet is one surface: base.
@@ -1042,7 +1062,7 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
     if g_t is not None:  # sampled lobes: G1 instead of the lobe's mean albedo
         e_ss = np.where(lobe, g_t, e_ss)
     trans_w = ((1 - metal) * (1 - fres) * trans * np.where(thin, 1.0, eta * eta) * e_ss)[:, None] * tint * w
-    diffuse_w = ((1 - metal) * (1 - fres) * (1 - trans) * hits.occlusion)[:, None] * base * w
+    diffuse_w = ((1 - metal) * (1 - f_diffuse) * (1 - trans) * hits.occlusion)[:, None] * base * w
     # Lobe widths add as variances. A rough refraction bends directions by
     # |1 - eta| per unit of microfacet tilt where a reflection bends them by 2, so its
     # lobe is that much narrower than the reflection lobe the mips were filtered for.
@@ -1064,6 +1084,10 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
     n_t = np.where(thin, n_in, np.where(entering, ior, 1.0))
     # Culling compares what a child would carry back out into the air.
     keep_r = refl_w.max(axis=1) * n_in ** 2 > MIN_WEIGHT
+    reads = back & keep_r
+    if np.any(reads):  # Storm's back face reflects its environment only, as the raster does
+        add(refl_w[reads] * sh[reads, None] * env.radiance(rdir[reads], v_refl[reads] ** 0.25), sl[reads])
+    keep_r &= ~back
     keep_t = (trans_w.max(axis=1) * n_t ** 2 > MIN_WEIGHT) & ~tir
     if options.fresnel_split == "sample" and depth > 0:  # one child, chosen by its share
         p_r = np.where(keep_r, refl_w.max(axis=1) * n_in ** 2, 0.0)
