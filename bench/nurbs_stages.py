@@ -22,9 +22,11 @@ def _pts(points) -> str:
     return ", ".join(f"({x:.4f}, {y:.4f}, {z:.4f})" for x, y, z in points)
 
 
-# a patch's stages are lit from the side, so that its facets (or their absence) show
+# a patch's stages are lit from the side, so that its facets (or their absence) show; no
+# shadows, which Storm's frame (usdview's default) does not draw and ours would
 LIGHT = ('    def DistantLight "Sun"\n    {\n        float inputs:intensity = 3\n'
-         '        bool inputs:normalize = 1\n        float3 xformOp:rotateXYZ = (-30, 50, 0)\n'
+         '        bool inputs:normalize = 1\n        bool inputs:shadow:enable = 0\n'
+         '        float3 xformOp:rotateXYZ = (-30, 50, 0)\n'
          '        uniform token[] xformOpOrder = ["xformOp:rotateXYZ"]\n    }\n')
 
 

@@ -120,3 +120,34 @@ def test_gltf_single_sided_back_faces_are_culled(tmp_path, sky, name):
     asset = build_baked(load_scene(path), key="back-faces-gltf")
     alphas = sorted(_centre(asset, sky, yaw, **METHODS[name])[3] for yaw in (0.0, 180.0))
     assert alphas[0] == pytest.approx(0.0, abs=1e-3) and alphas[1] == pytest.approx(1.0, abs=1e-3)
+
+
+def _lit_card(tmp_path, double_sided: int, rotate_x: float, key: str):
+    light = f"""    def DistantLight "Sun"
+    {{
+        float inputs:intensity = 3
+        bool inputs:normalize = 1
+        float3 xformOp:rotateXYZ = ({rotate_x}, 0, 0)
+        uniform token[] xformOpOrder = ["xformOp:rotateXYZ"]
+    }}
+"""
+    path = tmp_path / f"{key}.usda"
+    path.write_text(CARD.replace("= DS", f"= {double_sided}").replace('def Scope "Looks"', light + '    def Scope "Looks"'))
+    return build_baked(load_scene(path), key=f"back-faces-lit-{key}")
+
+
+@pytest.mark.parametrize("name", list(METHODS))
+def test_back_face_takes_light_from_its_authored_side(tmp_path, tmp_path_factory, name):
+    """Under a distant light and no environment, a single-sided card seen from behind is lit
+    (diffuse only) by a light on the side its normal faces, and dark under one on the
+    viewer's side, where a double-sided card is lit; the three methods agree."""
+    dark = bake_environment(uniform.name((0.0,) * 3), tmp_path_factory.mktemp("dark"), face_size=16)
+    behind = 180.0  # yaw 0 looks from +Z, the side the card's normal faces
+    far_side = _centre(_lit_card(tmp_path, 0, -36.87, "far"), dark, behind, **METHODS[name])
+    near_side = _centre(_lit_card(tmp_path, 0, -143.13, "near"), dark, behind, **METHODS[name])
+    double = _centre(_lit_card(tmp_path, 1, -143.13, "double"), dark, behind, **METHODS[name])
+    raster = _centre(_lit_card(tmp_path, 0, -36.87, "far-raster"), dark, behind, **METHODS["raster"])
+    assert far_side[:3].max() > 0.05, far_side
+    np.testing.assert_allclose(far_side[:3], raster[:3], rtol=0.05)
+    assert near_side[:3].max() < 0.005, near_side
+    assert double[:3].max() > 0.05, double

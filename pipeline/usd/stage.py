@@ -35,8 +35,10 @@ at its rest transforms without one, as usdview shows them: the animation's blend
 weights first (UsdSkel.BlendShapeQuery, inbetweens included; normalOffsets of shapes without
 inbetweens on vertex normals), then the joints; authored normals are skinned too
 (UsdSkel.SkinNormals), so that they follow the pose. PointInstancers place their prototypes (one Mesh each, an Instance per unmasked point);
-nested ones and NURBS are skipped with a warning. BasisCurves become tubes and Points small
-spheres of their widths (`usd_curves`; CURVE_BUDGET thins or refuses them, naming the prim). UsdLux distant / sphere /
+nested ones are skipped with a warning. BasisCurves become tubes and Points small
+spheres of their widths (`usd_curves`; CURVE_BUDGET thins or refuses them, naming the prim);
+NurbsCurves and HermiteCurves linear tubes through their points, a NurbsPatch the mesh of its
+control hull (`usd_nurbs`), as Storm draws them. UsdLux distant / sphere /
 rect / disk lights become KHR_lights_punctual lights (`_light`), a dome light's texture the
 scene's environment; UsdGeomCameras are listed (`Scene.cameras`) for `render --camera PATH`.
 """

@@ -332,6 +332,21 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
             diff = ((1 - metal[:, 0]) * (1 - f0) * fade)[:, None] * hits.base[back]
             out[slot[back]] += _clamp(w[back] * (spec * env.radiance(reflect(d[back], nb), hits.roughness[back])
                                                  + diff * env.irradiance(nb)), clamp_esc[back])
+            if ts.lights is not None and len(ts.lights):  # the lights: diffuse about nb alone
+                sb = np.flatnonzero(back)
+                ng_b = -ng[back]  # the authored side, away from the ray
+
+                def unoccluded(o, ldir, dist, nrm, _depth=depth):  # alpha draws unhashed by pixel
+                    return np.repeat(_unoccluded(ts, _off(o, nrm, ldir, eps), ldir, dist,
+                                                 np.zeros(len(o), np.int64), s, _depth)[:, None], 3, axis=1)
+
+                def spec_albedo(f0, cos_v, rough):
+                    return (env.specular_albedo(f0, cos_v, rough, False),) * 2
+                rgb = trace_lights.direct(ts.lights, unoccluded, p[back], nb, ng_b, -d[back], hits.base[back],
+                                          hits.metallic[back], hits.roughness[back], hits.transmission[back],
+                                          ts.ior[k[back]], spec_albedo, cover[back] if split and cover is not None else None,
+                                          np.ones(len(sb), bool))
+                out[slot[back]] += _clamp(w[back] * rgb, clamp_esc[back])
         trans = hits.transmission
         thin = ts.thin[k]
         entering = entering | thin  # a thin-walled sheet has no inside

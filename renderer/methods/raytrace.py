@@ -772,9 +772,13 @@ def _light_hits(ts: TraceScene, lights: trace_lights.Lights, env: _Environment,
         return (env.specular_albedo(f0, cos_v, rough, False),
                 env.specular_albedo(f0, cos_v, rough, options.multiscatter))
 
+    back = storm_back(ts)[k] & (np.einsum("ij,ij->i", d, ts.geo_normals[prim[sel]]) > 0)
+    if np.any(back):  # Storm's back faces (core.storm): lit about the authored normals
+        n, ng = n.copy(), ng.copy()
+        n[back], ng[back] = hits.normal[sel[back]], -ng[back]
     rgb = trace_lights.direct(lights, transmittance, p, n, ng, -d, hits.base[sel],
                               hits.metallic[sel], hits.roughness[sel], hits.transmission[sel],
-                              ts.ior[k], spec_albedo, None if cover is None else cover[sel])
+                              ts.ior[k], spec_albedo, None if cover is None else cover[sel], back)
     add(rgb * carried[sel], slot[sel])
 
 
