@@ -321,7 +321,8 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         # closed form under the environment (no BSDF there to sample): the authored normal,
         # facing away; specular F0 A + B along its mirror direction, diffuse (1 - F0) base
         # about that normal (opacity-faded); the path ends there (or goes on through it)
-        back = storm_back(ts)[k] & ~entering
+        on_line = (clear > 0) | (depth == 0) if split else np.full(len(k), depth == 0)
+        back = storm_back(ts)[k] & ~entering & on_line  # what the camera sees, not a bounce
         if np.any(back):
             nb = hits.normal[back]
             a_b, b_b = storm.back_face_albedo(hits.roughness[back])

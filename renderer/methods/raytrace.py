@@ -667,9 +667,15 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
         hits = hit_material(ts, origins, dirs, prim, u, v, t, lobes=False)
         if cover is not None:
             hits.occlusion = hits.occlusion * cover
+        # Storm's back-face rule (core.storm) is what the camera sees: on its rays (through
+        # translucent layers too), not on a bounce (there a back face would reflect the sky
+        # through itself)
+        on_line = np.full(len(dirs), depth == 0) if not split else (clear > 0) | (depth == 0)
+        ray_back = on_line & (prim >= 0) & storm_back(ts)[ts.material[np.maximum(prim, 0)]] \
+            if len(ts.material) else np.zeros(len(dirs), bool)
         if ts.lights is not None and len(ts.lights):
             _light_hits(ts, ts.lights, env, options, origins, dirs, prim, t, hits,
-                        weight * share[:, None], slot, add, cover)
+                        weight * share[:, None], slot, add, cover, ray_back)
         n_nee = 0
         if emitters is not None:
             n_nee = EMITTER_SAMPLES if depth == 0 else 1
@@ -688,7 +694,7 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
                 options.rough_lobes == "sample", options.fresnel_split == "sample",
                 options.multiscatter, MIN_WEIGHT, kernel._SOBOL_DIM1,
                 ROULETTE if options.fresnel_split == "roulette" else 0.0, float(n_nee),
-                *trace_lights.MIRROR_ROUGH, storm_back(ts), storm.back_face_table())
+                *trace_lights.MIRROR_ROUGH, ray_back, storm.back_face_table())
             m_dir, m_w, m_blur, m_slot, direct, glow, diffuse, dnorm, matte, tir = out[10:20]
             if depth > 0 and len(m_slot):
                 add(m_w * env.radiance(m_dir, m_blur ** 0.25), m_slot)
@@ -713,7 +719,7 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
                                trace_material.Hits(*(getattr(hits, f.name)[sel] for f in  # the core
                                                      dataclasses.fields(trace_material.Hits)[:9])),
                                weight[hit], pix[hit], sub[hit], slot[hit], blur[hit], share[hit],
-                               medium[hit], n_nee, add, stats)
+                               medium[hit], n_nee, add, stats, ray_back[hit])
         if split:
             assert cover is not None
             out, clear = _pass_on(out, origins, dirs, t, weight, pix, sub, slot, blur, share, medium,
@@ -754,7 +760,7 @@ def _pass_on(children: tuple, origins, dirs, t, weight, pix, sub, slot, blur, sh
 
 def _light_hits(ts: TraceScene, lights: trace_lights.Lights, env: _Environment,
                 options: RenderOptions, origins, dirs, prim, t, hits: trace_material.Hits, carried: np.ndarray, slot: np.ndarray, add,
-                cover: np.ndarray | None = None) -> None:
+                cover: np.ndarray | None = None, ray_back: np.ndarray | None = None) -> None:
     """Next-event estimation: what the punctual lights reflect along each ray from the
     surface it hit, times what the ray carries, into `add` (`cover`: the opacity of a
     premultiplied blend per ray, which scales the diffuse share). Hits from inside a transmissive
@@ -772,7 +778,8 @@ def _light_hits(ts: TraceScene, lights: trace_lights.Lights, env: _Environment,
         return (env.specular_albedo(f0, cos_v, rough, False),
                 env.specular_albedo(f0, cos_v, rough, options.multiscatter))
 
-    back = storm_back(ts)[k] & (np.einsum("ij,ij->i", d, ts.geo_normals[prim[sel]]) > 0)
+    back = (np.zeros(len(sel), bool) if ray_back is None else ray_back[sel]) & \
+        (np.einsum("ij,ij->i", d, ts.geo_normals[prim[sel]]) > 0)
     if np.any(back):  # Storm's back faces (core.storm): lit about the authored normals
         n, ng = n.copy(), ng.copy()
         n[back], ng[back] = hits.normal[sel[back]], -ng[back]
@@ -975,7 +982,7 @@ def _alpha_draw(pix: np.ndarray, sub: np.ndarray, n_sub: int, depth: int) -> np.
 
 def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, depth: int,
                  n_sub: int, eps: float, d, p, t, prim, hits: trace_material.Hits, w, px, sb,
-                 sl, v_in, sh, n_in, nee: int, add, stats: dict) -> tuple:
+                 sl, v_in, sh, n_in, nee: int, add, stats: dict, ray_back: np.ndarray | None = None) -> tuple:
     """The numpy twin of renderer.methods.trace_kernel.shade (the reference the kernel is tested
     against): one bounce's hits -> their children (origin, dir, weight, pix, sub, slot,
     blur, share, medium, mirror share); emission and the diffuse share go straight into `add`."""
@@ -989,7 +996,7 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
     k = ts.material[prim]
     # a single-sided USD surface's back face, lit as Storm lights it (core.storm): the
     # authored normal, facing away (N.E = 0); specular F0 A + B, diffuse 1 - F0, no refraction
-    back = storm_back(ts)[k] & ~entering
+    back = (np.zeros(len(k), bool) if ray_back is None else ray_back) & ~entering
     ns[back] = hits.normal[back]
     thin = ts.thin[k]
     entering = entering | thin  # a thin sheet has no inside: every side is the outside

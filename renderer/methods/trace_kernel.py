@@ -198,8 +198,8 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in,
     events on transmissive surfaces). The mirror share is the part of a light triangle's
     emission a reflected child counts where this hit sampled the emitters (`nee` > 0):
     trace_lights.mirror_share of the roughness, 1 at mirror_lo and below, 0 from mirror_hi;
-    1 where the hit sampled none, and for refracted children. `storm_back` (per material):
-    a back face hit there is lit as Storm lights a single-sided USD one (core.storm; its
+    1 where the hit sampled none, and for refracted children. `storm_back` (per ray): a back
+    face hit by it is lit as Storm lights a single-sided USD one (core.storm; its
     (A, B) at N.E = 0 in `storm_table`): the authored normal, no refraction."""
     n = len(d)
     m_d, m_w, m_blur = np.empty((n, 3)), np.empty((n, 3)), np.empty(n)
@@ -244,7 +244,7 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in,
             sx, sy, sz = gx, gy, gz
         k = material[tri]
         metal, rough, trans, n_k = metallic[i], roughness[i], transmission[i], ior[k]
-        back = storm_back[k] and not entering
+        back = storm_back[i] and not entering
         if back:  # the authored normal, facing away from the ray: N.E clamps to 0
             sx, sy, sz = normals[i, 0], normals[i, 1], normals[i, 2]
         sheet = thin[k]
