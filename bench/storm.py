@@ -28,6 +28,11 @@ ENV = "ASSET_PREVIEW_STORM_PYTHON"
 WORKER = Path(__file__).with_name("storm_worker.py")
 CAMERA = "/BenchCamera"
 DOME_TEXTURE = "bench_dome_white.png"
+# Storm sizes a dome light's cube map and its split-sum BRDF table from the texture's width
+# (width / 4): this 16-px texture makes a 4 x 4 table whose first texel sits at N.E = 0.125,
+# which grazing views and single-sided back faces (N.E = 0) read, where a 512-px HDRI's is at
+# 0.004. Kept small: at 512 px Storm's first image took 4 minutes a stage here (llvmpipe).
+DOME_SIZE = (16, 8)
 BLACK_ENV = "bench_black.png"
 YAW, PITCH = 30.0, 25.0
 FOCAL, APERTURE = 35.0, 20.0  # mm: a vertical field of view of 2 atan(10/35) = 31.9 degrees
@@ -108,7 +113,7 @@ def write_wrapper(stage_path: Path, name: str | None = None) -> Wrapper:
     cam.AddTransformOp().Set(_look_at(eye, centre, up))
     result = Wrapper(out, own_lights=bool(lights), own_dome=own_dome, notes=notes)
     if not lights:
-        Image.new("RGB", (16, 8), (255, 255, 255)).save(folder / DOME_TEXTURE)
+        Image.new("RGB", DOME_SIZE, (255, 255, 255)).save(folder / DOME_TEXTURE)
         dome = UsdLux.DomeLight.Define(wrapper, "/BenchDome")
         dome.CreateTextureFileAttr(Sdf.AssetPath(f"./{DOME_TEXTURE}"))
         dome.CreateIntensityAttr(1.0)

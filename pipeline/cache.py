@@ -89,7 +89,8 @@ log = logging.getLogger(__name__)
 # 20: a glTF primitive without a material takes the spec's default material (white metal, rough)
 # 21: USD BasisCurves (tubes) and Points (spheres) are read, no longer skipped
 # 22: Light.shape / size (USD lights' extent: soft shadows in the ray tracer); CylinderLight read
-BAKE_FORMAT_VERSION = 22
+# 23: USD NurbsPatch (its control hull), NurbsCurves and HermiteCurves (linear curves) are read
+BAKE_FORMAT_VERSION = 23
 # Environment entries have their own format: a prefiltered light does not change with the mesh
 # bake's format, and the filter's constants already key it (pipeline.environment.shipped), so a
 # mesh-format bump neither rebakes every environment nor stales the shipped studio bake.

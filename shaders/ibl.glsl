@@ -117,8 +117,29 @@ vec3 env_radiance_anisotropic(MaterialInfo m, vec3 v) {
 }
 #endif
 
+#ifdef SHOW_BACK_FACES
+// Storm's (A, B) at N.E = 0 for roughness 0..1 (core/storm.py), read linearly
+vec2 storm_back_ab(float roughness) {
+    const vec2 table[] = STORM_BACK_TABLE;
+    float x = clamp(roughness, 0.0, 1.0) * float(table.length() - 1);
+    int i = min(int(x), table.length() - 2);
+    return mix(table[i], table[i + 1], x - float(i));
+}
+#endif
+
 vec3 ibl(MaterialInfo m, vec3 v) {
     vec3 n = m.n;
+#ifdef SHOW_BACK_FACES
+    if (!gl_FrontFacing) {
+        // a single-sided USD surface seen from behind, lit as Storm lights it (core/storm.py):
+        // its normal faces away, N.E clamps to 0; specular (F0 A + B) of Storm's table there,
+        // diffuse (1 - F0) about that normal
+        vec2 ab = storm_back_ab(m.roughness);
+        vec3 spec = (m.f0 * ab.x + ab.y) * env_radiance(reflect(-v, n), m.roughness);
+        vec3 occ_d = min(vec3(m.occlusion), ao_multibounce(m.ao, m.diffuse_color));
+        return spec * m.occlusion + m.diffuse_color * (1.0 - m.f0) * env_diffuse(n) * occ_d;
+    }
+#endif
     float NdotV = clamp(dot(n, v), 1e-4, 1.0);
     vec3 FssEss, FmsEms;
     specular_albedo(m.f0, m.f90, NdotV, m.roughness, FssEss, FmsEms);

@@ -117,6 +117,13 @@ void punctual(MaterialInfo m, vec3 v, vec3 pos, inout Lobes lobes) {
             lobes.base += brdf_lambert(m.diffuse_transmission) * radiance * -NdotL;
 #endif
         if (NdotL <= 0.0) continue;
+#ifdef SHOW_BACK_FACES
+        if (!gl_FrontFacing) {  // Storm's back face (core/storm.py): N.E = 0 leaves no specular
+            lobes.base += brdf_lambert(m.diffuse_color) * (1.0 - F_schlick(m.f0, m.f90, VdotH))
+                        * radiance * NdotL;
+            continue;
+        }
+#endif
         float NdotH = clamp(dot(n, h), 0.0, 1.0);
 #ifdef MATERIAL_ANISOTROPY
         float a = max(alpha, 1e-3);

@@ -343,7 +343,7 @@ def Capsule "P" {
 }
 def Plane "L" {
 }
-def NurbsCurves "Curve" {
+def TetMesh "Tet" {
 }
 """
     scene = load_scene(write(tmp_path / "shapes.usda", text))
@@ -361,7 +361,7 @@ def NurbsCurves "Curve" {
         p = m.positions.astype(float)[m.indices]
         vol = np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() / 6
         assert vol > 0 or m.name == "/L", m.name
-    assert any("NurbsCurves" in w for w in scene.warnings)
+    assert any("TetMesh" in w and "/Tet" in w for w in scene.warnings)
 
 
 def test_point_instancer_places_prototypes(tmp_path):

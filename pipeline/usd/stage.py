@@ -35,8 +35,10 @@ at its rest transforms without one, as usdview shows them: the animation's blend
 weights first (UsdSkel.BlendShapeQuery, inbetweens included; normalOffsets of shapes without
 inbetweens on vertex normals), then the joints; authored normals are skinned too
 (UsdSkel.SkinNormals), so that they follow the pose. PointInstancers place their prototypes (one Mesh each, an Instance per unmasked point);
-nested ones and NURBS are skipped with a warning. BasisCurves become tubes and Points small
-spheres of their widths (`usd_curves`; CURVE_BUDGET thins or refuses them, naming the prim). UsdLux distant / sphere /
+nested ones are skipped with a warning. BasisCurves become tubes and Points small
+spheres of their widths (`usd_curves`; CURVE_BUDGET thins or refuses them, naming the prim);
+NurbsCurves and HermiteCurves linear tubes through their points, a NurbsPatch the mesh of its
+control hull (`usd_nurbs`), as Storm draws them. UsdLux distant / sphere /
 rect / disk lights become KHR_lights_punctual lights (`_light`), a dome light's texture the
 scene's environment; UsdGeomCameras are listed (`Scene.cameras`) for `render --camera PATH`.
 """
@@ -57,7 +59,7 @@ from core.scene import Cage, Creases, Instance, Light, Mesh, Scene, SceneCamera
 from pipeline import deadline
 from pipeline.limits import Limits
 from pipeline.normals import smooth_normals
-from pipeline.usd import curves, drawmode
+from pipeline.usd import curves, drawmode, nurbs
 from pipeline.usd.layers import LayerGraph
 from pipeline.usd.materials import Binding, MaterialReader, authoring_layer
 from pipeline.usd.shapes import SHAPES, tessellate
@@ -245,7 +247,8 @@ class StageReader:
         self.vertices = 0
         self._swept_vertices = 0  # of curves and points (CURVE_BUDGET)
         self._nodes = 0
-        self._skipped: set[str] = set()
+        self._skipped: dict[str, list[str]] = {}  # prim type -> the paths not drawn
+        self._notes: set[str] = set()  # one line per stage: how a prim type is approximated
         self._skel: UsdSkel.Cache | None = None  # made at the first SkelRoot
         # (prim path, skinned) of the stage prim _gprim is placing (None: a PointInstancer's
         # prototype), kept on its Instances for pipeline.usd.rig to place them again
@@ -257,8 +260,11 @@ class StageReader:
     def read(self) -> None:
         self._walk(self.stage.GetPseudoRoot(), None)
         self.standins.finish()
-        for kind in sorted(self._skipped):
-            self._warn(f"{kind} prims are not read; skipped")
+        for kind, paths in sorted(self._skipped.items()):
+            more = f" and {len(paths) - 3} more" if len(paths) > 3 else ""
+            self._warn(f"{kind} prims are not read; skipped: {', '.join(paths[:3])}{more}")
+        for note in sorted(self._notes):
+            self._warn(note)
 
     def _walk(self, root: Usd.Prim, placements: np.ndarray | None) -> None:
         """Read the gprims under `root`. `placements` (K x 4 x 4, row vectors, relative to
@@ -319,7 +325,7 @@ class StageReader:
                     self._gprim(prim, *skinned)
                 else:
                     self._gprim(prim, self._matrices(prim, root, placements))
-            elif prim.IsA(UsdGeom.BasisCurves) or prim.IsA(UsdGeom.Points):
+            elif prim.IsA(UsdGeom.Curves) or prim.IsA(UsdGeom.Points) or prim.IsA(UsdGeom.NurbsPatch):
                 self._placing = None if placements is not None else (str(prim.GetPath()), False)
                 self._gprim(prim, self._matrices(prim, root, placements))
             elif prim.IsA(UsdGeom.PointInstancer):
@@ -327,9 +333,9 @@ class StageReader:
                 if placements is None:
                     self._point_instancer(UsdGeom.PointInstancer(prim))
                 else:
-                    self._skipped.add("nested PointInstancer")
+                    self._skipped.setdefault("nested PointInstancer", []).append(str(prim.GetPath()))
             elif prim.IsA(UsdGeom.Gprim):
-                self._skipped.add(str(prim.GetTypeName()))
+                self._skipped.setdefault(str(prim.GetTypeName()), []).append(str(prim.GetPath()))
 
     # -- UsdLux lights and UsdGeom cameras -----------------------------------------------------
     def _light(self, prim: Usd.Prim) -> None:
@@ -637,10 +643,10 @@ class StageReader:
         mesh = UsdGeom.Mesh(prim) if prim.IsA(UsdGeom.Mesh) else None
         source = prim.GetPrimInPrototype() if prim.IsInstanceProxy() else prim
         groups = self._groups(prim, mesh)
-        swept = prim.IsA(UsdGeom.BasisCurves) or prim.IsA(UsdGeom.Points)
+        swept = prim.IsA(UsdGeom.Curves) or prim.IsA(UsdGeom.Points)
         # a tube's open ends show its inside
         double_sided = bool(UsdGeom.Gprim(prim).GetDoubleSidedAttr().Get()) or \
-            prim.IsA(UsdGeom.BasisCurves)
+            prim.IsA(UsdGeom.Curves)
         # authored here or on an ancestor: the schema declares displayColor on every gprim
         color_pv = UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance("displayColor")
         has_color = bool(color_pv) and color_pv.HasAuthoredValue()
@@ -658,7 +664,8 @@ class StageReader:
         if topo_key not in self._topology:
             deadline.check()
             self._topology[topo_key] = self._triangulate(prim, mesh, needed, points, skin) if mesh \
-                else self._swept(prim, needed) if swept else self._shape(prim, needed)
+                else self._swept(prim, needed) if swept else self._patch(prim, needed) \
+                if prim.IsA(UsdGeom.NurbsPatch) else self._shape(prim, needed)
         topo = self._topology[topo_key]
         if topo is None:
             return
@@ -708,7 +715,7 @@ class StageReader:
         return groups
 
     # -- geometry --------------------------------------------------------------------------------
-    def _triangulate(self, prim: Usd.Prim, mesh: UsdGeom.Mesh, names: list[str],
+    def _triangulate(self, prim: Usd.Prim, mesh: UsdGeom.Mesh | nurbs.PatchHull, names: list[str],
                      skinned: np.ndarray | None = None, skin=None) -> _Topology | None:
         where = f"mesh {prim.GetPath()}"
         counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(self.time) or [], np.int64)
@@ -899,6 +906,29 @@ class StageReader:
                 topo.attrs[name] = np.repeat(value[None], len(points), axis=0)
         return topo
 
+    def _patch(self, prim: Usd.Prim, names: list[str]) -> _Topology | None:
+        """A NurbsPatch as Storm draws it: the mesh of its control hull (pipeline.usd.nurbs).
+        Counts that do not match the points are skipped with a warning, a hull over the
+        limits refused before its faces are made."""
+        patch = UsdGeom.NurbsPatch(prim)
+        where = f"NurbsPatch {prim.GetPath()}"
+        nu = int(patch.GetUVertexCountAttr().Get(self.time) or 0)
+        nv = int(patch.GetVVertexCountAttr().Get(self.time) or 0)
+        points = patch.GetPointsAttr().Get(self.time)
+        n = 0 if points is None else len(points)
+        if nu < 2 or nv < 2 or nu * nv != n:
+            self._warn(f"{where}: uVertexCount x vVertexCount = {nu} x {nv} does not match its "
+                       f"{n} points (2 x 2 at least); skipped")
+            return None
+        n_tri = 2 * (nu - 1) * (nv - 1)
+        if self.triangles + n_tri > self.limits.max_triangles:
+            raise LimitExceeded(self.graph.path, f"{where}: a {nu} x {nv} hull makes {n_tri} "
+                                                 f"triangles, over the limit of {self.limits.max_triangles}")
+        if patch.GetTrimCurveCountsAttr().HasAuthoredValue():
+            self._notes.add("NurbsPatch trim curves are not applied (Storm draws the patch whole)")
+        self._notes.add("NurbsPatch prims are drawn as their control hulls, as Storm draws them")
+        return self._triangulate(prim, nurbs.PatchHull(patch, nu, nv), names)
+
     def _swept(self, prim: Usd.Prim, names: list[str]) -> _Topology | None:
         """BasisCurves as tubes, Points as small spheres (pipeline.usd.curves), of their
         widths; primvars evaluated per USD's curve interpolation. Over the vertex budget
@@ -913,14 +943,22 @@ class StageReader:
             self._warn(f"{where}: NaN or infinite points; skipped")
             return None
         n = len(points)
-        is_curves = prim.IsA(UsdGeom.BasisCurves)
+        is_curves = prim.IsA(UsdGeom.Curves)
         budget = min(CURVE_BUDGET - self._swept_vertices, self.limits.max_vertices - self.vertices)
         if is_curves:
-            bc = UsdGeom.BasisCurves(prim)
-            counts = np.asarray(bc.GetCurveVertexCountsAttr().Get(self.time) or [], np.int64)
-            kind = str(bc.GetTypeAttr().Get() or "cubic")
-            basis = str(bc.GetBasisAttr().Get() or "bezier")
-            wrap = str(bc.GetWrapAttr().Get() or "nonperiodic")
+            counts = np.asarray(UsdGeom.Curves(prim).GetCurveVertexCountsAttr().Get(self.time) or [],
+                                np.int64)
+            if prim.IsA(UsdGeom.BasisCurves):
+                bc = UsdGeom.BasisCurves(prim)
+                kind = str(bc.GetTypeAttr().Get() or "cubic")
+                basis = str(bc.GetBasisAttr().Get() or "bezier")
+                wrap = str(bc.GetWrapAttr().Get() or "nonperiodic")
+            else:  # Storm's linear curves through the control points (or Hermite points)
+                kind, basis, wrap = "linear", "bezier", "nonperiodic"
+                self._notes.add(
+                    f"{prim.GetTypeName()} prims are drawn as linear curves through their "
+                    + ("control points (order and knots ignored)" if prim.IsA(UsdGeom.NurbsCurves)
+                       else "points (tangents ignored)") + ", as Storm draws them")
             if basis not in curves.BASES and kind == "cubic":
                 self._warn(f"{where}: basis {basis!r} is not one Storm draws; drawn linear")
                 kind = "linear"

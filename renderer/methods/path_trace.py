@@ -58,6 +58,7 @@ from typing import Any
 
 import numpy as np
 
+from core import storm
 from core.cubemap import direction_to_face
 from core.options import RenderOptions
 from renderer.methods import path_bsdf, trace_lights, trace_material
@@ -68,7 +69,15 @@ from renderer.methods.optics import (
     sample_rough_dielectric,
 )
 from renderer.methods.path_bsdf import ALPHA_MIN, ROUGH_ALPHA, ggx_albedo  # noqa: F401  # ggx_albedo: re-exported
-from renderer.methods.trace_scene import EPSILON, coverage, hit_material, intersect_front, opacity, pixel_shift
+from renderer.methods.trace_scene import (
+    EPSILON,
+    coverage,
+    hit_material,
+    intersect_front,
+    opacity,
+    pixel_shift,
+    storm_back,
+)
 
 FIREFLY = 16.0        # max-RGB clamp of indirect contributions (linear radiance)
 UNIFORM_SHARE = 0.1   # of environment samples drawn uniformly over the sphere
@@ -308,6 +317,37 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         ns = hits.normal * side
         flip = _dot(d, ns) >= 0
         ns[flip] = ng[flip]
+        # a single-sided USD surface's back face is lit as Storm lights it (core.storm), in
+        # closed form under the environment (no BSDF there to sample): the authored normal,
+        # facing away; specular F0 A + B along its mirror direction, diffuse (1 - F0) base
+        # about that normal (opacity-faded); the path ends there (or goes on through it)
+        on_line = (clear > 0) | (depth == 0) if split else np.full(len(k), depth == 0)
+        back = storm_back(ts)[k] & ~entering & on_line  # what the camera sees, not a bounce
+        if np.any(back):
+            nb = hits.normal[back]
+            a_b, b_b = storm.back_face_albedo(hits.roughness[back])
+            f0 = ((ts.ior[k[back]] - 1) / (ts.ior[k[back]] + 1)) ** 2
+            metal = hits.metallic[back][:, None]
+            spec = (1 - metal) * (f0 * a_b + b_b)[:, None] + metal * (hits.base[back] * a_b[:, None] + b_b[:, None])
+            fade = (cover[back] if split and cover is not None else 1.0) * hits.occlusion[back]
+            diff = ((1 - metal[:, 0]) * (1 - f0) * fade)[:, None] * hits.base[back]
+            out[slot[back]] += _clamp(w[back] * (spec * env.radiance(reflect(d[back], nb), hits.roughness[back])
+                                                 + diff * env.irradiance(nb)), clamp_esc[back])
+            if ts.lights is not None and len(ts.lights):  # the lights: diffuse about nb alone
+                sb = np.flatnonzero(back)
+                ng_b = -ng[back]  # the authored side, away from the ray
+
+                def unoccluded(o, ldir, dist, nrm, _depth=depth):  # alpha draws unhashed by pixel
+                    return np.repeat(_unoccluded(ts, _off(o, nrm, ldir, eps), ldir, dist,
+                                                 np.zeros(len(o), np.int64), s, _depth)[:, None], 3, axis=1)
+
+                def spec_albedo(f0, cos_v, rough):
+                    return (env.specular_albedo(f0, cos_v, rough, False),) * 2
+                rgb = trace_lights.direct(ts.lights, unoccluded, p[back], nb, ng_b, -d[back], hits.base[back],
+                                          hits.metallic[back], hits.roughness[back], hits.transmission[back],
+                                          ts.ior[k[back]], spec_albedo, cover[back] if split and cover is not None else None,
+                                          back=np.ones(len(sb), bool))
+                out[slot[back]] += _clamp(w[back] * rgb, clamp_esc[back])
         trans = hits.transmission
         thin = ts.thin[k]
         entering = entering | thin  # a thin-walled sheet has no inside
@@ -324,7 +364,7 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         lobes = _Lobes(hits, ns, ng, wo, ior, options.multiscatter, cover)
         # hits from inside a transmissive object see only Glass (light reaches them refracted)
         surface_lit = entering | (trans <= 0)
-        reflective = surface_lit & (lobes.p_reflective > 0)
+        reflective = surface_lit & (lobes.p_reflective > 0) & ~back
         nee_clamp = n_rough > 0
         # --- next-event estimation: the environment, MIS with BSDF sampling
         ua, ub = sample(px, s, 10 * depth + 1)
@@ -374,6 +414,7 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         else:
             nxt = _scatter_numpy(lobes.bsdf, hits, *args, lobes)
         o_all, new_d, new_w, new_pdf, new_medium, alive, rough, tir = nxt
+        alive = alive & ~back  # shaded in closed form above
         if split:
             assert cover is not None
             go_w = np.where(cover < 1, 1.0 - cover, 0.0)

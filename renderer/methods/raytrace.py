@@ -99,6 +99,7 @@ from typing import Any
 
 import numpy as np
 
+from core import storm
 from core.baked import BakedAsset, BakedEnvironment
 from core.cubemap import env_rotation_matrix, sample_cube
 from core.mips import texture_size_for
@@ -122,6 +123,8 @@ from renderer.methods.trace_scene import (
     intersect_front,
     opacity,
     pixel_shift,
+    storm_back,
+    storm_back_faces,
 )
 from renderer.raster.final import GRADIENT
 from renderer.view.camera import Camera
@@ -219,7 +222,7 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
         radius=max(float(np.linalg.norm(hi - lo)) / 2, 1e-6), surface=surface, embree_cached=cached,
         premultiplied=np.asarray([m.alpha_mode == "BLEND" and m.opacity_premultiplied
                                   for m in materials], bool),
-        emitters=emitters)
+        storm_back=storm_back_faces(materials), emitters=emitters)
 
 
 # Built Embree scenes by the digest of their world-space vertices and faces: the service renders
@@ -678,9 +681,15 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
         hits = hit_material(ts, origins, dirs, prim, u, v, t, lobes=False)
         if cover is not None:
             hits.occlusion = hits.occlusion * cover
+        # Storm's back-face rule (core.storm) is what the camera sees: on its rays (through
+        # translucent layers too), not on a bounce (there a back face would reflect the sky
+        # through itself)
+        on_line = np.full(len(dirs), depth == 0) if not split else (clear > 0) | (depth == 0)
+        ray_back = on_line & (prim >= 0) & storm_back(ts)[ts.material[np.maximum(prim, 0)]] \
+            if len(ts.material) else np.zeros(len(dirs), bool)
         if ts.lights is not None and len(ts.lights):
             _light_hits(ts, ts.lights, env, options, origins, dirs, prim, t, hits,
-                        weight * share[:, None], slot, add, cover, (pix, sub, n_sub, depth))
+                        weight * share[:, None], slot, add, cover, (pix, sub, n_sub, depth), ray_back)
         n_nee = 0
         if emitters is not None:
             n_nee = EMITTER_SAMPLES if depth == 0 else 1
@@ -699,10 +708,13 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
                 options.rough_lobes == "sample", options.fresnel_split == "sample",
                 options.multiscatter, MIN_WEIGHT, kernel._SOBOL_DIM1,
                 ROULETTE if options.fresnel_split == "roulette" else 0.0, float(n_nee),
-                *trace_lights.MIRROR_ROUGH, ROUGH_PROBE)
-            m_dir, m_w, m_blur, m_slot, direct, glow, diffuse, dnorm, matte, tir = out[11:]
+                *trace_lights.MIRROR_ROUGH, ROUGH_PROBE, ray_back, storm.back_face_table())
+            m_dir, m_w, m_blur, m_slot, direct, glow, diffuse, dnorm, matte, tir = out[11:21]
             if depth > 0 and len(m_slot):
                 add(m_w * env.radiance(m_dir, m_blur ** 0.25), m_slot)
+            e_dir, e_w, e_blur, e_slot = out[21:]  # Storm back faces' reflections: the environment
+            if len(e_slot):
+                add(e_w * env.radiance(e_dir, e_blur ** 0.25), e_slot)
             stats["tir"] += int(tir)
             if len(glow):
                 add(direct, glow)
@@ -721,7 +733,7 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
                                trace_material.Hits(*(getattr(hits, f.name)[sel] for f in  # the core
                                                      dataclasses.fields(trace_material.Hits)[:9])),
                                weight[hit], pix[hit], sub[hit], slot[hit], blur[hit], share[hit],
-                               medium[hit], n_nee, add, stats)
+                               medium[hit], n_nee, add, stats, ray_back[hit])
         if split:
             assert cover is not None
             out, clear = _pass_on(out, origins, dirs, t, weight, pix, sub, slot, blur, share, medium,
@@ -762,7 +774,8 @@ def _pass_on(children: tuple, origins, dirs, t, weight, pix, sub, slot, blur, sh
 
 def _light_hits(ts: TraceScene, lights: trace_lights.Lights, env: _Environment,
                 options: RenderOptions, origins, dirs, prim, t, hits: trace_material.Hits, carried: np.ndarray, slot: np.ndarray, add,
-                cover: np.ndarray | None = None, strata: tuple | None = None) -> None:
+                cover: np.ndarray | None = None, strata: tuple | None = None,
+                ray_back: np.ndarray | None = None) -> None:
     """Next-event estimation: what the punctual lights reflect along each ray from the
     surface it hit, times what the ray carries, into `add` (`cover`: the opacity of a
     premultiplied blend per ray, which scales the diffuse share). Hits from inside a transmissive
@@ -789,9 +802,15 @@ def _light_hits(ts: TraceScene, lights: trace_lights.Lights, env: _Environment,
         return (env.specular_albedo(f0, cos_v, rough, False),
                 env.specular_albedo(f0, cos_v, rough, options.multiscatter))
 
+    back = (np.zeros(len(sel), bool) if ray_back is None else ray_back[sel]) & \
+        (np.einsum("ij,ij->i", d, ts.geo_normals[prim[sel]]) > 0)
+    if np.any(back):  # Storm's back faces (core.storm): lit about the authored normals
+        n, ng = n.copy(), ng.copy()
+        n[back], ng[back] = hits.normal[sel[back]], -ng[back]
     rgb = trace_lights.direct(lights, transmittance, p, n, ng, -d, hits.base[sel],
                               hits.metallic[sel], hits.roughness[sel], hits.transmission[sel],
-                              ts.ior[k], spec_albedo, None if cover is None else cover[sel], samples)
+                              ts.ior[k], spec_albedo, None if cover is None else cover[sel], samples,
+                              back)
     add(rgb * carried[sel], slot[sel])
 
 
@@ -988,7 +1007,7 @@ def _alpha_draw(pix: np.ndarray, sub: np.ndarray, n_sub: int, depth: int) -> np.
 
 def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, depth: int,
                  n_sub: int, eps: float, d, p, t, prim, hits: trace_material.Hits, w, px, sb,
-                 sl, v_in, sh, n_in, nee: int, add, stats: dict) -> tuple:
+                 sl, v_in, sh, n_in, nee: int, add, stats: dict, ray_back: np.ndarray | None = None) -> tuple:
     """The numpy twin of renderer.methods.trace_kernel.shade (the reference the kernel is tested
     against): one bounce's hits -> their children (origin, dir, weight, pix, sub, slot,
     blur, share, medium, mirror share, look); emission and the diffuse share go straight into `add`."""
@@ -1000,6 +1019,10 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
     flip = np.einsum("ij,ij->i", d, ns) >= 0      # shading normal behind the ray
     ns[flip] = ng[flip]
     k = ts.material[prim]
+    # a single-sided USD surface's back face, lit as Storm lights it (core.storm): the
+    # authored normal, facing away (N.E = 0); specular F0 A + B, diffuse 1 - F0, no refraction
+    back = (np.zeros(len(k), bool) if ray_back is None else ray_back) & ~entering
+    ns[back] = hits.normal[back]
     thin = ts.thin[k]
     entering = entering | thin  # a thin sheet has no inside: every side is the outside
     base, metal = hits.base, hits.metallic
@@ -1045,13 +1068,23 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
         g_t[lsel] = wt_m / np.maximum(1.0 - f_m, 1e-30)
     # KHR_materials_specular: the reflected share per channel; what passes under it loses
     # its largest channel (glTF's fresnel_mix)
-    fres_c = specular_tint(fres, f_smooth, ior, hits.specular, hits.specular_color, entering)
+    fres_c = specular_tint(fres, f_smooth, ior, hits.specular, hits.specular_color, entering & ~back)
+    f_diffuse = fres_c.max(axis=1)  # what the diffuse base loses
+    if np.any(back):
+        a_b, b_b = storm.back_face_albedo(rough_k[back])
+        f0_b = ((ior[back] - 1) / (ior[back] + 1)) ** 2
+        fres_c[back] = (f0_b * a_b + b_b)[:, None]
+        f_diffuse[back] = f0_b
     fres = fres_c.max(axis=1)
     refl_w = ((1 - metal)[:, None] * fres_c * (1.0 if g_r is None else g_r[:, None])) * w
     if np.any(metal > 0):  # the metallic share's lobe albedo (a LUT read: only for metals)
-        sel = np.flatnonzero(metal > 0)
+        sel = np.flatnonzero((metal > 0) & ~back)
         refl_w[sel] += (metal[sel, None] * env.specular_albedo(
             base[sel], cos_c[sel], rough_k[sel], ms)) * w[sel]
+        sel = np.flatnonzero((metal > 0) & back)
+        if len(sel):
+            a_b, b_b = storm.back_face_albedo(rough_k[sel])
+            refl_w[sel] += metal[sel, None] * (base[sel] * a_b[:, None] + b_b[:, None]) * w[sel]
     # Transmission tint (as Cycles' Principled BSDF): a volume's every crossing, in or out,
     # takes sqrt(base) of the texel it crosses, so a closed solid of one colour tints by base
     # and a textured one by sqrt(c_entry) sqrt(c_exit); a thin sheet is one surface: base.
@@ -1065,7 +1098,7 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
     if g_t is not None:  # sampled lobes: G1 instead of the lobe's mean albedo
         e_ss = np.where(lobe, g_t, e_ss)
     trans_w = ((1 - metal) * (1 - fres) * trans * np.where(thin, 1.0, eta * eta) * e_ss)[:, None] * tint * w
-    diffuse_w = ((1 - metal) * (1 - fres) * (1 - trans) * hits.occlusion)[:, None] * base * w
+    diffuse_w = ((1 - metal) * (1 - f_diffuse) * (1 - trans) * hits.occlusion)[:, None] * base * w
     # Lobe widths add as variances. A rough refraction bends directions by
     # |1 - eta| per unit of microfacet tilt where a reflection bends them by 2, so its
     # lobe is that much narrower than the reflection lobe the mips were filtered for.
@@ -1097,6 +1130,10 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
     n_t = np.where(thin, n_in, np.where(entering, ior, 1.0))
     # Culling compares what a child would carry back out into the air.
     keep_r = refl_w.max(axis=1) * n_in ** 2 > MIN_WEIGHT
+    reads = back & keep_r
+    if np.any(reads):  # Storm's back face reflects its environment only, as the raster does
+        add(refl_w[reads] * sh[reads, None] * env.radiance(rdir[reads], v_refl[reads] ** 0.25), sl[reads])
+    keep_r &= ~back
     keep_t = (trans_w.max(axis=1) * n_t ** 2 > MIN_WEIGHT) & ~tir
     if options.fresnel_split == "sample" and depth > 0:  # one child, chosen by its share
         p_r = np.where(keep_r, refl_w.max(axis=1) * n_in ** 2, 0.0)

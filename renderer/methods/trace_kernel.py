@@ -116,6 +116,15 @@ def _spec_albedo(f0, a, b, ms):
 
 
 @njit(cache=True)
+def _storm_ab(table, rough):
+    """core.storm.back_face_albedo: Storm's (A, B) at N.E = 0, linear in roughness."""
+    x = min(max(rough, 0.0), 1.0) * (len(table) - 1)
+    i = min(int(x), len(table) - 2)
+    f = x - i
+    return table[i, 0] * (1 - f) + table[i + 1, 0] * f, table[i, 1] * (1 - f) + table[i + 1, 1] * f
+
+
+@njit(cache=True)
 def _lut_albedo(lut, cos_v, rough):
     if rough <= 0:
         return 1.0
@@ -194,7 +203,7 @@ def _refract(dx, dy, dz, nx, ny, nz, eta):
 def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in, look,
           normals, geo_normals, material, base, metallic, roughness, transmission, ior, sigma,
           thin, emission, occlusion, spec, spec_col, lut, depth, n_sub, eps, sample_lobes, split_sample, ms, min_weight,
-          sobol, roulette, nee, mirror_lo, mirror_hi, probe):
+          sobol, roulette, nee, mirror_lo, mirror_hi, probe, storm_back, storm_table):
     """One bounce's rays (prim < 0: missed) -> (children: origin, dir, weight, pix, sub,
     slot, blur, share, medium, mirror share, look; the misses' look, weight x share, blur and slot;
     emission to add and its slots; the diffuse shares' weight x share, normals and slots; TIR
@@ -206,11 +215,16 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in, look,
     not a sampled glass lobe: its lobe's dominant direction, `_dominant`). With `probe` > 0
     such a child travels along a direction drawn from its lobe (a GGX visible normal of
     alpha sqrt(probe)): what it meets is seen in part, and if it escapes it still reads the
-    whole lobe's prefiltered light (renderer.methods.raytrace.ROUGH_PROBE)."""
+    whole lobe's prefiltered light (renderer.methods.raytrace.ROUGH_PROBE). `storm_back`
+    (per ray): a back face hit by it is lit as Storm lights a single-sided USD one
+    (core.storm; its (A, B) at N.E = 0 in `storm_table`): the authored normal, no refraction."""
     n = len(d)
     m_d, m_w, m_blur = np.empty((n, 3)), np.empty((n, 3)), np.empty(n)
     m_sl = np.empty(n, np.int64)
     n_miss = 0
+    e_d, e_w, e_blur = np.empty((n, 3)), np.empty((n, 3)), np.empty(n)  # Storm back faces'
+    e_sl = np.empty(n, np.int64)  # reflections: read from the environment, no child
+    n_env = 0
     p = np.empty(3)
     c_o, c_d, c_w = np.empty((2 * n, 3)), np.empty((2 * n, 3)), np.empty((2 * n, 3))
     c_px, c_sb, c_sl = np.empty(2 * n, np.int64), np.empty(2 * n, np.int64), np.empty(2 * n, np.int64)
@@ -248,6 +262,9 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in, look,
             sx, sy, sz = gx, gy, gz
         k = material[tri]
         metal, rough, trans, n_k = metallic[i], roughness[i], transmission[i], ior[k]
+        back = storm_back[i] and not entering
+        if back:  # the authored normal, facing away from the ray: N.E clamps to 0
+            sx, sy, sz = normals[i, 0], normals[i, 1], normals[i, 2]
         sheet = thin[k]
         entering = entering or sheet  # a thin sheet has no inside
         w0, w1, w2 = w[i, 0], w[i, 1], w[i, 2]
@@ -267,7 +284,13 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in, look,
         f_s = fres
         cos_c = min(max(cos_i, 1e-4), 1.0)
         lobe = sample_lobes and rough > 0 and trans > 0
-        if entering and rough > 0 and not lobe:
+        f_back, a_b, b_b = 0.0, 0.0, 0.0  # a back face's: diffuse (1 - F0), Storm's (A, B)
+        if back:
+            f0 = ((n_k - 1) / (n_k + 1)) ** 2
+            a_b, b_b = _storm_ab(storm_table, rough)
+            fres, f_s, f_back = f0 * a_b + b_b, f0 * a_b + b_b, f0
+            lobe = False
+        elif entering and rough > 0 and not lobe:
             f0 = ((n_k - 1) / (n_k + 1)) ** 2
             a, b = _split_sum(lut, cos_c, rough)
             a0, b0s = _split_sum(lut, cos_c, 0.0)
@@ -312,7 +335,7 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in, look,
         # reflected and transmitted throughput
         fc0, fc1, fc2 = fres, fres, fres
         s_k = spec[i]
-        if entering and (s_k != 1.0 or spec_col[i, 0] != 1.0 or spec_col[i, 1] != 1.0
+        if entering and not back and (s_k != 1.0 or spec_col[i, 0] != 1.0 or spec_col[i, 1] != 1.0
                          or spec_col[i, 2] != 1.0):  # KHR_materials_specular: optics.specular_tint
             f0 = ((n_k - 1) / (n_k + 1)) ** 2
             x = min(max((f_s - f0) / max(1 - f0, 1e-12), 0.0), 1.0)
@@ -327,7 +350,11 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in, look,
         r0 = (1 - metal) * fc0 * g_r * w0
         r1 = (1 - metal) * fc1 * g_r * w1
         r2 = (1 - metal) * fc2 * g_r * w2
-        if metal > 0:
+        if metal > 0 and back:
+            r0 += metal * (base[i, 0] * a_b + b_b) * w0
+            r1 += metal * (base[i, 1] * a_b + b_b) * w1
+            r2 += metal * (base[i, 2] * a_b + b_b) * w2
+        elif metal > 0:
             a, b = _split_sum(lut, cos_c, rough)
             r0 += metal * _spec_albedo(base[i, 0], a, b, ms) * w0
             r1 += metal * _spec_albedo(base[i, 1], a, b, ms) * w1
@@ -342,7 +369,7 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in, look,
             q0 = ft * math.sqrt(max(base[i, 0], 0.0)) * w0
             q1 = ft * math.sqrt(max(base[i, 1], 0.0)) * w1
             q2 = ft * math.sqrt(max(base[i, 2], 0.0)) * w2
-        fd = (1 - metal) * (1 - fres) * (1 - trans) * occlusion[i]
+        fd = (1 - metal) * (1 - (f_back if back else fres)) * (1 - trans) * occlusion[i]
         if fd > 0 and max(base[i, 0] * w0, base[i, 1] * w1, base[i, 2] * w2) > 0:
             diffuse[n_matte, 0] = fd * base[i, 0] * w0 * sh[i]
             diffuse[n_matte, 1] = fd * base[i, 1] * w1 * sh[i]
@@ -360,6 +387,13 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in, look,
         pt = max(q0, q1, q2) * n_t ** 2
         keep_r = pr > min_weight
         keep_t = pt > min_weight and not tir
+        if back:
+            if keep_r:
+                e_d[n_env, 0], e_d[n_env, 1], e_d[n_env, 2] = rx, ry, rz
+                e_w[n_env, 0], e_w[n_env, 1], e_w[n_env, 2] = r0 * sh[i], r1 * sh[i], r2 * sh[i]
+                e_blur[n_env], e_sl[n_env] = v_refl, sl[i]
+                n_env += 1
+            keep_r = False
         if split_sample and depth > 0:
             p_r = (pr if keep_r else 0.0)
             p_t = (pt if keep_t else 0.0)
@@ -411,7 +445,7 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in, look,
     m = n_r + n_t_count
     return (c_o[:m], c_d[:m], c_w[:m], c_px[:m], c_sb[:m], c_sl[:m], c_blur[:m], c_sh[:m],
             c_med[:m], c_share[:m], c_look[:m], m_d[:n_miss], m_w[:n_miss], m_blur[:n_miss], m_sl[:n_miss], direct[:n_glow], glow[:n_glow], diffuse[:n_matte], dnorm[:n_matte],
-            matte[:n_matte], tir_events)
+            matte[:n_matte], tir_events, e_d[:n_env], e_w[:n_env], e_blur[:n_env], e_sl[:n_env])
 
 
 # Cube-map faces as core.cubemap lays them out: per face, the axis and sign of s and of t.
@@ -512,7 +546,7 @@ def warm() -> None:
               np.zeros(0, t_type), e3, np.zeros(0, i64), np.zeros(0, i64), np.zeros(0, i64),
               e, e, e, e3, e3, np.zeros((0, 3), f32), np.zeros(0, np.int32),
               e3, e, e, e, e, e3, np.zeros(0, np.bool_), e3, e, e, e3, np.zeros((2, 2, 2)), 0, 1, 1e-4, True, False, True,
-              1e-3, _SOBOL_DIM1, 0.0, 0.0, 0.15, 0.3, 0.5)
+              1e-3, _SOBOL_DIM1, 0.0, 0.0, 0.15, 0.3, 0.5, np.zeros(0, np.bool_), np.zeros((2, 2)))
     sample_cube(np.zeros((6, 2, 2, 3), f32), e3, _S_AXIS, _S_SIGN, _T_AXIS, _T_SIGN)
     for pick in (True, False):
         emitter_pick(e3, e, e3, e3, e3, e, e, np.zeros(0, np.bool_), pick)

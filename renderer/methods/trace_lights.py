@@ -223,7 +223,8 @@ def direct(lights: Lights, occlusion_test, p: np.ndarray, n: np.ndarray, ng: np.
            v: np.ndarray, base: np.ndarray, metallic: np.ndarray, roughness: np.ndarray,
            transmission: np.ndarray, ior: np.ndarray, spec_albedo,
            opacity: np.ndarray | None = None,
-           samples: list[tuple[np.ndarray, np.ndarray]] | None = None) -> np.ndarray:
+           samples: list[tuple[np.ndarray, np.ndarray]] | None = None,
+           back: np.ndarray | None = None) -> np.ndarray:
     """N x 3 radiance reflected toward v (unit, pointing away from the surface) by surfaces at
     p (shading normal n and geometric normal ng both on v's side) from every light.
     `occlusion_test(origins, dirs, dist, normals)` -> N x 3 transmittance of the segments
@@ -234,7 +235,9 @@ def direct(lights: Lights, occlusion_test, p: np.ndarray, n: np.ndarray, ng: np.
     scales the diffuse share alone: a premultiplied blend's (its specular stays whole).
     `samples`: pairs of uniforms per point; a light with extent takes the mean over one sample
     of it per pair (falloff; a narrow cone the first pair only), None: every light a point or
-    a direction."""
+    a direction. `back` (per hit, None: none): Storm's single-sided back faces (core.storm),
+    n and ng the authored normals facing away from v: no specular (N.E = 0), the diffuse
+    x (1 - F(V.H))."""
     out = np.zeros((len(p), 3))
     n_v = np.clip(np.einsum("ij,ij->i", n, v), 1e-4, 1.0)
     dielectric = ((ior - 1) / (ior + 1)) ** 2
@@ -265,8 +268,15 @@ def direct(lights: Lights, occlusion_test, p: np.ndarray, n: np.ndarray, ng: np.
             n_h = np.clip(np.einsum("ij,ij->i", n[lit], h), 0.0, 1.0)
             v_h = np.clip(np.einsum("ij,ij->i", v[lit], h), 0.0, 1.0)
             spec = ggx_spec(f0[lit], alpha[lit], n_v[lit], n_l[lit], n_h, v_h) * ms_scale[lit]
+            lobe = diffuse[lit]
+            if back is not None and back[lit].any():
+                b = back[lit]
+                spec[b] = 0.0
+                fresnel = f0[lit][b] + (1 - f0[lit][b]) * ((1 - v_h[b]) ** 5)[:, None]
+                lobe = lobe.copy()
+                lobe[b] = lobe[b] / np.maximum(1 - e_spec[lit][b], 1e-6) * (1 - fresnel)
             radiance = lights.color[i] * (atten[lit] / len(draws))[:, None]
-            out[lit] += (diffuse[lit] + spec) * radiance * (n_l[lit])[:, None] * vis
+            out[lit] += (lobe + spec) * radiance * (n_l[lit])[:, None] * vis
     return out
 
 

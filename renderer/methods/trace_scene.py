@@ -45,6 +45,20 @@ class TraceScene:
     # K bool: blended premultiplied as Storm blends a UsdPreviewSurface (core.scene.Material
     # opacity_premultiplied): the tracers stop on it and split it (opacity)
     premultiplied: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, bool))
+    # K bool: single-sided USD, back faces lit as Storm lights them (core.storm)
+    storm_back: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, bool))
+
+
+def storm_back_faces(materials) -> np.ndarray:
+    """K bool: single-sided USD materials whose back faces are drawn and lit as Storm lights
+    them (core.storm); a refracting one keeps its exit, a glTF one is culled."""
+    return np.asarray([m.show_back_faces and not m.double_sided and m.transmission <= 0
+                       for m in materials], bool)
+
+
+def storm_back(ts: TraceScene) -> np.ndarray:
+    """ts.storm_back, or none set where a scene was built without it."""
+    return ts.storm_back if len(ts.storm_back) == len(ts.ior) else np.zeros(len(ts.ior), np.bool_)
 
 
 def intersect(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray):

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import moderngl
 import numpy as np
 
-from core import lobes
+from core import lobes, storm
 from core.options import MaterialOverride, RenderOptions
 from core.scene import Material, is_srgb
 from renderer.raster import gpu
@@ -83,6 +83,9 @@ def _build(mesh, m: Material, asset: gpu.GpuAsset, ov: MaterialOverride | None) 
         defines["HAS_AO"] = 1
     if m.double_sided:
         defines["DOUBLE_SIDED"] = 1
+    elif m.show_back_faces:  # USD single-sided: back faces lit as Storm lights them (core.storm)
+        defines["SHOW_BACK_FACES"] = 1
+        defines["STORM_BACK_TABLE"] = storm.glsl_table()
     if m.alpha_mode == "MASK":
         defines["ALPHA_MASK"] = 1
     elif m.alpha_mode == "BLEND":
