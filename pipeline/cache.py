@@ -88,7 +88,8 @@ log = logging.getLogger(__name__)
 #     opacityMode "presence" fades the whole colour
 # 20: a glTF primitive without a material takes the spec's default material (white metal, rough)
 # 21: USD BasisCurves (tubes) and Points (spheres) are read, no longer skipped
-BAKE_FORMAT_VERSION = 21
+# 22: small meshes placed once with one material stored as one batch in world space (pipeline.batching)
+BAKE_FORMAT_VERSION = 22
 # Environment entries have their own format: a prefiltered light does not change with the mesh
 # bake's format, and the filter's constants already key it (pipeline.environment.shipped), so a
 # mesh-format bump neither rebakes every environment nor stales the shipped studio bake.
