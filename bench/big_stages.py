@@ -109,8 +109,7 @@ def _noise_image(size: int, rgb, seed: int, grain: float = 0.25) -> Image.Image:
     rng = np.random.default_rng(seed)
     y, x = np.mgrid[0:size, 0:size] / size
     w = np.sin((x * 40 + 3 * np.sin(y * 7 + rng.uniform(0, 6))) * np.pi) * 0.5 + 0.5
-    n = rng.random((size // 8, size // 8))
-    n = np.kron(n, np.ones((8, 8)))[:size, :size]
+    n = np.kron(rng.random((size // 8, size // 8)), np.ones((8, 8)))[:size, :size]
     v = (1 - grain) + grain * (0.6 * w + 0.4 * n)
     return Image.fromarray(np.round(np.clip(v[..., None] * np.asarray(rgb), 0, 1) * 255).astype(np.uint8), "RGB")
 
@@ -167,8 +166,8 @@ def write_chess(folder: Path, segments: int = 128, rings: int = 121) -> Path:
     y, x = np.mgrid[0:2048, 0:2048] // 256
     checker = ((x + y) % 2).astype(bool)
     grain = np.asarray(_noise_image(2048, (1, 1, 1), 4, 0.3), np.float32) / 255
-    board = np.where(checker[..., None], grain * (0.9, 0.85, 0.75), grain * (0.18, 0.12, 0.08))
-    Image.fromarray(np.round(board * 255).astype(np.uint8), "RGB").save(d / "tex" / "board_color.png")
+    squares = np.where(checker[..., None], grain * (0.9, 0.85, 0.75), grain * (0.18, 0.12, 0.08))
+    Image.fromarray(np.round(squares * 255).astype(np.uint8), "RGB").save(d / "tex" / "board_color.png")
     (d / "frame.mtlx").write_text(
         '<?xml version="1.0"?>\n<materialx version="1.38">\n'
         '  <standard_surface name="SR_frame" type="surfaceshader">\n'

@@ -16,6 +16,7 @@ from itertools import combinations
 import numpy as np
 
 from core.baked import BakedMesh
+from core.scene import point_box
 
 DIRECT_POINTS = 4096        # fewer points are bounded as they are: qhull would save <0.3 ms a
                             # frame (the points are projected per frame)
@@ -60,7 +61,7 @@ def hull_points(meshes: Sequence[BakedMesh], qhull: bool = False) -> np.ndarray 
 
 def _box(points: np.ndarray) -> np.ndarray:
     """The eight corners of the points' bounding box (a looser hull, as cheap as can be)."""
-    lo, hi = points.min(axis=0), points.max(axis=0)
+    lo, hi = point_box(points)
     return np.array([[(lo, hi)[i >> k & 1][k] for k in range(3)] for i in range(8)])
 
 
@@ -74,7 +75,7 @@ def _outer(points: np.ndarray) -> np.ndarray:
     them. P's facets are every plane through three of its vertices with all of them on one
     side (brute force over few points); a flat P keeps every point (qhull's coplanar case)."""
     ext = support_points(points, OUTER_DIRECTIONS)
-    lo, hi = points.min(axis=0), points.max(axis=0)
+    lo, hi = point_box(points)
     eps = 1e-9 * max(float(np.linalg.norm(hi - lo)), 1e-300) + 1e-12 * float(np.abs(points).max())
     if len(ext) < 4 or np.linalg.svd(ext - ext.mean(axis=0), compute_uv=False)[-1] <= eps:
         return points

@@ -362,6 +362,13 @@ def placed_bounds(placed: Iterable[tuple[np.ndarray, np.ndarray]]) -> np.ndarray
     return np.stack([lo, hi]) if np.all(np.isfinite(lo)) else np.zeros((2, 3))
 
 
+def point_box(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(min, max) per coordinate of N x 3 points, exact: over a 3 x N copy, whose rows reduce
+    contiguously (`points.min(axis=0)` is a strided reduction, tens of times slower)."""
+    rows = np.ascontiguousarray(np.asarray(points).reshape(-1, 3).T)
+    return rows.min(axis=1), rows.max(axis=1)
+
+
 def transformed_bounds(positions: np.ndarray, matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Bounds of `positions` after `matrix`, exact (transforms the points, not the box)."""
     if len(positions) == 0:

@@ -104,7 +104,8 @@ def merge(parts: list[BakedMesh], with_edges: bool = True) -> BakedMesh:
     return BakedMesh(name=name, positions=world.astype(np.float32), normals=normals.astype(np.float32),
                      indices=indices, material=parts[0].material,
                      transforms=np.eye(4, dtype=np.float64)[None], edges=edges, edge_faces=edge_faces,
-                     support=np.concatenate(support), edge_order=edge_part, **extra)
+                     support=np.concatenate(support), edge_order=edge_part, tangents=extra["tangents"],
+                     uv0=extra["uv0"], uv1=extra["uv1"], colors=extra["colors"], ao=extra["ao"])
 
 
 def welded_edges_parts(positions: np.ndarray, indices: np.ndarray,

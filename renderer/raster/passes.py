@@ -179,7 +179,8 @@ def draw_blend(p: Pass, items: list[DrawItem]) -> None:
 
 def edge_segments(items: list[DrawItem], camera: Camera) -> np.ndarray:
     """World endpoints of every drawn mesh's edges to smooth (renderer.raster.edges) from `camera`."""
-    parts, ranks = [], []
+    parts: list[np.ndarray] = []
+    ranks: list[np.ndarray] = []
     ordered = any(it.mesh.baked.edge_order is not None for it in items)
     for it in items:
         if it.mesh.edges is None:  # once per upload, from the baked edges where there are some
@@ -189,7 +190,8 @@ def edge_segments(items: list[DrawItem], camera: Camera) -> np.ndarray:
             order = np.zeros(1, np.int32)
         ends, rank = edges.ranked_segments(it.mesh.edges, it.mesh.baked.transforms, camera.position, order)
         parts.append(ends)
-        ranks.append(rank)
+        if rank is not None:
+            ranks.append(rank)
     if not parts:
         return np.zeros((0, 2, 3))
     world = np.concatenate(parts)
