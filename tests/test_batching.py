@@ -138,3 +138,27 @@ def test_batched_bake_renders_as_the_separate_meshes(stage, tmp_path):
     b = render(cached, env, o).rgba8.astype(int)
     differ = np.abs(a - b).max(-1) > 2
     assert differ.mean() < 0.002, f"{differ.sum()} pixels differ"
+
+
+def test_meshes_of_one_connectivity_keep_their_own_points_and_uvs(tmp_path):
+    """The stage reader shares a small mesh's triangulation and vertex split by connectivity
+    (pipeline.usd.stage._split): each mesh still gets its own points and st."""
+    quads = []
+    for k in range(3):
+        pts = ", ".join(f"({x + 3 * k}, {y * (k + 1)}, 0)" for y in range(2) for x in range(3))
+        st = ", ".join(f"({0.1 * k + 0.2 * i}, {0.3 * i})" for i in range(8))
+        quads.append(f'def Mesh "Q{k}"\n{{\n    int[] faceVertexCounts = [4, 4]\n'
+                     f'    int[] faceVertexIndices = [0, 1, 4, 3, 1, 2, 5, 4]\n    point3f[] points = [{pts}]\n'
+                     f'    texCoord2f[] primvars:st = [{st}] ( interpolation = "faceVarying" )\n'
+                     f'    uniform token subdivisionScheme = "none"\n}}\n')
+    path = tmp_path / "quads.usda"
+    path.write_text('#usda 1.0\n(\n    metersPerUnit = 1\n    upAxis = "Y"\n)\n' + "".join(quads))
+    scene = load_scene(path)
+    assert len(scene.meshes) == 3
+    for k, mesh in enumerate(sorted(scene.meshes, key=lambda m: m.name)):
+        world = mesh.positions[mesh.indices]  # T x 3 x 3
+        assert world[..., 0].min() == 3 * k and world[..., 0].max() == 3 * k + 2
+        assert world[..., 1].max() == k + 1
+        assert mesh.uv0 is not None
+        # (flat normals unweld the corners: each value appears once per triangle using it)
+        np.testing.assert_allclose(np.unique(np.round(mesh.uv0[:, 0], 5)), 0.1 * k + 0.2 * np.arange(8), atol=1e-5)
