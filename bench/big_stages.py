@@ -7,8 +7,9 @@
   roughness read from `ND_image_*` nodes) and one referenced .mtlx document for the board's frame;
 - DIR/usd/big_kit/kit.usda: a vehicle kit, one root referencing 32 part layers (bodies, doors,
   seats, lamps ...; wheels and bolts `instanceable`, 4 and 24 times), a material-only layer the
-  parts share, and a `vehicle` variant set choosing which body, bumper and wheel parts load;
-- DIR/usd/big_blocks/blocks.usdc: a block world of 12,288 cube meshes (6 quads each, faceVarying
+  parts share, a `vehicle` variant set choosing which body, roof and bumper parts load (23 of
+  the 32 compose) and a `rim` set on each wheel;
+- DIR/usd/big_blocks/blocks.usdc: a block world of 10,143 cube meshes (6 quads each, faceVarying
   st into one texture atlas), 320 materials (UsdPreviewSurface, each reading the atlas through
   its own UsdTransform2d tile and a `scale` tint) and 8 further textures;
 
@@ -376,7 +377,7 @@ def _cube_faces() -> tuple[np.ndarray, np.ndarray]:
 
 
 def write_blocks(folder: Path, side: int = 64, layers: int = 4, materials: int = 320) -> Path:
-    """side x side x layers columns of cubes (12,288 by default), each its own Mesh prim bound to
+    """side x side columns of 1 to `layers` cubes (10,143 by default), each its own Mesh prim bound to
     one of `materials` materials; st into a 16 x 16 atlas of 32 px tiles."""
     from pxr import Sdf, Vt
     d = folder / "usd" / "big_blocks"
