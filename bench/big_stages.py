@@ -449,7 +449,7 @@ def write_blocks(folder: Path, side: int = 64, layers: int = 4, materials: int =
         fvi = Vt.IntArray.FromNumpy(quads.ravel())
         counts = Vt.IntArray.FromNumpy(np.full(6, 4, np.int32))
         st = Vt.Vec2fArray.FromNumpy(np.tile(np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float32), (6, 1)))
-        extent = Vt.Vec3fArray.FromNumpy(np.array([[0, 0, 0], [1, 1, 1]], np.float32))
+        extent = np.array([[0, 0, 0], [1, 1, 1]], np.float32)  # the points' bounds, moved with them
         h = rng.integers(1, layers + 1, (side, side))
         k = 0
         for x in range(side):
@@ -464,15 +464,15 @@ def write_blocks(folder: Path, side: int = 64, layers: int = 4, materials: int =
                     spec.specifier, spec.typeName = Sdf.SpecifierDef, "Mesh"
                     spec.SetInfo("apiSchemas", Sdf.TokenListOp.Create(prependedItems=["MaterialBindingAPI"]))
                     # each cube's own points (as an exporter writes a block world: no instancing)
-                    attr(spec, "points", V.Point3fArray, Vt.Vec3fArray.FromNumpy(
-                        corners + np.array([x - side / 2, y, z - side / 2], np.float32)))
+                    offset = np.array([x - side / 2, y, z - side / 2], np.float32)
+                    attr(spec, "points", V.Point3fArray, Vt.Vec3fArray.FromNumpy(corners + offset))
                     attr(spec, "faceVertexCounts", V.IntArray, counts)
                     attr(spec, "faceVertexIndices", V.IntArray, fvi)
                     a = attr(spec, "primvars:st", V.TexCoord2fArray, st)
                     a.SetInfo("interpolation", "faceVarying")
                     a = Sdf.AttributeSpec(spec, "subdivisionScheme", V.Token, Sdf.VariabilityUniform)
                     a.default = "none"
-                    attr(spec, "extent", V.Float3Array, extent)
+                    attr(spec, "extent", V.Float3Array, Vt.Vec3fArray.FromNumpy(extent + offset))
                     rel = Sdf.RelationshipSpec(spec, "material:binding", False)
                     rel.targetPathList.Prepend(Sdf.Path(f"/World/Looks/M{(k * 7919) % materials:03d}"))
                     k += 1
