@@ -102,6 +102,9 @@ class BakedMesh:
     edges: np.ndarray | None = None       # E x 2 uint32 vertex indices
     edge_faces: np.ndarray | None = None  # E x 2 int32 face indices (second -1: boundary)
     support: np.ndarray | None = None     # S x 3 float64 support points (core.hull), baked
+    # where the bake batched meshes (pipeline.batching): per edge, the place its mesh had in the
+    # unbatched order (a mesh left alone: one value for all), so the edges are drawn in that order
+    edge_order: np.ndarray | None = None
     variants: dict[str, Material] = field(default_factory=dict)  # KHR_materials_variants
 
     @property

@@ -47,7 +47,7 @@ from core.scene import (
     is_srgb,
     placed_bounds,
 )
-from pipeline import udim
+from pipeline import batching, udim
 from pipeline.cache import BAKE_FORMAT_VERSION, Cache, Entry, NotInCache, SourceFiles
 from pipeline.environment import prefilter as environment
 from pipeline.environment import shipped, studio
@@ -93,7 +93,7 @@ def asset_options(options) -> dict:
             "draw_mode": options.draw_mode}
 PREFILTERS = ("ggx", "paper")
 _MESH_ARRAYS = ("positions", "normals", "indices", "tangents", "uv0", "uv1", "colors", "interior",
-                "ao", "edges", "edge_faces", "support")
+                "ao", "edges", "edge_faces", "support", "edge_order")
 
 
 def _occlusion(asked: bool | None, source) -> bool:
@@ -160,7 +160,7 @@ def bake_or_load_asset(path, cache_dir=None, *, force: bool = False, limits: Lim
         cache.record_source("assets", source, opts, key)
         return unpack_asset(entry), True
 
-    baked = build_baked(scene, key, opts)
+    baked = build_baked(scene, key, opts, batch=True)
     baked.manifest["timings"]["ingest_s"] = round(ingest_s, 6)
     baked.manifest["inputs"] = source.inputs()
     manifest, arrays = pack_asset(baked, opts)
@@ -200,12 +200,14 @@ def framed_bounds(meshes: list[BakedMesh], groups: Iterable[list[int]], scene: S
 
 
 def build_baked(scene: Scene, key: str = "", options: dict | None = None,
-                layouts: list[UdimLayout | None] | None = None) -> BakedAsset:
+                layouts: list[UdimLayout | None] | None = None, batch: bool = False) -> BakedAsset:
     """Group a Scene's instances into BakedMeshes, compute interior vectors where needed and
     the welded edges that edge anti-aliasing reads (renderer.raster.edges) for assets it serves, and
     the points on the hull that the framing and the final pass's regions read (core.hull).
     `layouts`: the textures' UDIM layouts, for a scene whose textures were left out (a pose
-    keeps its base's) but whose meshes are remapped as the base's were (pipeline.udim)."""
+    keeps its base's) but whose meshes are remapped as the base's were (pipeline.udim).
+    `batch`: small meshes placed once are drawn as one (pipeline.batching); the stored bake
+    batches, a rig's template does not (it re-poses meshes in instance_groups' order)."""
     opts = {**ASSET_OPTIONS, **(options or {})}
     start = time.perf_counter()
     refined = subdivision.refine_scene(scene, min(Limits.from_env().max_triangles,
@@ -262,9 +264,21 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None,
         for mesh, ao in zip(meshes, occlusion.ao):
             mesh.ao = ao
     start = time.perf_counter()
-    if sum(len(m.indices) * len(m.transforms) for m in meshes) <= MAX_TRIANGLES:
+    with_edges = sum(len(m.indices) * len(m.transforms) for m in meshes) <= MAX_TRIANGLES
+    batched = 0
+    if batch:
+        backdrop = [any(scene.instances[k].backdrop for k in members)
+                    for members in instance_groups(scene).values()]
+        meshes, parts = batching.batch(meshes, backdrop, with_edges)
+        batched = sum(len(p) for p in parts if len(p) > 1)
+        geometry = [geometry[p[0]] if len(p) == 1 else ("batch", i) for i, p in enumerate(parts)]
+    batch_s = time.perf_counter() - start
+    start = time.perf_counter()
+    if with_edges:
         welded: dict[object, tuple[np.ndarray, np.ndarray]] = {}  # by geometry: one per mesh
         for mesh, geo in zip(meshes, geometry):
+            if mesh.edges is not None:  # a batch: welded per part already
+                continue
             if geo not in welded:
                 welded[geo] = welded_edges(mesh.positions, mesh.indices)
             mesh.edges, mesh.edge_faces = welded[geo]
@@ -272,6 +286,8 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None,
     start = time.perf_counter()
     support: dict[object, np.ndarray] = {}  # by geometry, as the edges
     for mesh, geo in zip(meshes, geometry):
+        if mesh.support is not None:  # a batch: its parts' own
+            continue
         if geo not in support:
             support[geo] = support_points(mesh.positions)
         mesh.support = support[geo]
@@ -284,9 +300,10 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None,
     manifest = {
         "timings": {"interior_s": round(interior_s, 6), "subdivide_s": round(subdivide_s, 6),
                     "adjacency_s": round(adjacency_s, 6), "hull_s": round(hull_s, 6),
-                    "support_s": round(support_s, 6),
+                    "support_s": round(support_s, 6), "batch_s": round(batch_s, 6),
                     "occlusion_s": round(occlusion.seconds, 6) if occlusion else 0.0},
         "stats": {"meshes": len(meshes), "instances": len(scene.instances), "refined": refined,
+                  "batched": batched,  # meshes drawn as part of a batch (pipeline.batching)
                   "vertices": int(sum(len(m.positions) for m in meshes)),
                   "triangles": int(sum(len(m.indices) * len(m.transforms) for m in meshes)),
                   "textures": len(scene.textures), "interior": stats,

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from core.scene import Scene, transformed_bounds
+from core.scene import Scene, point_box, transformed_bounds
 
 ENCLOSE_MARGIN = 2.0  # the backdrop's box is at least this many times the content's diagonal
 
@@ -52,7 +52,7 @@ def _corners(positions: np.ndarray) -> np.ndarray:
     """The 8 corners of the points' box (none for no points)."""
     if not len(positions):
         return positions
-    lo, hi = positions.min(axis=0), positions.max(axis=0)
+    lo, hi = point_box(positions)
     return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
 
 

@@ -227,7 +227,10 @@ def flat_normals(mesh: Mesh) -> None:
     # float64: a float32 cross product of a tiny triangle (edges ~1e-12) is non-zero, as the
     # degenerate test found, yet its squared length underflows to 0 and the normal to NaN.
     tri = mesh.positions.reshape(-1, 3, 3).astype(np.float64)
-    face = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    b, c = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    # np.cross's products, written out: its axis handling costs more than a small mesh's math
+    face = np.stack([b[:, 1] * c[:, 2] - b[:, 2] * c[:, 1], b[:, 2] * c[:, 0] - b[:, 0] * c[:, 2],
+                     b[:, 0] * c[:, 1] - b[:, 1] * c[:, 0]], axis=1)
     face /= np.linalg.norm(face, axis=1, keepdims=True)
     mesh.normals = np.repeat(face, 3, axis=0).astype(np.float32)
     mesh.indices = np.arange(len(corners), dtype=np.uint32).reshape(-1, 3)

@@ -66,6 +66,7 @@ from pipeline.usd.shapes import SHAPES, tessellate
 from pipeline.usd.time import time_code, time_range
 
 log = logging.getLogger(__name__)
+SPLIT_CACHE_CORNERS = 4096  # meshes up to this many face-vertices share their split by connectivity
 CURVE_BUDGET = 2_000_000  # vertices of the tubes and spheres made for curves and points, per asset
 
 Y_UP_FROM_Z_UP = np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]], np.float64)
@@ -243,6 +244,9 @@ class StageReader:
         self.standins = drawmode.StandIns(self)
         self._meshes: dict[tuple, int] = {}
         self._topology: dict[tuple, _Topology | None] = {}
+        # the index work of a small mesh's triangulation and vertex split, by its connectivity:
+        # a block world's thousands of cubes share one (pipeline.usd.stage._split)
+        self._splits: dict[tuple, tuple] = {}
         self.triangles = 0
         self.vertices = 0
         self._swept_vertices = 0  # of curves and points (CURVE_BUDGET)
@@ -742,18 +746,8 @@ class StageReader:
         if len(fvi) and (fvi.min() < 0 or fvi.max() >= len(points)):
             raise MalformedAsset(self.graph.path, f"{where}: faceVertexIndices outside the "
                                                   f"{len(points)} points")
-        # Fan per face, vectorised: triangle j of face f uses corners s_f, s_f+k, s_f+k+1.
-        start = np.cumsum(counts) - counts
-        tri_face = np.repeat(np.arange(len(counts)), per_face)
-        k = np.arange(n_tri) - np.repeat(np.cumsum(per_face) - per_face, per_face) + 1
-        a = start[tri_face]
-        corners = np.stack([a, a + k, a + k + 1], axis=1)
-        if mesh.GetOrientationAttr().Get() == UsdGeom.Tokens.leftHanded:
-            corners = corners[:, [0, 2, 1]]
+        left = mesh.GetOrientationAttr().Get() == UsdGeom.Tokens.leftHanded
         holes = np.asarray(mesh.GetHoleIndicesAttr().Get(self.time) or [], np.int64)
-        if len(holes):
-            keep = ~np.isin(tri_face, holes)
-            corners, tri_face = corners[keep], tri_face[keep]
 
         primvars = {n: pv for n in names if (pv := self._primvar(prim, n, counts, fvi,
                                                                  len(points))) is not None}
@@ -762,27 +756,33 @@ class StageReader:
             normals = _skinned_normals(normals, skin, counts, fvi, len(points))
             if normals is None:
                 self._warn(f"{where}: its normals could not be skinned; computed from the pose")
-        if normals is None and mesh.GetSubdivisionSchemeAttr().Get() != UsdGeom.Tokens.none:
-            normals = _Primvar(smooth_normals(points, fvi[corners]), "vertex", None)
         if "displayColor" in primvars:
             opacity = self._primvar(prim, "displayOpacity", counts, fvi, len(points))
             if opacity is not None:
                 primvars["displayOpacity"] = opacity
 
-        # Per face-vertex element index of every primvar; split vertices on the varying ones.
-        face_of_corner = np.repeat(np.arange(len(counts)), counts)
         everything = dict(primvars, **({"normals": normals} if normals else {}))
-        columns = [fvi]
-        for pv in everything.values():
-            if pv.interpolation in ("uniform", "faceVarying"):
-                columns.append(_elements(pv, fvi, face_of_corner, np.arange(len(fvi))))
-        if len(columns) > 1:
-            inverse, rep = _unique_rows(columns)
-            tri = inverse[corners]
+        varying = [pv for pv in everything.values() if pv.interpolation in ("uniform", "faceVarying")]
+        key = None
+        if len(fvi) <= SPLIT_CACHE_CORNERS:  # one key of the connectivity the split reads
+            key = (counts.tobytes(), fvi.tobytes(), len(points), left, holes.tobytes(),
+                   tuple((pv.interpolation, None if pv.indices is None else pv.indices.tobytes())
+                         for pv in varying))
+        split = self._splits.get(key) if key is not None else None
+        if split is None:
+            split = _split(counts, fvi, per_face, n_tri, left, holes, varying)
+            if key is not None:
+                for arr in split:
+                    if arr is not None:
+                        arr.flags.writeable = False  # shared by every mesh of this connectivity
+                self._splits[key] = split
+        corners, tri_face, face_of_corner, inverse, rep, tri = split
+        if normals is None and mesh.GetSubdivisionSchemeAttr().Get() != UsdGeom.Tokens.none:
+            normals = _Primvar(smooth_normals(points, fvi[corners]), "vertex", None)  # (not splitting)
+        if rep is not None:
             point_of_vertex = fvi[rep]
             elem = lambda pv: _elements(pv, fvi, face_of_corner, rep)  # noqa: E731
         else:
-            tri = fvi[corners]
             point_of_vertex = np.arange(len(points))
             elem = lambda pv: _point_elements(pv, len(points))  # noqa: E731
         # Only an authored scheme is refined: most exporters leave USD's fallback
@@ -796,7 +796,7 @@ class StageReader:
             topo.creases = self._creases(prim, mesh, points, fvi)
         elif topo.subdivision:
             topo.cage, topo.cage_order = self._cage(prim, mesh, scheme, points, counts, fvi)
-            topo.corner_vertex = inverse if len(columns) > 1 else fvi
+            topo.corner_vertex = inverse if rep is not None else fvi
             topo.corner_face = face_of_corner
             topo.face_drawn = np.ones(len(counts), bool)
             topo.face_drawn[holes[(holes >= 0) & (holes < len(counts))]] = False
@@ -1223,6 +1223,32 @@ def _point_elements(pv: _Primvar, n_points: int) -> np.ndarray:
     """Index into pv.values for each point (no uniform / faceVarying primvar in play)."""
     e = np.zeros(n_points, np.int64) if pv.interpolation == "constant" else np.arange(n_points)
     return e if pv.indices is None else pv.indices[e]
+
+
+def _split(counts: np.ndarray, fvi: np.ndarray, per_face: np.ndarray, n_tri: int, left: bool,
+           holes: np.ndarray, varying: list[_Primvar]) -> tuple:
+    """The index work of a mesh's triangulation, from its connectivity alone: (corners
+    (T x 3 face-vertices), tri_face, face_of_corner, inverse (per face-vertex its vertex) and
+    rep (per vertex a face-vertex) where uniform / faceVarying primvars split the points, else
+    None, None; and the triangles' vertices)."""
+    # Fan per face, vectorised: triangle j of face f uses corners s_f, s_f+k, s_f+k+1.
+    start = np.cumsum(counts) - counts
+    tri_face = np.repeat(np.arange(len(counts)), per_face)
+    k = np.arange(n_tri) - np.repeat(np.cumsum(per_face) - per_face, per_face) + 1
+    a = start[tri_face]
+    corners = np.stack([a, a + k, a + k + 1], axis=1)
+    if left:
+        corners = corners[:, [0, 2, 1]]
+    if len(holes):
+        keep = ~np.isin(tri_face, holes)
+        corners, tri_face = corners[keep], tri_face[keep]
+    # Per face-vertex element index of every primvar; split vertices on the varying ones.
+    face_of_corner = np.repeat(np.arange(len(counts)), counts)
+    columns = [fvi] + [_elements(pv, fvi, face_of_corner, np.arange(len(fvi))) for pv in varying]
+    if len(columns) > 1:
+        inverse, rep = _unique_rows(columns)
+        return corners, tri_face, face_of_corner, inverse, rep, inverse[corners]
+    return corners, tri_face, face_of_corner, None, None, fvi[corners]
 
 
 def _unique_rows(columns: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:

@@ -60,7 +60,14 @@ def segments(adj: Adjacency, transforms: np.ndarray, eye: np.ndarray) -> np.ndar
     """World endpoints (N x 2 x 3) of the edges to smooth, over every instance seen from `eye`:
     silhouettes (one face turned toward the eye, the other away) and boundary edges of a face
     turned toward it."""
-    out = []
+    return ranked_segments(adj, transforms, eye, None)[0]
+
+
+def ranked_segments(adj: Adjacency, transforms: np.ndarray, eye: np.ndarray,
+                    order: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+    """segments, and per segment its edge's `order` (BakedMesh.edge_order: one value per
+    edge, or one for all; None: none)."""
+    out, ranks = [], []
     a, b = adj.faces[:, 0], adj.faces[:, 1]
     boundary = b < 0
     eye4 = np.append(np.asarray(eye, np.float64), 1.0)
@@ -74,7 +81,12 @@ def segments(adj: Adjacency, transforms: np.ndarray, eye: np.ndarray) -> np.ndar
         chosen = np.where(boundary, ta, ta != tb)
         ends = adj.points[adj.edges[chosen]]
         out.append(ends @ m[:3, :3].T + m[:3, 3])
-    return np.concatenate(out) if out else np.zeros((0, 2, 3))
+        if order is not None:
+            ranks.append(order[chosen] if len(order) == len(chosen) and len(order) != 1
+                         else np.full(int(chosen.sum()), order[0] if len(order) else 0, np.int32))
+    if not out:
+        return np.zeros((0, 2, 3)), None if order is None else np.zeros(0, np.int32)
+    return np.concatenate(out), None if order is None else np.concatenate(ranks)
 
 
 _lines: dict[int, tuple[moderngl.Buffer, moderngl.VertexArray]] = {}

@@ -20,7 +20,7 @@ import numpy as np
 from core.baked import BakedAsset, BakedEnvironment, BakedMesh, BakedTexture, quantise_visibility
 from core.config import renderer_settings
 from core.mips import level_shapes, texture_size_for
-from core.scene import CLAMP_TO_EDGE, MIRRORED_REPEAT, REPEAT, Light, is_srgb
+from core.scene import CLAMP_TO_EDGE, MIRRORED_REPEAT, REPEAT, Light, is_srgb, point_box
 from gl import context
 from renderer.raster.lru import ReleasingLRU
 
@@ -318,7 +318,10 @@ def _instances_anew(ctx, gm: GpuMesh, transforms: np.ndarray, det: np.ndarray) -
 
 
 def _centre(m: BakedMesh) -> np.ndarray:
-    return (m.positions.min(axis=0) + m.positions.max(axis=0)) / 2 if len(m.positions) else np.zeros(3)
+    if not len(m.positions):
+        return np.zeros(3)
+    lo, hi = point_box(m.positions)
+    return (lo + hi) / 2
 
 
 def _upload_textures(gpu: GpuAsset, baked: BakedAsset, top: int) -> int:

@@ -179,9 +179,22 @@ def draw_blend(p: Pass, items: list[DrawItem]) -> None:
 
 def edge_segments(items: list[DrawItem], camera: Camera) -> np.ndarray:
     """World endpoints of every drawn mesh's edges to smooth (renderer.raster.edges) from `camera`."""
-    parts = []
+    parts: list[np.ndarray] = []
+    ranks: list[np.ndarray] = []
+    ordered = any(it.mesh.baked.edge_order is not None for it in items)
     for it in items:
         if it.mesh.edges is None:  # once per upload, from the baked edges where there are some
             it.mesh.edges = edges.of_mesh(it.mesh.baked)
-        parts.append(edges.segments(it.mesh.edges, it.mesh.baked.transforms, camera.position))
-    return np.concatenate(parts) if parts else np.zeros((0, 2, 3))
+        order = it.mesh.baked.edge_order
+        if ordered and order is None:  # unbatched mesh in a batched bake made at render time
+            order = np.zeros(1, np.int32)
+        ends, rank = edges.ranked_segments(it.mesh.edges, it.mesh.baked.transforms, camera.position, order)
+        parts.append(ends)
+        if rank is not None:
+            ranks.append(rank)
+    if not parts:
+        return np.zeros((0, 2, 3))
+    world = np.concatenate(parts)
+    if ordered:  # strips overlap and the last drawn wins: the order the unbatched meshes had
+        world = world[np.argsort(np.concatenate(ranks), kind="stable")]
+    return world
