@@ -6,7 +6,6 @@ factor and against the integrator without NEE (BSDF hits alone: unbiased, noisy)
 it saves, a glossy card, and a furnace where the emitter replaces the sky it hides."""
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 from test_emitter_light import _analytic, _card_under_emitter, _options

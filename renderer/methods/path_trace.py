@@ -27,8 +27,11 @@ so that no direction with radiance has zero pdf), combined with BSDF sampling of
 Plastic by the power heuristic (Veach 1995); rays that escape after Glass or a smooth lobe
 take the environment at full weight. Punctual lights are deltas: next-event estimation
 alone, with an occlusion-only shadow ray (a glass occluder blocks them: its caustic is not
-a path BSDF sampling can find). Emissive surfaces add their emission where a path meets
-them. Russian roulette from the fourth surface on (survival = the path's throughput in
+a path BSDF sampling can find). Emissive triangles are lights as well (`_emitter_nee`, with
+the Fresnel tree's sampler trace_lights.emitter_choice): one point a vertex wherever the
+environment is sampled, a shadow ray, power heuristic against BSDF rays that meet them
+(`_emitter_hit_mis`); emission met after glass or a delta, and by camera rays, counts in full
+(docs/raytrace.md, "Emitters in the path integrator"). Russian roulette from the fourth surface on (survival = the path's throughput in
 max-RGB x eta^2, at most 1: a survivor's throughput is raised to 1 and never above what it
 carried, so no sample of a lossless glass outshines the environment; a cap below 1 would
 kill full-throughput paths and boost the rest, measured +11% on single pixels of the

@@ -52,7 +52,8 @@ as raster culling does); transmissive ones keep both sides (rays inside glass me
 faces). Emissive surfaces add their emission wherever a path meets them, and light the
 surfaces the rays meet by next-event estimation (`_emitter_hits`: a point on an emissive
 triangle a ray, a shadow ray, the diffuse share in full and the glossy share weighed against the
-mirror child by roughness; docs/raytrace.md, "Emitters as lights").
+mirror child by roughness; docs/raytrace.md, "Emitters as lights"; the path integrator samples
+them with the same sampler, MIS-weighted: path_trace._emitter_nee).
 
 The material at a hit is the baked one the raster reads (renderer.methods.trace_material):
 factors times base colour, metal-rough, normal (baked tangents), occlusion, emissive and
