@@ -31,7 +31,8 @@ def main() -> int:
     asset = bake_asset(args.samples / "EmissiveStrengthTest/glTF-Binary/EmissiveStrengthTest.glb", cache)
     env = bake_environment("footprint_court", cache, face_size=256)
     o = RenderOptions(width=args.size, height=args.size, background="transparent", shadow=0.0, tonemap="aces",
-                      method="raytrace", integrator="path", samples=args.paths, **VIEW)
+                      method="raytrace", integrator="path", samples=args.paths, yaw=VIEW["yaw"],
+                      pitch=VIEW["pitch"], fov=VIEW["fov"])
     render_raytrace(asset, env, o.replace(width=32, height=32))  # numba's cached code loads
     times: dict[bool, list[float]] = {True: [], False: []}
     for _ in range(args.repeat):

@@ -123,11 +123,12 @@ def _model(r: dict, emitters: bool) -> tuple[float, float]:
     as if nothing emitted."""
     from renderer.methods import auto
 
-    args = (int(r["triangles"]), int(r["width"]), int(r["height"]), r["near"], int(r["bounces"]),
-            int(r["ss"]), r["split"], r["integrator"], int(r["samples"]))
-    e = int(r.get("emitters", 0)) if emitters and sampled(r) else 0
-    total = auto.rt_ms(*args, emitters=e)
-    bare = auto.rt_ms(*args[:3], 0.0, *args[4:], emitters=0)  # no traced pixel: the fixed parts
+    def model(near: float, e: int) -> float:
+        return auto.rt_ms(int(r["triangles"]), int(r["width"]), int(r["height"]), near, int(r["bounces"]),
+                          int(r["ss"]), r["split"], r["integrator"], int(r["samples"]), emitters=e)
+
+    total = model(r["near"], int(r.get("emitters", 0)) if emitters and sampled(r) else 0)
+    bare = model(0.0, 0)  # no traced pixel: the fixed parts
     return total, (total - bare) / total
 
 
@@ -220,8 +221,9 @@ def measure(cache: Path, quick: bool, samples: Path | None = None, emitters_only
             raytrace.EMITTER_SAMPLES, path_trace.EMITTER_NEE = keep
 
     # numba's import and cached code load once per process (both integrators'): not a frame's cost
-    one(*(assets or lit)[0], 32)
-    one(*(assets or lit)[0], 32, method="raytrace", integrator="path", samples=1, noise=0.0)
+    warm_name, warm_asset, warm_spec = (assets or lit)[0]
+    one(warm_name, warm_asset, warm_spec, 32)
+    one(warm_name, warm_asset, warm_spec, 32, method="raytrace", integrator="path", samples=1, noise=0.0)
     rows.clear()
     for (name, asset, spec), size in itertools.product(assets, sizes):
         for b, split, ss in tree:
