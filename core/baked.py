@@ -172,6 +172,11 @@ class BakedAsset:
     def triangle_count(self) -> int:
         return sum(len(m.indices) * len(m.transforms) for m in self.meshes)
 
+    @property
+    def emissive_triangle_count(self) -> int:
+        """Triangles as rendered whose material lights its surroundings (Material.is_light)."""
+        return sum(len(m.indices) * len(m.transforms) for m in self.meshes if m.material.is_light)
+
     def with_variant(self, name: str | None) -> "BakedAsset":
         """This asset with material variant `name` bound (KHR_materials_variants), under its
         own key (GPU caches keep variants apart); None: itself. NotInAsset if unknown."""

@@ -182,6 +182,13 @@ class Material:
         raise ValueError(f"unknown lobe {lobe!r}")
 
     @property
+    def is_light(self) -> bool:
+        """Its emission lights other surfaces in the ray tracers (renderer.methods.trace_lights
+        .emitters_of: an emissive luminance, and not unlit, whose colour is shown, not shone)."""
+        e = self.emissive
+        return not self.unlit and self.emissive_strength * (0.2126 * e[0] + 0.7152 * e[1] + 0.0722 * e[2]) > 0
+
+    @property
     def material_class(self) -> MaterialClass:
         """Decides which passes run and what is baked: transmissive wins over alpha modes."""
         if self.transmission > 0.0 or self.transmission_texture is not None:
@@ -345,6 +352,13 @@ class Scene:
     def triangle_count(self) -> int:
         """Triangles as rendered: every instance counts."""
         return sum(self.meshes[i.mesh].triangle_count for i in self.instances)
+
+    @property
+    def emissive_triangle_count(self) -> int:
+        """Triangles as rendered whose material lights its surroundings (Material.is_light):
+        the emitters the ray tracers sample."""
+        return sum(self.meshes[i.mesh].triangle_count for i in self.instances
+                   if 0 <= i.material < len(self.materials) and self.materials[i.material].is_light)
 
     @cached_property
     def bounds(self) -> np.ndarray:

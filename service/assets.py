@@ -158,6 +158,7 @@ class Assets:
             rec = AssetRecord(id=asset_id, name=name, root=root, size=size, stored_bytes=stored, owner=owner,
                               created=time.time(), format=summary.format, triangles=summary.triangles,
                               materials=summary.materials, transmissive=summary.transmissive,
+                              emitters=summary.emitters,
                               warnings=[_strip(w, src) for w in summary.warnings])
             rec = self.store.commit_asset(staged, rec)
             log.info("asset %s stored (%s, %d triangles, %d bytes kept, %d unreferenced dropped)",

@@ -29,6 +29,7 @@ class AssetRecord(BaseModel):
     triangles: int = 0
     materials: int = 0
     transmissive: bool = False      # some material transmits (the cost estimate's wyman case)
+    emitters: int = 0               # emissive triangles as rendered (the ray tracer samples them: cost)
     warnings: list[str] = []
     bake_key: str | None = None
 

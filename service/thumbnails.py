@@ -211,7 +211,7 @@ class ThumbnailService:
         frame = estimate_request_ms(rec.triangles, options.width, options.height, options.method,
                                     transmissive, options.budget_ms, options.bounces,
                                     options.supersample, options.integrator, options.samples,
-                                    options.fresnel_split)
+                                    options.fresnel_split, rec.emitters)
         frames = MAX_FRAMES if options.animate else max(options.turntable, 1)
         return frame * frames
 

@@ -265,3 +265,37 @@ def test_raytrace_estimate_grows_with_size_samples_bounces_and_rays():
     # the full tree costs more than roulette at the same depth
     assert (est(5000, 128, 128, "raytrace", True, None, fresnel_split="both")
             > est(5000, 128, 128, "raytrace", True, None, fresnel_split="roulette"))
+
+
+def test_emitters_are_priced_for_both_integrators():
+    """Emissive triangles cost both integrators a choice, an emission read and a shadow ray at
+    every surface (bench raycost's emitter factor): the estimate grows with them, never drops
+    with more up to the LOCAL_EMITTERS the choice weighs one by one, and no further past them;
+    the asset's own count is its light triangles as rendered (unlit colours are not lights)."""
+    from core.baked import BakedAsset, BakedMesh
+    from core.scene import Material
+    from renderer.methods.trace_lights import LOCAL_EMITTERS
+
+    est = auto.estimate_request_ms
+    for integ in ("tree", "path"):
+        costs = [est(5000, 128, 128, "raytrace", False, None, integrator=integ, emitters=e)
+                 for e in (0, 2, 64, LOCAL_EMITTERS)]
+        assert costs[0] < costs[1] <= costs[2] <= costs[3], (integ, costs)
+        assert est(5000, 128, 128, "raytrace", False, None, integrator=integ,
+                   emitters=10 * LOCAL_EMITTERS) == costs[-1]
+    quad = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], np.float32)
+    normals = np.tile([0, 0, 1], (4, 1)).astype(np.float32)
+    idx = np.array([[0, 1, 2], [0, 2, 3]], np.uint32)
+    glow = Material(name="glow", emissive=(1.0, 0.5, 0.0), emissive_strength=3.0)
+    mats = [glow, replace(glow, name="unlit", unlit=True), Material(name="plain")]
+    meshes = [BakedMesh(m.name, quad, normals, idx, m, np.stack([np.eye(4)] * (3 if i == 0 else 1)))
+              for i, m in enumerate(mats)]
+    asset = BakedAsset(key="emitters-priced", source="test", format="test", meshes=meshes, textures=[],
+                       bounds=np.array([[0.0, 0, 0], [1, 1, 0.1]]))
+    assert asset.emissive_triangle_count == 6  # two triangles, three placements
+    o = RenderOptions(width=64, height=64, method="raytrace")
+    assert auto.emissive_triangles(asset, o) == 6
+    lit = auto.estimate_raytrace_ms(asset, o, 1000.0, 12)
+    plain = [replace(m, material=mats[2]) for m in meshes]  # the same triangles, none a light
+    dark = auto.estimate_raytrace_ms(replace(asset, meshes=plain), o, 1000.0, 12)
+    assert lit > dark

@@ -23,20 +23,20 @@ HALF = 0.5        # the emitter is 2 HALF square, centred over the card
 RADIANCE = 4.0    # its emitted radiance (factor 1 x strength 4)
 
 
-def _card_under_emitter(grey: float = 0.5, **card) -> BakedAsset:
+def _card_under_emitter(grey: float = 0.5, radiance: float = RADIANCE, **card) -> BakedAsset:
     """A 4 x 4 card at z = 0 facing +z, and a one-sided emissive quad at z = HEIGHT facing it
-    (seen from above through its culled back)."""
+    (seen from above through its culled back), emitting `radiance`."""
     card_pos = np.array([[-2, -2, 0], [2, -2, 0], [2, 2, 0], [-2, 2, 0]], np.float32)
     quad = np.array([[-HALF, -HALF, HEIGHT], [HALF, -HALF, HEIGHT], [HALF, HALF, HEIGHT],
                      [-HALF, HALF, HEIGHT]], np.float32)
     card_mat = Material(name="card", base_color=(grey, grey, grey, 1.0), metallic=0.0, **card)
     glow = Material(name="glow", base_color=(0.0, 0.0, 0.0, 1.0), roughness=1.0, ior=1.0,
-                    emissive=(1.0, 1.0, 1.0), emissive_strength=RADIANCE)
+                    emissive=(1.0, 1.0, 1.0), emissive_strength=radiance)
     meshes = [BakedMesh("card", card_pos, np.tile([0, 0, 1], (4, 1)).astype(np.float32),
                         np.array([[0, 1, 2], [0, 2, 3]], np.uint32), card_mat, np.eye(4)[None]),
               BakedMesh("glow", quad, np.tile([0, 0, -1], (4, 1)).astype(np.float32),
                         np.array([[0, 2, 1], [0, 3, 2]], np.uint32), glow, np.eye(4)[None])]
-    return BakedAsset(key=f"card-under-emitter-{grey}-{sorted(card.items())}", source="test", format="test",
+    return BakedAsset(key=f"card-under-emitter-{grey}-{radiance}-{sorted(card.items())}", source="test", format="test",
                       meshes=meshes, textures=[], bounds=np.array([[-2.0, -2, 0], [2, 2, HEIGHT]]))
 
 

@@ -82,6 +82,16 @@ RT_DEPTH_K = 1e9
 RT_MS_PER_RAY_DEPTH = {"both": 0.000217, "roulette": 0.000091, "sample": 0.000091}
 RT_MS_PER_PATH_DEPTH = 0.000335
 RT_PATH_FIXED_MS = 71.2      # the path tracer's environment sampling tables, once a frame
+# Emissive triangles (issue 26): both integrators sample a point on one at every surface a
+# ray meets (the choice weighs up to LOCAL_EMITTERS of them by distance, one by one), read
+# its emission and cast a shadow ray: the per-ray term x (1 + e), e = a share by integrator
+# while any triangle emits + a share per emitter weighed. Fitted from on / off pairs of frames
+# (`bench raycost`: a ratio, which a loaded machine scales alike; bench/RESULTS.md).
+# 18 pairs on EmissiveStrengthTest (60 emitters), ClearCoatTest (36) and SpecGlossVsMetalRough
+# (9020, of which 256 weighed) at 64 and 128 px, 2026-12-03 under a load of ~12: t_on / t_off
+# median 1.61; the per-emitter share fitted to 0 (within the pairs' noise).
+RT_EMITTER_SHARE = {"tree": 0.92, "path": 1.41}
+RT_EMITTER_WEIGHED_SHARE = 0.0
 # Raster time model (the service's cost estimate for scheduling and its ceiling): fixed + per
 # frame pixel by method (MSAA 4x; wyman adds the back-face and refraction passes) + per
 # triangle. Measured warm on the Duck, 2 shared cores: 1024 px opaque 0.38 s, wyman 1.09 s;
@@ -331,17 +341,22 @@ def rt_depth(bounces: int) -> float:
 
 def rt_ms(triangles: int, width: int, height: int, traced_px: float, bounces: int,
           supersample: int | None, fresnel_split: str = "roulette", integrator: str = "tree",
-          samples: int = 64) -> float:
+          samples: int = 64, emitters: int = 0) -> float:
     """The ray-trace time model: `traced_px` pixels on and next to the object (the whole frame
-    for an upper estimate), `supersample` None for the tracer's size-dependent default."""
+    for an upper estimate), `supersample` None for the tracer's size-dependent default,
+    `emitters` the emissive triangles (Material.is_light) the integrators sample."""
     from renderer.methods.raytrace import default_supersample  # (a cycle at import time)
+    from renderer.methods.trace_lights import LOCAL_EMITTERS
 
-    per_px = (RT_MS_PER_PATH_DEPTH * max(samples, 1) if integrator == "path" else
-              RT_MS_PER_RAY_DEPTH[fresnel_split]
-              * (supersample or default_supersample(width, height)) ** 2)
-    return (RT_FIXED_MS + (RT_PATH_FIXED_MS if integrator == "path" else 0.0)
+    path = integrator == "path"
+    rays = max(samples, 1) if path else (supersample or default_supersample(width, height)) ** 2
+    per_ray = RT_MS_PER_PATH_DEPTH if path else RT_MS_PER_RAY_DEPTH[fresnel_split]
+    if emitters > 0:
+        per_ray *= (1.0 + RT_EMITTER_SHARE["path" if path else "tree"]
+                    + RT_EMITTER_WEIGHED_SHARE * min(emitters, LOCAL_EMITTERS))
+    return (RT_FIXED_MS + (RT_PATH_FIXED_MS if path else 0.0)
             + RT_MS_PER_TRIANGLE * triangles + RT_MS_PER_FRAME_PIXEL * width * height
-            + per_px * traced_px * rt_depth(bounces))
+            + per_ray * rays * traced_px * rt_depth(bounces))
 
 
 def estimate_raytrace_ms(asset: BakedAsset, options: RenderOptions, coverage_px: float,
@@ -354,20 +369,28 @@ def estimate_raytrace_ms(asset: BakedAsset, options: RenderOptions, coverage_px:
             # rough glass gets the finer grid where it is seen (counted here on every pixel)
             supersample = default_supersample(options.width, options.height) + ROUGH_EXTRA
     return rt_ms(asset.triangle_count, options.width, options.height, coverage_px, bounces,
-                 supersample, options.fresnel_split, options.integrator, options.samples)
+                 supersample, options.fresnel_split, options.integrator, options.samples,
+                 emissive_triangles(asset, options))
+
+
+def emissive_triangles(asset: BakedAsset, options: RenderOptions) -> int:
+    """The emitters the ray tracer will sample: triangles as rendered whose material, after
+    the request's override, is a light (Material.is_light)."""
+    return sum(len(m.indices) * len(m.transforms) for m in asset.meshes
+               if apply_override(m.material, options.override).is_light)
 
 
 def estimate_request_ms(triangles: int, width: int, height: int, method: str, transmissive: bool,
                         budget_ms: float | None, bounces: int = RAYTRACE_BOUNCES,
                         supersample: int | None = None, integrator: str = "tree",
-                        samples: int = 64, fresnel_split: str = "roulette") -> float:
+                        samples: int = 64, fresnel_split: str = "roulette", emitters: int = 0) -> float:
     """Upper estimate of one render's time from what is known before loading the asset
-    (its triangle count, whether anything transmits): the ray-trace model above with the
-    whole frame covered, or the raster model. `auto` with a budget ray traces only when its
+    (its triangle count, whether anything transmits, its emissive triangles): the ray-trace
+    model above with the whole frame covered, or the raster model. `auto` with a budget ray traces only when its
     estimate fits the budget, so its cost is at most the larger of raster and budget."""
     pixels = width * height
     raytrace = rt_ms(triangles, width, height, pixels, bounces, supersample, fresnel_split,
-                     integrator, samples)
+                     integrator, samples, emitters)
     if integrator == "path" and budget_ms:  # passes stop before budget_ms is spent
         raytrace = min(raytrace, budget_ms)
     if method == "raytrace":

@@ -27,8 +27,11 @@ so that no direction with radiance has zero pdf), combined with BSDF sampling of
 Plastic by the power heuristic (Veach 1995); rays that escape after Glass or a smooth lobe
 take the environment at full weight. Punctual lights are deltas: next-event estimation
 alone, with an occlusion-only shadow ray (a glass occluder blocks them: its caustic is not
-a path BSDF sampling can find). Emissive surfaces add their emission where a path meets
-them. Russian roulette from the fourth surface on (survival = the path's throughput in
+a path BSDF sampling can find). Emissive triangles are lights as well (`_emitter_nee`, with
+the Fresnel tree's sampler trace_lights.emitter_choice): one point a vertex wherever the
+environment is sampled, a shadow ray, power heuristic against BSDF rays that meet them
+(`_emitter_hit_mis`); emission met after glass or a delta, and by camera rays, counts in full
+(docs/raytrace.md, "Emitters in the path integrator"). Russian roulette from the fourth surface on (survival = the path's throughput in
 max-RGB x eta^2, at most 1: a survivor's throughput is raised to 1 and never above what it
 carried, so no sample of a lossless glass outshines the environment; a cap below 1 would
 kill full-throughput paths and boost the rest, measured +11% on single pixels of the
@@ -84,7 +87,13 @@ UNIFORM_SHARE = 0.1   # of environment samples drawn uniformly over the sphere
 RR_START = 3          # Russian roulette from this surface index on
 MIN_PASSES = 4        # before the noise target is tested
 _R2 = (0.7548776662466927, 0.5698402909980532)  # 1/phi2, 1/phi2^2 (Roberts' R2)
+# 1/phi3 (phi3^4 = phi3 + 1, Roberts' R3): not in the field of phi2, so s / phi3 is equidistributed
+# jointly with the R2 pairs, which all share 1/phi2 and 1/phi2^2 (two dimensions' first
+# uniforms differ only by their rotation: an emitter choice drawn so would fix where on the
+# triangle a pixel's points fall)
+_R3 = 0.8191725133961645
 KERNEL = True         # the BSDF compiled (path_kernel, numba); False: path_bsdf's numpy twin
+EMITTER_NEE = True    # emissive triangles sampled as lights at every non-specular vertex (False: BSDF hits alone)
 
 
 class _Lobes:
@@ -225,6 +234,12 @@ class _Sampler:
         from renderer.methods import trace_kernel
         return trace_kernel.r2_pair(np.ascontiguousarray(pix, np.int64), s, dim, _R2[0], _R2[1])
 
+    def single(self, pix: np.ndarray, s: int, dim: int) -> np.ndarray:
+        """One uniform for (pixel, pass, dimension) from the generator _R3: independent of
+        every R2 pair of the same pass."""
+        from renderer.methods import trace_kernel
+        return trace_kernel.r2_pair(np.ascontiguousarray(pix, np.int64), s, dim, _R3, _R2[1])[0]
+
     def numpy(self, pix: np.ndarray, s: int, dim: int) -> tuple[np.ndarray, np.ndarray]:
         """The same uniforms in numpy (the compiled loop's twin, for tests)."""
         a = (self.shift(pix, 5000 + 2 * dim) + _R2[0] * (s + 1)) % 1.0
@@ -253,6 +268,8 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
     slot = np.arange(n)
     medium = np.ones(n)            # IOR around the ray
     mis_pdf = np.zeros(n)          # BSDF pdf of the last scatter (0: delta or glass: no MIS)
+    prev_x = np.zeros((n, 3))      # where the last scatter was (an emitter hit's light-sampling pdf)
+    em = ts.emitters if EMITTER_NEE else None
     clamp_esc = np.zeros(n, bool)  # what the next vertex or escape adds is indirect
     n_rough = np.zeros(n, np.int64)
     show_env = options.background == "env"
@@ -304,6 +321,7 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         stats["split_ms"]["textures"] += trace_material.FETCH_MS[0] - fetch0
         origins, d, w, slot, medium = origins[hit], d[hit], w[hit], slot[hit], medium[hit]
         clamp_esc, n_rough, prim, t = clamp_esc[hit], n_rough[hit], prim[hit], t[hit]
+        mis_pdf, prev_x = mis_pdf[hit], prev_x[hit]
         if split:
             assert cover is not None
             clear, cover = clear[hit], cover[hit]
@@ -357,7 +375,10 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
             w[inside] *= np.exp(-ts.sigma[k[inside]] * t[inside, None])
         glow = hits.emission.max(axis=1) > 0
         if np.any(glow):
-            out[slot[glow]] += _clamp(w[glow] * hits.emission[glow], clamp_esc[glow])
+            le = hits.emission[glow]
+            if em is not None:  # a light triangle the last scatter's NEE could have drawn
+                le = le * _emitter_hit_mis(em, prim[glow], d[glow], p[glow], prev_x[glow], mis_pdf[glow])[:, None]
+            out[slot[glow]] += _clamp(w[glow] * le, clamp_esc[glow])
         ior = ts.ior[k]
         wo = -d
         alpha = np.maximum(hits.roughness ** 2, ALPHA_MIN)
@@ -382,6 +403,15 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
                 contrib = w[ls] * fcos * (vis * mis / np.maximum(p_l, 1e-300))[:, None] \
                     * env.radiance(wi, np.zeros(len(wi)))
                 out[slot[ls]] += _clamp(contrib, nee_clamp[ls])
+        # --- next-event estimation: the emissive triangles, MIS with BSDF hits on them
+        if em is not None:
+            ls = np.flatnonzero(reflective)
+            if len(ls):
+                u_e = sample.single(px[ls], s, 500 + 2 * depth)
+                ue1, ue2 = sample(px[ls], s, 501 + 2 * depth)
+                contrib = _emitter_nee(ts, em, lobes, ls, p[ls], ng[ls], u_e, ue1, ue2, px[ls], s,
+                                       depth, eps, stats)
+                out[slot[ls]] += _clamp(w[ls] * contrib, nee_clamp[ls])
         # --- next-event estimation: punctual lights (deltas: no MIS; a USD light's extent is
         # sampled, one point a pass, and BSDF sampling cannot hit it: NEE alone again)
         if ts.lights is not None and len(ts.lights):
@@ -432,6 +462,7 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         origins = o_all[keep]
         d, w, slot, medium = new_d[keep], new_w[keep], slot[keep], new_medium[keep]
         mis_pdf, clamp_esc, n_rough = new_pdf[keep], clamp_esc[keep], n_rough[keep]
+        prev_x = p[keep]
         if split:
             clear = clear[keep]
     return out, hit0
@@ -569,13 +600,84 @@ def _light(lights, i: int, p: np.ndarray, u=None) -> tuple[np.ndarray, np.ndarra
 
 
 def _unoccluded(ts, o: np.ndarray, wi: np.ndarray, dist: np.ndarray, pix: np.ndarray,
-                s: int, depth: int) -> np.ndarray:
-    """1 where nothing (alpha cut-outs and culled back faces excepted) lies within dist."""
+                s: int, depth: int, dim: int | None = None) -> np.ndarray:
+    """1 where nothing (alpha cut-outs and culled back faces excepted) lies within dist
+    (`dim`: the alpha draws' sample dimension, default 200 + depth)."""
 
-    u_alpha, _ = _Sampler(pixel_shift)(pix, s, 200 + depth)
+    u_alpha, _ = _Sampler(pixel_shift)(pix, s, 200 + depth if dim is None else dim)
     prim, _, _, t = intersect_front(ts, o, wi, u_alpha)
     eps = EPSILON * ts.radius
     return ((prim < 0) | (np.asarray(t, np.float64) >= dist - 2 * eps)).astype(np.float64)
+
+
+def _power(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The power heuristic's weight of the strategy of pdf a against that of pdf b (Veach 1995)."""
+    return a * a / np.maximum(a * a + b * b, 1e-300)
+
+
+def _emitter_pdf(em, j: np.ndarray, x: np.ndarray, dist2: np.ndarray, cos_e: np.ndarray) -> np.ndarray:
+    """Solid-angle density, seen from x, of _emitter_nee drawing a point on emitter j at squared
+    distance dist2 whose normal makes |cos_e| with the direction: the emitter's odds
+    (trace_lights.emitter_odds, the tree's sampler) over its area, times dist2 / |cos_e|."""
+    odds = trace_lights.emitter_odds(em, x, j)
+    return odds / em.area[j] * dist2 / np.maximum(np.abs(cos_e), 1e-12)
+
+
+def _emitter_hit_mis(em, prim: np.ndarray, d: np.ndarray, p: np.ndarray, prev_x: np.ndarray,
+                     p_b: np.ndarray) -> np.ndarray:
+    """Power-heuristic weights of emission met by BSDF-sampled rays (pdf p_b, left from
+    prev_x) against _emitter_nee at prev_x; 1 off the light triangles and after a scatter
+    with no NEE (p_b 0: camera rays, glass, a straight pass through a blend)."""
+    wgt = np.ones(len(prim))
+    j = em.index[prim]
+    sel = np.flatnonzero((p_b > 0) & (j >= 0))
+    if len(sel):
+        j = j[sel]
+        to = p[sel] - prev_x[sel]
+        p_l = _emitter_pdf(em, j, prev_x[sel], _dot(to, to), _dot(d[sel], em.normal[j]))
+        wgt[sel] = _power(p_b[sel], p_l)
+    return wgt
+
+
+def _emitter_nee(ts, em, lobes: _Lobes, rows: np.ndarray, x: np.ndarray, ng: np.ndarray,
+                 u0: np.ndarray, u1: np.ndarray, u2: np.ndarray, pix: np.ndarray, s: int,
+                 depth: int, eps: float, stats: dict) -> np.ndarray:
+    """Next-event estimation toward the emissive triangles at hits x (the BSDF's `rows`): one
+    point a path, the triangle drawn by trace_lights.emitter_choice (the Fresnel tree's
+    sampler) from u0, uniform on it from (u1, u2); a shadow ray; f |cos| x emission (read at
+    the point, textures included) over the point's solid-angle pdf, power-heuristic weighted
+    against BSDF sampling (_emitter_hit_mis is the other half). Len(rows) x 3."""
+    out = np.zeros((len(rows), 3))
+    j, odds = trace_lights.emitter_choice(em, x, u0)
+    r1 = np.sqrt(u1)
+    bu, bv = r1 * (1 - u2), r1 * u2  # Embree's barycentrics of a uniform point
+    to = em.p0[j] + bu[:, None] * em.e1[j] + bv[:, None] * em.e2[j] - x
+    dist2 = _dot(to, to)
+    dist = np.sqrt(dist2)
+    ldir = to / np.maximum(dist, 1e-30)[:, None]
+    cos_e = -_dot(ldir, em.normal[j])
+    idx = np.flatnonzero((odds > 0) & (dist > 0) & (np.abs(cos_e) > 1e-9) & ((cos_e > 0) | em.two_sided[j]))
+    if not len(idx):
+        return out
+    fcos, p_b = lobes.eval(rows[idx], ldir[idx])
+    idx, fcos, p_b = (a[live] for a, live in zip((idx, fcos, p_b), [fcos.max(axis=1) > 0] * 3))
+    if not len(idx):
+        return out
+    tri = em.tri[j[idx]].astype(np.int32)
+    le = _timed(stats, "material", hit_material, ts, x[idx], ldir[idx], tri, bu[idx].astype(np.float32),
+                bv[idx].astype(np.float32), dist[idx], False).emission
+    live = le.max(axis=1) > 0
+    idx, fcos, p_b, le = idx[live], fcos[live], p_b[live], le[live]
+    if not len(idx):
+        return out
+    # off the surface by eps along ng, the ray meets the emitter up to eps / cos_e early
+    short = dist[idx] - eps / np.maximum(np.abs(cos_e[idx]), 1e-3)
+    vis = _timed(stats, "traversal", _unoccluded, ts, _off(x[idx], ng[idx], ldir[idx], eps), ldir[idx],
+                 short, pix[idx], s, depth, 250 + depth)
+    p_l = odds[idx] / em.area[j[idx]] * dist2[idx] / np.abs(cos_e[idx])
+    mis = _power(p_l, p_b)
+    out[idx] = fcos * le * (vis * mis / p_l)[:, None]
+    return out
 
 
 def trace(ts, sky, options: RenderOptions, camera, first_near: np.ndarray,

@@ -52,7 +52,8 @@ as raster culling does); transmissive ones keep both sides (rays inside glass me
 faces). Emissive surfaces add their emission wherever a path meets them, and light the
 surfaces the rays meet by next-event estimation (`_emitter_hits`: a point on an emissive
 triangle a ray, a shadow ray, the diffuse share in full and the glossy share weighed against the
-mirror child by roughness; docs/raytrace.md, "Emitters as lights").
+mirror child by roughness; docs/raytrace.md, "Emitters as lights"; the path integrator samples
+them with the same sampler, MIS-weighted: path_trace._emitter_nee).
 
 The material at a hit is the baked one the raster reads (renderer.methods.trace_material):
 factors times base colour, metal-rough, normal (baked tangents), occlusion, emissive and
@@ -1171,6 +1172,14 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
             np.concatenate([rlook[keep_r], tdir[keep_t]]))
 
 
+def _samples_emitters(options: RenderOptions) -> bool:
+    """Whether the integrator `options` asks for draws points on the emissive triangles."""
+    if options.integrator == "path":
+        from renderer.methods import path_trace
+        return path_trace.EMITTER_NEE
+    return EMITTER_SAMPLES > 0
+
+
 def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
                     camera: Camera | None = None, supersample: int | None = None):
     """Render with the ray tracer: a renderer.frame.Frame (linear + tone-mapped sRGB)."""
@@ -1193,8 +1202,8 @@ def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOpt
             "rays": stats["rays"], "rays_per_bounce": stats["bounces"],
             "tir_events": stats["tir"], "integrator": options.integrator,
             "embree_cached": stats["embree_cached"], "rough_pixels": stats.get("rough_pixels", 0),
-            # emissive triangles the tree samples as lights (the path integrator finds them by its rays)
-            "emitters": stats["emitters"] if options.integrator == "tree" and EMITTER_SAMPLES > 0 else 0}
+            # emissive triangles sampled as lights (the tree's EMITTER_SAMPLES, the path's EMITTER_NEE)
+            "emitters": stats["emitters"] if _samples_emitters(options) else 0}
     if options.integrator == "path":
         plan.update(passes=stats["passes"], samples_mean=round(stats["samples_mean"], 2),
                     stop=stats["stop"], nonfinite=stats.get("nonfinite", 0),

@@ -30,7 +30,9 @@ The raster's light shadows
 Emissive triangles are lights too (`Emitters`, issue 30): the Fresnel tree samples a point on
 one (chosen by power over distance, uniform over its area) per ray at every surface and
 splits the glossy share with its mirror child, which also meets emitters, by roughness
-(`mirror_share`; renderer.methods.raytrace, `_emitter_hits`).
+(`mirror_share`; renderer.methods.raytrace, `_emitter_hits`). The path integrator draws from
+the same `emitter_choice` at every non-specular vertex and weighs its samples against BSDF
+hits by `emitter_odds` (renderer.methods.path_trace, `_emitter_nee`).
 """
 from __future__ import annotations
 

@@ -119,6 +119,7 @@ class WorkerState:
         return AssetSummary(format=scene.format, triangles=int(scene.triangle_count),
                             materials=len(scene.materials), warnings=tuple(scene.warnings)[:20],
                             transmissive=any(m.transmission > 0 for m in scene.materials),
+                            emitters=int(scene.emissive_triangle_count),
                             files=tuple(str(f) for f in scene.files))
 
     def bake(self, job: BakeJob) -> BakeResult:

@@ -127,6 +127,7 @@ class AssetSummary:
     warnings: tuple[str, ...]
     transmissive: bool
     files: tuple[str, ...]  # every file the scene read, so the rest of an upload can go
+    emitters: int = 0       # emissive triangles as rendered (Scene.emissive_triangle_count)
 
 
 @dataclass(frozen=True)
