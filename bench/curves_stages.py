@@ -15,6 +15,8 @@ import math
 import sys
 from pathlib import Path
 
+from bench.stage_files import write_usda
+
 HEADER = '#usda 1.0\n(\n    metersPerUnit = 1\n    upAxis = "Y"\n    defaultPrim = "W"\n)\n'
 CARD = ('    def Mesh "Card"\n    {\n        int[] faceVertexCounts = [4]\n'
         '        int[] faceVertexIndices = [0, 1, 2, 3]\n'
@@ -77,13 +79,7 @@ def stages() -> dict[str, str]:
 
 
 def write(folder: Path) -> list[Path]:
-    folder.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for name, text in stages().items():
-        path = folder / f"{name}.usda"
-        path.write_text(text)
-        paths.append(path)
-    return paths
+    return write_usda(folder, stages())
 
 
 if __name__ == "__main__":

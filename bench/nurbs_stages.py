@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 
 from bench.curves_stages import CARD, HEADER
+from bench.stage_files import write_usda
 
 
 def _pts(points) -> str:
@@ -111,13 +112,7 @@ def stages() -> dict[str, str]:
 
 
 def write(folder: Path) -> list[Path]:
-    folder.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for name, text in stages().items():
-        path = folder / f"{name}.usda"
-        path.write_text(text)
-        paths.append(path)
-    return paths
+    return write_usda(folder, stages())
 
 
 if __name__ == "__main__":

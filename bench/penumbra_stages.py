@@ -16,6 +16,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from bench.stage_files import write_usda
+
 HEADER = '#usda 1.0\n(\n    defaultPrim = "World"\n    upAxis = "Y"\n    metersPerUnit = 1\n)\n'
 BODY = """def Xform "World"
 {
@@ -69,14 +71,7 @@ def stage_text(name: str) -> str:
 
 
 def write_stages(folder: Path) -> list[Path]:
-    out = Path(folder) / "usd" / "Penumbra"
-    out.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for name in LIGHTS:
-        path = out / f"{name}.usda"
-        path.write_text(stage_text(name))
-        paths.append(path)
-    return paths
+    return write_usda(Path(folder) / "usd" / "Penumbra", {name: stage_text(name) for name in LIGHTS})
 
 
 if __name__ == "__main__":

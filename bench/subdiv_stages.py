@@ -16,6 +16,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from bench.stage_files import write_usda
+
 HEADER = '#usda 1.0\n(\n    metersPerUnit = 1\n    upAxis = "Y"\n    defaultPrim = "M"\n)\n'
 CUBE_POINTS = "(-1, -1, 1), (1, -1, 1), (-1, 1, 1), (1, 1, 1), (-1, 1, -1), (1, 1, -1), (-1, -1, -1), (1, -1, -1)"
 CUBE_FACES = "0, 1, 3, 2, 2, 3, 5, 4, 4, 5, 7, 6, 6, 7, 1, 0, 1, 7, 5, 3, 6, 0, 2, 4"
@@ -167,12 +169,7 @@ def write(folder: Path) -> list[Path]:
     cells = (np.indices((256, 256)) // 32).sum(axis=0) % 2
     Image.fromarray(np.where(cells[..., None], [230, 200, 60], [40, 60, 160]).astype(np.uint8)).save(
         folder / "checker.png")
-    paths = []
-    for name, text in stages().items():
-        path = folder / f"{name}.usda"
-        path.write_text(text)
-        paths.append(path)
-    return paths
+    return write_usda(folder, stages())
 
 
 if __name__ == "__main__":
