@@ -7,7 +7,6 @@ from __future__ import annotations
 import numpy as np
 
 from renderer.methods import path_trace
-from renderer.methods.trace_scene import pixel_shift
 
 PIX = np.arange(0, 200 * 37, 37)  # 200 pixels, spread as an image's would be
 
@@ -15,7 +14,7 @@ PIX = np.arange(0, 200 * 37, 37)  # 200 pixels, spread as an image's would be
 def _pixel_rms(dim_a: int, dim_b: int, passes: int) -> float:
     """RMS over PIX of a pixel's mean of u * v - 1/4 (exact: 0), u the first uniform of
     dimension dim_a, v the first of dim_b, over `passes` passes."""
-    sampler = path_trace._Sampler(pixel_shift)
+    sampler = path_trace._Sampler()
     acc = np.zeros(len(PIX))
     for s in range(passes):
         u, _ = sampler(PIX, s, dim_a)
@@ -30,8 +29,7 @@ def test_two_dimensions_of_a_pixel_converge_to_the_integral():
     (0.014 and 0.007); thresholds 0.02 at 1024 passes and a fall of 1.6x over 4x the
     passes. Correlated dimensions stay near 0.04 however many passes."""
     for a, b in ((1, 2), (3, 4), (0, 7)):
-        dims = (path_trace._dim(path_trace.K_ENV, a), path_trace._dim(path_trace.K_DIRECTION, b)) \
-            if hasattr(path_trace, "_dim") else (10 * a + 1, 10 * b + 4)
+        dims = (path_trace._dim(path_trace.K_ENV, a), path_trace._dim(path_trace.K_DIRECTION, b))
         coarse, fine = _pixel_rms(*dims, 256), _pixel_rms(*dims, 1024)
         assert fine < 0.02, (a, b, coarse, fine)
         assert coarse / fine > 1.6, (a, b, coarse, fine)
@@ -40,7 +38,14 @@ def test_two_dimensions_of_a_pixel_converge_to_the_integral():
 def test_a_pixels_pair_is_a_stratified_stream():
     """A pair's two uniforms over a pixel's first 64 passes: one point in each of the 8 x 8
     cells (a (0, 2)-sequence's net), in every pixel."""
-    sampler = path_trace._Sampler(pixel_shift)
+    sampler = path_trace._Sampler()
     pts = [sampler(PIX, s, 5) for s in range(64)]
     cells = np.stack([(np.floor(a * 8) * 8 + np.floor(b * 8)) for a, b in pts], 1)
     assert all(len(np.unique(row)) == 64 for row in cells)
+
+
+def test_every_stream_has_its_own_key():
+    """No two (kind, surface index, light) share a stream at any depth RenderOptions allows
+    (the old numbering 10 depth + k met the alpha draws' 100 + depth from depth 10 on)."""
+    keys = [path_trace._dim(k, d, i) for k in range(path_trace._KINDS) for d in range(65) for i in range(70)]
+    assert len(set(keys)) == len(keys)
