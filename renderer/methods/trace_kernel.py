@@ -57,15 +57,14 @@ def _owen(x, seed):
     return _rev(x)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _pixel_samples(pix, sub, depth, sobol):
     seed = np.int64(_pixel_shift(pix, 1000 + depth) * 4294967296.0) & _M32
     index = _owen(np.int64(sub) & _M32, seed)
     x = _rev(index)
     y = np.int64(0)
-    for bit in range(32):
-        if (index >> bit) & 1:
-            y ^= np.int64(sobol[bit])
+    for bit in range(32):  # branch-free: the shuffled index's bits are random
+        y ^= np.int64(sobol[bit]) & -((index >> bit) & 1)
     x = _owen(x, (seed * 0x9E3779B9 + 1) & _M32)
     y = _owen(y, (seed * 0x85EBCA6B + 2) & _M32)
     return (x + 0.5) / 4294967296.0, (y + 0.5) / 4294967296.0
@@ -485,7 +484,7 @@ def sample_cube(faces, d, s_axis, s_sign, t_axis, t_sign):
     return out
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True)
 def sobol_pair(pix, s, key, sobol):
     """The path tracer's two uniforms of (pixel, pass s, stream `key`) for every pixel: sample
     s of the pixel's shuffled, scrambled Sobol pair seeded by (pixel, key) (_pixel_samples;
@@ -493,7 +492,7 @@ def sobol_pair(pix, s, key, sobol):
     n = len(pix)
     a = np.empty(n)
     b = np.empty(n)
-    for i in prange(n):
+    for i in range(n):  # serial: threads cost more than this loop
         a[i], b[i] = _pixel_samples(pix[i], s, key, sobol)
     return a, b
 
