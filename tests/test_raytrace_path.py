@@ -147,11 +147,11 @@ def test_finite_at_total_internal_reflection_and_grazing(ior, distance):
 
 
 def test_compiled_sampler_matches_its_numpy_twin():
-    """trace_kernel.r2_pair (the compiled per-pass uniforms) draws the very numbers of the
-    numpy expression it replaced, for every pass and dimension: renders do not move."""
-    from renderer.methods.trace_scene import pixel_shift
-    sampler = path_trace._Sampler(pixel_shift)
+    """trace_kernel.sobol_pair (the compiled per-pass uniforms) draws the very numbers of its
+    numpy twin (trace_scene.sobol_samples) for every pass and stream, deep ones included."""
+    sampler = path_trace._Sampler()
     pix = np.arange(0, 50_000, 7)
-    for s, dim in ((0, 0), (3, 11), (63, 205)):
+    for s, dim in ((0, path_trace._dim(path_trace.K_JITTER, 0)), (3, path_trace._dim(path_trace.K_LOBE, 11)),
+                   (63, path_trace._dim(path_trace.K_LIGHT, 64, 205)), (1000, 5)):
         for got, want in zip(sampler(pix, s, dim), sampler.numpy(pix, s, dim)):
             assert np.array_equal(got, want)

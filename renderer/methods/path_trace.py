@@ -78,7 +78,7 @@ from renderer.methods.trace_scene import (
     hit_material,
     intersect_front,
     opacity,
-    pixel_shift,
+    sobol_samples,
     storm_back,
 )
 
@@ -86,12 +86,21 @@ FIREFLY = 16.0        # max-RGB clamp of indirect contributions (linear radiance
 UNIFORM_SHARE = 0.1   # of environment samples drawn uniformly over the sphere
 RR_START = 3          # Russian roulette from this surface index on
 MIN_PASSES = 4        # before the noise target is tested
-_R2 = (0.7548776662466927, 0.5698402909980532)  # 1/phi2, 1/phi2^2 (Roberts' R2)
-# 1/phi3 (phi3^4 = phi3 + 1, Roberts' R3): not in the field of phi2, so s / phi3 is equidistributed
-# jointly with the R2 pairs, which all share 1/phi2 and 1/phi2^2 (two dimensions' first
-# uniforms differ only by their rotation: an emitter choice drawn so would fix where on the
-# triangle a pixel's points fall)
-_R3 = 0.8191725133961645
+# A path's sample streams: each (kind, surface index, light) its own shuffled, scrambled Sobol
+# pair per pixel (_dim keys it; trace_scene.sobol_samples), so any two are independent and
+# each converges on its own.
+(K_JITTER, K_ALPHA, K_ENV, K_ENV_PICK, K_EMITTER_PICK, K_EMITTER_POINT, K_LIGHT, K_LOBE,
+ K_DIRECTION, K_LAYER, K_ROULETTE, K_PASS, K_SHADOW_ALPHA, K_EMITTER_ALPHA) = range(14)
+_KINDS = 16
+_DEPTHS = 1 << 16  # more than RenderOptions.bounces allows
+_KEY_BASE = 1 << 32  # clear of the tree's keys (a bounce index plus 0, 400 or 700)
+
+
+def _dim(kind: int, depth: int, i: int = 0) -> int:
+    """The key of stream `kind` at surface index `depth` (light i): distinct for every triple."""
+    return _KEY_BASE + ((i * _DEPTHS + depth) * _KINDS + kind)
+
+
 KERNEL = True         # the BSDF compiled (path_kernel, numba); False: path_bsdf's numpy twin
 EMITTER_NEE = True    # emissive triangles sampled as lights at every non-specular vertex (False: BSDF hits alone)
 
@@ -224,27 +233,22 @@ class EnvSampler:
 
 
 class _Sampler:
-    """Uniforms for (pixel, pass, dimension): R2 point `pass` rotated per (pixel, dim)."""
-
-    def __init__(self, shift):
-        self.shift = shift  # trace_scene.pixel_shift
+    """Uniforms for (pixel, pass, stream): pass s of the pixel's Sobol pair keyed by the
+    stream (_dim): a (0, 2)-sequence per (pixel, stream), shuffled apart from the others."""
 
     def __call__(self, pix: np.ndarray, s: int, dim: int) -> tuple[np.ndarray, np.ndarray]:
-        # compiled (trace_kernel.r2_pair, the same hash): numpy's took ~7% of a warm frame
+        # compiled (trace_kernel.sobol_pair): numpy's took ~7% of a warm frame
         from renderer.methods import trace_kernel
-        return trace_kernel.r2_pair(np.ascontiguousarray(pix, np.int64), s, dim, _R2[0], _R2[1])
+        return trace_kernel.sobol_pair(np.ascontiguousarray(pix, np.int64), s, dim, trace_kernel._SOBOL_DIM1)
 
     def single(self, pix: np.ndarray, s: int, dim: int) -> np.ndarray:
-        """One uniform for (pixel, pass, dimension) from the generator _R3: independent of
-        every R2 pair of the same pass."""
-        from renderer.methods import trace_kernel
-        return trace_kernel.r2_pair(np.ascontiguousarray(pix, np.int64), s, dim, _R3, _R2[1])[0]
+        """One uniform for (pixel, pass, stream): the pair's first (a scrambled van der Corput
+        stream of its own)."""
+        return self(pix, s, dim)[0]
 
     def numpy(self, pix: np.ndarray, s: int, dim: int) -> tuple[np.ndarray, np.ndarray]:
         """The same uniforms in numpy (the compiled loop's twin, for tests)."""
-        a = (self.shift(pix, 5000 + 2 * dim) + _R2[0] * (s + 1)) % 1.0
-        b = (self.shift(pix, 5001 + 2 * dim) + _R2[1] * (s + 1)) % 1.0
-        return a, b
+        return sobol_samples(np.asarray(pix, np.int64), np.full(len(pix), s, np.uint32), dim)
 
 
 def _clamp(rgb: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -258,7 +262,7 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
     """One path per camera ray `dirs` (pixel `pix`, pass `s`): (N x 3 radiance, N bool: the
     camera ray hit the object)."""
 
-    sample = _Sampler(pixel_shift)
+    sample = _Sampler()
     eps = EPSILON * ts.radius
     n = len(dirs)
     out = np.zeros((n, 3))
@@ -294,7 +298,7 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
                 add[clear > 0] = 0.0
             out[slot] += _clamp(add, clamp_esc)
             break
-        u_alpha, _ = sample(pix[slot], s, 100 + depth)
+        u_alpha, _ = sample(pix[slot], s, _dim(K_ALPHA, depth))
         prim, u, v, t = _timed(stats, "traversal", intersect_front, ts, origins, d, u_alpha, True)
         stats["rays"] += len(d)
         miss = prim < 0
@@ -388,8 +392,8 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         reflective = surface_lit & (lobes.p_reflective > 0) & ~back
         nee_clamp = n_rough > 0
         # --- next-event estimation: the environment, MIS with BSDF sampling
-        ua, ub = sample(px, s, 10 * depth + 1)
-        uc, _ = sample(px, s, 10 * depth + 2)
+        ua, ub = sample(px, s, _dim(K_ENV, depth))
+        uc = sample.single(px, s, _dim(K_ENV_PICK, depth))
         ls = np.flatnonzero(reflective)
         if len(ls):
             wi = env_sampler.sample(ua[ls], ub[ls], uc[ls])
@@ -407,8 +411,8 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         if em is not None:
             ls = np.flatnonzero(reflective)
             if len(ls):
-                u_e = sample.single(px[ls], s, 500 + 2 * depth)
-                ue1, ue2 = sample(px[ls], s, 501 + 2 * depth)
+                u_e = sample.single(px[ls], s, _dim(K_EMITTER_PICK, depth))
+                ue1, ue2 = sample(px[ls], s, _dim(K_EMITTER_POINT, depth))
                 contrib = _emitter_nee(ts, em, lobes, ls, p[ls], ng[ls], u_e, ue1, ue2, px[ls], s,
                                        depth, eps, stats)
                 out[slot[ls]] += _clamp(w[ls] * contrib, nee_clamp[ls])
@@ -419,7 +423,7 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
             for i in range(len(ts.lights)):
                 if not len(ls):
                     break
-                u_l = sample(px[ls], s, 2000 + 64 * depth + i % 64) if ts.lights.extended(i) else None
+                u_l = sample(px[ls], s, _dim(K_LIGHT, depth, i)) if ts.lights.extended(i) else None
                 ldir, dist, radiance = _light(ts.lights, i, p[ls], u_l)
                 fcos, _ = lobes.eval(ls, ldir)
                 live = np.flatnonzero((fcos.max(axis=1) > 0) & (radiance.max(axis=1) > 0))
@@ -429,10 +433,10 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
                 vis = _timed(stats, "traversal", _unoccluded, ts, _off(p[sel], ng[sel], ldir[live], eps), ldir[live], dist[live], px[sel], s, depth)
                 out[slot[sel]] += _clamp(w[sel] * fcos[live] * radiance[live] * vis[:, None], nee_clamp[sel])
         # --- BSDF sampling: a layer (coat, sheen, base), then Metal, Plastic or Glass
-        u_pick, u_lobe = sample(px, s, 10 * depth + 3)
-        u1, u2 = sample(px, s, 10 * depth + 4)
-        u_layer, _ = sample(px, s, 10 * depth + 6)
-        u_rr = sample(px, s, 10 * depth + 5)[0] if depth >= RR_START else u1
+        u_pick, u_lobe = sample(px, s, _dim(K_LOBE, depth))
+        u1, u2 = sample(px, s, _dim(K_DIRECTION, depth))
+        u_layer = sample.single(px, s, _dim(K_LAYER, depth))
+        u_rr = sample.single(px, s, _dim(K_ROULETTE, depth)) if depth >= RR_START else u1
         args = (d, p, ng, ns, entering, surface_lit, thin, ior, alpha, w, medium,
                 u_layer, u_pick, u_lobe, u1, u2, u_rr, depth >= RR_START, eps)
         if KERNEL:
@@ -453,7 +457,7 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
                 cos_o = np.abs(_dot(d[off], ng[off]))
                 go_w[off] = np.minimum(go_w[off], 1.0 - fresnel_dielectric(cos_o, 1.0 / ior[off]))
             o_all, new_d, new_w, new_pdf, new_medium, alive, rough, clear = _pass_on(
-                sample(px, s, 300 + depth)[0], cover, go_w, clear, p, d, w, medium, eps,
+                sample.single(px, s, _dim(K_PASS, depth)), cover, go_w, clear, p, d, w, medium, eps,
                 (o_all, new_d, new_w, new_pdf, new_medium, alive, rough))
         stats["tir"] += int(np.sum(tir))
         clamp_esc = n_rough > 0
@@ -602,9 +606,9 @@ def _light(lights, i: int, p: np.ndarray, u=None) -> tuple[np.ndarray, np.ndarra
 def _unoccluded(ts, o: np.ndarray, wi: np.ndarray, dist: np.ndarray, pix: np.ndarray,
                 s: int, depth: int, dim: int | None = None) -> np.ndarray:
     """1 where nothing (alpha cut-outs and culled back faces excepted) lies within dist
-    (`dim`: the alpha draws' sample dimension, default 200 + depth)."""
+    (`dim`: the alpha draws' stream, default _dim(K_SHADOW_ALPHA, depth))."""
 
-    u_alpha, _ = _Sampler(pixel_shift)(pix, s, 200 + depth if dim is None else dim)
+    u_alpha = _Sampler().single(pix, s, _dim(K_SHADOW_ALPHA, depth) if dim is None else dim)
     prim, _, _, t = intersect_front(ts, o, wi, u_alpha)
     eps = EPSILON * ts.radius
     return ((prim < 0) | (np.asarray(t, np.float64) >= dist - 2 * eps)).astype(np.float64)
@@ -673,7 +677,7 @@ def _emitter_nee(ts, em, lobes: _Lobes, rows: np.ndarray, x: np.ndarray, ng: np.
     # off the surface by eps along ng, the ray meets the emitter up to eps / cos_e early
     short = dist[idx] - eps / np.maximum(np.abs(cos_e[idx]), 1e-3)
     vis = _timed(stats, "traversal", _unoccluded, ts, _off(x[idx], ng[idx], ldir[idx], eps), ldir[idx],
-                 short, pix[idx], s, depth, 250 + depth)
+                 short, pix[idx], s, depth, _dim(K_EMITTER_ALPHA, depth))
     p_l = odds[idx] / em.area[j[idx]] * dist2[idx] / np.abs(cos_e[idx])
     mis = _power(p_l, p_b)
     out[idx] = fcos * le * (vis * mis / p_l)[:, None]
@@ -712,7 +716,7 @@ def trace(ts, sky, options: RenderOptions, camera, first_near: np.ndarray,
     for s in range(max_passes):
         ps = time.perf_counter()
         idx = np.flatnonzero(active)
-        jx, jy = _Sampler(pixel_shift)(pixels[idx], s, 0)
+        jx, jy = _Sampler()(pixels[idx], s, _dim(K_JITTER, 0))
         sx = ((cols[idx] + jx) / camera.width * 2 - 1) * th * camera.aspect
         sy = (1 - (rows[idx] + jy) / camera.height * 2) * th
         dirs = f_ + sx[:, None] * r_ + sy[:, None] * u_

@@ -127,6 +127,7 @@ from renderer.methods.trace_scene import (
     storm_back,
     storm_back_faces,
 )
+from renderer.methods.trace_scene import sobol_samples as _pixel_samples
 from renderer.raster.final import GRADIENT
 from renderer.view.camera import Camera
 from renderer.view.framing import asset_camera
@@ -558,43 +559,6 @@ def _dispersion_passes(ts: TraceScene, asset: BakedAsset, options: RenderOptions
 def _chunks(indices: np.ndarray, size: int):
     for start in range(0, len(indices), size):
         yield indices[start:start + size]
-
-
-def _reverse_bits(x: np.ndarray) -> np.ndarray:
-    """Bit reversal of uint32 values."""
-    for shift, mask in ((1, 0x55555555), (2, 0x33333333), (4, 0x0F0F0F0F), (8, 0x00FF00FF)):
-        m, k = np.uint32(mask), np.uint32(shift)
-        x = ((x >> k) & m) | ((x & m) << k)
-    return (x >> np.uint32(16)) | (x << np.uint32(16))
-
-
-def _owen_scramble(x: np.ndarray, seed: np.ndarray) -> np.ndarray:
-    """Nested uniform (Owen) scrambling of 32-bit fractions, hashed (Burley 2020)."""
-    x = _reverse_bits(x) + seed
-    for c in (0x6C50B47C, 0xB82F1E52, 0xC7AFE638, 0x8D22F6E6):
-        x ^= x * np.uint32(c)
-    return _reverse_bits(x)
-
-
-_SOBOL_DIM1 = [0x80000000]
-for _ in range(31):
-    _SOBOL_DIM1.append(_SOBOL_DIM1[-1] ^ (_SOBOL_DIM1[-1] >> 1))
-
-
-def _pixel_samples(pix: np.ndarray, sub: np.ndarray, depth: int) -> tuple[np.ndarray, np.ndarray]:
-    """Two uniforms per ray for a rough lobe: sample `sub` of a shuffled, Owen-scrambled 2-D
-    Sobol set seeded by pixel and bounce (Burley 2020): a pixel's rays stratify the lobe at
-    each bounce and the bounces are independent; the same frame each time."""
-    seed = (pixel_shift(pix, 1000 + depth) * 4294967296.0).astype(np.uint32)
-    index = _owen_scramble(sub.astype(np.uint32), seed)
-    x = _reverse_bits(index)
-    y = np.zeros_like(index)
-    for bit, v in enumerate(_SOBOL_DIM1):
-        y ^= np.where((index >> np.uint32(bit)) & np.uint32(1), np.uint32(v), np.uint32(0))
-    x = _owen_scramble(x, seed * np.uint32(0x9E3779B9) + np.uint32(1))
-    y = _owen_scramble(y, seed * np.uint32(0x85EBCA6B) + np.uint32(2))
-    scale = 1.0 / 4294967296.0
-    return (x.astype(np.float64) + 0.5) * scale, (y.astype(np.float64) + 0.5) * scale
 
 
 def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,

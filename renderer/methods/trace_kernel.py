@@ -57,15 +57,14 @@ def _owen(x, seed):
     return _rev(x)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _pixel_samples(pix, sub, depth, sobol):
     seed = np.int64(_pixel_shift(pix, 1000 + depth) * 4294967296.0) & _M32
     index = _owen(np.int64(sub) & _M32, seed)
     x = _rev(index)
     y = np.int64(0)
-    for bit in range(32):
-        if (index >> bit) & 1:
-            y ^= np.int64(sobol[bit])
+    for bit in range(32):  # branch-free: the shuffled index's bits are random
+        y ^= np.int64(sobol[bit]) & -((index >> bit) & 1)
     x = _owen(x, (seed * 0x9E3779B9 + 1) & _M32)
     y = _owen(y, (seed * 0x85EBCA6B + 2) & _M32)
     return (x + 0.5) / 4294967296.0, (y + 0.5) / 4294967296.0
@@ -486,17 +485,15 @@ def sample_cube(faces, d, s_axis, s_sign, t_axis, t_sign):
 
 
 @njit(cache=True)
-def r2_pair(pix, s, dim, a1, a2):
-    """The path tracer's two uniforms of (pixel, pass s, dimension pair `dim`) for every pixel:
-    the R2 point s+1 (a1, a2 its generators) rotated by the splitmix hash of (pixel, 5000 +
-    2 dim) and (pixel, 5001 + 2 dim): renderer.methods.path_trace._Sampler in one loop."""
+def sobol_pair(pix, s, key, sobol):
+    """The path tracer's two uniforms of (pixel, pass s, stream `key`) for every pixel: sample
+    s of the pixel's shuffled, scrambled Sobol pair seeded by (pixel, key) (_pixel_samples;
+    renderer.methods.path_trace._Sampler in one loop, trace_scene.sobol_samples its twin)."""
     n = len(pix)
     a = np.empty(n)
     b = np.empty(n)
-    oa, ob = a1 * (s + 1), a2 * (s + 1)
-    for i in range(n):
-        a[i] = (_pixel_shift(pix[i], 5000 + 2 * dim) + oa) % 1.0
-        b[i] = (_pixel_shift(pix[i], 5001 + 2 * dim) + ob) % 1.0
+    for i in range(n):  # serial: threads cost more than this loop
+        a[i], b[i] = _pixel_samples(pix[i], s, key, sobol)
     return a, b
 
 
@@ -550,7 +547,7 @@ def warm() -> None:
     sample_cube(np.zeros((6, 2, 2, 3), f32), e3, _S_AXIS, _S_SIGN, _T_AXIS, _T_SIGN)
     for pick in (True, False):
         emitter_pick(e3, e, e3, e3, e3, e, e, np.zeros(0, np.bool_), pick)
-    r2_pair(np.zeros(0, i64), 0, 0, 0.5, 0.5)
+    sobol_pair(np.zeros(0, i64), 0, 0, _SOBOL_DIM1)
     # the textures, the hits' material, the path BSDF
     from renderer.methods import material_kernel, path_kernel, texel_kernel
     texel_kernel.warm()

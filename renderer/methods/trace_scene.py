@@ -186,6 +186,45 @@ def pixel_shift(pix: np.ndarray, depth: int) -> np.ndarray:
     return (h >> np.uint64(11)).astype(np.float64) / float(1 << 53)
 
 
+def reverse_bits(x: np.ndarray) -> np.ndarray:
+    """Bit reversal of uint32 values."""
+    for shift, mask in ((1, 0x55555555), (2, 0x33333333), (4, 0x0F0F0F0F), (8, 0x00FF00FF)):
+        m, k = np.uint32(mask), np.uint32(shift)
+        x = ((x >> k) & m) | ((x & m) << k)
+    return (x >> np.uint32(16)) | (x << np.uint32(16))
+
+
+def owen_scramble(x: np.ndarray, seed: np.ndarray) -> np.ndarray:
+    """Nested uniform (Owen) scrambling of 32-bit fractions, hashed (Burley 2020)."""
+    x = reverse_bits(x) + seed
+    for c in (0x6C50B47C, 0xB82F1E52, 0xC7AFE638, 0x8D22F6E6):
+        x ^= x * np.uint32(c)
+    return reverse_bits(x)
+
+
+SOBOL_DIM1 = [0x80000000]
+for _ in range(31):
+    SOBOL_DIM1.append(SOBOL_DIM1[-1] ^ (SOBOL_DIM1[-1] >> 1))
+
+
+def sobol_samples(pix: np.ndarray, sub: np.ndarray, depth: int) -> tuple[np.ndarray, np.ndarray]:
+    """Two uniforms per ray: sample `sub` of a shuffled, Owen-scrambled 2-D Sobol set seeded
+    by (pixel, `depth`) (Burley 2020): each seed's pairs are a (0, 2)-sequence (any 2^k of
+    them one per elementary cell), the index shuffle decorrelates one seed's stream from
+    another's; the same frame each time (the tree's rough lobes, the path integrator's
+    dimensions; trace_kernel._pixel_samples is its compiled twin)."""
+    seed = (pixel_shift(pix, 1000 + depth) * 4294967296.0).astype(np.uint32)
+    index = owen_scramble(sub.astype(np.uint32), seed)
+    x = reverse_bits(index)
+    y = np.zeros_like(index)
+    for bit, v in enumerate(SOBOL_DIM1):
+        y ^= np.where((index >> np.uint32(bit)) & np.uint32(1), np.uint32(v), np.uint32(0))
+    x = owen_scramble(x, seed * np.uint32(0x9E3779B9) + np.uint32(1))
+    y = owen_scramble(y, seed * np.uint32(0x85EBCA6B) + np.uint32(2))
+    scale = 1.0 / 4294967296.0
+    return (x.astype(np.float64) + 0.5) * scale, (y.astype(np.float64) + 0.5) * scale
+
+
 KERNEL = True  # evaluate the core material compiled (renderer.methods.material_kernel; False: numpy)
 # the lobes the compiled evaluate leaves to the numpy one (the path integrator's BSDF reads them)
 EXTENSION_LOBES = ("clearcoat", "sheen", "iridescence", "anisotropy", "diffuse_transmission")
