@@ -142,21 +142,27 @@ def _mtlx_material(name: str, color_tex: str | None, rough_tex: str | None, colo
             f'            float inputs:specular = 0.5\n            token outputs:out\n        }}\n{nodes}    }}\n')
 
 
+def _component_layer(path: Path, name: str):
+    """A new centimetre, Y-up layer at `path` whose default prim is the component Xform /name."""
+    from pxr import Sdf
+    layer = Sdf.Layer.CreateNew(str(path))
+    layer.defaultPrim = name
+    layer.pseudoRoot.SetInfo("metersPerUnit", 0.01)
+    layer.pseudoRoot.SetInfo("upAxis", "Y")
+    root = Sdf.CreatePrimInLayer(layer, "/" + name)
+    root.specifier, root.typeName = Sdf.SpecifierDef, "Xform"
+    root.SetInfo("kind", "component")
+    return layer, root
+
+
 def write_chess(folder: Path, segments: int = 128, rings: int = 121) -> Path:
     """~1 M triangles: 32 pieces x (rings - 1) x segments quads, each quad two triangles."""
-    from pxr import Sdf
     d = folder / "usd" / "big_chess"
     (d / "pieces").mkdir(parents=True, exist_ok=True)
     (d / "tex").mkdir(exist_ok=True)
     for kind in PIECES:
         path = d / "pieces" / f"{kind}.usdc"
-        layer = Sdf.Layer.CreateNew(str(path))
-        layer.defaultPrim = "Piece"
-        layer.pseudoRoot.SetInfo("metersPerUnit", 0.01)
-        layer.pseudoRoot.SetInfo("upAxis", "Y")
-        root = Sdf.CreatePrimInLayer(layer, "/Piece")
-        root.specifier, root.typeName = Sdf.SpecifierDef, "Xform"
-        root.SetInfo("kind", "component")
+        layer, root = _component_layer(path, "Piece")
         pts, counts, fvi, normals, st = lathe(_piece_profile(kind, rings), segments)
         _set_mesh(layer, "/Piece/Geom", pts * 6.0, counts, fvi, normals, st)  # 6 cm squares
         layer.Save()
@@ -315,13 +321,7 @@ def write_kit(folder: Path, body_segments: int = 96) -> Path:
     parts["bolt"] = (bolt, "Chrome")
     for name, ((pts, counts, fvi, normals, st), look) in parts.items():
         path = d / "parts" / f"{name}.usdc"
-        layer = Sdf.Layer.CreateNew(str(path))
-        layer.defaultPrim = "Part"
-        layer.pseudoRoot.SetInfo("metersPerUnit", 0.01)
-        layer.pseudoRoot.SetInfo("upAxis", "Y")
-        root = Sdf.CreatePrimInLayer(layer, "/Part")
-        root.specifier, root.typeName = Sdf.SpecifierDef, "Xform"
-        root.SetInfo("kind", "component")
+        layer, root = _component_layer(path, "Part")
         looks = Sdf.CreatePrimInLayer(layer, "/Part/Looks")
         looks.specifier = Sdf.SpecifierDef
         looks.referenceList.Prepend(Sdf.Reference("./looks.usda", "/Looks"))
