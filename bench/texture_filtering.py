@@ -1,10 +1,10 @@
 """Texture filtering against a supersampled reference of our own (issue 30).
 
-`python -m bench.texture_filtering [--px 384] [--factor 8] [MODEL ...]`: each Khronos sample
-model (../shared/assets/gltf-samples) rendered by the default raster frame at `--px` (the
-thumbnail's texture levels, trilinear + anisotropic) and, as the reference, by
-`render_supersampled` at `--factor` x `--factor` samples per pixel with full-resolution
-textures (so GL samples near mip 0 and the pixel is a box average of many samples), both
+`python -m bench.texture_filtering [--px 384] [--factor 8] [--samples DIR] [MODEL ...]`: each
+Khronos sample model (under `--samples`, by default ../shared/assets/gltf-samples beside the
+checkout) rendered by the default raster frame at `--px` (the thumbnail's texture levels,
+trilinear + anisotropic) and, as the reference, by `render_supersampled` at `--factor` x
+`--factor` samples per pixel with full-resolution textures (so GL samples near mip 0 and the pixel is a box average of many samples), both
 under the studio environment at the default view. Prints LDR FLIP (flip-evaluator) of the
 tone-mapped frames per model; lower is closer. Figures: bench/RESULTS.md, docs/textures.md.
 """
@@ -15,16 +15,17 @@ from pathlib import Path
 
 import numpy as np
 
-MODELS = Path(__file__).resolve().parents[2] / "shared" / "assets" / "gltf-samples"
+from bench.assets import CORPUS
+
 DEFAULT = ("TextureSettingsTest", "NegativeScaleTest", "Box", "Duck")
 
 
-def _path(name: str) -> Path:
+def _path(samples: Path, name: str) -> Path:
     for sub, ext in (("glTF-Binary", ".glb"), ("glTF", ".gltf")):
-        p = MODELS / name / sub / f"{name}{ext}"
+        p = samples / name / sub / f"{name}{ext}"
         if p.exists():
             return p
-    raise FileNotFoundError(f"{name}: no .glb or .gltf under {MODELS / name}")
+    raise FileNotFoundError(f"{name}: no .glb or .gltf under {samples / name}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -42,10 +43,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--px", type=int, default=384)
     p.add_argument("--factor", type=int, default=8)
     p.add_argument("--cache", default=".cache")
+    p.add_argument("--samples", type=Path, default=CORPUS / "gltf-samples",
+                   help="folder of Khronos sample model folders")
     args = p.parse_args(argv)
     scores = []
     for name in args.models:
-        src = _path(name)
+        src = _path(args.samples, name)
         baked = build_baked(load_scene(src), "bench-" + name, {"thumbnail_size": args.px})
         full = build_baked(load_scene(src), "bench-full-" + name, {"thumbnail_size": 1 << 16})
         o = RenderOptions(width=args.px, height=args.px, background="env")
