@@ -6,7 +6,8 @@ checkout) rendered by the default raster frame at `--px` (the thumbnail's textur
 trilinear + anisotropic) and, as the reference, by `render_supersampled` at `--factor` x
 `--factor` samples per pixel with full-resolution textures (so GL samples near mip 0 and the
 pixel is a box average of many samples), both under the studio environment at the default
-view. Prints LDR FLIP (flip-evaluator) of the tone-mapped frames per model; lower is closer. Figures: bench/RESULTS.md, docs/textures.md.
+view. Prints LDR FLIP (flip-evaluator) of the tone-mapped frames per model; lower is closer.
+Figures: bench/RESULTS.md, docs/textures.md.
 """
 from __future__ import annotations
 
