@@ -95,7 +95,7 @@ LOBES: tuple[Lobe, ...] = (
     Lobe("core", None,
          ("base_color", "metallic", "roughness", "normal_scale", "occlusion_strength", "emissive",
           "alpha_mode", "alpha_cutoff", "opacity_premultiplied", "double_sided",
-          "show_back_faces"),
+          "show_back_faces", "face_viewer"),
          (Slot("base_color", "baseColorTexture", srgb=True),
           Slot("metallic_roughness", "metallicRoughnessTexture"),
           Slot("normal", "normalTexture"), Slot("occlusion", "occlusionTexture"),

@@ -115,6 +115,10 @@ class Material:
     # normal as it is, unflipped: a USD gprim with doubleSided = 0, as usdview draws it by
     # default (no backface culling; Storm flips the normal only of a double-sided gprim).
     show_back_faces: bool = False
+    # Shaded with the normal toward the viewer wherever it is seen: a UsdGeom.Points sprite,
+    # which Storm draws as a flat screen-facing disc (its geometry here is a small sphere that
+    # gives the disc's outline)
+    face_viewer: bool = False
     unlit: bool = False
     # KHR_materials_transmission / _ior / _volume
     transmission: float = 0.0

@@ -43,6 +43,9 @@ uniform float u_sheen_roughness;
 
 in vec3 v_world;
 in vec3 v_normal;
+#ifdef FACE_VIEWER
+uniform vec3 u_view_axis;  // the camera's axis toward the viewer
+#endif
 #ifdef HAS_TANGENTS
 in vec4 v_tangent;
 #endif
@@ -311,6 +314,10 @@ MaterialInfo material_info(vec3 v) {
 #endif
     m.ng = geometric_normal();
     m.n = shading_normal(m.ng);
+#ifdef FACE_VIEWER
+    // a point sprite, a disc turned to the viewer (Material.face_viewer): Storm's eye-space +Z
+    m.ng = m.n = u_view_axis;
+#endif
     material_clearcoat(m);
     material_sheen(m);
     material_iridescence(m, v);

@@ -235,3 +235,63 @@ def test_material_binding_on_curves_and_points(tmp_path):
         # the material's own diffuse wins over displayColor, as on meshes
         assert mat.base_color[:3] == pytest.approx((0.9, 0.6, 0.1), abs=1e-6), mesh.name
         assert mesh.colors is None, mesh.name
+
+
+FACING = """    def DistantLight "Sun"
+    {
+        float inputs:intensity = 3
+        bool inputs:normalize = 1
+        float3 xformOp:rotateXYZ = (0, 60, 0)
+        uniform token[] xformOpOrder = ["xformOp:rotateXYZ"]
+    }
+    def Points "P"
+    {
+        point3f[] points = [(-0.8, 0, 0)]
+        float[] widths = [1.2]
+        color3f[] primvars:displayColor = [(0.8, 0.8, 0.8)]
+    }
+    def Mesh "Card"
+    {
+        uniform bool doubleSided = 1
+        int[] faceVertexCounts = [4]
+        int[] faceVertexIndices = [0, 1, 2, 3]
+        point3f[] points = [(0.4, -0.6, 0), (1.6, -0.6, 0), (1.6, 0.6, 0), (0.4, 0.6, 0)]
+        color3f[] primvars:displayColor = [(0.8, 0.8, 0.8)]
+    }
+"""
+
+
+@pytest.mark.parametrize("method,integrator", [("opaque", "tree"), ("raytrace", "tree"),
+                                               ("raytrace", "path")])
+def test_points_are_discs_facing_the_viewer(tmp_path, method, integrator):
+    """Storm draws a point as a screen-facing disc lit with the eye's axis as its normal
+    (hdSt points.glslfx: Neye = (0, 0, 1)), not a sphere: under a light from the side the disc
+    is as bright on its far side as on its lit one, and as bright as a card facing the
+    camera with the same colour beside it (a sphere's halves differ by more than 2x here)."""
+    dark = bake_environment(uniform.name((0.0,) * 3), tmp_path / "dark", face_size=16)
+    scene = load_scene(_write(tmp_path, FACING, "facing.usda"))
+    point = next(i for i, m in enumerate(scene.meshes) if m.name == "/W/P")
+    card = next(i for i, m in enumerate(scene.meshes) if m.name == "/W/Card")
+    faces = {i.mesh: scene.materials[i.material].face_viewer for i in scene.instances}
+    assert faces[point] and not faces[card]
+    asset = build_baked(scene, key=f"points-facing-{method}-{integrator}")
+    img = render(asset, dark, dataclasses.replace(OPTIONS, width=96, height=96, method=method,
+                                                  integrator=integrator, samples=16)).linear
+    covered = img[..., 3] > 0.99
+    cols = np.flatnonzero(covered.any(axis=0))
+    # the point covers the left part of the frame, the card the right; split them at the gap
+    gaps = np.flatnonzero(np.diff(cols) > 1)
+    assert len(gaps) == 1, cols
+    disc_cols = cols[: gaps[0] + 1]
+    card_cols = cols[gaps[0] + 1:]
+    lum = img[..., :3].mean(axis=-1)
+    mid = (disc_cols[0] + disc_cols[-1]) // 2
+    row = slice(40, 56)  # the middle rows, inside both
+    left = lum[row, disc_cols[0] + 3: mid - 2][covered[row, disc_cols[0] + 3: mid - 2]].mean()
+    right = lum[row, mid + 2: disc_cols[-1] - 2][covered[row, mid + 2: disc_cols[-1] - 2]].mean()
+    card = lum[row, card_cols[0] + 3: card_cols[-1] - 2].mean()
+    assert card > 0.05, card
+    # the path integrator adds the light the card throws back onto the disc's near side
+    near = 0.08 if integrator == "path" else 0.03
+    assert left == pytest.approx(right, rel=near), (left, right)
+    assert left == pytest.approx(card, rel=0.05), (left, card)

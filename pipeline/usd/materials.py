@@ -232,19 +232,22 @@ class MaterialReader:
         targets = rel.GetTargets() if rel else []
         return targets[0] if targets else None
 
-    def bind(self, material, double_sided: bool, has_display_color: bool | str) -> Binding:
+    def bind(self, material, double_sided: bool, has_display_color: bool | str,
+             face_viewer: bool = False) -> Binding:
         """`material`: what `bound` returned; `has_display_color`: True, or "translucent"
-        when its displayOpacity falls under 1."""
+        when its displayOpacity falls under 1; `face_viewer`: for Points (Material.face_viewer)."""
         if isinstance(material, Sdf.Path):
-            key = (material, double_sided, has_display_color)
+            key = (material, double_sided, has_display_color, face_viewer)
         else:
-            key = (material.GetPath() if material else None, double_sided, has_display_color)
+            key = (material.GetPath() if material else None, double_sided, has_display_color,
+                   face_viewer)
         if key not in self._bindings:
             mat, uv_primvars, color_primvar = self._read(material, has_display_color)
             mat.double_sided = double_sided  # a gprim attribute in USD, a material one here
             # usdview culls no back faces by default (its cullBackfaces setting is off): a
             # single-sided gprim seen from behind is drawn, lit with its normal unflipped
             mat.show_back_faces = not double_sided
+            mat.face_viewer = face_viewer
             self._bindings[key] = Binding(self._add(mat), uv_primvars, color_primvar)
         return self._bindings[key]
 

@@ -659,7 +659,9 @@ class StageReader:
             values = opacity_pv.Get(self.time) if opacity_pv and opacity_pv.HasAuthoredValue() else None
             if values is not None and len(values) and float(np.min(values)) < 1.0:
                 has_color = "translucent"
-        bindings = [self.materials.bind(mat, double_sided, has_color) for _, mat, _ in groups]
+        # Storm draws points as screen-facing discs (hdSt points.glslfx: eye-space normal +Z)
+        sprites = prim.IsA(UsdGeom.Points)
+        bindings = [self.materials.bind(mat, double_sided, has_color, sprites) for _, mat, _ in groups]
         uv_sets = {n for b in bindings for n in b.uv_primvars if not n.startswith("=")}
         needed = sorted(uv_sets | {b.color_primvar for b in bindings if b.color_primvar})
         if not uv_sets:

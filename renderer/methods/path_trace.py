@@ -609,7 +609,7 @@ def _unoccluded(ts, o: np.ndarray, wi: np.ndarray, dist: np.ndarray, pix: np.nda
     (`dim`: the alpha draws' stream, default _dim(K_SHADOW_ALPHA, depth))."""
 
     u_alpha = _Sampler().single(pix, s, _dim(K_SHADOW_ALPHA, depth) if dim is None else dim)
-    prim, _, _, t = intersect_front(ts, o, wi, u_alpha)
+    prim, _, _, t = intersect_front(ts, o, wi, u_alpha, shadow=True)
     eps = EPSILON * ts.radius
     return ((prim < 0) | (np.asarray(t, np.float64) >= dist - 2 * eps)).astype(np.float64)
 

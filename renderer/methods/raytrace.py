@@ -224,7 +224,8 @@ def build_scene(asset: BakedAsset, options: RenderOptions = RenderOptions()) -> 
         radius=max(float(np.linalg.norm(hi - lo)) / 2, 1e-6), surface=surface, embree_cached=cached,
         premultiplied=np.asarray([m.alpha_mode == "BLEND" and m.opacity_premultiplied
                                   for m in materials], bool),
-        storm_back=storm_back_faces(materials), emitters=emitters)
+        storm_back=storm_back_faces(materials), emitters=emitters,
+        sprite=np.asarray([m.face_viewer for m in materials], bool))
 
 
 # Built Embree scenes by the digest of their world-space vertices and faces: the service renders
@@ -441,6 +442,11 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     ts = build_scene(asset, options)
     # A ray's cone: its share of a pixel's angle (the texture level follows its footprint).
     ts.eye = np.asarray(camera.position, np.float64)
+    ts.forward = np.asarray(camera.basis()[2], np.float64)
+    if ts.sprite.any():  # a disc's face is its surface: lit (and faced) about the camera's axis
+        tri = ts.sprite[ts.material]
+        ts.geo_normals = ts.geo_normals.copy()
+        ts.geo_normals[tri] = -ts.forward
     ts.spread = 2 * math.tan(math.radians(camera.fov) / 2) / camera.height / supersample
     if options.lights and asset.lights:
         ts.lights = trace_lights.lights_of(asset.lights, options.light_shadows)
@@ -932,7 +938,7 @@ def shadow_transmittance(ts: TraceScene, o: np.ndarray, ldir: np.ndarray, dist: 
         # a premultiplied one is met and lets 1 - alpha through untinted (no noise)
         draw = pixel_shift(todo + layer * len(o), salt + layer)
         hp, hu, hv, ht = intersect_front(ts, start[todo], ldir[todo], draw,
-                                         stop_premultiplied=True)
+                                         stop_premultiplied=True, shadow=True)
         ht = np.asarray(ht, np.float64)
         blocked = (hp >= 0) & (ht < dist[todo] - 2 * eps)
         idx = todo[blocked]

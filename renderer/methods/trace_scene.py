@@ -38,6 +38,7 @@ class TraceScene:
     radius: float
     surface: Surface | None = None  # UVs, tangents, colours, textures (trace_material)
     eye: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
+    forward: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))  # the camera's axis
     spread: float = 0.0          # ray cone angle per unit length (a camera ray's pixel share)
     lights: trace_lights.Lights | None = None  # punctual lights (next-event estimation)
     emitters: trace_lights.Emitters | None = None  # emissive triangles as lights (the tree's NEE)
@@ -47,6 +48,9 @@ class TraceScene:
     premultiplied: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, bool))
     # K bool: single-sided USD, back faces lit as Storm lights them (core.storm)
     storm_back: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, bool))
+    # K bool: Material.face_viewer (USD points): shaded as discs, so their spheres cast no
+    # shadow (a sphere would shade its own disc; Storm's points cast none)
+    sprite: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, bool))
 
 
 def storm_back_faces(materials) -> np.ndarray:
@@ -79,18 +83,20 @@ def intersect(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray):
 
 
 def intersect_front(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray,
-                     draw: np.ndarray | None = None, stop_premultiplied: bool = False):
+                     draw: np.ndarray | None = None, stop_premultiplied: bool = False,
+                     shadow: bool = False):
     """intersect, passing through the back faces of single-sided opaque materials and
     where alpha says so (MASK: below the cut-off; BLEND: where `draw`, a uniform per ray,
     is at or above alpha; draw None: 0, so that any alpha above 0 is found, as the first
     pass that finds the object's pixels needs). `stop_premultiplied`: a premultiplied
     blend is always hit (at any opacity, even 0, its specular shows): the camera and bounce
     rays, which go on through it as a ray of their own (`opacity`); shadow rays pass it
-    with probability 1 - opacity as any blend."""
+    with probability 1 - opacity as any blend. `shadow`: a shadow ray, which passes sprites."""
     prim, u, v, t = intersect(ts, origins, dirs)
     surf = ts.surface
     tested = surf is not None and surf.alpha_tested.any()
-    if not ts.culled.any() and not tested:
+    skip = ts.sprite if shadow and len(ts.sprite) == len(ts.culled) and ts.sprite.any() else None
+    if not ts.culled.any() and not tested and skip is None:
         return prim, u, v, t
     prim, u, v, t = prim.copy(), u.copy(), v.copy(), t.astype(np.float64)
     eps = EPSILON * ts.radius
@@ -100,6 +106,8 @@ def intersect_front(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray,
         k = ts.material[prim[hit]]
         back = np.einsum("ij,ij->i", dirs[hit], ts.geo_normals[prim[hit]]) > 0
         through = ts.culled[k] & back
+        if skip is not None:
+            through |= skip[k]
         if surf is not None and tested:
             tested_k = surf.alpha_tested[k]
             if stop_premultiplied and ts.premultiplied.any():
@@ -258,7 +266,7 @@ def hit_material(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray, prim: np
              hits.sheen_roughness, hits.iridescence, hits.iridescence_ior, hits.iridescence_thickness,
              hits.anisotropy, hits.anisotropy_t, hits.diffuse_transmission,
              hits.diffuse_transmission_color) = defaults[2:]
-        return hits
+        return _facing_viewer(ts, hits, dirs, prim)
     full = trace_material.Hits.empty(n)
     sel = np.flatnonzero(prim >= 0)
     if not len(sel):
@@ -268,4 +276,26 @@ def hit_material(ts: TraceScene, origins: np.ndarray, dirs: np.ndarray, prim: np
                                   u[sel], v[sel], dirs[sel], width)
     for f in dataclasses.fields(trace_material.Hits):
         getattr(full, f.name)[sel] = getattr(got, f.name)
-    return full
+    return _facing_viewer(ts, full, dirs, prim)
+
+
+def _facing_viewer(ts: TraceScene, hits: trace_material.Hits, dirs: np.ndarray,
+                   prim: np.ndarray) -> trace_material.Hits:
+    """Hits on a Material.face_viewer surface (a USD point's disc) take the camera's axis,
+    reversed, as their normal (Storm's eye-space +Z, as the raster does), or where a ray meets
+    it from behind that axis (a bounce), the normal toward the ray's origin."""
+    assert ts.surface is not None
+    facing = np.asarray([sm.material.face_viewer for sm in ts.surface.materials], bool)
+    if not facing.any():
+        return hits
+    rows = np.flatnonzero(prim >= 0)
+    rows = rows[facing[ts.material[prim[rows]]]]
+    if len(rows):
+        d = np.asarray(dirs[rows], np.float64)
+        n = -d / np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-20)
+        axis = -np.asarray(ts.forward, np.float64)
+        n[np.einsum("ij,j->i", n, axis) > 0] = axis
+        hits.normal[rows] = n
+        if len(hits.clearcoat_normal) == len(hits.normal):
+            hits.clearcoat_normal[rows] = n
+    return hits

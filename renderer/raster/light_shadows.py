@@ -195,6 +195,8 @@ def casters(items, asset=None, options=None) -> list[Caster]:
     out = []
     for it in items:
         m = it.material
+        if m.face_viewer:  # a point's sphere would shadow its own disc; Storm's points cast none
+            continue
         tint = transmittance(m)
         if tint is not None:
             state = materials.material_state(it.mesh, m, asset, options) \

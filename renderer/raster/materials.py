@@ -86,6 +86,8 @@ def _build(mesh, m: Material, asset: gpu.GpuAsset, ov: MaterialOverride | None) 
     elif m.show_back_faces:  # USD single-sided: back faces lit as Storm lights them (core.storm)
         defines["SHOW_BACK_FACES"] = 1
         defines["STORM_BACK_TABLE"] = storm.glsl_table()
+    if m.face_viewer:
+        defines["FACE_VIEWER"] = 1
     if m.alpha_mode == "MASK":
         defines["ALPHA_MASK"] = 1
     elif m.alpha_mode == "BLEND":

@@ -120,6 +120,7 @@ def frame_uniforms(camera: Camera, env: gpu.GpuEnvironment, lights, options: Ren
     u = {
         "u_view_proj": np.ascontiguousarray(view_proj.T, f4).tobytes(),
         "u_camera_position": np.asarray(camera.position, f4).tobytes(),
+        "u_view_axis": np.asarray(-camera.basis()[2], f4).tobytes(),  # toward the viewer
         "u_env_max_lod": f4(env.max_lod).tobytes(),
         "u_sh": env.sh.tobytes(),
     }
