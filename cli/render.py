@@ -68,22 +68,27 @@ def run(args: argparse.Namespace) -> int:
     face, env_why = environment_face_size(asset, options)
     env_source = environment_source(asset, args.path, args.env, DEFAULT_ENVIRONMENT, options.lights)
     env = bake_environment(env_source, args.cache, face_size=face)
-    from renderer.sequence import encode_animation, render_animation, render_turntable, render_views
+    # renderer.sequence (and the PIL drawing it labels views with) only for several frames
     try:
         if options.animate:  # one pose per frame, one camera over the whole motion
             from pipeline.animate import poses_for
+            from renderer.sequence import render_animation
             posed_assets, motion = poses_for(args.path, asset, options, sandbox.root(args))
             frames = render_animation(posed_assets, env, options, motion or {})
             frame = frames[0]
         elif options.turntable:  # N frames from this one bake and one upload
+            from renderer.sequence import render_turntable
             frames = render_turntable(asset, env, options, keep_linear=bool(args.linear))
             frame = frames[0]
         elif options.views:
+            from renderer.sequence import render_views
             frame = render_views(asset, env, options)
         else:
             frame = render(asset, env, options)
     except (UnsupportedMethod, ValueError) as exc:
         return _fail(str(exc))
+    if options.animate or options.turntable:
+        from renderer.sequence import encode_animation
     if options.animate:
         with open(args.out, "wb") as f:
             f.write(encode_animation(frames, out_ext[1:], args.quality, 1000.0 / options.animate))

@@ -35,10 +35,16 @@ def _radical_inverse(i: np.ndarray) -> np.ndarray:
     return out.astype(np.float64) / 2.0 ** 32
 
 
+@lru_cache(maxsize=1)
+def _hammersley() -> tuple[np.ndarray, np.ndarray]:
+    """Storm's SAMPLES points (i / N, radical inverse of i): made once, not per roughness."""
+    i = np.arange(SAMPLES)
+    return i / SAMPLES, _radical_inverse(i)
+
+
 def _integrate(roughness: float) -> tuple[float, float]:
     """(A, B) of the split sum at N.E = NOV: E[(1 - Fc) G_vis], E[Fc G_vis] over GGX samples."""
-    i = np.arange(SAMPLES)
-    u1, u2 = i / SAMPLES, _radical_inverse(i)
+    u1, u2 = _hammersley()
     alpha = roughness * roughness
     phi = 2 * np.pi * u1
     cos_t = np.minimum(1.0, np.sqrt((1 - u2) / (1 + (alpha * alpha - 1) * u2)))

@@ -5,6 +5,8 @@ once per (shaders, defines) and reused.
 """
 from __future__ import annotations
 
+import ctypes
+import functools
 import logging
 import os
 import threading
@@ -27,13 +29,29 @@ class ContextError(RuntimeError):
     """Headless OpenGL is not available (message says what to install)."""
 
 
+@functools.lru_cache(maxsize=None)
+def library(name: str) -> str | None:
+    """What dlopen is given for lib`name` (GL, EGL): its usual soname when the loader finds it,
+    else `ctypes.util.find_library`'s answer. glcontext asks find_library for both, which runs
+    `ldconfig -p` in a subprocess each time: two forks of every cold start."""
+    soname = f"lib{name}.so.1"
+    try:
+        ctypes.CDLL(soname)
+    except OSError:
+        from ctypes.util import find_library
+        return find_library(name)
+    return soname
+
+
 def get_context() -> moderngl.Context:
     """The process's EGL context, created on first use (and anew in a forked child)."""
     global _ctx, _pid
     with _lock:
         if _ctx is None or _pid != os.getpid():
             try:
-                _ctx = moderngl.create_standalone_context(backend="egl", require=430)  # type: ignore[arg-type]  # stubs: backend is a str
+                # the stubs type the backend's keyword arguments as dicts; they are strings
+                libs: dict = {"libgl": library("GL"), "libegl": library("EGL")}
+                _ctx = moderngl.create_standalone_context(backend="egl", require=430, **libs)  # type: ignore[arg-type]
             except Exception as exc:  # moderngl raises plain Exception for EGL failures
                 raise ContextError(
                     f"headless OpenGL 4.3 via EGL is not available ({exc}); install Mesa: "

@@ -11,7 +11,7 @@ import io
 import time
 
 import numpy as np
-from PIL import Image, ImageDraw
+from PIL import Image
 
 from core.baked import BakedAsset, BakedEnvironment
 from core.options import RenderOptions
@@ -146,6 +146,7 @@ def render_views(asset: BakedAsset, env: BakedEnvironment, options: RenderOption
                                          yaw=options.yaw if yaw is None else yaw,
                                          pitch=options.pitch if pitch is None else pitch))
              for label, yaw, pitch in VIEWS]
+    from PIL import ImageDraw  # with its fonts: only a views sheet draws text
     rgba8 = np.zeros((2 * h, 2 * w, 4), np.uint8)
     plan: dict = {}
     for i, (label, o) in enumerate(views):

@@ -49,9 +49,10 @@ import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-from pxr import Ar, Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade, UsdSkel, UsdUtils, Vt
+from pxr import Ar, Gf, Sdf, Tf, Usd, UsdGeom, UsdShade, UsdUtils, Vt
 
 from core.animation import Moment
 from core.errors import LimitExceeded, MalformedAsset, MissingFile, NotInAsset, UnsafeReference
@@ -65,6 +66,9 @@ from pipeline.usd.materials import Binding, MaterialReader, authoring_layer
 from pipeline.usd.shapes import SHAPES, tessellate
 from pipeline.usd.time import time_code, time_range
 
+if TYPE_CHECKING:
+    from pxr import UsdSkel
+
 log = logging.getLogger(__name__)
 SPLIT_CACHE_CORNERS = 4096  # meshes up to this many face-vertices share their split by connectivity
 CURVE_BUDGET = 2_000_000  # vertices of the tubes and spheres made for curves and points, per asset
@@ -72,6 +76,10 @@ CURVE_BUDGET = 2_000_000  # vertices of the tubes and spheres made for curves an
 Y_UP_FROM_Z_UP = np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]], np.float64)
 PRUNED_TYPES = (UsdShade.Material, UsdShade.NodeGraph, UsdShade.Shader)
 PURPOSES = (UsdGeom.Tokens.render, UsdGeom.Tokens.proxy, UsdGeom.Tokens.guide)
+# The walk tests UsdSkel's and UsdLux's schemas by TfType (pxr knows them from plugInfo), so
+# their Python modules are imported only where a stage has a skeleton or a light.
+SKEL_ROOT, SKEL_ANIMATION, LIGHT_API = (Tf.Type.FindByName(n) for n in
+                                        ("UsdSkelRoot", "UsdSkelAnimation", "UsdLuxLightAPI"))
 
 
 def load(path: Path, limits: Limits, root: Path | None = None,
@@ -286,8 +294,8 @@ class StageReader:
             if self._nodes % 256 == 0:
                 deadline.check()
             if not prim.IsA(UsdGeom.Imageable):  # shading networks are not: tested only here
-                if prim.IsA(UsdSkel.Animation) and placements is None:
-                    self._skel_animation(UsdSkel.Animation(prim))
+                if prim.IsA(SKEL_ANIMATION) and placements is None:
+                    self._skel_animation(prim)
                 if any(prim.IsA(t) for t in PRUNED_TYPES):
                     it.PruneChildren()
                 continue
@@ -311,9 +319,9 @@ class StageReader:
                 it.PruneChildren()  # the stand-in is drawn in place of the subtree
                 self.standins.add(prim, mode, self._matrices(prim, root, placements))
                 continue
-            if prim.IsA(UsdSkel.Root):
+            if prim.IsA(SKEL_ROOT):
                 self._skel_root(prim)
-            if placements is None and prim.HasAPI(UsdLux.LightAPI) and not prim.IsA(UsdGeom.Gprim):
+            if placements is None and prim.HasAPI(LIGHT_API) and not prim.IsA(UsdGeom.Gprim):
                 self._light(prim)
                 self.light_prims.append(str(prim.GetPath()))
                 continue
@@ -362,6 +370,7 @@ class StageReader:
         and disk lights a one-sided 90 degree spot. Their extent is kept (Light.shape / size;
         a distant light's half-angle t): the ray tracer samples it, so its shadows have
         penumbrae, and the power above is unchanged (renderer/methods/trace_lights.py)."""
+        from pxr import UsdLux
         api = UsdLux.LightAPI(prim)
         get = lambda a, d: _finite(a.Get(self.time), d)  # noqa: E731
         color = np.array(api.GetColorAttr().Get(self.time) or (1.0, 1.0, 1.0), np.float64)
@@ -445,6 +454,7 @@ class StageReader:
         """A textured dome's panorama, times colour x intensity x 2^exposure (`dome_scale`,
         UsdLux), is the environment; an untextured one's radiance (that product from every
         direction) a uniform one."""
+        from pxr import UsdLux
         attr = UsdLux.DomeLight(prim).GetTextureFileAttr()
         asset = attr.Get(self.time)
         if not asset or not asset.path:
@@ -490,9 +500,11 @@ class StageReader:
         self.scene.cameras.append(out)
 
     # -- UsdSkel: skinned meshes posed as usdview shows them --------------------------------
-    def _skel_animation(self, anim: UsdSkel.Animation) -> None:
+    def _skel_animation(self, prim: Usd.Prim) -> None:
         """What `inspect` lists of a SkelAnimation: its joints, blend shapes and the time
         codes its samples span (joint transforms and blend shape weights)."""
+        from pxr import UsdSkel
+        anim = UsdSkel.Animation(prim)
         codes: set[float] = set()
         for attr in (anim.GetTranslationsAttr(), anim.GetRotationsAttr(), anim.GetScalesAttr(),
                      anim.GetBlendShapeWeightsAttr()):
@@ -503,6 +515,7 @@ class StageReader:
             "samples": len(codes), "first": min(codes, default=None), "last": max(codes, default=None)})
 
     def _skel_root(self, prim: Usd.Prim) -> None:
+        from pxr import UsdSkel
         if self._skel is None:
             self._skel = UsdSkel.Cache()
         self._skel.Populate(UsdSkel.Root(prim),
@@ -515,6 +528,7 @@ class StageReader:
         `prim` is not skinned. Skinned points are in the skeleton's space (the gprim's own
         transform does not apply, as UsdSkel specifies)."""
         assert self._skel is not None  # _walk calls this only once a SkelRoot was seen
+        from pxr import UsdSkel
         query = self._skel.GetSkinningQuery(prim)
         skeleton = UsdSkel.BindingAPI(prim).GetInheritedSkeleton()
         if not query or not skeleton or not prim.IsA(UsdGeom.Mesh):
@@ -553,6 +567,7 @@ class StageReader:
             weights = mapper.Remap(weights)
         if not weights:
             return None
+        from pxr import UsdSkel
         binding = UsdSkel.BindingAPI(prim)
         shapes = UsdSkel.BlendShapeQuery(binding)
         sub_weights, shape_indices, sub_indices = shapes.ComputeSubShapeWeights(weights)
@@ -582,6 +597,7 @@ class StageReader:
         normals skinned as the points were: per-point normals plus the blend shapes'
         `deltas`, then UsdSkel.SkinNormals with each joint's inverse-transpose 3 x 3, so that
         a bound mesh's authored normals follow its pose instead of staying in the bind pose."""
+        from pxr import UsdSkel
         mapper = query.GetJointMapper()
         if mapper and not mapper.IsNull() and not mapper.IsIdentity():
             xforms = mapper.RemapTransforms(xforms)

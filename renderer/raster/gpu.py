@@ -7,7 +7,6 @@ asset (any camera, size or options) uploads nothing. `stats` counts uploads for 
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import logging
 import os
 from concurrent.futures import ThreadPoolExecutor
@@ -461,7 +460,7 @@ def _gl():
     exported by EGL_KHR_get_all_proc_addresses, which Mesa and NVIDIA implement)."""
     global _GL
     if _GL is None:
-        egl = ctypes.CDLL(ctypes.util.find_library("EGL") or "libEGL.so.1")
+        egl = ctypes.CDLL(context.library("EGL") or "libEGL.so.1")
         egl.eglGetProcAddress.restype = ctypes.c_void_p
         egl.eglGetProcAddress.argtypes = [ctypes.c_char_p]
 
