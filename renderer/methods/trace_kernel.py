@@ -9,7 +9,10 @@ pixel's scrambled Sobol set), the metallic and rough-lobe albedos from the split
 the diffuse share, and the reflected and refracted children that carry more than
 MIN_WEIGHT (with fresnel_split="sample" past the first surface, one of them). Same
 arithmetic as the numpy twin (tests/test_raytrace.py compares the two frames), without the
-numpy twin's some 80 array passes a bounce and their temporaries.
+numpy twin's some 80 array passes a bounce and their temporaries. The rows run in CHUNKS fixed
+chunks over numba's threads, each writing its outputs from its own first row, then packed in
+row order: the children, misses and shares come out as one serial pass gives them, whatever
+the thread count (a pixel's sum of rays is the same to the bit).
 """
 from __future__ import annotations
 
