@@ -84,8 +84,8 @@ ROUGH_EXTRA more rays a side: their lobes are sampled with the pixel's rays.
 Speed: the per-surface work of a bounce (normals, Fresnel, lobes, children) runs in one
 compiled loop (renderer.methods.trace_kernel, numba; `_shade_numpy` is its numpy twin, the reference
 it is tested against), as do the material at the hits (renderer.methods.material_kernel) and the
-environment reads; Embree casts each bounce's rays from two
-threads.
+environment reads, each over the cores in a fixed number of chunks (the outputs packed in row
+order: the same frame at any thread count); Embree casts each bounce's rays from two threads.
 """
 from __future__ import annotations
 

@@ -9,7 +9,10 @@ pixel's scrambled Sobol set), the metallic and rough-lobe albedos from the split
 the diffuse share, and the reflected and refracted children that carry more than
 MIN_WEIGHT (with fresnel_split="sample" past the first surface, one of them). Same
 arithmetic as the numpy twin (tests/test_raytrace.py compares the two frames), without the
-numpy twin's some 80 array passes a bounce and their temporaries.
+numpy twin's some 80 array passes a bounce and their temporaries. The rows run in CHUNKS fixed
+chunks over numba's threads, each writing its outputs from its own first row, then packed in
+row order: the children, misses and shares come out as one serial pass gives them, whatever
+the thread count (a pixel's sum of rays is the same to the bit).
 """
 from __future__ import annotations
 
@@ -198,7 +201,7 @@ def _refract(dx, dy, dz, nx, ny, nz, eta):
     return tx * inv, ty * inv, tz * inv, False
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in, look,
           normals, geo_normals, material, base, metallic, roughness, transmission, ior, sigma,
           thin, emission, occlusion, spec, spec_col, lut, depth, n_sub, eps, sample_lobes, split_sample, ms, min_weight,
@@ -220,11 +223,8 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in, look,
     n = len(d)
     m_d, m_w, m_blur = np.empty((n, 3)), np.empty((n, 3)), np.empty(n)
     m_sl = np.empty(n, np.int64)
-    n_miss = 0
     e_d, e_w, e_blur = np.empty((n, 3)), np.empty((n, 3)), np.empty(n)  # Storm back faces'
     e_sl = np.empty(n, np.int64)  # reflections: read from the environment, no child
-    n_env = 0
-    p = np.empty(3)
     c_o, c_d, c_w = np.empty((2 * n, 3)), np.empty((2 * n, 3)), np.empty((2 * n, 3))
     c_px, c_sb, c_sl = np.empty(2 * n, np.int64), np.empty(2 * n, np.int64), np.empty(2 * n, np.int64)
     c_blur, c_sh, c_med = np.empty(2 * n), np.empty(2 * n), np.empty(2 * n)
@@ -232,15 +232,117 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in, look,
     c_look = np.empty((2 * n, 3))
     direct, glow = np.empty((n, 3)), np.empty(n, np.int64)
     diffuse, dnorm, matte = np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.int64)
-    n_glow, n_matte = 0, 0
-    keep_t_idx = np.empty(n, np.int64)
-    t_dir = np.empty((n, 3))
-    t_w = np.empty((n, 3))
-    t_blur = np.empty(n)
-    t_med = np.empty(n)
-    t_off = np.empty((n, 3))
-    n_r, n_t_count, tir_events = 0, 0, 0
-    for i in range(n):
+    # Rows in a fixed number of chunks (a function of n only) over the cores, each writing its
+    # outputs from its first row on; then packed in row order: the same arrays, in the same
+    # order, as one serial pass gives, whatever the thread count.
+    nch = max(min(CHUNKS, n), 1)
+    counts = np.zeros((nch, 7), np.int64)
+    for ch in prange(nch):
+        lo, hi = ch * n // nch, (ch + 1) * n // nch
+        r = _shade_rows(lo, hi, n, origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in, look,
+                        normals, geo_normals, material, base, metallic, roughness, transmission, ior, sigma,
+                        thin, emission, occlusion, spec, spec_col, lut, depth, n_sub, eps, sample_lobes, split_sample, ms, min_weight,
+                        sobol, roulette, nee, mirror_lo, mirror_hi, probe, storm_back, storm_table,
+                        m_d, m_w, m_blur, m_sl, e_d, e_w, e_blur, e_sl, c_o, c_d, c_w, c_px, c_sb, c_sl, c_blur,
+                        c_sh, c_med, c_share, c_look, direct, glow, diffuse, dnorm, matte)
+        counts[ch, 0], counts[ch, 1], counts[ch, 2] = r[0] - lo, r[1] - lo, r[2] - lo
+        counts[ch, 3], counts[ch, 4], counts[ch, 5] = r[3] - n - lo, r[4] - lo, r[5] - lo
+        counts[ch, 6] = r[6]
+    n_miss = _pack(counts, 0, nch, n, m_d, m_w, m_blur, m_sl)
+    n_env = _pack(counts, 1, nch, n, e_d, e_w, e_blur, e_sl)
+    n_glow = _pack_pair(counts, 4, nch, n, direct, glow)
+    n_matte = _pack_matte(counts, 5, nch, n, diffuse, dnorm, matte)
+    n_r = _pack_children(counts, 2, nch, n, 0, 0, c_o, c_d, c_w, c_px, c_sb, c_sl, c_blur, c_sh,
+                         c_med, c_share, c_look)
+    m = n_r + _pack_children(counts, 3, nch, n, n, n_r, c_o, c_d, c_w, c_px, c_sb, c_sl, c_blur,
+                             c_sh, c_med, c_share, c_look)
+    tir_events = 0
+    for ch in range(nch):
+        tir_events += counts[ch, 6]
+    return (c_o[:m], c_d[:m], c_w[:m], c_px[:m], c_sb[:m], c_sl[:m], c_blur[:m], c_sh[:m],
+            c_med[:m], c_share[:m], c_look[:m], m_d[:n_miss], m_w[:n_miss], m_blur[:n_miss], m_sl[:n_miss], direct[:n_glow], glow[:n_glow], diffuse[:n_matte], dnorm[:n_matte],
+            matte[:n_matte], tir_events, e_d[:n_env], e_w[:n_env], e_blur[:n_env], e_sl[:n_env])
+
+
+CHUNKS = 64  # shade's rows cut into this many chunks over the cores
+
+
+@njit(cache=True)
+def _bounds(ch, nch, n):
+    return ch * n // nch, (ch + 1) * n // nch
+
+
+@njit(cache=True)
+def _pack(counts, q, nch, n, a3, b3, c1, d1):
+    """Move chunk segments of four row outputs (each from its chunk's first row) together, in
+    chunk order; the destination never passes its source (the count so far <= the row)."""
+    k = 0
+    for ch in range(nch):
+        lo, _ = _bounds(ch, nch, n)
+        for j in range(lo, lo + counts[ch, q]):
+            for c in range(3):
+                a3[k, c], b3[k, c] = a3[j, c], b3[j, c]
+            c1[k], d1[k] = c1[j], d1[j]
+            k += 1
+    return k
+
+
+@njit(cache=True)
+def _pack_pair(counts, q, nch, n, a3, d1):
+    k = 0
+    for ch in range(nch):
+        lo, _ = _bounds(ch, nch, n)
+        for j in range(lo, lo + counts[ch, q]):
+            for c in range(3):
+                a3[k, c] = a3[j, c]
+            d1[k] = d1[j]
+            k += 1
+    return k
+
+
+@njit(cache=True)
+def _pack_matte(counts, q, nch, n, a3, b3, d1):
+    k = 0
+    for ch in range(nch):
+        lo, _ = _bounds(ch, nch, n)
+        for j in range(lo, lo + counts[ch, q]):
+            for c in range(3):
+                a3[k, c], b3[k, c] = a3[j, c], b3[j, c]
+            d1[k] = d1[j]
+            k += 1
+    return k
+
+
+@njit(cache=True)
+def _pack_children(counts, q, nch, n, src0, dst0, c_o, c_d, c_w, c_px, c_sb, c_sl, c_blur, c_sh,
+                   c_med, c_share, c_look):
+    """The children of counts[:, q] (chunk segments from src0 + the chunk's first row) to
+    dst0 on, in chunk order (dst0 + count so far <= src0 + row: never past the source)."""
+    k = dst0
+    for ch in range(nch):
+        lo, _ = _bounds(ch, nch, n)
+        for j in range(src0 + lo, src0 + lo + counts[ch, q]):
+            for c in range(3):
+                c_o[k, c], c_d[k, c], c_w[k, c], c_look[k, c] = c_o[j, c], c_d[j, c], c_w[j, c], c_look[j, c]
+            c_px[k], c_sb[k], c_sl[k] = c_px[j], c_sb[j], c_sl[j]
+            c_blur[k], c_sh[k], c_med[k], c_share[k] = c_blur[j], c_sh[j], c_med[j], c_share[j]
+            k += 1
+    return k - dst0
+
+
+@njit(cache=True)
+def _shade_rows(lo, hi, n, origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in, look,
+                normals, geo_normals, material, base, metallic, roughness, transmission, ior, sigma,
+                thin, emission, occlusion, spec, spec_col, lut, depth, n_sub, eps, sample_lobes, split_sample, ms, min_weight,
+                sobol, roulette, nee, mirror_lo, mirror_hi, probe, storm_back, storm_table,
+                m_d, m_w, m_blur, m_sl, e_d, e_w, e_blur, e_sl, c_o, c_d, c_w, c_px, c_sb, c_sl, c_blur,
+                c_sh, c_med, c_share, c_look, direct, glow, diffuse, dnorm, matte):
+    """shade's rows lo .. hi - 1, each output written from row lo on (refracted children from
+    n + lo): (the next free index of misses, Storm reflections, reflected and refracted
+    children, emission and diffuse rows, and the TIR events)."""
+    p = np.empty(3)
+    n_miss, n_env, n_r, n_t_count, n_glow, n_matte, tir_events = lo, lo, lo, n + lo, lo, lo, 0
+    for i in range(lo, hi):
         tri = prim[i]
         dx, dy, dz = np.float64(d[i, 0]), np.float64(d[i, 1]), np.float64(d[i, 2])
         if tri < 0:
@@ -423,28 +525,18 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in, look,
             c_px[n_r], c_sb[n_r], c_sl[n_r] = px[i], sb[i], sl[i]
             c_blur[n_r], c_sh[n_r], c_med[n_r] = v_refl, sh[i], n_in[i]
             n_r += 1
-        if keep_t:
+        if keep_t:  # refracted children in the second half, after every reflected one
             o = eps if tx * gx + ty * gy + tz * gz > 0 else -eps
             j = n_t_count
-            keep_t_idx[j] = i
-            t_off[j, 0], t_off[j, 1], t_off[j, 2] = p[0] + o * gx, p[1] + o * gy, p[2] + o * gz
-            t_dir[j, 0], t_dir[j, 1], t_dir[j, 2] = tx, ty, tz
-            t_w[j, 0], t_w[j, 1], t_w[j, 2] = q0, q1, q2
-            t_blur[j], t_med[j] = v_refr, n_t
+            c_o[j, 0], c_o[j, 1], c_o[j, 2] = p[0] + o * gx, p[1] + o * gy, p[2] + o * gz
+            c_d[j, 0], c_d[j, 1], c_d[j, 2] = tx, ty, tz
+            c_look[j, 0], c_look[j, 1], c_look[j, 2] = tx, ty, tz
+            c_w[j, 0], c_w[j, 1], c_w[j, 2] = q0, q1, q2
+            c_px[j], c_sb[j], c_sl[j] = px[i], sb[i], sl[i]
+            c_blur[j], c_sh[j], c_med[j] = v_refr, sh[i], n_t
+            c_share[j] = 1.0
             n_t_count += 1
-    for j in range(n_t_count):  # refracted children after the reflected ones, as the twin
-        i, m = keep_t_idx[j], n_r + j
-        for c in range(3):
-            c_o[m, c] = t_off[j, c]
-            c_d[m, c], c_w[m, c] = t_dir[j, c], t_w[j, c]
-            c_look[m, c] = t_dir[j, c]
-        c_px[m], c_sb[m], c_sl[m] = px[i], sb[i], sl[i]
-        c_blur[m], c_sh[m], c_med[m] = t_blur[j], sh[i], t_med[j]
-        c_share[m] = 1.0
-    m = n_r + n_t_count
-    return (c_o[:m], c_d[:m], c_w[:m], c_px[:m], c_sb[:m], c_sl[:m], c_blur[:m], c_sh[:m],
-            c_med[:m], c_share[:m], c_look[:m], m_d[:n_miss], m_w[:n_miss], m_blur[:n_miss], m_sl[:n_miss], direct[:n_glow], glow[:n_glow], diffuse[:n_matte], dnorm[:n_matte],
-            matte[:n_matte], tir_events, e_d[:n_env], e_w[:n_env], e_blur[:n_env], e_sl[:n_env])
+    return n_miss, n_env, n_r, n_t_count, n_glow, n_matte, tir_events
 
 
 # Cube-map faces as core.cubemap lays them out: per face, the axis and sign of s and of t.
