@@ -9,7 +9,7 @@ import os
 
 # numba's OpenMP layer (GNU libgomp) lets idle workers spin between parallel loops by default;
 # a frame runs dozens of short kernels, and on a shared machine the spinning thread takes the
-# core the other one needs (bunny at 128 px, load ~7: CPU 330 ms against 150-200 passive,
-# bench/RESULTS.md "the kernels over both cores"). Read when libgomp loads, at numba's first
-# parallel loop: set before any kernel module is imported. A value set by the user stays.
+# core the other one needs (figures: bench/RESULTS.md, "the kernels over both cores"). Read
+# when libgomp loads, at numba's first parallel loop: set before any kernel module is
+# imported. A value set by the user stays.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
