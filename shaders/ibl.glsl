@@ -50,6 +50,32 @@ vec3 env_diffuse(vec3 n) {
     return max(sh_irradiance(u_sh, ENV_DIR(n)), vec3(0.0));
 }
 
+// The split-sum's horizon (core/horizon.py): the share h of the prefiltered kernel about d
+// that lies under the plane of ng reads the ground through the surface, where the true lobe
+// is cut there. P = (1 - h) S + h G solved for the part above, S, with G the cosine-weighted
+// mean of the lower hemisphere (the SH irradiance about -ng): exact under a uniform ground.
+#ifdef HORIZON_TABLE
+float horizon_below(float s, float roughness) {
+    const float table[] = HORIZON_TABLE;
+    const int n = 17;  // core.horizon.ROWS = COLUMNS
+    float x = clamp(s, 0.0, 1.0) * float(n - 1), y = clamp(roughness, 0.0, 1.0) * float(n - 1);
+    int i = min(int(x), n - 2), j = min(int(y), n - 2);
+    float fx = x - float(i), fy = y - float(j);
+    float a = mix(table[i * n + j], table[(i + 1) * n + j], fx);
+    float b = mix(table[i * n + j + 1], table[(i + 1) * n + j + 1], fx);
+    return mix(a, b, fy);
+}
+#endif
+
+vec3 env_radiance_above(vec3 dir, float roughness, vec3 ng) {
+    vec3 p = env_radiance(dir, roughness);
+#ifdef HORIZON_TABLE
+    float h = horizon_below(dot(dir, ng), roughness);
+    if (h > 1e-4) p = max((p - h * env_diffuse(-ng)) / (1.0 - h), vec3(0.0));
+#endif
+    return p;
+}
+
 // Directional albedo of the specular lobe for F0 and F90 (KHR_materials_specular) at N.V:
 // single scattering FssEss (the split-sum LUT) and, with MULTISCATTER, the multiply
 // scattered FmsEms (Fdez-Aguera 2019, eq. 10-12); 1 - FssEss - FmsEms is what reaches a
@@ -146,7 +172,7 @@ vec3 ibl(MaterialInfo m, vec3 v) {
 #ifdef MATERIAL_ANISOTROPY
     vec3 radiance = env_radiance_anisotropic(m, v);
 #else
-    vec3 radiance = env_radiance(specular_dir(n, v, m.roughness), m.roughness);
+    vec3 radiance = env_radiance_above(specular_dir(n, v, m.roughness), m.roughness, m.ng);
 #endif
     vec3 irradiance = env_diffuse(n);
     vec3 kD = m.diffuse_color * (1.0 - FssEss - FmsEms);
@@ -182,7 +208,8 @@ vec3 ibl_clearcoat(MaterialInfo m, vec3 v) {
     vec3 n = m.clearcoat_n;
     float NdotV = clamp(dot(n, v), 1e-4, 1.0);
     vec2 ab = texture(u_brdf_lut, vec2(NdotV, m.clearcoat_roughness)).rg;
-    return (CLEARCOAT_F0 * ab.x + ab.y) * env_radiance(specular_dir(n, v, m.clearcoat_roughness), m.clearcoat_roughness)
+    return (CLEARCOAT_F0 * ab.x + ab.y)
+         * env_radiance_above(specular_dir(n, v, m.clearcoat_roughness), m.clearcoat_roughness, m.ng)
          * min(m.occlusion, specular_occlusion(NdotV, m.ao, m.clearcoat_roughness));
 }
 #endif

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 import moderngl
 import numpy as np
 
+from core import horizon
 from core.cubemap import env_rotation_matrix
 from core.options import RenderOptions
 from core.scene import Material
@@ -106,6 +107,7 @@ def frame_defines(options: RenderOptions, lights,
         d["SHADOW_TINT"] = 1
     if options.multiscatter:
         d["MULTISCATTER"] = 1
+    d["HORIZON_TABLE"] = horizon.glsl_table()  # the split-sum's horizon (shaders/ibl.glsl)
     if options.material_debug:  # shaders/lobes.glsl: one lobe alone
         d["MATERIAL_DEBUG"] = MATERIAL_DEBUG_VIEWS[options.material_debug]
     if env_rotated(options):
