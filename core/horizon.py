@@ -69,6 +69,23 @@ def horizon_table() -> np.ndarray:
     return out
 
 
+@lru_cache(maxsize=1)
+def lobe_cones() -> np.ndarray:
+    """COLUMNS: per roughness, the cosine of the cone about d that holds half the kernel's
+    weight (the specular lobe as a cone, for its occlusion by the baked visible cone)."""
+    out = np.zeros(COLUMNS)
+    for j, r in enumerate(np.linspace(0, 1, COLUMNS)):
+        light, weight = _kernel(r)
+        order = np.argsort(-light[:, 2])  # nearest d first
+        cum = np.cumsum(weight[order]) / weight.sum()
+        out[j] = light[order[np.searchsorted(cum, 0.5)], 2]
+    return out
+
+
+def glsl_cones() -> str:
+    return f"float[{COLUMNS}](" + ", ".join(f"{v:.5f}" for v in lobe_cones()) + ")"
+
+
 def glsl_table() -> str:
     """The table as a GLSL float array, row-major (n.d, then roughness)."""
     values = ", ".join(f"{v:.5f}" for v in horizon_table().ravel())

@@ -52,6 +52,10 @@ in vec4 v_color;
 #ifdef HAS_AO
 in vec2 v_ao;  // front, back side
 #endif
+#ifdef HAS_BENT
+in vec3 v_bent;       // bent normals (pipeline.occlusion), world space, front side
+in vec3 v_bent_back;  // and back side
+#endif
 
 struct MaterialInfo {
     vec4 base_color;     // linear, with alpha
@@ -65,6 +69,7 @@ struct MaterialInfo {
     vec3 emissive;
     vec3 n;              // shading normal, world space, facing the viewer on double-sided
     vec3 ng;             // geometric normal, same side
+    vec3 bent;           // the shading normal bent toward the unoccluded directions (baked), n without
     float clearcoat;     // KHR_materials_clearcoat: 0 = no coat
     float clearcoat_roughness;
     vec3 clearcoat_n;
@@ -311,6 +316,13 @@ MaterialInfo material_info(vec3 v) {
 #endif
     m.ng = geometric_normal();
     m.n = shading_normal(m.ng);
+    m.bent = m.n;
+#ifdef HAS_BENT
+    // the baked bend (mean unoccluded direction less the geometric normal) carried onto the
+    // shading normal, so a normal map's detail stays
+    vec3 bent_g = gl_FrontFacing ? v_bent : v_bent_back;
+    if (dot(bent_g, bent_g) > 1e-12) m.bent = normalize(m.n + normalize(bent_g) - m.ng);
+#endif
     material_clearcoat(m);
     material_sheen(m);
     material_iridescence(m, v);
