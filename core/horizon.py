@@ -21,11 +21,18 @@ from functools import lru_cache
 
 import numpy as np
 
-from core.storm import _radical_inverse
-
 ROWS = 17      # n.d = 0, 1/16, ..., 1
 COLUMNS = 17   # roughness 0, 1/16, ..., 1
 SAMPLES = 4096
+
+
+def _van_der_corput(i: np.ndarray) -> np.ndarray:
+    """Base-2 radical inverse of 32-bit integers, in [0, 1)."""
+    b = i.astype(np.uint64)
+    out = np.zeros_like(b)
+    for k in range(32):
+        out |= ((b >> np.uint64(k)) & np.uint64(1)) << np.uint64(31 - k)
+    return out.astype(np.float64) / 2.0 ** 32
 
 
 def _kernel(roughness: float) -> tuple[np.ndarray, np.ndarray]:
@@ -33,7 +40,7 @@ def _kernel(roughness: float) -> tuple[np.ndarray, np.ndarray]:
     half vectors reflected about +z, weight N.L; directions under +z's plane dropped)."""
     alpha = max(roughness * roughness, 1e-4)
     i = np.arange(SAMPLES)
-    xi = _radical_inverse(i)
+    xi = _van_der_corput(i)
     phi = 2 * np.pi * (i + 0.5) / SAMPLES
     cos_h = np.sqrt((1 - xi) / (1 + (alpha * alpha - 1) * xi))
     sin_h = np.sqrt(np.maximum(1 - cos_h * cos_h, 0))
@@ -67,23 +74,6 @@ def horizon_table() -> np.ndarray:
             n = np.array([np.sqrt(max(1 - s * s, 0.0)), 0.0, s])  # the plane's normal, n.d = s
             out[i, j] = weight[light @ n < 0].sum() / total
     return out
-
-
-@lru_cache(maxsize=1)
-def lobe_cones() -> np.ndarray:
-    """COLUMNS: per roughness, the cosine of the cone about d that holds half the kernel's
-    weight (the specular lobe as a cone, for its occlusion by the baked visible cone)."""
-    out = np.zeros(COLUMNS)
-    for j, r in enumerate(np.linspace(0, 1, COLUMNS)):
-        light, weight = _kernel(r)
-        order = np.argsort(-light[:, 2])  # nearest d first
-        cum = np.cumsum(weight[order]) / weight.sum()
-        out[j] = light[order[np.searchsorted(cum, 0.5)], 2]
-    return out
-
-
-def glsl_cones() -> str:
-    return f"float[{COLUMNS}](" + ", ".join(f"{v:.5f}" for v in lobe_cones()) + ")"
 
 
 def glsl_table() -> str:

@@ -202,10 +202,12 @@ def ambient_occlusion(meshes, bounds: np.ndarray, max_rays: int = AO_MAX_RAYS,
         if sides[i] == 1:
             acc[..., 1] = acc[..., 0]  # never seen: culled from behind
             bent[:, 1] = -bent[:, 0]
-        bent_out[i] = _bent_rows(bent, nrm[traced], stride, len(pos))
         if apart and len(xs) > 1:  # stride is 1 here: every placement fit at the minimum
+            # no bent normals: placements in other surroundings bend other ways, and a mean
+            # over them points nowhere in particular (the visibility rows still differ)
             out[i] = quantise_visibility(acc.reshape(-1, 2))
             continue
+        bent_out[i] = _bent_rows(bent, nrm[traced], stride, len(pos))
         ao = quantise_visibility(acc.mean(axis=0))
         out[i] = ao if stride == 1 else np.repeat(ao, stride, axis=0)[:len(pos)]
     seconds = time.perf_counter() - start

@@ -113,38 +113,6 @@ float specular_occlusion(float NdotV, float ao, float roughness) {
 }
 
 #ifdef MATERIAL_INFO_GLSL  // the lookups above also serve the background pass
-#ifdef HAS_BENT
-// Directional occlusion from the bake's bent normal (pipeline.occlusion): the sky a point sees
-// is a cone about the bent normal whose cosine-weighted share is the visibility (a cone of
-// half angle t holds sin^2 t of the hemisphere's weight: cos t = sqrt(1 - ao)); the specular
-// lobe is a cone about its lookup direction that holds half its weight (core.horizon).
-// The lobe's visible share is the caps' overlap (Oat & Sander 2007's smooth form) over the
-// overlap with the open hemisphere about n, so that an unoccluded point keeps all of it (the
-// split-sum LUT already cuts the lobe at the horizon).
-float cap_overlap(float c1, float c2, float cd) {
-    float r1 = acos(c1), r2 = acos(c2), d = acos(clamp(cd, -1.0, 1.0));
-    float small_cap = 1.0 - max(c1, c2);
-    if (min(r1, r2) <= max(r1, r2) - d) return small_cap;
-    if (r1 + r2 <= d) return 0.0;
-    float delta = abs(r1 - r2);
-    return small_cap * smoothstep(0.0, 1.0, 1.0 - clamp((d - delta) / max(r1 + r2 - delta, 1e-4), 0.0, 1.0));
-}
-
-float lobe_cone(float roughness) {
-    const float table[] = LOBE_CONES;
-    float x = clamp(roughness, 0.0, 1.0) * float(table.length() - 1);
-    int i = min(int(x), table.length() - 2);
-    return min(mix(table[i], table[i + 1], x - float(i)), 0.9995);
-}
-
-float cone_specular_occlusion(MaterialInfo m, vec3 r, float roughness) {
-    float cs = lobe_cone(roughness);
-    float cv = sqrt(clamp(1.0 - m.ao, 0.0, 1.0));
-    float open_share = cap_overlap(0.0, cs, dot(m.n, r));
-    return open_share > 1e-7 ? clamp(cap_overlap(cv, cs, dot(m.bent, r)) / open_share, 0.0, 1.0) : 1.0;
-}
-#endif
-
 #ifdef MATERIAL_ANISOTROPY
 // The prefiltered light of the anisotropic lobe (alpha_t = mix(alpha, 1, strength^2) along the
 // grain t, alpha_b = alpha across it): the lobe's microfacet slopes along t, spread by the
@@ -214,12 +182,10 @@ vec3 ibl(MaterialInfo m, vec3 v) {
     vec3 diffuse_occ = min(vec3(m.occlusion), ao_multibounce(m.ao, m.diffuse_color));
     // the specular share too gets back what the blocked directions reflect: on a metal
     // (F0 bright) the neighbouring surfaces it sees are lit (Filament does the same)
-#ifdef HAS_BENT
-    float lobe_seen = cone_specular_occlusion(m, specular_dir(n, v, m.roughness), m.roughness);
-#else
-    float lobe_seen = specular_occlusion(NdotV, m.ao, m.roughness);
-#endif
-    vec3 specular_occ = min(vec3(m.occlusion), ao_multibounce(lobe_seen, m.f0));
+    // (the bent normal's visible cone against the lobe's, Oat & Sander's cap overlap, was
+    // measured in its place and not kept: bench/RESULTS.md "horizon10")
+    vec3 specular_occ = min(vec3(m.occlusion),
+                            ao_multibounce(specular_occlusion(NdotV, m.ao, m.roughness), m.f0));
     // The multiply scattered share leaves along the lobe, as the punctual lights' ms_scale, the
     // tree tracer's albedo and the path tracer's scaled lobe put it (a metal's second bounce
     // between microfacets stays near the mirror direction), not over the cosine hemisphere:

@@ -17,8 +17,7 @@ from typing import Any, Callable, TypeVar
 import moderngl
 import numpy as np
 
-from core.baked import (BakedAsset, BakedEnvironment, BakedMesh, BakedTexture, quantise_directions,
-                         quantise_visibility)
+from core.baked import BakedAsset, BakedEnvironment, BakedMesh, BakedTexture, quantise_directions, quantise_visibility
 from core.config import renderer_settings
 from core.mips import level_shapes, texture_size_for
 from core.scene import CLAMP_TO_EDGE, MIRRORED_REPEAT, REPEAT, Light, is_srgb, point_box

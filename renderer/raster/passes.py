@@ -108,7 +108,6 @@ def frame_defines(options: RenderOptions, lights,
     if options.multiscatter:
         d["MULTISCATTER"] = 1
     d["HORIZON_TABLE"] = horizon.glsl_table()  # the split-sum's horizon (shaders/ibl.glsl)
-    d["LOBE_CONES"] = horizon.glsl_cones()  # the lobe as a cone, against the baked bent cone
     if options.material_debug:  # shaders/lobes.glsl: one lobe alone
         d["MATERIAL_DEBUG"] = MATERIAL_DEBUG_VIEWS[options.material_debug]
     if env_rotated(options):
