@@ -102,7 +102,7 @@ def env_rotated(options: RenderOptions) -> bool:
 
 def frame_defines(options: RenderOptions, lights,
                   shadows: light_shadows.ShadowViews | None = None) -> dict:
-    d = {"LIGHT_COUNT": len(lights), "SHADOW_VIEWS": shadows.views if shadows else 0}
+    d: dict[str, int | str] = {"LIGHT_COUNT": len(lights), "SHADOW_VIEWS": shadows.views if shadows else 0}
     if shadows is not None and shadows.tint is not None:
         d["SHADOW_TINT"] = 1
     if options.multiscatter:
