@@ -72,6 +72,20 @@ def quantise_visibility(ao: np.ndarray) -> np.ndarray:
     return np.rint(np.clip(ao, 0.0, 1.0) * 255.0).astype(np.uint8)
 
 
+def quantise_directions(d: np.ndarray) -> np.ndarray:
+    """Unit vector components in [-1, 1] as stored in BakedMesh.bent: uint8, (x + 1) / 2 x 255
+    (the raster reads them as normalised floats)."""
+    return np.rint((np.clip(d, -1.0, 1.0) + 1.0) * 127.5).astype(np.uint8)
+
+
+def dequantise_directions(d: np.ndarray) -> np.ndarray:
+    """BakedMesh.bent as float32 components in [-1, 1]; a float array passes as it is."""
+    d = np.asarray(d)
+    if d.dtype == np.uint8:
+        return d.astype(np.float32) * np.float32(2.0 / 255.0) - np.float32(1.0)
+    return d.astype(np.float32)
+
+
 def dequantise_visibility(ao: np.ndarray) -> np.ndarray:
     """BakedMesh.ao as float32 in [0, 1]; a float array (a hand-made mesh) passes as it is."""
     ao = np.asarray(ao)
@@ -98,6 +112,9 @@ class BakedMesh:
     #                                    of the front and back sides, shared by the placements,
     #                                    or (K N) x 2 (one N x 2 row per placement, in transforms'
     #                                    order), or None: read visibility()
+    bent: np.ndarray | None = None      # N x 6 uint8 bent normals (pipeline.occlusion: the mean
+    #                                    unoccluded direction), front xyz then back xyz, object
+    #                                    space, quantise_directions; or None
     # welded edges (core.adjacency.welded_edges), baked for assets within its MAX_TRIANGLES:
     edges: np.ndarray | None = None       # E x 2 uint32 vertex indices
     edge_faces: np.ndarray | None = None  # E x 2 int32 face indices (second -1: boundary)
@@ -133,7 +150,7 @@ class BakedMesh:
     def nbytes(self) -> int:
         """Bytes of its arrays (the materials' textures are the asset's)."""
         return _array_bytes(self.positions, self.normals, self.indices, self.transforms, self.tangents,
-                            self.uv0, self.uv1, self.colors, self.interior, self.ao, self.edges, self.edge_faces,
+                            self.uv0, self.uv1, self.colors, self.interior, self.ao, self.bent, self.edges, self.edge_faces,
                             self.support)
 
 

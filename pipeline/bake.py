@@ -93,7 +93,7 @@ def asset_options(options) -> dict:
             "draw_mode": options.draw_mode}
 PREFILTERS = ("ggx", "paper")
 _MESH_ARRAYS = ("positions", "normals", "indices", "tangents", "uv0", "uv1", "colors", "interior",
-                "ao", "edges", "edge_faces", "support", "edge_order")
+                "ao", "bent", "edges", "edge_faces", "support", "edge_order")
 
 
 def _occlusion(asked: bool | None, source) -> bool:
@@ -261,8 +261,8 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None,
     if _occlusion(opts["occlusion"], scene.source):
         from pipeline.occlusion import ambient_occlusion  # Embree and numba: bakes only
         occlusion = ambient_occlusion(meshes, np.asarray(scene.bounds, np.float64))
-        for mesh, ao in zip(meshes, occlusion.ao):
-            mesh.ao = ao
+        for mesh, ao, bent in zip(meshes, occlusion.ao, occlusion.bent or [None] * len(meshes)):
+            mesh.ao, mesh.bent = ao, bent
     start = time.perf_counter()
     with_edges = sum(len(m.indices) * len(m.transforms) for m in meshes) <= MAX_TRIANGLES
     batched = 0

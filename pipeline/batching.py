@@ -17,11 +17,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from core.baked import BakedMesh
+from core.baked import BakedMesh, dequantise_directions, quantise_directions
 from core.hull import support_points
 
 MAX_PART_VERTICES = 1 << 14
-_OPTIONAL = ("tangents", "uv0", "uv1", "colors", "ao")
+_OPTIONAL = ("tangents", "uv0", "uv1", "colors", "ao", "bent")
 
 
 def batchable(mesh: BakedMesh, backdrop: bool) -> bool:
@@ -93,6 +93,11 @@ def merge(parts: list[BakedMesh], with_edges: bool = True) -> BakedMesh:
         if name == "tangents":  # mat3(model) * xyz; w kept (no part mirrors)
             xyz = np.einsum("vij,vj->vi", linear[part_of], arr[:, :3].astype(np.float64))
             arr = np.concatenate([xyz, arr[:, 3:4]], axis=1).astype(np.float32)
+        elif name == "bent":  # object-space directions turned as the normals are
+            d = dequantise_directions(arr).reshape(-1, 2, 3).astype(np.float64)
+            d = np.einsum("vij,vsj->vsi", normal[part_of], d)
+            d /= np.maximum(np.linalg.norm(d, axis=2, keepdims=True), 1e-30)
+            arr = quantise_directions(d.reshape(-1, 6))
         extra[name] = arr
     edges, edge_faces = welded_edges_parts(obj, indices, part_of) if with_edges else (None, None)
     edge_part = None if edges is None else part_of[edges[:, 0]].astype(np.int32)
@@ -105,7 +110,8 @@ def merge(parts: list[BakedMesh], with_edges: bool = True) -> BakedMesh:
                      indices=indices, material=parts[0].material,
                      transforms=np.eye(4, dtype=np.float64)[None], edges=edges, edge_faces=edge_faces,
                      support=np.concatenate(support), edge_order=edge_part, tangents=extra["tangents"],
-                     uv0=extra["uv0"], uv1=extra["uv1"], colors=extra["colors"], ao=extra["ao"])
+                     uv0=extra["uv0"], uv1=extra["uv1"], colors=extra["colors"], ao=extra["ao"],
+                     bent=extra["bent"])
 
 
 def welded_edges_parts(positions: np.ndarray, indices: np.ndarray,

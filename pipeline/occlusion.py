@@ -45,7 +45,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from core.baked import quantise_visibility
+from core.baked import quantise_directions, quantise_visibility
 
 log = logging.getLogger(__name__)
 
@@ -69,6 +69,9 @@ class OcclusionResult:
     rays_per_vertex: int
     stride: int                  # 1: every vertex traced
     seconds: float
+    # per mesh: N x 6 uint8 bent normals (core.baked.quantise_directions), front then back,
+    # object space, shared by the placements; or None where `ao` is None
+    bent: list[np.ndarray | None] | None = None
 
 
 def hemisphere_set(rays: int) -> np.ndarray:
@@ -123,6 +126,7 @@ def ambient_occlusion(meshes, bounds: np.ndarray, max_rays: int = AO_MAX_RAYS,
 
     start = time.perf_counter()
     out: list[np.ndarray | None] = [None] * len(meshes)
+    bent_out: list[np.ndarray | None] = [None] * len(meshes)
     lo, hi = np.asarray(bounds, np.float64)
     diagonal = float(np.linalg.norm(hi - lo))
     receivers = [i for i, m in enumerate(meshes) if _receives(m.material) and len(m.positions)
@@ -182,6 +186,7 @@ def ambient_occlusion(meshes, bounds: np.ndarray, max_rays: int = AO_MAX_RAYS,
         turn = rng.uniform(0, 2 * np.pi, len(traced))  # per vertex, shared by its placements
         xs = np.asarray(m.transforms, np.float64).reshape(-1, 4, 4)[:placements[i]]
         acc = np.zeros((len(xs), len(traced), 2))
+        bent = np.zeros((len(traced), 2, 3))  # object space, summed over the placements
         inward = (_ring_centres(pos, np.asarray(m.indices, np.int64).reshape(-1, 3)) - pos)[traced]
         # every placement's vertices in one call (many small instances cost one Embree pass)
         lin = xs[:, :3, :3]
@@ -190,19 +195,37 @@ def ambient_occlusion(meshes, bounds: np.ndarray, max_rays: int = AO_MAX_RAYS,
         inward_w = np.einsum("vj,kij->kvi", inward, lin).reshape(-1, 3)
         turns = np.tile(turn, len(xs))
         for side in range(sides[i]):
-            acc[..., side] = trace(p, -n if side else n, inward_w, turns).reshape(len(xs), -1)
+            visible, mean_dir = trace(p, -n if side else n, inward_w, turns)
+            acc[..., side] = visible.reshape(len(xs), -1)
+            # world directions back to object space as normals go (n_w = inv(L)^T n_o)
+            bent[:, side] = np.einsum("kvi,kij->vj", mean_dir.reshape(len(xs), -1, 3), lin)
         if sides[i] == 1:
             acc[..., 1] = acc[..., 0]  # never seen: culled from behind
+            bent[:, 1] = -bent[:, 0]
         if apart and len(xs) > 1:  # stride is 1 here: every placement fit at the minimum
+            # no bent normals: placements in other surroundings bend other ways, and a mean
+            # over them points nowhere in particular (the visibility rows still differ)
             out[i] = quantise_visibility(acc.reshape(-1, 2))
             continue
+        bent_out[i] = _bent_rows(bent, nrm[traced], stride, len(pos))
         ao = quantise_visibility(acc.mean(axis=0))
         out[i] = ao if stride == 1 else np.repeat(ao, stride, axis=0)[:len(pos)]
     seconds = time.perf_counter() - start
     total = trace.rays
     log.info("ambient occlusion: %d rays (%d per vertex, stride %d) in %.2f s", total, per_vertex,
              stride, seconds)
-    return OcclusionResult(out, total, per_vertex, stride, seconds)
+    return OcclusionResult(out, total, per_vertex, stride, seconds, bent_out)
+
+
+def _bent_rows(bent: np.ndarray, normals: np.ndarray, stride: int, count: int) -> np.ndarray:
+    """Per traced vertex and side the mean unoccluded direction, normalised (a vertex whose
+    every ray was blocked keeps its normal), quantised and spread over the stride."""
+    fallback = np.stack([normals, -normals], axis=1)
+    length = np.linalg.norm(bent, axis=2, keepdims=True)
+    unit = np.where(length > 1e-9, bent / np.maximum(length, 1e-30), fallback)
+    unit /= np.maximum(np.linalg.norm(unit, axis=2, keepdims=True), 1e-30)
+    rows = quantise_directions(unit.reshape(-1, 6))
+    return rows if stride == 1 else np.repeat(rows, stride, axis=0)[:count]
 
 
 class _Tracer:
@@ -212,8 +235,10 @@ class _Tracer:
         self.scene, self.one_sided, self.directions = scene, one_sided, directions
         self.epsilon, self.reach, self.rays = epsilon, reach, 0
 
-    def __call__(self, p: np.ndarray, n: np.ndarray, inward: np.ndarray, turn: np.ndarray) -> np.ndarray:
-        """`inward`: per vertex, toward the middle of its own triangles (unnormalised)."""
+    def __call__(self, p: np.ndarray, n: np.ndarray, inward: np.ndarray,
+                 turn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(visibility, the mean of the unblocked directions: the bent normal, unnormalised)
+        per vertex; `inward`: per vertex, toward the middle of its own triangles."""
         eps, dirs = self.epsilon, self.directions
         length = np.linalg.norm(n, axis=1)
         usable = length > 1e-12
@@ -229,6 +254,7 @@ class _Tracer:
         t, b = c * t + s * b, c * b - s * t  # the vertex's turn of the set
         step = max(1, _CHUNK // len(dirs))
         visible = np.ones(len(p))
+        mean_dir = n.copy()
         for a in range(0, len(p), step):
             sl = slice(a, a + step)
             d = (dirs[None, :, 0:1] * t[sl, None] + dirs[None, :, 1:2] * b[sl, None]
@@ -237,7 +263,8 @@ class _Tracer:
             d = d.astype(np.float32)
             met = self._blocked(origins, d)
             visible[sl] = 1.0 - met.reshape(-1, len(dirs)).mean(axis=1)
-        return np.where(usable, visible, 1.0)
+            mean_dir[sl] = (d.reshape(-1, len(dirs), 3) * ~met.reshape(-1, len(dirs), 1)).mean(axis=1)
+        return np.where(usable, visible, 1.0), np.where(usable[:, None], mean_dir, n)
 
     def _blocked(self, origins: np.ndarray, d: np.ndarray) -> np.ndarray:
         """Whether each ray meets an occluder within reach. A single-sided face met from behind

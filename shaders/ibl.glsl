@@ -50,6 +50,32 @@ vec3 env_diffuse(vec3 n) {
     return max(sh_irradiance(u_sh, ENV_DIR(n)), vec3(0.0));
 }
 
+// The split-sum's horizon (core/horizon.py): the share h of the prefiltered kernel about d
+// that lies under the plane of ng reads the ground through the surface, where the true lobe
+// is cut there. P = (1 - h) S + h G solved for the part above, S, with G the cosine-weighted
+// mean of the lower hemisphere (the SH irradiance about -ng): exact under a uniform ground.
+#ifdef HORIZON_TABLE
+float horizon_below(float s, float roughness) {
+    const float table[] = HORIZON_TABLE;
+    const int n = 17;  // core.horizon.ROWS = COLUMNS
+    float x = clamp(s, 0.0, 1.0) * float(n - 1), y = clamp(roughness, 0.0, 1.0) * float(n - 1);
+    int i = min(int(x), n - 2), j = min(int(y), n - 2);
+    float fx = x - float(i), fy = y - float(j);
+    float a = mix(table[i * n + j], table[(i + 1) * n + j], fx);
+    float b = mix(table[i * n + j + 1], table[(i + 1) * n + j + 1], fx);
+    return mix(a, b, fy);
+}
+#endif
+
+vec3 env_radiance_above(vec3 dir, float roughness, vec3 ng) {
+    vec3 p = env_radiance(dir, roughness);
+#ifdef HORIZON_TABLE
+    float h = horizon_below(dot(dir, ng), roughness);
+    if (h > 1e-4) p = max((p - h * env_diffuse(-ng)) / (1.0 - h), vec3(0.0));
+#endif
+    return p;
+}
+
 // Directional albedo of the specular lobe for F0 and F90 (KHR_materials_specular) at N.V:
 // single scattering FssEss (the split-sum LUT) and, with MULTISCATTER, the multiply
 // scattered FmsEms (Fdez-Aguera 2019, eq. 10-12); 1 - FssEss - FmsEms is what reaches a
@@ -146,15 +172,18 @@ vec3 ibl(MaterialInfo m, vec3 v) {
 #ifdef MATERIAL_ANISOTROPY
     vec3 radiance = env_radiance_anisotropic(m, v);
 #else
-    vec3 radiance = env_radiance(specular_dir(n, v, m.roughness), m.roughness);
+    vec3 radiance = env_radiance_above(specular_dir(n, v, m.roughness), m.roughness, m.ng);
 #endif
-    vec3 irradiance = env_diffuse(n);
+    // about the bent normal: the blocked directions' sky is not counted (m.bent = n unbaked)
+    vec3 irradiance = env_diffuse(m.bent);
     vec3 kD = m.diffuse_color * (1.0 - FssEss - FmsEms);
     // The occlusion texture and the baked visibility usually record the same geometry (a
     // texture is most often an AO bake): the darker of the two, not their product.
     vec3 diffuse_occ = min(vec3(m.occlusion), ao_multibounce(m.ao, m.diffuse_color));
     // the specular share too gets back what the blocked directions reflect: on a metal
     // (F0 bright) the neighbouring surfaces it sees are lit (Filament does the same)
+    // (the bent normal's visible cone against the lobe's, Oat & Sander's cap overlap, was
+    // measured in its place and not kept: bench/RESULTS.md "horizon10")
     vec3 specular_occ = min(vec3(m.occlusion),
                             ao_multibounce(specular_occlusion(NdotV, m.ao, m.roughness), m.f0));
     // The multiply scattered share leaves along the lobe, as the punctual lights' ms_scale, the
@@ -172,7 +201,7 @@ vec3 ibl(MaterialInfo m, vec3 v) {
 vec3 ibl_sheen(MaterialInfo m, vec3 v) {
     float NdotV = clamp(dot(m.n, v), 1e-4, 1.0);
     float e = texture(u_brdf_lut, vec2(NdotV, m.sheen_roughness)).b;
-    return m.sheen_color * e * env_diffuse(m.n) * min(m.occlusion, m.ao);
+    return m.sheen_color * e * env_diffuse(m.bent) * min(m.occlusion, m.ao);
 }
 #endif
 
@@ -182,7 +211,8 @@ vec3 ibl_clearcoat(MaterialInfo m, vec3 v) {
     vec3 n = m.clearcoat_n;
     float NdotV = clamp(dot(n, v), 1e-4, 1.0);
     vec2 ab = texture(u_brdf_lut, vec2(NdotV, m.clearcoat_roughness)).rg;
-    return (CLEARCOAT_F0 * ab.x + ab.y) * env_radiance(specular_dir(n, v, m.clearcoat_roughness), m.clearcoat_roughness)
+    return (CLEARCOAT_F0 * ab.x + ab.y)
+         * env_radiance_above(specular_dir(n, v, m.clearcoat_roughness), m.clearcoat_roughness, m.ng)
          * min(m.occlusion, specular_occlusion(NdotV, m.ao, m.clearcoat_roughness));
 }
 #endif

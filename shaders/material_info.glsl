@@ -55,6 +55,10 @@ in vec4 v_color;
 #ifdef HAS_AO
 in vec2 v_ao;  // front, back side
 #endif
+#ifdef HAS_BENT
+in vec3 v_bent;       // bent normals (pipeline.occlusion), world space, front side
+in vec3 v_bent_back;  // and back side
+#endif
 
 struct MaterialInfo {
     vec4 base_color;     // linear, with alpha
@@ -68,6 +72,7 @@ struct MaterialInfo {
     vec3 emissive;
     vec3 n;              // shading normal, world space, facing the viewer on double-sided
     vec3 ng;             // geometric normal, same side
+    vec3 bent;           // the shading normal bent toward the unoccluded directions (baked), n without
     float clearcoat;     // KHR_materials_clearcoat: 0 = no coat
     float clearcoat_roughness;
     vec3 clearcoat_n;
@@ -317,6 +322,13 @@ MaterialInfo material_info(vec3 v) {
 #ifdef FACE_VIEWER
     // a point sprite, a disc turned to the viewer (Material.face_viewer): Storm's eye-space +Z
     m.ng = m.n = u_view_axis;
+#endif
+    m.bent = m.n;
+#if defined(HAS_BENT) && !defined(FACE_VIEWER)
+    // the baked bend (mean unoccluded direction less the geometric normal) carried onto the
+    // shading normal, so a normal map's detail stays
+    vec3 bent_g = gl_FrontFacing ? v_bent : v_bent_back;
+    if (dot(bent_g, bent_g) > 1e-12) m.bent = normalize(m.n + normalize(bent_g) - m.ng);
 #endif
     material_clearcoat(m);
     material_sheen(m);

@@ -34,6 +34,12 @@ in vec2 in_ao;         // baked ambient visibility (pipeline.occlusion), front a
 #endif
 out vec2 v_ao;
 #endif
+#ifdef HAS_BENT
+in vec3 in_bent;       // bent normals (pipeline.occlusion), object space, (x + 1) / 2
+in vec3 in_bent_back;
+out vec3 v_bent;
+out vec3 v_bent_back;
+#endif
 #ifdef HAS_INTERIOR
 in vec3 in_interior;   // baked object-space vertex->exit vector (refractive meshes)
 out vec3 v_interior;   // in world space: scale and shear apply (paper 4.2.3.2)
@@ -69,6 +75,10 @@ void main() {
 #else
     v_ao = in_ao;
 #endif
+#endif
+#ifdef HAS_BENT
+    v_bent = in_normal_matrix * (in_bent * 2.0 - 1.0);
+    v_bent_back = in_normal_matrix * (in_bent_back * 2.0 - 1.0);
 #endif
 #ifdef HAS_INTERIOR
     v_interior = mat3(in_model) * in_interior;

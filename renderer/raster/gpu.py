@@ -16,7 +16,7 @@ from typing import Any, Callable, TypeVar
 import moderngl
 import numpy as np
 
-from core.baked import BakedAsset, BakedEnvironment, BakedMesh, BakedTexture, quantise_visibility
+from core.baked import BakedAsset, BakedEnvironment, BakedMesh, BakedTexture, quantise_directions, quantise_visibility
 from core.config import renderer_settings
 from core.mips import level_shapes, texture_size_for
 from core.scene import CLAMP_TO_EDGE, MIRRORED_REPEAT, REPEAT, Light, is_srgb, point_box
@@ -73,6 +73,8 @@ _ATTRIBUTES = {
     # baked ambient visibility, front and back (pipeline.occlusion): uint8 x 255 as the bake
     # stores it, read as normalised floats (a quarter of float32's buffer)
     "ao": ("in_ao", "2f1"),
+    # bent normals, front and back (pipeline.occlusion): uint8 (x + 1) / 2 x 255, two attributes
+    "bent": ("in_bent in_bent_back", "3f1 3f1"),
     "interior": ("in_interior", "3f"),  # refractive meshes only (renderer.methods.refraction)
 }
 # per instance: model and normal matrices, and its row in transforms (per-placement visibility)
@@ -101,7 +103,7 @@ class GpuMesh:
         key = (prog.glo, mirrored)
         vao = self.vaos.get(key)
         if vao is None:
-            content: list[tuple] = [(buf, _ATTRIBUTES[name][1], _ATTRIBUTES[name][0])
+            content: list[tuple] = [(buf, _ATTRIBUTES[name][1], *_ATTRIBUTES[name][0].split())
                                    for name, buf in self.buffers.items()]
             inst = next(b for m, b, _ in self.instances if m == mirrored)
             content.append((inst, *_INSTANCE))
@@ -221,6 +223,8 @@ def _vertex_data(name: str, arr: np.ndarray) -> np.ndarray:
     """One attribute's array as its buffer holds it (_ATTRIBUTES' format)."""
     if name == "ao":
         return np.ascontiguousarray(arr if arr.dtype == np.uint8 else quantise_visibility(arr))
+    if name == "bent":
+        return np.ascontiguousarray(arr if arr.dtype == np.uint8 else quantise_directions(arr))
     return np.ascontiguousarray(arr, np.float32)
 
 

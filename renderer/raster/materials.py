@@ -81,6 +81,8 @@ def _build(mesh, m: Material, asset: gpu.GpuAsset, ov: MaterialOverride | None) 
         uniforms.append(("u_ao_vertices", np.int32(len(mesh.positions)).tobytes()))
     elif mesh.ao is not None and len(mesh.ao) == len(mesh.positions):
         defines["HAS_AO"] = 1
+    if "HAS_AO" in defines and mesh.bent is not None and len(mesh.bent) == len(mesh.positions):
+        defines["HAS_BENT"] = 1  # bent normals beside the visibility (shaders/ibl.glsl)
     if m.double_sided:
         defines["DOUBLE_SIDED"] = 1
     elif m.show_back_faces:  # USD single-sided: back faces lit as Storm lights them (core.storm)

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 import moderngl
 import numpy as np
 
+from core import horizon
 from core.cubemap import env_rotation_matrix
 from core.options import RenderOptions
 from core.scene import Material
@@ -101,11 +102,12 @@ def env_rotated(options: RenderOptions) -> bool:
 
 def frame_defines(options: RenderOptions, lights,
                   shadows: light_shadows.ShadowViews | None = None) -> dict:
-    d = {"LIGHT_COUNT": len(lights), "SHADOW_VIEWS": shadows.views if shadows else 0}
+    d: dict[str, int | str] = {"LIGHT_COUNT": len(lights), "SHADOW_VIEWS": shadows.views if shadows else 0}
     if shadows is not None and shadows.tint is not None:
         d["SHADOW_TINT"] = 1
     if options.multiscatter:
         d["MULTISCATTER"] = 1
+    d["HORIZON_TABLE"] = horizon.glsl_table()  # the split-sum's horizon (shaders/ibl.glsl)
     if options.material_debug:  # shaders/lobes.glsl: one lobe alone
         d["MATERIAL_DEBUG"] = MATERIAL_DEBUG_VIEWS[options.material_debug]
     if env_rotated(options):
