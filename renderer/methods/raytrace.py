@@ -105,9 +105,8 @@ from core.baked import BakedAsset, BakedEnvironment
 from core.cubemap import env_rotation_matrix, sample_cube
 from core.mips import texture_size_for
 from core.options import RenderOptions, apply_override, background_rgb
-from core.sh import sh_irradiance
 from renderer.frame import Frame, FrameTimings, alpha_is_mask, tonemap_srgb8
-from renderer.methods import trace_lights, trace_material
+from renderer.methods import env_irradiance, trace_lights, trace_material
 from renderer.methods.optics import (
     dominant_direction,
     fresnel_dielectric,
@@ -302,13 +301,14 @@ class _Environment:
         return _env(self.baked, d, roughness)
 
     def irradiance(self, n: np.ndarray) -> np.ndarray:
-        """Irradiance / pi about unit normals n: what a white Lambertian surface reflects, from
-        the baked SH as the raster's ambient term (shaders/sh.glsl). The roughest GGX mip is not
-        this: its lobe is narrower than the cosine and, under a blue sky, gave flat boards
-        facing the horizon a blue cast (+14% blue on footprint_court, red equal)."""
+        """Irradiance / pi about unit normals n: what a white Lambertian surface reflects,
+        integrated from the cube's texels (env_irradiance: the bake's order-2 SH, which the
+        raster's ambient term reads, is 1-3% off per channel on coloured skies). The roughest
+        GGX mip is not this either: its lobe is narrower than the cosine and, under a blue sky,
+        gave flat boards facing the horizon a blue cast (+14% blue on footprint_court)."""
         if self.to_env is not None:
             n = n @ self.to_env.T
-        return sh_irradiance(self.baked.irradiance_sh, n)
+        return env_irradiance.read(env_irradiance.net_for(self.baked), n)
 
     def split_sum(self, cos_v: np.ndarray, roughness: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(scale, bias) for F0, bilinear in the LUT (texel centres at (i + 0.5) / N)."""
