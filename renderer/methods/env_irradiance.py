@@ -13,6 +13,7 @@ per environment per process.
 """
 from __future__ import annotations
 
+import hashlib
 import threading
 from collections import OrderedDict
 
@@ -24,7 +25,7 @@ from core.cubemap import direction_to_face, face_points
 SOURCE_FACE = 32   # the radiance's face size integrated (a block's cosine varies < 3 degrees)
 GRID = 48          # intervals per face edge of the irradiance net
 CACHE = 8          # environments kept (a net is 6 x 49 x 49 x 3 float64: 350 kB)
-_cache: OrderedDict[str, np.ndarray] = OrderedDict()
+_cache: OrderedDict[tuple, np.ndarray] = OrderedDict()
 _lock = threading.Lock()
 
 
@@ -69,16 +70,26 @@ def irradiance_net(faces: np.ndarray, compiled: bool = True) -> np.ndarray:
     return (out / np.pi).reshape(6, GRID + 1, GRID + 1, 3)
 
 
+def _identity(env: BakedEnvironment) -> tuple:
+    """What a cached net is found by: the key and a digest of the sharpest level (every 5th
+    texel) and the coarsest, so two environments under one key (tests make them) never share."""
+    top = np.ascontiguousarray(env.specular[0][:, ::5, ::5])
+    digest = hashlib.blake2b(top.tobytes(), digest_size=16)
+    digest.update(np.ascontiguousarray(env.specular[-1]).tobytes())
+    return env.key, env.specular[0].shape, digest.hexdigest()
+
+
 def net_for(env: BakedEnvironment) -> np.ndarray:
-    """irradiance_net of env's sharpest level, computed once per environment key."""
+    """irradiance_net of env's sharpest level, computed once per environment."""
+    ident = _identity(env)
     with _lock:
-        got = _cache.get(env.key)
+        got = _cache.get(ident)
         if got is not None:
-            _cache.move_to_end(env.key)
+            _cache.move_to_end(ident)
             return got
     net = irradiance_net(env.specular[0])
     with _lock:
-        _cache[env.key] = net
+        _cache[ident] = net
         while len(_cache) > CACHE:
             _cache.popitem(last=False)
     return net

@@ -473,10 +473,16 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     if options.integrator == "path":  # progressive path tracing (renderer.methods.path_trace)
         from renderer.methods import path_trace
         pixels = np.flatnonzero(near)
-        for scene, img in zip(passes, images):
-            rgb_p, cov_p = path_trace.trace(scene, sky, options, camera, pixels, stats)
+        # budget_ms counts from the frame's start (the scene build included); a dispersive
+        # frame's channels share what is left, so three channels do not take three budgets
+        deadline = None if options.budget_ms is None else t0 + options.budget_ms / 1e3
+        for c, (scene, img) in enumerate(zip(passes, images)):
+            share = None if deadline is None else \
+                time.perf_counter() + (deadline - time.perf_counter()) / (len(passes) - c)
+            rgb_p, cov_p = path_trace.trace(scene, sky, options, camera, pixels, stats, share)
             img.rgb[pixels] += rgb_p
             img.coverage[pixels] += cov_p
+        stats["elapsed_ms"] = (time.perf_counter() - t0) * 1e3  # the frame up to its last pass
         supersample = 1
     else:
         groups = [(near, supersample)]
@@ -1172,6 +1178,7 @@ def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOpt
         plan.update(passes=stats["passes"], samples_mean=round(stats["samples_mean"], 2),
                     stop=stats["stop"], nonfinite=stats.get("nonfinite", 0),
                     path_ms=round(stats["path_ms"], 1), pass_ms_max=round(stats["pass_ms_max"], 1),
+                    elapsed_ms=round(stats["elapsed_ms"], 1),
                     split_ms={k: round(v, 1) for k, v in stats["split_ms"].items()})
     total = (t1 - t0) * 1e3
     timings = FrameTimings(total, {"build": stats["build_ms"], "trace": stats["trace_ms"],
