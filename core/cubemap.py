@@ -69,15 +69,21 @@ def sample_equirect(image: np.ndarray, d: np.ndarray) -> np.ndarray:
     return top * (1 - fy) + bottom * fy
 
 
-def face_directions(size: int) -> np.ndarray:
-    """Unit directions through the texel centres of every face: 6 x S x S x 3."""
-    c = (np.arange(size) + 0.5) / size * 2 - 1
-    tc, sc = np.meshgrid(c, c, indexing="ij")  # row index = t, column = s
-    out = np.empty((6, size, size, 3))
+def face_points(coords: np.ndarray) -> np.ndarray:
+    """Directions (not normalized: the major axis is +-1) at face coordinates sc, tc in
+    coords x coords (each -1..1) on every face: 6 x K x K x 3, row index t, column s."""
+    tc, sc = np.meshgrid(coords, coords, indexing="ij")
+    out = np.empty((6, len(coords), len(coords), 3))
     for f, (major, sign, (sa, ss), (ta, ts)) in enumerate(_FACES):
         out[f, ..., major] = sign
         out[f, ..., sa] = ss * sc
         out[f, ..., ta] = ts * tc
+    return out
+
+
+def face_directions(size: int) -> np.ndarray:
+    """Unit directions through the texel centres of every face: 6 x S x S x 3."""
+    out = face_points((np.arange(size) + 0.5) / size * 2 - 1)
     return out / np.linalg.norm(out, axis=-1, keepdims=True)
 
 

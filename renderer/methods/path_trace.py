@@ -685,9 +685,11 @@ def _emitter_nee(ts, em, lobes: _Lobes, rows: np.ndarray, x: np.ndarray, ng: np.
 
 
 def trace(ts, sky, options: RenderOptions, camera, first_near: np.ndarray,
-          stats: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+          stats: dict[str, Any], deadline: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Progressive passes over the pixels `first_near` (flat indices): (mean radiance per
-    pixel, N x 3; coverage per pixel, N). Fills stats with passes, samples and timings."""
+    pixel, N x 3; coverage per pixel, N). Fills stats with passes, samples and timings.
+    `deadline` (time.perf_counter seconds): no pass starts that the last one's time says would
+    end past it (the first always runs); None: options.budget_ms from now."""
 
     t0 = time.perf_counter()
     env_sampler = EnvSampler(sky.baked.specular[0], sky.to_env)
@@ -699,7 +701,8 @@ def trace(ts, sky, options: RenderOptions, camera, first_near: np.ndarray,
     cover = np.zeros(npix)
     count = np.zeros(npix)
     active = np.ones(npix, bool)
-    budget = options.budget_ms
+    if deadline is None and options.budget_ms is not None:
+        deadline = t0 + options.budget_ms / 1e3
     max_passes = int(options.samples)
     stats.update(rays=stats.get("rays", 0), tir=stats.get("tir", 0))
     # where a pass's time goes: ray casts (camera, bounce and shadow rays: Embree and the
@@ -743,14 +746,17 @@ def trace(ts, sky, options: RenderOptions, camera, first_near: np.ndarray,
             if not active.any():
                 stop = "noise"
                 break
-        if budget is not None:
-            elapsed = (time.perf_counter() - t0) * 1e3
-            if elapsed + pass_ms[-1] > budget:
-                stop = "budget"
-                break
+        if deadline is not None and time.perf_counter() + pass_ms[-1] / 1e3 > deadline:
+            stop = "budget"
+            break
     split["shading"] += sum(pass_ms) - (split["traversal"] + split["material"] - before)
-    stats.update(passes=len(pass_ms), samples_mean=float(count.mean()) if npix else 0.0,
-                 stop=stop, pass_ms_max=max(pass_ms, default=0.0),
-                 path_ms=(time.perf_counter() - t0) * 1e3)
+    # a dispersive frame traces once per channel: passes and times add up over the channels,
+    # samples_mean is a channel's mean, and a budget stop in any channel is the frame's
+    k = stats.get("channels", 0)
+    stats.update(channels=k + 1, passes=stats.get("passes", 0) + len(pass_ms),
+                 samples_mean=(stats.get("samples_mean", 0.0) * k + (float(count.mean()) if npix else 0.0)) / (k + 1),
+                 stop="budget" if stats.get("stop") == "budget" else stop,
+                 pass_ms_max=max(stats.get("pass_ms_max", 0.0), max(pass_ms, default=0.0)),
+                 path_ms=stats.get("path_ms", 0.0) + (time.perf_counter() - t0) * 1e3)
     safe = np.maximum(count, 1)
     return total / safe[:, None], cover / safe

@@ -105,9 +105,8 @@ from core.baked import BakedAsset, BakedEnvironment
 from core.cubemap import env_rotation_matrix, sample_cube
 from core.mips import texture_size_for
 from core.options import RenderOptions, apply_override, background_rgb
-from core.sh import sh_irradiance
 from renderer.frame import Frame, FrameTimings, alpha_is_mask, tonemap_srgb8
-from renderer.methods import trace_lights, trace_material
+from renderer.methods import env_irradiance, trace_lights, trace_material
 from renderer.methods.optics import (
     dominant_direction,
     fresnel_dielectric,
@@ -303,13 +302,14 @@ class _Environment:
         return _env(self.baked, d, roughness)
 
     def irradiance(self, n: np.ndarray) -> np.ndarray:
-        """Irradiance / pi about unit normals n: what a white Lambertian surface reflects, from
-        the baked SH as the raster's ambient term (shaders/sh.glsl). The roughest GGX mip is not
-        this: its lobe is narrower than the cosine and, under a blue sky, gave flat boards
-        facing the horizon a blue cast (+14% blue on footprint_court, red equal)."""
+        """Irradiance / pi about unit normals n: what a white Lambertian surface reflects,
+        integrated from the cube's texels (env_irradiance: the bake's order-2 SH, which the
+        raster's ambient term reads, is 1-3% off per channel on coloured skies). The roughest
+        GGX mip is not this either: its lobe is narrower than the cosine and, under a blue sky,
+        gave flat boards facing the horizon a blue cast (+14% blue on footprint_court)."""
         if self.to_env is not None:
             n = n @ self.to_env.T
-        return sh_irradiance(self.baked.irradiance_sh, n)
+        return env_irradiance.read(env_irradiance.net_for(self.baked), n)
 
     def split_sum(self, cos_v: np.ndarray, roughness: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(scale, bias) for F0, bilinear in the LUT (texel centres at (i + 0.5) / N)."""
@@ -479,10 +479,16 @@ def trace(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     if options.integrator == "path":  # progressive path tracing (renderer.methods.path_trace)
         from renderer.methods import path_trace
         pixels = np.flatnonzero(near)
-        for scene, img in zip(passes, images):
-            rgb_p, cov_p = path_trace.trace(scene, sky, options, camera, pixels, stats)
+        # budget_ms counts from the frame's start (the scene build included); a dispersive
+        # frame's channels share what is left, so three channels do not take three budgets
+        deadline = None if options.budget_ms is None else t0 + options.budget_ms / 1e3
+        for c, (scene, img) in enumerate(zip(passes, images)):
+            share = None if deadline is None else \
+                time.perf_counter() + (deadline - time.perf_counter()) / (len(passes) - c)
+            rgb_p, cov_p = path_trace.trace(scene, sky, options, camera, pixels, stats, share)
             img.rgb[pixels] += rgb_p
             img.coverage[pixels] += cov_p
+        stats["elapsed_ms"] = (time.perf_counter() - t0) * 1e3  # the frame up to its last pass
         supersample = 1
     else:
         groups = [(near, supersample)]
@@ -1178,6 +1184,7 @@ def render_raytrace(asset: BakedAsset, env: BakedEnvironment, options: RenderOpt
         plan.update(passes=stats["passes"], samples_mean=round(stats["samples_mean"], 2),
                     stop=stats["stop"], nonfinite=stats.get("nonfinite", 0),
                     path_ms=round(stats["path_ms"], 1), pass_ms_max=round(stats["pass_ms_max"], 1),
+                    elapsed_ms=round(stats["elapsed_ms"], 1),
                     split_ms={k: round(v, 1) for k, v in stats["split_ms"].items()})
     total = (t1 - t0) * 1e3
     timings = FrameTimings(total, {"build": stats["build_ms"], "trace": stats["trace_ms"],

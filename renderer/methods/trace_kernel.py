@@ -651,3 +651,23 @@ if __name__ == "__main__":
     t0 = time.perf_counter()
     warm()
     print(f"renderer.methods.trace_kernel compiled or loaded in {time.perf_counter() - t0:.1f} s")
+
+
+@njit(cache=True, parallel=True)
+def cosine_sums(normals, dirs, le):
+    """Sum over texels j of max(0, normals[i] . dirs[j]) x le[j] for every normal i (M x 3): the
+    irradiance the tree's diffuse share reads (renderer.methods.env_irradiance; numpy there
+    is its twin), without an M x texels temporary."""
+    m, k = len(normals), len(dirs)
+    out = np.zeros((m, 3))
+    for i in prange(m):
+        nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
+        r, g, b = 0.0, 0.0, 0.0
+        for j in range(k):
+            c = nx * dirs[j, 0] + ny * dirs[j, 1] + nz * dirs[j, 2]
+            if c > 0:
+                r += c * le[j, 0]
+                g += c * le[j, 1]
+                b += c * le[j, 2]
+        out[i, 0], out[i, 1], out[i, 2] = r, g, b
+    return out
