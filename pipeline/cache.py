@@ -91,7 +91,8 @@ log = logging.getLogger(__name__)
 # 22: Light.shape / size (USD lights' extent: soft shadows in the ray tracer); CylinderLight read
 # 23: USD NurbsPatch (its control hull), NurbsCurves and HermiteCurves (linear curves) are read
 # 24: small meshes placed once with one material stored as one batch in world space (pipeline.batching)
-BAKE_FORMAT_VERSION = 24
+# 25: emissive polygons as the raster's area lights (core.area_lights, area_lights.npz)
+BAKE_FORMAT_VERSION = 25
 # Environment entries have their own format: a prefiltered light does not change with the mesh
 # bake's format, and the filter's constants already key it (pipeline.environment.shipped), so a
 # mesh-format bump neither rebakes every environment nor stales the shipped studio bake.
