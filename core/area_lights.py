@@ -23,7 +23,8 @@ import numpy as np
 
 from core.colour import srgb_to_linear
 
-MAX_LIGHTS = 32        # polygons a bake keeps (uniform arrays: each costs every shaded pixel)
+MAX_LIGHTS = 16        # polygons a bake keeps: each costs every shaded pixel (bench/RESULTS.md,
+# "Emitters as the raster's area lights": 16 of EmissiveStrengthTest's 30 score as all 30)
 MIN_LUMINANCE = 0.05   # linear radiance luminance below which an emitter lights nothing
 _LUMA = np.array([0.2126, 0.7152, 0.0722])
 _COPLANAR = 1e-4       # 1 - cos of the angle between two triangles' normals merged into a quad

@@ -34,6 +34,12 @@ int area_clip(inout vec3 p[AREA_MAX_CORNERS], int count, vec3 axis) {
     return k;
 }
 
+vec3 area_edge(vec3 a, vec3 b) {  // a, b unit
+    vec3 c = cross(a, b);
+    float s = length(c);
+    return s > 1e-7 ? c * (atan(s, dot(a, b)) / s) : vec3(0.0);
+}
+
 // Sum over the edges of the angle each subtends times its plane's unit normal; its dot with
 // a direction z is 2 pi x the form factor about z (for a polygon above z's horizon).
 vec3 area_edge_sum(vec3 p[AREA_MAX_CORNERS], int count) {
@@ -41,12 +47,16 @@ vec3 area_edge_sum(vec3 p[AREA_MAX_CORNERS], int count) {
     vec3 a = normalize(p[0]);
     for (int i = 0; i < count; ++i) {
         vec3 b = normalize(p[(i + 1) % count]);
-        vec3 c = cross(a, b);
-        float s = length(c);
-        if (s > 1e-7) sum += c * (atan(s, dot(a, b)) / s);
+        sum += area_edge(a, b);
         a = b;
     }
     return sum;
+}
+
+// area_edge_sum of an unclipped quad, without the arrays (slow to index on a CPU rasteriser).
+vec3 area_quad_sum(vec3 p0, vec3 p1, vec3 p2, vec3 p3) {
+    p0 = normalize(p0); p1 = normalize(p1); p2 = normalize(p2); p3 = normalize(p3);
+    return area_edge(p0, p1) + area_edge(p1, p2) + area_edge(p2, p3) + area_edge(p3, p0);
 }
 
 void area_lights(MaterialInfo m, vec3 v, vec3 pos, inout Lobes lobes) {
@@ -66,19 +76,34 @@ void area_lights(MaterialInfo m, vec3 v, vec3 pos, inout Lobes lobes) {
         vec3 ln = u_area_normal[i].xyz;
         float side = dot(pos - u_area_corner[4 * i].xyz, ln);
         if (side <= 0.0 && u_area_normal[i].w == 0.0) continue;  // behind a one-sided emitter
-        vec3 p[AREA_MAX_CORNERS];
-        for (int k = 0; k < 4; ++k) p[k] = u_area_corner[4 * i + k].xyz - pos;
-        int count = area_clip(p, 4, n);
-        if (count < 3) continue;
+        vec3 c0 = u_area_corner[4 * i].xyz - pos, c1 = u_area_corner[4 * i + 1].xyz - pos;
+        vec3 c2 = u_area_corner[4 * i + 2].xyz - pos, c3 = u_area_corner[4 * i + 3].xyz - pos;
+        vec4 h = vec4(dot(c0, n), dot(c1, n), dot(c2, n), dot(c3, n));
+        if (all(lessThanEqual(h, vec4(0.0)))) continue;  // below the horizon
         vec3 radiance = u_area_radiance[i].rgb;
-        float e = abs(dot(area_edge_sum(p, count), n)) * 0.5;  // irradiance / radiance
-        vec3 q[AREA_MAX_CORNERS];
-        for (int k = 0; k < count; ++k) {
-            vec3 x = p[k];
-            q[k] = vec3(dot(x, t1) / a, dot(x, t2) / a, dot(x, r));
+        vec3 q0 = vec3(dot(c0, t1) / a, dot(c0, t2) / a, dot(c0, r));
+        vec3 q1 = vec3(dot(c1, t1) / a, dot(c1, t2) / a, dot(c1, r));
+        vec3 q2 = vec3(dot(c2, t1) / a, dot(c2, t2) / a, dot(c2, r));
+        vec3 q3 = vec3(dot(c3, t1) / a, dot(c3, t2) / a, dot(c3, r));
+        float e, f;
+        if (all(greaterThan(h, vec4(0.0))) && min(min(q0.z, q1.z), min(q2.z, q3.z)) > 0.0) {
+            // wholly above both horizons (most lights, most pixels): no clipping
+            e = abs(dot(area_quad_sum(c0, c1, c2, c3), n)) * 0.5;
+            f = abs(area_quad_sum(q0, q1, q2, q3).z) / (2.0 * BRDF_PI);
+        } else {
+            vec3 p[AREA_MAX_CORNERS];
+            p[0] = c0; p[1] = c1; p[2] = c2; p[3] = c3;
+            int count = area_clip(p, 4, n);
+            if (count < 3) continue;
+            e = abs(dot(area_edge_sum(p, count), n)) * 0.5;  // irradiance / radiance
+            vec3 q[AREA_MAX_CORNERS];
+            for (int k = 0; k < count; ++k) {
+                vec3 x = p[k];
+                q[k] = vec3(dot(x, t1) / a, dot(x, t2) / a, dot(x, r));
+            }
+            int qc = area_clip(q, count, vec3(0.0, 0.0, 1.0));
+            f = qc < 3 ? 0.0 : abs(area_edge_sum(q, qc).z) / (2.0 * BRDF_PI);
         }
-        int qc = area_clip(q, count, vec3(0.0, 0.0, 1.0));
-        float f = qc < 3 ? 0.0 : abs(area_edge_sum(q, qc).z) / (2.0 * BRDF_PI);
         lobes.base += (diffuse * e + spec_albedo * f) * radiance;
     }
 }
