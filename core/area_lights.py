@@ -110,7 +110,7 @@ def _quads(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if not used[t]:
             for k in range(3):
                 edges[(tuple(key[t, k]), tuple(key[t, (k + 1) % 3]))] = (t, k)
-    for t in np.flatnonzero(~used):
+    for t in map(int, np.flatnonzero(~used)):
         polys.append(np.array([tri[t, 0], tri[t, 1], tri[t, 2], tri[t, 2]]))
         areas.append(area[t])
     return np.array(polys).reshape(-1, 4, 3), np.array(areas)

@@ -324,8 +324,8 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None,
     textures = [BakedTexture.from_texture(t, spaces[i], cap) for i, t in enumerate(scene.textures)]
     start = time.perf_counter()
     lights = area_lights.extract(meshes, textures)
-    manifest["timings"]["area_lights_s"] = round(time.perf_counter() - start, 6)
-    manifest["stats"]["area_lights"] = {"lights": len(lights), "dropped": lights.dropped}
+    cast(dict, manifest["timings"])["area_lights_s"] = round(time.perf_counter() - start, 6)
+    cast(dict, manifest["stats"])["area_lights"] = {"lights": len(lights), "dropped": lights.dropped}
     return BakedAsset(key=key, source=str(scene.source), format=scene.format, meshes=meshes,
                       textures=textures, bounds=np.asarray(scene.bounds, np.float64),
                       lights=list(scene.lights), warnings=warnings, manifest=manifest,
@@ -429,7 +429,7 @@ def unpack_asset(entry: Entry) -> BakedAsset:
                       cameras=[_camera_from_json(d) for d in m.get("cameras", [])],
                       hull=cast("np.ndarray | None", entry.arrays.get("hull.npy")),
                       area_lights=None if "area_lights.npz" not in entry.arrays
-                      else area_lights.AreaLights.from_arrays(entry.arrays["area_lights.npz"]))
+                      else area_lights.AreaLights.from_arrays(cast(dict, entry.arrays["area_lights.npz"])))
 
 
 def _camera_from_json(d: dict) -> SceneCamera:

@@ -132,3 +132,37 @@ def test_no_emitters_leaves_the_frame_as_it_was(monkeypatch):
     monkeypatch.setattr(passes, "frame_defines", without)
     second = render(asset, env, _raster())
     assert np.array_equal(first.rgba8, second.rgba8) and np.array_equal(first.linear, second.linear)
+
+
+def test_the_bake_keeps_the_emitters_and_reads_them_back(tmp_path):
+    """A glTF with two emissive cubes (KHR_materials_emissive_strength 4, and 1 under a half
+    white emissive texture) and a plain one: 12 quads (the cube's triangle pairs merged), the
+    texture's linear mean in the radiance, stored in the cache entry and read back as baked."""
+    from gltf_builder import CUBE_INDICES, CUBE_POSITIONS, Builder, png_bytes
+
+    from pipeline.bake import bake_asset, load_baked
+    b = Builder()
+    half = np.zeros((2, 2, 3), np.uint8)
+    half[:, 0] = 255
+    tex = b.image(png_bytes(half))
+    glow = b.material(emissiveFactor=[0.1, 0.5, 0.9], extensions={"KHR_materials_emissive_strength": {
+        "emissiveStrength": 4.0}}, pbrMetallicRoughness={"baseColorFactor": [0, 0, 0, 1]})
+    textured = b.material(emissiveFactor=[1.0, 1.0, 1.0], emissiveTexture={"index": tex})
+    plain = b.material(pbrMetallicRoughness={"baseColorFactor": [0.8, 0.8, 0.8, 1]})
+    for k, mat in enumerate((glow, textured, plain)):
+        b.node(b.mesh(CUBE_POSITIONS, CUBE_INDICES, material=mat), translation=[3.0 * k, 0, 0])
+    b.doc["extensionsUsed"] = ["KHR_materials_emissive_strength"]
+    path = b.write(tmp_path / "glow.glb")
+    fresh = bake_asset(path, tmp_path / "cache")
+    lights = fresh.area_lights
+    assert lights is not None and len(lights) == 12 and lights.dropped == 0
+    assert (lights.corners[:, 3] != lights.corners[:, 2]).any(axis=1).all()  # quads, not triangles
+    radiance = sorted(map(tuple, np.unique(lights.radiance.round(4), axis=0)))
+    assert radiance == [(0.4, 2.0, 3.6), (0.5, 0.5, 0.5)]
+    areas = np.linalg.norm(np.cross(lights.corners[:, 2] - lights.corners[:, 0],
+                                    lights.corners[:, 3] - lights.corners[:, 1]), axis=1) / 2
+    np.testing.assert_allclose(areas, 4.0)  # each face of the 2 m cube whole
+    again = load_baked(fresh.key, tmp_path / "cache").area_lights
+    assert again is not None
+    for name, value in lights.arrays().items():
+        np.testing.assert_array_equal(again.arrays()[name], value)
