@@ -12,6 +12,8 @@ Decisions:
   radiance exceeds `MIN_LUMINANCE`: dim glows light little and each light costs every pixel.
 - Each polygon remembers its mesh (`mesh`): an emitter does not light itself (the shader
   skips the lights of the mesh it draws), which also keeps a cube's faces off each other.
+- USD stages have none: their reference, Hydra Storm, lights nothing from emissive surfaces
+  (as they bake no ambient occlusion, which Storm does not draw either).
 - Emitters past the cap are dropped, not merged: a finely tessellated glowing sphere is lit
   from its brightest faces only (what is dropped is counted in `dropped`).
 """
@@ -26,6 +28,7 @@ from core.colour import srgb_to_linear
 MAX_LIGHTS = 16        # polygons a bake keeps: each costs every shaded pixel (bench/RESULTS.md,
 # "Emitters as the raster's area lights": 16 of EmissiveStrengthTest's 30 score as all 30)
 MIN_LUMINANCE = 0.05   # linear radiance luminance below which an emitter lights nothing
+NONE_FOR = ("usd", "usda", "usdc", "usdz")  # source formats whose raster has no area lights
 _LUMA = np.array([0.2126, 0.7152, 0.0722])
 _COPLANAR = 1e-4       # 1 - cos of the angle between two triangles' normals merged into a quad
 _TEXTURE_LEVEL = 64    # texels across the mip level an emissive texture's mean is read from
@@ -119,6 +122,11 @@ def _quads(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _convex(quad: np.ndarray, normal: np.ndarray) -> bool:
     turn = np.cross(quad - np.roll(quad, 1, axis=0), np.roll(quad, -1, axis=0) - quad) @ normal
     return bool(np.all(turn > 0))
+
+
+def of_format(source_format: str, meshes, textures, limit: int = MAX_LIGHTS) -> AreaLights:
+    """`extract`, or none for a format in NONE_FOR."""
+    return empty() if source_format.lower() in NONE_FOR else extract(meshes, textures, limit)
 
 
 def extract(meshes, textures, limit: int = MAX_LIGHTS) -> AreaLights:

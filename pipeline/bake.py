@@ -323,7 +323,7 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None,
     spaces = _texture_spaces(scene)
     textures = [BakedTexture.from_texture(t, spaces[i], cap) for i, t in enumerate(scene.textures)]
     start = time.perf_counter()
-    lights = area_lights.extract(meshes, textures)
+    lights = area_lights.of_format(scene.format, meshes, textures)
     cast(dict, manifest["timings"])["area_lights_s"] = round(time.perf_counter() - start, 6)
     cast(dict, manifest["stats"])["area_lights"] = {"lights": len(lights), "dropped": lights.dropped}
     return BakedAsset(key=key, source=str(scene.source), format=scene.format, meshes=meshes,

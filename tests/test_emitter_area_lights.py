@@ -64,6 +64,12 @@ def test_dim_and_unlit_emitters_are_not_lights():
     assert not area_lights.radiance_of(unlit, []).any()
 
 
+def test_usd_stages_have_none_as_storm_lights_nothing_from_emitters():
+    meshes = _card_under_emitter().meshes
+    assert len(area_lights.of_format("gltf", meshes, [])) == 1
+    assert all(len(area_lights.of_format(f, meshes, [])) == 0 for f in ("usd", "usda", "usdc", "USDZ"))
+
+
 def test_grey_card_matches_the_form_factor():
     """Lambert (IOR 1: no specular) under a black sky: every pixel on the card within 2% of
     albedo x L x the quad's form factor (the exact polygon irradiance, nothing sampled)."""

@@ -21,7 +21,7 @@ def of_asset(asset: BakedAsset) -> AreaLights:
     if asset.key in _found:
         _found.move_to_end(asset.key)
         return _found[asset.key]
-    lights = _found[asset.key] = area_lights.extract(asset.meshes, asset.textures)
+    lights = _found[asset.key] = area_lights.of_format(asset.format, asset.meshes, asset.textures)
     while len(_found) > MAX_FOUND:
         _found.popitem(last=False)
     return lights
