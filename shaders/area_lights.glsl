@@ -6,7 +6,9 @@
 // with an analytic, not fitted, matrix: the clamped cosine about the lobe's dominant
 // direction, squeezed by 2 alpha across it (that matches GGX's peak and half width at normal
 // view for small alpha), scaled by the lobe's directional albedo. Its integral over the whole
-// sphere is that albedo, so a light filling the view gives what the split sum gives.
+// sphere is that albedo, so a light filling the view gives what the split sum gives. The
+// specular's polygon is clipped to the lobe axis' hemisphere, not also to the surface's (one
+// clip, no arrays): a light straddling the horizon lends a little glossy light from below it.
 #ifndef AREA_LIGHTS_GLSL
 #define AREA_LIGHTS_GLSL
 #include "brdf.glsl"
@@ -18,45 +20,40 @@ uniform vec4 u_area_normal[AREA_LIGHT_COUNT];      // xyz front normal, w 1: emi
 uniform vec4 u_area_radiance[AREA_LIGHT_COUNT];    // rgb linear radiance, w the mesh it is part of
 uniform float u_area_self;                         // the mesh being drawn: its own lights skipped
 
-const int AREA_MAX_CORNERS = 8;  // a quad clipped by two planes has at most 6
-
-// Sutherland-Hodgman against the half space dot(p, axis) >= 0, in place.
-int area_clip(inout vec3 p[AREA_MAX_CORNERS], int count, vec3 axis) {
-    vec3 o[AREA_MAX_CORNERS];
-    int k = 0;
-    for (int i = 0; i < count; ++i) {
-        vec3 a = p[i], b = p[(i + 1) % count];
-        float da = dot(a, axis), db = dot(b, axis);
-        if (da >= 0.0 && k < AREA_MAX_CORNERS) o[k++] = a;
-        if ((da >= 0.0) != (db >= 0.0) && k < AREA_MAX_CORNERS) o[k++] = mix(a, b, da / (da - db));
-    }
-    for (int i = 0; i < k; ++i) p[i] = o[i];
-    return k;
-}
-
 vec3 area_edge(vec3 a, vec3 b) {  // a, b unit
     vec3 c = cross(a, b);
     float s = length(c);
     return s > 1e-7 ? c * (atan(s, dot(a, b)) / s) : vec3(0.0);
 }
 
-// Sum over the edges of the angle each subtends times its plane's unit normal; its dot with
-// a direction z is 2 pi x the form factor about z (for a polygon above z's horizon).
-vec3 area_edge_sum(vec3 p[AREA_MAX_CORNERS], int count) {
-    vec3 sum = vec3(0.0);
-    vec3 a = normalize(p[0]);
-    for (int i = 0; i < count; ++i) {
-        vec3 b = normalize(p[(i + 1) % count]);
-        sum += area_edge(a, b);
-        a = b;
+// One edge a -> b of a convex polygon clipped to dot(x, axis) >= 0: its kept part's term added
+// to `sum`; where it leaves or enters the half space, the point (the clipped polygon closes
+// along the plane from the exit to the entry). No arrays: a CPU rasteriser (llvmpipe) runs
+// indexed local arrays many times slower, even on pixels that never clip.
+void area_clip_edge(vec3 a, vec3 b, vec3 axis, inout vec3 sum, inout vec3 leave, inout vec3 enter) {
+    float da = dot(a, axis), db = dot(b, axis);
+    if (da >= 0.0 && db >= 0.0) {
+        sum += area_edge(normalize(a), normalize(b));
+    } else if (da >= 0.0) {
+        leave = mix(a, b, da / (da - db));
+        sum += area_edge(normalize(a), normalize(leave));
+    } else if (db >= 0.0) {
+        enter = mix(a, b, da / (da - db));
+        sum += area_edge(normalize(enter), normalize(b));
     }
-    return sum;
 }
 
-// area_edge_sum of an unclipped quad, without the arrays (slow to index on a CPU rasteriser).
-vec3 area_quad_sum(vec3 p0, vec3 p1, vec3 p2, vec3 p3) {
-    p0 = normalize(p0); p1 = normalize(p1); p2 = normalize(p2); p3 = normalize(p3);
-    return area_edge(p0, p1) + area_edge(p1, p2) + area_edge(p2, p3) + area_edge(p3, p0);
+// Sum over the edges of the quad c0..c3 clipped to dot(x, axis) >= 0 of the angle each
+// subtends times its plane's unit normal; its dot with `axis` is 2 pi x the polygon's form
+// factor about it (Lambert).
+vec3 area_edge_sum(vec3 c0, vec3 c1, vec3 c2, vec3 c3, vec3 axis) {
+    vec3 sum = vec3(0.0), leave = vec3(0.0), enter = vec3(0.0);
+    area_clip_edge(c0, c1, axis, sum, leave, enter);
+    area_clip_edge(c1, c2, axis, sum, leave, enter);
+    area_clip_edge(c2, c3, axis, sum, leave, enter);
+    area_clip_edge(c3, c0, axis, sum, leave, enter);
+    if (leave != enter) sum += area_edge(normalize(leave), normalize(enter));
+    return sum;
 }
 
 void area_lights(MaterialInfo m, vec3 v, vec3 pos, inout Lobes lobes) {
@@ -85,25 +82,9 @@ void area_lights(MaterialInfo m, vec3 v, vec3 pos, inout Lobes lobes) {
         vec3 q1 = vec3(dot(c1, t1) / a, dot(c1, t2) / a, dot(c1, r));
         vec3 q2 = vec3(dot(c2, t1) / a, dot(c2, t2) / a, dot(c2, r));
         vec3 q3 = vec3(dot(c3, t1) / a, dot(c3, t2) / a, dot(c3, r));
-        float e, f;
-        if (all(greaterThan(h, vec4(0.0))) && min(min(q0.z, q1.z), min(q2.z, q3.z)) > 0.0) {
-            // wholly above both horizons (most lights, most pixels): no clipping
-            e = abs(dot(area_quad_sum(c0, c1, c2, c3), n)) * 0.5;
-            f = abs(area_quad_sum(q0, q1, q2, q3).z) / (2.0 * BRDF_PI);
-        } else {
-            vec3 p[AREA_MAX_CORNERS];
-            p[0] = c0; p[1] = c1; p[2] = c2; p[3] = c3;
-            int count = area_clip(p, 4, n);
-            if (count < 3) continue;
-            e = abs(dot(area_edge_sum(p, count), n)) * 0.5;  // irradiance / radiance
-            vec3 q[AREA_MAX_CORNERS];
-            for (int k = 0; k < count; ++k) {
-                vec3 x = p[k];
-                q[k] = vec3(dot(x, t1) / a, dot(x, t2) / a, dot(x, r));
-            }
-            int qc = area_clip(q, count, vec3(0.0, 0.0, 1.0));
-            f = qc < 3 ? 0.0 : abs(area_edge_sum(q, qc).z) / (2.0 * BRDF_PI);
-        }
+        float e = abs(dot(area_edge_sum(c0, c1, c2, c3, n), n)) * 0.5;  // irradiance / radiance
+        // the specular lobe clipped to its own axis' hemisphere only (not also the surface's)
+        float f = abs(area_edge_sum(q0, q1, q2, q3, vec3(0.0, 0.0, 1.0)).z) / (2.0 * BRDF_PI);
         lobes.base += (diffuse * e + spec_albedo * f) * radiance;
     }
 }
