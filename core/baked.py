@@ -8,6 +8,7 @@ from typing import Callable
 
 import numpy as np
 
+from core.area_lights import AreaLights
 from core.errors import NotInAsset
 from core.mips import capped_size, mip_chain
 from core.scene import Light, Material, Sampler, SceneCamera, Texture
@@ -174,6 +175,9 @@ class BakedAsset:
     # The key its GPU copy is kept under when not its own: the frames of one animation
     # (pipeline.gltf.rig) share one upload, whose moved buffers each frame rewrites.
     gpu_key: str | None = None
+    # The emissive polygons the raster lights with (core.area_lights), baked; None: found on
+    # first render. A copy with other geometry or materials must drop it.
+    area_lights: AreaLights | None = None
 
     def __post_init__(self):
         self.textures = [t if isinstance(t, BakedTexture) else BakedTexture.from_texture(t)
@@ -204,7 +208,7 @@ class BakedAsset:
                              f"{', '.join(map(repr, self.variants)) or 'none'}")
         meshes = [dataclasses.replace(m, material=m.variants.get(name, m.material))
                   for m in self.meshes]
-        return dataclasses.replace(self, key=f"{self.key}#variant={name}", meshes=meshes,
+        return dataclasses.replace(self, key=f"{self.key}#variant={name}", meshes=meshes, area_lights=None,
                                    gpu_key=None if self.gpu_key is None else
                                    f"{self.gpu_key}#variant={name}")
 

@@ -28,6 +28,7 @@ from typing import Any, cast
 import numpy as np
 import zstandard
 
+from core import area_lights
 from core.adjacency import MAX_TRIANGLES, welded_edges
 from core.animation import Moment
 from core.baked import BakedAsset, BakedEnvironment, BakedMesh, BakedTexture
@@ -321,12 +322,16 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None,
     cap = texture_size_for(opts["thumbnail_size"])
     spaces = _texture_spaces(scene)
     textures = [BakedTexture.from_texture(t, spaces[i], cap) for i, t in enumerate(scene.textures)]
+    start = time.perf_counter()
+    lights = area_lights.of_format(scene.format, meshes, textures)
+    cast(dict, manifest["timings"])["area_lights_s"] = round(time.perf_counter() - start, 6)
+    cast(dict, manifest["stats"])["area_lights"] = {"lights": len(lights), "dropped": lights.dropped}
     return BakedAsset(key=key, source=str(scene.source), format=scene.format, meshes=meshes,
                       textures=textures, bounds=np.asarray(scene.bounds, np.float64),
                       lights=list(scene.lights), warnings=warnings, manifest=manifest,
                       variants=list(scene.variants), cameras=list(scene.cameras),
                       extent=extent(scene) if any(i.backdrop for i in scene.instances) else None,
-                      hull=np.zeros((0, 3)) if hull is None else hull)
+                      hull=np.zeros((0, 3)) if hull is None else hull, area_lights=lights)
 
 
 def _texture_spaces(scene: Scene) -> list[tuple[bool, ...]]:
@@ -375,6 +380,8 @@ def pack_asset(baked: BakedAsset, options: dict) -> tuple[dict, dict[str, dict[s
     arrays: dict[str, Any] = {"meshes.npz": mesh_arrays}
     if baked.hull is not None:
         arrays["hull.npy"] = np.asarray(baked.hull, np.float64)
+    if baked.area_lights is not None:
+        arrays["area_lights.npz"] = baked.area_lights.arrays()
     for i, t in enumerate(baked.textures):
         arrays.update({_texture_file(i, srgb): t.mips(srgb)[::-1] for srgb in t.spaces})  # smallest first
     manifest = {
@@ -420,7 +427,9 @@ def unpack_asset(entry: Entry) -> BakedAsset:
                       manifest=m, variants=list(m.get("variants", [])),
                       extent=None if m.get("extent") is None else np.asarray(m["extent"], np.float64),
                       cameras=[_camera_from_json(d) for d in m.get("cameras", [])],
-                      hull=cast("np.ndarray | None", entry.arrays.get("hull.npy")))
+                      hull=cast("np.ndarray | None", entry.arrays.get("hull.npy")),
+                      area_lights=None if "area_lights.npz" not in entry.arrays
+                      else area_lights.AreaLights.from_arrays(cast(dict, entry.arrays["area_lights.npz"])))
 
 
 def _camera_from_json(d: dict) -> SceneCamera:

@@ -93,7 +93,8 @@ log = logging.getLogger(__name__)
 # 24: small meshes placed once with one material stored as one batch in world space (pipeline.batching)
 # 25: Material.face_viewer (USD Points drawn as discs facing the viewer, as Storm's sprites)
 # 26: per-vertex bent normals beside the ambient occlusion (pipeline.occlusion; the raster's image light)
-BAKE_FORMAT_VERSION = 26
+# 27: emissive polygons as the raster's area lights (core.area_lights, area_lights.npz)
+BAKE_FORMAT_VERSION = 27
 # Environment entries have their own format: a prefiltered light does not change with the mesh
 # bake's format, and the filter's constants already key it (pipeline.environment.shipped), so a
 # mesh-format bump neither rebakes every environment nor stales the shipped studio bake.

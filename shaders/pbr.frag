@@ -1,10 +1,11 @@
 #version 430
-// Opaque / mask / blend PBR: emissive + image-based lighting + punctual lights, linear
+// Opaque / mask / blend PBR: emissive + image-based lighting + punctual and emissive area lights, linear
 // radiance out (premultiplied by alpha through the blend state for BLEND materials, or in the
 // shader for OPACITY_PREMULTIPLIED ones).
 #include "material_info.glsl"
 #include "ibl.glsl"
 #include "punctual.glsl"
+#include "area_lights.glsl"
 
 uniform vec3 u_camera_position;
 out vec4 f_color;
@@ -29,6 +30,9 @@ void main() {
     Lobes lobes = ibl_lobes(m, v);
 #if LIGHT_COUNT > 0
     punctual(m, v, v_world, lobes);
+#endif
+#if AREA_LIGHT_COUNT > 0
+    area_lights(m, v, v_world, lobes);
 #endif
     vec3 color = compose(m, v, lobes, u_brdf_lut);
 #endif

@@ -29,6 +29,7 @@ class DrawItem:
     material: Material
     method: str
     why: str
+    index: int = -1  # of the mesh in the asset (an emitter is not lit by its own area lights)
 
 
 @dataclass
@@ -70,6 +71,8 @@ class Pass:
         for name, value in state.uniforms:
             if name in prog:
                 prog[name].write(value)  # type: ignore[union-attr]  # a uniform
+        if "u_area_self" in prog:
+            prog["u_area_self"].value = float(item.index)  # type: ignore[union-attr]  # a uniform
         for unit, (name, tex) in enumerate(state.textures, start=2):
             if name in prog:
                 prog[name].value = unit  # type: ignore[union-attr]  # a uniform
@@ -101,8 +104,10 @@ def env_rotated(options: RenderOptions) -> bool:
 
 
 def frame_defines(options: RenderOptions, lights,
-                  shadows: light_shadows.ShadowViews | None = None) -> dict:
-    d: dict[str, int | str] = {"LIGHT_COUNT": len(lights), "SHADOW_VIEWS": shadows.views if shadows else 0}
+                  shadows: light_shadows.ShadowViews | None = None, area_lights: int = 0) -> dict:
+    d: dict[str, int | str] = {"LIGHT_COUNT": len(lights),
+                               "SHADOW_VIEWS": shadows.views if shadows else 0,
+                               "AREA_LIGHT_COUNT": area_lights}
     if shadows is not None and shadows.tint is not None:
         d["SHADOW_TINT"] = 1
     if options.multiscatter:

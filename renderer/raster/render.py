@@ -22,7 +22,7 @@ from gl import context
 from renderer.frame import Frame, FrameTimings, alpha_is_mask
 from renderer.methods.auto import plan_request, run_frame_method
 from renderer.methods.registry import FRAME_METHODS, METHODS, UnsupportedMethod, available_methods, validate_options
-from renderer.raster import edges, final, gpu, light_shadows, passes, shadow, targets
+from renderer.raster import area_lights, edges, final, gpu, light_shadows, passes, shadow, targets
 from renderer.raster.passes import DrawItem, Pass
 from renderer.raster.targets import frame_lock
 from renderer.view import regions
@@ -98,9 +98,11 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     edge_aa = _edge_antialiasing(asset, options, supersample)
     target = targets.get_target(ctx, w, h, 0 if edge_aa else options.msaa, supersample, edge_aa)
     target.frames += 1
+    emitters = area_lights.of_asset(asset)
     pass_ = Pass(ctx, target.draw_fbo, camera, genv, gasset, options,
-                 passes.frame_defines(options, lights, views),
-                 passes.frame_uniforms(camera, genv, lights, options, views),
+                 passes.frame_defines(options, lights, views, len(emitters)),
+                 {**passes.frame_uniforms(camera, genv, lights, options, views),
+                  **area_lights.uniforms(emitters)},
                  shadow_map=views.texture if views else None,
                  shadow_tint=views.tint if views else None)
     # The object's bound for the final pass's regions: a rectangle for an edge-smoothed frame,
@@ -127,6 +129,7 @@ def _render(asset: BakedAsset, env: BakedEnvironment, options: RenderOptions,
     plan = _plan(options, env, items, lights, camera, target, edge_aa, supersample,
                  shadow_why if shadowed else f"none: {shadow_why}", uploads_before, auto)
     plan["light_shadows"] = views.describe() if views else "none"
+    plan["area_lights"] = len(emitters)  # emissive polygons lighting the raster, unshadowed
     timings = FrameTimings((t_end - t0) * 1e3, {"upload": (t_upload - t0) * 1e3,
                                                 "draw": (t_draw - t_upload - t_light_shadows) * 1e3,
                                                 "light_shadows": t_light_shadows * 1e3,
@@ -207,7 +210,7 @@ def _plan_items(gasset: gpu.GpuAsset, options: RenderOptions, auto=None) -> list
     for i, gm in enumerate(gasset.meshes):
         mat = apply_override(gm.baked.material, options.override)
         method, why = auto.method_for(i) if auto is not None else _choose_method(mat, options)
-        items.append(DrawItem(gm, mat, method, why))
+        items.append(DrawItem(gm, mat, method, why, i))
     return items
 
 
