@@ -520,7 +520,7 @@ _GLASS_E_MIN = 0.05    # path_bsdf.GLASS_E_MIN
 @njit(cache=True)
 def glass_albedo(table, cos_v, alpha, eta):
     """path_bsdf.glass_albedo at one point (trilinear in the side's 3-D table), floored at
-    its GLASS_E_MIN; 1 where `table` is empty (no multiple-scattering compensation)."""
+    path_bsdf.GLASS_E_MIN; 1 where `table` is empty (no multiple-scattering compensation)."""
     if table.shape[0] == 0:
         return 1.0
     inside = eta > 1.0
