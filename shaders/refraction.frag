@@ -187,14 +187,17 @@ bool second_exit(vec3 p, vec3 r, vec2 uv0, out float t, out vec3 n) {
 #endif
 #endif
 
-// What a rough interface lets through of the light crossing it, the mean over GGX's visible
-// normals m of (1 - F(v.m)) G1(t): Walter et al.'s rough dielectric with the separable Smith
-// masking of the way out, the expectation of the ray tracer's sampled weight
-// (renderer/methods/optics.py sample_rough_dielectric; Mitsuba's roughdielectric). A fixed
-// stratified quadrature, so the frame stays noise-free. cos_i: the incident direction's cosine
-// to the macro normal on its side; eta = n_incident / n_transmitted. Smooth: 1 - F exactly.
-// The reflection keeps the smooth Fresnel F, so what passes is capped at 1 - F (at grazing
-// views the facets turned toward the viewer would let more through than the macro surface).
+// What a rough interface lets through and reflects of the light meeting it, (T, R): the means
+// over GGX's visible normals m of (1 - F(v.m)) G1(t) and F(v.m) G1(r) (TIR on m: F = 1), Walter
+// et al.'s rough dielectric with the separable Smith masking of the way out, the expectation
+// of the ray tracer's sampled weights (renderer/methods/optics.py sample_rough_dielectric;
+// Mitsuba's roughdielectric). A fixed stratified quadrature, so the frame stays noise-free.
+// cos_i: the incident direction's cosine to the macro normal on its side; eta = n_incident /
+// n_transmitted. Smooth: (1 - F, F) exactly. MULTISCATTER: single scattering, E = T + R, and
+// glass_ms puts back what bounces between the facets, as the tracers do
+// (path_bsdf.glass_albedo, glass_ms). Without it the reflection keeps the smooth Fresnel F,
+// so what passes is capped at 1 - F (at grazing views the facets turned toward the viewer
+// would let more through).
 float smith_g1(float c, float alpha) {
     float c2 = clamp(c * c, 1e-12, 1.0);
     return 2.0 / (1.0 + sqrt(1.0 + alpha * alpha * (1.0 - c2) / c2));
@@ -213,22 +216,41 @@ vec3 visible_normal(vec3 v, float alpha, vec2 u) {  // Heitz 2018, local frame (
     return normalize(vec3(alpha * nh.x, alpha * nh.y, max(nh.z, 1e-7)));
 }
 
-float rough_transmittance(float cos_i, float alpha, float eta) {
+vec2 rough_interface(float cos_i, float alpha, float eta) {
     cos_i = clamp(abs(cos_i), 1e-4, 1.0);
-    float smooth_t = 1.0 - fresnel_dielectric(cos_i, eta);
-    if (alpha <= 1e-4) return smooth_t;
+    float smooth_f = fresnel_dielectric(cos_i, eta);
+    if (alpha <= 1e-4) return vec2(1.0 - smooth_f, smooth_f);
     const int N = 6;
     vec3 v = vec3(sqrt(1.0 - cos_i * cos_i), 0.0, cos_i);
-    float sum = 0.0;
+    vec2 sum = vec2(0.0);
     for (int i = 0; i < N; ++i) {
         for (int j = 0; j < N; ++j) {
             vec3 m = visible_normal(v, alpha, (vec2(i, j) + 0.5) / float(N));
-            vec3 t;
+            float f = fresnel_dielectric(dot(v, m), eta);
+            vec3 r = reflect(-v, m), t;
             if (refract_ray(-v, m, eta, t) && t.z < 0.0)
-                sum += (1.0 - fresnel_dielectric(dot(v, m), eta)) * smith_g1(-t.z, alpha);
+                sum.x += (1.0 - f) * smith_g1(-t.z, alpha);
+            if (r.z > 0.0 && dot(r, m) > 0.0)
+                sum.y += f * smith_g1(r.z, alpha);
         }
     }
-    return min(sum / float(N * N), smooth_t);
+    sum /= float(N * N);
+#ifdef MULTISCATTER
+    return sum;
+#else
+    return vec2(min(sum.x, 1.0 - smooth_f), smooth_f);
+#endif
+}
+
+// The scale of both shares (T, R) of an interface whose crossing tints by `tint`: light that
+// bounces between the facets, losing 1 - E of what is left each time and crossing again,
+// leaves in the end (path_bsdf.glass_ms: 1 / E for white glass, so nothing is lost).
+vec3 glass_ms(vec2 tr, vec3 tint) {
+#ifdef MULTISCATTER
+    return 1.0 / (1.0 - (1.0 - max(tr.x + tr.y, 0.05)) * tint);  // path_bsdf.GLASS_E_MIN
+#else
+    return vec3(1.0);
+#endif
 }
 
 // Angular radius of a lobe of `variance`: a reflection lobe of GGX alpha spreads directions
@@ -365,9 +387,10 @@ vec3 transmitted(vec3 v, vec3 n, float ior, float roughness, float d_interior, o
     vec4 bpos;
     vec3 n2;
     bool inside_hit = false;
-    float exit_T = 1.0;     // what the exit interface lets through (rough_transmittance)
-    float exit_F = 0.0;     // exit Fresnel: the internally reflected share reads the
-    vec3 exit_refl = r1;    // environment along its direction (as a 2-bounce ray tracer)
+    vec3 exit_T = vec3(1.0);  // what the exit interface lets through (rough_interface)
+    vec3 exit_R = vec3(0.0);  // what it reflects back inside: that leaves by the front face,
+    vec3 front_R = vec3(0.0); // which reflects front_R of it back again (a slab's series, below);
+    vec3 exit_refl = r1;      // it reads the environment along its direction
 #ifdef SCREEN_OPAQUE
     inside_hit = trace_opaque(v_world, r1, D, lobe_spread(variance), through);  // opaque parts inside
 #endif
@@ -384,9 +407,12 @@ vec3 transmitted(vec3 v, vec3 n, float ior, float roughness, float d_interior, o
         vec3 r2;
         if (refract_ray(r1, -n2, ior, r2)) {
             dir = r2;
-            exit_F = fresnel_dielectric(dot(r1, n2), ior);
-            exit_T = rough_transmittance(dot(r1, n2), alpha_back, ior);
+            vec2 back_tr = rough_interface(dot(r1, n2), alpha_back, ior);
+            exit_T = back_tr.x * glass_ms(back_tr, g_exit_tint);
+            exit_R = back_tr.y * glass_ms(back_tr, g_exit_tint);
             exit_refl = reflect(r1, n2);
+            vec2 front_tr = rough_interface(dot(exit_refl, n), alpha, ior);
+            front_R = front_tr.y * glass_ms(front_tr, g_exit_tint);
         } else {
             tir = true;
 #ifdef TIR_REFLECT
@@ -412,8 +438,14 @@ vec3 transmitted(vec3 v, vec3 n, float ior, float roughness, float d_interior, o
         }
     }
     if (!inside_hit) through = outside_radiance(origin, dir, variance);
-    through = exit_T * through
-            + exit_F * textureLod(u_env, ENV_DIR(exit_refl), roughness_to_lod(pow(variance_reflected, 0.25))).rgb;
+    // Light bounces between the two faces: of what reaches the exit, exit_T leaves there and
+    // exit_R goes back to the front, which lets 1 - front_R out (toward the viewer's side of
+    // the sky) and returns front_R, and so on: the sums over the bounces. A rough interface
+    // reflects much from inside (facets tilted past the critical angle): a rough pane shows
+    // the sky in front of it through itself, tinted, as the tracers' bounces do.
+    vec3 bounces = 1.0 / max(1.0 - exit_R * front_R, 1e-3);
+    through = bounces * (exit_T * through + exit_R * (1.0 - front_R)
+            * textureLod(u_env, ENV_DIR(exit_refl), roughness_to_lod(pow(variance_reflected, 0.25))).rgb);
 #else
     through = outside_radiance(v_world, r1, variance);
 #endif
@@ -487,10 +519,16 @@ void main() {
 #ifdef MATERIAL_IRIDESCENCE
     Fv = mix(Fv, m.iridescence_fresnel, m.iridescence);  // the film reflects, the rest enters
 #endif
-    vec3 ks = m.metallic * FssEss + dielectric * Fv;
-    // the rough interface's share of the smooth one's (iridescence tints the smooth share)
-    float rough_ratio = rough_transmittance(cos_i, m.roughness * m.roughness, 1.0 / u_ior)
-                      / max(1.0 - F, 1e-6);
+    // the rough interface's shares of the smooth one's (iridescence tints the smooth share)
+    vec2 front = rough_interface(cos_i, m.roughness * m.roughness, 1.0 / u_ior);
+#ifdef THIN_WALLED
+    vec3 front_ms = glass_ms(front, m.base_color.rgb);
+#else
+    vec3 front_ms = glass_ms(front, sqrt(max(m.base_color.rgb, vec3(0.0))));
+#endif
+    vec3 rough_ratio = front.x * front_ms / max(1.0 - F, 1e-6);
+    vec3 reflect_ratio = F > 1e-6 ? front.y * front_ms / F : vec3(1.0);
+    vec3 ks = m.metallic * FssEss + dielectric * Fv * mix(vec3(1.0), reflect_ratio, transmission);
     vec3 kr = dielectric * (1.0 - Fv) * transmission * rough_ratio;
     vec3 kd = dielectric * (1.0 - Fv) * (1.0 - transmission);
     vec3 reflected = env_radiance(reflect(d, n), m.roughness);

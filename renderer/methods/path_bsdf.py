@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from renderer.methods.optics import orthonormal_basis, reflect
+from renderer.methods.optics import orthonormal_basis, reflect, sample_rough_dielectric
 
 ALPHA_MIN = 1e-3      # GGX alpha floor: a smooth lobe stays finite (1e-6 of D's peak width)
 SHEEN_MIN_ROUGHNESS = 0.07  # shaders/brdf.glsl's floor of the Charlie distribution
@@ -134,7 +134,8 @@ def _table(name: str) -> np.ndarray:
 
 def build_tables() -> dict[str, np.ndarray]:
     ggx_e, ggx_b = _ggx_tables()
-    return {"ggx_e": ggx_e, "ggx_b": ggx_b, "aniso_e": _aniso_table(), "sheen_e": _sheen_table()}
+    return {"ggx_e": ggx_e, "ggx_b": ggx_b, "aniso_e": _aniso_table(), "sheen_e": _sheen_table(),
+            "glass_e": _glass_table()}
 
 
 def sheen_albedo(cos_v, roughness):
@@ -205,6 +206,83 @@ def ggx_schlick_share(cos_v, alpha):
     """B of the split sum: the GGX lobe's albedo weighted by Schlick's (1 - v.h)^5, so that
     E_spec = f0 (E - B) + f90 B (tabulated with ggx_albedo)."""
     return _bilinear(_table("ggx_b"), cos_v, 0.02, alpha, ALPHA_MIN)
+
+
+# Rough glass: the single-scattering albedo R + T of the rough dielectric both tracers sample
+# (optics.sample_rough_dielectric: F G1 reflected, (1 - F) G1 refracted about a visible
+# normal), from outside (eta = 1 / ior) and from inside (eta = ior). With `multiscatter` both
+# children take glass_ms(E, tint), 1 / E for white glass, so a white interface loses nothing
+# between its microfacets: light a facet sends into its neighbours leaves in the end, as in
+# Cycles' multiscatter GGX glass. Single scattering alone dims a rough pane by a factor of
+# 2-4 at roughness 1 (several rough crossings and internal bounces).
+_GLASS = (2, 16, 32, 32)  # side (outside, inside), z = sqrt((ior - 1) / (ior + 1)), n.v, alpha
+GLASS_Z_MAX = 0.8         # z's last row: IOR 4.56 (beyond it, that row)
+GLASS_E_MIN = 0.05        # E's floor: 1 / E stays bounded at grazing
+
+
+def glass_albedo(cos_v, alpha, eta):
+    """E_ss = R + T of the rough dielectric at incidence cosine cos_v (to the normal on the
+    incident side), GGX alpha and eta = n_incident / n_transmitted, trilinear in _glass_table,
+    at least GLASS_E_MIN."""
+    table = _table("glass_e")
+    eta = np.asarray(eta, np.float64)
+    inside = eta > 1.0
+    ior = np.where(inside, eta, 1.0 / np.maximum(eta, 1e-12))
+    z = np.sqrt(np.maximum(ior - 1.0, 0.0) / (ior + 1.0))
+    _, n_z, n_mu, n_a = _GLASS
+    coords = [np.clip(z / GLASS_Z_MAX, 0, 1) * (n_z - 1),
+              np.clip((np.asarray(cos_v, np.float64) - 0.02) / 0.98, 0, 1) * (n_mu - 1),
+              np.clip((np.asarray(alpha, np.float64) - ALPHA_MIN) / (1 - ALPHA_MIN), 0, 1) * (n_a - 1)]
+    coords = [np.broadcast_to(c, np.broadcast_shapes(*(c.shape for c in coords))) for c in coords]
+    lo = [np.minimum(c.astype(int), size - 2) for c, size in zip(coords, _GLASS[1:])]
+    fr = [c - c0 for c, c0 in zip(coords, lo)]
+    side = np.broadcast_to(inside, coords[0].shape).astype(int)
+    out = np.zeros(coords[0].shape)
+    for corner in range(8):
+        idx, wgt = [side], np.ones(coords[0].shape)
+        for axis in range(3):
+            bit = (corner >> axis) & 1
+            idx.append(lo[axis] + bit)
+            wgt = wgt * (fr[axis] if bit else 1 - fr[axis])
+        out += wgt * table[tuple(idx)]
+    return np.maximum(out, GLASS_E_MIN)
+
+
+def glass_ms(e_ss, tint):
+    """The multiple-scattering scale of a rough glass lobe (both children) of albedo e_ss
+    whose crossing tints by `tint`: 1 / (1 - (1 - E) tint), the sum over the bounces between
+    facets, each of which loses 1 - E of what is left and crosses (Kulla & Conty 2017 with the
+    tint for the Fresnel average, as Cycles' and Eevee's multiscatter glass): 1 / E for white
+    glass, so nothing is lost; a tinted pane keeps less of its red than of its blue."""
+    return 1.0 / (1.0 - (1.0 - np.asarray(e_ss)) * np.asarray(tint))
+
+
+def glass_table() -> np.ndarray:
+    """The 2 x 16 x 32 x 32 table glass_albedo reads (for the compiled kernels:
+    path_kernel.glass_albedo)."""
+    return _table("glass_e")
+
+
+def _glass_table() -> np.ndarray:
+    """E_ss per cell by 32 x 32 stratified visible-normal quadrature of the tracers' own
+    weights (TIR on a facet reflects all of it)."""
+    k = 32
+    g = (np.arange(k) + 0.5) / k
+    u1, u2 = (a.reshape(-1) for a in np.meshgrid(g, g, indexing="ij"))
+    _, n_z, n_mu, n_a = _GLASS
+    alphas = np.linspace(ALPHA_MIN, 1.0, n_a)
+    a = np.repeat(alphas, k * k)
+    uu1, uu2 = np.tile(u1, n_a), np.tile(u2, n_a)
+    n = np.tile([0.0, 0.0, 1.0], (len(a), 1))
+    table = np.zeros(_GLASS)
+    for iz, z in enumerate(np.linspace(0.0, GLASS_Z_MAX, n_z)):
+        ior = (1 + z * z) / (1 - z * z)
+        for side, eta in enumerate((1.0 / ior, ior)):
+            for i, mu in enumerate(np.linspace(0.02, 1.0, n_mu)):
+                d = np.tile([-math.sqrt(1 - mu * mu), 0.0, -mu], (len(a), 1))
+                _, _, _, w_r, _, w_t, _ = sample_rough_dielectric(d, n, a, np.full(len(a), eta), uu1, uu2)
+                table[side, iz, i] = (w_r + w_t).reshape(n_a, k * k).mean(axis=1)
+    return table
 
 
 _AN = (12, 7, 12, 12)  # grid of the anisotropic albedo: n.v, azimuth to the grain, sqrt(ax), sqrt(ay)

@@ -373,11 +373,12 @@ def _g1(cos_v, alpha):
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def scatter(p, d, pos, ng, ns, entering, lit, thin, ior, roughness, alpha, base, w, medium,
-            u_layer, u_pick, u_lobe, u1, u2, u_rr, roulette, eps):
+            u_layer, u_pick, u_lobe, u1, u2, u_rr, roulette, eps, glass_e):
     """path_trace's BSDF-sampling step for every hit of a bounce (row i of p is hit i): a
     reflective component (Bsdf.sample) or Glass (the exact dielectric, smooth or Walter's
-    rough, thin-walled sheets crossed), Russian roulette when `roulette`, and the next ray's
-    origin off the surface. Returns (origins, directions, throughput, BSDF pdf for MIS, medium
+    rough, thin-walled sheets crossed; a rough one's children over its albedo from
+    `glass_e`, path_bsdf.glass_table, or uncompensated where that is empty), Russian
+    roulette when `roulette`, and the next ray's origin off the surface. Returns (origins, directions, throughput, BSDF pdf for MIS, medium
     IOR, alive, rough, tir)."""
     m = len(d)
     o_new = np.empty((m, 3))
@@ -409,7 +410,7 @@ def scatter(p, d, pos, ng, ns, entering, lit, thin, ior, roughness, alpha, base,
                 nx, ny, nz = ns[i, 0], ns[i, 1], ns[i, 2]
                 eta = 1.0 / ior[i] if entering[i] else ior[i]
                 smooth = roughness[i] <= 0
-                g_r, g_t = 1.0, 1.0
+                g_r, g_t, e_ss = 1.0, 1.0, 1.0
                 if smooth:
                     c = 2.0 * (dx * nx + dy * ny + dz * nz)
                     rx, ry, rz = dx - c * nx, dy - c * ny, dz - c * nz
@@ -433,6 +434,7 @@ def scatter(p, d, pos, ng, ns, entering, lit, thin, ior, roughness, alpha, base,
                     w_t = (1.0 - fres) * _g1(-ct, a) if (ct < 0 and not tir) else 0.0
                     g_r = w_r / max(fres, 1e-30)
                     g_t = w_t / max(1 - fres, 1e-30)
+                    e_ss = glass_albedo(glass_e, vx * nx + vy * ny + vz * nz, a, eta)
                 if thin[i]:  # out through the sheet's parallel back face: unbent where smooth
                     tx, ty, tz, tir2 = _refract(tx, ty, tz, nx, ny, nz, ior[i])
                     if smooth:
@@ -445,15 +447,12 @@ def scatter(p, d, pos, ng, ns, entering, lit, thin, ior, roughness, alpha, base,
                 if lit[i]:  # what the coat and sheen over it leave, over the choice's odds
                     factor *= p[i, W_BASE] / max(1.0 - p[i, P_COAT] - p[i, P_SHEEN], 1e-12)
                 # a refraction takes sqrt(base) at each crossing of a volume (Cycles'
-                # convention: c overall for one colour), base once through a thin sheet
+                # convention: c overall for one colour), base once through a thin sheet; what
+                # bounced between the microfacets comes back too (path_bsdf.glass_ms)
                 for c in range(3):
-                    if take_r:
-                        tint = 1.0
-                    elif thin[i]:
-                        tint = base[i, c]
-                    else:
-                        tint = math.sqrt(max(base[i, c], 0.0))
-                    w_new[i, c] = w[i, c] * tint * factor
+                    cross = base[i, c] if thin[i] else math.sqrt(max(base[i, c], 0.0))
+                    tint = 1.0 if take_r else cross
+                    w_new[i, c] = w[i, c] * tint * factor / (1.0 - (1.0 - e_ss) * cross)
                 if take_r:
                     lx, ly, lz = rx, ry, rz
                 else:
@@ -512,6 +511,34 @@ def _aniso_albedo(table, cos_v, azimuth, ax, ay):
             * (fr[2] if b2 else 1 - fr[2]) * (fr[3] if b3 else 1 - fr[3])
         out += wgt * table[lo[0] + b0, lo[1] + b1, lo[2] + b2, lo[3] + b3]
     return out
+
+
+_GLASS_Z_MAX = 0.8     # path_bsdf.GLASS_Z_MAX
+_GLASS_E_MIN = 0.05    # path_bsdf.GLASS_E_MIN
+
+
+@njit(cache=True)
+def glass_albedo(table, cos_v, alpha, eta):
+    """path_bsdf.glass_albedo at one point (trilinear in the side's 3-D table), floored at
+    path_bsdf.GLASS_E_MIN; 1 where `table` is empty (no multiple-scattering compensation)."""
+    if table.shape[0] == 0:
+        return 1.0
+    inside = eta > 1.0
+    ior = eta if inside else 1.0 / max(eta, 1e-12)
+    z = math.sqrt(max(ior - 1.0, 0.0) / (ior + 1.0))
+    t = table[1 if inside else 0]
+    sizes = t.shape
+    c = (min(max(z / _GLASS_Z_MAX, 0.0), 1.0) * (sizes[0] - 1),
+         min(max((cos_v - 0.02) / 0.98, 0.0), 1.0) * (sizes[1] - 1),
+         min(max((alpha - _ALPHA_MIN) / (1 - _ALPHA_MIN), 0.0), 1.0) * (sizes[2] - 1))
+    lo = (min(int(c[0]), sizes[0] - 2), min(int(c[1]), sizes[1] - 2), min(int(c[2]), sizes[2] - 2))
+    fr = (c[0] - lo[0], c[1] - lo[1], c[2] - lo[2])
+    out = 0.0
+    for corner in range(8):
+        b0, b1, b2 = corner & 1, (corner >> 1) & 1, (corner >> 2) & 1
+        wgt = (fr[0] if b0 else 1 - fr[0]) * (fr[1] if b1 else 1 - fr[1]) * (fr[2] if b2 else 1 - fr[2])
+        out += wgt * t[lo[0] + b0, lo[1] + b1, lo[2] + b2]
+    return max(out, _GLASS_E_MIN)
 
 
 @njit(cache=True, inline="always")
@@ -701,7 +728,7 @@ def warm() -> None:
     e3, b = np.zeros((0, 3)), np.zeros(0, np.bool_)
     t2, t4 = np.zeros((2, 2)), np.zeros((2, 2, 2, 2))
     build_rows(e3, e3, e3, e, e3, e, e, e, e, e3, e, e3, e, e3, e, e, e, e, e3, e, e3, e, e, True, t2, t2, t4, t2)
-    scatter(p, e3, e3, e3, e3, b, b, b, e, e, e, e3, e3, e, e, e, e, e, e, e, True, 1e-4)
+    scatter(p, e3, e3, e3, e3, b, b, b, e, e, e, e3, e3, e, e, e, e, e, e, e, True, 1e-4, np.zeros((0, 1, 1, 1)))
     i64, eye = np.zeros(6, np.int64), np.eye(3)
     env_pdf(np.ones(6), 1, np.zeros((0, 3)), eye, 0.1, i64, e, i64, e)
     env_sample(np.ones(6), np.ones(6), 1, e, e, e, eye, 0.1, i64, e, i64, e)

@@ -96,6 +96,9 @@ _DEPTHS = 1 << 16  # more than RenderOptions.bounces allows
 _KEY_BASE = 1 << 32  # clear of the tree's keys (a bounce index plus 0, 400 or 700)
 
 
+_NO_TABLE = np.zeros((0, 1, 1, 1))  # path_kernel.glass_albedo's "no compensation"
+
+
 def _dim(kind: int, depth: int, i: int = 0) -> int:
     """The key of stream `kind` at surface index `depth` (light i): distinct for every triple."""
     return _KEY_BASE + ((i * _DEPTHS + depth) * _KINDS + kind)
@@ -437,14 +440,15 @@ def trace_pass(ts, env, options: RenderOptions, eye: np.ndarray, dirs: np.ndarra
         u1, u2 = sample(px, s, _dim(K_DIRECTION, depth))
         u_layer = sample.single(px, s, _dim(K_LAYER, depth))
         u_rr = sample.single(px, s, _dim(K_ROULETTE, depth)) if depth >= RR_START else u1
+        glass_e = path_bsdf.glass_table() if options.multiscatter else _NO_TABLE
         args = (d, p, ng, ns, entering, surface_lit, thin, ior, alpha, w, medium,
-                u_layer, u_pick, u_lobe, u1, u2, u_rr, depth >= RR_START, eps)
+                u_layer, u_pick, u_lobe, u1, u2, u_rr, depth >= RR_START, eps, options.multiscatter)
         if KERNEL:
             f8 = _f64
             nxt = lobes.kernel.scatter(lobes.packed, f8(d), f8(p), f8(ng), f8(ns), _b(entering), _b(surface_lit),
                                        _b(thin), f8(ior), f8(hits.roughness), f8(alpha), f8(hits.base), f8(w),
                                        f8(medium), f8(u_layer), f8(u_pick), f8(u_lobe), f8(u1), f8(u2), f8(u_rr),
-                                       depth >= RR_START, eps)
+                                       depth >= RR_START, eps, glass_e)
         else:
             nxt = _scatter_numpy(lobes.bsdf, hits, *args, lobes)
         o_all, new_d, new_w, new_pdf, new_medium, alive, rough, tir = nxt
@@ -500,7 +504,8 @@ def _pass_on(u: np.ndarray, cover: np.ndarray, go_w: np.ndarray, clear: np.ndarr
 
 
 def _scatter_numpy(bsdf, hits, d, p, ng, ns, entering, surface_lit, thin, ior, alpha, w, medium,
-                   u_layer, u_pick, u_lobe, u1, u2, u_rr, roulette: bool, eps: float, lobes):
+                   u_layer, u_pick, u_lobe, u1, u2, u_rr, roulette: bool, eps: float, multiscatter: bool,
+                   lobes):
     """path_kernel.scatter's numpy twin: the BSDF-sampling step of a bounce."""
     tir_all = np.zeros(len(d), bool)
 
@@ -534,6 +539,7 @@ def _scatter_numpy(bsdf, hits, d, p, ng, ns, entering, surface_lit, thin, ior, a
         fres = fresnel_dielectric(np.clip(_dot(-dg, ng_g), 0.0, 1.0), eta)
         g_r = np.ones(len(gl))
         g_t = np.ones(len(gl))
+        e_ss = np.ones(len(gl))
         rs = np.flatnonzero(~smooth)
         if len(rs):
             _, f_m, r_m, wr_m, t_m, wt_m, tir_m = sample_rough_dielectric(
@@ -541,6 +547,8 @@ def _scatter_numpy(bsdf, hits, d, p, ng, ns, entering, surface_lit, thin, ior, a
             r_dir[rs], t_dir[rs], tir[rs], fres[rs] = r_m, t_m, tir_m, f_m
             g_r[rs] = wr_m / np.maximum(f_m, 1e-30)
             g_t[rs] = wt_m / np.maximum(1 - f_m, 1e-30)
+            if multiscatter:
+                e_ss[rs] = path_bsdf.glass_albedo(np.clip(_dot(-dg[rs], ng_g[rs]), 0.0, 1.0), alpha[gl[rs]], eta[rs])
         sheet = thin[gl]
         if np.any(sheet):  # out through the sheet's parallel back face: unbent where smooth
             t_dir[sheet], tir_out = refract(t_dir[sheet], ng_g[sheet], ior[gl][sheet])
@@ -549,9 +557,10 @@ def _scatter_numpy(bsdf, hits, d, p, ng, ns, entering, surface_lit, thin, ior, a
         fres = np.where(tir, 1.0, fres)
         # what is not transmitted of this component is the dielectric's reflection
         take_r = u_lobe[gl] < fres
-        # sqrt(base) at each crossing of a volume, base once through a thin sheet (as the kernel)
-        tint = np.where(take_r[:, None], 1.0,
-                        np.where(sheet[:, None], hits.base[gl], np.sqrt(np.maximum(hits.base[gl], 0.0))))
+        # sqrt(base) at each crossing of a volume, base once through a thin sheet (as the
+        # kernel), and what bounced between the microfacets (path_bsdf.glass_ms)
+        cross = np.where(sheet[:, None], hits.base[gl], np.sqrt(np.maximum(hits.base[gl], 0.0)))
+        tint = np.where(take_r[:, None], 1.0, cross) * path_bsdf.glass_ms(e_ss[:, None], cross)
         # a surface seen from inside with no transmission still refracts out as glass
         new_d[gl] = np.where(take_r[:, None], r_dir, t_dir)
         factor = np.where(take_r, g_r, g_t * np.where(sheet, 1.0, eta * eta))

@@ -106,7 +106,7 @@ from core.cubemap import env_rotation_matrix, sample_cube
 from core.mips import texture_size_for
 from core.options import RenderOptions, apply_override, background_rgb
 from renderer.frame import Frame, FrameTimings, alpha_is_mask, tonemap_srgb8
-from renderer.methods import env_irradiance, trace_lights, trace_material
+from renderer.methods import env_irradiance, path_bsdf, trace_lights, trace_material
 from renderer.methods.optics import (
     dominant_direction,
     fresnel_dielectric,
@@ -145,6 +145,9 @@ EMITTER_SAMPLES = 1    # points on emissive triangles per ray at every surface (
 # from the lobe (GGX visible normals of alpha sqrt(ROUGH_PROBE)), so that geometry in part of
 # a wide lobe is met by that part of a pixel's rays. 0: it travels the dominant direction.
 ROUGH_PROBE = 1.0
+
+
+_NO_TABLE = np.zeros((0, 1, 1, 1))  # trace_kernel.shade's "no glass albedo compensation"
 
 
 def _kernel():
@@ -685,7 +688,8 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
                 options.rough_lobes == "sample", options.fresnel_split == "sample",
                 options.multiscatter, MIN_WEIGHT, kernel._SOBOL_DIM1,
                 ROULETTE if options.fresnel_split == "roulette" else 0.0, float(n_nee),
-                *trace_lights.MIRROR_ROUGH, ROUGH_PROBE, ray_back, storm.back_face_table())
+                *trace_lights.MIRROR_ROUGH, ROUGH_PROBE, ray_back, storm.back_face_table(),
+                path_bsdf.glass_table() if options.multiscatter else _NO_TABLE)
             m_dir, m_w, m_blur, m_slot, direct, glow, diffuse, dnorm, matte, tir = out[11:21]
             if depth > 0 and len(m_slot):
                 add(m_w * env.radiance(m_dir, m_blur ** 0.25), m_slot)
@@ -1031,6 +1035,7 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
     # Walter et al.'s rough dielectric (F on the microfacet, G1 of the way out).
     lobe = (rough_k > 0) & (trans > 0) if options.rough_lobes == "sample" else rough_k < 0
     g_r = g_t = None
+    lobe_e = np.ones(len(d))  # a sampled lobe's single-scattering albedo (1: none put back)
     if np.any(lobe):
         lsel = np.flatnonzero(lobe)
         u1, u2 = _pixel_samples(px[lsel], sb[lsel], depth)
@@ -1043,6 +1048,8 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
         g_r, g_t = np.ones(len(d)), np.ones(len(d))
         g_r[lsel] = wr_m / np.maximum(f_m, 1e-30)        # G1 (0: leaves below the surface)
         g_t[lsel] = wt_m / np.maximum(1.0 - f_m, 1e-30)
+        if ms:  # what bounces between the facets puts back (path_bsdf.glass_albedo, below)
+            lobe_e[lsel] = path_bsdf.glass_albedo(np.clip(cos_i[lsel], 0.0, 1.0), rough_k[lsel] ** 2, eta[lsel])
     # KHR_materials_specular: the reflected share per channel; what passes under it loses
     # its largest channel (glTF's fresnel_mix)
     fres_c = specular_tint(fres, f_smooth, ior, hits.specular, hits.specular_color, entering & ~back)
@@ -1053,7 +1060,13 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
         fres_c[back] = (f0_b * a_b + b_b)[:, None]
         f_diffuse[back] = f0_b
     fres = fres_c.max(axis=1)
-    refl_w = ((1 - metal)[:, None] * fres_c * (1.0 if g_r is None else g_r[:, None])) * w
+    # Transmission tint (as Cycles' Principled BSDF): a volume's every crossing, in or out,
+    # takes sqrt(base) of the texel it crosses, so a closed solid of one colour tints by base
+    # and a textured one by sqrt(c_entry) sqrt(c_exit); a thin sheet is one surface: base.
+    tint = np.where(thin[:, None], base, np.sqrt(np.maximum(base, 0.0)))
+    # what bounced between a sampled rough lobe's facets, in both children (path_bsdf.glass_ms)
+    lobe_ms = path_bsdf.glass_ms(lobe_e[:, None], tint)
+    refl_w = ((1 - metal)[:, None] * fres_c * (1.0 if g_r is None else g_r[:, None])) * lobe_ms * w
     if np.any(metal > 0):  # the metallic share's lobe albedo (a LUT read: only for metals)
         sel = np.flatnonzero((metal > 0) & ~back)
         refl_w[sel] += (metal[sel, None] * env.specular_albedo(
@@ -1062,10 +1075,6 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
         if len(sel):
             a_b, b_b = storm.back_face_albedo(rough_k[sel])
             refl_w[sel] += metal[sel, None] * (base[sel] * a_b[:, None] + b_b[:, None]) * w[sel]
-    # Transmission tint (as Cycles' Principled BSDF): a volume's every crossing, in or out,
-    # takes sqrt(base) of the texel it crosses, so a closed solid of one colour tints by base
-    # and a textured one by sqrt(c_entry) sqrt(c_exit); a thin sheet is one surface: base.
-    tint = np.where(thin[:, None], base, np.sqrt(np.maximum(base, 0.0)))
     # Radiance crossing an interface scales by (n_camera_side / n_far_side)^2 = eta^2: it
     # cancels on a path in and out again and matters when the camera is inside the glass.
     # A rough interface's microfacets mask and shadow part of what crosses it, as they do
@@ -1074,7 +1083,7 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
     e_ss = _lut_albedo(env.baked, cos_i, rough_k) if np.any(rough_k > 0) else 1.0
     if g_t is not None:  # sampled lobes: G1 instead of the lobe's mean albedo
         e_ss = np.where(lobe, g_t, e_ss)
-    trans_w = ((1 - metal) * (1 - fres) * trans * np.where(thin, 1.0, eta * eta) * e_ss)[:, None] * tint * w
+    trans_w = ((1 - metal) * (1 - fres) * trans * np.where(thin, 1.0, eta * eta) * e_ss)[:, None] * tint * lobe_ms * w
     diffuse_w = ((1 - metal) * (1 - f_diffuse) * (1 - trans) * hits.occlusion)[:, None] * base * w
     # Lobe widths add as variances. A rough refraction bends directions by
     # |1 - eta| per unit of microfacet tilt where a reflection bends them by 2, so its

@@ -22,6 +22,8 @@ import time
 import numpy as np
 from numba import njit, prange
 
+from renderer.methods.path_kernel import glass_albedo
+
 _SOBOL_DIM1 = np.zeros(32, np.uint64)
 _SOBOL_DIM1[0] = 0x80000000
 for _i in range(1, 32):
@@ -205,7 +207,7 @@ def _refract(dx, dy, dz, nx, ny, nz, eta):
 def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in, look,
           normals, geo_normals, material, base, metallic, roughness, transmission, ior, sigma,
           thin, emission, occlusion, spec, spec_col, lut, depth, n_sub, eps, sample_lobes, split_sample, ms, min_weight,
-          sobol, roulette, nee, mirror_lo, mirror_hi, probe, storm_back, storm_table):
+          sobol, roulette, nee, mirror_lo, mirror_hi, probe, storm_back, storm_table, glass_e):
     """One bounce's rays (prim < 0: missed) -> (children: origin, dir, weight, pix, sub,
     slot, blur, share, medium, mirror share, look; the misses' look, weight x share, blur and slot;
     emission to add and its slots; the diffuse shares' weight x share, normals and slots; TIR
@@ -219,7 +221,9 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in, look,
     alpha sqrt(probe)): what it meets is seen in part, and if it escapes it still reads the
     whole lobe's prefiltered light (renderer.methods.raytrace.ROUGH_PROBE). `storm_back`
     (per ray): a back face hit by it is lit as Storm lights a single-sided USD one
-    (core.storm; its (A, B) at N.E = 0 in `storm_table`): the authored normal, no refraction."""
+    (core.storm; its (A, B) at N.E = 0 in `storm_table`): the authored normal, no refraction.
+    `glass_e` (path_bsdf.glass_table, or empty: none): a sampled rough glass lobe's children
+    over its single-scattering albedo, what bounces between microfacets put back."""
     n = len(d)
     m_d, m_w, m_blur = np.empty((n, 3)), np.empty((n, 3)), np.empty(n)
     m_sl = np.empty(n, np.int64)
@@ -398,6 +402,7 @@ def _shade_rows(lo, hi, n, origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n
             e_s = _spec_albedo(f0, a0, b0s, ms)
             fres = min(max(fres * _spec_albedo(f0, a, b, ms) / max(e_s, 1e-6), 0.0), 1.0)
         g_r, g_t = 1.0, 1.0
+        ms_lost = 0.0  # of a sampled rough glass lobe: 1 - its albedo, put back below
         tir = False
         if lobe:
             alpha = rough * rough
@@ -412,6 +417,7 @@ def _shade_rows(lo, hi, n, origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n
             ct = tx * sx + ty * sy + tz * sz
             g_r = _g1(cr, alpha) if cr > 0 and rx * mx + ry * my + rz * mz > 0 else 0.0
             g_t = _g1(-ct, alpha) if ct < 0 and not tir else 0.0
+            ms_lost = 1.0 - glass_albedo(glass_e, min(max(cos_i, 0.0), 1.0), alpha, eta)
         else:
             c2 = dx * sx + dy * sy + dz * sz
             rx, ry, rz = dx - 2 * c2 * sx, dy - 2 * c2 * sy, dz - 2 * c2 * sz
@@ -448,9 +454,19 @@ def _shade_rows(lo, hi, n, origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n
             f0c = min(f0 * spec_col[i, 2], 1.0)
             fc2 = min(max(s_k * (f0c + (1 - f0c) * x) * ratio, 0.0), 1.0)
             fres = max(fc0, fc1, fc2)
-        r0 = (1 - metal) * fc0 * g_r * w0
-        r1 = (1 - metal) * fc1 * g_r * w1
-        r2 = (1 - metal) * fc2 * g_r * w2
+        # the crossing's tint: base once through a sheet, sqrt(base) at each crossing of a
+        # volume (Cycles' convention: base overall for one colour), as the numpy twin; what
+        # bounced between a rough lobe's facets comes back in both children (path_bsdf.glass_ms)
+        if sheet:
+            x0, x1, x2 = base[i, 0], base[i, 1], base[i, 2]
+        else:
+            x0 = math.sqrt(max(base[i, 0], 0.0))
+            x1 = math.sqrt(max(base[i, 1], 0.0))
+            x2 = math.sqrt(max(base[i, 2], 0.0))
+        ms0, ms1, ms2 = 1.0 / (1.0 - ms_lost * x0), 1.0 / (1.0 - ms_lost * x1), 1.0 / (1.0 - ms_lost * x2)
+        r0 = (1 - metal) * fc0 * g_r * w0 * ms0
+        r1 = (1 - metal) * fc1 * g_r * w1 * ms1
+        r2 = (1 - metal) * fc2 * g_r * w2 * ms2
         if metal > 0 and back:
             r0 += metal * (base[i, 0] * a_b + b_b) * w0
             r1 += metal * (base[i, 1] * a_b + b_b) * w1
@@ -462,14 +478,7 @@ def _shade_rows(lo, hi, n, origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n
             r2 += metal * _spec_albedo(base[i, 2], a, b, ms) * w2
         e_ss = g_t if lobe else _lut_albedo(lut, cos_i, rough)
         ft = (1 - metal) * (1 - fres) * trans * (1.0 if sheet else eta * eta) * e_ss
-        # transmission tint, as the numpy twin: base once through a sheet, sqrt(base) at
-        # each crossing of a volume (Cycles' convention: base overall for one colour)
-        if sheet:
-            q0, q1, q2 = ft * base[i, 0] * w0, ft * base[i, 1] * w1, ft * base[i, 2] * w2
-        else:
-            q0 = ft * math.sqrt(max(base[i, 0], 0.0)) * w0
-            q1 = ft * math.sqrt(max(base[i, 1], 0.0)) * w1
-            q2 = ft * math.sqrt(max(base[i, 2], 0.0)) * w2
+        q0, q1, q2 = ft * x0 * w0 * ms0, ft * x1 * w1 * ms1, ft * x2 * w2 * ms2
         fd = (1 - metal) * (1 - (f_back if back else fres)) * (1 - trans) * occlusion[i]
         if fd > 0 and max(base[i, 0] * w0, base[i, 1] * w1, base[i, 2] * w2) > 0:
             diffuse[n_matte, 0] = fd * base[i, 0] * w0 * sh[i]
@@ -635,7 +644,8 @@ def warm() -> None:
               np.zeros(0, t_type), e3, np.zeros(0, i64), np.zeros(0, i64), np.zeros(0, i64),
               e, e, e, e3, e3, np.zeros((0, 3), f32), np.zeros(0, np.int32),
               e3, e, e, e, e, e3, np.zeros(0, np.bool_), e3, e, e, e3, np.zeros((2, 2, 2)), 0, 1, 1e-4, True, False, True,
-              1e-3, _SOBOL_DIM1, 0.0, 0.0, 0.15, 0.3, 0.5, np.zeros(0, np.bool_), np.zeros((2, 2)))
+              1e-3, _SOBOL_DIM1, 0.0, 0.0, 0.15, 0.3, 0.5, np.zeros(0, np.bool_), np.zeros((2, 2)),
+              np.zeros((0, 1, 1, 1)))
     sample_cube(np.zeros((6, 2, 2, 3), f32), e3, _S_AXIS, _S_SIGN, _T_AXIS, _T_SIGN)
     for pick in (True, False):
         emitter_pick(e3, e, e3, e3, e3, e, e, np.zeros(0, np.bool_), pick)
