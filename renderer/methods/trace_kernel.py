@@ -246,7 +246,7 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in, look,
         r = _shade_rows(lo, hi, n, origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in, look,
                         normals, geo_normals, material, base, metallic, roughness, transmission, ior, sigma,
                         thin, emission, occlusion, spec, spec_col, lut, depth, n_sub, eps, sample_lobes, split_sample, ms, min_weight,
-                        sobol, roulette, nee, mirror_lo, mirror_hi, probe, storm_back, storm_table,
+                        sobol, roulette, nee, mirror_lo, mirror_hi, probe, storm_back, storm_table, glass_e,
                         m_d, m_w, m_blur, m_sl, e_d, e_w, e_blur, e_sl, c_o, c_d, c_w, c_px, c_sb, c_sl, c_blur,
                         c_sh, c_med, c_share, c_look, direct, glow, diffuse, dnorm, matte)
         counts[ch, 0], counts[ch, 1], counts[ch, 2] = r[0] - lo, r[1] - lo, r[2] - lo
@@ -338,7 +338,7 @@ def _pack_children(counts, q, nch, n, src0, dst0, c_o, c_d, c_w, c_px, c_sb, c_s
 def _shade_rows(lo, hi, n, origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in, look,
                 normals, geo_normals, material, base, metallic, roughness, transmission, ior, sigma,
                 thin, emission, occlusion, spec, spec_col, lut, depth, n_sub, eps, sample_lobes, split_sample, ms, min_weight,
-                sobol, roulette, nee, mirror_lo, mirror_hi, probe, storm_back, storm_table,
+                sobol, roulette, nee, mirror_lo, mirror_hi, probe, storm_back, storm_table, glass_e,
                 m_d, m_w, m_blur, m_sl, e_d, e_w, e_blur, e_sl, c_o, c_d, c_w, c_px, c_sb, c_sl, c_blur,
                 c_sh, c_med, c_share, c_look, direct, glow, diffuse, dnorm, matte):
     """shade's rows lo .. hi - 1, each output written from row lo on (refracted children from
