@@ -21,31 +21,17 @@ from functools import lru_cache
 
 import numpy as np
 
+from core.hammersley import ggx_reflections
+
 ROWS = 17      # n.d = 0, 1/16, ..., 1
 COLUMNS = 17   # roughness 0, 1/16, ..., 1
 SAMPLES = 4096
 
 
-def _van_der_corput(i: np.ndarray) -> np.ndarray:
-    """Base-2 radical inverse of 32-bit integers, in [0, 1)."""
-    b = i.astype(np.uint64)
-    out = np.zeros_like(b)
-    for k in range(32):
-        out |= ((b >> np.uint64(k)) & np.uint64(1)) << np.uint64(31 - k)
-    return out.astype(np.float64) / 2.0 ** 32
-
-
 def _kernel(roughness: float) -> tuple[np.ndarray, np.ndarray]:
     """The prefilter's kernel about +z: directions l and their weights (pdf-sampled GGX
     half vectors reflected about +z, weight N.L; directions under +z's plane dropped)."""
-    alpha = max(roughness * roughness, 1e-4)
-    i = np.arange(SAMPLES)
-    xi = _van_der_corput(i)
-    phi = 2 * np.pi * (i + 0.5) / SAMPLES
-    cos_h = np.sqrt((1 - xi) / (1 + (alpha * alpha - 1) * xi))
-    sin_h = np.sqrt(np.maximum(1 - cos_h * cos_h, 0))
-    light = np.stack([2 * cos_h * sin_h * np.cos(phi), 2 * cos_h * sin_h * np.sin(phi),
-                      2 * cos_h * cos_h - 1], axis=-1)
+    light, _ = ggx_reflections(max(roughness * roughness, 1e-4), SAMPLES)
     keep = light[:, 2] > 0
     return light[keep], light[keep, 2]
 

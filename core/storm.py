@@ -21,25 +21,18 @@ from functools import lru_cache
 
 import numpy as np
 
+from core.hammersley import radical_inverse
+
 TABLE_SIZE = 33  # roughness 0, 1/32, ..., 1
 SAMPLES = 1024  # Storm's NUM_SAMPLES
 NOV = 0.001  # Storm's clamp of N.E in its table
-
-
-def _radical_inverse(i: np.ndarray) -> np.ndarray:
-    """Van der Corput in base 2 of 32-bit integers (the bits reversed), in [0, 1)."""
-    bits = i.astype(np.uint64)
-    out = np.zeros_like(bits)
-    for b in range(32):
-        out |= ((bits >> np.uint64(b)) & np.uint64(1)) << np.uint64(31 - b)
-    return out.astype(np.float64) / 2.0 ** 32
 
 
 @lru_cache(maxsize=1)
 def _hammersley() -> tuple[np.ndarray, np.ndarray]:
     """Storm's SAMPLES points (i / N, radical inverse of i): made once, not per roughness."""
     i = np.arange(SAMPLES)
-    return i / SAMPLES, _radical_inverse(i)
+    return i / SAMPLES, radical_inverse(i)
 
 
 def _integrate(roughness: float) -> tuple[float, float]:

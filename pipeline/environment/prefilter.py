@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from core.cubemap import DEFAULT_FACE_SIZE, check_face_size, default_levels
+from core.hammersley import ggx_reflections
 from core.sh import SH_C0, SH_C1, SH_C2, SH_C3, SH_C4
 from pipeline.environment.panorama import DEFAULT_ENVIRONMENT, Panorama, list_bundled, load_panorama, synthetic_panorama  # noqa: F401
 
@@ -232,16 +233,6 @@ def _paper_mips(ctx, gl, base_tex, size: int, levels: int) -> list[np.ndarray]:
     return mips
 
 
-def _radical_inverse(i: np.ndarray) -> np.ndarray:
-    b: np.ndarray = i.astype(np.uint32)
-    b = (b << 16) | (b >> 16)
-    b = ((b & 0x55555555) << 1) | ((b & 0xAAAAAAAA) >> 1)
-    b = ((b & 0x33333333) << 2) | ((b & 0xCCCCCCCC) >> 2)
-    b = ((b & 0x0F0F0F0F) << 4) | ((b & 0xF0F0F0F0) >> 4)
-    b = ((b & 0x00FF00FF) << 8) | ((b & 0xFF00FF00) >> 8)
-    return b.astype(np.float64) * 2.0 ** -32
-
-
 def ggx_sample_count(mip: int) -> int:
     """Samples per texel for a mip: mip-filtered sampling makes a few dozen enough for the
     narrow lobes; wide lobes get more, which is cheap because their mips are small."""
@@ -253,14 +244,7 @@ def ggx_samples(roughness: float, count: int, source_size: int, max_lod: float) 
     light direction in the lobe's frame (z = N) and the source LOD to read it at. Samples below
     the horizon are dropped (their weight N.L would be 0)."""
     alpha = max(roughness * roughness, 1e-6)
-    i = np.arange(count)
-    xi = _radical_inverse(i)
-    phi = 2 * np.pi * (i + 0.5) / count
-    cos_h = np.sqrt((1 - xi) / (1 + (alpha * alpha - 1) * xi))
-    sin_h = np.sqrt(np.maximum(1 - cos_h * cos_h, 0))
-    # L = reflect(-N, H) with N = V = +z
-    light = np.stack([2 * cos_h * sin_h * np.cos(phi), 2 * cos_h * sin_h * np.sin(phi),
-                      2 * cos_h * cos_h - 1], axis=-1)
+    light, cos_h = ggx_reflections(alpha, count)
     d = alpha * alpha / (np.pi * (cos_h * cos_h * (alpha * alpha - 1) + 1) ** 2)
     pdf = d / 4  # D * N.H / (4 V.H) with N = V
     texel_solid_angle = 4 * np.pi / (6 * source_size * source_size)
