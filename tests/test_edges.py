@@ -149,10 +149,15 @@ def test_hidden_edges_change_nothing(cache, tmp_path_factory):
     env = bake_environment(DEFAULT_ENVIRONMENT, cache, face_size=default_face_size(96))
     alone = bake_asset(_cubes(tmp_path_factory, False), cache)
     behind = bake_asset(_cubes(tmp_path_factory, True), cache)
-    a, _ = _frames(alone, env)
-    b, none = _frames(behind, env)
-    assert np.array_equal(_frames(alone, env)[1].rgba8, none.rgba8)  # nothing of it shows
-    assert np.array_equal(a.rgba8, b.rgba8)
+    a, a_none = (f.rgba8.astype(int) for f in _frames(alone, env))
+    b, b_none = (f.rgba8.astype(int) for f in _frames(behind, env))
+    # with the hidden cube the two are one world-space batch (pipeline.batching): its bent
+    # normals are rounded after the placement, not before, and the small cube occludes the
+    # front cube's back faces; a level either way, and nothing of the small cube shows
+    assert np.abs(a_none - b_none).max() <= 1
+    # and its edges smooth nothing: the same pixels change, each by the same amount
+    assert np.array_equal((a != a_none).any(axis=-1), (b != b_none).any(axis=-1))
+    assert np.abs((a - a_none) - (b - b_none)).max() <= 1
 
 
 def test_msaa_when_asked_for_or_when_the_frame_is_too_big(cache, assets, monkeypatch):
