@@ -79,10 +79,10 @@ def _board(bent_y: float | None, key: str) -> BakedAsset:
                       bounds=np.array([pos.min(0), pos.max(0)], np.float64))
 
 
-def _centre(asset, env, **kw) -> np.ndarray:
+def _centre(asset, env, method: str = "opaque", **kw) -> np.ndarray:
     from renderer import render
     o = RenderOptions(width=32, height=32, tonemap="none", background="transparent", yaw=0.0, pitch=0.0,
-                      fov=30.0, shadow=0.0, method="opaque", **kw)
+                      fov=30.0, shadow=0.0, method=method, **kw)
     return render(asset, env, o).linear[13:19, 13:19, :3].reshape(-1, 3).mean(0)
 
 
@@ -175,3 +175,46 @@ def test_cache_keeps_the_bent_normals(tmp_path):
     front = dequantise_directions(mesh.bent)[:, :3]
     assert np.all(np.einsum("ij,ij->i", front, mesh.normals) > 0.98)
     np.testing.assert_array_equal(load_baked(baked.key, tmp_path / "cache").meshes[0].bent, mesh.bent)
+
+
+def test_the_trees_diffuse_bends_as_the_rasters(sky_over_black):
+    """The ray tracer's Fresnel tree reads the irradiance about the same bent normal: under a
+    sky over a black ground the board's bent-down side darkens and its bent-up side brightens
+    by the raster's ratios (both read the sky's irradiance about m.bent; tree: the cube's
+    texels, raster: the SH), and a level bend is the unbent frame."""
+    ratios = {}
+    for method in ("opaque", "raytrace"):
+        plain = _centre(_board(None, "none"), sky_over_black, method=method)
+        level = _centre(_board(0.0, "level"), sky_over_black, method=method)
+        down = _centre(_board(-0.8, "down"), sky_over_black, method=method)
+        up = _centre(_board(0.8, "up"), sky_over_black, method=method)
+        np.testing.assert_allclose(level, plain, rtol=0.02)
+        ratios[method] = (down / level, up / level)
+    (r_down, r_up), (t_down, t_up) = ratios["opaque"], ratios["raytrace"]
+    assert np.all(t_down < 0.75) and np.all(t_up > 1.25), (t_down, t_up)
+    np.testing.assert_allclose(t_down, r_down, rtol=0.1)
+    np.testing.assert_allclose(t_up, r_up, rtol=0.1)
+
+
+def test_the_tree_without_bent_rows_is_unchanged(sky_over_black):
+    """A mesh without bent normals beside one with them: its pixels are bit-identical to the
+    frame where no mesh has any (the tree's old path, trace_material.bent_at None)."""
+    from renderer import render
+
+    def pair(bent_y, key):
+        left, right = _board(None, key).meshes[0], _board(bent_y, key).meshes[0]
+        shift = np.eye(4)
+        shift[0, 3] = 1.5
+        right = dataclasses.replace(right, name="right", transforms=shift[None])
+        shift = shift.copy()
+        shift[0, 3] = -1.5
+        left = dataclasses.replace(left, transforms=shift[None])
+        pos = np.array([[-2.5, -1, 0], [2.5, 1, 0]], np.float64)
+        return BakedAsset(key=f"bent-pair-{key}", source="pair", format="test", meshes=[left, right],
+                          textures=[], bounds=pos)
+    o = RenderOptions(width=48, height=24, tonemap="none", background="transparent", yaw=0.0, pitch=0.0,
+                      fov=40.0, shadow=0.0, method="raytrace")
+    mixed = render(pair(-0.8, "mixed"), sky_over_black, o).linear
+    none = render(pair(None, "none"), sky_over_black, o).linear
+    np.testing.assert_array_equal(mixed[:, :20], none[:, :20])
+    assert mixed[:, 28:, :3].sum() < 0.9 * none[:, 28:, :3].sum()  # the bent board did darken

@@ -148,6 +148,7 @@ ROUGH_PROBE = 1.0
 
 
 _NO_TABLE = np.zeros((0, 1, 1, 1))  # trace_kernel.shade's "no glass albedo compensation"
+_NO_BENT = np.zeros((0, 6))  # trace_kernel.shade's "no bent normals"
 
 
 def _kernel():
@@ -661,6 +662,7 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
         hits = hit_material(ts, origins, dirs, prim, u, v, t, lobes=False)
         if cover is not None:
             hits.occlusion = hits.occlusion * cover
+        bent = _bent_at(ts, prim, u, v)
         # Storm's back-face rule (core.storm) is what the camera sees: on its rays (through
         # translucent layers too), not on a bounce (there a back face would reflect the sky
         # through itself)
@@ -689,7 +691,8 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
                 options.multiscatter, MIN_WEIGHT, kernel._SOBOL_DIM1,
                 ROULETTE if options.fresnel_split == "roulette" else 0.0, float(n_nee),
                 *trace_lights.MIRROR_ROUGH, ROUGH_PROBE, ray_back, storm.back_face_table(),
-                path_bsdf.glass_table() if options.multiscatter else _NO_TABLE)
+                path_bsdf.glass_table() if options.multiscatter else _NO_TABLE,
+                _NO_BENT if bent is None else bent)
             m_dir, m_w, m_blur, m_slot, direct, glow, diffuse, dnorm, matte, tir = out[11:21]
             if depth > 0 and len(m_slot):
                 add(m_w * env.radiance(m_dir, m_blur ** 0.25), m_slot)
@@ -714,7 +717,8 @@ def _trace_paths(ts: TraceScene, env: _Environment, options: RenderOptions,
                                trace_material.Hits(*(getattr(hits, f.name)[sel] for f in  # the core
                                                      dataclasses.fields(trace_material.Hits)[:9])),
                                weight[hit], pix[hit], sub[hit], slot[hit], blur[hit], share[hit],
-                               medium[hit], n_nee, add, stats, ray_back[hit])
+                               medium[hit], n_nee, add, stats, ray_back[hit],
+                               None if bent is None else bent[hit])
         if split:
             assert cover is not None
             out, clear = _pass_on(out, origins, dirs, t, weight, pix, sub, slot, blur, share, medium,
@@ -986,9 +990,31 @@ def _alpha_draw(pix: np.ndarray, sub: np.ndarray, n_sub: int, depth: int) -> np.
     return ((sub + 0.5) / n_sub + pixel_shift(pix, depth + 900)) % 1.0
 
 
+def _bent_at(ts: TraceScene, prim: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray | None:
+    """The baked bent normals at the hits (trace_material.bent_at), none on a sprite's disc (it
+    is lit about the camera's axis, as the raster's FACE_VIEWER)."""
+    bent = trace_material.bent_at(ts.surface, prim, u, v)
+    if bent is not None and ts.sprite.any():
+        bent[(prim >= 0) & ts.sprite[ts.material[np.maximum(prim, 0)]]] = 0.0
+    return bent
+
+
+def _bend(ns: np.ndarray, ng: np.ndarray, bent: np.ndarray, front: np.ndarray, back: np.ndarray) -> np.ndarray:
+    """The diffuse share's normals: the shading normals bent as the raster's m.bent (numpy twin
+    of trace_kernel._bend): normalize(n + normalize(b) - ng), b the side met; n where b is 0."""
+    b = np.where(front[:, None], bent[:, :3], bent[:, 3:])
+    ll = np.einsum("ij,ij->i", b, b)
+    ok = (ll > 1e-12) & ~back
+    out = ns.copy()
+    x = ns[ok] + b[ok] / np.sqrt(ll[ok])[:, None] - ng[ok]
+    out[ok] = x / np.sqrt(np.maximum(np.einsum("ij,ij->i", x, x), 1e-30))[:, None]
+    return out
+
+
 def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, depth: int,
                  n_sub: int, eps: float, d, p, t, prim, hits: trace_material.Hits, w, px, sb,
-                 sl, v_in, sh, n_in, nee: int, add, stats: dict, ray_back: np.ndarray | None = None) -> tuple:
+                 sl, v_in, sh, n_in, nee: int, add, stats: dict, ray_back: np.ndarray | None = None,
+                 bent: np.ndarray | None = None) -> tuple:
     """The numpy twin of renderer.methods.trace_kernel.shade (the reference the kernel is tested
     against): one bounce's hits -> their children (origin, dir, weight, pix, sub, slot,
     blur, share, medium, mirror share, look); emission and the diffuse share go straight into `add`."""
@@ -1004,6 +1030,7 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
     # authored normal, facing away (N.E = 0); specular F0 A + B, diffuse 1 - F0, no refraction
     back = (np.zeros(len(k), bool) if ray_back is None else ray_back) & ~entering
     ns[back] = hits.normal[back]
+    n_diffuse = ns if bent is None else _bend(ns, ng, bent, entering, back)
     thin = ts.thin[k]
     entering = entering | thin  # a thin sheet has no inside: every side is the outside
     base, metal = hits.base, hits.metallic
@@ -1093,7 +1120,7 @@ def _shade_numpy(ts: TraceScene, env: _Environment, options: RenderOptions, dept
     v_refr = v_in + (alpha * np.abs(1.0 - eta) / 2) ** 2
     if np.any(diffuse_w > 0):
         dsel = diffuse_w.max(axis=1) > 0
-        add(diffuse_w[dsel] * sh[dsel, None] * env.irradiance(ns[dsel]), sl[dsel])
+        add(diffuse_w[dsel] * sh[dsel, None] * env.irradiance(n_diffuse[dsel]), sl[dsel])
     rdir = reflect(d, ns)
     tdir, tir = refract(d, ns, eta)
     if g_r is not None:

@@ -180,6 +180,21 @@ def _visible_normal(vx, vy, vz, nx, ny, nz, alpha, u1, u2):
 
 
 @njit(cache=True, inline="always")
+def _bend(sx, sy, sz, gx, gy, gz, bent, i, off):
+    """The shading normal s bent as the raster bends it (shaders/material_info.glsl m.bent):
+    normalize(s + normalize(b) - g), b the baked bent normal of the side the ray meets (columns
+    off .. off + 2) and g the geometric normal facing the ray; s where there is none."""
+    bx, by, bz = bent[i, off], bent[i, off + 1], bent[i, off + 2]
+    ll = bx * bx + by * by + bz * bz
+    if ll <= 1e-12:
+        return sx, sy, sz
+    inv = 1.0 / math.sqrt(ll)
+    x, y, z = sx + bx * inv - gx, sy + by * inv - gy, sz + bz * inv - gz
+    inv = 1.0 / math.sqrt(max(x * x + y * y + z * z, 1e-30))
+    return x * inv, y * inv, z * inv
+
+
+@njit(cache=True, inline="always")
 def _dominant(rx, ry, rz, nx, ny, nz, rough):
     """The dominant direction of a GGX lobe about mirror direction r and normal n (Lagarde &
     de Rousiers 2014, as shaders/ibl.glsl specular_dir): toward n as the lobe widens."""
@@ -207,7 +222,7 @@ def _refract(dx, dy, dz, nx, ny, nz, eta):
 def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in, look,
           normals, geo_normals, material, base, metallic, roughness, transmission, ior, sigma,
           thin, emission, occlusion, spec, spec_col, lut, depth, n_sub, eps, sample_lobes, split_sample, ms, min_weight,
-          sobol, roulette, nee, mirror_lo, mirror_hi, probe, storm_back, storm_table, glass_e):
+          sobol, roulette, nee, mirror_lo, mirror_hi, probe, storm_back, storm_table, glass_e, bent):
     """One bounce's rays (prim < 0: missed) -> (children: origin, dir, weight, pix, sub,
     slot, blur, share, medium, mirror share, look; the misses' look, weight x share, blur and slot;
     emission to add and its slots; the diffuse shares' weight x share, normals and slots; TIR
@@ -223,7 +238,9 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in, look,
     (per ray): a back face hit by it is lit as Storm lights a single-sided USD one
     (core.storm; its (A, B) at N.E = 0 in `storm_table`): the authored normal, no refraction.
     `glass_e` (path_bsdf.glass_table, or empty: none): a sampled rough glass lobe's children
-    over its single-scattering albedo, what bounces between microfacets put back."""
+    over its single-scattering albedo, what bounces between microfacets put back. `bent` (N x 6
+    per ray, or empty: none): the baked bent normals, front and back (trace_material.bent_at);
+    the diffuse share's normal is the shading normal bent by them (_bend)."""
     n = len(d)
     m_d, m_w, m_blur = np.empty((n, 3)), np.empty((n, 3)), np.empty(n)
     m_sl = np.empty(n, np.int64)
@@ -246,7 +263,7 @@ def shade(origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in, look,
         r = _shade_rows(lo, hi, n, origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in, look,
                         normals, geo_normals, material, base, metallic, roughness, transmission, ior, sigma,
                         thin, emission, occlusion, spec, spec_col, lut, depth, n_sub, eps, sample_lobes, split_sample, ms, min_weight,
-                        sobol, roulette, nee, mirror_lo, mirror_hi, probe, storm_back, storm_table, glass_e,
+                        sobol, roulette, nee, mirror_lo, mirror_hi, probe, storm_back, storm_table, glass_e, bent,
                         m_d, m_w, m_blur, m_sl, e_d, e_w, e_blur, e_sl, c_o, c_d, c_w, c_px, c_sb, c_sl, c_blur,
                         c_sh, c_med, c_share, c_look, direct, glow, diffuse, dnorm, matte)
         counts[ch, 0], counts[ch, 1], counts[ch, 2] = r[0] - lo, r[1] - lo, r[2] - lo
@@ -338,7 +355,7 @@ def _pack_children(counts, q, nch, n, src0, dst0, c_o, c_d, c_w, c_px, c_sb, c_s
 def _shade_rows(lo, hi, n, origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n_in, look,
                 normals, geo_normals, material, base, metallic, roughness, transmission, ior, sigma,
                 thin, emission, occlusion, spec, spec_col, lut, depth, n_sub, eps, sample_lobes, split_sample, ms, min_weight,
-                sobol, roulette, nee, mirror_lo, mirror_hi, probe, storm_back, storm_table, glass_e,
+                sobol, roulette, nee, mirror_lo, mirror_hi, probe, storm_back, storm_table, glass_e, bent,
                 m_d, m_w, m_blur, m_sl, e_d, e_w, e_blur, e_sl, c_o, c_d, c_w, c_px, c_sb, c_sl, c_blur,
                 c_sh, c_med, c_share, c_look, direct, glow, diffuse, dnorm, matte):
     """shade's rows lo .. hi - 1, each output written from row lo on (refracted children from
@@ -484,7 +501,10 @@ def _shade_rows(lo, hi, n, origins, d, prim, u, v, t, w, px, sb, sl, v_in, sh, n
             diffuse[n_matte, 0] = fd * base[i, 0] * w0 * sh[i]
             diffuse[n_matte, 1] = fd * base[i, 1] * w1 * sh[i]
             diffuse[n_matte, 2] = fd * base[i, 2] * w2 * sh[i]
-            dnorm[n_matte, 0], dnorm[n_matte, 1], dnorm[n_matte, 2] = sx, sy, sz
+            bx, by, bz = sx, sy, sz
+            if len(bent) and not back:
+                bx, by, bz = _bend(sx, sy, sz, gx, gy, gz, bent, i, 0 if side > 0 else 3)
+            dnorm[n_matte, 0], dnorm[n_matte, 1], dnorm[n_matte, 2] = bx, by, bz
             matte[n_matte] = sl[i]
             n_matte += 1
         alpha_b = 0.0 if lobe else rough * rough
@@ -645,7 +665,7 @@ def warm() -> None:
               e, e, e, e3, e3, np.zeros((0, 3), f32), np.zeros(0, np.int32),
               e3, e, e, e, e, e3, np.zeros(0, np.bool_), e3, e, e, e3, np.zeros((2, 2, 2)), 0, 1, 1e-4, True, False, True,
               1e-3, _SOBOL_DIM1, 0.0, 0.0, 0.15, 0.3, 0.5, np.zeros(0, np.bool_), np.zeros((2, 2)),
-              np.zeros((0, 1, 1, 1)))
+              np.zeros((0, 1, 1, 1)), np.zeros((0, 6)))
     sample_cube(np.zeros((6, 2, 2, 3), f32), e3, _S_AXIS, _S_SIGN, _T_AXIS, _T_SIGN)
     for pick in (True, False):
         emitter_pick(e3, e, e3, e3, e3, e, e, np.zeros(0, np.bool_), pick)

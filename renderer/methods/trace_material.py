@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from core.baked import BakedAsset
+from core.baked import BakedAsset, dequantise_directions
 from core.lobes import BY_NAME, ao_multibounce
 from core.scene import LINEAR, LINEAR_MIPMAP_LINEAR, NEAREST, Material, TextureRef, is_srgb
 
@@ -97,6 +97,7 @@ class Surface:
     alpha_tested: np.ndarray             # K bool: MASK or BLEND (rays may pass through)
     corners: np.ndarray | None = None    # T x 3 x 3 world corners (tangents from UVs)
     ao: np.ndarray | None = None         # T x 3 x 2 baked visibility, front and back (1: none)
+    bent: np.ndarray | None = None       # T x 3 x 6 world bent normals, front xyz, back xyz (0: none)
     packed: tuple | None = None          # the tables of the compiled evaluate (pack), once built
 
 
@@ -109,8 +110,8 @@ def build_surface(asset: BakedAsset, materials: list[Material], parts: list[tupl
     n_sets = 2
     uv: list[list[np.ndarray]] = [[] for _ in range(n_sets)]
     have_uv = [False] * n_sets
-    tangents, colors, aos = [], [], []
-    have_tan = have_col = have_ao = False
+    tangents, colors, aos, bents = [], [], [], []
+    have_tan = have_col = have_ao = have_bent = False
     placement: dict[int, int] = {}  # parts list each mesh's placements in transforms' order
     for k, idx, lin in parts:
         mesh = asset.meshes[k]
@@ -143,6 +144,14 @@ def build_surface(asset: BakedAsset, materials: list[Material], parts: list[tupl
             aos.append(vis.astype(np.float64).reshape(-1, 2)[idx])
         else:
             aos.append(np.ones((t, 3, 2)))
+        if vis is not None and mesh.bent is not None and not mesh.ao_per_placement \
+                and len(mesh.bent) == len(mesh.positions):
+            have_bent = True  # turned as normals are (the raster's normal matrix), unnormalised
+            b = dequantise_directions(mesh.bent).astype(np.float64)
+            to_world = np.linalg.inv(lin)
+            bents.append(np.concatenate([b[:, :3] @ to_world, b[:, 3:] @ to_world], axis=1)[idx])
+        else:
+            bents.append(np.zeros((t, 3, 6)))
     area = 0.5 * np.linalg.norm(np.cross(world[:, 1] - world[:, 0], world[:, 2] - world[:, 0]), axis=-1)
     uvs: list[np.ndarray | None] = []
     density: list[np.ndarray | None] = []
@@ -176,7 +185,20 @@ def build_surface(asset: BakedAsset, materials: list[Material], parts: list[tupl
     alpha_tested = np.asarray([m.alpha_mode in ("MASK", "BLEND") for m in materials], bool)
     return Surface(uvs, density, np.concatenate(tangents) if have_tan and tangents else None,
                    np.concatenate(colors) if have_col and colors else None, surf_mats, alpha_tested,
-                   np.asarray(world, np.float64), np.concatenate(aos) if have_ao and aos else None)
+                   np.asarray(world, np.float64), np.concatenate(aos) if have_ao and aos else None,
+                   np.concatenate(bents) if have_bent and bents else None)
+
+
+def bent_at(surf: Surface | None, prim: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray | None:
+    """N x 6 baked bent normals at the hits (front xyz, back xyz; world, unnormalised,
+    interpolated as the raster's varyings are; 0 on misses and meshes without), or None where
+    no mesh has them."""
+    if surf is None or surf.bent is None:
+        return None
+    out = np.zeros((len(prim), 6))
+    hit = np.flatnonzero(prim >= 0)
+    out[hit] = _interp(surf.bent[prim[hit]], u[hit].astype(np.float64), v[hit].astype(np.float64))
+    return out
 
 
 def pack(surf: Surface) -> tuple:
