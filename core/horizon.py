@@ -62,6 +62,7 @@ def horizon_table() -> np.ndarray:
     return out
 
 
+@lru_cache(maxsize=1)
 def glsl_table() -> str:
     """The table as a GLSL float array, row-major (n.d, then roughness)."""
     values = ", ".join(f"{v:.5f}" for v in horizon_table().ravel())

@@ -68,6 +68,7 @@ def back_face_albedo(roughness) -> tuple[np.ndarray, np.ndarray]:
     return np.interp(r, x, table[:, 0]), np.interp(r, x, table[:, 1])
 
 
+@lru_cache(maxsize=1)
 def glsl_table() -> str:
     """The table as a GLSL array constructor (the raster's STORM_BACK_TABLE define)."""
     rows = ", ".join(f"vec2({a:.6f}, {b:.6f})" for a, b in back_face_table())

@@ -299,6 +299,7 @@ class _Environment:
         self.baked = env
         self.to_env = (None if rotation_degrees % 360.0 == 0.0
                        else env_rotation_matrix(rotation_degrees))
+        self._net: np.ndarray | None = None  # env_irradiance's net, found once a frame
 
     def radiance(self, d: np.ndarray, roughness: np.ndarray) -> np.ndarray:
         if self.to_env is not None:
@@ -313,7 +314,9 @@ class _Environment:
         gave flat boards facing the horizon a blue cast (+14% blue on footprint_court)."""
         if self.to_env is not None:
             n = n @ self.to_env.T
-        return env_irradiance.read(env_irradiance.net_for(self.baked), n)
+        if self._net is None:  # net_for digests the cube to find its net: not every bounce
+            self._net = env_irradiance.net_for(self.baked)
+        return env_irradiance.read(self._net, n)
 
     def split_sum(self, cos_v: np.ndarray, roughness: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(scale, bias) for F0, bilinear in the LUT (texel centres at (i + 0.5) / N)."""

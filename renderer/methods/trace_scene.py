@@ -284,12 +284,10 @@ def _facing_viewer(ts: TraceScene, hits: trace_material.Hits, dirs: np.ndarray,
     """Hits on a Material.face_viewer surface (a USD point's disc) take the camera's axis,
     reversed, as their normal (Storm's eye-space +Z, as the raster does), or where a ray meets
     it from behind that axis (a bounce), the normal toward the ray's origin."""
-    assert ts.surface is not None
-    facing = np.asarray([sm.material.face_viewer for sm in ts.surface.materials], bool)
-    if not facing.any():
+    if not ts.sprite.any():
         return hits
     rows = np.flatnonzero(prim >= 0)
-    rows = rows[facing[ts.material[prim[rows]]]]
+    rows = rows[ts.sprite[ts.material[prim[rows]]]]
     if len(rows):
         d = np.asarray(dirs[rows], np.float64)
         n = -d / np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-20)
