@@ -220,6 +220,7 @@ class BakedEnvironment:
     specular: list[np.ndarray]       # mips, each 6 x S x S x 3 linear (faces +X,-X,+Y,-Y,+Z,-Z)
     irradiance_sh: np.ndarray        # 9 x 3, radiance SH (see environment.py for the basis)
     brdf_lut: np.ndarray             # N x N x 3; x = N.V, y = roughness -> (scale, bias) for F0, sheen albedo
+    irradiance: np.ndarray           # 6 x F x F x 3, E / pi at the texel centres (core.irradiance)
     prefilter: str = "ggx"           # "ggx" | "paper"
     manifest: dict = field(default_factory=dict)
 
@@ -228,7 +229,7 @@ class BakedEnvironment:
         return int(self.specular[0].shape[1])
 
     def nbytes(self) -> int:
-        return _array_bytes(*self.specular, self.irradiance_sh, self.brdf_lut)
+        return _array_bytes(*self.specular, self.irradiance_sh, self.brdf_lut, self.irradiance)
 
 
 def _array_bytes(*arrays: np.ndarray | None) -> int:

@@ -1,6 +1,7 @@
 """Real spherical harmonics l <= 2: the basis the environment bake projects onto
-(pipeline.environment.prefilter) and the irradiance both renderers light diffuse with
-(shaders/sh.glsl in the raster, renderer.methods.raytrace in the tree).
+(pipeline.environment.prefilter). Neither renderer lights with it any more (the raster reads
+the bake's irradiance cube, the tree its net: core.irradiance); bench/irradiance_cube.py
+measures its truncation against them.
 
 Standard order, in world coordinates (x, y, z): Y00; Y1-1 = c1 y, Y10 = c1 z, Y11 = c1 x;
 Y2-2 = c2 xy, Y2-1 = c2 yz, Y20 = c3 (3z^2 - 1), Y21 = c2 xz, Y22 = c4 (x^2 - y^2)."""
@@ -27,7 +28,6 @@ def sh_basis(d: np.ndarray) -> np.ndarray:
 
 def sh_irradiance(sh: np.ndarray, normals: np.ndarray) -> np.ndarray:
     """Irradiance / pi at unit normals (..., 3) -> (..., 3): the radiance a white Lambertian
-    surface reflects (Ramamoorthi & Hanrahan 2001: A0 = pi, A1 = 2pi/3, A2 = pi/4), as
-    shaders/sh.glsl computes it."""
+    surface reflects (Ramamoorthi & Hanrahan 2001: A0 = pi, A1 = 2pi/3, A2 = pi/4)."""
     band = np.array([1.0] + [2 / 3] * 3 + [1 / 4] * 5)
     return (sh_basis(np.asarray(normals, dtype=np.float64)) * band) @ np.asarray(sh, np.float64)

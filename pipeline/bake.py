@@ -600,7 +600,7 @@ def bake_or_load_environment(source, cache_dir=None, face_size: int = DEFAULT_FA
         prefilter_s = time.perf_counter() - start
     arrays: dict[str, Any] = {f"specular.{i}.npy": mip for i, mip in enumerate(env.specular)}
     arrays["small.npz"] = {"irradiance_sh": np.asarray(env.irradiance_sh),
-                           "brdf_lut": np.asarray(env.brdf_lut)}
+                           "brdf_lut": np.asarray(env.brdf_lut), "irradiance": np.asarray(env.irradiance)}
     manifest = {
         "kind": "environment", "name": name,
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
@@ -630,6 +630,7 @@ def unpack_environment(entry: Entry) -> BakedEnvironment:
     specular = [cast(np.ndarray, a[f"specular.{i}.npy"]) for i in range(m["mips"])]
     return BakedEnvironment(key=entry.key, name=m["name"], specular=specular,
                             irradiance_sh=a["small.npz"]["irradiance_sh"], brdf_lut=a["small.npz"]["brdf_lut"],
+                            irradiance=a["small.npz"]["irradiance"],
                             prefilter=m["options"]["prefilter"], manifest=m)
 
 

@@ -99,7 +99,8 @@ BAKE_FORMAT_VERSION = 27
 # bake's format, and the filter's constants already key it (pipeline.environment.shipped), so a
 # mesh-format bump neither rebakes every environment nor stales the shipped studio bake.
 # 1: the layout of BAKE_FORMAT_VERSION 15 (irradiance SH, GGX mips, BRDF LUT)
-ENVIRONMENT_FORMAT_VERSION = 1
+# 2: the irradiance cube (core.irradiance) the raster's diffuse reads instead of the SH
+ENVIRONMENT_FORMAT_VERSION = 2
 # texture chains, compressed at every cold bake: zstd's default level. Against 9 on six chains
 # (16.8 MB of texels) it compresses 3.7x faster for 1.19x the bytes, and old entries read the
 # same (bench/RESULTS.md, "USD cold first image: imports, forks and compression")

@@ -1,6 +1,6 @@
 // Image-based lighting: split-sum specular (prefiltered cube mip chosen from roughness, times
-// the BRDF LUT's scale and bias for F0, Karis 2013) and Lambert diffuse from the
-// environment's 9 spherical-harmonic coefficients. MULTISCATTER (on by default) adds
+// the BRDF LUT's scale and bias for F0, Karis 2013) and Lambert diffuse from the bake's
+// irradiance cube (the exact cosine integral of the cube's texels, core/irradiance.py). MULTISCATTER (on by default) adds
 // Fdez-Aguera's (2019) energy compensation, which restores what single scattering loses on
 // rough surfaces (spread like the single-scattered lobe: ibl()). Dielectrics layer as glTF
 // writes it: the specular lobe over the diffuse base, the base weighted by 1 - the lobe's
@@ -8,13 +8,12 @@
 #ifndef IBL_GLSL
 #define IBL_GLSL
 #include "brdf.glsl"
-#include "sh.glsl"
 #include "lobes.glsl"
 
 uniform samplerCube u_env;
 uniform sampler2D u_brdf_lut;   // x = N.V, y = roughness -> (scale, bias, sheen albedo)
 uniform float u_env_max_lod;
-uniform vec3 u_sh[9];
+uniform samplerCube u_irradiance;  // E / pi, bilinear and seamless across faces
 
 // pipeline.environment.roughness_to_lod: the GGX bake stores roughness m/(levels-1) at mip m,
 // and the paper's baseline maps LOD = roughness x max LOD; both are this linear map.
@@ -44,16 +43,16 @@ vec3 specular_dir(vec3 n, vec3 v, float roughness) {
     return normalize(mix(n, reflect(-v, n), gloss * (sqrt(gloss) + alpha)));
 }
 
-// Cosine-weighted mean radiance about n (irradiance / pi, as sh.glsl returns it): what a
-// white Lambertian surface reflects.
+// Cosine-weighted mean radiance about n (irradiance / pi): what a white Lambertian surface
+// reflects.
 vec3 env_diffuse(vec3 n) {
-    return max(sh_irradiance(u_sh, ENV_DIR(n)), vec3(0.0));
+    return texture(u_irradiance, ENV_DIR(n)).rgb;
 }
 
 // The split-sum's horizon (core/horizon.py): the share h of the prefiltered kernel about d
 // that lies under the plane of ng reads the ground through the surface, where the true lobe
 // is cut there. P = (1 - h) S + h G solved for the part above, S, with G the cosine-weighted
-// mean of the lower hemisphere (the SH irradiance about -ng): exact under a uniform ground.
+// mean of the lower hemisphere (the irradiance about -ng): exact under a uniform ground.
 #ifdef HORIZON_TABLE
 float horizon_below(float s, float roughness) {
     const float table[] = HORIZON_TABLE;

@@ -9,6 +9,7 @@ import pytest
 from core import cubemap
 from core.colour import srgb_to_linear
 from core.errors import AssetError, IngestTimeout, LimitExceeded, MalformedAsset, MissingFile, UnsupportedFormat
+from core.irradiance import IRRADIANCE_FACE, irradiance
 from core.sh import sh_irradiance
 from pipeline.environment import prefilter as env
 from pipeline.environment.panorama import write_rgbe
@@ -227,12 +228,25 @@ def test_mip_chain_shapes_and_lod_mapping(court_ggx, court_paper):
 
 @pytest.mark.parametrize("method", ["ggx", "paper"])
 def test_furnace(method):
-    """A uniform white environment stays exactly white at every roughness, and in the SH."""
+    """A uniform white environment stays exactly white at every roughness, in the SH and in
+    the irradiance cube (its texel integral's quadrature: 2e-4)."""
     result = env.prefilter(env.synthetic_panorama("white", 256), 64, method)
     for mip in result.specular:
         np.testing.assert_allclose(mip, 1.0, atol=2e-3)
     normals = cubemap.face_directions(8).reshape(-1, 3)
     np.testing.assert_allclose(sh_irradiance(result.irradiance_sh, normals), 1.0, atol=1e-5)
+    assert result.irradiance.shape == (6, IRRADIANCE_FACE, IRRADIANCE_FACE, 3)
+    np.testing.assert_allclose(result.irradiance, 1.0, atol=2e-3)
+
+
+def test_the_bake_holds_the_texel_integral(tmp_path):
+    """The bake's irradiance cube is core.irradiance's integral of its sharpest level at the
+    cube's texel centres, stored and read back through the cache (issue 30)."""
+    from pipeline.bake import bake_environment
+    baked = bake_environment("footprint_court", tmp_path, face_size=64)
+    d = cubemap.face_directions(IRRADIANCE_FACE)
+    np.testing.assert_allclose(baked.irradiance, irradiance(baked.specular[0], d), rtol=1e-6)
+    assert baked.irradiance.max() > 1.2 * baked.irradiance.min()
 
 
 def test_energy_is_preserved_across_mips(court):
@@ -340,33 +354,6 @@ def test_sh_irradiance_matches_cosine_convolution(court):
     brute = cos @ pixels.reshape(-1, 3) / np.pi
     sh = sh_irradiance(env.project_sh(court.pixels), normals)
     assert np.abs(sh - brute).mean() / brute.mean() < 0.03
-
-
-def test_glsl_sh_irradiance_equals_numpy(court):
-    import shaders
-    from gl import context as gl
-    ctx = gl.get_context()
-    src = ("#version 430\n" + shaders.load("sh.glsl") + """
-        uniform vec3 u_sh[9];
-        uniform vec3 u_normals[16];
-        out vec4 f_color;
-        void main() { f_color = vec4(sh_irradiance(u_sh, u_normals[int(gl_FragCoord.x)]), 1.0); }
-    """)
-    prog = ctx.program(vertex_shader=shaders.load("screen_triangle.vert"), fragment_shader=src)
-    normals = np.random.default_rng(3).normal(size=(16, 3))
-    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-    sh = env.project_sh(court.pixels)
-    prog["u_sh"].write(sh.astype(np.float32).tobytes())
-    prog["u_normals"].write(normals.astype(np.float32).tobytes())
-    tex = ctx.texture((16, 1), 4, dtype="f4")
-    fbo = ctx.framebuffer([tex])
-    fbo.use()
-    fbo.viewport = (0, 0, 16, 1)
-    gl.fullscreen_vao(prog).render(vertices=3)
-    got = np.frombuffer(tex.read(), np.float32).reshape(16, 4)[:, :3]
-    fbo.release()
-    tex.release()
-    np.testing.assert_allclose(got, sh_irradiance(sh, normals), rtol=1e-4, atol=1e-5)
 
 
 # BRDF LUT -----------------------------------------------------------------------------------
@@ -508,6 +495,7 @@ def test_shipped_studio_bakes_are_what_the_prefilter_makes_now():
             assert a.dtype == np.float32 and a.shape == b.shape
             np.testing.assert_allclose(a, b, rtol=1e-3, atol=1e-6)
         np.testing.assert_allclose(loaded.irradiance_sh, fresh.irradiance_sh, rtol=1e-6, atol=1e-7)
+        np.testing.assert_allclose(loaded.irradiance, fresh.irradiance, rtol=1e-4, atol=1e-6)  # from mip 0
         np.testing.assert_array_equal(loaded.brdf_lut, fresh.brdf_lut)
 
 

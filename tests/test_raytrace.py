@@ -36,7 +36,7 @@ def uniform_env(radiance=1.0, size=16) -> BakedEnvironment:
     mips = [np.full((6, s, s, 3), radiance, np.float32) for s in (size, size // 2, size // 4)]
     return BakedEnvironment(key="white", name="white", specular=mips,
                             irradiance_sh=np.zeros((9, 3), np.float32),
-                            brdf_lut=brdf_lut())  # the bake's split-sum LUT: metals read it
+                            brdf_lut=brdf_lut(), irradiance=np.full((6, 16, 16, 3), radiance, np.float32))  # the bake's split-sum LUT: metals read it
 
 
 # Thresholds: the value measured with the default supersampling in brackets (2 x 2 at 500 px

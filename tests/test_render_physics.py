@@ -15,6 +15,7 @@ from lobes_numpy import sheen_albedo
 
 from core.baked import BakedAsset, BakedEnvironment, BakedMesh
 from core.cubemap import face_directions, sample_cube
+from core.irradiance import irradiance_cube
 from core.options import MaterialOverride, RenderOptions
 from core.scene import Material
 from renderer.raster import gpu
@@ -89,7 +90,7 @@ def make_env(radiance_fn, size: int = 32, key: str = "env") -> BakedEnvironment:
                       1.092548 * x * z, 0.546274 * (x * x - y * y)], 1)
     sh = (basis * w[:, None]).T @ radiance_fn(d)
     return BakedEnvironment(key=key, name=key, specular=mips, irradiance_sh=sh.astype(np.float32),
-                            brdf_lut=_LUT)
+                            brdf_lut=_LUT, irradiance=irradiance_cube(mips[0]))
 
 
 def constant_env(value: float = 1.0) -> BakedEnvironment:

@@ -1,6 +1,7 @@
 """Environment bake (paper section 4.1): equirect panorama -> cube faces -> specular mip chain,
-9 spherical-harmonic coefficients for diffuse light, and the split-sum BRDF LUT (with the
-sheen albedo in its third channel).
+the irradiance cube the raster's diffuse reads (core.irradiance: the exact cosine integral of
+the sharpest level's texels), 9 spherical-harmonic coefficients (kept for comparison: bench/
+irradiance_cube.py), and the split-sum BRDF LUT (with the sheen albedo in its third channel).
 
 Prefiltering runs as GLSL in the process's headless context (`gl.context`); every face of
 a mip is drawn in one pass into an S x 6S atlas (shaders/cube_atlas.glsl) and read back as
@@ -30,6 +31,7 @@ import numpy as np
 
 from core.cubemap import DEFAULT_FACE_SIZE, check_face_size, default_levels
 from core.hammersley import ggx_reflections
+from core.irradiance import IRRADIANCE_FACE, irradiance_cube
 from core.sh import SH_C0, SH_C1, SH_C2, SH_C3, SH_C4
 from pipeline.environment.panorama import DEFAULT_ENVIRONMENT, Panorama, list_bundled, load_panorama, synthetic_panorama  # noqa: F401
 
@@ -49,6 +51,7 @@ class EnvironmentArrays:
     specular: list[np.ndarray]        # mips, each 6 x S x S x 3 float32 (+X,-X,+Y,-Y,+Z,-Z)
     irradiance_sh: np.ndarray         # 9 x 3 radiance SH coefficients (basis above)
     brdf_lut: np.ndarray              # N x N x 3; row j: roughness (j+.5)/N, column i: N.V (i+.5)/N
+    irradiance: np.ndarray            # 6 x F x F x 3 float32, E / pi (core.irradiance_cube)
     timings: dict = field(default_factory=dict)   # seconds per stage and "total"
     method: str = "ggx"
 
@@ -113,16 +116,22 @@ def _uniform(pixels: np.ndarray, face_size: int, levels: int, method: str) -> En
     value = pixels[0, 0]
     specular = [np.broadcast_to(value, (6, face_size >> m, face_size >> m, 3)).copy() for m in range(levels)]
     timings = {"specular": time.perf_counter() - t_start}
-    arrays = _with_sh_and_lut(specular, pixels, timings, t_start, method)
+    arrays = _with_sh_and_lut(specular, pixels, timings, t_start, method,
+                              np.broadcast_to(value, (6, IRRADIANCE_FACE, IRRADIANCE_FACE, 3)).copy())
     log.info("prefilter: uniform panorama %s -> %d px x %d mips in %.3f s", value.tolist(), face_size,
              levels, timings["total"])
     return arrays
 
 
 def _with_sh_and_lut(specular: list[np.ndarray], pixels: np.ndarray, timings: dict[str, float],
-                     t_start: float, method: str) -> EnvironmentArrays:
-    """The specular mips completed with the panorama's SH irradiance and the BRDF LUT, every
-    panorama's alike; `timings` gains their phases and the total since `t_start`."""
+                     t_start: float, method: str, irradiance: np.ndarray | None = None) -> EnvironmentArrays:
+    """The specular mips completed with the irradiance cube (integrated from mip 0 unless
+    given), the panorama's SH and the BRDF LUT, every panorama's alike; `timings` gains their
+    phases and the total since `t_start`."""
+    t = time.perf_counter()
+    if irradiance is None:
+        irradiance = irradiance_cube(specular[0])
+    timings["irradiance"] = time.perf_counter() - t
     t = time.perf_counter()
     sh = project_sh(pixels)
     timings["sh"] = time.perf_counter() - t
@@ -130,7 +139,8 @@ def _with_sh_and_lut(specular: list[np.ndarray], pixels: np.ndarray, timings: di
     lut = brdf_lut()
     timings["brdf_lut"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_start
-    return EnvironmentArrays(specular=specular, irradiance_sh=sh, brdf_lut=lut, timings=timings, method=method)
+    return EnvironmentArrays(specular=specular, irradiance_sh=sh, brdf_lut=lut, irradiance=irradiance,
+                             timings=timings, method=method)
 
 
 # GL passes ------------------------------------------------------------------------------------

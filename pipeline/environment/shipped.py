@@ -10,8 +10,8 @@ as before.
 Members of STUDIO_BAKES are named by the full cache key, so a stale file is never served: it
 just stops matching, and tests/test_environment.py fails until `make studio-env`
 (`python -m pipeline.environment.shipped`) rewrites it. Specular mips are stored as one grey
-float16 channel (the studio is neutral: R = G = B in every texel); loading widens them back
-to 6 x S x S x 3 float32. Only the face sizes a render of up to 256 px picks
+float16 channel (the studio is neutral: R = G = B in every texel), the irradiance cube as one
+float32 channel; loading widens them back to 6 x S x S x 3 float32. Only the face sizes a render of up to 256 px picks
 (`core.cubemap.default_face_size`, bounded below by the smoothest material) are shipped; 512
 px faces would quadruple the file for larger renders, which bake theirs.
 """
@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from core import irradiance
 from core.cubemap import default_levels
 from pipeline.cache import SourceFiles
 from pipeline.environment import prefilter as environment
@@ -41,7 +42,8 @@ def environment_options(source, face_size: int, prefilter: str) -> dict:
     # The filter's own constants are part of the key: changing them must not serve old bakes.
     opts: dict = {"face_size": face_size, "prefilter": prefilter, "version": environment.PREFILTER_VERSION,
                   "levels": default_levels(face_size), "ggx_samples": environment.GGX_SAMPLES,
-                  "lut": [environment.LUT_SIZE, environment.LUT_SAMPLES]}
+                  "lut": [environment.LUT_SIZE, environment.LUT_SAMPLES],
+                  "irradiance": [irradiance.IRRADIANCE_FACE, irradiance.SOURCE_FACE]}
     if uniform.parse(source) is not None:  # one module makes every uniform one: the value keys it
         opts["uniform"] = list(uniform.parse(source))  # type: ignore[arg-type]
     if scaled.parse(source) is not None:  # a textured dome's factor: the file's content and it
@@ -79,9 +81,10 @@ def load_shipped(key: str) -> environment.EnvironmentArrays | None:
         specular = [np.repeat(z[f"{key}.specular{m}"].astype(np.float32)[..., None], 3, axis=-1)
                     for m in range(levels)]
         sh = z[f"{key}.sh"].astype(np.float32)
+        irradiance = np.repeat(z[f"{key}.irradiance"].astype(np.float32)[..., None], 3, axis=-1)
     log.info("environment %s: loaded the shipped studio bake", key[:16])
     return environment.EnvironmentArrays(specular=specular, irradiance_sh=sh, brdf_lut=environment.brdf_lut(),
-                                         method="ggx")
+                                         irradiance=irradiance, method="ggx")
 
 
 def bake_studio(face_size: int) -> environment.EnvironmentArrays:
@@ -103,6 +106,10 @@ def write_studio_bakes(path: Path = STUDIO_BAKES) -> list[str]:
         members[f"{key}.levels"] = np.array(len(env.specular))
         members[f"{key}.face_size"] = np.array(face)
         members[f"{key}.sh"] = np.asarray(env.irradiance_sh, np.float32)
+        if not (np.array_equal(env.irradiance[..., 0], env.irradiance[..., 1])
+                and np.array_equal(env.irradiance[..., 0], env.irradiance[..., 2])):
+            raise ValueError(f"studio irradiance at {face} px is not grey: the one-channel file cannot hold it")
+        members[f"{key}.irradiance"] = env.irradiance[..., 0].astype(np.float32)
         keys.append(key)
     np.savez_compressed(path, **members)  # type: ignore[arg-type]
     _members.cache_clear()

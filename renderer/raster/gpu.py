@@ -144,13 +144,14 @@ class GpuEnvironment:
     key: str
     cube: moderngl.TextureCube
     lut: moderngl.Texture
-    sh: np.ndarray           # 9 x 3 float32, radiance SH as baked
+    irradiance: moderngl.TextureCube  # E / pi (core.irradiance), read along the bent normal
     max_lod: float
     prefilter: str
 
     def release(self) -> None:
         self.cube.release()
         self.lut.release()
+        self.irradiance.release()
 
 
 # Byte-weighed LRUs (renderer.raster.lru) of the current context, made with it.
@@ -441,11 +442,24 @@ def _upload_environment(baked: BakedEnvironment) -> GpuEnvironment:
                          "expected 3 (scale, bias, sheen albedo); re-bake it")
     lut = ctx.texture((lut_arr.shape[1], lut_arr.shape[0]), 3, lut_arr, dtype="f4")
     lut.repeat_x = lut.repeat_y = False
-    sh = np.ascontiguousarray(baked.irradiance_sh, np.float32).reshape(9, 3)
+    irradiance = irradiance_texture(baked.irradiance)
     log.info("uploaded environment %s: %d px faces, %d mips", baked.name, size, levels)
-    return GpuEnvironment(baked.key, cube, lut, sh, float(levels - 1), baked.prefilter)
+    return GpuEnvironment(baked.key, cube, lut, irradiance, float(levels - 1), baked.prefilter)
 
 
+def irradiance_texture(faces: np.ndarray) -> moderngl.TextureCube:
+    """The bake's irradiance cube (6 x S x S x 3, E / pi) as a float32 cube map read bilinearly
+    (seamless across faces: _tables enables it), no mips: it is smooth at any footprint."""
+    s = faces.shape[1]
+    if faces.shape != (6, s, s, 3):
+        raise ValueError(f"irradiance cube is {faces.shape}, expected 6 x S x S x 3; re-bake it")
+    data = np.ascontiguousarray(faces, np.float32)
+    tex = context.get_context().texture_cube((s, s), 3, data.tobytes(), dtype="f4")
+    tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
+    return tex
+
+
+IRRADIANCE_UNIT = 29  # the irradiance cube's texture unit (material textures start at 2; shadows 30, 31)
 GL_TEXTURE_2D = 0x0DE1
 GL_RGBA, GL_RGBA8, GL_UNSIGNED_BYTE = 0x1908, 0x8058, 0x1401
 GL_TEXTURE_CUBE_MAP = 0x8513

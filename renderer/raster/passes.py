@@ -58,8 +58,8 @@ class Pass:
             for name, data in self.frame_uniforms.items():
                 if name in prog:
                     prog[name].write(data)  # type: ignore[union-attr]  # a uniform
-            for unit, name in ((0, "u_env"), (1, "u_brdf_lut"), (light_shadows.UNIT, "u_shadow_map"),
-                               (light_shadows.TINT_UNIT, "u_shadow_tint")):
+            for unit, name in ((0, "u_env"), (1, "u_brdf_lut"), (gpu.IRRADIANCE_UNIT, "u_irradiance"),
+                               (light_shadows.UNIT, "u_shadow_map"), (light_shadows.TINT_UNIT, "u_shadow_tint")):
                 if name in prog:
                     prog[name].value = unit  # type: ignore[union-attr]  # a uniform
             self._bound.add(prog.glo)
@@ -79,6 +79,7 @@ class Pass:
                 tex.use(unit)
         self.env.cube.use(0)
         self.env.lut.use(1)
+        self.env.irradiance.use(gpu.IRRADIANCE_UNIT)
         if self.shadow_map is not None:
             self.shadow_map.use(light_shadows.UNIT)
         if self.shadow_tint is not None:
@@ -129,7 +130,6 @@ def frame_uniforms(camera: Camera, env: gpu.GpuEnvironment, lights, options: Ren
         "u_camera_position": np.asarray(camera.position, f4).tobytes(),
         "u_view_axis": np.asarray(-camera.basis()[2], f4).tobytes(),  # toward the viewer
         "u_env_max_lod": f4(env.max_lod).tobytes(),
-        "u_sh": env.sh.tobytes(),
     }
     if env_rotated(options):
         u["u_env_rotation"] = mat3_bytes(env_rotation_matrix(options.env_rotation))
