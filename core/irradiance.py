@@ -46,22 +46,24 @@ def texels(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return d.reshape(-1, 3), le.reshape(-1, 3)
 
 
-def cosine_sums(normals: np.ndarray, dirs: np.ndarray, le: np.ndarray) -> np.ndarray:
-    """sum_k max(n . d_k, 0) le_k for every unit normal (N x 3) -> N x 3 (E, not E / pi)."""
+def cosine_sums(normals: np.ndarray, dirs: np.ndarray, le: np.ndarray, dtype=np.float64) -> np.ndarray:
+    """sum_k max(n . d_k, 0) le_k for every unit normal (N x 3) -> N x 3 float64 (E, not
+    E / pi). `dtype` of the products: float32 halves the bake's time for a relative 1e-6."""
     out = np.empty((len(normals), 3))
+    d, w = dirs.astype(dtype), le.astype(dtype)
     for lo in range(0, len(normals), _CHUNK):
-        out[lo:lo + _CHUNK] = np.maximum(normals[lo:lo + _CHUNK] @ dirs.T, 0.0) @ le
+        out[lo:lo + _CHUNK] = np.maximum(normals[lo:lo + _CHUNK].astype(dtype) @ d.T, 0.0) @ w
     return out
 
 
-def irradiance(faces: np.ndarray, normals: np.ndarray) -> np.ndarray:
+def irradiance(faces: np.ndarray, normals: np.ndarray, dtype=np.float64) -> np.ndarray:
     """E(n) / pi of the radiance faces (6 x S x S x 3) at unit normals (..., 3) -> (..., 3)."""
     n = np.asarray(normals, np.float64)
-    return (cosine_sums(n.reshape(-1, 3), *texels(faces)) / np.pi).reshape(n.shape)
+    return (cosine_sums(n.reshape(-1, 3), *texels(faces), dtype=dtype) / np.pi).reshape(n.shape)
 
 
 def irradiance_cube(faces: np.ndarray, size: int = IRRADIANCE_FACE) -> np.ndarray:
     """E / pi at the texel centres of a size x size cube (6 x size x size x 3 float32, the
     faces' order and orientation): what the raster's diffuse reads with seamless bilinear
     filtering."""
-    return irradiance(faces, face_directions(size)).astype(np.float32)
+    return irradiance(faces, face_directions(size), np.float32).astype(np.float32)

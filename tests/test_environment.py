@@ -245,7 +245,7 @@ def test_the_bake_holds_the_texel_integral(tmp_path):
     from pipeline.bake import bake_environment
     baked = bake_environment("footprint_court", tmp_path, face_size=64)
     d = cubemap.face_directions(IRRADIANCE_FACE)
-    np.testing.assert_allclose(baked.irradiance, irradiance(baked.specular[0], d), rtol=1e-6)
+    np.testing.assert_allclose(baked.irradiance, irradiance(baked.specular[0], d), rtol=2e-6)  # float32 products
     assert baked.irradiance.max() > 1.2 * baked.irradiance.min()
 
 
