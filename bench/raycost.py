@@ -24,7 +24,9 @@ moment, which a shared machine's load scales alike (absolute times on it swing 3
 prints the coefficients, the fit's median and worst relative error, e's fit and, scene by
 scene, the shipped model's error on the frames with emitters with e and without (scaled by
 the run's load: the median of measured / shipped over the frames without emitters), and
-writes raycost.csv.
+writes raycost.csv (each frame's wall and CPU time). `--cpu` fits the CPU time of every thread
+instead of the wall: on a shared machine the wall grows with the other work (a frame's threads
+wait for a core), its CPU time much less.
 """
 from __future__ import annotations
 
@@ -64,6 +66,9 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--refit", action="store_true", help="fit OUT/raycost.csv again without timing")
     p.add_argument("--samples", type=Path, default=None,
                    help="folder of Khronos sample model folders (default: bench.assets.CORPUS/gltf-samples)")
+    p.add_argument("--cpu", action="store_true",
+                   help="fit the frames' CPU time (all threads) instead of their wall time: what a "
+                        "loaded machine inflates least")
     p.add_argument("--emitters-only", action="store_true",
                    help="only the assets with emitters (their pairs, for the emitter factor)")
 
@@ -192,9 +197,10 @@ def measure(cache: Path, quick: bool, samples: Path | None = None, emitters_only
             o = o.replace(yaw=spec.yaw, pitch=spec.pitch, fov=spec.fov,
                           distance=spec.camera_distance(size, size))
         clear_scene_cache()  # the model prices the scene build (the service's first frame)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         frame = render_raytrace(asset, env, o)
         ms = (time.perf_counter() - t0) * 1e3
+        cpu_ms = (time.process_time() - c0) * 1e3  # every thread's
         assert np.isfinite(frame.linear).all(), name
         cov = _near_px(asset, o)  # outside the timing
         ss = kw.get("supersample") or default_supersample(size, size)
@@ -204,11 +210,11 @@ def measure(cache: Path, quick: bool, samples: Path | None = None, emitters_only
                "near": cov, "ss": ss if kw.get("integrator") != "path" else 1,
                "bounces": kw.get("bounces", 8), "split": kw.get("fresnel_split", "both"),
                "integrator": kw.get("integrator", "tree"), "samples": kw.get("samples", 0),
-               "ms": ms}
+               "ms": ms, "cpu_ms": cpu_ms}
         rows.append(row)
         print(f"{name:30s} {size:4d} {row['integrator']:5s} b{row['bounces']:<3d} "
               f"{row['split']:9s} ss{row['ss']} spp{row['samples']:<3d} near {cov:6d} "
-              f"e{row['emitters'] * row['nee']:<5d} {ms:9.1f} ms", flush=True)
+              f"e{row['emitters'] * row['nee']:<5d} {ms:9.1f} ms ({cpu_ms:.0f} CPU)", flush=True)
 
     def pair(name, asset, spec, size, **kw):
         """The frame with its emitters sampled, then without (the emitter factor's pair)."""
@@ -334,6 +340,8 @@ def run(args: argparse.Namespace) -> int:
             w = csv.DictWriter(fh, fieldnames=list(rows[0]))
             w.writeheader()
             w.writerows(rows)
+    if args.cpu:
+        rows = [dict(r, ms=r["cpu_ms"]) for r in rows]
     report(rows)
     print(f"wrote {path}")
     return 0 if all(math.isfinite(float(r["ms"])) for r in rows) else 1

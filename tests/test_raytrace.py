@@ -442,3 +442,30 @@ def test_frame_is_the_same_at_any_thread_count(name, reference_env, scene_cache)
     every = render(name, reference_env, scene_cache, size=40)
     assert np.array_equal(one.linear, every.linear)
     assert one.plan["rays"] == every.plan["rays"]
+
+
+def test_compiled_environment_read_is_the_numpy_one(reference_env, scene_cache, monkeypatch):
+    """env_kernel.sample_env (every row in one pass, mips read a chunk at a time) gives the
+    numpy grouping's radiance to the bit: directions on every face and edge, roughness on and
+    between the levels, below 0, above 1; and a frame that reads rough lobes is unchanged."""
+    from renderer.methods import env_kernel, raytrace
+
+    rng = np.random.default_rng(7)
+    d = rng.normal(size=(5000, 3))
+    d[:600] = np.round(d[:600])  # axes and cube edges (ties between faces)
+    d[:600][~d[:600].any(axis=1)] = (0.0, 0.0, 1.0)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    levels = len(reference_env.specular)
+    rough = np.concatenate([rng.uniform(-0.2, 1.2, 3000), np.arange(2000) % levels / (levels - 1)])
+    kernel = env_kernel.sample_env(env_kernel.cube_levels(reference_env.specular), d, rough,
+                                   env_kernel.S_AXIS, env_kernel.S_SIGN, env_kernel.T_AXIS,
+                                   env_kernel.T_SIGN)
+    assert np.array_equal(kernel, raytrace._env(reference_env, d, rough))
+
+    compiled = render("frosted_sphere_ior1.5_r0.3", reference_env, scene_cache, size=32,
+                      env_rotation=30.0)
+    monkeypatch.setattr(raytrace._Environment, "radiance", lambda self, d, r: raytrace._env(
+        self.baked, d if self.to_env is None else d @ self.to_env.T, r))
+    numpy = render("frosted_sphere_ior1.5_r0.3", reference_env, scene_cache, size=32,
+                   env_rotation=30.0)
+    assert np.array_equal(compiled.linear, numpy.linear)

@@ -70,18 +70,27 @@ RAYTRACE_BOUNCES = 12        # RenderOptions' default (issue 26's front); the to
 # per traced pixel x rays a pixel x depth(bounces), by Fresnel split; the path integrator per
 # traced pixel x path x depth. depth(b) = K (1 - exp(-b / K)): paths leave the glass, so late
 # bounces carry fewer rays (the refit of issue 26's compiled material chose K -> infinity: depth
-# = bounces). Fitted over 5 glass scenes and the Duck at 64-256 px, tree and path (96 frames,
-# 2 shared cores, `bench raycost`, 2026-12-02 after the compiled material): median error 14%,
-# rms 22%, worst 66% (the hollow vase, four interfaces a view, under). With the whole frame
-# traced (the service's estimate) it is under the measured time on 1 of 96 frames, by 16%.
-# `sample` was not fitted: it traces fewer rays than roulette, which it borrows.
-RT_FIXED_MS = 0.0
-RT_MS_PER_TRIANGLE = 0.00184
-RT_MS_PER_FRAME_PIXEL = 0.00182
+# = bounces). Refitted (issue 26's front, after the compiled environment reads) on the frames'
+# CPU time, every thread's (`bench raycost --cpu`): on a shared machine a frame's wall time
+# grows with the other work (its threads wait for a core: 1.3-2.4x its CPU time in that run;
+# a wall run at load 6-7 measured 4.7x the quiet wall model), its CPU time much less; on a quiet machine
+# the wall is at most the CPU time (the kernels' second core only shortens it). 5 glass scenes
+# and the Duck at 64-256 px, tree and path (96 frames, 2 shared cores, 2026-12-03 19:43 UTC,
+# load ~4): estimate / measured median 0.97 (per scene 0.77-1.06), |error| median 14%, rms
+# 24%; rt_ms x RT_MODEL_FACTOR is at or above 92 of the 96 frames and every default-setting
+# one (the worst: the Duck's first frame, 0.25, and the hollow vase with both children at
+# 3 x 3, 0.34-0.47). With the whole frame traced (the service's estimate) it is under the
+# measured time on 1 of 96 frames (median 1.9x over). The wall fit of 2026-12-02 (quiet)
+# was 0.57x these CPU times. `sample` was not fitted: it traces fewer rays than roulette,
+# which it borrows.
+RT_FIXED_MS = 2.56
+RT_MS_PER_TRIANGLE = 0.00298
+RT_MS_PER_FRAME_PIXEL = 0.00251
 RT_DEPTH_K = 1e9
-RT_MS_PER_RAY_DEPTH = {"both": 0.000217, "roulette": 0.000091, "sample": 0.000091}
-RT_MS_PER_PATH_DEPTH = 0.000335
-RT_PATH_FIXED_MS = 71.2      # the path tracer's environment sampling tables, once a frame
+RT_MS_PER_RAY_DEPTH = {"both": 0.000428, "roulette": 0.000173, "sample": 0.000173}
+RT_MS_PER_PATH_DEPTH = 0.000721
+RT_PATH_FIXED_MS = 82.6      # the path tracer's environment sampling tables, once a frame
+RT_MODEL_FACTOR = 2.0        # a frame's CPU time is within this x rt_ms (the fit's spread)
 # Emissive triangles (issue 26): both integrators sample a point on one at every surface a
 # ray meets (the choice weighs up to LOCAL_EMITTERS of them by distance, one by one), read
 # its emission and cast a shadow ray: the per-ray term x (1 + e), e = a share by integrator

@@ -300,11 +300,20 @@ class _Environment:
         self.to_env = (None if rotation_degrees % 360.0 == 0.0
                        else env_rotation_matrix(rotation_degrees))
         self._net: np.ndarray | None = None  # env_irradiance's net, found once a frame
+        self._levels: Any = None  # trace_kernel.cube_levels of the specular mips
 
     def radiance(self, d: np.ndarray, roughness: np.ndarray) -> np.ndarray:
         if self.to_env is not None:
             d = d @ self.to_env.T
-        return _env(self.baked, d, roughness)
+        if not KERNEL or not all(f.ndim == 4 and f.shape[3] == 3 and f.dtype == np.float32
+                                 for f in self.baked.specular):
+            return _env(self.baked, d, roughness)
+        from renderer.methods import env_kernel  # numba loads only in a process that traces
+        if self._levels is None:  # the mips as one list for the kernel, once a frame
+            self._levels = env_kernel.cube_levels(self.baked.specular)
+        return env_kernel.sample_env(self._levels, np.ascontiguousarray(d, np.float64),
+                                     np.ascontiguousarray(roughness, np.float64), env_kernel.S_AXIS,
+                                     env_kernel.S_SIGN, env_kernel.T_AXIS, env_kernel.T_SIGN)
 
     def irradiance(self, n: np.ndarray) -> np.ndarray:
         """Irradiance / pi about unit normals n: what a white Lambertian surface reflects,
@@ -345,7 +354,7 @@ class _Environment:
 
 def _env(env: BakedEnvironment, d: np.ndarray, roughness: np.ndarray) -> np.ndarray:
     """Radiance from direction d, from the prefiltered mip for `roughness` (linear between
-    mips; mip m holds roughness m / (levels - 1))."""
+    mips; mip m holds roughness m / (levels - 1)); trace_kernel.sample_env is its compiled twin."""
     levels = len(env.specular)
     lod = np.clip(roughness, 0.0, 1.0) * (levels - 1)
     out = np.zeros((len(d), 3), np.float64)

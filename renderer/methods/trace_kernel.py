@@ -671,7 +671,8 @@ def warm() -> None:
         emitter_pick(e3, e, e3, e3, e3, e, e, np.zeros(0, np.bool_), pick)
     sobol_pair(np.zeros(0, i64), 0, 0, _SOBOL_DIM1)
     # the textures, the hits' material, the path BSDF
-    from renderer.methods import material_kernel, path_kernel, texel_kernel
+    from renderer.methods import env_kernel, material_kernel, path_kernel, texel_kernel
+    env_kernel.warm()
     texel_kernel.warm()
     material_kernel.warm()
     path_kernel.warm()
