@@ -35,14 +35,26 @@ def add_commands(parser: argparse.ArgumentParser, table: dict[str, tuple[str, st
         p.set_defaults(**{run_attr: mod.run})
 
 
+# Commands whose numeric work runs in GL, Embree and numba kernels, never in large BLAS products:
+# their process keeps OpenBLAS to one thread. Its pool, started as numpy loads, spun a second
+# core for ~40 ms of CPU of every cold render (bench/RESULTS.md). Set before numpy is imported,
+# and only where unset (the user's value stands); `bench` and `serve` are left as they are, so
+# a peer's process (Storm) inherits nothing of ours.
+ONE_BLAS_THREAD = frozenset({"render", "bake", "inspect"})
+
+
+def _command(words: list[str]) -> str | None:
+    """The subcommand `words` name (the top-level options take no values: the first other word)."""
+    return next((w for w in words if not w.startswith("-")), None)
+
+
 def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     """The parser for `argv`: only the command it names is configured, so a cold `render`
     does not import the service's settings and every benchmark to build options it never
     parses (the top-level options take no values: the first other word is the command)."""
     parser = argparse.ArgumentParser(prog="asset-preview", description=__doc__.splitlines()[0])
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
-    words = sys.argv[1:] if argv is None else argv
-    command = next((w for w in words if not w.startswith("-")), None)
+    command = _command(sys.argv[1:] if argv is None else argv)
     add_commands(parser, COMMANDS, "command", "_run", only=[command] if command else [])
     return parser
 
@@ -72,6 +84,8 @@ def run_guarded(run, args) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    if _command(sys.argv[1:] if argv is None else argv) in ONE_BLAS_THREAD and "numpy" not in sys.modules:
+        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     args = build_parser(argv).parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")

@@ -59,7 +59,8 @@ def get_context() -> moderngl.Context:
             _pid = os.getpid()
             _programs.clear()
             _fullscreen.clear()
-            log.info("GL context: %s, OpenGL %s", _ctx.info["GL_RENDERER"], _ctx.version_code)
+            if log.isEnabledFor(logging.INFO):  # ctx.info queries every GL limit (1 ms)
+                log.info("GL context: %s, OpenGL %s", _ctx.info["GL_RENDERER"], _ctx.version_code)
         return _ctx
 
 

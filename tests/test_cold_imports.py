@@ -3,6 +3,7 @@ and reports the modules it imported and the processes it started."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -28,15 +29,17 @@ _CODE = """if True:
     sys.addaudithook(audit)
     from cli.main import main
     rc = main(sys.argv[1:])
-    print(json.dumps({"rc": rc, "modules": sorted(sys.modules), "spawned": spawned}))
+    import os
+    print(json.dumps({"rc": rc, "modules": sorted(sys.modules), "spawned": spawned,
+                      "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS")}))
 """
 
 
-def _cold_render(stage, tmp_path) -> dict:
+def _cold_render(stage, tmp_path, env: dict | None = None) -> dict:
     argv = ["render", str(stage), "--out", str(tmp_path / "x.png"), "--cache", str(tmp_path / "cache"),
             "--size", "64"]
     out = subprocess.run([sys.executable, "-c", _CODE, *argv], cwd=ROOT, capture_output=True,
-                         text=True, check=True)
+                         text=True, check=True, env=env)
     report = json.loads(out.stdout.strip().splitlines()[-1])
     assert report["rc"] == 0 and (tmp_path / "x.png").is_file(), out.stderr
     return report
@@ -54,3 +57,11 @@ def test_cold_usd_render_imports_nothing_heavy_and_starts_no_process(tmp_path):
 def test_a_skinned_stage_still_loads_usdskel(tmp_path):
     report = _cold_render(ASSETS / "usd" / "skel" / "bending_arm.usda", tmp_path)
     assert "pxr.UsdSkel" in report["modules"]
+
+
+def test_a_cold_render_keeps_openblas_to_one_thread_unless_told(tmp_path):
+    # numpy's OpenBLAS starts its thread pool as it loads; the render never needs it (cli.main)
+    stage = ASSETS / "usd" / "TextureCoordinateTest" / "TextureCoordinateTest.usda"
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    assert _cold_render(stage, tmp_path / "a", env)["blas_threads"] == "1"
+    assert _cold_render(stage, tmp_path / "b", {**env, "OPENBLAS_NUM_THREADS": "2"})["blas_threads"] == "2"
