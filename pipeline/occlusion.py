@@ -37,7 +37,9 @@ Decisions:
   cannot hold an occluder's shadow on it (a floor quad's four open corners before a wall, a
   box's contact shadow on a 2-triangle ground), so the triangles whose longest edge is at
   least 2 x `REFINE_MIN_EDGE` x the diagonal (the biggest first, within `REFINE_MAX_RAYS`)
-  are probed on a barycentric lattice at their finest level (edges 1/2^`REFINE_DEPTH` as long
+  are looked at on a coarse barycentric lattice (`REFINE_COARSE` levels), and those over
+  which it finds the visibility varying by half the threshold are probed on one at their
+  finest level (edges 1/2^`REFINE_DEPTH` as long
   at most, no shorter than `REFINE_MIN_EDGE`), each probe averaged with its lattice neighbours
   (the ray set's noise would split triangles over which nothing varies); then, level by level,
   a triangle splits where a probe inside it is off the interpolation of its corners by more
@@ -84,6 +86,7 @@ REFINE_BENT = 0.2       # or its bent normal (unit vectors' distance: about 11 d
 REFINE_MIN_EDGE = 1 / 64  # edges shorter than this x the bounds' diagonal are not tested
 REFINE_MAX_VERTICES = 20_000  # vertices (x placements kept apart) the refinement adds per bake
 REFINE_MAX_RAYS = 500_000  # the refinement's probes per bake, at the vertices' rays each
+REFINE_COARSE = 3       # the levels of the first look at a triangle (45 probes)
 
 
 @dataclass
@@ -337,9 +340,37 @@ def _refine(trace, rng, pos, nrm, tris, acc, bent, xs, sides: int, per_placement
     size = (2 ** levels + 1) * (2 ** levels + 2) // 2  # a lattice's probes
     order = np.argsort(-longest, kind="stable")
     order = order[levels[order] > 0]
+    # a coarse look first (`REFINE_COARSE` levels): only a triangle over which it finds the
+    # visibility varying by half the threshold is probed finely (a convex solid, or a dense
+    # mesh whose triangles each hold their shadow, costs a few probes a triangle)
+    coarse = np.minimum(levels, REFINE_COARSE)
+    coarse_size = (2 ** coarse + 1) * (2 ** coarse + 2) // 2
+    order = order[np.cumsum(coarse_size[order]) * cost <= tests]
+    if not len(order):
+        return None, 0
+    lattices = [_lattice(2 ** c) for c in coarse[order]]
+    owner = np.repeat(np.arange(len(order)), coarse_size[order])
+    bary = np.concatenate(lattices)
+    ot = tris[order][owner]
+    probe_p = np.einsum("pk,pkj->pj", bary, pos[ot])
+    probe_n = np.einsum("pk,pkj->pj", bary, nrm[ot])
+    v, b = _trace_points(trace, probe_p, probe_n, pos[ot].mean(axis=1) - probe_p, xs, sides,
+                         rng.uniform(0, 2 * np.pi, len(bary)))
+    tested = len(bary) * cost
+    tests -= tested
+    dev = np.abs(v - np.einsum("pk,xpks->xps", bary, acc[:, ot])).max(axis=(0, 2))
+    if not per_placement:
+        unit = _unit_bent(bent, nrm)
+        mean = np.einsum("pk,pksj->psj", bary, unit[ot])
+        mean /= np.maximum(np.linalg.norm(mean, axis=2, keepdims=True), 1e-30)
+        turned = np.linalg.norm(_unit_bent(b, probe_n) - mean, axis=2).max(axis=1)
+        dev = np.maximum(dev, turned * (REFINE_THRESHOLD / REFINE_BENT))
+    varies = np.zeros(len(order))
+    np.maximum.at(varies, owner, dev)
+    order = order[varies > REFINE_THRESHOLD / 2]
     origins = order[np.cumsum(size[order]) * cost <= tests]  # the biggest first, in the budget
     if not len(origins):
-        return None, 0
+        return None, tested
     # the probes: per origin triangle its lattice at its finest level
     first = np.concatenate([[0], np.cumsum(size[origins])])
     bary = np.concatenate([_lattice(2 ** levels[t]) for t in origins])
@@ -350,7 +381,7 @@ def _refine(trace, rng, pos, nrm, tris, acc, bent, xs, sides: int, per_placement
     inward = pos[ot].mean(axis=1) - probe_p  # toward the triangle's middle, as a vertex's ring
     probe_v, probe_b = _trace_points(trace, probe_p, probe_n, inward, xs, sides,
                                      rng.uniform(0, 2 * np.pi, len(bary)))
-    tested = len(bary) * cost
+    tested += len(bary) * cost
     # each probe the mean of itself and its lattice neighbours: the ray set's noise (about
     # 0.03 at 64 rays where an occluder's outline crosses the hemisphere) would split
     # triangles over which nothing varies
