@@ -37,7 +37,8 @@ Decisions:
   cannot hold an occluder's shadow on it (a floor quad's four open corners before a wall, a
   box's contact shadow on a 2-triangle ground), so the triangles whose longest edge is at
   least 2 x `REFINE_MIN_EDGE` x the diagonal (the biggest first, within `REFINE_MAX_RAYS`)
-  are looked at on a coarse barycentric lattice (`REFINE_COARSE` levels), and those over
+  are looked at on a coarse barycentric lattice (2 levels short of the finest, 1 to
+  `REFINE_COARSE`; within half the budget), and those over
   which it finds the visibility varying by half the threshold are probed on one at their
   finest level (edges 1/2^`REFINE_DEPTH` as long
   at most, no shorter than `REFINE_MIN_EDGE`), each probe averaged with its lattice neighbours
@@ -86,7 +87,7 @@ REFINE_BENT = 0.2       # or its bent normal (unit vectors' distance: about 11 d
 REFINE_MIN_EDGE = 1 / 64  # edges shorter than this x the bounds' diagonal are not tested
 REFINE_MAX_VERTICES = 20_000  # vertices (x placements kept apart) the refinement adds per bake
 REFINE_MAX_RAYS = 500_000  # the refinement's probes per bake, at the vertices' rays each
-REFINE_COARSE = 3       # the levels of the first look at a triangle (45 probes)
+REFINE_COARSE = 3       # the levels of the first look at a triangle (45 probes), at most
 
 
 @dataclass
@@ -245,9 +246,10 @@ def ambient_occlusion(meshes, bounds: np.ndarray, max_rays: int = AO_MAX_RAYS,
                     AO_DISTANCE * diagonal)
     rng = np.random.default_rng(0x0CC1)
     refine_rng = np.random.default_rng(0x0CC2)  # its own: a mesh left whole traces as before
-    refine_rays = min(max_rays, REFINE_MAX_RAYS) if refine else 0
+    refine_rays = min(max_rays, REFINE_MAX_RAYS)
     refine_vertices = REFINE_MAX_VERTICES
     splits: list[Split | None] = [None] * len(meshes)
+    traced_at: dict[int, tuple] = {}
     for i in receivers:
         m = meshes[i]
         pos = np.asarray(m.positions, np.float64)
@@ -258,18 +260,34 @@ def ambient_occlusion(meshes, bounds: np.ndarray, max_rays: int = AO_MAX_RAYS,
         inward = (_ring_centres(pos, faces) - pos)[traced]
         acc, bent = _trace_points(trace, pos[traced], nrm[traced], inward, xs, sides[i],
                                   rng.uniform(0, 2 * np.pi, len(traced)))
-        kept_apart = apart and len(xs) > 1  # stride is 1 here: every placement fit at the minimum
-        if stride == 1 and refine_rays > 0 and refine_vertices > 0 and len(faces):
-            grown, tested = _refine(trace, refine_rng, pos, nrm, faces, acc, bent, xs, sides[i],
-                                    kept_apart, REFINE_MIN_EDGE * diagonal, refine_rays // per_vertex,
-                                    refine_vertices // len(xs) if kept_apart else refine_vertices)
-            refine_rays -= tested * per_vertex
-            if grown is not None:
-                split, pos, nrm, acc, bent = grown
-                splits[i] = split
-                refine_vertices -= len(split.parents) * (len(xs) if kept_apart else 1)
-                traced = np.arange(len(pos))
-        if kept_apart:
+        traced_at[i] = (pos, nrm, faces, traced, xs, acc, bent)
+    # the refinement's budget goes to the meshes of the biggest triangles first (a backdrop
+    # before the labels on it)
+    def biggest(i: int) -> float:
+        pos, _, faces, _, xs, _, _ = traced_at[i]
+        if not len(faces):
+            return 0.0
+        c = pos[faces]
+        edge = np.linalg.norm(c - np.roll(c, 1, axis=1), axis=2).max()
+        return float(edge * np.max(np.linalg.svd(xs[:, :3, :3], compute_uv=False)))
+
+    for i in sorted(receivers, key=lambda i: -biggest(i)) if refine and stride == 1 else []:
+        pos, nrm, faces, traced, xs, acc, bent = traced_at[i]
+        kept_apart = apart and len(xs) > 1
+        if refine_rays <= 0 or refine_vertices <= 0 or not len(faces):
+            break
+        grown, tested = _refine(trace, refine_rng, pos, nrm, faces, acc, bent, xs, sides[i],
+                                kept_apart, REFINE_MIN_EDGE * diagonal, refine_rays // per_vertex,
+                                refine_vertices // len(xs) if kept_apart else refine_vertices)
+        refine_rays -= tested * per_vertex
+        if grown is not None:
+            split, pos, nrm, acc, bent = grown
+            splits[i] = split
+            refine_vertices -= len(split.parents) * (len(xs) if kept_apart else 1)
+            traced_at[i] = (pos, nrm, faces, np.arange(len(pos)), xs, acc, bent)
+    for i in receivers:
+        pos, nrm, _, traced, xs, acc, bent = traced_at[i]
+        if apart and len(xs) > 1:  # stride is 1 here: every placement fit at the minimum
             # no bent normals: placements in other surroundings bend other ways, and a mean
             # over them points nowhere in particular (the visibility rows still differ)
             out[i] = quantise_visibility(acc.reshape(-1, 2))
@@ -343,9 +361,9 @@ def _refine(trace, rng, pos, nrm, tris, acc, bent, xs, sides: int, per_placement
     # a coarse look first (`REFINE_COARSE` levels): only a triangle over which it finds the
     # visibility varying by half the threshold is probed finely (a convex solid, or a dense
     # mesh whose triangles each hold their shadow, costs a few probes a triangle)
-    coarse = np.minimum(levels, REFINE_COARSE)
+    coarse = np.clip(levels - 2, 1, REFINE_COARSE)
     coarse_size = (2 ** coarse + 1) * (2 ** coarse + 2) // 2
-    order = order[np.cumsum(coarse_size[order]) * cost <= tests]
+    order = order[np.cumsum(coarse_size[order]) * cost <= tests // 2]  # the other half: fine
     if not len(order):
         return None, 0
     lattices = [_lattice(2 ** c) for c in coarse[order]]
