@@ -7,6 +7,7 @@ TransmissionRoughnessTest's panes at 128 px) beside Cycles', and each frame's LD
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -48,7 +49,8 @@ def main(argv: list[str] | None = None) -> int:
             cache = Path(args.cache) / label  # the bake's key does not hold the budget
             cache.mkdir(parents=True, exist_ok=True)
             env = bake_environment("footprint_court", cache, face_size=256)
-            asset = bake_asset(path, cache)
+            # its own key: the GPU copy is kept by key, and the budget is not in it
+            asset = dataclasses.replace(bake_asset(path, cache), key=f"floor-region-{label}")
             occlusion.REFINE_MAX_VERTICES = budget
             o = RenderOptions(width=args.size, height=args.size, background="transparent", shadow=0.0,
                               tonemap="aces", yaw=VIEW["yaw"], pitch=VIEW["pitch"], fov=VIEW["fov"],
