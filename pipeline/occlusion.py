@@ -35,13 +35,13 @@ Decisions:
   stride, the rest taking their sampled neighbour's (index order) value.
 - refinement (a bake's, `refine`): per-vertex values interpolated over a large triangle
   cannot hold an occluder's shadow on it (a floor quad's four open corners before a wall, a
-  box's contact shadow on a 2-triangle ground), so the triangles whose longest edge is at
-  least 2 x `REFINE_MIN_EDGE` x the diagonal (the biggest first, within `REFINE_MAX_RAYS`)
+  box's contact shadow on a 2-triangle ground), so the triangles whose longest edge exceeds
+  `REFINE_MIN_EDGE` x the diagonal (the biggest first, within `REFINE_MAX_RAYS`)
   are looked at on a coarse barycentric lattice (2 levels short of the finest, 1 to
   `REFINE_COARSE`; within half the budget), and those over
   which it finds the visibility varying by half the threshold are probed on one at their
-  finest level (edges 1/2^`REFINE_DEPTH` as long
-  at most, no shorter than `REFINE_MIN_EDGE`), each probe averaged with its lattice neighbours
+  finest level (split until edges are no longer than `REFINE_MIN_EDGE` x the
+  diagonal, `REFINE_DEPTH` levels at most), each probe averaged with its lattice neighbours
   (the ray set's noise would split triangles over which nothing varies); then, level by level,
   a triangle splits where a probe inside it is off the interpolation of its corners by more
   than `REFINE_THRESHOLD` in visibility (or `REFINE_BENT` in bent normal): its three edges
@@ -51,7 +51,8 @@ Decisions:
   new vertex is the mean of its edge's ends (split_mesh): the surface, its shading and its
   texturing are those interpolated before; only the visibility is finer. At most
   `REFINE_MAX_VERTICES` vertices (x placements where they are kept apart) per bake; an asset
-  traced on a stride, and transmissive and unlit meshes (no visibility), are never split;
+  traced on a stride, transmissive and unlit meshes (no visibility) and emitters (the raster's
+  area lights are their polygons) are never split;
 - poses and rig frames bake no occlusion (pipeline.bake.POSED_OPTIONS) and so are never split:
   a rig re-poses its own unsplit template.
 The renderer applies it to the environment terms only, never to punctual lights or the
@@ -271,7 +272,10 @@ def ambient_occlusion(meshes, bounds: np.ndarray, max_rays: int = AO_MAX_RAYS,
         edge = np.linalg.norm(c - np.roll(c, 1, axis=1), axis=2).max()
         return float(edge * np.max(np.linalg.svd(xs[:, :3, :3], compute_uv=False)))
 
-    for i in sorted(receivers, key=lambda i: -biggest(i)) if refine and stride == 1 else []:
+    # emitters are left whole: the raster's area lights are their polygons (core.area_lights)
+    # and their own light outshines the sky they would hide
+    whole = {i for i in receivers if max(meshes[i].material.emissive) * meshes[i].material.emissive_strength > 0}
+    for i in sorted(set(receivers) - whole, key=lambda i: -biggest(i)) if refine and stride == 1 else []:
         pos, nrm, faces, traced, xs, acc, bent = traced_at[i]
         kept_apart = apart and len(xs) > 1
         if refine_rays <= 0 or refine_vertices <= 0 or not len(faces):

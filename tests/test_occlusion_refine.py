@@ -143,3 +143,33 @@ def test_split_mesh_carries_interior_and_budget(monkeypatch):
     baked = build_baked(_scene(_quad(8.0), _box(0.5, (0.0, 0.5, 0.0))), options={"occlusion": True})
     assert 0 < baked.manifest["stats"]["occlusion"]["vertices_added"] <= 40
     assert sum(len(m.positions) for m in baked.meshes) == 28 + baked.manifest["stats"]["occlusion"]["vertices_added"]
+
+
+def test_placements_kept_apart_share_the_split(monkeypatch):
+    """A floor placed twice, a box on one of them: the split is the mesh's (both placements
+    draw it), each placement keeps its own visibility row over the split vertices, and only
+    the one with the box is dark beside it."""
+    # each probe is traced per placement: both big triangles' lattices fit twice the rays
+    monkeypatch.setattr(occlusion, "REFINE_MAX_RAYS", 2 * occlusion.REFINE_MAX_RAYS)
+    scene = _scene(_quad(8.0), _box(0.5, (0.0, 0.5, 0.0)))
+    far = np.eye(4)
+    far[0, 3] = 10.0  # beside: no box shades it
+    scene.instances.append(Instance(0, 0, matrix=far))
+    baked = build_baked(scene, options={"occlusion": True})
+    floor = next(m for m in baked.meshes if len(m.transforms) == 2)
+    n = len(floor.positions)
+    assert n > 4 and floor.ao_per_placement and floor.ao.shape == (2 * n, 2)
+    at = np.array([[0.6, 0.0], [-0.6, 0.0], [0.0, 0.6], [0.0, -0.6]])
+    near = np.argmin(np.abs(floor.transforms[:, 0, 3]))
+    rows = [floor.visibility(k)[:, 0] for k in range(2)]
+    beside = [_floor_visibility(dataclass_with(floor, rows[k]), at) for k in range(2)]
+    assert beside[near].max() < 0.85 and beside[1 - near].min() > 0.95, beside
+
+
+def dataclass_with(mesh: BakedMesh, vis: np.ndarray) -> BakedMesh:
+    """`mesh` with one shared visibility row (both sides `vis`)."""
+    import dataclasses
+
+    from core.baked import quantise_visibility
+    return dataclasses.replace(mesh, transforms=mesh.transforms[:1],
+                               ao=quantise_visibility(np.stack([vis, vis], axis=1)))
