@@ -260,10 +260,13 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None,
             uv0=mesh.uv0, uv1=mesh.uv1, colors=mesh.colors, interior=interior, variants=variants))
     occlusion = None
     if _occlusion(opts["occlusion"], scene.source):
-        from pipeline.occlusion import ambient_occlusion  # Embree and numba: bakes only
-        occlusion = ambient_occlusion(meshes, np.asarray(scene.bounds, np.float64))
-        for mesh, ao, bent in zip(meshes, occlusion.ao, occlusion.bent or [None] * len(meshes)):
-            mesh.ao, mesh.bent = ao, bent
+        from pipeline.occlusion import ambient_occlusion, split_mesh  # Embree and numba: bakes only
+        occlusion = ambient_occlusion(meshes, np.asarray(scene.bounds, np.float64), refine=True)
+        for at, (ao, bent, split) in enumerate(zip(occlusion.ao, occlusion.bent or [None] * len(meshes),
+                                                   occlusion.splits or [None] * len(meshes))):
+            if split is not None:  # its own vertices now: no longer shared with a twin group
+                meshes[at], geometry[at] = split_mesh(meshes[at], split), ("split", at)
+            meshes[at].ao, meshes[at].bent = ao, bent
     start = time.perf_counter()
     with_edges = sum(len(m.indices) * len(m.transforms) for m in meshes) <= MAX_TRIANGLES
     batched = 0
@@ -310,7 +313,7 @@ def build_baked(scene: Scene, key: str = "", options: dict | None = None,
                   "textures": len(scene.textures), "interior": stats,
                   "occlusion": None if occlusion is None else
                   {"rays": occlusion.rays, "rays_per_vertex": occlusion.rays_per_vertex,
-                   "stride": occlusion.stride}},
+                   "stride": occlusion.stride, "vertices_added": occlusion.vertices_added}},
         # relative to the asset's folder, as the cache's inputs are (a moved tree keeps it)
         "animations": scene.animations, "time_range": scene.time_range, "moment": scene.moment,
         "environment": None if scene.environment is None else

@@ -94,7 +94,8 @@ log = logging.getLogger(__name__)
 # 25: Material.face_viewer (USD Points drawn as discs facing the viewer, as Storm's sprites)
 # 26: per-vertex bent normals beside the ambient occlusion (pipeline.occlusion; the raster's image light)
 # 27: emissive polygons as the raster's area lights (core.area_lights, area_lights.npz)
-BAKE_FORMAT_VERSION = 27
+# 28: triangles split where the baked visibility varies across them (pipeline.occlusion)
+BAKE_FORMAT_VERSION = 28
 # Environment entries have their own format: a prefiltered light does not change with the mesh
 # bake's format, and the filter's constants already key it (pipeline.environment.shipped), so a
 # mesh-format bump neither rebakes every environment nor stales the shipped studio bake.
