@@ -45,8 +45,8 @@ def test_negative_scale_spheres_match_their_unmirrored_twins(assets, cache):
     winding, the front face and the normals following the determinant, each mirrored sphere
     shades as its twin (mean difference < 4% of the twin's mean, linear); drawn inside-out
     (gl_FrontFacing taken for the un-mirrored winding) the white sphere turned chrome and the
-    dark blue one black, differences of 30-60%. Baked without ambient occlusion: the twins share
-    one mesh, whose per-vertex AO is the mean over its placements' different surroundings."""
+    dark blue one black, differences of 30-60%. Baked without ambient occlusion: each placement's
+    visibility follows its own surroundings, which differ between the twins."""
     asset = bake_asset(assets / NEGATIVE_SCALE, cache, occlusion=False)
     env = bake_environment("neutral", cache, face_size=128)
     o = RenderOptions(width=512, height=512, tonemap="none", method="opaque", background="env")
